@@ -1,0 +1,30 @@
+# The two commands a new user needs: `make demo` and `make test`. Both bootstrap what they need.
+VENV ?= .venv
+PYTHON ?= python3
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= out/demo
+
+.PHONY: demo test lint bench proto lock clean
+
+$(STAMP): pyproject.toml constraints.txt scripts/bootstrap.sh
+	VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh
+
+demo: $(STAMP)
+	$(BIN)/arcloud demo --out $(OUT)
+
+test: $(STAMP)
+	@command -v redis-server >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(BIN)/python bench/bench_step.py
+
+proto: $(STAMP)
+	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto proto/arcloud/v1/*.proto
+
+lock: $(STAMP)
+	$(BIN)/python -m pip freeze --exclude-editable > constraints.txt
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

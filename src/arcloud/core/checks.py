@@ -1,0 +1,158 @@
+"""Checks at the edges: normalise dtypes and say what was expected and what came."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
+from arcloud.errors import InvalidInput
+
+ROTATION_TOLERANCE = 1e-3
+MAX_ID_LENGTH = 128
+
+
+def describe(value: object) -> str:
+    """A short description of a value for error messages: shape and dtype for arrays."""
+    if isinstance(value, np.ndarray):
+        return f"array of shape {value.shape} and dtype {value.dtype}"
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def check_id(field: str, value: object) -> str:
+    """A map, device or frame id: a non-empty printable string without '/' or whitespace."""
+    if not isinstance(value, str) or not value or len(value) > MAX_ID_LENGTH:
+        raise InvalidInput(field, f"a non-empty string of at most {MAX_ID_LENGTH} characters", describe(value))
+    if not value.isprintable() or any(c.isspace() or c in "/{}*?[]" for c in value):
+        raise InvalidInput(field, "no whitespace, '/', braces or glob characters", describe(value))
+    return value
+
+
+def check_finite_number(field: str, value: object, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InvalidInput(field, "a number", describe(value))
+    number = float(value)
+    if not math.isfinite(number):
+        raise InvalidInput(field, "a finite number", describe(value))
+    if positive and number <= 0:
+        raise InvalidInput(field, "a number > 0", describe(value))
+    return number
+
+
+def check_intrinsics(value: Intrinsics | Mapping[str, float] | Sequence[float]) -> Intrinsics:
+    """Intrinsics from an ``Intrinsics``, a mapping with fx, fy, cx, cy, or a 4-sequence."""
+    if isinstance(value, Intrinsics):
+        values = (value.fx, value.fy, value.cx, value.cy)
+    elif isinstance(value, Mapping):
+        missing = [k for k in ("fx", "fy", "cx", "cy") if k not in value]
+        if missing:
+            raise InvalidInput("intrinsics", "keys fx, fy, cx, cy", f"missing {', '.join(missing)}")
+        values = (value["fx"], value["fy"], value["cx"], value["cy"])
+    elif isinstance(value, Sequence) and not isinstance(value, str) and len(value) == 4:
+        values = tuple(value)
+    else:
+        raise InvalidInput("intrinsics", "fx, fy, cx, cy", describe(value))
+    fx, fy = (check_finite_number(f"intrinsics.{k}", v, positive=True) for k, v in zip("xy", values[:2]))
+    cx, cy = (check_finite_number(f"intrinsics.c{k}", v) for k, v in zip("xy", values[2:]))
+    return Intrinsics(fx, fy, cx, cy)
+
+
+def check_pose(field: str, value: object) -> np.ndarray:
+    """A rigid 4x4 transform: finite, last row (0, 0, 0, 1), rotation orthonormal with det +1."""
+    try:
+        pose = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(field, "a 4x4 matrix of numbers", describe(value)) from exc
+    if pose.shape == (16,):
+        pose = pose.reshape(4, 4)
+    if pose.shape != (4, 4):
+        raise InvalidInput(field, "shape (4, 4)", f"shape {pose.shape}")
+    if not np.all(np.isfinite(pose)):
+        raise InvalidInput(field, "finite values", "NaN or infinity")
+    if not np.allclose(pose[3], (0, 0, 0, 1), atol=1e-6):
+        raise InvalidInput(field, "last row (0, 0, 0, 1)", np.array2string(pose[3], precision=4))
+    rotation = pose[:3, :3]
+    error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+    if error > ROTATION_TOLERANCE:
+        raise InvalidInput(field, f"an orthonormal rotation (tolerance {ROTATION_TOLERANCE})", f"error {error:.3g}")
+    if np.linalg.det(rotation) < 0:
+        raise InvalidInput(field, "a proper rotation (det +1)", "a reflection (det -1)")
+    return pose
+
+
+def check_rgb(value: object) -> np.ndarray:
+    rgb = np.asarray(value)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[0] < 1 or rgb.shape[1] < 1:
+        raise InvalidInput("rgb", "shape (H, W, 3)", f"shape {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        raise InvalidInput("rgb", "dtype uint8", f"dtype {rgb.dtype}")
+    return rgb
+
+
+def check_depth(value: object, depth_scale: float | None) -> np.ndarray:
+    """Depth in metres as float32, 0 where invalid. uint16 needs ``depth_scale`` (units per metre,
+    e.g. 1000 for millimetres); float input is metres and must not come with a scale."""
+    depth = np.asarray(value)
+    if depth.ndim != 2 or depth.shape[0] < 1 or depth.shape[1] < 1:
+        raise InvalidInput("depth", "shape (H, W)", f"shape {depth.shape}")
+    if depth.dtype == np.uint16:
+        if depth_scale is None:
+            raise InvalidInput("depth_scale", "units per metre for uint16 depth (e.g. 1000)", None)
+        scale = check_finite_number("depth_scale", depth_scale, positive=True)
+        return depth.astype(np.float32) / np.float32(scale)
+    if depth.dtype in (np.float32, np.float64):
+        if depth_scale not in (None, 1, 1.0):
+            raise InvalidInput("depth_scale", "none (or 1) for float depth in metres", describe(depth_scale))
+        metres = depth.astype(np.float32, copy=True)
+        bad = ~np.isfinite(metres) | (metres < 0)
+        metres[bad] = 0.0
+        return metres
+    raise InvalidInput("depth", "dtype uint16 (with depth_scale) or float32 metres", f"dtype {depth.dtype}")
+
+
+def make_frame(
+    rgb: object,
+    depth: object,
+    intrinsics: Intrinsics | Mapping[str, float] | Sequence[float],
+    cam2world: object,
+    *,
+    timestamp_s: float,
+    map_id: str,
+    device_id: str,
+    frame_id: str,
+    depth_scale: float | None = None,
+) -> Frame:
+    """A validated ``Frame``; raises ``InvalidInput`` naming the first wrong field."""
+    rgb_array = check_rgb(rgb)
+    depth_m = check_depth(depth, depth_scale)
+    if rgb_array.shape[:2] != depth_m.shape:
+        raise InvalidInput("depth", f"the rgb's size {rgb_array.shape[:2]}", f"size {depth_m.shape}")
+    return Frame(
+        rgb=rgb_array,
+        depth_m=depth_m,
+        intrinsics=check_intrinsics(intrinsics),
+        cam2world=check_pose("cam2world", cam2world),
+        timestamp_s=check_finite_number("timestamp_s", timestamp_s),
+        map_id=check_id("map_id", map_id),
+        device_id=check_id("device_id", device_id),
+        frame_id=check_id("frame_id", frame_id),
+    )
+
+
+def check_detections(detections: Sequence[Detection], shape: tuple[int, int]) -> list[Detection]:
+    """Detections that fit a frame of ``shape``: a known class, a score in [0, 1], an (H, W) mask."""
+    checked = []
+    for i, det in enumerate(detections):
+        if det.label not in CLASSES:
+            raise InvalidInput(f"detections[{i}].label", f"one of {CLASSES}", describe(det.label))
+        score = check_finite_number(f"detections[{i}].score", det.score)
+        if not 0.0 <= score <= 1.0:
+            raise InvalidInput(f"detections[{i}].score", "a score in [0, 1]", score)
+        mask = np.asarray(det.mask)
+        if mask.shape != shape:
+            raise InvalidInput(f"detections[{i}].mask", f"shape {shape}", f"shape {mask.shape}")
+        checked.append(Detection(det.label, score, mask.astype(bool, copy=False)))
+    return checked

@@ -1,0 +1,215 @@
+"""The core's value types.
+
+Conventions:
+- Frames are named in matrices: ``cam2world`` maps points from camera to world coordinates.
+- Camera axes follow OpenCV: x right, y down, z forward (depth along +z).
+- Units are in names: ``_m`` metres, ``_s`` seconds, ``_px`` pixels.
+- World "up" is +z unless ``Params.up`` says otherwise (ScanNet and the simulator are z-up).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+#: The object classes arcloud detects (the paper's five). Label indices refer to this tuple.
+CLASSES: tuple[str, ...] = ("chair", "table", "laptop", "couch", "tv")
+N_CLASSES = len(CLASSES)
+CLASS_INDEX: dict[str, int] = {name: i for i, name in enumerate(CLASSES)}
+
+
+@dataclass(frozen=True, slots=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels of the depth image."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def matrix(self) -> np.ndarray:
+        """(3, 3) camera matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class Frame:
+    """One validated RGB-D frame. Build it with ``arcloud.core.checks.make_frame``.
+
+    rgb: (H, W, 3) uint8. depth_m: (H, W) float32 metres, 0 where invalid. cam2world: (4, 4) float64.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: Intrinsics
+    cam2world: np.ndarray
+    timestamp_s: float
+    map_id: str
+    device_id: str
+    frame_id: str
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.depth_m.shape  # type: ignore[return-value]
+
+    @property
+    def key(self) -> str:
+        """Unique name of the frame within its map (for idempotent processing)."""
+        return f"{self.device_id}/{self.frame_id}"
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class Detection:
+    """A 2D instance: one of ``CLASSES``, a score in [0, 1] and an (H, W) bool mask of the frame."""
+
+    label: str
+    score: float
+    mask: np.ndarray
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class VoxelDetection:
+    """A detection back-projected into the world: sorted unique packed voxel keys (int64)."""
+
+    label_index: int
+    score: float
+    keys: np.ndarray
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class AABB:
+    """Axis-aligned box: min and max corners, (3,) each, metres."""
+
+    min: np.ndarray
+    max: np.ndarray
+
+    @property
+    def center(self) -> np.ndarray:
+        return (self.min + self.max) / 2
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.max - self.min
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class OBB:
+    """Gravity-aligned oriented box: centre (3,), full size along its own axes (3,), and ``rotation``
+    (3, 3) whose columns are the box axes in world coordinates (box2world); ``yaw_rad`` about up."""
+
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    yaw_rad: float
+
+
+@dataclass(eq=False, slots=True)
+class MapObject:
+    """One object of the map: sparse voxels with occupancy weights and label votes, plus what the
+    refinement derives from them (label, score, boxes).
+
+    keys: (N,) int64 sorted unique packed voxel keys. weights: (N,) float32 occupancy weights.
+    votes: (N, N_CLASSES) float32 score-weighted label votes per voxel.
+    """
+
+    id: int
+    keys: np.ndarray
+    weights: np.ndarray
+    votes: np.ndarray
+    n_frames: int = 0
+    devices: frozenset[str] = frozenset()
+    score_sum: float = 0.0
+    version: int = 0
+    created_at_s: float = 0.0
+    updated_at_s: float = 0.0
+    label: str = ""
+    score: float = 0.0
+    aabb: AABB | None = None
+    obb: OBB | None = None
+
+    @property
+    def n_voxels(self) -> int:
+        return int(self.keys.size)
+
+    def replace(self, **changes: object) -> MapObject:
+        return dataclasses.replace(self, **changes)
+
+
+EventKind = Literal["created", "updated", "merged", "deleted"]
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class ObjectEvent:
+    """A change to the map. ``object`` is the new state (None for deleted/merged); a merged object
+    names the one it was merged into in ``merged_into``."""
+
+    kind: EventKind
+    map_id: str
+    object_id: int
+    object: MapObject | None = None
+    merged_into: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Params:
+    """Every tunable of the algorithm, frozen; configure once and pass down."""
+
+    # Voxelization
+    voxel_size_m: float = 0.05
+    depth_min_m: float = 0.1
+    depth_max_m: float = 5.0
+    erode_px: int = 2
+    min_voxels_per_detection: int = 8
+    # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
+    association_min_overlap: float = 0.15
+    association_tolerance_voxels: int = 1
+    class_aware: bool = False
+    class_mismatch_penalty: float = 0.3
+    # Fusion and refinement
+    prune_rel_weight: float = 0.05
+    box_rel_weight: float = 0.15
+    min_component_fraction: float = 0.2
+    merge_min_overlap: float = 0.3
+    score_support_frames: float = 3.0
+    min_frames_to_report: int = 2
+    # Boxes
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    world2aligned: tuple[tuple[float, ...], ...] | None = None
+    # Store
+    index_cell_m: float = 1.0
+    lock_ttl_s: float = 10.0
+    lock_timeout_s: float = 30.0
+
+    def replace(self, **changes: object) -> Params:
+        return dataclasses.replace(self, **changes)
+
+
+def empty_object(object_id: int) -> MapObject:
+    """An object with no voxels yet."""
+    return MapObject(
+        id=object_id,
+        keys=np.empty(0, np.int64),
+        weights=np.empty(0, np.float32),
+        votes=np.empty((0, N_CLASSES), np.float32),
+    )
+
+
+__all__ = [
+    "AABB",
+    "CLASSES",
+    "CLASS_INDEX",
+    "Detection",
+    "EventKind",
+    "Frame",
+    "Intrinsics",
+    "MapObject",
+    "N_CLASSES",
+    "OBB",
+    "ObjectEvent",
+    "Params",
+    "VoxelDetection",
+    "empty_object",
+]

@@ -1,0 +1,105 @@
+"""The ports: the small interfaces the per-frame step talks to. Adapters implement them.
+
+- ``Detector``: frame -> 2D detections (ONNX models, ground-truth-mask replay, the simulator's detector).
+- ``ObjectStore``: objects with their sparse voxels, a spatial index, per-object locks with fencing,
+  space claims for creation, unique ids, idempotent frame marks (embedded store, Redis store).
+- ``UpdatePublisher``: object change events out (Zenoh, or nothing).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent
+
+
+@runtime_checkable
+class Detector(Protocol):
+    """Turns a frame into 2D instance detections of arcloud's classes (``CLASSES``)."""
+
+    def detect(self, frame: Frame) -> list[Detection]: ...
+
+
+class Lease(Protocol):
+    """Held locks (on object ids) or space claims (on index cells) of one map.
+
+    A lease is a context manager that releases on exit. Locks expire after their TTL; a write made
+    through an expired lease is refused (``StaleLease``). ``ids`` are the object ids held (empty for
+    a space claim)."""
+
+    map_id: str
+    ids: tuple[int, ...]
+
+    def release(self) -> None: ...
+
+    def __enter__(self) -> Lease: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class ObjectStore(Protocol):
+    """Objects of many maps, with a spatial index, locks, space claims and unique ids.
+
+    Every method is safe to call from many threads (and, for a shared store, many processes)."""
+
+    def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Ids and (min, max) bounds of the objects whose bounds intersect the box [lo, hi] (3,) each.
+        Reads only the index cells the box covers, never every object."""
+        ...
+
+    def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> Lease:
+        """Lock objects in sorted id order, blocking up to ``timeout_s`` (0: try once); raise
+        ``LockTimeout`` when not all could be taken (none stay held)."""
+        ...
+
+    def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> Lease:
+        """Claim index cells for creating objects there, in sorted order, like ``lock``."""
+        ...
+
+    def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
+        """The objects with these ids, in the order given; ids that do not exist are skipped."""
+        ...
+
+    def new_ids(self, map_id: str, n: int) -> list[int]:
+        """``n`` object ids never used before in this map, unique across every process of the store."""
+        ...
+
+    def commit(
+        self, map_id: str, leases: Sequence[Lease], upserts: Sequence[MapObject], deletes: Sequence[MapObject]
+    ) -> None:
+        """Write atomically. Every existing object written or deleted must be held by one of ``leases``
+        (new objects need none) and be at version ``obj.version - 1`` in the store (for deletes: at
+        ``obj.version``); otherwise nothing is written and ``StaleLease`` is raised (fencing)."""
+        ...
+
+    def list_objects(self, map_id: str) -> list[MapObject]:
+        """Every object of the map."""
+        ...
+
+    def delete_map(self, map_id: str) -> int:
+        """Remove a map and everything under it; returns the number of objects removed."""
+        ...
+
+    def mark_frame(self, map_id: str, frame_key: str) -> bool:
+        """Record that a frame was processed; True the first time, False if it already was."""
+        ...
+
+    def unmark_frame(self, map_id: str, frame_key: str) -> None:
+        """Forget a mark (the frame's processing failed and may be retried)."""
+        ...
+
+
+class UpdatePublisher(Protocol):
+    """Sends object change events to whoever listens."""
+
+    def publish(self, events: Sequence[ObjectEvent]) -> None: ...
+
+
+class NullPublisher:
+    """A publisher that drops events (the default when nothing listens)."""
+
+    def publish(self, events: Sequence[ObjectEvent]) -> None:
+        return None
