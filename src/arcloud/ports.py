@@ -68,11 +68,20 @@ class ObjectStore(Protocol):
         ...
 
     def commit(
-        self, map_id: str, leases: Sequence[Lease], upserts: Sequence[MapObject], deletes: Sequence[MapObject]
-    ) -> None:
-        """Write atomically. Every existing object written or deleted must be held by one of ``leases``
-        (new objects need none) and be at version ``obj.version - 1`` in the store (for deletes: at
-        ``obj.version``); otherwise nothing is written and ``StaleLease`` is raised (fencing)."""
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        upserts: Sequence[MapObject],
+        deletes: Sequence[MapObject],
+        *,
+        frame_key: str | None = None,
+    ) -> bool:
+        """Write atomically, and record ``frame_key`` as processed in the same step.
+
+        Every existing object written or deleted must be held by one of ``leases`` (new objects need
+        none) and be at version ``obj.version - 1`` in the store (for deletes: at ``obj.version``);
+        otherwise nothing is written and ``StaleLease`` is raised (fencing). Returns False, writing
+        nothing, when ``frame_key`` was already recorded (the frame was processed before)."""
         ...
 
     def list_objects(self, map_id: str) -> list[MapObject]:
@@ -83,12 +92,12 @@ class ObjectStore(Protocol):
         """Remove a map and everything under it; returns the number of objects removed."""
         ...
 
-    def mark_frame(self, map_id: str, frame_key: str) -> bool:
-        """Record that a frame was processed; True the first time, False if it already was."""
+    def is_frame_done(self, map_id: str, frame_key: str) -> bool:
+        """Whether a commit recorded this frame as processed."""
         ...
 
-    def unmark_frame(self, map_id: str, frame_key: str) -> None:
-        """Forget a mark (the frame's processing failed and may be retried)."""
+    def count_frames(self, map_id: str) -> int:
+        """How many frames were recorded as processed in this map."""
         ...
 
 

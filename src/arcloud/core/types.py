@@ -129,6 +129,7 @@ class MapObject:
     score: float = 0.0
     aabb: AABB | None = None
     obb: OBB | None = None
+    bounds: AABB | None = None  # world bounds of all voxels (the spatial index uses these)
 
     @property
     def n_voxels(self) -> int:
@@ -174,7 +175,6 @@ class Params:
     min_component_fraction: float = 0.2
     merge_min_overlap: float = 0.3
     score_support_frames: float = 3.0
-    min_frames_to_report: int = 2
     # Boxes
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     world2aligned: tuple[tuple[float, ...], ...] | None = None

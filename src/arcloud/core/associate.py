@@ -1,0 +1,101 @@
+"""Association of a frame's detections with the visible objects: the Hungarian method on common voxels.
+
+The cost of pairing detection d with object o is ``1 - overlap(d, o)`` where
+
+    overlap = |coarse(d) ∩ coarse(o)| / min(|coarse(d)|, |coarse(o)|)
+
+on voxels coarsened by ``1 + association_tolerance_voxels`` (two observations of one surface a few
+centimetres apart still share coarse voxels). Dividing by the smaller set (the overlap coefficient)
+rather than the union (IoU) is deliberate: one frame sees only part of an object, so a correct detection
+of a large fused object has a small IoU but nearly all of its voxels inside the object. Pairs with an
+overlap below ``association_min_overlap`` are gated (never matched); with ``class_aware`` so are pairs
+of different classes, otherwise a class mismatch only adds ``class_mismatch_penalty`` to the cost.
+Every entry of the cost matrix is finite: empty sets give overlap 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from arcloud.core.types import Params
+from arcloud.core.voxels import coarsen_keys
+
+GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
+
+
+def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) -> np.ndarray:
+    """(A, B) int: |a ∩ b| for every pair of sorted unique int64 key sets, in one vectorised pass."""
+    counts = np.zeros((len(sets_a), len(sets_b)), np.int64)
+    if not sets_a or not sets_b:
+        return counts
+    keys_b = np.concatenate(sets_b)
+    owner_b = np.repeat(np.arange(len(sets_b)), [s.size for s in sets_b])
+    order = np.argsort(keys_b, kind="stable")
+    keys_b, owner_b = keys_b[order], owner_b[order]
+    keys_a = np.concatenate(sets_a)
+    owner_a = np.repeat(np.arange(len(sets_a)), [s.size for s in sets_a])
+    lo = np.searchsorted(keys_b, keys_a, side="left")
+    hi = np.searchsorted(keys_b, keys_a, side="right")
+    n_hits = hi - lo
+    hit = n_hits > 0
+    if not hit.any():
+        return counts
+    # Expand each key of A into the positions of its equal keys in B.
+    rows = np.repeat(owner_a[hit], n_hits[hit])
+    starts = np.repeat(lo[hit], n_hits[hit])
+    offsets = np.arange(rows.size) - np.repeat(np.cumsum(n_hits[hit]) - n_hits[hit], n_hits[hit])
+    cols = owner_b[starts + offsets]
+    np.add.at(counts, (rows, cols), 1)
+    return counts
+
+
+def overlap_matrix(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray], tolerance_voxels: int) -> np.ndarray:
+    """(A, B) overlap coefficient in [0, 1] of coarsened key sets (see the module docstring)."""
+    factor = 1 + tolerance_voxels
+    coarse_a = [coarsen_keys(s, factor) for s in sets_a]
+    coarse_b = [coarsen_keys(s, factor) for s in sets_b]
+    common = common_counts(coarse_a, coarse_b)
+    sizes_a = np.array([s.size for s in coarse_a], np.float64)
+    sizes_b = np.array([s.size for s in coarse_b], np.float64)
+    smaller = np.minimum(sizes_a[:, None], sizes_b[None, :])
+    return np.divide(common, smaller, out=np.zeros(common.shape), where=smaller > 0)
+
+
+def association_cost(
+    overlap: np.ndarray, labels_a: Sequence[int], labels_b: Sequence[int], params: Params
+) -> np.ndarray:
+    """(A, B) finite cost: 1 - overlap, plus the class term; gated pairs get ``GATED_COST``."""
+    cost = 1.0 - overlap
+    mismatch = np.asarray(labels_a)[:, None] != np.asarray(labels_b)[None, :]
+    gated = overlap < params.association_min_overlap
+    if params.class_aware:
+        gated |= mismatch
+    else:
+        cost = cost + params.class_mismatch_penalty * mismatch
+    return np.where(gated, GATED_COST, cost)
+
+
+def hungarian_match(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Minimum-cost pairs (row, col) from ``linear_sum_assignment``, gated pairs removed."""
+    if cost.size == 0:
+        return []
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < GATED_COST]
+
+
+def associate(
+    detection_keys: Sequence[np.ndarray],
+    detection_labels: Sequence[int],
+    object_keys: Sequence[np.ndarray],
+    object_labels: Sequence[int],
+    params: Params,
+) -> tuple[list[tuple[int, int]], list[int]]:
+    """Match detections to objects. Returns (pairs (detection index, object index), unmatched
+    detection indices in order)."""
+    overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels)
+    pairs = hungarian_match(association_cost(overlap, detection_labels, object_labels, params))
+    matched = {d for d, _ in pairs}
+    return pairs, [d for d in range(len(detection_keys)) if d not in matched]

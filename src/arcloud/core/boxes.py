@@ -1,0 +1,142 @@
+"""Refinement: drop noisy voxels and fit robust boxes; derive the object's label and score."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
+
+from arcloud.core.fusion import object_label_index
+from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
+from arcloud.core.voxels import key_centers, keys_bounds, unpack_keys
+
+MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
+_CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
+
+
+def prune_voxels(obj: MapObject, params: Params) -> MapObject:
+    """Permanently drop voxels whose weight is below ``prune_rel_weight`` of the object's strongest."""
+    if obj.keys.size == 0:
+        return obj
+    keep = obj.weights >= params.prune_rel_weight * obj.weights.max()
+    if keep.all():
+        return obj
+    return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep])
+
+
+def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
+    """(N,) bool: the voxels the boxes are fitted to. Drops voxels seen too rarely compared with the
+    object's well-observed voxels (weight below ``box_rel_weight`` of the 90th percentile), then
+    connected parts (26-neighbourhood) smaller than ``min_component_fraction`` of the largest."""
+    if obj.keys.size == 0:
+        return np.zeros(0, bool)
+    reference = float(np.percentile(obj.weights, 90))
+    keep = obj.weights >= params.box_rel_weight * reference
+    if keep.sum() < 2:
+        return keep
+    ijk = unpack_keys(obj.keys[keep])
+    origin = ijk.min(axis=0)
+    shape = ijk.max(axis=0) - origin + 1
+    if np.prod(shape) > MAX_COMPONENT_GRID_CELLS:
+        return keep
+    grid = np.zeros(shape, bool)
+    local = ijk - origin
+    grid[local[:, 0], local[:, 1], local[:, 2]] = True
+    labelled, n_parts = ndimage.label(grid, structure=_CONNECTIVITY_26)
+    if n_parts > 1:
+        part = labelled[local[:, 0], local[:, 1], local[:, 2]]
+        sizes = np.bincount(part)
+        sizes[0] = 0
+        large = sizes >= params.min_component_fraction * sizes.max()
+        kept_idx = np.flatnonzero(keep)
+        keep[kept_idx[~large[part]]] = False
+    return keep
+
+
+def up_rotation(up: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation taking the unit vector ``up`` to +z (world2gravity)."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(up @ z)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / s
+    skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * skew + (1 - c) * skew @ skew
+
+
+def fit_aabb(centers: np.ndarray, voxel_size_m: float) -> AABB:
+    """The tightest axis-aligned box around voxels with these centres (N, 3)."""
+    half = voxel_size_m / 2
+    return AABB(centers.min(axis=0) - half, centers.max(axis=0) + half)
+
+
+def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray) -> OBB:
+    """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
+    of the voxels projected on the ground plane."""
+    world2gravity = up_rotation(up)
+    points = centers @ world2gravity.T
+    xy = points[:, :2]
+    yaw = 0.0
+    try:
+        hull = xy[ConvexHull(xy).vertices] if len(xy) >= 3 else xy
+    except QhullError:  # collinear or coincident footprint
+        hull = xy
+    if len(hull) >= 3:
+        edges = np.roll(hull, -1, axis=0) - hull
+        angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+        c, s = np.cos(angles), np.sin(angles)
+        # Hull points in each candidate frame: (A, H) coordinates along the two box axes.
+        u = hull[:, 0][None] * c[:, None] + hull[:, 1][None] * s[:, None]
+        v = -hull[:, 0][None] * s[:, None] + hull[:, 1][None] * c[:, None]
+        areas = np.ptp(u, axis=1) * np.ptp(v, axis=1)
+        yaw = float(angles[np.argmin(areas)])
+    c, s = math.cos(yaw), math.sin(yaw)
+    yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
+    local = points @ yaw_rotation
+    half = voxel_size_m / 2
+    lo, hi = local.min(axis=0) - half, local.max(axis=0) + half
+    box2world = world2gravity.T @ yaw_rotation
+    return OBB(center=box2world @ ((lo + hi) / 2), size=hi - lo, rotation=box2world, yaw_rad=yaw)
+
+
+def object_score(obj: MapObject, label_index: int, box_mask: np.ndarray, params: Params) -> float:
+    """Confidence in [0, 1] that ranks objects for AP: mean detection score x label purity x support.
+
+    purity: the share of the kept voxels' occupancy whose voxel label is the object's label.
+    support: 1 - exp(-frames / score_support_frames), so an object seen once ranks below one seen often.
+    The number of devices is not a factor: in the multi-user protocol it reflects how the trajectory
+    was cut, not the evidence, and the score would then depend on the number of users."""
+    if obj.n_frames == 0 or label_index < 0 or not box_mask.any():
+        return 0.0
+    weights = obj.weights[box_mask]
+    purity = float(weights[obj.votes[box_mask].argmax(axis=1) == label_index].sum() / weights.sum())
+    support = 1.0 - math.exp(-obj.n_frames / params.score_support_frames)
+    return float(obj.score_sum / obj.n_frames * purity * support)
+
+
+def refine(obj: MapObject, params: Params) -> MapObject:
+    """Prune noisy voxels, then derive label, score, bounds and boxes. An object left without voxels
+    comes back empty (the caller deletes it)."""
+    obj = prune_voxels(obj, params)
+    if obj.keys.size == 0:
+        return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None)
+    box_mask = box_voxel_mask(obj, params)
+    label_index = object_label_index(obj)
+    centers = key_centers(obj.keys[box_mask], params.voxel_size_m)
+    if params.world2aligned is not None:
+        world2aligned = np.asarray(params.world2aligned, np.float64)
+        aligned = centers @ world2aligned[:3, :3].T + world2aligned[:3, 3]
+    else:
+        aligned = centers
+    lo, hi = keys_bounds(obj.keys, params.voxel_size_m)
+    return obj.replace(
+        label=CLASSES[label_index],
+        score=object_score(obj, label_index, box_mask, params),
+        aabb=fit_aabb(aligned, params.voxel_size_m),
+        obb=fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up)),
+        bounds=AABB(lo, hi),
+    )

@@ -1,0 +1,127 @@
+"""Fusion of detections into objects: occupancy weights, per-voxel label votes, one instance per voxel,
+merging of duplicates, and the object's label and confidence score."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from arcloud.core.associate import overlap_matrix
+from arcloud.core.types import N_CLASSES, MapObject, Params, VoxelDetection, empty_object
+
+
+def union_voxels(
+    keys_a: np.ndarray, weights_a: np.ndarray, votes_a: np.ndarray,
+    keys_b: np.ndarray, weights_b: np.ndarray, votes_b: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Union of two sparse voxel sets; weights and votes of a voxel in both are added."""
+    keys = np.union1d(keys_a, keys_b)
+    weights = np.zeros(keys.size, np.float32)
+    votes = np.zeros((keys.size, N_CLASSES), np.float32)
+    for k, w, v in ((keys_a, weights_a, votes_a), (keys_b, weights_b, votes_b)):
+        at = np.searchsorted(keys, k)
+        weights[at] += w
+        votes[at] += v
+    return keys, weights, votes
+
+
+def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str) -> MapObject:
+    """The object with one more observation: each voxel seen gains weight 1 and a vote of the
+    detection's score for its label."""
+    votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
+    votes[:, det.label_index] = det.score
+    keys, weights, all_votes = union_voxels(
+        obj.keys, obj.weights, obj.votes, det.keys, np.ones(det.keys.size, np.float32), votes
+    )
+    return obj.replace(
+        keys=keys,
+        weights=weights,
+        votes=all_votes,
+        n_frames=obj.n_frames + 1,
+        devices=obj.devices | {device_id},
+        score_sum=obj.score_sum + det.score,
+    )
+
+
+def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float) -> MapObject:
+    """A new object made of one detection."""
+    fresh = empty_object(object_id).replace(created_at_s=now_s)
+    return fuse_detection(fresh, det, device_id)
+
+
+def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
+    """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object)."""
+    keys, weights, votes = union_voxels(keep.keys, keep.weights, keep.votes, absorbed.keys, absorbed.weights, absorbed.votes)
+    return keep.replace(
+        keys=keys,
+        weights=weights,
+        votes=votes,
+        n_frames=keep.n_frames + absorbed.n_frames,
+        devices=keep.devices | absorbed.devices,
+        score_sum=keep.score_sum + absorbed.score_sum,
+        created_at_s=min(keep.created_at_s, absorbed.created_at_s),
+    )
+
+
+def object_label_index(obj: MapObject) -> int:
+    """The mode of the voxels' labels (each voxel's label is the mode of its votes), weighted by
+    occupancy; -1 for an object without voxels."""
+    if obj.keys.size == 0:
+        return -1
+    voxel_labels = obj.votes.argmax(axis=1)
+    return int(np.bincount(voxel_labels, weights=obj.weights, minlength=N_CLASSES).argmax())
+
+
+def find_duplicates(objects: Sequence[MapObject], params: Params) -> list[tuple[int, int]]:
+    """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
+    overlap >= ``merge_min_overlap``. Chains resolve to one keeper per group (the most observed)."""
+    if len(objects) < 2:
+        return []
+    labels = np.array([object_label_index(o) for o in objects])
+    overlap = overlap_matrix([o.keys for o in objects], [o.keys for o in objects], params.association_tolerance_voxels)
+    same = (labels[:, None] == labels[None, :]) & (overlap >= params.merge_min_overlap)
+    np.fill_diagonal(same, False)
+    parent = list(range(len(objects)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in zip(*np.nonzero(np.triu(same))):
+        parent[root(int(i))] = root(int(j))
+    groups: dict[int, list[int]] = {}
+    for i in range(len(objects)):
+        groups.setdefault(root(i), []).append(i)
+    pairs = []
+    for members in groups.values():
+        if len(members) > 1:
+            keeper = max(members, key=lambda i: (objects[i].weights.sum(), -objects[i].id))
+            pairs.extend((keeper, m) for m in members if m != keeper)
+    return pairs
+
+
+def resolve_conflicts(objects: Sequence[MapObject]) -> list[MapObject]:
+    """One instance per voxel: a voxel held by several objects stays with the one that holds it with
+    the highest weight (ties: the lower id) and leaves the others."""
+    if len(objects) < 2:
+        return list(objects)
+    keys = np.concatenate([o.keys for o in objects])
+    weights = np.concatenate([o.weights for o in objects])
+    owner = np.repeat(np.arange(len(objects)), [o.keys.size for o in objects])
+    ids = np.array([o.id for o in objects])[owner]
+    order = np.lexsort((ids, -weights, keys))
+    sorted_keys = keys[order]
+    loser = np.zeros(keys.size, bool)
+    loser[order[1:]] = sorted_keys[1:] == sorted_keys[:-1]
+    if not loser.any():
+        return list(objects)
+    resolved = []
+    start = 0
+    for i, obj in enumerate(objects):
+        drop = loser[start : start + obj.keys.size]
+        start += obj.keys.size
+        resolved.append(obj if not drop.any() else obj.replace(keys=obj.keys[~drop], weights=obj.weights[~drop], votes=obj.votes[~drop]))
+    return resolved

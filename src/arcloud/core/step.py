@@ -1,0 +1,269 @@
+"""The per-frame step (the paper's Algorithm 1), over the ports.
+
+detect -> voxelize -> find visible objects -> lock -> associate -> fuse -> create -> refine -> write
+-> unlock -> publish.
+
+Creation is where two workers that see the same new object at the same moment would make it twice
+(locks only protect objects that exist). So new objects are created under a *space claim* on the index
+cells they cover: while holding it, the step looks again for objects that appeared there since its
+frustum query, tries their locks without waiting (waiting could deadlock with a worker that holds them
+and waits for our cells) and fuses into them. Whatever still slips through (a lock that could not be
+taken) is caught by the *merge pass*: every frame merges the same-label objects it holds whose voxels
+overlap, so a duplicate lives only until some frame sees both copies.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from arcloud.core.associate import associate
+from arcloud.core.boxes import refine
+from arcloud.core.camera import boxes_in_frustum, frame_frustum
+from arcloud.core.checks import check_detections
+from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
+from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
+from arcloud.core.voxels import keys_bounds, voxelize_detections
+from arcloud.errors import LockTimeout
+from arcloud.ports import Detector, Lease, ObjectStore, UpdatePublisher
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(slots=True)
+class StepResult:
+    """What one frame did to the map."""
+
+    frame_key: str
+    skipped: bool = False  # the frame had been processed before (idempotent re-delivery)
+    n_detections: int = 0
+    n_visible: int = 0
+    matched: int = 0
+    created: list[int] = field(default_factory=list)
+    updated: list[int] = field(default_factory=list)
+    removed: list[int] = field(default_factory=list)
+    events: list[ObjectEvent] = field(default_factory=list)
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+def process_frame(
+    frame: Frame,
+    detector: Detector,
+    store: ObjectStore,
+    params: Params,
+    publisher: UpdatePublisher | None = None,
+) -> StepResult:
+    """Detect (holding no lock), then integrate the detections into the map."""
+    if store.is_frame_done(frame.map_id, frame.key):
+        return StepResult(frame.key, skipped=True)
+    started = time.perf_counter()
+    detections = detector.detect(frame)
+    result = integrate_frame(frame, detections, store, params, publisher)
+    result.timings_s["detect"] = time.perf_counter() - started - sum(result.timings_s.values())
+    return result
+
+
+def integrate_frame(
+    frame: Frame,
+    detections: Sequence[Detection],
+    store: ObjectStore,
+    params: Params,
+    publisher: UpdatePublisher | None = None,
+    *,
+    now_s: float | None = None,
+) -> StepResult:
+    """Everything after detection: voxelize, find visible objects, lock, associate, fuse, create,
+    refine, write, unlock, publish."""
+    now_s = time.time() if now_s is None else now_s
+    result = StepResult(frame.key)
+    clock = _Clock(result.timings_s)
+
+    observations = voxelize_detections(frame, check_detections(detections, frame.shape), params)
+    result.n_detections = len(observations)
+    clock.lap("voxelize")
+    if not observations:  # nothing to fuse: only record the frame
+        result.skipped = not store.commit(frame.map_id, [], [], [], frame_key=frame.key)
+        return result
+
+    visible_ids = find_visible(store, frame, params)
+    result.n_visible = len(visible_ids)
+    clock.lap("query")
+
+    with store.lock(frame.map_id, visible_ids, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s) as lease:
+        clock.lap("lock")
+        before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
+        objects = list(before.values())
+        objects, unmatched = fuse_matches(objects, observations, params, frame.device_id)
+        result.matched = len(observations) - len(unmatched)
+        clock.lap("associate_fuse")
+        leases: list[Lease] = [lease]
+        try:
+            if unmatched:
+                claims, late, created = create_under_claim(store, frame, unmatched, visible_ids, params, now_s)
+                leases += claims
+                before.update({o.id: o for o in late})
+                objects += created
+            changed, removed, events = finish_objects(objects, before, params, frame.map_id, now_s)
+            clock.lap("create_refine")
+            if not store.commit(frame.map_id, leases, changed, removed, frame_key=frame.key):
+                return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
+            clock.lap("write")
+        finally:
+            for extra in leases[1:]:
+                extra.release()
+
+    result.created = [e.object_id for e in events if e.kind == "created"]
+    result.updated = [e.object_id for e in events if e.kind == "updated"]
+    result.removed = [e.object_id for e in events if e.kind in ("merged", "deleted")]
+    result.events = events
+    if publisher is not None and events:
+        publisher.publish(events)
+    clock.lap("publish")
+    log.debug(
+        "frame %s/%s: %d detections, %d visible, %d matched, %d created, %d removed",
+        frame.map_id, frame.key, result.n_detections, result.n_visible, result.matched, len(result.created), len(result.removed),
+    )
+    return result
+
+
+def find_visible(store: ObjectStore, frame: Frame, params: Params) -> list[int]:
+    """Ids of the objects whose bounds intersect the frame's view frustum (sorted)."""
+    frustum = frame_frustum(frame, params)
+    if frustum is None:
+        return []
+    lo, hi = frustum.bounds()
+    candidates = store.query_region(frame.map_id, lo, hi)
+    if not candidates:
+        return []
+    ids = np.array(list(candidates))
+    mins = np.array([candidates[i][0] for i in ids])
+    maxs = np.array([candidates[i][1] for i in ids])
+    return sorted(int(i) for i in ids[boxes_in_frustum(frustum, mins, maxs)])
+
+
+def fuse_matches(
+    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, device_id: str
+) -> tuple[list[MapObject], list[VoxelDetection]]:
+    """Associate observations with objects (Hungarian) and fuse the pairs; returns the objects (fused
+    ones replaced) and the observations left unmatched."""
+    if not observations:
+        return objects, []
+    pairs, unmatched = associate(
+        [o.keys for o in observations],
+        [o.label_index for o in observations],
+        [o.keys for o in objects],
+        [object_label_index(o) for o in objects],
+        params,
+    )
+    fused = list(objects)
+    for d, o in pairs:
+        fused[o] = fuse_detection(fused[o], observations[d], device_id)
+    return fused, [observations[d] for d in unmatched]
+
+
+def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
+    """Index cells covered by the observations' bounds, and the overall (lo, hi)."""
+    bounds = [keys_bounds(o.keys, params.voxel_size_m) for o in observations]
+    lo = np.min([b[0] for b in bounds], axis=0)
+    hi = np.max([b[1] for b in bounds], axis=0)
+    cells: set[tuple[int, int, int]] = set()
+    for b_lo, b_hi in bounds:
+        c_lo = np.floor(b_lo / params.index_cell_m).astype(int)
+        c_hi = np.floor(b_hi / params.index_cell_m).astype(int)
+        for i in range(c_lo[0], c_hi[0] + 1):
+            for j in range(c_lo[1], c_hi[1] + 1):
+                for k in range(c_lo[2], c_hi[2] + 1):
+                    cells.add((i, j, k))
+    return sorted(cells), lo, hi
+
+
+def create_under_claim(
+    store: ObjectStore,
+    frame: Frame,
+    unmatched: Sequence[VoxelDetection],
+    held_ids: Sequence[int],
+    params: Params,
+    now_s: float,
+) -> tuple[list[Lease], list[MapObject], list[MapObject]]:
+    """Claim the space of the unmatched observations; fuse them into objects that appeared there since
+    the frustum query (when their locks are free), create objects for the rest. Returns the claim, the
+    leases on the late objects, the late objects as read, and the late (fused) plus new objects."""
+    cells, lo, hi = claim_cells(unmatched, params)
+    claim = store.claim(frame.map_id, cells, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s)
+    late_leases: list[Lease] = []
+    try:
+        late_ids = sorted(set(store.query_region(frame.map_id, lo, hi)) - set(held_ids))
+        late_leases = try_lock(store, frame.map_id, late_ids, params)
+        late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
+        fused_late, still_unmatched = fuse_matches(late, unmatched, params, frame.device_id)
+        new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
+        created = [new_object(i, o, frame.device_id, now_s) for i, o in zip(new_ids, still_unmatched)]
+    except BaseException:
+        for lease in [claim, *late_leases]:
+            lease.release()
+        raise
+    return [claim, *late_leases], late, fused_late + created
+
+
+def try_lock(store: ObjectStore, map_id: str, ids: Sequence[int], params: Params) -> list[Lease]:
+    """Locks on whichever of ``ids`` are free now, one lease each, without waiting."""
+    leases = []
+    for object_id in ids:
+        try:
+            leases.append(store.lock(map_id, [object_id], ttl_s=params.lock_ttl_s, timeout_s=0))
+        except LockTimeout:
+            log.debug("map %s: object %d busy; a later merge pass resolves any duplicate", map_id, object_id)
+    return leases
+
+
+def finish_objects(
+    objects: Sequence[MapObject], before: dict[int, MapObject], params: Params, map_id: str, now_s: float
+) -> tuple[list[MapObject], list[MapObject], list[ObjectEvent]]:
+    """Merge duplicates, give each voxel to one object, refine, and work out what changed.
+
+    Returns (objects to write with their versions bumped, objects to delete as stored, events)."""
+    objects = list(objects)
+    absorbed_into: dict[int, int] = {}
+    for keep, absorb in find_duplicates(objects, params):
+        objects[keep] = merge_objects(objects[keep], objects[absorb])
+        absorbed_into[objects[absorb].id] = objects[keep].id
+    survivors = [o for o in objects if o.id not in absorbed_into]
+    survivors = resolve_conflicts(survivors)
+
+    changed, removed, events = [], [], []
+    for obj in survivors:
+        old = before.get(obj.id)
+        if old is not None and obj is old:
+            continue  # untouched
+        refined = refine(obj, params)
+        if refined.keys.size == 0:
+            if old is not None:
+                removed.append(old)
+                events.append(ObjectEvent("deleted", map_id, obj.id))
+            continue
+        version = (old.version if old is not None else 0) + 1
+        final = refined.replace(version=version, updated_at_s=now_s, created_at_s=refined.created_at_s or now_s)
+        changed.append(final)
+        events.append(ObjectEvent("created" if old is None else "updated", map_id, obj.id, final))
+    for absorbed_id, keeper_id in absorbed_into.items():
+        if absorbed_id in before:
+            removed.append(before[absorbed_id])
+            events.append(ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id))
+    return changed, removed, events
+
+
+class _Clock:
+    """Accumulates the time between laps into named entries."""
+
+    def __init__(self, timings: dict[str, float]) -> None:
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.timings[name] = self.timings.get(name, 0.0) + now - self.last
+        self.last = now

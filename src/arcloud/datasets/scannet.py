@@ -1,0 +1,494 @@
+"""ScanNet scenes in the standard export layout, parsed once into typed dataclasses.
+
+A scene folder ``<root>/<scene>/`` may hold (everything but the poses is optional):
+
+- ``color/N.jpg`` (any size; resized to the depth size), ``depth/N.png`` (uint16 millimetres, 0 = invalid),
+  ``pose/N.txt`` (4x4 camera-to-world in the *unaligned* scan frame; ScanNet marks lost tracking with
+  -inf/NaN poses, and those frames are skipped with a logged count),
+  ``intrinsic/intrinsic_depth.txt`` and ``intrinsic_color.txt`` (4x4; frames use the depth intrinsics);
+- ``<scene>.txt``: sensor metadata with ``axisAlignment`` (scan2aligned, 16 numbers, row-major; identity
+  when absent, logged) and the ``*_depth`` intrinsics used when ``intrinsic/`` is absent;
+- ``<scene>_vh_clean_2.ply`` (mesh with vertex colours, scan frame), ``<scene>.aggregation.json``
+  (instances as groups of over-segments, raw category labels), ``<scene>_vh_clean_2.0.010000.segs.json``
+  (the over-segment of every vertex);
+- ``instance-filt/N.png`` (8-bit: aggregation ``objectId + 1``, 0 = none) and ``label-filt/N.png``
+  (16-bit: ScanNet label ids, the ``id`` column of the labels tsv), the 2D ground truth.
+
+The world of every frame and box is the scene's *aligned* frame (``axisAlignment`` applied to the poses),
+so predictions and ground truth share a frame. Raw categories become arcloud's ``CLASSES`` through
+``ClassMapping`` (see docs/datasets.md for the mapping and why).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from types import MappingProxyType
+
+import numpy as np
+
+from arcloud.core.checks import make_frame
+from arcloud.core.types import CLASSES, Frame, Intrinsics
+from arcloud.datasets.files import (
+    natural_key,
+    read_key_values,
+    read_matrix,
+    read_ply_mesh,
+    read_png_u16,
+    read_rgb,
+)
+from arcloud.errors import DatasetError, InvalidInput
+
+logger = logging.getLogger(__name__)
+
+LABEL_TSV_NAMES = ("scannetv2-labels.combined.tsv", "scannet-labels.combined.tsv")
+FRAME_RATE_HZ = 30.0
+DEFAULT_DEVICE_ID = "user-0"
+
+
+@dataclass(frozen=True)
+class ClassMapping:
+    """Raw ScanNet categories -> arcloud classes: ``raw`` (exact raw category, lower case) wins over
+    ``nyu40`` (the nyu40 id of the category in the labels tsv)."""
+
+    nyu40: Mapping[int, str]
+    raw: Mapping[str, str]
+
+    def __post_init__(self) -> None:
+        bad = sorted({*self.nyu40.values(), *self.raw.values()} - set(CLASSES))
+        if bad:
+            raise InvalidInput("ClassMapping", f"classes among {CLASSES}", bad)
+
+    def class_of(self, raw_category: str, nyu40_id: int) -> str | None:
+        """The arcloud class of a raw category with its nyu40 id, or None when it is none of ours."""
+        return self.raw.get(raw_category.strip().lower()) or self.nyu40.get(int(nyu40_id))
+
+
+#: The mapping used by default (documented in docs/datasets.md): nyu40 chair -> chair, sofa -> couch,
+#: table and desk -> table (COCO's "dining table" fires on desks and has no desk class), television -> tv;
+#: raw monitors -> tv (COCO's "tv" covers monitors), raw laptops -> laptop (nyu40 files them as otherprop).
+DEFAULT_CLASS_MAPPING = ClassMapping(
+    nyu40=MappingProxyType({5: "chair", 6: "couch", 7: "table", 14: "table", 25: "tv"}),
+    raw=MappingProxyType(
+        {
+            "laptop": "laptop",
+            "laptop computer": "laptop",
+            "tv": "tv",
+            "television": "tv",
+            "led tv": "tv",
+            "flat-screen television": "tv",
+            "flat screen television": "tv",
+            "monitor": "tv",
+            "computer monitor": "tv",
+            "monitor from pc": "tv",
+        }
+    ),
+)
+
+
+@dataclass(frozen=True)
+class LabelTable:
+    """The ScanNet labels tsv: for every raw category its ScanNet label id and nyu40 id.
+
+    ``by_raw``: raw category (lower case) -> (label id, nyu40 id). ``by_id``: label id -> raw category."""
+
+    by_raw: Mapping[str, tuple[int, int]]
+    by_id: Mapping[int, str]
+    mapping: ClassMapping = DEFAULT_CLASS_MAPPING
+
+    def nyu40_of(self, raw_category: str) -> int:
+        """The nyu40 id of a raw category, 0 when the tsv does not list it."""
+        return self.by_raw.get(raw_category.strip().lower(), (0, 0))[1]
+
+    def label_id_of(self, raw_category: str) -> int:
+        """The ScanNet label id (the tsv's ``id``) of a raw category, 0 when the tsv does not list it."""
+        return self.by_raw.get(raw_category.strip().lower(), (0, 0))[0]
+
+    def class_of(self, raw_category: str) -> str | None:
+        return self.mapping.class_of(raw_category, self.nyu40_of(raw_category))
+
+    def class_of_label_id(self, label_id: int) -> str | None:
+        """The arcloud class of a ScanNet label id (as held by ``label-filt`` images), or None."""
+        raw = self.by_id.get(int(label_id))
+        return None if raw is None else self.class_of(raw)
+
+    def class_of_nyu40(self, nyu40_id: int) -> str | None:
+        return self.mapping.nyu40.get(int(nyu40_id))
+
+
+def read_label_table(path: Path, mapping: ClassMapping = DEFAULT_CLASS_MAPPING) -> LabelTable:
+    """Parse a labels tsv, v1 (``id, category, count, nyuId, nyu40id, ...``) or v2 (``id, raw_category,
+    category, count, nyu40id, ...``)."""
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(handle, delimiter="\t"))
+    except OSError as exc:
+        raise DatasetError(f"{path}: expected a readable labels tsv ({exc})") from exc
+    columns = set(rows[0]) if rows else set()
+    raw_column = "raw_category" if "raw_category" in columns else "category"
+    if not {"id", raw_column, "nyu40id"} <= columns:
+        raise DatasetError(f"{path}: expected columns id, raw_category|category, nyu40id, got {sorted(columns)}")
+    by_raw: dict[str, tuple[int, int]] = {}
+    by_id: dict[int, str] = {}
+    for row in rows:
+        raw = (row[raw_column] or "").strip().lower()
+        try:
+            label_id = int(row["id"])
+            nyu40 = int(row["nyu40id"]) if (row["nyu40id"] or "").strip() else 0
+        except ValueError as exc:
+            raise DatasetError(f"{path}: expected integer id and nyu40id, got row {row}") from exc
+        by_raw.setdefault(raw, (label_id, nyu40))
+        by_id[label_id] = raw
+    return LabelTable(MappingProxyType(by_raw), MappingProxyType(by_id), mapping)
+
+
+def find_label_table(scene_dir: Path, levels: int = 2) -> Path | None:
+    """The labels tsv in the scene folder or one of its ``levels`` parents (v2 name first)."""
+    for folder in [scene_dir, *list(scene_dir.parents)[:levels]]:
+        for name in LABEL_TSV_NAMES:
+            if (folder / name).is_file():
+                return folder / name
+    return None
+
+
+@dataclass(frozen=True, eq=False)
+class ScanNetMesh:
+    """The scene's mesh in the *scan* (unaligned) frame.
+
+    vertices: (V, 3) float32. colors: (V, 3) uint8. triangles: (T, 3) int32."""
+
+    vertices: np.ndarray
+    colors: np.ndarray
+    triangles: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ScanNetInstance:
+    """One annotated instance. 2D instance images hold ``object_id + 1``.
+
+    vertex_indices: (N,) int64 into the mesh. aabb_min, aabb_max: (3,) float64 in the aligned frame."""
+
+    object_id: int
+    raw_category: str
+    nyu40_id: int
+    label: str | None
+    vertex_indices: np.ndarray
+    aabb_min: np.ndarray
+    aabb_max: np.ndarray
+
+    @property
+    def center(self) -> np.ndarray:
+        return (self.aabb_min + self.aabb_max) / 2
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.aabb_max - self.aabb_min
+
+
+@dataclass(frozen=True, eq=False)
+class ScanNetScene:
+    """A parsed ScanNet scene. Images are read lazily by ``load_frame``/``frames``.
+
+    scan2aligned: (4, 4) the axisAlignment. cam2world: (N, 4, 4) poses of ``frame_names`` in the
+    aligned frame (invalid poses already dropped, their names in ``skipped_frames``)."""
+
+    scene_id: str
+    root: Path
+    scan2aligned: np.ndarray
+    depth_intrinsics: Intrinsics | None
+    color_intrinsics: Intrinsics | None
+    frame_names: tuple[str, ...]
+    cam2world: np.ndarray
+    skipped_frames: tuple[str, ...]
+    instances: tuple[ScanNetInstance, ...]
+    mesh: ScanNetMesh | None
+    labels: LabelTable | None
+    device_id: str = DEFAULT_DEVICE_ID
+
+    @cached_property
+    def _index(self) -> dict[str, int]:
+        return {name: i for i, name in enumerate(self.frame_names)}
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_names)
+
+    @property
+    def objects(self) -> tuple[ScanNetInstance, ...]:
+        """The instances of arcloud's classes (the detection ground truth)."""
+        return tuple(inst for inst in self.instances if inst.label is not None)
+
+    @property
+    def has_2d_labels(self) -> bool:
+        return (self.root / "instance-filt").is_dir()
+
+    def pose(self, name: str) -> np.ndarray:
+        """(4, 4) cam2world (aligned frame) of a frame by name."""
+        if name not in self._index:
+            raise DatasetError(f"{self.root}: expected a frame with a valid pose named {name!r}, got none")
+        return self.cam2world[self._index[name]]
+
+    def load_frame(self, name: str, *, device_id: str | None = None) -> Frame:
+        """The frame ``name`` at the depth resolution: colour resized to it, depth intrinsics."""
+        if self.depth_intrinsics is None:
+            raise DatasetError(f"{self.root}: expected depth intrinsics (intrinsic/ or {self.scene_id}.txt), got none")
+        depth_mm = read_png_u16(self.root / "depth" / f"{name}.png")
+        rgb = read_rgb(self.root / "color" / f"{name}.jpg", (depth_mm.shape[1], depth_mm.shape[0]))
+        index = self._index.get(name)
+        return make_frame(
+            rgb,
+            depth_mm,
+            self.depth_intrinsics,
+            self.pose(name),
+            timestamp_s=(index if index is not None else 0) / FRAME_RATE_HZ,
+            map_id=self.scene_id,
+            device_id=device_id or self.device_id,
+            frame_id=name,
+            depth_scale=1000.0,
+        )
+
+    def frames(self, *, stride: int = 1, limit: int | None = None) -> Iterator[Frame]:
+        """Every ``stride``-th frame with a valid pose, in order, at most ``limit``."""
+        names = self.frame_names[:: max(1, int(stride))]
+        for name in names[:limit]:
+            yield self.load_frame(name)
+
+    def gt_boxes(self) -> list:
+        """The ground truth as ``arcloud.eval.metrics.Box3D`` (score 1), one per object of our classes."""
+        from arcloud.eval.metrics import Box3D
+
+        return [Box3D(inst.label, inst.aabb_min, inst.aabb_max, 1.0) for inst in self.objects]
+
+
+def parse_axis_alignment(text: str, source: object = "axisAlignment") -> np.ndarray:
+    """(4, 4) from 16 numbers separated by spaces or commas (row-major)."""
+    try:
+        values = np.array(text.replace(",", " ").split(), dtype=np.float64)
+    except ValueError as exc:
+        raise DatasetError(f"{source}: expected 16 numbers, got {text[:60]!r}") from exc
+    if values.size != 16 or not np.all(np.isfinite(values)):
+        raise DatasetError(f"{source}: expected 16 finite numbers, got {values.size} values")
+    return values.reshape(4, 4)
+
+
+def load_axis_alignment(value: str | Path | np.ndarray | Sequence[float]) -> np.ndarray:
+    """An axis alignment from an array, a string of 16 numbers, or a file: a ScanNet ``<scene>.txt``,
+    a JSON file with ``axis_align_matrix``/``axisAlignment``, or a text file of 16 numbers."""
+    if isinstance(value, np.ndarray) or (isinstance(value, Sequence) and not isinstance(value, str)):
+        array = np.asarray(value, dtype=np.float64)
+        if array.size != 16:
+            raise DatasetError(f"axis alignment: expected 16 numbers, got shape {array.shape}")
+        return array.reshape(4, 4)
+    path = Path(value)
+    if not path.is_file():
+        return parse_axis_alignment(str(value))
+    if path.suffix == ".json":
+        data = json.loads(path.read_text())
+        for key in ("axis_align_matrix", "axisAlignment", "axis_alignment"):
+            if key in data:
+                return load_axis_alignment(np.asarray(data[key], dtype=np.float64))
+        raise DatasetError(f"{path}: expected a key axis_align_matrix or axisAlignment, got {sorted(data)}")
+    meta = read_key_values(path)
+    if "axisAlignment" in meta:
+        return parse_axis_alignment(meta["axisAlignment"], path)
+    return parse_axis_alignment(path.read_text(), path)
+
+
+def _intrinsics_from_matrix(matrix: np.ndarray) -> Intrinsics:
+    return Intrinsics(float(matrix[0, 0]), float(matrix[1, 1]), float(matrix[0, 2]), float(matrix[1, 2]))
+
+
+def _read_intrinsics(scene_dir: Path, meta: Mapping[str, str], which: str) -> Intrinsics | None:
+    path = scene_dir / "intrinsic" / f"intrinsic_{which}.txt"
+    if path.is_file():
+        return _intrinsics_from_matrix(read_matrix(path, (4, 4)))
+    keys = [f"fx_{which}", f"fy_{which}", f"mx_{which}", f"my_{which}"]
+    if all(k in meta for k in keys):
+        try:
+            return Intrinsics(*(float(meta[k]) for k in keys))
+        except ValueError as exc:
+            raise DatasetError(f"{scene_dir}: expected numeric {', '.join(keys)}, got {[meta[k] for k in keys]}") from exc
+    return None
+
+
+def read_instances(
+    scene_dir: Path,
+    scene_id: str,
+    vertices_scan: np.ndarray,
+    scan2aligned: np.ndarray,
+    labels: LabelTable | None,
+    mapping: ClassMapping = DEFAULT_CLASS_MAPPING,
+) -> tuple[ScanNetInstance, ...]:
+    """Instances from the aggregation and over-segmentation files, boxes in the aligned frame.
+
+    Empty when the scene has no aggregation. Without a labels tsv, nyu40 ids are 0 and only the raw
+    entries of ``mapping`` give classes."""
+    aggregation_path = scene_dir / f"{scene_id}.aggregation.json"
+    segs_paths = sorted(scene_dir.glob(f"{scene_id}_vh_clean*.segs.json"))
+    if not aggregation_path.is_file() or not segs_paths:
+        logger.info("scene %s: no aggregation/segs files, so no 3D ground truth", scene_id)
+        return ()
+    try:
+        aggregation = json.loads(aggregation_path.read_text())
+        seg_indices = np.asarray(json.loads(segs_paths[0].read_text())["segIndices"], dtype=np.int64)
+        groups = aggregation["segGroups"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise DatasetError(f"{scene_dir}: expected aggregation.json with segGroups and segs.json with segIndices ({exc})") from exc
+    if seg_indices.shape[0] != vertices_scan.shape[0]:
+        raise DatasetError(
+            f"{segs_paths[0]}: expected one segment index per mesh vertex ({vertices_scan.shape[0]}), got {seg_indices.shape[0]}"
+        )
+    vertices_aligned = vertices_scan.astype(np.float64) @ scan2aligned[:3, :3].T + scan2aligned[:3, 3]
+    instances = []
+    for group in groups:
+        raw = str(group.get("label", ""))
+        object_id = int(group.get("objectId", group.get("id", len(instances))))
+        indices = np.flatnonzero(np.isin(seg_indices, np.asarray(group.get("segments", []), dtype=np.int64)))
+        if indices.size == 0:
+            logger.warning("scene %s: instance %d (%s) has no vertices; skipped", scene_id, object_id, raw)
+            continue
+        nyu40 = labels.nyu40_of(raw) if labels is not None else 0
+        points = vertices_aligned[indices]
+        instances.append(
+            ScanNetInstance(
+                object_id=object_id,
+                raw_category=raw,
+                nyu40_id=nyu40,
+                label=mapping.class_of(raw, nyu40),
+                vertex_indices=indices,
+                aabb_min=points.min(axis=0),
+                aabb_max=points.max(axis=0),
+            )
+        )
+    return tuple(instances)
+
+
+def _read_poses(scene_dir: Path) -> tuple[list[str], list[np.ndarray], list[str]]:
+    pose_dir = scene_dir / "pose"
+    names = sorted((p.stem for p in pose_dir.glob("*.txt")), key=natural_key) if pose_dir.is_dir() else []
+    valid_names, poses, skipped = [], [], []
+    for name in names:
+        pose = read_matrix(pose_dir / f"{name}.txt", (4, 4))
+        if np.all(np.isfinite(pose)):
+            valid_names.append(name)
+            poses.append(pose)
+        else:
+            skipped.append(name)
+    return valid_names, poses, skipped
+
+
+def scene_id_of(scene_dir: Path) -> str:
+    """The scene id: the folder's name, unless the files inside name another (``<id>.aggregation.json``,
+    ``<id>_vh_clean_2.ply``, ``<id>.txt``)."""
+    if (scene_dir / f"{scene_dir.name}.txt").is_file():
+        return scene_dir.name
+    for pattern, suffix in (("*.aggregation.json", ".aggregation.json"), ("*_vh_clean_2.ply", "_vh_clean_2.ply")):
+        found = sorted(scene_dir.glob(pattern))
+        if found:
+            return found[0].name[: -len(suffix)]
+    return scene_dir.name
+
+
+def load_scannet_scene(
+    scene_dir: str | Path,
+    *,
+    labels_tsv: str | Path | None = None,
+    scan2aligned: np.ndarray | None = None,
+    mapping: ClassMapping = DEFAULT_CLASS_MAPPING,
+    load_mesh: bool = True,
+) -> ScanNetScene:
+    """Parse a scene folder (see the module docstring). ``labels_tsv`` defaults to the tsv found in the
+    folder or its two parents; ``scan2aligned`` overrides the ``axisAlignment`` of ``<scene>.txt``."""
+    root = Path(scene_dir)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: expected a ScanNet scene folder, got no such folder")
+    scene_id = scene_id_of(root)
+    meta_path = root / f"{scene_id}.txt"
+    meta = read_key_values(meta_path) if meta_path.is_file() else {}
+    if scan2aligned is not None:
+        alignment = load_axis_alignment(scan2aligned)
+    elif "axisAlignment" in meta:
+        alignment = parse_axis_alignment(meta["axisAlignment"], meta_path)
+    else:
+        logger.info("scene %s: no axisAlignment in %s; using identity", scene_id, meta_path.name)
+        alignment = np.eye(4)
+
+    tsv = Path(labels_tsv) if labels_tsv is not None else find_label_table(root)
+    labels = read_label_table(tsv, mapping) if tsv is not None else None
+    if labels is None:
+        logger.warning("scene %s: no labels tsv found; classes come from raw categories only", scene_id)
+
+    names, poses_scan, skipped = _read_poses(root)
+    if skipped:
+        logger.warning("scene %s: skipped %d of %d frames with invalid (inf/NaN) poses", scene_id, len(skipped), len(names) + len(skipped))
+    cam2world = np.einsum("ij,njk->nik", alignment, np.asarray(poses_scan).reshape(-1, 4, 4))
+
+    mesh = None
+    instances: tuple[ScanNetInstance, ...] = ()
+    mesh_paths = sorted(root.glob(f"{scene_id}_vh_clean_2.ply")) or sorted(root.glob(f"{scene_id}*.ply"))
+    if load_mesh and mesh_paths:
+        vertices, colors, triangles = read_ply_mesh(mesh_paths[0])
+        if colors is None:
+            colors = np.full(vertices.shape, 128, np.uint8)
+        mesh = ScanNetMesh(vertices, colors, triangles)
+        instances = read_instances(root, scene_id, vertices, alignment, labels, mapping)
+
+    scene = ScanNetScene(
+        scene_id=scene_id,
+        root=root,
+        scan2aligned=alignment,
+        depth_intrinsics=_read_intrinsics(root, meta, "depth"),
+        color_intrinsics=_read_intrinsics(root, meta, "color"),
+        frame_names=tuple(names),
+        cam2world=cam2world,
+        skipped_frames=tuple(skipped),
+        instances=instances,
+        mesh=mesh,
+        labels=labels,
+    )
+    logger.info(
+        "scene %s: %d frames, %d instances (%d of our classes)", scene_id, scene.n_frames, len(instances), len(scene.objects)
+    )
+    return scene
+
+
+def find_scene_dirs(root: str | Path, scenes: Sequence[str] | None = None) -> list[Path]:
+    """Scene folders under ``root`` (itself a scene, a folder of scenes, or one with ``scans/``), in
+    name order; ``scenes`` picks those names (each must exist)."""
+    base = Path(root)
+    if not base.is_dir():
+        raise DatasetError(f"{base}: expected a folder of ScanNet scenes, got no such folder")
+    if (base / "pose").is_dir() or (base / f"{base.name}.txt").is_file():
+        candidates = {base.name: base}
+    else:
+        parent = base / "scans" if (base / "scans").is_dir() else base
+        candidates = {p.name: p for p in parent.iterdir() if p.is_dir() and p.name.startswith("scene")}
+    if scenes:
+        missing = [s for s in scenes if s not in candidates]
+        if missing:
+            raise DatasetError(f"{base}: expected scene folders {missing}, got only {sorted(candidates)[:10]}")
+        return [candidates[s] for s in scenes]
+    if not candidates:
+        raise DatasetError(f"{base}: expected scene folders named scene*, got none")
+    return [candidates[name] for name in sorted(candidates)]
+
+
+__all__ = [
+    "DEFAULT_CLASS_MAPPING",
+    "ClassMapping",
+    "LabelTable",
+    "ScanNetInstance",
+    "ScanNetMesh",
+    "ScanNetScene",
+    "find_label_table",
+    "find_scene_dirs",
+    "load_axis_alignment",
+    "load_scannet_scene",
+    "read_instances",
+    "read_label_table",
+]

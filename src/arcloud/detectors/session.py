@@ -1,0 +1,114 @@
+"""onnxruntime sessions: one per process per (model file, thread count), CPU provider, full graph
+optimisation; load failures and signature mismatches become ``ModelError`` saying expected vs got.
+
+onnxruntime is imported on first use, never at import time.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from arcloud.core.checks import describe
+from arcloud.errors import InvalidInput, ModelError
+
+if TYPE_CHECKING:
+    import onnxruntime
+
+log = logging.getLogger(__name__)
+
+_sessions: dict[tuple[str, int, int | None], onnxruntime.InferenceSession] = {}
+_sessions_lock = threading.Lock()
+
+
+@dataclass(frozen=True, slots=True)
+class TensorSpec:
+    """Name, shape (ints for fixed dims, str/None for dynamic ones) and element type of a model tensor."""
+
+    name: str
+    shape: tuple[int | str | None, ...]
+    type: str
+
+    def __str__(self) -> str:
+        dims = ",".join("?" if not isinstance(d, int) else str(d) for d in self.shape)
+        return f"{self.name} {self.type}[{dims}]"
+
+
+def load_session(model_path: str | os.PathLike[str], *, intra_op_threads: int | None = None) -> onnxruntime.InferenceSession:
+    """The process-wide session of ``model_path`` (created on first call, then cached).
+
+    ``intra_op_threads``: threads for one operator (None: onnxruntime's default, one per core).
+    Raises ``ModelError`` when the file is missing or is not a loadable ONNX model.
+    """
+    path = Path(model_path)
+    if not path.is_file():
+        raise ModelError(f"model file: expected an ONNX file, got no file at {path}")
+    if intra_op_threads is not None and (not isinstance(intra_op_threads, int) or intra_op_threads < 1):
+        raise InvalidInput("intra_op_threads", "an int >= 1 or None", describe(intra_op_threads))
+    resolved = path.resolve()
+    key = (str(resolved), resolved.stat().st_mtime_ns, intra_op_threads)
+    with _sessions_lock:
+        session = _sessions.get(key)
+        if session is None:
+            session = _create_session(resolved, intra_op_threads)
+            _sessions[key] = session
+    return session
+
+
+def _create_session(path: Path, intra_op_threads: int | None) -> onnxruntime.InferenceSession:
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.inter_op_num_threads = 1
+    options.log_severity_level = 3  # errors only; warnings about unused initialisers are noise
+    if intra_op_threads is not None:
+        options.intra_op_num_threads = intra_op_threads
+    try:
+        session = ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own untyped errors (InvalidProtobuf, Fail, ...)
+        raise ModelError(f"model file {path}: expected a loadable ONNX model, got {type(exc).__name__}: {exc}") from exc
+    log.info(
+        "loaded ONNX model %s (inputs: %s; outputs: %s; intra_op_threads=%s)",
+        path,
+        ", ".join(str(s) for s in input_specs(session)),
+        ", ".join(str(s) for s in output_specs(session)),
+        intra_op_threads,
+    )
+    return session
+
+
+def clear_session_cache() -> None:
+    """Forget every cached session (tests, or after replacing model files)."""
+    with _sessions_lock:
+        _sessions.clear()
+
+
+def _spec(node: Any) -> TensorSpec:
+    shape = node.shape if isinstance(node.shape, list) else []
+    return TensorSpec(node.name, tuple(shape), node.type)
+
+
+def input_specs(session: onnxruntime.InferenceSession) -> list[TensorSpec]:
+    return [_spec(node) for node in session.get_inputs()]
+
+
+def output_specs(session: onnxruntime.InferenceSession) -> list[TensorSpec]:
+    return [_spec(node) for node in session.get_outputs()]
+
+
+def metadata(session: onnxruntime.InferenceSession) -> dict[str, str]:
+    """The model's custom metadata (Ultralytics puts ``names``, ``imgsz``, ``task`` there)."""
+    return dict(session.get_modelmeta().custom_metadata_map)
+
+
+def signature_error(model_path: object, adapter: str, expected: str, got: Sequence[TensorSpec]) -> ModelError:
+    """A ``ModelError`` for a model that does not fit an adapter, listing what it has."""
+    listed = "; ".join(str(s) for s in got) or "nothing"
+    return ModelError(f"model {model_path} does not fit the {adapter} adapter: expected {expected}, got {listed}")

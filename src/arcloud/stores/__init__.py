@@ -1,0 +1,1 @@
+"""Object store adapters: ``memory`` (embedded, the default) and ``redis`` (many workers, many machines)."""

@@ -1,0 +1,232 @@
+"""The embedded object store: every map in this process's memory, safe across threads.
+
+It keeps the semantics of the Redis store so that one contract suite tests both: locks and claims
+carry a token and a TTL (an expired lease's write is refused), writes are compare-and-set on the
+object version (fencing), frames are recorded once. Locks are taken all-or-nothing under one
+condition variable per map, so a thread never holds some locks while waiting for others.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from arcloud.core.types import MapObject
+from arcloud.errors import InvalidInput, LockTimeout, StaleLease
+
+
+@dataclass(slots=True)
+class _Holder:
+    token: str
+    expires_at: float  # time.monotonic()
+
+
+@dataclass(slots=True)
+class _MapState:
+    objects: dict[int, MapObject] = field(default_factory=dict)
+    bounds: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    index: dict[tuple[int, int, int], set[int]] = field(default_factory=dict)
+    cells_of: dict[int, list[tuple[int, int, int]]] = field(default_factory=dict)
+    held: dict[object, _Holder] = field(default_factory=dict)  # ("object", id) or ("cell", (i, j, k))
+    frames: set[str] = field(default_factory=set)
+    ids: itertools.count = field(default_factory=lambda: itertools.count(1))
+    changed: threading.Condition = field(default_factory=threading.Condition)
+
+
+class MemoryLease:
+    """Locks or claims held in a ``MemoryStore``; releases on exit."""
+
+    def __init__(self, store: MemoryStore, map_id: str, names: list[object], token: str) -> None:
+        self.store = store
+        self.map_id = map_id
+        self.names = names
+        self.token = token
+        self.ids = tuple(name[1] for name in names if name[0] == "object")  # type: ignore[index]
+
+    def release(self) -> None:
+        self.store._release(self)
+
+    def __enter__(self) -> MemoryLease:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+class MemoryStore:
+    """In-process ``ObjectStore``. ``cell_m`` is the size of the spatial index's cubic cells."""
+
+    def __init__(self, *, cell_m: float = 1.0) -> None:
+        if not cell_m > 0:
+            raise InvalidInput("cell_m", "> 0", cell_m)
+        self.cell_m = cell_m
+        self._maps: dict[str, _MapState] = {}
+        self._maps_lock = threading.Lock()
+
+    def _map(self, map_id: str) -> _MapState:
+        with self._maps_lock:
+            state = self._maps.get(map_id)
+            if state is None:
+                state = self._maps[map_id] = _MapState()
+            return state
+
+    # --- spatial index -----------------------------------------------------------------------------
+    def _cells(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[int, int, int]]:
+        c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m).astype(np.int64)
+        c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m).astype(np.int64)
+        return [tuple(c) for c in itertools.product(*(range(a, b + 1) for a, b in zip(c_lo, c_hi)))]  # type: ignore[misc]
+
+    def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        state = self._map(map_id)
+        with state.changed:
+            ids: set[int] = set()
+            if len(state.index) < np.prod(np.floor(hi / self.cell_m) - np.floor(lo / self.cell_m) + 1):
+                for cell, members in state.index.items():  # fewer occupied cells than the region spans
+                    if all(lo[a] <= (cell[a] + 1) * self.cell_m and cell[a] * self.cell_m <= hi[a] for a in range(3)):
+                        ids |= members
+            else:
+                for cell in self._cells(lo, hi):
+                    ids |= state.index.get(cell, set())
+            found = {}
+            for object_id in ids:
+                b_lo, b_hi = state.bounds[object_id]
+                if np.all(b_lo <= hi) and np.all(lo <= b_hi):
+                    found[object_id] = (b_lo, b_hi)
+            return found
+
+    # --- locks and claims --------------------------------------------------------------------------
+    def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> MemoryLease:
+        return self._acquire(map_id, [("object", int(i)) for i in sorted(set(ids))], ttl_s, timeout_s)
+
+    def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> MemoryLease:
+        return self._acquire(map_id, [("cell", tuple(int(c) for c in cell)) for cell in sorted(set(cells))], ttl_s, timeout_s)
+
+    def _acquire(self, map_id: str, names: list[object], ttl_s: float, timeout_s: float) -> MemoryLease:
+        state = self._map(map_id)
+        token = uuid.uuid4().hex
+        deadline = time.monotonic() + timeout_s
+        with state.changed:
+            while True:
+                now = time.monotonic()
+                busy = [n for n in names if (h := state.held.get(n)) is not None and h.expires_at > now]
+                if not busy:
+                    for name in names:
+                        state.held[name] = _Holder(token, now + ttl_s)
+                    return MemoryLease(self, map_id, names, token)
+                remaining = deadline - now
+                if remaining <= 0:
+                    raise LockTimeout(f"map {map_id}: {len(busy)} of {len(names)} locks busy after {timeout_s:.3g} s (first: {busy[0]})")
+                soonest = min(state.held[n].expires_at for n in busy) - now
+                state.changed.wait(max(1e-3, min(remaining, soonest)))
+
+    def _release(self, lease: MemoryLease) -> None:
+        state = self._map(lease.map_id)
+        with state.changed:
+            for name in lease.names:
+                holder = state.held.get(name)
+                if holder is not None and holder.token == lease.token:
+                    del state.held[name]
+            state.changed.notify_all()
+
+    # --- objects -----------------------------------------------------------------------------------
+    def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
+        state = self._map(map_id)
+        with state.changed:
+            return [state.objects[i] for i in ids if i in state.objects]
+
+    def new_ids(self, map_id: str, n: int) -> list[int]:
+        state = self._map(map_id)
+        with state.changed:
+            return [next(state.ids) for _ in range(n)]
+
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[MemoryLease],
+        upserts: Sequence[MapObject],
+        deletes: Sequence[MapObject],
+        *,
+        frame_key: str | None = None,
+    ) -> bool:
+        state = self._map(map_id)
+        with state.changed:
+            if frame_key is not None and frame_key in state.frames:
+                return False
+            now = time.monotonic()
+            held: set[int] = set()
+            for lease in leases:
+                for name in lease.names:
+                    holder = state.held.get(name)
+                    if holder is None or holder.token != lease.token or holder.expires_at <= now:
+                        raise StaleLease(f"map {map_id}: lease on {name} expired or was taken over; nothing written")
+                held.update(lease.ids)
+            for obj in upserts:
+                current = state.objects.get(obj.id)
+                if current is None and obj.version != 1:
+                    raise StaleLease(f"map {map_id}: object {obj.id} written at version {obj.version} but it does not exist")
+                if current is not None:
+                    if obj.id not in held:
+                        raise StaleLease(f"map {map_id}: object {obj.id} written without its lock")
+                    if current.version != obj.version - 1:
+                        raise StaleLease(f"map {map_id}: object {obj.id} is at version {current.version}, write expected {obj.version - 1}")
+                if obj.bounds is None:
+                    raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
+            for obj in deletes:
+                current = state.objects.get(obj.id)
+                if current is None:
+                    continue
+                if obj.id not in held or current.version != obj.version:
+                    raise StaleLease(f"map {map_id}: object {obj.id} deleted without its lock or at a stale version")
+            for obj in deletes:
+                self._unindex(state, obj.id)
+                state.objects.pop(obj.id, None)
+            for obj in upserts:
+                for array in (obj.keys, obj.weights, obj.votes):
+                    array.setflags(write=False)  # stored objects are shared: nobody may edit them in place
+                self._unindex(state, obj.id)
+                state.objects[obj.id] = obj
+                assert obj.bounds is not None
+                state.bounds[obj.id] = (obj.bounds.min, obj.bounds.max)
+                cells = self._cells(obj.bounds.min, obj.bounds.max)
+                state.cells_of[obj.id] = cells
+                for cell in cells:
+                    state.index.setdefault(cell, set()).add(obj.id)
+            if frame_key is not None:
+                state.frames.add(frame_key)
+            return True
+
+    def _unindex(self, state: _MapState, object_id: int) -> None:
+        for cell in state.cells_of.pop(object_id, []):
+            members = state.index.get(cell)
+            if members is not None:
+                members.discard(object_id)
+                if not members:
+                    del state.index[cell]
+        state.bounds.pop(object_id, None)
+
+    def list_objects(self, map_id: str) -> list[MapObject]:
+        state = self._map(map_id)
+        with state.changed:
+            return [state.objects[i] for i in sorted(state.objects)]
+
+    def delete_map(self, map_id: str) -> int:
+        with self._maps_lock:
+            state = self._maps.pop(map_id, None)
+        return 0 if state is None else len(state.objects)
+
+    def is_frame_done(self, map_id: str, frame_key: str) -> bool:
+        state = self._map(map_id)
+        with state.changed:
+            return frame_key in state.frames
+
+    def count_frames(self, map_id: str) -> int:
+        state = self._map(map_id)
+        with state.changed:
+            return len(state.frames)
