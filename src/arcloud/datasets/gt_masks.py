@@ -1,0 +1,88 @@
+"""A detector that replays a ScanNet-layout scene's 2D ground truth, to measure 3D association and fusion
+alone (no detector errors).
+
+For a frame named N it reads ``instance-filt/N.png`` (8-bit instance ids, 0 = none) and
+``label-filt/N.png`` (16-bit label ids), resizes both to the frame by nearest neighbour, and returns one
+``Detection`` (score 1.0) per instance of arcloud's classes. An instance's class is the most frequent
+label id under its mask, mapped through the labels tsv (``label_ids="scannet"``: ScanNet label ids, as
+ScanNet and ``render_scannet`` write; ``"nyu40"``: nyu40 ids). Without ``label-filt`` the class comes from
+the aggregation (instance id = objectId + 1).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Literal
+
+import numpy as np
+
+from arcloud.core.types import Detection, Frame
+from arcloud.datasets.files import read_label_png, resize_nearest
+from arcloud.datasets.scannet import ScanNetScene
+from arcloud.errors import DatasetError, InvalidInput
+
+logger = logging.getLogger(__name__)
+
+
+class GroundTruthMaskDetector:
+    """``arcloud.ports.Detector`` replaying the 2D ground-truth masks of ``scene``, keyed by frame id.
+
+    Safe to call from many threads (it only reads files). Frames without 2D labels give no detections
+    (logged once per frame id) unless ``strict``, which raises ``DatasetError``."""
+
+    def __init__(
+        self,
+        scene: ScanNetScene,
+        *,
+        label_ids: Literal["scannet", "nyu40"] = "scannet",
+        min_mask_px: int = 64,
+        strict: bool = False,
+    ) -> None:
+        if label_ids not in ("scannet", "nyu40"):
+            raise InvalidInput("label_ids", "'scannet' or 'nyu40'", label_ids)
+        if not scene.has_2d_labels:
+            raise DatasetError(f"{scene.root}: expected an instance-filt/ folder of 2D ground truth, got none")
+        if scene.labels is None and not scene.instances:
+            raise DatasetError(f"{scene.root}: expected a labels tsv or an aggregation to name the 2D labels, got neither")
+        self.scene = scene
+        self.label_ids = label_ids
+        self.min_mask_px = int(min_mask_px)
+        self.strict = strict
+        self._class_of_object = {inst.object_id + 1: inst.label for inst in scene.instances}
+
+    def _class_of_label(self, label_id: int) -> str | None:
+        labels = self.scene.labels
+        if labels is None:
+            return None
+        return labels.class_of_label_id(label_id) if self.label_ids == "scannet" else labels.class_of_nyu40(label_id)
+
+    def detect(self, frame: Frame) -> list[Detection]:
+        root = self.scene.root
+        instance_path = root / "instance-filt" / f"{frame.frame_id}.png"
+        if not instance_path.is_file():
+            if self.strict:
+                raise DatasetError(f"{instance_path}: expected the 2D instance image of frame {frame.frame_id}, got none")
+            logger.warning("no 2D ground truth for frame %s of %s; no detections", frame.frame_id, self.scene.scene_id)
+            return []
+        instances = resize_nearest(read_label_png(instance_path), frame.shape)
+        label_path = root / "label-filt" / f"{frame.frame_id}.png"
+        labels = resize_nearest(read_label_png(label_path), frame.shape) if label_path.is_file() else None
+
+        ids, counts = np.unique(instances, return_counts=True)
+        detections = []
+        for instance_id, count in zip(ids.tolist(), counts.tolist()):
+            if instance_id == 0 or count < self.min_mask_px:
+                continue
+            mask = instances == instance_id
+            label = None
+            if labels is not None and self.scene.labels is not None:
+                values, votes = np.unique(labels[mask], return_counts=True)
+                label = self._class_of_label(int(values[np.argmax(votes)]))
+            elif instance_id in self._class_of_object:
+                label = self._class_of_object[instance_id]
+            if label is not None:
+                detections.append(Detection(label, 1.0, mask))
+        return detections
+
+
+__all__ = ["GroundTruthMaskDetector"]

@@ -1,0 +1,171 @@
+"""Builders of tiny ScanNet-layout and 7-Scenes-layout folders (in tmp_path) for the dataset tests."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+SCENE_ID = "scene0042_00"
+DEPTH_WH = (32, 24)
+COLOR_WH = (64, 48)
+DEPTH_K = (30.0, 30.0, 15.5, 11.5)
+
+#: A rotation of 90 degrees about z and a shift: the scene's axisAlignment (scan2aligned).
+ALIGNMENT = np.array([[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, -2.0], [0.0, 0.0, 1.0, 0.5], [0.0, 0.0, 0.0, 1.0]])
+
+# label ids (the tsv's "id") and nyu40 ids of the raw categories the tiny scene uses
+TSV_ROWS = [
+    # id, raw category, category, nyu40id
+    (2, "chair", "chair", 5),
+    (4, "table", "table", 7),
+    (9, "desk", "desk", 14),
+    (77, "laptop", "laptop", 40),
+    (11, "floor", "floor", 2),
+    (33, "tv", "television", 25),
+]
+
+
+def box_mesh(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (8, 3) and triangles (12, 3) of an axis-aligned box."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    triangles = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return corners, np.array(triangles)
+
+
+def write_ply(path: Path, vertices: np.ndarray, colors: np.ndarray, triangles: np.ndarray, *, binary: bool) -> None:
+    header = (
+        "ply\nformat {} 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n"
+        "element face {}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).format("binary_little_endian" if binary else "ascii", len(vertices), len(triangles))
+    if binary:
+        vdtype = np.dtype([("p", "<f4", (3,)), ("c", "u1", (4,))])
+        vblock = np.empty(len(vertices), vdtype)
+        vblock["p"] = vertices
+        vblock["c"] = np.column_stack([colors, np.full(len(colors), 255)])
+        fdtype = np.dtype([("n", "u1"), ("v", "<i4", (3,))])
+        fblock = np.empty(len(triangles), fdtype)
+        fblock["n"] = 3
+        fblock["v"] = triangles
+        path.write_bytes(header.encode() + vblock.tobytes() + fblock.tobytes())
+    else:
+        lines = [f"{x} {y} {z} {r} {g} {b} 255" for (x, y, z), (r, g, b) in zip(vertices.tolist(), colors.tolist())]
+        lines += [f"3 {a} {b} {c}" for a, b, c in triangles.tolist()]
+        path.write_text(header + "\n".join(lines) + "\n")
+
+
+def write_tsv(path: Path, version: int) -> None:
+    if version == 1:
+        head = "id\tcategory\tcount\tnyuId\tnyu40id\teigen13id\tnyuClass\tnyu40class"
+        rows = [f"{i}\t{raw}\t10\t0\t{nyu}\t0\t{cat}\t{cat}" for i, raw, cat, nyu in TSV_ROWS]
+    else:
+        head = "id\traw_category\tcategory\tcount\tnyu40id\teigen13id\tnyuClass\tnyu40class"
+        rows = [f"{i}\t{raw}\t{cat}\t10\t{nyu}\t0\t{cat}\t{cat}" for i, raw, cat, nyu in TSV_ROWS]
+    path.write_text("\n".join([head, *rows]) + "\n")
+
+
+@dataclass
+class TinyScanNet:
+    scene_dir: Path
+    poses_scan: dict[str, np.ndarray]
+    #: raw category -> (min, max) of its box in the scan frame
+    boxes_scan: dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def build_scannet(
+    root: Path, *, tsv_version: int = 2, alignment: bool = True, binary_ply: bool = True, labels_2d: bool = True
+) -> TinyScanNet:
+    """A scene with a chair, a table, a desk and a floor; frames 0, 1 (invalid pose), 2, 10."""
+    scene = root / SCENE_ID
+    for sub in ("color", "depth", "pose", "intrinsic", "instance-filt", "label-filt"):
+        (scene / sub).mkdir(parents=True)
+    write_tsv(root / "scannetv2-labels.combined.tsv", tsv_version)
+
+    parts = {
+        "chair": (np.array([0.0, 0.0, 0.0]), np.array([0.5, 0.5, 1.0])),
+        "table": (np.array([1.0, 1.0, 0.0]), np.array([2.2, 1.8, 0.75])),
+        "desk": (np.array([-2.0, 1.0, 0.0]), np.array([-1.0, 1.6, 0.8])),
+        "floor": (np.array([-3.0, -3.0, -0.02]), np.array([3.0, 3.0, 0.0])),
+    }
+    vertices, triangles, seg_indices = [], [], []
+    for segment, (lo, hi) in enumerate(parts.values()):
+        v, t = box_mesh(lo, hi)
+        triangles.append(t + sum(len(x) for x in vertices))
+        vertices.append(v)
+        seg_indices += [100 + segment] * len(v)
+    vertices_all = np.concatenate(vertices).astype(np.float32)
+    colors = np.tile(np.array([[200, 100, 50]], np.uint8), (len(vertices_all), 1))
+    write_ply(scene / f"{SCENE_ID}_vh_clean_2.ply", vertices_all, colors, np.concatenate(triangles), binary=binary_ply)
+    (scene / f"{SCENE_ID}_vh_clean_2.0.010000.segs.json").write_text(json.dumps({"sceneId": SCENE_ID, "segIndices": seg_indices}))
+    groups = [
+        {"id": i, "objectId": i, "segments": [100 + i], "label": raw} for i, raw in enumerate(parts)
+    ]
+    (scene / f"{SCENE_ID}.aggregation.json").write_text(json.dumps({"sceneId": SCENE_ID, "segGroups": groups}))
+
+    meta = ["colorHeight = 48", "colorWidth = 64", "depthHeight = 24", "depthWidth = 32"]
+    if alignment:
+        meta.append("axisAlignment = " + " ".join(f"{v:g}" for v in ALIGNMENT.ravel()))
+    (scene / f"{SCENE_ID}.txt").write_text("\n".join(meta) + "\n")
+    k = np.eye(4)
+    k[0, 0], k[1, 1], k[0, 2], k[1, 2] = DEPTH_K
+    np.savetxt(scene / "intrinsic" / "intrinsic_depth.txt", k)
+    np.savetxt(scene / "intrinsic" / "intrinsic_color.txt", k * np.array([[2], [2], [1], [1]]))
+
+    rng = np.random.default_rng(7)
+    poses = {}
+    for index, name in enumerate(["0", "1", "2", "10"]):
+        pose = np.eye(4)
+        pose[:3, 3] = [0.1 * index, -3.0, 1.2]
+        if name == "1":
+            pose[:] = -np.inf
+        poses[name] = pose
+        np.savetxt(scene / "pose" / f"{name}.txt", pose)
+        # colour: left half red, right half blue (at colour size), to check the resize
+        color = np.zeros((COLOR_WH[1], COLOR_WH[0], 3), np.uint8)
+        color[:, : COLOR_WH[0] // 2] = (255, 0, 0)
+        color[:, COLOR_WH[0] // 2 :] = (0, 0, 255)
+        cv2.imwrite(str(scene / "color" / f"{name}.jpg"), color[..., ::-1])
+        depth = rng.integers(500, 3000, size=(DEPTH_WH[1], DEPTH_WH[0])).astype(np.uint16)
+        depth[0, 0] = 0
+        cv2.imwrite(str(scene / "depth" / f"{name}.png"), depth)
+        if labels_2d:
+            # instance-filt at colour size: chair (objectId 0 -> 1) top-left block, table (-> 2)
+            # bottom-right block, floor (-> 4) elsewhere; a 2x2 speck of desk (-> 3).
+            instance = np.full((COLOR_WH[1], COLOR_WH[0]), 4, np.uint8)
+            instance[:20, :24] = 1
+            instance[28:, 36:] = 2
+            instance[:2, 62:] = 3
+            label = np.select([instance == 1, instance == 2, instance == 3], [2, 4, 9], 11).astype(np.uint16)
+            cv2.imwrite(str(scene / "instance-filt" / f"{name}.png"), instance)
+            cv2.imwrite(str(scene / "label-filt" / f"{name}.png"), label)
+    return TinyScanNet(scene, poses, parts)
+
+
+
+
+def build_seven_scenes(root: Path, *, n_frames: int = 3, gravity: np.ndarray | None = None, sequences: int = 0) -> Path:
+    """A 7-Scenes-layout folder with ``n_frames`` frames (the last pose NaN), 64x48 images."""
+    folders = [root / f"seq-{i + 1:02d}" for i in range(sequences)] if sequences else [root]
+    for folder in folders:
+        folder.mkdir(parents=True, exist_ok=True)
+        for index in range(n_frames):
+            stem = f"frame-{index:06d}"
+            pose = np.eye(4)
+            pose[:3, 3] = [index * 0.05, 0.0, 0.0]
+            if index == n_frames - 1:
+                pose[0, 0] = np.nan
+            np.savetxt(folder / f"{stem}.pose.txt", pose)
+            cv2.imwrite(str(folder / f"{stem}.color.jpg"), np.full((48, 64, 3), 90, np.uint8))
+            depth = np.full((48, 64), 1500, np.uint16)
+            depth[:, :4] = 65535
+            depth[:, 4:8] = 0
+            cv2.imwrite(str(folder / f"{stem}.depth.png"), depth)
+    np.savetxt(root / "camera-intrinsics.txt", np.array([[58.5, 0, 32.0], [0, 58.5, 24.0], [0, 0, 1]]))
+    if gravity is not None:
+        np.savetxt(root / "gravity-direction.txt", gravity)
+    return root
