@@ -55,7 +55,7 @@ def check_intrinsics(value: Intrinsics | Mapping[str, float] | Sequence[float]) 
         values = tuple(value)
     else:
         raise InvalidInput("intrinsics", "fx, fy, cx, cy", describe(value))
-    fx, fy = (check_finite_number(f"intrinsics.{k}", v, positive=True) for k, v in zip("xy", values[:2]))
+    fx, fy = (check_finite_number(f"intrinsics.f{k}", v, positive=True) for k, v in zip("xy", values[:2]))
     cx, cy = (check_finite_number(f"intrinsics.c{k}", v) for k, v in zip("xy", values[2:]))
     return Intrinsics(fx, fy, cx, cy)
 

@@ -1,0 +1,82 @@
+import itertools
+
+import numpy as np
+import pytest
+
+from arcloud.core.associate import GATED_COST, associate, association_cost, common_counts, hungarian_match, overlap_matrix
+from arcloud.core.types import Params
+
+
+def random_sets(rng, n, universe=400, size=(0, 60)):
+    return [np.unique(rng.integers(0, universe, rng.integers(*size))).astype(np.int64) for _ in range(n)]
+
+
+def test_common_counts_equal_set_intersections():
+    rng = np.random.default_rng(3)
+    a, b = random_sets(rng, 7), random_sets(rng, 5)
+    expected = [[np.intersect1d(x, y).size for y in b] for x in a]
+    assert common_counts(a, b).tolist() == expected
+    assert common_counts([], b).shape == (0, 5)
+
+
+def brute_force(cost):
+    """Minimum total cost over every assignment of min(D, O) pairs, gated pairs dropped afterwards."""
+    d, o = cost.shape
+    best, best_pairs = np.inf, []
+    if d <= o:
+        for cols in itertools.permutations(range(o), d):
+            total = sum(cost[r, c] for r, c in zip(range(d), cols))
+            if total < best - 1e-12:
+                best, best_pairs = total, list(zip(range(d), cols))
+    else:
+        for rows in itertools.permutations(range(d), o):
+            total = sum(cost[r, c] for r, c in zip(rows, range(o)))
+            if total < best - 1e-12:
+                best, best_pairs = total, list(zip(rows, range(o)))
+    return best, [(r, c) for r, c in best_pairs if cost[r, c] < GATED_COST]
+
+
+@pytest.mark.parametrize("seed", range(25))
+def test_hungarian_matches_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    dets, objs = random_sets(rng, int(rng.integers(1, 5)), 120), random_sets(rng, int(rng.integers(1, 5)), 120)
+    labels_d, labels_o = rng.integers(0, 3, len(dets)), rng.integers(0, 3, len(objs))
+    params = Params(association_min_overlap=0.2, association_tolerance_voxels=0)
+    cost = association_cost(overlap_matrix(dets, objs, 0), labels_d, labels_o, params)
+    assert np.isfinite(cost).all()
+    pairs = hungarian_match(cost)
+    best, expected = brute_force(cost)
+    total = sum(cost[r, c] for r, c in pairs) + GATED_COST * (min(cost.shape) - len(pairs))
+    assert total == pytest.approx(best)
+    assert sorted(c for _, c in pairs) == sorted(c for _, c in expected) or total == pytest.approx(best)
+    assert all(cost[r, c] < GATED_COST for r, c in pairs)
+
+
+def test_gating_keeps_weak_pairs_unmatched_and_class_aware_option():
+    obj = np.arange(100, dtype=np.int64)
+    strong = np.arange(50, dtype=np.int64)  # all inside the object
+    weak = np.arange(95, 195, dtype=np.int64)  # 5 of 100 inside
+    params = Params(association_min_overlap=0.2, association_tolerance_voxels=0)
+    pairs, unmatched = associate([strong, weak], [0, 0], [obj], [0], params)
+    assert pairs == [(0, 0)] and unmatched == [1]
+    # A label mismatch is a penalty by default and a gate when class-aware.
+    pairs, _ = associate([strong], [1], [obj], [0], params)
+    assert pairs == [(0, 0)]
+    pairs, unmatched = associate([strong], [1], [obj], [0], params.replace(class_aware=True))
+    assert pairs == [] and unmatched == [0]
+
+
+def test_overlap_normalised_by_smaller_set_and_empty_sets_are_zero():
+    big = np.arange(1000, dtype=np.int64)
+    part = np.arange(10, dtype=np.int64)
+    empty = np.empty(0, np.int64)
+    overlap = overlap_matrix([part, empty], [big, empty], 0)
+    assert overlap.tolist() == [[1.0, 0.0], [0.0, 0.0]]
+    assert not np.isnan(overlap).any()
+
+
+def test_each_object_takes_at_most_one_detection():
+    obj = np.arange(100, dtype=np.int64)
+    a, b = np.arange(0, 60, dtype=np.int64), np.arange(40, 100, dtype=np.int64)
+    pairs, unmatched = associate([a, b], [0, 0], [obj], [0], Params(association_tolerance_voxels=0))
+    assert len(pairs) == 1 and len(unmatched) == 1

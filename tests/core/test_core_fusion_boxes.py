@@ -1,0 +1,84 @@
+import numpy as np
+import pytest
+
+from arcloud.core.boxes import box_voxel_mask, fit_gravity_obb, refine, up_rotation
+from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
+from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection
+from arcloud.core.voxels import pack_keys
+
+
+def block(lo, hi):
+    grid = np.stack(np.meshgrid(*(np.arange(a, b) for a, b in zip(lo, hi)), indexing="ij"), -1).reshape(-1, 3)
+    return np.unique(pack_keys(grid))
+
+
+def det(label, keys, score=0.9):
+    return VoxelDetection(CLASS_INDEX[label], score, keys)
+
+
+def test_fusion_adds_weights_and_votes_and_label_is_the_mode():
+    keys = block((0, 0, 0), (4, 4, 4))
+    obj = new_object(1, det("chair", keys), "a", 0.0)
+    obj = fuse_detection(obj, det("chair", keys[:32]), "b")
+    obj = fuse_detection(obj, det("couch", keys, 0.5), "b")
+    assert obj.n_frames == 3 and obj.devices == {"a", "b"}
+    assert obj.weights.max() == 3 and obj.weights.min() == 2
+    assert object_label_index(obj) == CLASS_INDEX["chair"]
+    assert obj.score_sum == pytest.approx(2.3)
+
+
+def test_conflicts_leave_each_voxel_with_one_object():
+    shared = block((0, 0, 0), (2, 2, 2))
+    a = new_object(1, det("chair", np.union1d(shared, block((2, 0, 0), (4, 2, 2)))), "a", 0.0)
+    b = new_object(2, det("table", np.union1d(shared, block((-2, 0, 0), (0, 2, 2)))), "a", 0.0)
+    b = fuse_detection(b, det("table", shared), "a")  # b holds the shared voxels with more weight
+    ra, rb = resolve_conflicts([a, b])
+    assert np.intersect1d(ra.keys, rb.keys).size == 0
+    assert np.isin(shared, rb.keys).all() and not np.isin(shared, ra.keys).any()
+    assert ra.keys.size + rb.keys.size == np.union1d(a.keys, b.keys).size
+
+
+def test_duplicates_of_same_label_merge_into_one():
+    keys = block((0, 0, 0), (5, 5, 5))
+    a = new_object(1, det("tv", keys), "a", 0.0)
+    b = new_object(2, det("tv", keys[10:]), "b", 0.0)
+    c = new_object(3, det("chair", keys), "c", 0.0)  # other label: stays apart
+    far = new_object(4, det("tv", block((20, 0, 0), (25, 5, 5))), "d", 0.0)
+    pairs = find_duplicates([a, b, c, far], Params())
+    assert pairs == [(0, 1)]
+    merged = merge_objects(a, b)
+    assert merged.n_frames == 2 and merged.devices == {"a", "b"} and merged.keys.size == keys.size
+
+
+def test_refine_drops_stray_voxels_and_fits_tight_boxes():
+    body = block((0, 0, 0), (10, 6, 4))  # 0.5 x 0.3 x 0.2 m at 5 cm
+    stray = pack_keys(np.array([[40, 40, 40]]))
+    obj = new_object(1, det("table", np.union1d(body, stray)), "a", 0.0)
+    for _ in range(4):
+        obj = fuse_detection(obj, det("table", body), "a")
+    params = Params(voxel_size_m=0.05)
+    refined = refine(obj, params)
+    assert refined.label == "table"
+    assert np.allclose(refined.aabb.min, [0, 0, 0]) and np.allclose(refined.aabb.max, [0.5, 0.3, 0.2])
+    assert np.allclose(sorted(refined.obb.size), [0.2, 0.3, 0.5])
+    assert 0 < refined.score < 0.9
+    assert refined.bounds.max[0] > 2.0  # the index bounds still cover every voxel kept
+
+
+def test_small_disconnected_part_is_not_in_the_box():
+    body = block((0, 0, 0), (10, 10, 10))
+    island = block((30, 0, 0), (31, 2, 2))  # 4 voxels, well observed but tiny
+    obj = new_object(1, det("couch", np.union1d(body, island)), "a", 0.0)
+    mask = box_voxel_mask(obj, Params())
+    assert mask.sum() == body.size
+
+
+def test_gravity_obb_recovers_a_rotated_box():
+    rng = np.random.default_rng(4)
+    yaw = 0.4
+    local = rng.uniform([-1.0, -0.4, 0.0], [1.0, 0.4, 0.7], (4000, 3))
+    rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    obb = fit_gravity_obb(local @ rot.T + [3.0, 1.0, 0.0], 0.0, np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(sorted(obb.size), [0.7, 0.8, 2.0], atol=0.03)
+    assert np.allclose(obb.center, [3.0, 1.0, 0.35], atol=0.03)
+    assert np.allclose(up_rotation(np.array([0.0, -1.0, 0.0])) @ [0, -1, 0], [0, 0, 1])

@@ -1,0 +1,88 @@
+import numpy as np
+import pytest
+
+from arcloud.core.camera import boxes_in_frustum, frame_frustum, view_frustum
+from arcloud.core.types import Detection, Params
+from arcloud.core.voxels import erode, key_centers, mask_points, pack_keys, unpack_keys, voxelize_detections
+
+from frames import INTRINSICS, plane_frame, rect_mask
+
+
+def test_pack_unpack_round_trip_and_order():
+    rng = np.random.default_rng(1)
+    ijk = rng.integers(-(2**20), 2**20, size=(1000, 3))
+    keys = pack_keys(ijk)
+    assert np.array_equal(unpack_keys(keys), ijk)
+    order = np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
+    assert np.array_equal(np.argsort(keys, kind="stable"), order)
+    with pytest.raises(ValueError, match="outside"):
+        pack_keys(np.array([[2**20, 0, 0]]))
+
+
+def test_erode_matches_definition():
+    rng = np.random.default_rng(2)
+    mask = rng.random((20, 30)) > 0.3
+    eroded = erode(mask, 1)
+    padded = np.pad(mask, 1)
+    expected = np.ones_like(mask)
+    for dr in range(3):
+        for dc in range(3):
+            expected &= padded[dr : dr + 20, dc : dc + 30]
+    assert np.array_equal(eroded, expected)
+
+
+def test_mask_points_back_project_exactly():
+    frame = plane_frame(2.0)
+    params = Params(erode_px=0)
+    points = mask_points(frame, rect_mask(slice(30, 31), slice(40, 42)), params)
+    # Pixels (u=40, v=30) and (u=41, v=30) at 2 m with f=100, c=(40, 30).
+    assert np.allclose(points, [[0.0, 0.0, 2.0], [0.02, 0.0, 2.0]])
+
+
+def test_voxelize_plane_patch_gives_expected_voxels_and_erosion_shrinks_it():
+    pose = np.eye(4)
+    pose[:3, 3] = [0.013, -0.021, 0.0]  # off-grid, so voxel edges do not line up with pixels
+    frame = plane_frame(1.0, cam2world=pose)
+    mask = rect_mask(slice(10, 50), slice(20, 60))  # 40x40 px at 1 m, f=100 -> 0.4 x 0.4 m
+    no_erosion = voxelize_detections(frame, [Detection("table", 0.7, mask)], Params(erode_px=0, voxel_size_m=0.1))[0]
+    centers = key_centers(no_erosion.keys, 0.1)
+    assert np.allclose(centers[:, 2], 1.05)  # all on the plane z = 1 m -> voxel layer [1.0, 1.1)
+    xs, ys = np.unique(np.round(centers[:, 0], 3)), np.unique(np.round(centers[:, 1], 3))
+    # x spans [-0.2 + 0.013, 0.19 + 0.013] -> voxel columns -0.2..0.1 (4 voxels, plus the partial one)
+    assert xs.size in (4, 5) and ys.size in (4, 5)
+    assert no_erosion.keys.size == xs.size * ys.size
+    assert no_erosion.label_index == 1 and no_erosion.score == pytest.approx(0.7)
+    eroded = voxelize_detections(frame, [Detection("table", 0.7, mask)], Params(erode_px=6, voxel_size_m=0.1))[0]
+    assert eroded.keys.size < no_erosion.keys.size
+    assert np.isin(eroded.keys, no_erosion.keys).all()
+
+
+def test_voxelize_respects_depth_range_and_drops_tiny_detections():
+    frame = plane_frame(6.0)  # beyond the default 5 m
+    mask = rect_mask(slice(0, 60), slice(0, 80))
+    assert voxelize_detections(frame, [Detection("tv", 0.9, mask)], Params()) == []
+    near = plane_frame(2.0)
+    tiny = rect_mask(slice(30, 32), slice(40, 42))
+    assert voxelize_detections(near, [Detection("tv", 0.9, tiny)], Params(erode_px=0)) == []
+
+
+def test_frustum_contains_what_the_camera_sees():
+    pose = np.eye(4)
+    pose[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # camera looking along world +x, z up
+    pose[:3, 3] = [1.0, 2.0, 1.5]
+    frustum = view_frustum(INTRINSICS, 80, 60, pose, 0.5, 4.0)
+    ahead = np.array([3.0, 2.0, 1.5])
+    behind = np.array([-1.0, 2.0, 1.5])
+    beside = np.array([3.0, 6.0, 1.5])
+    inside = boxes_in_frustum(frustum, np.array([ahead, behind, beside]) - 0.1, np.array([ahead, behind, beside]) + 0.1)
+    assert inside.tolist() == [True, False, False]
+    big = boxes_in_frustum(frustum, np.array([[-5.0, -5.0, -5.0]]), np.array([[5.0, 5.0, 5.0]]))
+    assert big.tolist() == [True]
+
+
+def test_frame_frustum_near_far_from_depth():
+    frame = plane_frame(2.0, patches=((slice(0, 5), slice(0, 5), 1.0),))
+    frustum = frame_frustum(frame, Params())
+    depths = frustum.corners[:, 2]
+    assert depths.min() == pytest.approx(0.95) and depths.max() == pytest.approx(2.05)
+    assert frame_frustum(plane_frame(0.0), Params()) is None
