@@ -78,8 +78,8 @@ def check_class_map(class_map: Mapping[int, str], n_model_classes: int | None) -
             raise InvalidInput(field, f"one of {CLASSES}", describe(label))
         in_range = isinstance(class_id, (int, np.integer)) and not isinstance(class_id, bool) and class_id >= 0
         if not in_range or (n_model_classes is not None and class_id >= n_model_classes):
-            bound = "" if n_model_classes is None else f" < {n_model_classes} (the model's class count)"
-            raise InvalidInput("class_map", f"class ids >= 0{bound}", describe(class_id))
+            expected = "class ids >= 0" if n_model_classes is None else f"class ids of the model, in [0, {n_model_classes})"
+            raise InvalidInput("class_map", expected, describe(class_id))
         checked[int(class_id)] = label
     return checked
 

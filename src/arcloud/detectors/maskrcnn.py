@@ -80,16 +80,16 @@ class MaskRCNNDetector:
     def _check_signature(self) -> tuple[str, bool, tuple[int, int] | None]:
         inputs, outputs = input_specs(self._session), output_specs(self._session)
         if len(inputs) != 1 or inputs[0].type != "tensor(float)" or len(inputs[0].shape) not in (3, 4):
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, inputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         shape = inputs[0].shape
         batched = len(shape) == 4
         if batched and isinstance(shape[0], int) and shape[0] != 1:
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, inputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         channels, height, width = shape[-3:]
         if isinstance(channels, int) and channels != 3:
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, inputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         if not is_maskrcnn_export([o.name for o in outputs]):
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, outputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         fixed = (height, width) if isinstance(height, int) and isinstance(width, int) else None
         return inputs[0].name, batched, fixed
 

@@ -238,23 +238,23 @@ class YoloSegDetector:
     def _check_signature(self) -> tuple[str, int, tuple[str, str], int | None]:
         inputs, outputs = input_specs(self._session), output_specs(self._session)
         if len(inputs) != 1 or len(inputs[0].shape) != 4 or inputs[0].type != "tensor(float)":
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, inputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         _, channels, height, width = inputs[0].shape
         if channels not in (3, None) and not isinstance(channels, str):
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, inputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         size = height if isinstance(height, int) else _imgsz_metadata(metadata(self._session))
         if not isinstance(size, int) or (isinstance(width, int) and width != size):
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, inputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         by_rank = {len(o.shape): o for o in outputs}
         if len(outputs) != 2 or set(by_rank) != {3, 4}:
-            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, outputs)
+            raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         detections, prototypes = by_rank[3], by_rank[4]
         n_channels, n_coeffs = detections.shape[1], prototypes.shape[1]
         n_classes = None
         if isinstance(n_channels, int) and isinstance(n_coeffs, int):
             n_classes = n_channels - 4 - n_coeffs
             if n_classes < 1:
-                raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, outputs)
+                raise signature_error(self.model_path, _ADAPTER, _EXPECTED_SIGNATURE, self._session)
         return inputs[0].name, size, (detections.name, prototypes.name), n_classes
 
     def _class_names(self, n_classes: int | None) -> tuple[str, ...]:

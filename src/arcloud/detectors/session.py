@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import os
 import threading
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -74,13 +73,7 @@ def _create_session(path: Path, intra_op_threads: int | None) -> onnxruntime.Inf
         session = ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own untyped errors (InvalidProtobuf, Fail, ...)
         raise ModelError(f"model file {path}: expected a loadable ONNX model, got {type(exc).__name__}: {exc}") from exc
-    log.info(
-        "loaded ONNX model %s (inputs: %s; outputs: %s; intra_op_threads=%s)",
-        path,
-        ", ".join(str(s) for s in input_specs(session)),
-        ", ".join(str(s) for s in output_specs(session)),
-        intra_op_threads,
-    )
+    log.info("loaded ONNX model %s (%s; intra_op_threads=%s)", path, describe_signature(session), intra_op_threads)
     return session
 
 
@@ -108,7 +101,13 @@ def metadata(session: onnxruntime.InferenceSession) -> dict[str, str]:
     return dict(session.get_modelmeta().custom_metadata_map)
 
 
-def signature_error(model_path: object, adapter: str, expected: str, got: Sequence[TensorSpec]) -> ModelError:
-    """A ``ModelError`` for a model that does not fit an adapter, listing what it has."""
-    listed = "; ".join(str(s) for s in got) or "nothing"
-    return ModelError(f"model {model_path} does not fit the {adapter} adapter: expected {expected}, got {listed}")
+def describe_signature(session: onnxruntime.InferenceSession) -> str:
+    """"inputs: images tensor(float)[1,3,640,640]; outputs: output0 ..., output1 ..." for messages."""
+    inputs = ", ".join(str(s) for s in input_specs(session)) or "none"
+    outputs = ", ".join(str(s) for s in output_specs(session)) or "none"
+    return f"inputs: {inputs}; outputs: {outputs}"
+
+
+def signature_error(model_path: object, adapter: str, expected: str, session: onnxruntime.InferenceSession) -> ModelError:
+    """A ``ModelError`` for a model that does not fit an adapter, saying what it expected and what the model has."""
+    return ModelError(f"model {model_path} does not fit the {adapter} adapter: expected {expected}, got {describe_signature(session)}")

@@ -1,0 +1,100 @@
+"""Session creation (cache, errors) and detector specs (registry, autodetection, ARCLOUD_MODEL)."""
+
+from __future__ import annotations
+
+import pytest
+
+from arcloud.detectors import factory
+from arcloud.detectors.factory import MODEL_ENV_VAR, make_detector, register_detector
+from arcloud.detectors.maskrcnn import MaskRCNNDetector
+from arcloud.detectors.onnx_yolo import YoloSegDetector
+from arcloud.detectors.session import load_session
+from arcloud.errors import InvalidInput, ModelError
+
+# --- Sessions -----------------------------------------------------------------------------------------
+
+
+def test_one_session_per_model_and_thread_count(tiny_models) -> None:
+    first = load_session(tiny_models["yolo"])
+    assert load_session(str(tiny_models["yolo"])) is first
+    assert load_session(tiny_models["yolo"], intra_op_threads=1) is not first
+    assert load_session(tiny_models["maskrcnn"]) is not first
+
+
+def test_a_missing_model_file_is_a_model_error(tmp_path) -> None:
+    missing = tmp_path / "nowhere.onnx"
+    with pytest.raises(ModelError, match=f"expected an ONNX file, got no file at {missing}"):
+        YoloSegDetector(missing)
+
+
+def test_a_file_that_is_not_onnx_is_a_model_error(tmp_path) -> None:
+    text = tmp_path / "notes.onnx"
+    text.write_text("this is not a protobuf")
+    with pytest.raises(ModelError, match="expected a loadable ONNX model, got"):
+        YoloSegDetector(text)
+
+
+def test_a_model_with_wrong_inputs_is_a_model_error_saying_expected_and_got(tiny_models) -> None:
+    with pytest.raises(ModelError) as caught:
+        YoloSegDetector(tiny_models["wrong_inputs"])
+    message = str(caught.value)
+    assert "does not fit the YOLO-seg adapter" in message
+    assert "expected one input float32 [1, 3, S, S]" in message
+    assert "got inputs: x tensor(float)[1,1,64,64]; outputs: y tensor(float)[1,1,64,64]" in message
+    with pytest.raises(ModelError, match="does not fit the Mask R-CNN adapter.*got inputs: x tensor"):
+        MaskRCNNDetector(tiny_models["wrong_inputs"])
+
+
+def test_bad_thread_count_is_refused(tiny_models) -> None:
+    with pytest.raises(InvalidInput, match="intra_op_threads: expected an int >= 1 or None, got 0"):
+        load_session(tiny_models["yolo"], intra_op_threads=0)
+
+
+# --- Specs --------------------------------------------------------------------------------------------
+
+
+def test_onnx_spec_autodetects_the_adapter_and_passes_options(tiny_models) -> None:
+    yolo = make_detector(f"onnx:{tiny_models['yolo']}", score_threshold=0.4)
+    assert isinstance(yolo, YoloSegDetector) and yolo.score_threshold == 0.4
+    maskrcnn = make_detector(f"onnx:{tiny_models['maskrcnn']}", intra_op_threads=1)
+    assert isinstance(maskrcnn, MaskRCNNDetector)
+    assert isinstance(make_detector(f"maskrcnn:{tiny_models['maskrcnn']}"), MaskRCNNDetector)
+    with pytest.raises(ModelError, match="does not fit the Mask R-CNN adapter"):
+        make_detector(f"maskrcnn:{tiny_models['yolo']}")
+
+
+def test_bare_onnx_spec_reads_the_model_from_the_environment(tiny_models, monkeypatch) -> None:
+    monkeypatch.setenv(MODEL_ENV_VAR, str(tiny_models["maskrcnn"]))
+    assert isinstance(make_detector("onnx"), MaskRCNNDetector)
+    monkeypatch.delenv(MODEL_ENV_VAR)
+    with pytest.raises(InvalidInput, match="expected onnx:PATH or ARCLOUD_MODEL set to a model file, got 'onnx' with no path"):
+        make_detector("onnx")
+
+
+def test_unknown_specs_name_the_valid_ones() -> None:
+    with pytest.raises(InvalidInput, match="detector spec: expected PREFIX\\[:ARGUMENT\\] with PREFIX one of .*maskrcnn, onnx.*got 'yolo:x.onnx'"):
+        make_detector("yolo:x.onnx")
+    with pytest.raises(InvalidInput, match="detector spec"):
+        make_detector("")
+
+
+def test_registered_factories_get_the_argument_and_options(monkeypatch) -> None:
+    monkeypatch.setattr(factory, "DETECTOR_FACTORIES", dict(factory.DETECTOR_FACTORIES))
+    calls = []
+
+    class Fake:
+        def detect(self, frame):  # noqa: ANN001, ANN201
+            return []
+
+    def build(argument: str, **options: object) -> Fake:
+        calls.append((argument, options))
+        return Fake()
+
+    register_detector("gt-masks", build)
+    assert isinstance(make_detector("gt-masks:scene0000_00", erode_px=2), Fake)
+    assert isinstance(make_detector("gt-masks"), Fake)
+    assert calls == [("scene0000_00", {"erode_px": 2}), ("", {})]
+    with pytest.raises(InvalidInput, match="a prefix not registered yet"):
+        register_detector("gt-masks", lambda argument, **options: Fake())
+    with pytest.raises(InvalidInput, match="prefix: expected a non-empty name"):
+        register_detector("bad:prefix", build)
