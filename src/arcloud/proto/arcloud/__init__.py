@@ -1,0 +1,1 @@
+"""Generated protobuf packages (``make proto``); mirrors ``proto/arcloud``."""

@@ -1,0 +1,1 @@
+"""Generated code of ``proto/arcloud/v1`` (``make proto``); do not edit."""

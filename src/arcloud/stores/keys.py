@@ -1,0 +1,89 @@
+"""Every Redis key arcloud uses, in one place.
+
+All keys of one map share the hash tag ``{<map_id>}``, so a map lives on one Redis Cluster slot (its
+Lua scripts touch one slot) while many maps spread over a cluster. Map ids are checked by
+``arcloud.core.checks.check_id``: no braces, whitespace or glob characters, so a map's keys match the
+pattern ``map_pattern(map_id)`` and nothing else.
+
+    arcloud:{m}:ids                 STRING  object id counter (INCRBY)
+    arcloud:{m}:frames              SET     processed frame keys ("<device_id>/<frame_id>")
+    arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
+    arcloud:{m}:obj:<id>            HASH    one object: metadata fields and its encoded voxels (``codec``)
+    arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
+    arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
+    arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
+
+Keys outside one map (the ingest stream of the service) start with ``arcloud:`` and have no map tag.
+"""
+
+from __future__ import annotations
+
+PREFIX = "arcloud"
+
+# Suffixes after the map prefix; the Lua scripts build per-object and per-cell keys from these.
+IDS = "ids"
+FRAMES = "frames"
+BOUNDS = "bounds"
+OBJECT = "obj"
+CELL = "cell"
+LOCK = "lock"
+CLAIM = "claim"
+
+
+def map_prefix(map_id: str) -> str:
+    """``arcloud:{<map_id>}``: the start of every key of the map (the braces are the hash tag)."""
+    return f"{PREFIX}:{{{map_id}}}"
+
+
+def map_pattern(map_id: str) -> str:
+    """SCAN/KEYS pattern matching every key of the map and no other map's."""
+    return f"{map_prefix(map_id)}:*"
+
+
+def ids_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{IDS}"
+
+
+def frames_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{FRAMES}"
+
+
+def bounds_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{BOUNDS}"
+
+
+def object_key(map_id: str, object_id: int) -> str:
+    return f"{map_prefix(map_id)}:{OBJECT}:{int(object_id)}"
+
+
+def cell_name(cell: tuple[int, int, int]) -> str:
+    """``i:j:k``: the part of cell and claim keys that names an index cell."""
+    i, j, k = (int(c) for c in cell)
+    return f"{i}:{j}:{k}"
+
+
+def cell_key(map_id: str, cell: tuple[int, int, int]) -> str:
+    return f"{map_prefix(map_id)}:{CELL}:{cell_name(cell)}"
+
+
+def lock_key(map_id: str, object_id: int) -> str:
+    return f"{map_prefix(map_id)}:{LOCK}:{int(object_id)}"
+
+
+def claim_key(map_id: str, cell: tuple[int, int, int]) -> str:
+    return f"{map_prefix(map_id)}:{CLAIM}:{cell_name(cell)}"
+
+
+def hash_tag(key: str) -> str:
+    """The hash tag of a key as Redis Cluster computes it (the text between the first '{' and the
+    next '}', when non-empty), or the whole key."""
+    start = key.find("{")
+    if start >= 0:
+        end = key.find("}", start + 1)
+        if end > start + 1:
+            return key[start + 1 : end]
+    return key
+
+
+# Service-wide keys (no map tag).
+INGEST_STREAM = f"{PREFIX}:ingest"

@@ -1,0 +1,85 @@
+-- Atomic commit of one step: check every fence, then write everything, or write nothing.
+-- KEYS[1]: the map's processed-frames SET, KEYS[2]: the map's bounds HASH.
+-- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
+-- ARGV[2]: JSON {frame, leases: [[key, token]...], held: [id...], upserts: [{id, version, cells, n_fields}...],
+--          deletes: [{id, version}...]} (ids and versions as decimal strings; frame "" for none).
+-- ARGV[3..]: per upsert in order: its packed bounds, then n_fields pairs of (field, value) of its HASH.
+-- Returns 1 (written), 0 (the frame was recorded before: nothing written), or an error "STALE ..."
+-- (a fence failed: nothing written).
+local frames_key, bounds_key = KEYS[1], KEYS[2]
+local prefix = ARGV[1]
+local req = cjson.decode(ARGV[2])
+
+if req.frame ~= '' and redis.call('SISMEMBER', frames_key, req.frame) == 1 then
+  return 0
+end
+
+local function object_key(id)
+  return prefix .. ':obj:' .. id
+end
+
+local function stale(message)
+  return redis.error_reply('STALE ' .. prefix .. ': ' .. message .. '; nothing written')
+end
+
+for _, lease in ipairs(req.leases) do
+  if redis.call('GET', lease[1]) ~= lease[2] then
+    return stale('lease on ' .. lease[1] .. ' expired or was taken over')
+  end
+end
+local held = {}
+for _, id in ipairs(req.held) do
+  held[id] = true
+end
+for _, u in ipairs(req.upserts) do
+  local current = redis.call('HGET', object_key(u.id), 'version')
+  if not current then
+    if u.version ~= '1' then
+      return stale('object ' .. u.id .. ' written at version ' .. u.version .. ' but it does not exist')
+    end
+  else
+    if not held[u.id] then
+      return stale('object ' .. u.id .. ' written without its lock')
+    end
+    if tonumber(current) ~= tonumber(u.version) - 1 then
+      return stale('object ' .. u.id .. ' is at version ' .. current .. ', write expected ' .. (tonumber(u.version) - 1))
+    end
+  end
+end
+for _, d in ipairs(req.deletes) do
+  local current = redis.call('HGET', object_key(d.id), 'version')
+  if current and (not held[d.id] or tonumber(current) ~= tonumber(d.version)) then
+    return stale('object ' .. d.id .. ' deleted without its lock or at a stale version')
+  end
+end
+
+local function unindex(id)
+  local cells = redis.call('HGET', object_key(id), 'cells')
+  if cells then
+    for cell in string.gmatch(cells, '%S+') do
+      redis.call('SREM', prefix .. ':cell:' .. cell, id)
+    end
+  end
+  redis.call('HDEL', bounds_key, id)
+end
+
+for _, d in ipairs(req.deletes) do
+  unindex(d.id)
+  redis.call('DEL', object_key(d.id))
+end
+local at = 3
+for _, u in ipairs(req.upserts) do
+  local key = object_key(u.id)
+  unindex(u.id)
+  redis.call('DEL', key)
+  redis.call('HSET', key, unpack(ARGV, at + 1, at + 2 * u.n_fields))
+  redis.call('HSET', bounds_key, u.id, ARGV[at])
+  for cell in string.gmatch(u.cells, '%S+') do
+    redis.call('SADD', prefix .. ':cell:' .. cell, u.id)
+  end
+  at = at + 1 + 2 * u.n_fields
+end
+if req.frame ~= '' then
+  redis.call('SADD', frames_key, req.frame)
+end
+return 1

@@ -1,0 +1,351 @@
+"""The Redis object store: one map shared by many workers on many machines.
+
+Same semantics as the embedded ``MemoryStore`` (one contract suite tests both). The layout is in
+``arcloud.stores.keys`` (every key of a map under the hash tag ``{map_id}``: one Redis Cluster slot per
+map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``stores/lua/*.lua``:
+
+- Spatial index: cubic cells of ``cell_m`` -> SET of object ids, plus a HASH id -> packed bounds.
+  ``query_region`` reads the cells the box covers and their objects' bounds in one round trip (Lua),
+  then tests the bounds exactly. A box spanning more than ``max_query_cells`` cells (or an unbounded
+  one) reads the whole bounds HASH instead: one round trip, O(objects of the map).
+- Locks and space claims: keys holding a random token with a TTL (``SET key token PX ttl``), taken
+  all-or-nothing by one Lua script (in sorted order; never some held while waiting), retried with
+  jittered exponential backoff until ``timeout_s`` (0: try once); released by a script that deletes
+  only the keys still holding the lease's token.
+- ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
+  expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
+  mark, or writes nothing. A worker whose lock expired cannot overwrite newer data.
+- ``new_ids``: INCRBY on the map's counter, unique across processes.
+- ``delete_map``: a Lua script removes the objects, index, frames and counter atomically, then a SCAN
+  of ``arcloud:{map}:*`` removes whatever else is left (leases still alive). Not atomic against writers
+  of the same map that run at the same time.
+
+redis-py exceptions become ``arcloud.errors`` at this boundary: ``StoreUnavailable`` (connection,
+timeout), ``StaleLease`` (a fence failed), ``StoreError`` (anything else). The client (a connection
+pool) is safe to share between threads; each process must build its own ``RedisStore``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import logging
+import math
+import random
+import time
+import uuid
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from functools import cache
+from importlib import resources
+from typing import Any
+
+import numpy as np
+import redis
+
+from arcloud.core.types import MapObject
+from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable
+from arcloud.stores import codec, keys
+
+log = logging.getLogger(__name__)
+
+DEFAULT_URL = "redis://127.0.0.1:6379/0"
+MAX_QUERY_CELLS = 4096  # larger query boxes read the bounds HASH instead of the cells
+BACKOFF_MIN_S = 0.002
+BACKOFF_MAX_S = 0.05
+GET_BATCH = 256  # objects per pipeline when reading many
+SCAN_COUNT = 1000
+
+
+@cache
+def _lua(name: str) -> str:
+    return (resources.files("arcloud.stores") / "lua" / f"{name}.lua").read_text()
+
+
+class RedisLease:
+    """Locks or space claims held in a ``RedisStore``: the keys, the token, the object ids."""
+
+    def __init__(self, store: RedisStore, map_id: str, lease_keys: list[str], token: str, ids: tuple[int, ...]) -> None:
+        self.store = store
+        self.map_id = map_id
+        self.keys = lease_keys
+        self.token = token
+        self.ids = ids
+
+    def release(self) -> None:
+        """Release what this lease still holds (never another holder's keys); safe to call twice."""
+        self.store._release(self)
+
+    def __enter__(self) -> RedisLease:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    def __repr__(self) -> str:
+        return f"RedisLease(map_id={self.map_id!r}, ids={self.ids}, n_keys={len(self.keys)})"
+
+
+class RedisStore:
+    """``ObjectStore`` on Redis. ``cell_m``: size of the spatial index's cubic cells (every process of
+    one deployment must use the same). ``client``: an existing ``redis.Redis`` (binary responses, i.e.
+    ``decode_responses=False``) instead of connecting to ``url``. ``votes_f16`` stores votes as float16
+    (see ``codec``)."""
+
+    def __init__(
+        self,
+        url: str = DEFAULT_URL,
+        *,
+        cell_m: float = 1.0,
+        client: redis.Redis | None = None,
+        max_query_cells: int = MAX_QUERY_CELLS,
+        votes_f16: bool = False,
+    ) -> None:
+        if not cell_m > 0:
+            raise InvalidInput("cell_m", "> 0", cell_m)
+        if client is None:
+            try:
+                client = redis.Redis.from_url(url, socket_connect_timeout=5.0, socket_timeout=30.0)
+            except ValueError as exc:
+                raise InvalidInput("url", "a redis:// or rediss:// or unix:// URL", url) from exc
+            self._owns_client = True
+        else:
+            self._owns_client = False
+        self.client = client
+        self.cell_m = float(cell_m)
+        self.max_query_cells = int(max_query_cells)
+        self.votes_f16 = votes_f16
+        self._scripts = {
+            name: client.register_script(_lua(name)) for name in ("acquire", "release", "query", "commit", "delete_map")
+        }
+
+    @classmethod
+    def from_url(cls, url: str = DEFAULT_URL, **options: Any) -> RedisStore:
+        return cls(url, **options)
+
+    def close(self) -> None:
+        """Close the connections (when the store made its client)."""
+        if self._owns_client:
+            self.client.close()
+
+    def __enter__(self) -> RedisStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"RedisStore({self._where()}, cell_m={self.cell_m})"
+
+    def _where(self) -> str:
+        """host:port/db of the server, never credentials."""
+        kwargs = self.client.connection_pool.connection_kwargs
+        if "path" in kwargs:
+            return f"unix:{kwargs['path']}"
+        return f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}/{kwargs.get('db', 0)}"
+
+    @contextmanager
+    def _boundary(self, what: str) -> Iterator[None]:
+        """Map redis-py exceptions to arcloud's."""
+        try:
+            yield
+        except redis.exceptions.ResponseError as exc:
+            message = str(exc)
+            if message.startswith("STALE "):
+                raise StaleLease(message.removeprefix("STALE ")) from exc
+            raise StoreError(f"{what}: redis at {self._where()} answered {message}") from exc
+        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
+            raise StoreUnavailable(f"{what}: redis at {self._where()} unreachable ({exc})") from exc
+        except redis.exceptions.RedisError as exc:
+            raise StoreError(f"{what}: redis at {self._where()} failed ({exc})") from exc
+
+    def ping(self) -> None:
+        """Raise ``StoreUnavailable`` unless the server answers."""
+        with self._boundary("ping"):
+            self.client.ping()
+
+    # --- spatial index -----------------------------------------------------------------------------
+    def cells_of(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[int, int, int]]:
+        """Index cells touched by the box [lo, hi] (each (3,), metres)."""
+        c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m).astype(np.int64)
+        c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m).astype(np.int64)
+        return list(itertools.product(*(range(int(a), int(b) + 1) for a, b in zip(c_lo, c_hi))))  # type: ignore[arg-type]
+
+    def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        lo = _vec3("lo", lo)
+        hi = _vec3("hi", hi)
+        if np.any(lo > hi):
+            return {}
+        with np.errstate(invalid="ignore", over="ignore"):
+            c_lo, c_hi = np.floor(lo / self.cell_m), np.floor(hi / self.cell_m)
+        n_cells = math.prod(int(b - a + 1) for a, b in zip(c_lo, c_hi)) if np.all(np.isfinite([c_lo, c_hi])) else math.inf
+        with self._boundary(f"query_region on map {map_id}"):
+            if n_cells <= self.max_query_cells:
+                names = [keys.cell_name(c) for c in self.cells_of(lo, hi)]
+                flat = self._scripts["query"](keys=[keys.bounds_key(map_id)], args=[keys.map_prefix(map_id), *names])
+                pairs = zip(flat[::2], flat[1::2])
+            else:
+                pairs = self.client.hgetall(keys.bounds_key(map_id)).items()
+        found = {}
+        for raw_id, blob in pairs:
+            box = codec.unpack_box(blob)
+            if np.all(box.min <= hi) and np.all(lo <= box.max):
+                found[int(raw_id)] = (box.min, box.max)
+        return found
+
+    # --- locks and claims --------------------------------------------------------------------------
+    def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> RedisLease:
+        held = tuple(sorted({int(i) for i in ids}))
+        return self._acquire(map_id, [keys.lock_key(map_id, i) for i in held], held, ttl_s, timeout_s)
+
+    def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> RedisLease:
+        ordered = sorted({tuple(int(c) for c in cell) for cell in cells})
+        return self._acquire(map_id, [keys.claim_key(map_id, c) for c in ordered], (), ttl_s, timeout_s)  # type: ignore[arg-type]
+
+    def _acquire(self, map_id: str, lease_keys: list[str], ids: tuple[int, ...], ttl_s: float, timeout_s: float) -> RedisLease:
+        token = uuid.uuid4().hex
+        lease = RedisLease(self, map_id, lease_keys, token, ids)
+        if not lease_keys:
+            return lease
+        ttl_ms = max(1, math.ceil(ttl_s * 1000))
+        deadline = time.monotonic() + timeout_s
+        jitter = random.Random(token)  # de-synchronises workers that retry together
+        delay_s = BACKOFF_MIN_S
+        while True:
+            with self._boundary(f"lock on map {map_id}"):
+                busy, busy_ttl_ms = (list(self._scripts["acquire"](keys=lease_keys, args=[token, ttl_ms])) + [0])[:2]
+            if busy == 0:
+                return lease
+            remaining_s = deadline - time.monotonic()
+            if remaining_s <= 0:
+                raise LockTimeout(
+                    f"map {map_id}: {lease_keys[busy - 1]} busy after {timeout_s:.3g} s "
+                    f"({len(lease_keys)} keys requested, none held)"
+                )
+            wait_s = delay_s * (0.5 + jitter.random())
+            if busy_ttl_ms > 0:
+                wait_s = min(wait_s, busy_ttl_ms / 1000)
+            time.sleep(max(0.0, min(remaining_s, wait_s)))
+            delay_s = min(BACKOFF_MAX_S, delay_s * 2)
+
+    def _release(self, lease: RedisLease) -> None:
+        if lease.keys:
+            with self._boundary(f"release on map {lease.map_id}"):
+                self._scripts["release"](keys=lease.keys, args=[lease.token])
+
+    # --- objects -----------------------------------------------------------------------------------
+    def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
+        ids = [int(i) for i in ids]
+        found = []
+        for start in range(0, len(ids), GET_BATCH):
+            batch = ids[start : start + GET_BATCH]
+            with self._boundary(f"get on map {map_id}"):
+                with self.client.pipeline(transaction=True) as pipe:
+                    for object_id in batch:
+                        pipe.hgetall(keys.object_key(map_id, object_id))
+                    replies = pipe.execute()
+            found += [codec.decode_object(i, fields) for i, fields in zip(batch, replies) if fields]
+        return found
+
+    def object_meta(self, map_id: str, ids: Sequence[int]) -> list[codec.ObjectMeta]:
+        """The objects' metadata without their voxels (cheap), in the order given; missing ids skipped."""
+        ids = [int(i) for i in ids]
+        found = []
+        for start in range(0, len(ids), GET_BATCH):
+            batch = ids[start : start + GET_BATCH]
+            with self._boundary(f"object_meta on map {map_id}"):
+                with self.client.pipeline(transaction=False) as pipe:
+                    for object_id in batch:
+                        pipe.hmget(keys.object_key(map_id, object_id), codec.META_FIELDS)
+                    replies = pipe.execute()
+            for object_id, values in zip(batch, replies):
+                if values[codec.META_FIELDS.index("version")] is not None:
+                    fields = {name.encode(): v for name, v in zip(codec.META_FIELDS, values) if v is not None}
+                    found.append(codec.decode_meta(object_id, fields))
+        return found
+
+    def list_meta(self, map_id: str) -> list[codec.ObjectMeta]:
+        """Metadata of every object of the map, by id."""
+        return self.object_meta(map_id, self._object_ids(map_id))
+
+    def _object_ids(self, map_id: str) -> list[int]:
+        with self._boundary(f"list on map {map_id}"):
+            return sorted(int(i) for i in self.client.hkeys(keys.bounds_key(map_id)))
+
+    def new_ids(self, map_id: str, n: int) -> list[int]:
+        if n < 0:
+            raise InvalidInput("n", ">= 0", n)
+        if n == 0:
+            return []
+        with self._boundary(f"new_ids on map {map_id}"):
+            last = int(self.client.incrby(keys.ids_key(map_id), n))
+        return list(range(last - n + 1, last + 1))
+
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[RedisLease],
+        upserts: Sequence[MapObject],
+        deletes: Sequence[MapObject],
+        *,
+        frame_key: str | None = None,
+    ) -> bool:
+        for lease in leases:
+            if lease.map_id != map_id:
+                raise InvalidInput("leases", f"leases of map {map_id}", f"a lease of map {lease.map_id}")
+        for obj in upserts:
+            if obj.bounds is None:
+                raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
+        header: dict[str, Any] = {
+            "frame": frame_key or "",
+            "leases": [[key, lease.token] for lease in leases for key in lease.keys],
+            "held": [str(i) for lease in leases for i in lease.ids],
+            "upserts": [],
+            "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
+        }
+        payload: list[bytes | str] = []
+        for obj in upserts:
+            assert obj.bounds is not None
+            fields = codec.encode_object(obj, votes_f16=self.votes_f16)
+            cells = " ".join(keys.cell_name(c) for c in self.cells_of(obj.bounds.min, obj.bounds.max))
+            fields["cells"] = cells.encode()
+            header["upserts"].append({"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells, "n_fields": len(fields)})
+            payload.append(codec.pack_box(obj.bounds))
+            for name, value in fields.items():
+                payload += [name, value]
+        with self._boundary(f"commit on map {map_id}"):
+            written = self._scripts["commit"](
+                keys=[keys.frames_key(map_id), keys.bounds_key(map_id)],
+                args=[keys.map_prefix(map_id), json.dumps(header), *payload],
+            )
+        return int(written) == 1
+
+    def list_objects(self, map_id: str) -> list[MapObject]:
+        return self.get(map_id, self._object_ids(map_id))
+
+    def delete_map(self, map_id: str) -> int:
+        with self._boundary(f"delete_map {map_id}"):
+            removed = int(self._scripts["delete_map"](
+                keys=[keys.bounds_key(map_id), keys.frames_key(map_id), keys.ids_key(map_id)],
+                args=[keys.map_prefix(map_id)],
+            ))
+            leftovers = list(self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT))
+            for start in range(0, len(leftovers), SCAN_COUNT):
+                self.client.unlink(*leftovers[start : start + SCAN_COUNT])
+        log.info("map %s deleted: %d objects, %d other keys", map_id, removed, len(leftovers))
+        return removed
+
+    def is_frame_done(self, map_id: str, frame_key: str) -> bool:
+        with self._boundary(f"is_frame_done on map {map_id}"):
+            return bool(self.client.sismember(keys.frames_key(map_id), frame_key))
+
+    def count_frames(self, map_id: str) -> int:
+        with self._boundary(f"count_frames on map {map_id}"):
+            return int(self.client.scard(keys.frames_key(map_id)))
+
+
+def _vec3(field: str, value: object) -> np.ndarray:
+    array = np.asarray(value, np.float64)
+    if array.shape != (3,):
+        raise InvalidInput(field, "shape (3,)", f"shape {array.shape}")
+    return array
