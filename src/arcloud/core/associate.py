@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from arcloud.core.types import Params
-from arcloud.core.voxels import coarsen_keys
+from arcloud.core.voxels import coarsen_keys, unpack_keys
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
 
@@ -52,16 +52,54 @@ def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) ->
     return counts
 
 
-def overlap_matrix(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray], tolerance_voxels: int) -> np.ndarray:
-    """(A, B) overlap coefficient in [0, 1] of coarsened key sets (see the module docstring)."""
+def index_bounds(keys: np.ndarray) -> np.ndarray:
+    """(2, 3) min and max voxel indices of non-empty keys."""
+    ijk = unpack_keys(keys)
+    return np.stack([ijk.min(axis=0), ijk.max(axis=0)])
+
+
+def overlap_matrix(
+    sets_a: Sequence[np.ndarray],
+    sets_b: Sequence[np.ndarray],
+    tolerance_voxels: int,
+    *,
+    bounds_b: Sequence[np.ndarray | None] | None = None,
+    pairs_wanted: np.ndarray | None = None,
+) -> np.ndarray:
+    """(A, B) overlap coefficient in [0, 1] of coarsened key sets (see the module docstring).
+
+    Pairs whose voxel bounds are apart are 0 without looking at their keys, and only the sets in some
+    touching pair are coarsened: in a frame, most detection/object pairs are far apart. ``bounds_b``
+    may give known (2, 3) voxel-index bounds of sets_b (None entries are computed); ``pairs_wanted``
+    (A, B) bool limits the pairs computed."""
+    overlap = np.zeros((len(sets_a), len(sets_b)))
+    live_a = [i for i, s in enumerate(sets_a) if s.size]
+    live_b = [j for j, s in enumerate(sets_b) if s.size]
+    if not live_a or not live_b:
+        return overlap
+    bounds_a = np.array([index_bounds(sets_a[i]) for i in live_a])
+    known = bounds_b if bounds_b is not None else [None] * len(sets_b)
+    bounds_b_arr = np.array([index_bounds(sets_b[j]) if known[j] is None else known[j] for j in live_b])
+    reach = tolerance_voxels + 1
+    touching = np.all(
+        (bounds_a[:, None, 0] <= bounds_b_arr[None, :, 1] + reach) & (bounds_b_arr[None, :, 0] <= bounds_a[:, None, 1] + reach),
+        axis=2,
+    )
+    if pairs_wanted is not None:
+        touching &= pairs_wanted[np.ix_(live_a, live_b)]
+    rows, cols = np.nonzero(touching)
+    if rows.size == 0:
+        return overlap
     factor = 1 + tolerance_voxels
-    coarse_a = [coarsen_keys(s, factor) for s in sets_a]
-    coarse_b = [coarsen_keys(s, factor) for s in sets_b]
+    used_a, used_b = np.unique(rows), np.unique(cols)
+    coarse_a = [coarsen_keys(sets_a[live_a[i]], factor) for i in used_a]
+    coarse_b = [coarsen_keys(sets_b[live_b[j]], factor) for j in used_b]
     common = common_counts(coarse_a, coarse_b)
     sizes_a = np.array([s.size for s in coarse_a], np.float64)
     sizes_b = np.array([s.size for s in coarse_b], np.float64)
-    smaller = np.minimum(sizes_a[:, None], sizes_b[None, :])
-    return np.divide(common, smaller, out=np.zeros(common.shape), where=smaller > 0)
+    block = common / np.minimum(sizes_a[:, None], sizes_b[None, :])
+    overlap[np.ix_(np.asarray(live_a)[used_a], np.asarray(live_b)[used_b])] = block
+    return overlap
 
 
 def association_cost(
@@ -92,10 +130,12 @@ def associate(
     object_keys: Sequence[np.ndarray],
     object_labels: Sequence[int],
     params: Params,
+    *,
+    object_bounds: Sequence[np.ndarray | None] | None = None,
 ) -> tuple[list[tuple[int, int]], list[int]]:
     """Match detections to objects. Returns (pairs (detection index, object index), unmatched
-    detection indices in order)."""
-    overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels)
+    detection indices in order). ``object_bounds``: known (2, 3) voxel-index bounds (see overlap_matrix)."""
+    overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels, bounds_b=object_bounds)
     pairs = hungarian_match(association_cost(overlap, detection_labels, object_labels, params))
     matched = {d for d, _ in pairs}
     return pairs, [d for d in range(len(detection_keys)) if d not in matched]

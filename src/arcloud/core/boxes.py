@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -32,7 +33,8 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     connected parts (26-neighbourhood) smaller than ``min_component_fraction`` of the largest."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
-    reference = float(np.percentile(obj.weights, 90))
+    k = int(0.9 * (obj.weights.size - 1))
+    reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
     keep = obj.weights >= params.box_rel_weight * reference
     if keep.sum() < 2:
         return keep
@@ -57,7 +59,12 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
 
 def up_rotation(up: np.ndarray) -> np.ndarray:
     """(3, 3) rotation taking the unit vector ``up`` to +z (world2gravity)."""
-    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    return _up_rotation(tuple(float(x) for x in np.asarray(up).ravel()))
+
+
+@functools.lru_cache(maxsize=16)
+def _up_rotation(up_xyz: tuple[float, ...]) -> np.ndarray:
+    up = np.asarray(up_xyz, np.float64) / np.linalg.norm(up_xyz)
     z = np.array([0.0, 0.0, 1.0])
     axis = np.cross(up, z)
     s, c = np.linalg.norm(axis), float(up @ z)
@@ -66,6 +73,13 @@ def up_rotation(up: np.ndarray) -> np.ndarray:
     k = axis / s
     skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
     return np.eye(3) + s * skew + (1 - c) * skew @ skew
+
+
+def footprint_cells(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
+    """Centres (M, 2) of the distinct ground cells under points (N, 2): the hull needs no more."""
+    cells = np.floor(xy / voxel_size_m).astype(np.int64)
+    packed = np.unique((cells[:, 0] << 32) + (cells[:, 1] + (1 << 31)))
+    return (np.stack([packed >> 32, (packed & 0xFFFFFFFF) - (1 << 31)], axis=1) + 0.5) * voxel_size_m
 
 
 def fit_aabb(centers: np.ndarray, voxel_size_m: float) -> AABB:
@@ -78,8 +92,8 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray) ->
     """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
     of the voxels projected on the ground plane."""
     world2gravity = up_rotation(up)
-    points = centers @ world2gravity.T
-    xy = points[:, :2]
+    points = centers if np.array_equal(world2gravity, np.eye(3)) else centers @ world2gravity.T
+    xy = footprint_cells(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
     yaw = 0.0
     try:
         hull = xy[ConvexHull(xy).vertices] if len(xy) >= 3 else xy
@@ -96,9 +110,10 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray) ->
         yaw = float(angles[np.argmin(areas)])
     c, s = math.cos(yaw), math.sin(yaw)
     yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
-    local = points @ yaw_rotation
+    local_xy = xy @ yaw_rotation[:2, :2]
     half = voxel_size_m / 2
-    lo, hi = local.min(axis=0) - half, local.max(axis=0) + half
+    lo = np.array([*local_xy.min(axis=0), points[:, 2].min()]) - half
+    hi = np.array([*local_xy.max(axis=0), points[:, 2].max()]) + half
     box2world = world2gravity.T @ yaw_rotation
     return OBB(center=box2world @ ((lo + hi) / 2), size=hi - lo, rotation=box2world, yaw_rad=yaw)
 

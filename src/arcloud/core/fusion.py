@@ -73,14 +73,26 @@ def object_label_index(obj: MapObject) -> int:
     return int(np.bincount(voxel_labels, weights=obj.weights, minlength=N_CLASSES).argmax())
 
 
-def find_duplicates(objects: Sequence[MapObject], params: Params) -> list[tuple[int, int]]:
+def find_duplicates(
+    objects: Sequence[MapObject], params: Params, changed: Sequence[bool] | None = None
+) -> list[tuple[int, int]]:
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
-    overlap >= ``merge_min_overlap``. Chains resolve to one keeper per group (the most observed)."""
+    overlap >= ``merge_min_overlap``. Chains resolve to one keeper per group (the most observed).
+    With ``changed``, only pairs with at least one changed object are considered (the others were
+    checked when they last changed)."""
     if len(objects) < 2:
         return []
     labels = np.array([object_label_index(o) for o in objects])
-    overlap = overlap_matrix([o.keys for o in objects], [o.keys for o in objects], params.association_tolerance_voxels)
-    same = (labels[:, None] == labels[None, :]) & (overlap >= params.merge_min_overlap)
+    wanted = labels[:, None] == labels[None, :]
+    if changed is not None:
+        flags = np.asarray(changed, bool)
+        wanted &= flags[:, None] | flags[None, :]
+    np.fill_diagonal(wanted, False)
+    if not wanted.any():
+        return []
+    keys = [o.keys for o in objects]
+    overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels, pairs_wanted=wanted)
+    same = wanted & (overlap >= params.merge_min_overlap)
     np.fill_diagonal(same, False)
     parent = list(range(len(objects)))
 

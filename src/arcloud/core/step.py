@@ -158,11 +158,21 @@ def fuse_matches(
         [o.keys for o in objects],
         [object_label_index(o) for o in objects],
         params,
+        object_bounds=[index_bounds_of(o, params) for o in objects],
     )
     fused = list(objects)
     for d, o in pairs:
         fused[o] = fuse_detection(fused[o], observations[d], device_id)
     return fused, [observations[d] for d in unmatched]
+
+
+def index_bounds_of(obj: MapObject, params: Params) -> np.ndarray | None:
+    """(2, 3) voxel-index bounds from the object's stored bounds, or None when it has none."""
+    if obj.bounds is None:
+        return None
+    lo = np.floor(obj.bounds.min / params.voxel_size_m + 1e-6).astype(np.int64)
+    hi = np.floor(obj.bounds.max / params.voxel_size_m - 1e-6).astype(np.int64)
+    return np.stack([lo, hi])
 
 
 def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
@@ -228,7 +238,8 @@ def finish_objects(
     Returns (objects to write with their versions bumped, objects to delete as stored, events)."""
     objects = list(objects)
     absorbed_into: dict[int, int] = {}
-    for keep, absorb in find_duplicates(objects, params):
+    changed_flags = [before.get(o.id) is not o for o in objects]
+    for keep, absorb in find_duplicates(objects, params, changed_flags):
         objects[keep] = merge_objects(objects[keep], objects[absorb])
         absorbed_into[objects[absorb].id] = objects[keep].id
     survivors = [o for o in objects if o.id not in absorbed_into]

@@ -1,0 +1,103 @@
+"""Time the per-frame step without detection: 640x480 frames, 10 detections, 20 visible objects.
+
+The scene: 20 rectangular surfaces at 1.5-4 m in front of a wall, each an object of the map (built by a
+few warm-up frames that detect all 20). Each timed frame moves the camera a little and detects 10 of
+the 20 (the other 10 are visible but undetected), so the step voxelizes 10 masks, finds 20 objects in
+its frustum, locks, associates, fuses, refines and writes to the embedded store. Pinned to one core.
+
+    .venv/bin/python bench/bench_step.py [--repeats 200] [--out bench/results/step.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import environment, pin_to_one_core, summary_ms, time_calls, write_json  # noqa: E402
+
+from arcloud.core.checks import make_frame  # noqa: E402
+from arcloud.core.step import integrate_frame  # noqa: E402
+from arcloud.core.types import CLASSES, Detection, Params  # noqa: E402
+from arcloud.stores.memory import MemoryStore  # noqa: E402
+
+HEIGHT, WIDTH = 480, 640
+INTRINSICS = (525.0, 525.0, 319.5, 239.5)
+
+
+def make_scene(rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray], list[str]]:
+    """Depth (H, W) of a wall with 20 patches in a 5x4 grid, their masks and labels."""
+    depth = np.full((HEIGHT, WIDTH), 4.5, np.float32)
+    masks, labels = [], []
+    for row in range(4):
+        for col in range(5):
+            r0, c0 = 20 + row * 115, 15 + col * 125
+            h, w = int(rng.integers(60, 100)), int(rng.integers(70, 110))
+            mask = np.zeros((HEIGHT, WIDTH), bool)
+            mask[r0 : r0 + h, c0 : c0 + w] = True
+            # A slanted surface, so each object spans several voxel layers like real furniture.
+            slope = np.linspace(0, 0.3, w, dtype=np.float32)
+            depth[r0 : r0 + h, c0 : c0 + w] = float(rng.uniform(1.5, 4.0)) + slope
+            masks.append(mask)
+            labels.append(CLASSES[(row * 5 + col) % len(CLASSES)])
+    return depth, masks, labels
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=200)
+    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--out", type=Path, default=Path("bench/results/step.json"))
+    args = parser.parse_args()
+    core = pin_to_one_core()
+    rng = np.random.default_rng(0)
+    depth, masks, labels = make_scene(rng)
+    rgb = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    params = Params()
+    store = MemoryStore()
+
+    def frame_at(i: int):
+        pose = np.eye(4)
+        pose[:3, 3] = rng.normal(0, 0.01, 3)
+        noisy = depth + rng.normal(0, 0.005, depth.shape).astype(np.float32)
+        return make_frame(rgb, noisy, INTRINSICS, pose, timestamp_s=i / 30, map_id="bench", device_id="d", frame_id=f"f{i}")
+
+    for i in range(3):  # build the map: all 20 objects
+        integrate_frame(frame_at(i), [Detection(l, 0.9, m) for l, m in zip(labels, masks)], store, params)
+    assert len(store.list_objects("bench")) == 20, len(store.list_objects("bench"))
+
+    frames = [frame_at(10 + i) for i in range(args.warmup + args.repeats)]
+    subsets = [rng.choice(20, 10, replace=False) for _ in frames]
+    stages: dict[str, list[float]] = {}
+    visible: list[int] = []
+
+    def step(i: int) -> None:
+        result = integrate_frame(frames[i], [Detection(labels[j], 0.8, masks[j]) for j in subsets[i]], store, params)
+        visible.append(result.n_visible)
+        for name, seconds in result.timings_s.items():
+            stages.setdefault(name, []).append(seconds)
+
+    times = time_calls(step, warmup=args.warmup, repeats=args.repeats)
+    stage_ms = {name: round(float(np.median(v[args.warmup :])) * 1000, 3) for name, v in stages.items()}
+    payload = {
+        "benchmark": "per-frame step without detection (embedded store)",
+        "frame": f"{WIDTH}x{HEIGHT}",
+        "detections": 10,
+        "visible_objects_median": int(np.median(visible)),
+        "objects_in_map": len(store.list_objects("bench")),
+        "pinned_core": core,
+        "step": summary_ms(times),
+        "stages_median_ms": stage_ms,
+        "target_median_ms": 15.0,
+        **environment(),
+    }
+    write_json(args.out, payload)
+    print(f"step median {payload['step']['median_ms']:.2f} ms (p10 {payload['step']['p10_ms']:.2f}, "
+          f"p90 {payload['step']['p90_ms']:.2f}); stages {stage_ms}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,80 @@
+"""Shared benchmark helpers: pin to one core, time with warm-up and repeats, write JSON with versions."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from importlib import metadata
+from pathlib import Path
+
+
+def pin_to_one_core() -> int | None:
+    """Run this process on one CPU core (Linux); returns the core or None when not possible."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    if hasattr(os, "sched_setaffinity"):
+        core = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {core})
+        return core
+    return None
+
+
+def time_calls(call: Callable[[int], object], *, warmup: int, repeats: int) -> list[float]:
+    """Seconds per call of ``call(i)`` for ``repeats`` calls after ``warmup`` untimed ones."""
+    for i in range(warmup):
+        call(i)
+    times = []
+    for i in range(warmup, warmup + repeats):
+        started = time.perf_counter()
+        call(i)
+        times.append(time.perf_counter() - started)
+    return times
+
+
+def summary_ms(times_s: list[float]) -> dict[str, float]:
+    """Median and spread in milliseconds."""
+    ms = sorted(t * 1000 for t in times_s)
+    q = statistics.quantiles(ms, n=10)
+    return {
+        "median_ms": round(statistics.median(ms), 3),
+        "p10_ms": round(q[0], 3),
+        "p90_ms": round(q[-1], 3),
+        "min_ms": round(ms[0], 3),
+        "max_ms": round(ms[-1], 3),
+        "n": len(ms),
+    }
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def environment(packages: tuple[str, ...] = ("arcloud", "numpy", "scipy")) -> dict[str, object]:
+    versions = {"python": platform.python_version()}
+    for name in packages:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return {
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "versions": versions,
+        "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "platform": platform.platform()},
+    }
+
+
+def write_json(path: Path, payload: dict[str, object]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"wrote {path}")
