@@ -21,7 +21,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_step.py
 
 proto: $(STAMP)
-	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto proto/arcloud/v1/*.proto
+	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto --pyi_out=src/arcloud/proto proto/arcloud/v1/*.proto
 
 lock: $(STAMP)
 	$(BIN)/python -m pip freeze --exclude-editable > constraints.txt

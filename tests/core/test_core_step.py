@@ -9,7 +9,7 @@ from arcloud.core.types import Detection, Params
 from arcloud.errors import InvalidInput
 from arcloud.stores.memory import MemoryStore
 
-from frames import two_box_frame
+from handmade_frames import two_box_frame
 
 PARAMS = Params(voxel_size_m=0.05)
 

@@ -5,7 +5,7 @@ from arcloud.core.camera import boxes_in_frustum, frame_frustum, view_frustum
 from arcloud.core.types import Detection, Params
 from arcloud.core.voxels import erode, key_centers, mask_points, pack_keys, unpack_keys, voxelize_detections
 
-from frames import INTRINSICS, plane_frame, rect_mask
+from handmade_frames import INTRINSICS, plane_frame, rect_mask
 
 
 def test_pack_unpack_round_trip_and_order():

@@ -1,0 +1,365 @@
+"""The ObjectStore contract, run against every adapter: the embedded ``MemoryStore`` and ``RedisStore`` on
+a real redis-server (see ``conftest.py``). Both must behave the same."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from arcloud.core.checks import make_frame
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import AABB, N_CLASSES, OBB, Detection, MapObject, Params
+from arcloud.core.voxels import keys_bounds, pack_keys
+from arcloud.errors import LockTimeout, StaleLease
+
+VOXEL_M = 0.05
+MAP = "map-a"
+
+
+def make_object(object_id: int, lo_m: tuple[float, float, float], size_m: float = 0.3, *, version: int = 1, seed: int = 0) -> MapObject:
+    """An object filling a cube of voxels from ``lo_m``, with random weights and votes and every derived field set."""
+    rng = np.random.default_rng(seed)
+    n = max(1, round(size_m / VOXEL_M))
+    start = np.floor(np.asarray(lo_m) / VOXEL_M).astype(np.int64)
+    grid = np.stack(np.meshgrid(*(np.arange(s, s + n) for s in start), indexing="ij"), axis=-1).reshape(-1, 3)
+    keys = np.sort(pack_keys(grid))
+    votes = np.zeros((keys.size, N_CLASSES), np.float32)
+    votes[:, 0] = rng.random(keys.size, np.float32)
+    votes[:, 2] = rng.random(keys.size, np.float32) * 0.1
+    b_lo, b_hi = keys_bounds(keys, VOXEL_M)
+    yaw = float(rng.uniform(-np.pi, np.pi))
+    rotation = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    return MapObject(
+        id=object_id,
+        keys=keys,
+        weights=rng.random(keys.size, np.float32) * 5,
+        votes=votes,
+        n_frames=int(rng.integers(1, 50)),
+        devices=frozenset({"dev-1", f"dev-{seed}"}),
+        score_sum=float(rng.random() * 10),
+        version=version,
+        created_at_s=1_700_000_000.123456,
+        updated_at_s=1_700_000_123.654321 + seed,
+        label="chair",
+        score=float(rng.random()),
+        aabb=AABB(b_lo + 0.05, b_hi - 0.05),
+        obb=OBB(center=(b_lo + b_hi) / 2, size=b_hi - b_lo, rotation=rotation, yaw_rad=yaw),
+        bounds=AABB(b_lo, b_hi),
+    )
+
+
+def assert_same_object(got: MapObject, want: MapObject) -> None:
+    np.testing.assert_array_equal(got.keys, want.keys)
+    np.testing.assert_array_equal(got.weights, want.weights)
+    np.testing.assert_array_equal(got.votes, want.votes)
+    assert got.keys.dtype == np.int64 and got.weights.dtype == np.float32 and got.votes.dtype == np.float32
+    for name in ("id", "n_frames", "devices", "score_sum", "version", "created_at_s", "updated_at_s", "label", "score"):
+        assert getattr(got, name) == getattr(want, name), name
+    for name in ("aabb", "bounds"):
+        np.testing.assert_array_equal(getattr(got, name).min, getattr(want, name).min)
+        np.testing.assert_array_equal(getattr(got, name).max, getattr(want, name).max)
+    for name in ("center", "size", "rotation", "yaw_rad"):
+        np.testing.assert_array_equal(getattr(got.obb, name), getattr(want.obb, name))
+
+
+def moved(obj: MapObject, lo_m: tuple[float, float, float], seed: int = 7) -> MapObject:
+    """The object rebuilt at another place, one version later."""
+    return make_object(obj.id, lo_m, version=obj.version + 1, seed=seed)
+
+
+# --- spatial index -----------------------------------------------------------------------------------
+def test_query_region_finds_objects_by_bounds(store) -> None:
+    a = make_object(1, (0.1, 0.1, 0.1))  # bounds [0.1, 0.4]^3 (in cell 0,0,0)
+    b = make_object(2, (3.0, 3.0, 0.0))  # [3.0, 3.3] x [3.0, 3.3] x [0, 0.3]
+    c = make_object(3, (0.9, 0.9, 0.9), size_m=1.3)  # [0.9, 2.2]^3: spans 27 cells
+    assert store.commit(MAP, [], [a, b, c], [])
+
+    found = store.query_region(MAP, np.array([0.0, 0.0, 0.0]), np.array([0.5, 0.5, 0.5]))
+    assert set(found) == {1}
+    np.testing.assert_allclose(found[1][0], a.bounds.min)
+    np.testing.assert_allclose(found[1][1], a.bounds.max)
+    # same index cell as a but outside its bounds: the exact test drops it
+    assert store.query_region(MAP, np.array([0.45, 0.45, 0.45]), np.array([0.6, 0.6, 0.6])) == {}
+    # touching c's far corner only
+    assert set(store.query_region(MAP, np.array([2.2, 2.2, 2.2]), np.array([2.9, 2.9, 2.9]))) == {3}
+    assert set(store.query_region(MAP, np.array([-1.0, -1.0, -1.0]), np.array([5.0, 5.0, 5.0]))) == {1, 2, 3}
+    assert store.query_region(MAP, np.array([10.0, 10.0, 10.0]), np.array([11.0, 11.0, 11.0])) == {}
+    # negative coordinates and an empty map
+    assert store.query_region("other-map", np.array([-1.0, -1.0, -1.0]), np.array([5.0, 5.0, 5.0])) == {}
+    # a box far larger than the index (many cells): same answer
+    assert set(store.query_region(MAP, np.full(3, -150.0), np.full(3, 150.0))) == {1, 2, 3}
+
+
+def test_query_region_follows_moves_and_deletes(store) -> None:
+    a = make_object(1, (0.1, 0.1, 0.1))
+    b = make_object(2, (3.0, 3.0, 0.0))
+    store.commit(MAP, [], [a, b], [])
+    here, there = (np.zeros(3), np.full(3, 0.5)), (np.full(3, 5.0), np.full(3, 5.6))
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
+        a2 = moved(a, (5.1, 5.1, 5.1))
+        assert store.commit(MAP, [lease], [a2], [])
+    assert store.query_region(MAP, *here) == {}
+    assert set(store.query_region(MAP, *there)) == {1}
+    np.testing.assert_allclose(store.query_region(MAP, *there)[1][0], a2.bounds.min)
+    with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=1) as lease:
+        assert store.commit(MAP, [lease], [], [a2])
+    assert store.query_region(MAP, np.full(3, -10.0), np.full(3, 10.0)).keys() == {2}
+    assert [o.id for o in store.list_objects(MAP)] == [2]
+
+
+# --- locks and claims --------------------------------------------------------------------------------
+def test_locks_are_exclusive_and_all_or_nothing(store) -> None:
+    first = store.lock(MAP, [2, 1], ttl_s=10, timeout_s=0)
+    assert first.ids == (1, 2)
+    with pytest.raises(LockTimeout):
+        store.lock(MAP, [3, 2], ttl_s=10, timeout_s=0)
+    # the failed attempt took nothing: 3 is free
+    store.lock(MAP, [3], ttl_s=10, timeout_s=0).release()
+    # other maps are independent
+    store.lock("map-b", [1, 2], ttl_s=10, timeout_s=0).release()
+    first.release()
+    store.lock(MAP, [1, 2, 3], ttl_s=10, timeout_s=0).release()
+
+
+def test_lock_timeout_waits_then_gives_up_holding_nothing(store) -> None:
+    held = store.lock(MAP, [5], ttl_s=10, timeout_s=0)
+    started = time.monotonic()
+    with pytest.raises(LockTimeout):
+        store.lock(MAP, [4, 5, 6], ttl_s=10, timeout_s=0.2)
+    assert 0.2 <= time.monotonic() - started < 2.0
+    store.lock(MAP, [4, 6], ttl_s=10, timeout_s=0).release()
+    held.release()
+
+
+def test_lock_waits_for_a_release(store) -> None:
+    held = store.lock(MAP, [1], ttl_s=10, timeout_s=0)
+    releaser = threading.Timer(0.1, held.release)
+    releaser.start()
+    started = time.monotonic()
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=5) as lease:
+        assert lease.ids == (1,)
+    assert 0.05 <= time.monotonic() - started < 2.0
+    releaser.join()
+
+
+def test_expired_lock_can_be_taken_and_only_its_owner_releases(store) -> None:
+    old = store.lock(MAP, [1], ttl_s=0.1, timeout_s=0)
+    started = time.monotonic()
+    new = store.lock(MAP, [1], ttl_s=10, timeout_s=2)
+    assert time.monotonic() - started >= 0.05
+    old.release()  # expired and taken over: must not free the new holder's lock
+    with pytest.raises(LockTimeout):
+        store.lock(MAP, [1], ttl_s=10, timeout_s=0)
+    new.release()
+    new.release()  # twice is harmless
+    store.lock(MAP, [1], ttl_s=10, timeout_s=0).release()
+
+
+def test_claims_behave_like_locks(store) -> None:
+    claim = store.claim(MAP, [(0, 0, 0), (-1, 2, 3)], ttl_s=10, timeout_s=0)
+    assert claim.ids == ()
+    with pytest.raises(LockTimeout):
+        store.claim(MAP, [(5, 5, 5), (-1, 2, 3)], ttl_s=10, timeout_s=0)
+    store.claim(MAP, [(5, 5, 5)], ttl_s=10, timeout_s=0).release()  # nothing kept by the failure
+    store.lock(MAP, [0], ttl_s=10, timeout_s=0).release()  # claims and locks do not collide
+    claim.release()
+    short = store.claim(MAP, [(1, 1, 1)], ttl_s=0.1, timeout_s=0)
+    taken = store.claim(MAP, [(1, 1, 1)], ttl_s=10, timeout_s=2)
+    short.release()
+    with pytest.raises(LockTimeout):
+        store.claim(MAP, [(1, 1, 1)], ttl_s=10, timeout_s=0)
+    taken.release()
+
+
+# --- objects and commits -----------------------------------------------------------------------------
+def test_commit_and_get_round_trip(store) -> None:
+    objects = [make_object(i, (i * 1.0, 0.0, 0.0), seed=i) for i in (3, 1, 2)]
+    assert store.commit(MAP, [], objects, [])
+    got = store.get(MAP, [2, 99, 3])
+    assert [o.id for o in got] == [2, 3]
+    assert_same_object(got[0], objects[2])
+    assert_same_object(got[1], objects[0])
+    listed = store.list_objects(MAP)
+    assert [o.id for o in listed] == [1, 2, 3]
+    assert_same_object(listed[0], objects[1])
+    assert store.get(MAP, []) == []
+    assert store.list_objects("empty-map") == []
+
+
+def test_commit_fences_versions_and_locks(store) -> None:
+    a = make_object(1, (0.0, 0.0, 0.0))
+    store.commit(MAP, [], [a], [])
+    with pytest.raises(StaleLease):  # an existing object written without its lock
+        store.commit(MAP, [], [moved(a, (1.0, 0, 0))], [])
+    with pytest.raises(StaleLease):  # a "new" object that already exists
+        store.commit(MAP, [], [make_object(1, (2.0, 0, 0))], [])
+    with pytest.raises(StaleLease):  # version 2 of an object that does not exist
+        store.commit(MAP, [], [make_object(9, (2.0, 0, 0), version=2)], [])
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
+        with pytest.raises(StaleLease):  # skips a version
+            store.commit(MAP, [lease], [make_object(1, (1.0, 0, 0), version=3)], [])
+        with pytest.raises(StaleLease):  # deleted at a stale version
+            store.commit(MAP, [lease], [], [make_object(1, (0.0, 0, 0), version=0)])
+        assert store.commit(MAP, [lease], [moved(a, (1.0, 0, 0))], [])
+    assert store.get(MAP, [1])[0].version == 2
+
+
+def test_expired_holder_cannot_overwrite_newer_data(store) -> None:
+    a = make_object(1, (0.0, 0.0, 0.0))
+    store.commit(MAP, [], [a], [])
+    slow = store.lock(MAP, [1], ttl_s=0.1, timeout_s=0)
+    slow_read = store.get(MAP, [1])[0]
+    time.sleep(0.15)  # the slow worker's lock expires
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as fast:
+        newer = moved(slow_read, (2.0, 0, 0), seed=11)
+        assert store.commit(MAP, [fast], [newer], [], frame_key="dev/fast")
+    with pytest.raises(StaleLease):
+        store.commit(MAP, [slow], [moved(slow_read, (4.0, 0, 0), seed=12)], [], frame_key="dev/slow")
+    assert_same_object(store.get(MAP, [1])[0], newer)
+    assert not store.is_frame_done(MAP, "dev/slow")
+    # even with a fresh lock, a write based on the old version is refused
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as again:
+        with pytest.raises(StaleLease):
+            store.commit(MAP, [again], [moved(slow_read, (4.0, 0, 0))], [])
+    assert_same_object(store.get(MAP, [1])[0], newer)
+
+
+def test_failed_commit_writes_nothing(store) -> None:
+    a = make_object(1, (0.0, 0.0, 0.0))
+    b = make_object(2, (1.0, 0.0, 0.0))
+    store.commit(MAP, [], [a, b], [])
+    claim = store.claim(MAP, [(3, 0, 0)], ttl_s=0.1, timeout_s=0)
+    with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0) as lease:
+        fresh = make_object(3, (3.0, 0, 0))
+        good_update = moved(a, (5.0, 0, 0))
+        stale_delete = b.replace(version=7)
+        with pytest.raises(StaleLease):
+            store.commit(MAP, [lease], [fresh, good_update], [stale_delete], frame_key="dev/f1")
+        time.sleep(0.15)  # the claim expires: the whole commit is refused
+        with pytest.raises(StaleLease):
+            store.commit(MAP, [lease, claim], [fresh, good_update], [b], frame_key="dev/f1")
+    assert [o.id for o in store.list_objects(MAP)] == [1, 2]
+    assert_same_object(store.get(MAP, [1])[0], a)
+    assert store.query_region(MAP, np.full(3, 2.9), np.full(3, 6.0)) == {}
+    assert not store.is_frame_done(MAP, "dev/f1")
+    assert store.count_frames(MAP) == 0
+
+
+def test_frame_is_recorded_once(store) -> None:
+    assert not store.is_frame_done(MAP, "dev/f1")
+    assert store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [], frame_key="dev/f1")
+    assert store.is_frame_done(MAP, "dev/f1")
+    assert not store.is_frame_done("map-b", "dev/f1")
+    assert store.commit(MAP, [], [make_object(2, (1.0, 0, 0))], [], frame_key="dev/f1") is False
+    assert [o.id for o in store.list_objects(MAP)] == [1]
+    assert store.commit(MAP, [], [], [], frame_key="dev/f2")
+    assert store.commit(MAP, [], [], [])  # no frame: always writes
+    assert store.count_frames(MAP) == 2
+    assert store.count_frames("map-b") == 0
+
+
+def test_delete_needs_the_lock_and_removes_the_object(store) -> None:
+    a, b = make_object(1, (0.0, 0, 0)), make_object(2, (0.2, 0, 0))
+    store.commit(MAP, [], [a, b], [])
+    with pytest.raises(StaleLease):
+        store.commit(MAP, [], [], [a])
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
+        assert store.commit(MAP, [lease], [], [a, make_object(42, (9.0, 9, 9))])  # unknown ids are skipped
+    assert store.get(MAP, [1, 2])[0].id == 2
+    assert set(store.query_region(MAP, np.zeros(3), np.ones(3))) == {2}
+
+
+def test_new_ids_are_unique_across_threads(store) -> None:
+    assert store.new_ids(MAP, 0) == []
+    first = store.new_ids(MAP, 3)
+    assert len(set(first)) == 3 and min(first) >= 1
+    results: list[list[int]] = []
+    lock = threading.Lock()
+
+    def take() -> None:
+        mine = []
+        for _ in range(40):
+            mine += store.new_ids(MAP, 3)
+        with lock:
+            results.append(mine)
+
+    threads = [threading.Thread(target=take) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    every = first + [i for r in results for i in r]
+    assert len(every) == 3 + 6 * 40 * 3
+    assert len(set(every)) == len(every)
+    assert store.new_ids("map-b", 1) == [1]  # counters are per map
+
+
+def test_delete_map_removes_only_that_map(store) -> None:
+    store.commit(MAP, [], [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2, 3)], [], frame_key="dev/f1")
+    store.commit("map-b", [], [make_object(1, (0.0, 0, 0))], [], frame_key="dev/f1")
+    store.new_ids(MAP, 5)
+    assert store.delete_map(MAP) == 3
+    assert store.list_objects(MAP) == []
+    assert store.query_region(MAP, np.full(3, -5.0), np.full(3, 5.0)) == {}
+    assert not store.is_frame_done(MAP, "dev/f1") and store.count_frames(MAP) == 0
+    assert store.new_ids(MAP, 1) == [1]
+    assert [o.id for o in store.list_objects("map-b")] == [1]
+    assert store.is_frame_done("map-b", "dev/f1")
+    assert store.delete_map("never-made") == 0
+
+
+# --- the per-frame step from many threads ------------------------------------------------------------
+H, W = 120, 160
+INTRINSICS = (130.0, 130.0, 80.0, 60.0)
+
+
+def step_frame(device: int, index: int) -> tuple:
+    """A frame of a wall at 3 m with a chair-plane at 2 m and a table-plane at 2.5 m, from a slightly
+    moved camera, and the two rectangular detections."""
+    depth = np.full((H, W), 3.0, np.float32)
+    depth[25:75, 25:75] = 2.0
+    depth[50:100, 100:150] = 2.5
+    chair = np.zeros((H, W), bool)
+    chair[25:75, 25:75] = True
+    table = np.zeros((H, W), bool)
+    table[50:100, 100:150] = True
+    cam2world = np.eye(4)
+    cam2world[0, 3] = 0.004 * index + 0.001 * device
+    frame = make_frame(
+        np.zeros((H, W, 3), np.uint8), depth, INTRINSICS, cam2world,
+        timestamp_s=float(index), map_id=MAP, device_id=f"dev-{device}", frame_id=f"f{index}",
+    )
+    return frame, [Detection("chair", 0.9, chair), Detection("table", 0.8, table)]
+
+
+@pytest.mark.timeout(60)
+def test_concurrent_steps_make_one_object_each_and_lose_no_update(store) -> None:
+    n_threads, n_frames = 4, 3
+    params = Params(lock_timeout_s=20.0)
+    barrier = threading.Barrier(n_threads)
+    errors: list[BaseException] = []
+
+    def work(device: int) -> None:
+        try:
+            frames = [step_frame(device, i) for i in range(n_frames)]
+            barrier.wait(timeout=10)  # every first frame sees the new objects at the same moment
+            for frame, detections in frames:
+                integrate_frame(frame, detections, store, params)
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(d,)) for d in range(n_threads)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=45)
+    assert not any(t.is_alive() for t in threads), "deadlock: a step did not finish"
+    assert errors == []
+    objects = store.list_objects(MAP)
+    assert sorted(o.label for o in objects) == ["chair", "table"]  # no duplicate
+    assert sum(o.n_frames for o in objects) == 2 * n_threads * n_frames  # no lost update
+    assert {d for o in objects for d in o.devices} == {f"dev-{d}" for d in range(n_threads)}
+    assert store.count_frames(MAP) == n_threads * n_frames
