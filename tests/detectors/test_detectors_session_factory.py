@@ -72,7 +72,8 @@ def test_bare_onnx_spec_reads_the_model_from_the_environment(tiny_models, monkey
 
 
 def test_unknown_specs_name_the_valid_ones() -> None:
-    with pytest.raises(InvalidInput, match="detector spec: expected PREFIX\\[:ARGUMENT\\] with PREFIX one of .*maskrcnn, onnx.*got 'yolo:x.onnx'"):
+    expected_got = "detector spec: expected PREFIX\\[:ARGUMENT\\] with PREFIX one of .*maskrcnn, onnx.*got 'yolo:x.onnx'"
+    with pytest.raises(InvalidInput, match=expected_got):
         make_detector("yolo:x.onnx")
     with pytest.raises(InvalidInput, match="detector spec"):
         make_detector("")

@@ -115,7 +115,8 @@ def test_instance_masks_match_bilinear_sampling_of_the_prototypes() -> None:
 
 def test_instance_masks_of_an_empty_box_are_empty() -> None:
     box = Letterbox.fit((48, 64), 64)
-    masks = instance_masks(np.ones((1, 1), np.float32), np.full((1, 16, 16), 10, np.float32), np.array([[5.0, 5.0, 5.0, 9.0]]), box, 0.5)
+    zero_width_box = np.array([[5.0, 5.0, 5.0, 9.0]])
+    masks = instance_masks(np.ones((1, 1), np.float32), np.full((1, 16, 16), 10, np.float32), zero_width_box, box, 0.5)
     assert masks[0].shape == (48, 64) and not masks[0].any()
 
 

@@ -144,10 +144,11 @@ class MaskRCNNDetector:
         if boxes.ndim == 3:  # a batched export: [1, N, ...]
             boxes, labels, scores, masks = boxes[0], labels[0], scores[0], masks[0]
         n = boxes.shape[0]
-        if boxes.shape != (n, 4) or labels.shape != (n,) or scores.shape != (n,) or masks.ndim != 4 or masks.shape[:2] != (n, 1):
+        fits = boxes.shape == (n, 4) and labels.shape == (n,) and scores.shape == (n,)
+        if not fits or masks.ndim != 4 or masks.shape[:2] != (n, 1):
+            got = ", ".join(f"{k} {list(v.shape)}" for k, v in zip(MASKRCNN_OUTPUTS, (boxes, labels, scores, masks)))
             raise ModelError(
-                f"model {self.model_path}: expected boxes [N, 4], labels [N], scores [N], masks [N, 1, H, W], got "
-                f"boxes {list(boxes.shape)}, labels {list(labels.shape)}, scores {list(scores.shape)}, masks {list(masks.shape)}"
+                f"model {self.model_path}: expected boxes [N, 4], labels [N], scores [N], masks [N, 1, H, W], got {got}"
             )
         height, width = frame_shape
         keep = scores > self.score_threshold

@@ -156,14 +156,13 @@ def instance_masks(
     coefficients: (N, nm); prototypes: (nm, P, P) over the model input; boxes_px: (N, 4) frame px.
     Only the prototype cells under each box are evaluated; one affine warp takes them to frame pixels.
     """
-    n_coeffs, proto_h, proto_w = prototypes.shape
+    _, proto_h, proto_w = prototypes.shape
     stride = box.size_px / proto_w
     # Frame pixel u (centre u + 0.5) -> input x = (u + 0.5) * scale + pad -> prototype cell coordinate
     # x / stride - 0.5 (cell centres at (i + 0.5) * stride): an affine map a * u + b per axis.
     a = box.scale / stride
     b_x = (0.5 * box.scale + box.pad_left_px) / stride - 0.5
     b_y = (0.5 * box.scale + box.pad_top_px) / stride - 0.5
-    flat = prototypes.reshape(n_coeffs, -1)
     ranges = box_pixel_ranges(boxes_px)
     height, width = box.frame_height_px, box.frame_width_px
     masks = []
@@ -177,9 +176,8 @@ def instance_masks(
         px1 = min(int(math.floor(a * (u1 - 1) + b_x)) + 2, proto_w)
         py0 = max(int(math.floor(a * v0 + b_y)), 0)
         py1 = min(int(math.floor(a * (v1 - 1) + b_y)) + 2, proto_h)
-        rows = np.arange(py0, py1)[:, None] * proto_w + np.arange(px0, px1)[None, :]
-        logits = coeffs @ flat[:, rows.ravel()]
-        crop = (1.0 / (1.0 + np.exp(-logits))).astype(np.float32).reshape(py1 - py0, px1 - px0)
+        logits = np.tensordot(coeffs, prototypes[:, py0:py1, px0:px1], axes=1)
+        crop = 1.0 / (1.0 + np.exp(-logits, dtype=np.float32))
         to_crop = np.array([[a, 0.0, a * u0 + b_x - px0], [0.0, a, a * v0 + b_y - py0]])
         sampled = cv2.warpAffine(
             crop,
@@ -326,13 +324,13 @@ class YoloSegDetector:
             )
         # Decide early on the few rows that matter: best class score per anchor, then threshold.
         scores_rows = preds[4 : 4 + n_classes] if class_ids is None else preds[4 + class_ids]
-        best_row = scores_rows.argmax(axis=0)
-        best_score = np.take_along_axis(scores_rows, best_row[None], axis=0)[0]
-        anchors = np.flatnonzero(best_score > self.score_threshold)
+        anchors = np.flatnonzero(scores_rows.max(axis=0) > self.score_threshold)
         if anchors.size == 0:
             return []
-        scores = best_score[anchors].astype(np.float64)
-        ids = best_row[anchors] if class_ids is None else class_ids[best_row[anchors]]
+        candidate_scores = scores_rows[:, anchors]
+        best_row = candidate_scores.argmax(axis=0)
+        scores = candidate_scores[best_row, np.arange(anchors.size)].astype(np.float64)
+        ids = best_row if class_ids is None else class_ids[best_row]
         cx, cy, w, h = preds[:4, anchors].astype(np.float64)
         boxes_input = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], axis=1)
         keep = nms(boxes_input, scores, ids, self.iou_threshold, self.max_detections)

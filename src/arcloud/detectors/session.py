@@ -108,6 +108,9 @@ def describe_signature(session: onnxruntime.InferenceSession) -> str:
     return f"inputs: {inputs}; outputs: {outputs}"
 
 
-def signature_error(model_path: object, adapter: str, expected: str, session: onnxruntime.InferenceSession) -> ModelError:
-    """A ``ModelError`` for a model that does not fit an adapter, saying what it expected and what the model has."""
-    return ModelError(f"model {model_path} does not fit the {adapter} adapter: expected {expected}, got {describe_signature(session)}")
+def signature_error(
+    model_path: object, adapter: str, expected: str, session: onnxruntime.InferenceSession
+) -> ModelError:
+    """A ``ModelError`` for a model that does not fit an adapter: what it expected, what the model has."""
+    got = describe_signature(session)
+    return ModelError(f"model {model_path} does not fit the {adapter} adapter: expected {expected}, got {got}")
