@@ -169,3 +169,63 @@ def build_seven_scenes(root: Path, *, n_frames: int = 3, gravity: np.ndarray | N
     if gravity is not None:
         np.savetxt(root / "gravity-direction.txt", gravity)
     return root
+
+
+#: The annotated room of ``build_room_scene``: raw category -> (min, max) in the aligned frame.
+ROOM_PARTS = {
+    "floor": (np.array([-3.0, -3.0, -0.05]), np.array([3.0, 3.0, 0.0])),
+    "wall": (np.array([-3.0, 3.0, 0.0]), np.array([3.0, 3.1, 2.5])),
+    "chair": (np.array([0.8, 0.8, 0.0]), np.array([1.3, 1.3, 0.9])),
+    "table": (np.array([-1.6, -0.9, 0.0]), np.array([-0.4, -0.1, 0.75])),
+}
+#: Unannotated walls (instance 0) closing the room.
+ROOM_WALLS = [
+    (np.array([-3.0, -3.1, 0.0]), np.array([3.0, -3.0, 2.5])),
+    (np.array([-3.1, -3.0, 0.0]), np.array([-3.0, 3.0, 2.5])),
+    (np.array([3.0, -3.0, 0.0]), np.array([3.1, 3.0, 2.5])),
+]
+
+
+def build_room_scene(root: Path) -> Path:
+    """A closed 6 x 6 m room mesh with a chair and a table, annotated like ScanNet (aggregation, segs,
+    v2 tsv), its scan frame related to the aligned frame by ``ALIGNMENT``; no frames. Returns the scene folder."""
+    scene = root / SCENE_ID
+    scene.mkdir(parents=True)
+    write_tsv(root / "scannetv2-labels.combined.tsv", 2)
+    vertices, triangles, seg_indices = [], [], []
+    boxes = [(100 + i, lo, hi) for i, (lo, hi) in enumerate(ROOM_PARTS.values())] + [(999, lo, hi) for lo, hi in ROOM_WALLS]
+    for segment, lo, hi in boxes:
+        v, t = box_mesh(lo, hi)
+        triangles.append(t + sum(len(x) for x in vertices))
+        vertices.append(v)
+        seg_indices += [segment] * len(v)
+    aligned = np.concatenate(vertices)
+    scan2aligned_inv = np.linalg.inv(ALIGNMENT)
+    scan = aligned @ scan2aligned_inv[:3, :3].T + scan2aligned_inv[:3, 3]
+    colors = np.tile(np.array([[180, 160, 140]], np.uint8), (len(scan), 1))
+    write_ply(scene / f"{SCENE_ID}_vh_clean_2.ply", scan.astype(np.float32), colors, np.concatenate(triangles), binary=True)
+    (scene / f"{SCENE_ID}_vh_clean_2.0.010000.segs.json").write_text(json.dumps({"segIndices": seg_indices}))
+    groups = [{"id": i, "objectId": i, "segments": [100 + i], "label": raw} for i, raw in enumerate(ROOM_PARTS)]
+    (scene / f"{SCENE_ID}.aggregation.json").write_text(json.dumps({"sceneId": SCENE_ID, "segGroups": groups}))
+    (scene / f"{SCENE_ID}.txt").write_text("axisAlignment = " + " ".join(f"{v:g}" for v in ALIGNMENT.ravel()) + "\n")
+    return scene
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(4, 4) cam2world of an OpenCV camera at ``eye`` looking at ``target`` in a z-up world."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([right, down, forward])
+    pose[:3, 3] = eye
+    return pose
+
+
+def circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, *, eye_height_m, obstacles_xy=()):  # noqa: ANN001, ANN201
+    """A stand-in for ``plan_walk``: a circle of radius 2 m around the room centre, looking at it."""
+    centre = (np.asarray(floor_min_xy) + np.asarray(floor_max_xy)) / 2
+    angles = seed * 0.7 + np.linspace(0, 2 * np.pi, n_frames, endpoint=False)
+    eyes = [np.array([centre[0] + 2 * np.cos(a), centre[1] + 2 * np.sin(a), eye_height_m]) for a in angles]
+    return [look_at(eye, np.array([*centre, 0.4])) for eye in eyes]

@@ -68,3 +68,14 @@ def test_missing_2d_ground_truth(tmp_path: Path, caplog: pytest.LogCaptureFixtur
         path.rmdir()
     with pytest.raises(DatasetError, match="instance-filt"):
         GroundTruthMaskDetector(load_scannet_scene(bare.scene_dir))
+
+
+def test_detector_spec(tiny_scannet: TinyScanNet) -> None:
+    from arcloud.detectors import make_detector
+
+    detector = make_detector(f"gt-masks:{tiny_scannet.scene_dir}", min_mask_px=4)
+    assert isinstance(detector, GroundTruthMaskDetector) and detector.min_mask_px == 4
+    scene = load_scannet_scene(tiny_scannet.scene_dir)
+    assert [d.label for d in detector.detect(scene.load_frame("0"))] == ["chair", "table"]
+    with pytest.raises(InvalidInput, match="SCENE_DIR"):
+        make_detector("gt-masks")

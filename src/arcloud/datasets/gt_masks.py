@@ -7,6 +7,8 @@ For a frame named N it reads ``instance-filt/N.png`` (8-bit instance ids, 0 = no
 label id under its mask, mapped through the labels tsv (``label_ids="scannet"``: ScanNet label ids, as
 ScanNet and ``render_scannet`` write; ``"nyu40"``: nyu40 ids). Without ``label-filt`` the class comes from
 the aggregation (instance id = objectId + 1).
+
+Importing this module registers the detector spec ``gt-masks:SCENE_DIR`` with ``arcloud.detectors``.
 """
 
 from __future__ import annotations
@@ -85,4 +87,23 @@ class GroundTruthMaskDetector:
         return detections
 
 
-__all__ = ["GroundTruthMaskDetector"]
+def gt_masks_detector(argument: str, **options: object) -> GroundTruthMaskDetector:
+    """The ``gt-masks:SCENE_DIR`` detector spec (``arcloud.detectors.make_detector``): replay the 2D
+    ground truth of the ScanNet-layout scene in SCENE_DIR; ``options`` go to the detector."""
+    from arcloud.datasets.scannet import load_scannet_scene
+
+    if not argument:
+        raise InvalidInput("detector spec", "gt-masks:SCENE_DIR (a ScanNet-layout scene folder)", "'gt-masks' with no folder")
+    return GroundTruthMaskDetector(load_scannet_scene(argument), **options)  # type: ignore[arg-type]
+
+
+def _register() -> None:
+    from arcloud.detectors.factory import register_detector
+
+    register_detector("gt-masks", gt_masks_detector, replace=True)
+
+
+_register()
+
+
+__all__ = ["GroundTruthMaskDetector", "gt_masks_detector"]

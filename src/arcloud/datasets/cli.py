@@ -1,0 +1,473 @@
+"""The dataset commands of the ``arcloud`` CLI: ``eval scannet``, ``eval 7scenes`` and ``render-scannet``.
+
+``add_eval_commands(subparsers)`` adds them to the CLI's sub-command parsers; every command sets
+``handler`` (``args.handler(args)`` runs it and returns the exit status; ``ArcloudError`` is left to
+the CLI's edge). Results are JSON::
+
+    {"table1": [{"approach": "centralized"|"distributed", "users": K, "runs": M,
+                 "map25_mean": .., "map25_var": .., "map50_mean": .., "map50_var": ..}, ...], ...}
+
+ScanNet: mAP against the scenes' ground truth, predictions pooled across scenes (the standard ScanNet
+evaluation). 7-Scenes has no 3D ground truth: ``agreement`` rows hold the mAP of each distributed map
+taken against the centralized map as ground truth, and pictures are written next to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arcloud.core.types import Frame, MapObject, Params
+from arcloud.errors import DatasetError
+from arcloud.ports import Detector
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_SCANNET_USERS = (1, 10, 50, 100)
+DEFAULT_7SCENES_USERS = (1, 10)
+GT_MASKS = "gt-masks"
+#: Frames kept in memory when a sequence has at most this many (about 2.2 MB each at 640x480).
+CACHE_FRAMES_UP_TO = 1500
+
+
+class LazyFrames(Sequence[Frame]):
+    """Frames of a dataset by index, read on first access (and kept when ``cache``). Thread-safe."""
+
+    def __init__(self, names: Sequence[str], load: Callable[[str], Frame], *, cache: bool) -> None:
+        self.names = tuple(names)
+        self._load = load
+        self._cache: dict[int, Frame] | None = {} if cache else None
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getitem__(self, index: int) -> Frame:  # type: ignore[override]
+        if isinstance(index, slice):
+            raise TypeError("LazyFrames does not slice; pick names and build another")
+        if self._cache is None:
+            return self._load(self.names[index])
+        with self._lock:
+            frame = self._cache.get(index)
+        if frame is None:
+            frame = self._load(self.names[index])
+            with self._lock:
+                self._cache[index] = frame
+        return frame
+
+    def __iter__(self) -> Iterator[Frame]:
+        return (self[i] for i in range(len(self)))
+
+
+def parse_users(text: str) -> tuple[int, ...]:
+    """'1,10,50' -> (1, 10, 50); every K >= 1."""
+    try:
+        users = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from exc
+    if not users or min(users) < 1:
+        raise argparse.ArgumentTypeError(f"expected user counts >= 1, got {text!r}")
+    return users
+
+
+def parse_scenes(text: str) -> tuple[str, ...]:
+    """'scene0000_00,scene0011_00' or '@file' (one name a line, '#' starts a comment) -> scene names."""
+    if text.startswith("@"):
+        try:
+            lines = Path(text[1:]).read_text().splitlines()
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"expected a readable scene list {text[1:]!r} ({exc})") from exc
+        names = (line.split("#", 1)[0].strip() for line in lines)
+        return tuple(name for name in names if name)
+    return tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+def objects_json(objects: Sequence[MapObject]) -> list[dict[str, object]]:
+    """The reportable objects (label and box) as JSON-friendly dicts, highest score first."""
+    boxed = sorted((o for o in objects if o.aabb is not None and o.label), key=lambda o: -o.score)
+    return [
+        {
+            "label": o.label,
+            "score": round(float(o.score), 6),
+            "aabb_min": [round(float(v), 4) for v in o.aabb.min],  # type: ignore[union-attr]
+            "aabb_max": [round(float(v), 4) for v in o.aabb.max],  # type: ignore[union-attr]
+        }
+        for o in boxed
+    ]
+
+
+def _row(approach: str, users: int, scores25: list[float], scores50: list[float], wall_s: float) -> dict[str, object]:
+    return {
+        "approach": approach,
+        "users": users,
+        "runs": len(scores25),
+        "map25_mean": float(np.mean(scores25)),
+        "map25_var": float(np.var(scores25)),
+        "map50_mean": float(np.mean(scores50)),
+        "map50_var": float(np.var(scores50)),
+        "wall_s": round(wall_s, 2),
+    }
+
+
+def _progress_bar(total: int, enabled: bool, desc: str) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, disable=not enabled, desc=desc, unit="frame", leave=False)
+
+
+def evaluate_scenes(
+    scenes: Sequence[tuple[str, Sequence[Frame], Detector, Sequence[Any]]],
+    params: Params,
+    *,
+    users: Sequence[int],
+    runs: int,
+    seed: int = 0,
+    workers: int = 1,
+    on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
+    progress: bool = False,
+) -> dict[str, object]:
+    """Table 1 over several scenes: for each K in ``users`` (K = 1: the centralized run, once; K > 1:
+    ``runs`` distributed runs), every scene is mapped and the predictions of all scenes are evaluated
+    together against ``(name, frames, detector, gt_boxes)``'s ground truth. Run r uses seed
+    ``seed * 1000 + r`` (as ``arcloud.eval.protocol.table1``); detections are computed once per frame."""
+    from arcloud.eval.metrics import evaluate
+    from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
+
+    cached = [(name, frames, CachedDetector(detector), gt) for name, frames, detector, gt in scenes]
+    ground_truth = {name: list(gt) for name, _, _, gt in scenes}
+    plan = [(k, 1 if k == 1 else runs) for k in users]
+    total = sum(n * sum(len(frames) for _, frames, _, _ in scenes) for _, n in plan)
+    rows, centralized = [], None
+    with _progress_bar(total, progress, "eval") as bar:
+        for k, n_runs in plan:
+            scores25, scores50, started = [], [], time.perf_counter()
+            for run in range(n_runs):
+                predictions = {}
+                for name, frames, detector, _ in cached:
+                    objects = run_map(
+                        frames, detector, params, users=k, seed=seed * 1000 + run, workers=workers,
+                        map_id=f"{name}-{k}-{run}", progress=bar.update,
+                    )  # fmt: skip
+                    if on_run is not None:
+                        on_run(name, k, run, objects)
+                    predictions[name] = object_boxes(objects)
+                result = evaluate(predictions, ground_truth)
+                if k == 1:
+                    centralized = result.to_dict()
+                scores25.append(result.map_at(0.25))
+                scores50.append(result.map_at(0.5))
+                logger.info("users %d run %d: mAP@0.25 %.4f mAP@0.5 %.4f", k, run, scores25[-1], scores50[-1])
+            rows.append(_row("centralized" if k == 1 else "distributed", k, scores25, scores50, time.perf_counter() - started))
+    out: dict[str, object] = {"table1": rows}
+    if centralized is not None:
+        out["centralized"] = centralized
+    return out
+
+
+def _export(export_dir: Path | None) -> Callable[[str, int, int, list[MapObject]], None] | None:
+    if export_dir is None:
+        return None
+    export_dir.mkdir(parents=True, exist_ok=True)
+
+    def write(scene: str, users: int, run: int, objects: list[MapObject]) -> None:
+        payload = {"scene": scene, "users": users, "run": run, "objects": objects_json(objects)}
+        (export_dir / f"{scene}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
+
+    return write
+
+
+def _workers(value: int | None) -> int:
+    return value if value and value > 0 else max(1, os.cpu_count() or 1)
+
+
+def _params(args: argparse.Namespace) -> Params:
+    params = Params()
+    if getattr(args, "voxel_size_m", None):
+        params = params.replace(voxel_size_m=float(args.voxel_size_m))
+    return params
+
+
+def _make_detector(spec: str) -> Detector:
+    from arcloud.detectors import make_detector
+
+    return make_detector(spec)
+
+
+def run_eval_scannet(args: argparse.Namespace) -> int:
+    """``arcloud eval scannet``: Table 1 on ScanNet-layout scenes; writes ``--out`` (and ``--export``)."""
+    from arcloud.datasets.gt_masks import GroundTruthMaskDetector
+    from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
+
+    started = time.perf_counter()
+    scene_dirs = find_scene_dirs(args.root, args.scenes)
+    if args.axis_alignment and len(scene_dirs) != 1:
+        raise DatasetError(f"--axis-alignment: expected one scene, got {len(scene_dirs)}")
+    shared_detector = None if args.detector == GT_MASKS else _make_detector(args.detector)
+    entries, frame_counts = [], {}
+    for scene_dir in scene_dirs:
+        scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
+        names = scene.frame_names[:: args.stride]
+        frames = LazyFrames(names, scene.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+        detector = GroundTruthMaskDetector(scene) if shared_detector is None else shared_detector
+        entries.append((scene.scene_id, frames, detector, scene.gt_boxes()))
+        frame_counts[scene.scene_id] = len(names)
+        if not scene.objects:
+            logger.warning("scene %s has no ground truth of our classes", scene.scene_id)
+    export_dir = Path(args.export) if args.export else None
+    result = evaluate_scenes(
+        entries, _params(args), users=args.users, runs=args.runs, seed=args.seed,
+        workers=_workers(args.workers), on_run=_export(export_dir), progress=not args.no_progress,
+    )  # fmt: skip
+    out = {
+        **result,
+        "dataset": "scannet",
+        "detector": args.detector,
+        "scenes": list(frame_counts),
+        "frames": frame_counts,
+        "stride": args.stride,
+        "seed": args.seed,
+        "wall_s": round(time.perf_counter() - started, 2),
+    }
+    _write_json(Path(args.out), out)
+    _print_table(out["table1"])  # type: ignore[arg-type]
+    return 0
+
+
+def fused_points(frames: Sequence[Frame], *, every: int = 20, step_px: int = 8, max_depth_m: float = 4.0) -> np.ndarray:
+    """(N, 3) world points back-projected from every ``every``-th frame (every ``step_px``-th pixel)."""
+    chunks = []
+    for index in range(0, len(frames), max(1, every)):
+        frame = frames[index]
+        depth = frame.depth_m[::step_px, ::step_px]
+        v, u = np.mgrid[0 : depth.shape[0], 0 : depth.shape[1]] * step_px
+        valid = (depth > 0) & (depth < max_depth_m)
+        k, z = frame.intrinsics, depth[valid]
+        cam = np.stack([(u[valid] - k.cx) / k.fx * z, (v[valid] - k.cy) / k.fy * z, z], axis=1)
+        chunks.append(cam @ frame.cam2world[:3, :3].T + frame.cam2world[:3, 3])
+    return np.concatenate(chunks) if chunks else np.zeros((0, 3))
+
+
+def agreement(
+    frames: Sequence[Frame],
+    detector: Detector,
+    params: Params,
+    *,
+    name: str,
+    users: Sequence[int],
+    runs: int,
+    seed: int = 0,
+    workers: int = 1,
+    progress: bool = False,
+    on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
+) -> tuple[list[dict[str, object]], list[MapObject], dict[int, list[MapObject]]]:
+    """Without ground truth: the centralized map, then for each K > 1 ``runs`` distributed maps scored
+    (mAP) against the centralized boxes as ground truth. Returns one row per K > 1 (``approach``
+    "distributed"), the centralized objects and the first run's objects per K."""
+    from arcloud.eval.metrics import evaluate
+    from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
+
+    cached = CachedDetector(detector)
+    distributed = [k for k in users if k > 1]
+    total = len(frames) * (1 + runs * len(distributed))
+    rows: list[dict[str, object]] = []
+    first_runs: dict[int, list[MapObject]] = {}
+    with _progress_bar(total, progress, "eval") as bar:
+        started = time.perf_counter()
+        centralized = run_map(frames, cached, params, users=1, seed=seed * 1000, map_id=f"{name}-1-0", progress=bar.update)
+        if on_run is not None:
+            on_run(name, 1, 0, centralized)
+        reference = {name: object_boxes(centralized)}  # scores are ignored on the ground-truth side
+        logger.info("centralized map: %d objects in %.1f s", len(reference[name]), time.perf_counter() - started)
+        for k in distributed:
+            scores25, scores50, started = [], [], time.perf_counter()
+            for run in range(runs):
+                objects = run_map(
+                    frames, cached, params, users=k, seed=seed * 1000 + run, workers=workers,
+                    map_id=f"{name}-{k}-{run}", progress=bar.update,
+                )  # fmt: skip
+                if on_run is not None:
+                    on_run(name, k, run, objects)
+                first_runs.setdefault(k, objects)
+                result = evaluate({name: object_boxes(objects)}, reference)
+                scores25.append(result.map_at(0.25))
+                scores50.append(result.map_at(0.5))
+            rows.append(_row("distributed", k, scores25, scores50, time.perf_counter() - started))
+    return rows, centralized, first_runs
+
+
+def write_pictures(
+    stem: Path,
+    frames: Sequence[Frame],
+    centralized: list[MapObject],
+    first_runs: dict[int, list[MapObject]],
+    *,
+    title: str = "",
+    n_frames: int = 4,
+) -> list[str]:
+    """Top-down pictures (boxes over fused points) of the centralized and first distributed maps, and
+    the centralized boxes drawn into ``n_frames`` frames spread over the sequence. Returns the paths."""
+    from arcloud.eval.plot import draw_boxes_in_image, draw_top_down, write_png
+    from arcloud.eval.protocol import object_boxes
+
+    points = fused_points(frames)
+    written = [
+        draw_top_down(f"{stem}_topdown_users1.png", predictions=object_boxes(centralized), points_xyz=points,
+                      title=f"{title or stem.name}: centralized, {len(frames)} frames")
+    ]  # fmt: skip
+    for k, objects in sorted(first_runs.items()):
+        written.append(
+            draw_top_down(f"{stem}_topdown_users{k}.png", predictions=object_boxes(objects), points_xyz=points,
+                          title=f"{title or stem.name}: {k} users, run 0")
+        )  # fmt: skip
+    boxes = object_boxes(centralized)
+    for index in np.linspace(0, len(frames) - 1, n_frames).round().astype(int) if len(frames) else []:
+        frame = frames[int(index)]
+        image = draw_boxes_in_image(frame.rgb, boxes, frame.cam2world, frame.intrinsics)
+        written.append(write_png(f"{stem}_frame_{frame.frame_id}.png", image))
+    return [str(p) for p in written]
+
+
+def run_eval_7scenes(args: argparse.Namespace) -> int:
+    """``arcloud eval 7scenes``: agreement of distributed maps with the centralized one, and pictures."""
+    from arcloud.datasets.sevenscenes import load_seven_scenes
+
+    started = time.perf_counter()
+    sequence = load_seven_scenes(args.root, align_gravity=True)
+    names = sequence.frame_names[:: args.stride]
+    frames = LazyFrames(names, sequence.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+    out_path = Path(args.out)
+    export_dir = Path(args.export) if args.export else None
+    rows, centralized, first_runs = agreement(
+        frames, _make_detector(args.detector), _params(args), name=sequence.name, users=args.users,
+        runs=args.runs, seed=args.seed, workers=_workers(args.workers), progress=not args.no_progress,
+        on_run=_export(export_dir),
+    )  # fmt: skip
+    stem = out_path.with_suffix("")
+    pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name)
+    out = {
+        "agreement": rows,
+        "dataset": "7scenes",
+        "detector": args.detector,
+        "sequence": sequence.name,
+        "frames": len(names),
+        "stride": args.stride,
+        "seed": args.seed,
+        "gravity_aligned": sequence.up_file is not None,
+        "centralized_objects": [
+            {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}  # type: ignore[arg-type]
+            for o in objects_json(centralized)
+        ],
+        "pictures": pictures,
+        "wall_s": round(time.perf_counter() - started, 2),
+    }
+    _write_json(out_path, out)
+    _print_table(rows)
+    return 0
+
+
+def run_render_scannet(args: argparse.Namespace) -> int:
+    """``arcloud render-scannet``: render an annotated ScanNet mesh into a ScanNet-layout scene."""
+    from arcloud.datasets.render_scannet import render_scannet
+    from arcloud.datasets.scannet import load_scannet_scene
+
+    scene = load_scannet_scene(args.mesh_dir, scan2aligned=args.axis_alignment)
+    scene_dir = render_scannet(
+        scene, Path(args.out), users=args.users, frames_per_user=args.frames, seed=args.seed,
+        width=args.width, height=args.height, progress=not args.no_progress,
+    )  # fmt: skip
+    print(f"wrote {scene_dir}")
+    return 0
+
+
+def _write_json(path: Path, payload: dict[str, object]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(payload, indent=2))
+    logger.info("wrote %s", path)
+
+
+def _print_table(rows: Sequence[dict[str, Any]]) -> None:
+    print(f"{'approach':<12} {'users':>5} {'runs':>4} {'mAP@0.25':>16} {'mAP@0.5':>16} {'wall_s':>8}")
+    for r in rows:
+        map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
+        map50 = f"{r['map50_mean']:.4f}±{np.sqrt(r['map50_var']):.4f}"
+        print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {map25:>16} {map50:>16} {r['wall_s']:>8}")
+
+
+def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
+    parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
+    parser.add_argument("--runs", type=int, default=runs, help=f"distributed runs per K (default {runs})")
+    parser.add_argument("--out", required=True, help="results JSON to write")
+    parser.add_argument("--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json")
+    parser.add_argument("--stride", type=int, default=1, help="use every N-th frame (default 1)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=0, help="worker threads of distributed runs (default: CPU count)")
+    parser.add_argument("--voxel-size-m", type=float, default=None, help="override Params.voxel_size_m")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def add_eval_commands(subparsers: Any) -> Any:
+    """Add ``eval scannet``, ``eval 7scenes`` and ``render-scannet`` to an argparse sub-parsers object.
+
+    Returns the sub-parsers of ``eval`` so that other evaluations can join them."""
+    evaluation = subparsers.add_parser("eval", help="evaluate on real datasets (ScanNet layout, 7-Scenes)")
+    kinds = evaluation.add_subparsers(dest="dataset", required=True, metavar="{scannet,7scenes}")
+
+    scannet = kinds.add_parser(
+        "scannet",
+        help="Table 1 (centralized vs distributed mAP) on ScanNet-layout scenes",
+        description="Table 1 on ScanNet-layout scenes. The default scene list is every scene folder under "
+        "--root (the paper does not list its 41 scenes; see docs/datasets.md).",
+    )
+    scannet.add_argument("--root", required=True, help="a scene folder, a folder of scenes, or one holding scans/")
+    scannet.add_argument("--scenes", type=parse_scenes, default=None, help="scene names, comma-separated, or @FILE")
+    scannet.add_argument("--detector", required=True, help=f"onnx:PATH (a YOLO-seg ONNX model) or {GT_MASKS}")
+    scannet.add_argument("--axis-alignment", default=None, help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt")
+    _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
+    scannet.set_defaults(handler=run_eval_scannet)
+
+    seven = kinds.add_parser(
+        "7scenes",
+        help="agreement of distributed maps with the centralized map on a 7-Scenes sequence, and pictures",
+    )
+    seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
+    seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
+    _add_common(seven, DEFAULT_7SCENES_USERS, 3)
+    seven.set_defaults(handler=run_eval_7scenes)
+
+    render = subparsers.add_parser(
+        "render-scannet",
+        help="render an annotated ScanNet mesh into a ScanNet-layout scene walked by K users",
+    )
+    render.add_argument("--mesh-dir", required=True, help="the scene folder with the mesh, aggregation, segs (and labels tsv)")
+    render.add_argument("--out", required=True, help="output root; the scene is written to OUT/<scene>/")
+    render.add_argument("--users", type=int, default=10, help="users walking the room, one after the other (default 10)")
+    render.add_argument("--frames", type=int, default=60, help="frames per user (default 60)")
+    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--width", type=int, default=640)
+    render.add_argument("--height", type=int, default=480)
+    render.add_argument("--axis-alignment", default=None, help="scan2aligned when the scene's .txt has none (as for eval scannet)")
+    render.add_argument("--no-progress", action="store_true", help="no progress bar")
+    render.set_defaults(handler=run_render_scannet)
+    return kinds
+
+
+__all__ = [
+    "LazyFrames",
+    "add_eval_commands",
+    "agreement",
+    "evaluate_scenes",
+    "fused_points",
+    "objects_json",
+    "parse_scenes",
+    "parse_users",
+    "write_pictures",
+]

@@ -1,0 +1,253 @@
+"""Render a scanned, annotated ScanNet mesh into a ScanNet-layout scene walked by K users.
+
+The room comes from the mesh and its annotation, in the scene's aligned frame (z up): the free floor is
+the extent of the ``floor`` instance, the obstacles are the floor-plan boxes of every other annotated
+instance that stands in the height band a person walks through (walls included), and the targets the
+users look at are the centres of the objects of arcloud's classes and of the other furniture. Each user
+walks one ``arcloud.sim.trajectory.plan_walk`` path; the users' frames follow one another in one
+sequence (user u has frames ``u * N .. u * N + N - 1``), so the distributed protocol with K users cuts
+it back into the users' walks.
+
+Written per frame, with ScanNet's conventions (see docs/datasets.md): ``color/N.jpg`` (vertex colours,
+shaded), ``depth/N.png`` (uint16 millimetres, 0 = no surface), ``pose/N.txt`` (cam2world in the
+*unaligned* scan frame, as ScanNet stores it), ``instance-filt/N.png`` (aggregation objectId + 1, 0 =
+unannotated; 8-bit, or 16-bit beyond 255 instances) and ``label-filt/N.png`` (uint16 ScanNet label ids,
+the labels tsv's ``id`` of the instance's raw category). Per scene: ``intrinsic/`` (colour = depth, both
+at the render size), ``<scene>.txt`` with ``axisAlignment``, copies of the mesh, aggregation and segs
+(for the 3D ground truth), the labels tsv beside the scene folder, and ``render.json`` (users, seeds).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from arcloud.core.types import Intrinsics
+from arcloud.datasets.files import write_matrix, write_png
+from arcloud.datasets.scannet import LABEL_TSV_NAMES, ScanNetScene, find_label_table
+from arcloud.errors import DatasetError, InvalidInput
+
+logger = logging.getLogger(__name__)
+
+#: ScanNet's usual depth intrinsics at 640x480 (used when the scene has none).
+DEFAULT_DEPTH_INTRINSICS = Intrinsics(577.87, 577.87, 319.5, 239.5)
+#: nyu40 ids and raw categories that are room structure, not obstacles one walks around or looks at.
+FLOOR_NYU40, CEILING_NYU40, WALL_NYU40 = 2, 22, 1
+STRUCTURE_RAW = {"floor", "ceiling", "wall", "window", "door", "doorframe", "curtain", "blinds", "ceiling light"}
+JPEG_QUALITY = 90
+
+
+@dataclass(frozen=True, eq=False)
+class RoomLayout:
+    """What a walk through the real room needs, in the aligned frame.
+
+    floor_min_xy, floor_max_xy: (2,) the walkable extent. floor_z_m: floor height.
+    obstacles_xy: ((2,), (2,)) floor-plan boxes to keep out of. targets: (N, 3) points to look at."""
+
+    floor_min_xy: np.ndarray
+    floor_max_xy: np.ndarray
+    floor_z_m: float
+    obstacles_xy: tuple[tuple[np.ndarray, np.ndarray], ...]
+    targets: np.ndarray
+
+
+def aligned_vertices(scene: ScanNetScene) -> np.ndarray:
+    """(V, 3) float32 mesh vertices in the aligned frame."""
+    if scene.mesh is None:
+        raise DatasetError(f"{scene.root}: expected a mesh <scene>_vh_clean_2.ply, got none")
+    a = scene.scan2aligned
+    return (scene.mesh.vertices.astype(np.float64) @ a[:3, :3].T + a[:3, 3]).astype(np.float32)
+
+
+def _is_structure(raw: str, nyu40: int) -> bool:
+    return raw.strip().lower() in STRUCTURE_RAW or nyu40 in (FLOOR_NYU40, CEILING_NYU40, WALL_NYU40)
+
+
+def room_layout(scene: ScanNetScene, *, band_m: tuple[float, float] = (0.1, 1.9), margin_m: float = 0.2) -> RoomLayout:
+    """The floor, obstacles and targets of an annotated scene (see the module docstring)."""
+    vertices = aligned_vertices(scene)
+    floors = [i for i in scene.instances if i.nyu40_id == FLOOR_NYU40 or i.raw_category.lower() == "floor"]
+    if floors:
+        floor_points = vertices[np.concatenate([i.vertex_indices for i in floors])]
+    else:
+        low = vertices[:, 2] < np.percentile(vertices[:, 2], 2) + 0.1
+        floor_points = vertices[low]
+        logger.warning("scene %s: no floor instance; taking the lowest vertices as the floor", scene.scene_id)
+    floor_z = float(np.median(floor_points[:, 2]))
+    lo = np.percentile(floor_points[:, :2], 2, axis=0) + margin_m
+    hi = np.percentile(floor_points[:, :2], 98, axis=0) - margin_m
+    if np.any(hi <= lo):
+        raise DatasetError(f"scene {scene.scene_id}: expected a floor wider than {2 * margin_m} m, got extent {hi - lo + 2 * margin_m}")
+    band_lo, band_hi = floor_z + band_m[0], floor_z + band_m[1]
+    obstacles, targets, other_targets = [], [], []
+    for inst in scene.instances:
+        if inst.nyu40_id in (FLOOR_NYU40, CEILING_NYU40) or inst.raw_category.lower() in ("floor", "ceiling"):
+            continue
+        if inst.aabb_max[2] >= band_lo and inst.aabb_min[2] <= band_hi:
+            obstacles.append((inst.aabb_min[:2].copy(), inst.aabb_max[:2].copy()))
+        if inst.label is not None:
+            targets.append(inst.center)
+        elif not _is_structure(inst.raw_category, inst.nyu40_id):
+            other_targets.append(inst.center)
+    all_targets = np.array(targets + other_targets, dtype=np.float64).reshape(-1, 3)
+    if all_targets.shape[0] == 0:
+        all_targets = np.array([[*(lo + hi) / 2, floor_z + 0.8]])
+    return RoomLayout(lo, hi, floor_z, tuple(obstacles), all_targets)
+
+
+def triangle_instances(scene: ScanNetScene) -> np.ndarray:
+    """(T,) int32 per triangle: aggregation objectId + 1 of its vertices (majority), 0 = unannotated."""
+    assert scene.mesh is not None
+    vertex_instance = np.zeros(len(scene.mesh.vertices), np.int32)
+    for inst in scene.instances:
+        vertex_instance[inst.vertex_indices] = inst.object_id + 1
+    a, b, c = (vertex_instance[scene.mesh.triangles[:, i]] for i in range(3))
+    return np.where(b == c, b, a).astype(np.int32)
+
+
+def label_lookup(scene: ScanNetScene) -> np.ndarray:
+    """(max instance id + 1,) uint16: ScanNet label id of each 2D instance id (0 -> 0)."""
+    ids = [inst.object_id + 1 for inst in scene.instances]
+    lookup = np.zeros(max(ids, default=0) + 1, np.uint16)
+    if scene.labels is not None:
+        for inst in scene.instances:
+            lookup[inst.object_id + 1] = scene.labels.label_id_of(inst.raw_category)
+    return lookup
+
+
+def scaled_intrinsics(intrinsics: Intrinsics, from_wh: tuple[int, int], to_wh: tuple[int, int]) -> Intrinsics:
+    """Intrinsics of an image resized from ``from_wh`` to ``to_wh`` (pixel-centre convention)."""
+    sx, sy = to_wh[0] / from_wh[0], to_wh[1] / from_wh[1]
+    return Intrinsics(
+        intrinsics.fx * sx, intrinsics.fy * sy, (intrinsics.cx + 0.5) * sx - 0.5, (intrinsics.cy + 0.5) * sy - 0.5
+    )
+
+
+def _write_scene_files(scene: ScanNetScene, scene_dir: Path, out_root: Path, k: Intrinsics, size_wh: tuple[int, int], n: int) -> None:
+    for sub in ("color", "depth", "pose", "intrinsic", "instance-filt", "label-filt"):
+        (scene_dir / sub).mkdir(parents=True, exist_ok=True)
+    matrix = np.eye(4)
+    matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2] = k.fx, k.fy, k.cx, k.cy
+    for name in ("intrinsic_color.txt", "intrinsic_depth.txt"):
+        write_matrix(scene_dir / "intrinsic" / name, matrix)
+    for name in ("extrinsic_color.txt", "extrinsic_depth.txt"):
+        write_matrix(scene_dir / "intrinsic" / name, np.eye(4))
+    width, height = size_wh
+    meta = {
+        "axisAlignment": " ".join(f"{v:.9g}" for v in scene.scan2aligned.ravel()),
+        "colorHeight": height, "colorWidth": width, "depthHeight": height, "depthWidth": width,
+        "fx_color": k.fx, "fy_color": k.fy, "mx_color": k.cx, "my_color": k.cy,
+        "fx_depth": k.fx, "fy_depth": k.fy, "mx_depth": k.cx, "my_depth": k.cy,
+        "numColorFrames": n, "numDepthFrames": n, "sceneType": "Rendered",
+    }  # fmt: skip
+    (scene_dir / f"{scene.scene_id}.txt").write_text("".join(f"{key} = {value}\n" for key, value in meta.items()))
+    for pattern in (f"{scene.scene_id}_vh_clean_2.ply", f"{scene.scene_id}.aggregation.json", f"{scene.scene_id}_vh_clean*.segs.json"):
+        for source in scene.root.glob(pattern):
+            shutil.copyfile(source, scene_dir / source.name)
+    tsv = find_label_table(scene.root)
+    if tsv is not None:
+        shutil.copyfile(tsv, out_root / tsv.name)
+    elif not any((out_root / name).is_file() for name in LABEL_TSV_NAMES):
+        logger.warning("scene %s: no labels tsv to copy; label-filt images hold 0", scene.scene_id)
+
+
+def render_scannet(
+    scene: ScanNetScene,
+    out_root: Path,
+    *,
+    users: int = 10,
+    frames_per_user: int = 60,
+    seed: int = 0,
+    width: int = 640,
+    height: int = 480,
+    intrinsics: Intrinsics | None = None,
+    eye_height_m: float = 1.5,
+    min_valid_fraction: float = 0.5,
+    progress: bool = False,
+    walk: Callable[..., list[np.ndarray]] | None = None,
+) -> Path:
+    """Render ``users`` walks of ``frames_per_user`` frames through ``scene``'s mesh into
+    ``out_root/<scene>/`` (see the module docstring); returns that folder.
+
+    User u walks with seed ``seed * 1000 + u``. A frame that sees less than ``min_valid_fraction`` of
+    surface (a camera in a wall, or looking out through a hole of the scan) is dropped, logged.
+    ``walk`` replaces ``arcloud.sim.trajectory.plan_walk`` (same signature)."""
+    from arcloud.sim.render import MeshRenderer
+
+    if walk is None:
+        from arcloud.sim.trajectory import plan_walk as walk
+    if users < 1 or frames_per_user < 1:
+        raise InvalidInput("users, frames_per_user", "both >= 1", (users, frames_per_user))
+    if scene.mesh is None or not scene.instances:
+        raise DatasetError(f"{scene.root}: expected a mesh with an aggregation and segs (the annotation), got none")
+    base = intrinsics or (
+        scaled_intrinsics(scene.depth_intrinsics, (640, 480), (width, height)) if scene.depth_intrinsics
+        else scaled_intrinsics(DEFAULT_DEPTH_INTRINSICS, (640, 480), (width, height))
+    )  # fmt: skip
+    layout = room_layout(scene)
+    renderer = MeshRenderer(
+        aligned_vertices(scene), scene.mesh.triangles, vertex_colors=scene.mesh.colors, triangle_instance=triangle_instances(scene)
+    )
+    lookup = label_lookup(scene)
+    instance_dtype = np.uint8 if len(lookup) <= 256 else np.uint16
+    aligned2scan = np.linalg.inv(scene.scan2aligned)
+    scene_dir = Path(out_root) / scene.scene_id
+    _write_scene_files(scene, scene_dir, Path(out_root), base, (width, height), users * frames_per_user)
+
+    from tqdm import tqdm
+
+    record: dict[str, object] = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "user_frames": []}
+    dropped, index = 0, 0
+    pending: list[Future[None]] = []
+    with ThreadPoolExecutor(max_workers=2) as writer, tqdm(total=users * frames_per_user, disable=not progress, desc="render", unit="frame") as bar:
+        for user in range(users):
+            poses = walk(
+                layout.floor_min_xy, layout.floor_max_xy, layout.targets, frames_per_user, seed * 1000 + user,
+                eye_height_m=layout.floor_z_m + eye_height_m, obstacles_xy=layout.obstacles_xy,
+            )  # fmt: skip
+            first = index
+            for cam2world in poses:
+                bar.update(1)
+                result = renderer.render(cam2world, base, width, height)
+                if np.count_nonzero(result.depth_m > 0) < min_valid_fraction * width * height:
+                    dropped += 1
+                    continue
+                name = str(index)
+                index += 1
+                instance = np.where(result.instance < len(lookup), result.instance, 0)
+                pending.append(writer.submit(_write_frame, scene_dir, name, result.rgb, result.depth_m,
+                                             instance.astype(instance_dtype), lookup[instance], aligned2scan @ cam2world))  # fmt: skip
+            record["user_frames"].append([first, index])  # type: ignore[union-attr]
+            for future in pending:
+                future.result()
+            pending.clear()
+    if dropped:
+        logger.warning("scene %s: dropped %d of %d frames that saw too little surface", scene.scene_id, dropped, users * frames_per_user)
+    (scene_dir / "render.json").write_text(json.dumps({**record, "frames": index, "dropped": dropped}, indent=1))
+    logger.info("rendered %d frames of %s by %d users into %s", index, scene.scene_id, users, scene_dir)
+    return scene_dir
+
+
+def _write_frame(
+    scene_dir: Path, name: str, rgb: np.ndarray, depth_m: np.ndarray, instance: np.ndarray, label: np.ndarray, cam2scan: np.ndarray
+) -> None:
+    import cv2
+
+    path = scene_dir / "color" / f"{name}.jpg"
+    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
+        raise DatasetError(f"{path}: could not write the image")
+    depth_mm = np.clip(np.rint(depth_m * 1000.0), 0, 65535).astype(np.uint16)
+    write_png(scene_dir / "depth" / f"{name}.png", depth_mm)
+    write_png(scene_dir / "instance-filt" / f"{name}.png", instance)
+    write_png(scene_dir / "label-filt" / f"{name}.png", label)
+    write_matrix(scene_dir / "pose" / f"{name}.txt", cam2scan)
+
+
+__all__ = ["RoomLayout", "render_scannet", "room_layout", "scaled_intrinsics", "triangle_instances"]

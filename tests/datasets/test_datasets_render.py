@@ -1,0 +1,102 @@
+"""Rendering an annotated mesh into a ScanNet-layout scene, reading it back, and evaluating on it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from datasets_builders import ALIGNMENT, ROOM_PARTS, SCENE_ID, build_room_scene, circle_walk
+
+from arcloud.core.types import Intrinsics, Params
+from arcloud.datasets.gt_masks import GroundTruthMaskDetector
+from arcloud.datasets.render_scannet import label_lookup, render_scannet, room_layout, scaled_intrinsics, triangle_instances
+from arcloud.datasets.scannet import load_scannet_scene
+
+SMALL = Intrinsics(120.0, 120.0, 79.5, 59.5)
+
+
+def test_room_layout_from_the_annotation(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path))
+    layout = room_layout(scene)
+    np.testing.assert_allclose(layout.floor_min_xy, [-2.8, -2.8], atol=0.15)
+    np.testing.assert_allclose(layout.floor_max_xy, [2.8, 2.8], atol=0.15)
+    assert layout.floor_z_m == pytest.approx(0.0, abs=0.05)
+    obstacles = {tuple(np.round(np.r_[lo, hi], 2)) for lo, hi in layout.obstacles_xy}
+    assert obstacles == {(-3.0, 3.0, 3.0, 3.1), (0.8, 0.8, 1.3, 1.3), (-1.6, -0.9, -0.4, -0.1)}  # wall, chair, table
+    np.testing.assert_allclose(layout.targets, [[1.05, 1.05, 0.45], [-1.0, -0.5, 0.375]])  # our classes only
+
+
+def test_triangle_instances_and_labels(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path))
+    per_triangle = triangle_instances(scene)
+    assert per_triangle.shape == (len(scene.mesh.triangles),)
+    assert np.bincount(per_triangle).tolist() == [36, 12, 12, 12, 12]  # 3 unannotated walls, 4 instances
+    # ScanNet label ids (the tsv's id) of instance ids 1..4: floor 11, wall 0 (not in the tsv), chair 2, table 4
+    assert label_lookup(scene).tolist() == [0, 11, 0, 2, 4]
+
+
+def test_scaled_intrinsics() -> None:
+    k = scaled_intrinsics(Intrinsics(577.87, 577.87, 319.5, 239.5), (640, 480), (320, 240))
+    assert k == pytest.approx(Intrinsics(288.935, 288.935, 159.5, 119.5))
+
+
+def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
+    out = tmp_path / "render"
+    scene_dir = render_scannet(scene, out, users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
+    record = json.loads((scene_dir / "render.json").read_text())
+    assert record["frames"] == 12 and record["user_frames"] == [[0, 6], [6, 12]] and record["dropped"] == 0
+    assert (out / "scannetv2-labels.combined.tsv").is_file()
+
+    rendered = load_scannet_scene(scene_dir)
+    np.testing.assert_allclose(rendered.scan2aligned, ALIGNMENT, atol=1e-6)
+    assert rendered.n_frames == 12 and rendered.depth_intrinsics == pytest.approx(SMALL)
+    # poses on disk are in the scan frame; the reader brings them back to the walk (aligned frame)
+    layout = room_layout(scene)
+    walk1 = circle_walk(layout.floor_min_xy, layout.floor_max_xy, layout.targets, 6, 3 * 1000 + 1, eye_height_m=layout.floor_z_m + 1.5)
+    np.testing.assert_allclose(rendered.pose("7"), walk1[1], atol=1e-6)
+    frame = rendered.load_frame("7")
+    assert frame.rgb.shape == (120, 160, 3) and frame.depth_m.dtype == np.float32
+    # every pixel sees the closed room; depths are those of a 6 m room seen from inside
+    assert np.all(frame.depth_m > 0) and frame.depth_m.max() < 6.5
+
+    # the 2D ground truth replays as detections that back-project onto the annotated boxes
+    detector = GroundTruthMaskDetector(rendered)
+    labels_seen = set()
+    for name in rendered.frame_names:
+        frame = rendered.load_frame(name)
+        for det in detector.detect(frame):
+            labels_seen.add(det.label)
+            v, u = np.nonzero(det.mask)
+            z = frame.depth_m[v, u]
+            k = frame.intrinsics
+            cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+            world = cam @ frame.cam2world[:3, :3].T + frame.cam2world[:3, 3]
+            lo, hi = ROOM_PARTS[det.label]
+            assert np.all(world >= lo - 0.02) and np.all(world <= hi + 0.02), det.label
+    assert labels_seen == {"chair", "table"}
+
+
+def test_eval_on_a_rendered_scene_finds_the_ground_truth(tmp_path: Path) -> None:
+    from arcloud.datasets.cli import LazyFrames, evaluate_scenes
+
+    scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
+    scene_dir = render_scannet(scene, tmp_path / "render", users=2, frames_per_user=8, seed=0, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
+    rendered = load_scannet_scene(scene_dir)
+    frames = LazyFrames(rendered.frame_names, rendered.load_frame, cache=True)
+    exported: list[tuple[str, int, int]] = []
+    result = evaluate_scenes(
+        [(SCENE_ID, frames, GroundTruthMaskDetector(rendered), rendered.gt_boxes())],
+        Params(),
+        users=(1, 2),
+        runs=2,
+        on_run=lambda scene, k, run, objects: exported.append((scene, k, run)),
+    )
+    rows = {row["users"]: row for row in result["table1"]}
+    assert rows[1]["approach"] == "centralized" and rows[1]["runs"] == 1
+    assert rows[2]["approach"] == "distributed" and rows[2]["runs"] == 2
+    assert rows[1]["map25_mean"] == pytest.approx(1.0)
+    assert rows[2]["map25_mean"] == pytest.approx(1.0)
+    assert exported == [(SCENE_ID, 1, 0), (SCENE_ID, 2, 0), (SCENE_ID, 2, 1)]
