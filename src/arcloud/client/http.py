@@ -1,0 +1,255 @@
+"""Python SDK of the service for devices and viewers: ``ArcloudClient`` (blocking) and
+``AsyncArcloudClient`` (asyncio), both on httpx, with the same methods.
+
+    with ArcloudClient("http://127.0.0.1:8000") as client:
+        client.send_frame(frame)                       # a core Frame, or arrays (see send_frame)
+        client.wait_until_processed("office", n_frames=100, timeout_s=60)
+        for obj in client.list_objects("office", label="chair", min_score=0.5):
+            print(obj["id"], obj["aabb"])
+
+Frames travel as protobuf (``arcloud.v1.Frame``: JPEG colour, 16-bit PNG depth in millimetres by
+default). A 503 (queue full, store away) is retried after the server's Retry-After, ``max_retries``
+times. Other refusals raise ``ServiceError`` with the status and the server's message; transport
+failures are httpx's exceptions.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import httpx
+import numpy as np
+
+from arcloud.core.types import Frame, Intrinsics
+from arcloud.errors import ArcloudError
+
+if TYPE_CHECKING:
+    from arcloud.events.zenoh import Subscription
+    from arcloud.proto.arcloud.v1 import arcloud_pb2
+
+PROTOBUF = "application/x-protobuf"
+DEFAULT_TIMEOUT_S = 30.0
+
+
+class ServiceError(ArcloudError):
+    """The service refused a request: ``status`` (HTTP), ``detail`` (its message), ``field`` (the input
+    at fault, when it names one)."""
+
+    def __init__(self, status: int, detail: str, field: str | None = None) -> None:
+        self.status = status
+        self.detail = detail
+        self.field = field
+        super().__init__(f"HTTP {status}: {detail}")
+
+
+def frame_body(
+    frame: Frame | None = None,
+    *,
+    map_id: str | None = None,
+    rgb: np.ndarray | None = None,
+    depth: np.ndarray | None = None,
+    intrinsics: Intrinsics | Mapping[str, float] | Sequence[float] | None = None,
+    cam2world: np.ndarray | None = None,
+    timestamp_s: float = 0.0,
+    device_id: str = "",
+    frame_id: str = "",
+    depth_scale: float = 1000.0,
+    rgb_encoding: str = "jpeg",
+) -> tuple[str, bytes]:
+    """(map id, protobuf bytes) of a frame given as a ``Frame`` or as arrays (validated here first)."""
+    from arcloud.proto.convert import frame_to_proto
+
+    if frame is not None:
+        msg = frame_to_proto(frame, rgb_encoding=rgb_encoding, depth_scale=depth_scale)  # type: ignore[arg-type]
+    else:
+        msg = frame_to_proto(
+            rgb=rgb, depth=depth, intrinsics=intrinsics, cam2world=cam2world, timestamp_s=timestamp_s, map_id=map_id or "",
+            device_id=device_id, frame_id=frame_id, depth_scale=depth_scale, rgb_encoding=rgb_encoding,  # type: ignore[arg-type]
+        )
+    target = map_id or msg.map_id
+    if not target:
+        raise ArcloudError("send_frame: no map id (give map_id or a frame with one)")
+    return target, msg.SerializeToString()
+
+
+def object_query(label: str | None, min_score: float | None, bbox: Sequence[float] | None) -> dict[str, str]:
+    params: dict[str, str] = {}
+    if label is not None:
+        params["label"] = label
+    if min_score is not None:
+        params["min_score"] = repr(float(min_score))
+    if bbox is not None:
+        if len(bbox) != 6:
+            raise ArcloudError(f"bbox: expected 6 numbers x0,y0,z0,x1,y1,z1, got {len(bbox)}")
+        params["bbox"] = ",".join(repr(float(v)) for v in bbox)
+    return params
+
+
+def checked(response: httpx.Response) -> Any:
+    """The JSON of a 2xx response; ``ServiceError`` otherwise."""
+    if response.is_success:
+        return response.json()
+    try:
+        body = response.json()
+        detail, field = str(body.get("detail")), body.get("field")
+    except ValueError:
+        detail, field = response.text[:500], None
+    raise ServiceError(response.status_code, detail, field)
+
+
+def retry_after_s(response: httpx.Response, default_s: float = 1.0) -> float:
+    try:
+        return max(0.0, float(response.headers.get("retry-after", default_s)))
+    except ValueError:
+        return default_s
+
+
+def _done(stats: Mapping[str, Any], n_frames: int) -> bool:
+    frames = stats["frames"]
+    return bool(frames["processed"] + frames["failed"] >= n_frames)
+
+
+def subscribe(map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, mode: str = "peer") -> Subscription:
+    """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
+    (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop."""
+    from arcloud.events.zenoh import subscribe_objects
+
+    return subscribe_objects(map_id, callback, connect=endpoints, mode=mode)  # type: ignore[arg-type]
+
+
+class ArcloudClient:
+    """Blocking client of one service at ``url``."""
+
+    def __init__(self, url: str, *, timeout_s: float = DEFAULT_TIMEOUT_S, max_retries: int = 5, http: httpx.Client | None = None) -> None:
+        self.url = url.rstrip("/")
+        self.max_retries = max_retries
+        self._owns = http is None
+        self.http = http if http is not None else httpx.Client(base_url=self.url, timeout=timeout_s)
+
+    def close(self) -> None:
+        if self._owns:
+            self.http.close()
+
+    def __enter__(self) -> ArcloudClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        for attempt in range(self.max_retries + 1):
+            response = self.http.request(method, path, **kwargs)
+            if response.status_code != 503 or attempt == self.max_retries:
+                return checked(response)
+            time.sleep(retry_after_s(response))
+        raise AssertionError("unreachable")
+
+    def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
+        """Upload one frame: ``send_frame(frame)`` or ``send_frame(map_id=, rgb=, depth=, intrinsics=,
+        cam2world=, timestamp_s=, device_id=, frame_id=, depth_scale=)`` (rgb (H, W, 3) uint8, depth
+        (H, W) float32 metres or uint16 units). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
+        map_id, body = frame_body(frame, **arrays)
+        return self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
+
+    def list_objects(self, map_id: str, *, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None) -> list[dict[str, Any]]:
+        return self._request("GET", f"/v1/maps/{map_id}/objects", params=object_query(label, min_score, bbox))["objects"]  # type: ignore[no-any-return]
+
+    def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
+        return self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})  # type: ignore[no-any-return]
+
+    def delete_map(self, map_id: str) -> dict[str, Any]:
+        return self._request("DELETE", f"/v1/maps/{map_id}")  # type: ignore[no-any-return]
+
+    def stats(self, map_id: str) -> dict[str, Any]:
+        return self._request("GET", f"/v1/maps/{map_id}/stats")  # type: ignore[no-any-return]
+
+    def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
+        """Poll the map's stats until ``n_frames`` frames are done (processed or failed); returns the
+        stats. Raises ``TimeoutError`` with the last counts."""
+        deadline = time.monotonic() + timeout_s
+        stats: dict[str, Any] = {}
+        while True:
+            try:
+                stats = self.stats(map_id)
+                if _done(stats, n_frames):
+                    return stats
+            except ServiceError as exc:
+                if exc.status != 404:  # 404: no frame of the map accepted yet
+                    raise
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})")
+            time.sleep(poll_s)
+
+    def subscribe(self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str]) -> Subscription:
+        return subscribe(map_id, callback, endpoints)
+
+
+class AsyncArcloudClient:
+    """asyncio client of one service at ``url`` (same methods as ``ArcloudClient``, awaitable)."""
+
+    def __init__(self, url: str, *, timeout_s: float = DEFAULT_TIMEOUT_S, max_retries: int = 5, http: httpx.AsyncClient | None = None) -> None:
+        self.url = url.rstrip("/")
+        self.max_retries = max_retries
+        self._owns = http is None
+        self.http = http if http is not None else httpx.AsyncClient(base_url=self.url, timeout=timeout_s)
+
+    async def aclose(self) -> None:
+        if self._owns:
+            await self.http.aclose()
+
+    async def __aenter__(self) -> AsyncArcloudClient:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        for attempt in range(self.max_retries + 1):
+            response = await self.http.request(method, path, **kwargs)
+            if response.status_code != 503 or attempt == self.max_retries:
+                return checked(response)
+            await asyncio.sleep(retry_after_s(response))
+        raise AssertionError("unreachable")
+
+    async def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
+        """As ``ArcloudClient.send_frame``; the encoding runs in a thread."""
+        map_id, body = await asyncio.to_thread(frame_body, frame, **arrays)
+        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
+
+    async def send_encoded(self, map_id: str, body: bytes) -> dict[str, Any]:
+        """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
+        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
+
+    async def list_objects(self, map_id: str, *, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None) -> list[dict[str, Any]]:
+        return (await self._request("GET", f"/v1/maps/{map_id}/objects", params=object_query(label, min_score, bbox)))["objects"]  # type: ignore[no-any-return]
+
+    async def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
+        return await self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})  # type: ignore[no-any-return]
+
+    async def delete_map(self, map_id: str) -> dict[str, Any]:
+        return await self._request("DELETE", f"/v1/maps/{map_id}")  # type: ignore[no-any-return]
+
+    async def stats(self, map_id: str) -> dict[str, Any]:
+        return await self._request("GET", f"/v1/maps/{map_id}/stats")  # type: ignore[no-any-return]
+
+    async def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        stats: dict[str, Any] = {}
+        while True:
+            try:
+                stats = await self.stats(map_id)
+                if _done(stats, n_frames):
+                    return stats
+            except ServiceError as exc:
+                if exc.status != 404:
+                    raise
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})")
+            await asyncio.sleep(poll_s)
+
+    def subscribe(self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str]) -> Subscription:
+        """As ``ArcloudClient.subscribe`` (the callback runs on a Zenoh thread)."""
+        return subscribe(map_id, callback, endpoints)

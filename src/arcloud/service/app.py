@@ -1,0 +1,433 @@
+"""The HTTP API, built by one factory: ``create_app(settings, *, store=None, detector=None, publisher=None)``.
+
+Nothing happens at import or at ``create_app``: the lifespan builds the adapters the settings name
+(unless given), starts the ingest, and stops everything in reverse on shutdown. Routes talk to the
+ports (``ObjectStore``) and to the ingest, never to a concrete store.
+
+    POST   /v1/maps/{map_id}/frames           protobuf Frame or multipart (meta, rgb, depth) -> 202 queued
+    GET    /v1/maps/{map_id}/objects          ?label= &min_score= &bbox=x0,y0,z0,x1,y1,z1
+    GET    /v1/maps/{map_id}/objects/{id}     ?voxels=true
+    DELETE /v1/maps/{map_id}
+    GET    /v1/maps/{map_id}/stats
+    GET    /healthz  /readyz  /metrics
+
+A map exists once a frame of it was accepted; unknown maps and objects answer 404. Errors are JSON
+``{"detail": ..., "field": ...}``: 413 body too large, 415 wrong content type, 422 invalid input,
+503 store unreachable or queue full (with Retry-After).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
+from contextlib import asynccontextmanager
+from dataclasses import dataclass, field
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, Path, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from arcloud import __version__
+from arcloud.core.checks import check_id
+from arcloud.core.types import CLASSES, Params
+from arcloud.core.voxels import key_centers
+from arcloud.errors import InvalidInput, StoreUnavailable
+from arcloud.ports import Detector, ObjectStore, UpdatePublisher
+from arcloud.service import frames as frames_in
+from arcloud.service.ingest import EmbeddedIngest, Ingest, QueueFull, RedisIngest
+from arcloud.service.schemas import (
+    PROBLEM_RESPONSES,
+    FrameAccepted,
+    FrameMeta,
+    Health,
+    MapDeleted,
+    MapStats,
+    ObjectDetail,
+    ObjectList,
+    Problem,
+    Ready,
+    object_out,
+)
+from arcloud.service.settings import Settings
+
+log = logging.getLogger(__name__)
+
+Label = Literal[CLASSES]  # type: ignore[valid-type]
+
+
+@dataclass(eq=False)
+class Runtime:
+    """What the lifespan built; routes reach it through the ``RuntimeDep`` dependency."""
+
+    settings: Settings
+    params: Params
+    store: ObjectStore
+    ingest: Ingest
+    detector: Detector | None = None
+    publisher: UpdatePublisher | None = None
+    owned: list[object] = field(default_factory=list)  # closed on shutdown, last first
+
+
+class BodyTooLarge(Exception):
+    def __init__(self, limit: int, got: str) -> None:
+        self.limit = limit
+        super().__init__(f"body: expected at most {limit} bytes, got {got}")
+
+
+class BodyLimit:
+    """ASGI middleware refusing bodies over ``max_bytes``: at once from Content-Length, else while
+    reading (``BodyTooLarge`` from ``receive``, answered 413 by the app's handler)."""
+
+    def __init__(self, app: Callable[..., Awaitable[None]], max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: MutableMapping[str, Any], receive: Callable[[], Awaitable[dict[str, Any]]], send: Callable[..., Awaitable[None]]) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope.get("headers") or []).get(b"content-length")
+        if declared is not None:
+            if not declared.isdigit():
+                await JSONResponse({"detail": f"content-length: expected a number of bytes, got {declared.decode(errors='replace')!r}", "field": "content-length"}, 400)(scope, receive, send)
+                return
+            if int(declared) > self.max_bytes:
+                await JSONResponse({"detail": str(BodyTooLarge(self.max_bytes, f"{int(declared)} bytes")), "field": "body"}, 413)(scope, receive, send)
+                return
+        received = 0
+
+        async def limited() -> dict[str, Any]:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_bytes:
+                    raise BodyTooLarge(self.max_bytes, f"more than {self.max_bytes} bytes")
+            return message
+
+        await self.app(scope, limited, send)
+
+
+# --- start and stop ----------------------------------------------------------------------------------
+def start_runtime(
+    settings: Settings,
+    store: ObjectStore | None = None,
+    detector: Detector | None = None,
+    publisher: UpdatePublisher | None = None,
+) -> Runtime:
+    """Build (or take) the adapters, start the ingest. Blocking: loads models and connects."""
+    from arcloud.service.components import build_detector, build_store
+
+    params = settings.make_params()
+    owned: list[object] = []
+    if store is None:
+        store = build_store(settings.store, cell_m=params.index_cell_m)
+        owned.append(store)
+    holder: dict[str, Ingest] = {}
+    if publisher is None and settings.zenoh_mode != "off":
+        from arcloud.events.zenoh import ZenohPublisher
+
+        on_frame = (lambda payload: _ingest_zenoh_frame(holder["ingest"], payload, settings)) if settings.zenoh_frames else None
+        publisher = ZenohPublisher(mode=settings.zenoh_mode, listen=settings.zenoh_listen, connect=settings.zenoh_connect, store=store, on_frame=on_frame)
+        owned.append(publisher)
+    ingest: Ingest
+    if settings.embedded:
+        if detector is None:
+            detector = build_detector(settings.detector, threads=settings.detector_threads)
+        ingest = EmbeddedIngest(store, detector, params, publisher, workers=settings.workers, max_queued_frames=settings.max_queued_frames,
+                                attempts=settings.max_deliveries)
+    else:
+        if detector is not None:
+            raise InvalidInput("detector", "none with a Redis store (worker processes build theirs from settings.detector)", type(detector).__name__)
+        import redis
+
+        from arcloud.service.worker import WorkerPool
+
+        client = getattr(store, "client", None) or redis.Redis.from_url(settings.store)
+        pool = WorkerPool(settings, settings.workers) if settings.workers > 0 else None
+        ingest = RedisIngest(client, store, group=settings.consumer_group, max_queued_frames=settings.max_queued_frames, pool=pool)
+    holder["ingest"] = ingest
+    ingest.start()
+    log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
+    return Runtime(settings, params, store, ingest, detector, publisher, owned)
+
+
+def stop_runtime(runtime: Runtime) -> None:
+    from arcloud.service.components import close_quietly
+
+    runtime.ingest.stop()
+    for thing in reversed(runtime.owned):
+        close_quietly(thing)
+    log.info("arcloud service stopped")
+
+
+def _ingest_zenoh_frame(ingest: Ingest, payload: bytes, settings: Settings) -> None:
+    """A frame published on ``arcloud/<map>/frames/<device>``: validated and queued like an upload."""
+    msg = frames_in.parse_message(payload)
+    frame = frames_in.validate_message(msg, msg.map_id, max_pixels=settings.max_frame_pixels)
+    ingest.submit(frame, msg)
+
+
+# --- dependencies ------------------------------------------------------------------------------------
+def get_runtime(request: Request) -> Runtime:
+    return request.app.state.runtime  # type: ignore[no-any-return]
+
+
+RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
+MapId = Annotated[str, Path(description="map id: printable, no whitespace, '/', braces or glob characters", examples=["office"])]
+
+
+def known_map(runtime: Runtime, map_id: str) -> str:
+    check_id("map_id", map_id)
+    if not runtime.ingest.known_map(map_id):
+        raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted)")
+    return map_id
+
+
+def _list_meta(store: ObjectStore, map_id: str) -> list[Any]:
+    list_meta = getattr(store, "list_meta", None)
+    return list_meta(map_id) if list_meta is not None else store.list_objects(map_id)
+
+
+def _meta(store: ObjectStore, map_id: str, ids: list[int]) -> list[Any]:
+    object_meta = getattr(store, "object_meta", None)
+    return object_meta(map_id, ids) if object_meta is not None else store.get(map_id, ids)
+
+
+def parse_bbox(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """``x0,y0,z0,x1,y1,z1`` -> (lo, hi), each (3,)."""
+    try:
+        values = np.array([float(v) for v in text.split(",")], np.float64)
+    except ValueError:
+        raise InvalidInput("bbox", "six numbers x0,y0,z0,x1,y1,z1", repr(text)) from None
+    if values.shape != (6,) or not np.all(np.isfinite(values)):
+        raise InvalidInput("bbox", "six finite numbers x0,y0,z0,x1,y1,z1", repr(text))
+    lo, hi = values[:3], values[3:]
+    if np.any(lo > hi):
+        raise InvalidInput("bbox", "x0 <= x1, y0 <= y1, z0 <= z1", repr(text))
+    return lo, hi
+
+
+# --- routes ------------------------------------------------------------------------------------------
+_META_EXAMPLE = FrameMeta.model_config["json_schema_extra"]["examples"][0]  # type: ignore[index]
+FRAME_BODY_DOC: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/x-protobuf": {
+                "schema": {"type": "string", "format": "binary", "description": "arcloud.v1.Frame (proto/arcloud/v1/arcloud.proto)"},
+            },
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["meta", "rgb", "depth"],
+                    "properties": {
+                        "meta": {"type": "string", "description": "JSON: device_id, frame_id, timestamp (s), intrinsics {fx, fy, cx, cy}, "
+                                 "cam2world (4x4 row-major), depth_scale (units per metre)", "example": json.dumps(_META_EXAMPLE)},
+                        "rgb": {"type": "string", "format": "binary", "description": "JPEG or PNG, same size as the depth"},
+                        "depth": {"type": "string", "format": "binary", "description": "single-channel 16-bit PNG of depth units"},
+                    },
+                }
+            },
+        },
+    }
+}
+
+router = APIRouter()
+
+
+@router.post(
+    "/v1/maps/{map_id}/frames",
+    status_code=202,
+    response_model=FrameAccepted,
+    summary="Upload one posed RGB-D frame",
+    description="Validated in full, then queued; processing is asynchronous (see the map's stats). Posting a frame "
+    "(device_id, frame_id) again answers `duplicate` and queues nothing, unless it failed before.",
+    responses={**PROBLEM_RESPONSES, 413: {"model": Problem, "description": "body too large"}, 415: {"model": Problem, "description": "wrong content type"}},
+    openapi_extra=FRAME_BODY_DOC,
+    tags=["frames"],
+)
+async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> FrameAccepted:
+    check_id("map_id", map_id)
+    settings = runtime.settings
+    media = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if media in frames_in.PROTOBUF_MEDIA_TYPES:
+        msg = frames_in.parse_message(await request.body())
+    elif media == frames_in.MULTIPART_MEDIA_TYPE:
+        async with request.form(max_files=3, max_fields=3, max_part_size=settings.max_frame_bytes) as form:
+            parts: dict[str, bytes] = {}
+            for name, what in (("meta", "JSON"), ("rgb", "a JPEG or PNG image"), ("depth", "a 16-bit PNG image")):
+                data = frames_in.form_bytes(form, name, what)
+                parts[name] = data if data is not None else await form[name].read()  # type: ignore[union-attr]
+        msg = frames_in.message_from_parts(frames_in.parse_meta(parts["meta"]), parts["rgb"], parts["depth"], map_id)
+    else:
+        raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
+    frame = await run_in_threadpool(frames_in.validate_message, msg, map_id, max_pixels=settings.max_frame_pixels)
+    accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
+    return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
+
+
+@router.get("/v1/maps/{map_id}/objects", response_model=ObjectList, responses=PROBLEM_RESPONSES, tags=["objects"], summary="The map's objects")
+def list_objects(
+    map_id: MapId,
+    runtime: RuntimeDep,
+    label: Annotated[Label | None, Query(description="only this class")] = None,  # type: ignore[valid-type]
+    min_score: Annotated[float, Query(ge=0.0, le=1.0, description="only objects scoring at least this")] = 0.0,
+    bbox: Annotated[str | None, Query(description="only objects whose voxels' bounds meet this box: x0,y0,z0,x1,y1,z1 (m)", examples=["0,0,0,2,2,2"])] = None,
+) -> dict[str, Any]:
+    known_map(runtime, map_id)
+    if bbox is not None:
+        lo, hi = parse_bbox(bbox)
+        objects = _meta(runtime.store, map_id, sorted(runtime.store.query_region(map_id, lo, hi)))
+    else:
+        objects = _list_meta(runtime.store, map_id)
+    chosen = [o for o in objects if (label is None or o.label == label) and o.score >= min_score]
+    return {"objects": [object_out(o) for o in sorted(chosen, key=lambda o: o.id)]}
+
+
+@router.get("/v1/maps/{map_id}/objects/{object_id}", response_model=ObjectDetail, responses=PROBLEM_RESPONSES, tags=["objects"], summary="One object")
+def get_object(
+    map_id: MapId,
+    object_id: Annotated[int, Path(ge=0)],
+    runtime: RuntimeDep,
+    voxels: Annotated[bool, Query(description="add voxel centres (m) and occupancy weights")] = False,
+) -> dict[str, Any]:
+    known_map(runtime, map_id)
+    found = runtime.store.get(map_id, [object_id]) if voxels else _meta(runtime.store, map_id, [object_id])
+    if not found:
+        raise HTTPException(404, f"object {object_id} not found in map {map_id!r}")
+    obj = found[0]
+    out = object_out(obj)
+    if voxels:
+        size = runtime.params.voxel_size_m
+        out["voxels"] = {"voxel_size_m": size, "centers": key_centers(obj.keys, size).tolist(), "weights": obj.weights.astype(float).tolist()}
+    return out
+
+
+@router.delete("/v1/maps/{map_id}", response_model=MapDeleted, responses=PROBLEM_RESPONSES, tags=["maps"], summary="Delete a map and its counts")
+def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
+    known_map(runtime, map_id)
+    removed = runtime.store.delete_map(map_id)
+    runtime.ingest.forget_map(map_id)
+    log.info("map %s deleted (%d objects)", map_id, removed)
+    return MapDeleted(map_id=map_id, deleted_objects=removed)
+
+
+@router.get("/v1/maps/{map_id}/stats", response_model=MapStats, responses=PROBLEM_RESPONSES, tags=["maps"], summary="Frames and objects of a map")
+def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
+    known_map(runtime, map_id)
+    counts = runtime.ingest.counts(map_id)
+    n_objects = len(_list_meta(runtime.store, map_id))
+    return {
+        "map_id": map_id,
+        "frames": {"accepted": counts.accepted, "processed": counts.processed, "failed": counts.failed, "pending": counts.pending},
+        "objects": n_objects,
+    }
+
+
+@router.get("/healthz", response_model=Health, tags=["operations"], summary="The process answers")
+def healthz() -> dict[str, str]:
+    return {"status": "ok"}
+
+
+@router.get("/readyz", response_model=Ready, responses={503: {"model": Ready}}, tags=["operations"], summary="Store reachable, detector loaded, workers alive")
+def readyz(runtime: RuntimeDep) -> JSONResponse:
+    checks: dict[str, str] = {}
+    ping = getattr(runtime.store, "ping", None)
+    try:
+        if ping is not None:
+            ping()
+        checks["store"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - readiness reports
+        checks["store"] = f"unreachable: {exc}"
+    if runtime.settings.embedded:
+        checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
+    checks.update(runtime.ingest.ready())
+    ok = all(v == "ok" for v in checks.values())
+    return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
+
+
+@router.get("/metrics", tags=["operations"], summary="Prometheus metrics", response_class=Response)
+async def metrics(request: Request) -> Response:
+    from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+    body = await run_in_threadpool(generate_latest, request.app.state.metrics_registry)
+    return Response(body, media_type=CONTENT_TYPE_LATEST)
+
+
+# --- the factory -------------------------------------------------------------------------------------
+def create_app(
+    settings: Settings | None = None,
+    *,
+    store: ObjectStore | None = None,
+    detector: Detector | None = None,
+    publisher: UpdatePublisher | None = None,
+) -> FastAPI:
+    """The service. ``store``, ``detector``, ``publisher``: adapters to use instead of those the
+    settings name (tests, embedding); the caller keeps ownership of what it passes."""
+    from arcloud.service.metrics import make_registry
+
+    settings = settings if settings is not None else Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        app.state.runtime = await run_in_threadpool(start_runtime, settings, store, detector, publisher)
+        try:
+            yield
+        finally:
+            await run_in_threadpool(stop_runtime, app.state.runtime)
+
+    app = FastAPI(
+        title="arcloud",
+        version=__version__,
+        summary="Multi-user 3D object detection in an AR cloud: posed RGB-D frames in, one shared map of 3D objects out.",
+        lifespan=lifespan,
+    )
+    app.state.runtime = None
+    registry, rejected = make_registry(lambda: app.state.runtime.ingest if app.state.runtime is not None else None)
+    app.state.metrics_registry = registry
+
+    def problem(request: Request, status: int, detail: str, field_name: str | None = None, headers: dict[str, str] | None = None) -> JSONResponse:
+        if request.method == "POST" and request.url.path.endswith("/frames"):
+            rejected.labels(status=str(status)).inc()
+        return JSONResponse({"detail": detail, "field": field_name}, status_code=status, headers=headers)
+
+    @app.exception_handler(InvalidInput)
+    async def invalid_input(request: Request, exc: InvalidInput) -> JSONResponse:
+        return problem(request, 422, str(exc), exc.field)
+
+    @app.exception_handler(BodyTooLarge)
+    async def too_large(request: Request, exc: BodyTooLarge) -> JSONResponse:
+        return problem(request, 413, str(exc), "body")
+
+    @app.exception_handler(QueueFull)
+    async def queue_full(request: Request, exc: QueueFull) -> JSONResponse:
+        return problem(request, 503, f"queue full: {exc}", None, {"Retry-After": "1"})
+
+    @app.exception_handler(StoreUnavailable)
+    async def store_down(request: Request, exc: StoreUnavailable) -> JSONResponse:
+        log.error("store unavailable: %s", exc)
+        return problem(request, 503, f"store unavailable: {exc}", None, {"Retry-After": "5"})
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        return problem(request, exc.status_code, str(exc.detail), None, dict(exc.headers or {}))
+
+    @app.exception_handler(RequestValidationError)
+    async def bad_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        first = exc.errors()[0] if exc.errors() else {"loc": (), "msg": "invalid request"}
+        where = ".".join(str(p) for p in first["loc"][1:]) or ".".join(str(p) for p in first["loc"])
+        got = first.get("input")
+        return problem(request, 422, f"{where}: {first['msg']}" + (f", got {got!r}" if got is not None else ""), where or None)
+
+    app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
+    app.include_router(router)
+    return app
+
+
+__all__ = ["BodyLimit", "Runtime", "create_app", "parse_bbox", "start_runtime", "stop_runtime"]

@@ -1,0 +1,149 @@
+"""Frame uploads -> wire ``Frame`` messages -> validated core ``Frame`` objects.
+
+Two bodies are accepted: a protobuf ``arcloud.v1.Frame`` (``application/x-protobuf``), or multipart
+parts ``meta`` (JSON, see ``schemas.FrameMeta``), ``rgb`` (JPEG or PNG file) and ``depth`` (16-bit PNG
+file). Both become one message, which is what the Redis stream carries (the images stay as uploaded:
+no re-encoding). Everything is checked before the frame is queued: image kinds and sizes (pixels are
+counted from the headers before decoding, so a small file cannot expand into a huge image), decoding,
+dtypes, shapes, pose, ids, and the map id of the body against the path.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections.abc import Mapping
+from typing import Any
+
+from pydantic import ValidationError
+
+from arcloud.core.checks import check_id, describe
+from arcloud.core.types import Frame
+from arcloud.errors import InvalidInput
+from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
+from arcloud.proto.convert import frame_from_proto
+from arcloud.service.schemas import FrameMeta
+
+PROTOBUF_MEDIA_TYPES = ("application/x-protobuf", "application/protobuf", "application/vnd.google.protobuf")
+MULTIPART_MEDIA_TYPE = "multipart/form-data"
+JPEG_MAGIC = b"\xff\xd8\xff"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+DEFAULT_MAX_PIXELS = 4096 * 4096
+
+
+def parse_message(body: bytes) -> pb.Frame:
+    """A protobuf ``Frame`` from a request body."""
+    from google.protobuf.message import DecodeError
+
+    if not body:
+        raise InvalidInput("body", "a protobuf arcloud.v1.Frame", "an empty body")
+    try:
+        return pb.Frame.FromString(body)
+    except DecodeError as exc:
+        raise InvalidInput("body", "a protobuf arcloud.v1.Frame", f"{len(body)} bytes that do not parse as one") from exc
+
+
+def parse_meta(raw: str | bytes) -> FrameMeta:
+    """The multipart ``meta`` part; errors name the first wrong field (``meta.<field>``)."""
+    try:
+        data = json.loads(raw)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InvalidInput("meta", "a JSON object", f"invalid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InvalidInput("meta", "a JSON object", describe(data))
+    try:
+        return FrameMeta.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise InvalidInput(f"meta.{where}" if where else "meta", first["msg"], describe(first.get("input"))) from exc
+
+
+def message_from_parts(meta: FrameMeta, rgb: bytes, depth: bytes, map_id: str) -> pb.Frame:
+    """A protobuf ``Frame`` from multipart parts (images kept as uploaded)."""
+    pose = meta.flat_pose()
+    if len(pose) != 16:
+        raise InvalidInput("meta.cam2world", "16 numbers (row-major 4x4) or 4 rows of 4", f"{len(pose)} numbers")
+    if rgb.startswith(JPEG_MAGIC):
+        rgb_encoding = pb.RGB_ENCODING_JPEG
+    elif rgb.startswith(PNG_MAGIC):
+        rgb_encoding = pb.RGB_ENCODING_PNG
+    else:
+        raise InvalidInput("rgb", "a JPEG or PNG image", f"{len(rgb)} bytes starting with {rgb[:8]!r}")
+    if not depth.startswith(PNG_MAGIC):
+        raise InvalidInput("depth", "a 16-bit PNG image", f"{len(depth)} bytes starting with {depth[:8]!r}")
+    i = meta.intrinsics
+    return pb.Frame(
+        map_id=meta.map_id or map_id,
+        device_id=meta.device_id,
+        frame_id=meta.frame_id,
+        timestamp_s=meta.timestamp,
+        intrinsics=pb.Intrinsics(fx=i.fx, fy=i.fy, cx=i.cx, cy=i.cy),
+        cam2world=pose,
+        rgb=rgb,
+        rgb_encoding=rgb_encoding,
+        depth=depth,
+        depth_encoding=pb.DEPTH_ENCODING_PNG,
+        depth_scale=meta.depth_scale,
+    )
+
+
+def image_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG or JPEG header without decoding; None when it cannot be read."""
+    if data.startswith(PNG_MAGIC) and len(data) >= 24 and data[12:16] == b"IHDR":
+        width, height = struct.unpack(">II", data[16:24])
+        return int(width), int(height)
+    if data.startswith(JPEG_MAGIC):
+        pos = 2
+        while pos + 4 <= len(data):
+            if data[pos] != 0xFF:
+                return None
+            marker = data[pos + 1]
+            if marker == 0xFF:  # fill byte
+                pos += 1
+                continue
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # markers without a length
+                pos += 2
+                continue
+            (length,) = struct.unpack(">H", data[pos + 2 : pos + 4])
+            if marker in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF):  # start of frame
+                if pos + 9 > len(data):
+                    return None
+                height, width = struct.unpack(">HH", data[pos + 5 : pos + 9])
+                return int(width), int(height)
+            pos += 2 + length
+    return None
+
+
+def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
+    """Refuse images whose header declares more than ``max_pixels`` pixels (before decoding them)."""
+    for field, data, encoded in (
+        ("rgb", msg.rgb, msg.rgb_encoding in (pb.RGB_ENCODING_JPEG, pb.RGB_ENCODING_PNG)),
+        ("depth", msg.depth, msg.depth_encoding == pb.DEPTH_ENCODING_PNG),
+    ):
+        size = image_size(data) if encoded else ((msg.width, msg.height) if msg.width and msg.height else None)
+        if size is not None and size[0] * size[1] > max_pixels:
+            raise InvalidInput(field, f"at most {max_pixels} pixels", f"{size[0]} x {size[1]}")
+
+
+def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Frame:
+    """The validated ``Frame`` of a message posted to ``map_id`` (the message's map id is set to the
+    path's when empty, and must equal it otherwise)."""
+    check_id("map_id", map_id)
+    if msg.map_id and msg.map_id != map_id:
+        raise InvalidInput("map_id", f"the map id of the path ({map_id!r}) or none", repr(msg.map_id))
+    msg.map_id = map_id
+    check_pixels(msg, max_pixels)
+    return frame_from_proto(msg)
+
+
+def form_bytes(form: Mapping[str, Any], name: str, what: str) -> bytes | None:
+    """The bytes of a multipart part given as a file (``what`` says what it should be)."""
+    part = form.get(name)
+    if part is None:
+        raise InvalidInput(name, f"a multipart part named {name!r} ({what})", "nothing")
+    if isinstance(part, str):
+        if name == "meta":
+            return part.encode()
+        raise InvalidInput(name, f"a file part ({what})", "a text field")
+    return None  # a file: the caller reads it (async)

@@ -1,0 +1,55 @@
+"""Prometheus metrics of the service, read from the ingest's counters at scrape time.
+
+One collector per app on the app's own registry (several apps in one process never clash). In Redis
+mode the counters are the shared ones of every worker (one hash in Redis), so any API replica reports
+the whole deployment's frames and step latencies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+from prometheus_client import CollectorRegistry, Counter
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from arcloud.service.ingest import LATENCY_BUCKETS_S, Ingest
+
+
+class IngestCollector(Collector):
+    """Frames accepted/processed/failed, queue depth and the step latency histogram."""
+
+    def __init__(self, ingest: Callable[[], Ingest | None]) -> None:
+        self._ingest = ingest
+
+    def collect(self) -> Iterator[Metric]:
+        ingest = self._ingest()
+        if ingest is None:  # before start-up
+            return
+        snap = ingest.snapshot()
+        for name, value, text in (
+            ("arcloud_frames_accepted", snap.accepted, "Frames validated and queued"),
+            ("arcloud_frames_duplicate", snap.duplicates, "Frames posted again after being accepted (not queued)"),
+            ("arcloud_frames_processed", snap.processed, "Frames whose step committed"),
+            ("arcloud_frames_redelivered", snap.skipped, "Frames delivered again after their commit (skipped, idempotent)"),
+            ("arcloud_frames_failed", snap.failed, "Frames given up on (dead-lettered)"),
+            ("arcloud_frames_claimed", snap.claimed, "Frames taken over from a worker that stopped"),
+            ("arcloud_step_retries", snap.retried, "Steps tried again after a lock timeout or a stale lease"),
+        ):
+            yield CounterMetricFamily(name, text, value=value)
+        yield GaugeMetricFamily("arcloud_queue_depth", "Frames queued or in progress", value=snap.queue_depth)
+        cumulative, buckets = 0, []
+        for bound, count in zip((*LATENCY_BUCKETS_S, float("inf")), snap.latency_counts):
+            cumulative += count
+            buckets.append(("+Inf" if bound == float("inf") else repr(bound), cumulative))
+        yield HistogramMetricFamily(
+            "arcloud_step_latency_seconds", "Time of the per-frame step (detect to publish)", buckets=buckets, sum_value=snap.latency_sum_s
+        )
+
+
+def make_registry(ingest: Callable[[], Ingest | None]) -> tuple[CollectorRegistry, Counter]:
+    """A registry with the ingest collector, and the counter of rejected frame uploads (by status)."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(IngestCollector(ingest))
+    rejected = Counter("arcloud_frames_rejected", "Frame uploads refused, by HTTP status", ["status"], registry=registry)
+    return registry, rejected

@@ -1,0 +1,184 @@
+"""The HTTP API's JSON shapes (pydantic stops here: routes turn core objects into these and back).
+
+Times are ISO 8601 in UTC (``updated_at``), lengths in metres, angles in radians.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+Vec3 = tuple[float, float, float]
+
+
+class FrameAccepted(BaseModel):
+    """A frame was validated and queued (or had been before: ``duplicate``); processing is asynchronous."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [{"map_id": "office", "device_id": "phone-1", "frame_id": "f000042", "status": "queued"}]})
+
+    map_id: str
+    device_id: str
+    frame_id: str
+    status: Literal["queued", "duplicate"]
+
+
+class Intrinsics(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+class FrameMeta(BaseModel):
+    """The ``meta`` part of a multipart frame upload."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{
+                "device_id": "phone-1", "frame_id": "f000042", "timestamp": 1.4,
+                "intrinsics": {"fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5},
+                "cam2world": [1, 0, 0, 0.5, 0, 1, 0, 0.2, 0, 0, 1, 1.5, 0, 0, 0, 1], "depth_scale": 1000,
+            }]
+        },
+    )
+
+    device_id: str
+    frame_id: str
+    timestamp: float = Field(description="seconds")
+    intrinsics: Intrinsics
+    cam2world: list[float] | list[list[float]] = Field(description="4x4 camera-to-world, row-major: 16 numbers or 4 rows of 4")
+    depth_scale: float = Field(1000.0, description="depth units per metre of the 16-bit depth PNG (1000: millimetres)")
+    map_id: str | None = Field(None, description="if given, must equal the map id of the path")
+
+    def flat_pose(self) -> list[float]:
+        pose = self.cam2world
+        if pose and isinstance(pose[0], list):
+            return [float(v) for row in pose for v in row]  # type: ignore[union-attr]
+        return [float(v) for v in pose]  # type: ignore[arg-type]
+
+
+class Box(BaseModel):
+    min: Vec3
+    max: Vec3
+
+
+class OrientedBox(BaseModel):
+    center: Vec3
+    size: Vec3 = Field(description="full extent along the box's own axes, metres")
+    yaw_rad: float = Field(description="rotation about world up (z)")
+
+
+class Voxels(BaseModel):
+    voxel_size_m: float
+    centers: list[Vec3]
+    weights: list[float]
+
+
+class ObjectOut(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [{
+                "id": 7, "label": "chair", "score": 0.83,
+                "aabb": {"min": [1.2, 0.4, 0.0], "max": [1.7, 0.95, 0.92]},
+                "obb": {"center": [1.45, 0.67, 0.46], "size": [0.5, 0.52, 0.92], "yaw_rad": 0.31},
+                "version": 12, "updated_at": "2025-01-01T12:00:00.250000Z", "n_voxels": 1380, "n_frames": 11, "n_devices": 2,
+            }]
+        }
+    )
+
+    id: int
+    label: str
+    score: float
+    aabb: Box | None
+    obb: OrientedBox | None
+    version: int
+    updated_at: str | None = Field(description="ISO 8601, UTC")
+    n_voxels: int
+    n_frames: int
+    n_devices: int
+
+
+class ObjectDetail(ObjectOut):
+    voxels: Voxels | None = Field(None, description="present with ?voxels=true")
+
+
+class ObjectList(BaseModel):
+    objects: list[ObjectOut]
+
+
+class FrameCounts(BaseModel):
+    accepted: int
+    processed: int
+    failed: int
+    pending: int
+
+
+class MapStats(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"map_id": "office", "frames": {"accepted": 120, "processed": 118, "failed": 0, "pending": 2}, "objects": 14}]})
+
+    map_id: str
+    frames: FrameCounts
+    objects: int
+
+
+class MapDeleted(BaseModel):
+    map_id: str
+    deleted_objects: int
+
+
+class Problem(BaseModel):
+    """Every 4xx/5xx body: what was wrong (``field`` names the input at fault, when one is)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [{"detail": "cam2world: expected a proper rotation (det +1), got a reflection (det -1)", "field": "cam2world"}]})
+
+    detail: str
+    field: str | None = None
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+
+
+class Ready(BaseModel):
+    status: Literal["ready", "not ready"]
+    checks: dict[str, str]
+
+
+def _iso(seconds: float) -> str | None:
+    if not seconds:
+        return None
+    return dt.datetime.fromtimestamp(seconds, tz=dt.UTC).isoformat().replace("+00:00", "Z")
+
+
+def _vec(values: Any) -> Vec3:
+    x, y, z = (float(v) for v in np.asarray(values, np.float64).reshape(3))
+    return (x, y, z)
+
+
+def object_out(obj: Any) -> dict[str, Any]:
+    """JSON-ready dict of a ``MapObject`` or a store's ``ObjectMeta``."""
+    return {
+        "id": int(obj.id),
+        "label": obj.label,
+        "score": float(obj.score),
+        "aabb": None if obj.aabb is None else {"min": _vec(obj.aabb.min), "max": _vec(obj.aabb.max)},
+        "obb": None if obj.obb is None else {"center": _vec(obj.obb.center), "size": _vec(obj.obb.size), "yaw_rad": float(obj.obb.yaw_rad)},
+        "version": int(obj.version),
+        "updated_at": _iso(obj.updated_at_s),
+        "n_voxels": int(obj.n_voxels),
+        "n_frames": int(obj.n_frames),
+        "n_devices": len(obj.devices),
+    }
+
+
+PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
+    404: {"model": Problem, "description": "unknown map or object"},
+    422: {"model": Problem, "description": "invalid input"},
+    503: {"model": Problem, "description": "store unreachable or queue full"},
+}

@@ -1,0 +1,185 @@
+"""The service's settings: one class, read once from ``ARCLOUD_*`` environment variables (or given
+explicitly), validated up front so a wrong value stops the service at start with a message naming it.
+
+Examples::
+
+    ARCLOUD_STORE=redis://:secret@redis:6379/0 ARCLOUD_WORKERS=4 ARCLOUD_DETECTOR=onnx:/models/y.onnx
+    ARCLOUD_PARAMS='{"voxel_size_m": 0.04}' ARCLOUD_ZENOH_MODE=peer ARCLOUD_ZENOH_LISTEN=tcp/0.0.0.0:7447
+
+Secrets (a password in the Redis URL) are masked in ``repr``/``str`` and in ``redacted()``; log those.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Annotated, Any, Literal
+from urllib.parse import urlsplit, urlunsplit
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from arcloud.core.types import Params
+
+STORE_SCHEMES = ("redis", "rediss", "unix")
+ZenohMode = Literal["off", "peer", "client", "router"]
+LogLevel = Literal["DEBUG", "INFO", "WARNING", "ERROR"]
+
+# Params fields that the settings set themselves (or that are not plain numbers/flags).
+_PARAMS_OWN = {"lock_ttl_s", "lock_timeout_s"}
+_PARAMS_TYPES = {f.name: f.type for f in dataclasses.fields(Params)}
+
+
+def redact_url(url: str) -> str:
+    """The URL with its password (if any) replaced by ``***``."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    host = parts.hostname or ""
+    if parts.port is not None:
+        host = f"{host}:{parts.port}"
+    user = parts.username or ""
+    return urlunsplit(parts._replace(netloc=f"{user}:***@{host}"))
+
+
+def split_list(value: object) -> object:
+    """``"a, b"`` -> ``["a", "b"]`` (environment variables hold comma-separated lists); JSON lists pass."""
+    if isinstance(value, str):
+        text = value.strip()
+        if text.startswith("["):
+            import json
+
+            return json.loads(text)
+        return [part.strip() for part in text.split(",") if part.strip()]
+    return value
+
+
+class Settings(BaseSettings):
+    """Everything the service, its workers and the CLI configure. Frozen once built."""
+
+    model_config = SettingsConfigDict(env_prefix="ARCLOUD_", extra="forbid", frozen=True)
+
+    store: str = Field("memory", description="`memory` (embedded, one process) or a Redis URL (redis://host:port/db)")
+    detector: str = Field("onnx", description="detector spec: `sim:SEED`, `onnx:PATH` (`onnx` alone: $ARCLOUD_MODEL), `maskrcnn:PATH`, ...")
+    detector_threads: int | None = Field(None, ge=1, description="onnxruntime intra-op threads per worker")
+    workers: int = Field(2, ge=0, description="worker threads (memory store) or worker processes (Redis); 0 with Redis: API only")
+    max_frame_bytes: int = Field(32 * 2**20, ge=1024, description="largest request body accepted (413 above)")
+    max_frame_pixels: int = Field(4096 * 4096, ge=1, description="largest image accepted, in pixels (read from its header before decoding)")
+    max_queued_frames: int = Field(1000, ge=1, description="frames waiting before ingest answers 503")
+    lock_ttl_s: float = Field(10.0, gt=0, description="per-object lock time to live")
+    lock_timeout_s: float = Field(30.0, ge=0, description="how long a step waits for locks")
+    params: dict[str, Any] = Field(default_factory=dict, description="overrides of arcloud.core.types.Params, e.g. {\"voxel_size_m\": 0.04}")
+    # Redis Streams ingest
+    consumer_group: str = Field("arcloud-workers", min_length=1)
+    claim_min_idle_s: float = Field(60.0, gt=0, description="a pending frame idle this long is claimed by another worker")
+    claim_interval_s: float = Field(5.0, gt=0, description="how often a worker looks for abandoned frames")
+    max_deliveries: int = Field(5, ge=1, description="deliveries before a frame goes to the dead-letter stream")
+    read_block_s: float = Field(1.0, gt=0, description="how long a worker's XREADGROUP blocks")
+    # Zenoh
+    zenoh_mode: ZenohMode = Field("off", description="`off`, or the API's Zenoh session mode (workers always run as clients)")
+    zenoh_listen: Annotated[list[str], NoDecode] = Field(default_factory=list, description="endpoints to listen on, e.g. tcp/0.0.0.0:7447")
+    zenoh_connect: Annotated[list[str], NoDecode] = Field(default_factory=list, description="endpoints to connect to (a router)")
+    zenoh_frames: bool = Field(False, description="also accept frames published on arcloud/<map>/frames/<device>")
+    log_level: LogLevel = "INFO"
+
+    # --- validation --------------------------------------------------------------------------------
+    @field_validator("zenoh_listen", "zenoh_connect", mode="before")
+    @classmethod
+    def _split(cls, value: object) -> object:
+        return split_list(value)
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _upper(cls, value: object) -> object:
+        return value.upper() if isinstance(value, str) else value
+
+    @field_validator("store")
+    @classmethod
+    def _check_store(cls, value: str) -> str:
+        value = value.strip()
+        if value == "memory":
+            return value
+        scheme = urlsplit(value).scheme
+        if scheme not in STORE_SCHEMES:
+            raise ValueError(f"expected `memory` or a URL with scheme {'/'.join(STORE_SCHEMES)}, got {redact_url(value)!r}")
+        return value
+
+    @field_validator("detector")
+    @classmethod
+    def _check_detector(cls, value: str) -> str:
+        from arcloud.service.components import check_detector_spec
+
+        return check_detector_spec(value)
+
+    @field_validator("params")
+    @classmethod
+    def _check_params(cls, value: dict[str, Any]) -> dict[str, Any]:
+        checked: dict[str, Any] = {}
+        for name, item in value.items():
+            if name not in _PARAMS_TYPES or name in _PARAMS_OWN:
+                known = sorted(set(_PARAMS_TYPES) - _PARAMS_OWN)
+                raise ValueError(f"unknown parameter {name!r}; expected one of {', '.join(known)}")
+            checked[name] = _coerce_param(name, item)
+        Params(**checked)  # construct once so a bad combination fails here
+        return checked
+
+    @model_validator(mode="after")
+    def _check_combination(self) -> Settings:
+        if self.embedded and self.workers < 1:
+            raise ValueError("workers: expected >= 1 with the memory store (nothing would process frames), got 0")
+        if self.zenoh_mode == "off" and self.zenoh_frames:
+            raise ValueError("zenoh_frames: needs zenoh_mode peer, client or router, got zenoh_mode off")
+        if self.zenoh_mode == "client" and not self.zenoh_connect:
+            raise ValueError("zenoh_connect: a Zenoh client needs at least one endpoint to connect to, got none")
+        return self
+
+    # --- derived -----------------------------------------------------------------------------------
+    @property
+    def embedded(self) -> bool:
+        """One process, the in-memory store, worker threads."""
+        return self.store == "memory"
+
+    def make_params(self) -> Params:
+        """The frozen algorithm parameters these settings describe."""
+        return Params(**self.params, lock_ttl_s=self.lock_ttl_s, lock_timeout_s=self.lock_timeout_s)
+
+    def redacted(self) -> dict[str, Any]:
+        """The settings as a dict, safe to log (the store URL's password masked)."""
+        data = self.model_dump()
+        data["store"] = redact_url(self.store)
+        return data
+
+    def __repr_args__(self) -> Any:
+        for name, value in super().__repr_args__():
+            yield name, (redact_url(value) if name == "store" else value)
+
+
+def _coerce_param(name: str, value: object) -> object:
+    """A Params override checked against the field's type: numbers, flags, (3,) tuples."""
+    annotation = _PARAMS_TYPES[name]
+    text = str(annotation)
+    if text == "bool":
+        if not isinstance(value, bool):
+            raise ValueError(f"parameter {name}: expected true or false, got {value!r}")
+        return value
+    if text == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"parameter {name}: expected an integer, got {value!r}")
+        return value
+    if text == "float":
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"parameter {name}: expected a number, got {value!r}")
+        return float(value)
+    if text.startswith("tuple[float, float, float]"):
+        if not isinstance(value, (list, tuple)) or len(value) != 3:
+            raise ValueError(f"parameter {name}: expected 3 numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+    if "tuple[tuple" in text:
+        if value is None:
+            return None
+        rows = typing.cast(list, value)
+        return tuple(tuple(float(v) for v in row) for row in rows)
+    raise ValueError(f"parameter {name}: cannot be set from settings")
+
+
+__all__ = ["Settings", "redact_url"]

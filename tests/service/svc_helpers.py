@@ -1,0 +1,131 @@
+"""Helpers of the service tests: small hand-made frames, a detector that finds near blobs in the depth,
+a real uvicorn server on a free loopback port, waiting for a condition.
+
+Imported as ``from svc_helpers import ...`` (tests/service is on sys.path; tests/client and
+tests/events add it in their conftest).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from arcloud.core.checks import make_frame
+from arcloud.core.types import Detection, Frame
+
+HEIGHT, WIDTH = 120, 160
+INTRINSICS = (130.0, 130.0, 79.5, 59.5)
+
+
+def make_test_frame(
+    index: int,
+    *,
+    map_id: str = "m",
+    device_id: str = "d",
+    boxes: Sequence[tuple[int, int, int, int]] = ((30, 80, 20, 70),),
+    near_m: float = 2.0,
+    far_m: float = 3.0,
+) -> Frame:
+    """A 160x120 frame: a far plane with near rectangles (rows r0:r1, cols c0:c1), the camera moved
+    1 cm along x per index. Camera axes OpenCV; pose a pure translation."""
+    depth = np.full((HEIGHT, WIDTH), far_m, np.float32)
+    rgb = np.full((HEIGHT, WIDTH, 3), 90, np.uint8)
+    for r0, r1, c0, c1 in boxes:
+        depth[r0:r1, c0:c1] = near_m
+        rgb[r0:r1, c0:c1] = (200, 60, 40)
+    pose = np.eye(4)
+    pose[0, 3] = 0.01 * index
+    return make_frame(rgb, depth, INTRINSICS, pose, timestamp_s=index / 30, map_id=map_id, device_id=device_id, frame_id=f"f{index:06d}")
+
+
+def multipart_parts(frame: Frame, **meta_changes: Any) -> dict[str, tuple[str, bytes, str]]:
+    """httpx ``files=`` for a multipart upload of ``frame`` (JPEG rgb, 16-bit PNG depth in mm)."""
+    import cv2
+
+    meta = {
+        "device_id": frame.device_id,
+        "frame_id": frame.frame_id,
+        "timestamp": frame.timestamp_s,
+        "intrinsics": {"fx": frame.intrinsics.fx, "fy": frame.intrinsics.fy, "cx": frame.intrinsics.cx, "cy": frame.intrinsics.cy},
+        "cam2world": frame.cam2world.reshape(16).tolist(),
+        "depth_scale": 1000,
+    }
+    meta.update(meta_changes)
+    ok_rgb, rgb = cv2.imencode(".jpg", np.ascontiguousarray(frame.rgb[..., ::-1]))
+    ok_depth, depth = cv2.imencode(".png", np.rint(frame.depth_m * 1000).astype(np.uint16))
+    assert ok_rgb and ok_depth
+    return {
+        "meta": ("meta.json", json.dumps(meta).encode(), "application/json"),
+        "rgb": ("rgb.jpg", rgb.tobytes(), "image/jpeg"),
+        "depth": ("depth.png", depth.tobytes(), "image/png"),
+    }
+
+
+class BlobDetector:
+    """Detects each connected region nearer than ``threshold_m`` as one ``label`` instance.
+    ``delay_s`` slows every frame down; frames whose id is in ``crash_on`` raise."""
+
+    def __init__(self, label: str = "chair", *, threshold_m: float = 2.5, delay_s: float = 0.0, crash_on: Sequence[str] = ()) -> None:
+        self.label = label
+        self.threshold_m = threshold_m
+        self.delay_s = delay_s
+        self.crash_on = set(crash_on)
+
+    def detect(self, frame: Frame) -> list[Detection]:
+        import cv2
+
+        if frame.frame_id in self.crash_on:
+            raise RuntimeError(f"detector crashed on {frame.frame_id} (on purpose)")
+        if self.delay_s:
+            time.sleep(self.delay_s)
+        near = ((frame.depth_m > 0) & (frame.depth_m < self.threshold_m)).astype(np.uint8)
+        n, labels = cv2.connectedComponents(near)
+        return [Detection(self.label, 0.9, labels == i) for i in range(1, n) if (labels == i).sum() >= 20]
+
+
+def make_blob_detector(delay_s: float = 0.0, crash_on: Sequence[str] = ()) -> BlobDetector:
+    """Picklable factory for worker processes (``functools.partial(make_blob_detector, ...)``)."""
+    return BlobDetector(delay_s=delay_s, crash_on=crash_on)
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class UvicornThread:
+    """A real uvicorn server for ``app`` on 127.0.0.1 in a background thread (lifespan on)."""
+
+    def __init__(self, app: Any) -> None:
+        import uvicorn
+
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning", lifespan="on", ws="none")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
+
+    def __enter__(self) -> UvicornThread:
+        self.thread.start()
+        wait_until(lambda: self.server.started, 20.0, "uvicorn to start")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(20.0)
+
+
+def wait_until(predicate: Callable[[], object], timeout_s: float, what: str, interval_s: float = 0.02) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(interval_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
