@@ -91,11 +91,11 @@ def test_registered_factories_get_the_argument_and_options(monkeypatch) -> None:
         calls.append((argument, options))
         return Fake()
 
-    register_detector("gt-masks", build)
-    assert isinstance(make_detector("gt-masks:scene0000_00", erode_px=2), Fake)
-    assert isinstance(make_detector("gt-masks"), Fake)
+    register_detector("fake-replay", build)
+    assert isinstance(make_detector("fake-replay:scene0000_00", erode_px=2), Fake)
+    assert isinstance(make_detector("fake-replay"), Fake)
     assert calls == [("scene0000_00", {"erode_px": 2}), ("", {})]
     with pytest.raises(InvalidInput, match="a prefix not registered yet"):
-        register_detector("gt-masks", lambda argument, **options: Fake())
+        register_detector("fake-replay", lambda argument, **options: Fake())
     with pytest.raises(InvalidInput, match="prefix: expected a non-empty name"):
         register_detector("bad:prefix", build)
