@@ -7,6 +7,9 @@ import logging
 import sys
 from pathlib import Path
 
+from arcloud.datasets.cli import add_eval_commands
+from arcloud.service.cli import add_service_commands
+
 
 def parse_users(text: str) -> tuple[int, ...]:
     try:
@@ -62,6 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
     subparsers = parser.add_subparsers(dest="command", required=True)
     add_demo_command(subparsers)
+    add_eval_commands(subparsers)
+    add_service_commands(subparsers)
     return parser
 
 
