@@ -7,6 +7,7 @@ tests/events add it in their conftest).
 
 from __future__ import annotations
 
+import functools
 import json
 import socket
 import threading
@@ -69,35 +70,83 @@ def multipart_parts(frame: Frame, **meta_changes: Any) -> dict[str, tuple[str, b
 
 class BlobDetector:
     """Detects each connected region nearer than ``threshold_m`` as one ``label`` instance.
-    ``delay_s`` slows every frame down; frames whose id is in ``crash_on`` raise."""
+    ``delay_s`` slows every frame down (only those in ``slow_on`` when given); frames whose id is in
+    ``crash_on`` raise."""
 
-    def __init__(self, label: str = "chair", *, threshold_m: float = 2.5, delay_s: float = 0.0, crash_on: Sequence[str] = ()) -> None:
+    def __init__(
+        self,
+        label: str = "chair",
+        *,
+        threshold_m: float = 2.5,
+        delay_s: float = 0.0,
+        crash_on: Sequence[str] = (),
+        slow_on: Sequence[str] | None = None,
+    ) -> None:
         self.label = label
         self.threshold_m = threshold_m
         self.delay_s = delay_s
         self.crash_on = set(crash_on)
+        self.slow_on = None if slow_on is None else set(slow_on)
 
     def detect(self, frame: Frame) -> list[Detection]:
         import cv2
 
         if frame.frame_id in self.crash_on:
             raise RuntimeError(f"detector crashed on {frame.frame_id} (on purpose)")
-        if self.delay_s:
+        if self.delay_s and (self.slow_on is None or frame.frame_id in self.slow_on):
             time.sleep(self.delay_s)
         near = ((frame.depth_m > 0) & (frame.depth_m < self.threshold_m)).astype(np.uint8)
         n, labels = cv2.connectedComponents(near)
         return [Detection(self.label, 0.9, labels == i) for i in range(1, n) if (labels == i).sum() >= 20]
 
 
-def make_blob_detector(delay_s: float = 0.0, crash_on: Sequence[str] = ()) -> BlobDetector:
+def make_blob_detector(delay_s: float = 0.0, crash_on: Sequence[str] = (), slow_on: Sequence[str] | None = None) -> BlobDetector:
     """Picklable factory for worker processes (``functools.partial(make_blob_detector, ...)``)."""
-    return BlobDetector(delay_s=delay_s, crash_on=crash_on)
+    return BlobDetector(delay_s=delay_s, crash_on=crash_on, slow_on=slow_on)
 
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+class AppClient:
+    """httpx against the ASGI app in this process (no socket), with its lifespan run: the blocking
+    methods of ``httpx.Client`` (``get``, ``post``, ``delete``, ``request``) on an event loop in a thread."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    def __enter__(self) -> AppClient:
+        import anyio.from_thread
+        import httpx
+
+        self._portal_cm = anyio.from_thread.start_blocking_portal()
+        self.portal = self._portal_cm.__enter__()
+        self._lifespan = self.app.router.lifespan_context(self.app)
+        self.portal.call(self._lifespan.__aenter__)
+        self._client = httpx.AsyncClient(transport=httpx.ASGITransport(app=self.app), base_url="http://app")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            self.portal.call(self._client.aclose)
+            self.portal.call(self._lifespan.__aexit__, None, None, None)
+        finally:
+            self._portal_cm.__exit__(None, None, None)
+
+    def request(self, method: str, url: str, **kwargs: Any) -> Any:
+        return self.portal.call(functools.partial(self._client.request, method, url, **kwargs))
+
+    def get(self, url: str, **kwargs: Any) -> Any:
+        return self.request("GET", url, **kwargs)
+
+    def post(self, url: str, **kwargs: Any) -> Any:
+        return self.request("POST", url, **kwargs)
+
+    def delete(self, url: str, **kwargs: Any) -> Any:
+        return self.request("DELETE", url, **kwargs)
 
 
 class UvicornThread:

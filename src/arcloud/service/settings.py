@@ -57,7 +57,7 @@ def split_list(value: object) -> object:
 class Settings(BaseSettings):
     """Everything the service, its workers and the CLI configure. Frozen once built."""
 
-    model_config = SettingsConfigDict(env_prefix="ARCLOUD_", extra="forbid", frozen=True)
+    model_config = SettingsConfigDict(env_prefix="ARCLOUD_", extra="forbid", frozen=True, hide_input_in_errors=True)
 
     store: str = Field("memory", description="`memory` (embedded, one process) or a Redis URL (redis://host:port/db)")
     detector: str = Field("onnx", description="detector spec: `sim:SEED`, `onnx:PATH` (`onnx` alone: $ARCLOUD_MODEL), `maskrcnn:PATH`, ...")

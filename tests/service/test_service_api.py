@@ -1,0 +1,247 @@
+"""The HTTP API in embedded mode: httpx against the app (in process, lifespan run) and a real uvicorn.
+
+Frames are 160x120 with a near rectangle that ``BlobDetector`` reports as a chair, so every assertion
+about objects is exact geometry, not a model's opinion.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from svc_helpers import HEIGHT, WIDTH, AppClient, BlobDetector, UvicornThread, make_test_frame, multipart_parts, wait_until
+
+from arcloud.proto.convert import frame_to_proto
+from arcloud.service.app import create_app
+from arcloud.service.settings import Settings
+from arcloud.stores.memory import MemoryStore
+
+PROTOBUF = {"content-type": "application/x-protobuf"}
+
+
+def proto_body(frame: object, **changes: object) -> bytes:
+    msg = frame_to_proto(frame)  # type: ignore[arg-type]
+    for name, value in changes.items():
+        setattr(msg, name, value)
+    return msg.SerializeToString()
+
+
+@pytest.fixture
+def client() -> Iterator[AppClient]:
+    settings = Settings(detector="sim:0", workers=2, max_frame_bytes=200_000)
+    with AppClient(create_app(settings, detector=BlobDetector())) as test_client:
+        yield test_client
+
+
+def processed(client: AppClient, map_id: str) -> int:
+    return int(client.get(f"/v1/maps/{map_id}/stats").json()["frames"]["processed"])
+
+
+def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -> None:
+    for i in range(4):
+        response = client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(i)), headers=PROTOBUF)
+        assert response.status_code == 202, response.text
+        assert response.json() == {"map_id": "m", "device_id": "d", "frame_id": f"f{i:06d}", "status": "queued"}
+    for i in range(4, 8):
+        response = client.post("/v1/maps/m/frames", files=multipart_parts(make_test_frame(i)))
+        assert response.status_code == 202, response.text
+    wait_until(lambda: processed(client, "m") == 8, 20, "8 frames processed")
+
+    stats = client.get("/v1/maps/m/stats").json()
+    assert stats == {"map_id": "m", "frames": {"accepted": 8, "processed": 8, "failed": 0, "pending": 0}, "objects": 1}
+    (obj,) = client.get("/v1/maps/m/objects").json()["objects"]
+    assert obj["label"] == "chair" and obj["n_frames"] == 8 and obj["version"] >= 1
+    # The near rectangle (rows 30:80, cols 20:70 at 2 m, fx 130) spans x in [-0.91, -0.15] + camera shift, z = 2 m.
+    assert obj["aabb"]["min"][2] == pytest.approx(2.0, abs=0.06)
+    assert obj["aabb"]["min"][0] == pytest.approx((20 - 79.5) * 2.0 / 130, abs=0.1)
+    assert obj["aabb"]["max"][1] == pytest.approx((80 - 59.5) * 2.0 / 130, abs=0.1)
+    assert obj["updated_at"].endswith("Z")
+
+    detail = client.get(f"/v1/maps/m/objects/{obj['id']}", params={"voxels": "true"}).json()
+    centers = np.array(detail["voxels"]["centers"])
+    assert centers.shape == (obj["n_voxels"], 3) and len(detail["voxels"]["weights"]) == obj["n_voxels"]
+    assert np.all(centers >= np.array(obj["aabb"]["min"]) - 0.05) and np.all(centers <= np.array(obj["aabb"]["max"]) + 0.05)
+    assert "voxels" not in client.get(f"/v1/maps/m/objects/{obj['id']}").json() or client.get(f"/v1/maps/m/objects/{obj['id']}").json()["voxels"] is None
+
+
+def test_filters_select_objects(client: AppClient) -> None:
+    two_boxes = ((30, 80, 10, 50), (30, 80, 110, 150))
+    client.post("/v1/maps/f/frames", content=proto_body(make_test_frame(0, map_id="f", boxes=two_boxes)), headers=PROTOBUF)
+    wait_until(lambda: processed(client, "f") == 1, 20, "frame processed")
+    objects = client.get("/v1/maps/f/objects").json()["objects"]
+    assert len(objects) == 2
+    left = min(objects, key=lambda o: o["aabb"]["min"][0])
+    x0, y0, z0 = left["aabb"]["min"]
+    x1, y1, z1 = left["aabb"]["max"]
+    inside = client.get("/v1/maps/f/objects", params={"bbox": f"{x0},{y0},{z0},{x1},{y1},{z1}"}).json()["objects"]
+    assert [o["id"] for o in inside] == [left["id"]]
+    assert client.get("/v1/maps/f/objects", params={"bbox": "10,10,10,11,11,11"}).json()["objects"] == []
+    assert client.get("/v1/maps/f/objects", params={"label": "tv"}).json()["objects"] == []
+    assert len(client.get("/v1/maps/f/objects", params={"label": "chair"}).json()["objects"]) == 2
+    best = max(o["score"] for o in objects)
+    assert client.get("/v1/maps/f/objects", params={"min_score": min(1.0, best + 1e-6)}).json()["objects"] == []
+
+
+def _jpeg(rgb: np.ndarray) -> bytes:
+    return cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]))[1].tobytes()
+
+
+def _png(image: np.ndarray) -> bytes:
+    return cv2.imencode(".png", image)[1].tobytes()
+
+
+def bad_uploads() -> list[tuple[str, dict[str, object], int, str]]:
+    """(case, request kwargs, status, text the message must contain)."""
+    frame = make_test_frame(0)
+    parts = multipart_parts(frame)
+    reflected = frame.cam2world.copy()
+    reflected[0, 0] = -1.0
+    jpeg = parts["rgb"][1]
+    depth8 = _png(np.full((HEIGHT, WIDTH), 200, np.uint8))
+    small_depth = _png(np.full((HEIGHT // 2, WIDTH // 2), 2000, np.uint16))
+    return [
+        ("wrong content type", {"content": b"{}", "headers": {"content-type": "application/json"}}, 415, "content-type"),
+        ("no content type", {"content": b"abc"}, 415, "content-type"),
+        ("not protobuf", {"content": b"\xff\xff\xff\xff", "headers": PROTOBUF}, 422, "body"),
+        ("empty protobuf", {"content": b"", "headers": PROTOBUF}, 422, "body"),
+        ("truncated jpeg", {"files": {**parts, "rgb": ("rgb.jpg", jpeg[: len(jpeg) // 2], "image/jpeg")}}, 422, "rgb"),
+        ("not an image", {"files": {**parts, "rgb": ("rgb.gif", b"GIF89a....", "image/gif")}}, 422, "rgb"),
+        ("8-bit depth", {"files": {**parts, "depth": ("depth.png", depth8, "image/png")}}, 422, "16-bit"),
+        ("depth size", {"files": {**parts, "depth": ("depth.png", small_depth, "image/png")}}, 422, "depth"),
+        ("reflected pose", {"files": multipart_parts(frame, cam2world=reflected.reshape(16).tolist())}, 422, "cam2world"),
+        ("pose not 4x4", {"files": multipart_parts(frame, cam2world=[1, 0, 0])}, 422, "cam2world"),
+        ("missing depth", {"files": {k: v for k, v in parts.items() if k != "depth"}}, 422, "depth"),
+        ("missing meta", {"files": {k: v for k, v in parts.items() if k != "meta"}}, 422, "meta"),
+        ("meta not json", {"files": {**parts, "meta": ("meta.json", b"{oops", "application/json")}}, 422, "meta"),
+        ("meta missing intrinsics", {"files": multipart_parts(frame, intrinsics=None)}, 422, "meta.intrinsics"),
+        ("meta unknown field", {"files": multipart_parts(frame, colour="red")}, 422, "meta.colour"),
+        ("bad frame id", {"files": multipart_parts(frame, frame_id="a/b")}, 422, "frame_id"),
+        ("map id mismatch", {"files": multipart_parts(frame, map_id="other")}, 422, "map_id"),
+        ("map id mismatch (protobuf)", {"content": proto_body(frame, map_id="other"), "headers": PROTOBUF}, 422, "map_id"),
+        ("no intrinsics (protobuf)", {"content": _without_intrinsics(frame), "headers": PROTOBUF}, 422, "intrinsics"),
+        ("too large", {"content": b"\0" * 200_001, "headers": PROTOBUF}, 413, "200000 bytes"),
+        ("too large multipart", {"files": {**parts, "rgb": ("rgb.jpg", _jpeg(np.random.default_rng(0).integers(0, 255, (600, 600, 3), np.uint8)), "image/jpeg")}}, 413, "bytes"),
+    ]
+
+
+def _without_intrinsics(frame: object) -> bytes:
+    msg = frame_to_proto(frame)  # type: ignore[arg-type]
+    msg.ClearField("intrinsics")
+    return msg.SerializeToString()
+
+
+BAD_UPLOADS = bad_uploads()
+
+
+@pytest.mark.parametrize(("case", "request_kwargs", "status", "says"), BAD_UPLOADS, ids=[c[0] for c in BAD_UPLOADS])
+def test_bad_uploads_are_refused_with_a_reason(client: AppClient, case: str, request_kwargs: dict, status: int, says: str) -> None:
+    response = client.post("/v1/maps/m/frames", **request_kwargs)
+    assert response.status_code == status, (case, response.text)
+    body = response.json()
+    assert says in body["detail"], (case, body)
+    assert client.get("/v1/maps/m/stats").status_code == 404  # nothing was accepted
+
+
+def test_unknown_maps_objects_and_bad_queries(client: AppClient) -> None:
+    assert client.get("/v1/maps/nope/objects").status_code == 404
+    assert client.get("/v1/maps/nope/stats").status_code == 404
+    assert client.delete("/v1/maps/nope").status_code == 404
+    assert client.post("/v1/maps/a{b}/frames", content=proto_body(make_test_frame(0)), headers=PROTOBUF).status_code == 422
+    client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(0)), headers=PROTOBUF)
+    wait_until(lambda: processed(client, "m") == 1, 20, "frame processed")
+    missing = client.get("/v1/maps/m/objects/999")
+    assert missing.status_code == 404 and "999" in missing.json()["detail"]
+    for params, field in (({"label": "dog"}, "label"), ({"min_score": "2"}, "min_score"), ({"bbox": "1,2,3"}, "bbox"), ({"bbox": "1,1,1,0,0,0"}, "bbox")):
+        response = client.get("/v1/maps/m/objects", params=params)
+        assert response.status_code == 422 and field in response.json()["detail"], response.text
+    assert client.get("/v1/maps/m/objects/-1").status_code == 422
+
+
+def test_duplicates_delete_and_counts(client: AppClient) -> None:
+    body = proto_body(make_test_frame(0))
+    assert client.post("/v1/maps/m/frames", content=body, headers=PROTOBUF).json()["status"] == "queued"
+    assert client.post("/v1/maps/m/frames", content=body, headers=PROTOBUF).json()["status"] == "duplicate"
+    wait_until(lambda: processed(client, "m") == 1, 20, "frame processed")
+    assert client.get("/v1/maps/m/stats").json()["frames"]["accepted"] == 1
+    deleted = client.delete("/v1/maps/m")
+    assert deleted.json() == {"map_id": "m", "deleted_objects": 1}
+    assert client.get("/v1/maps/m/objects").status_code == 404
+    assert client.post("/v1/maps/m/frames", content=body, headers=PROTOBUF).json()["status"] == "queued"  # a new map
+
+
+def test_failed_frame_is_counted_and_can_be_sent_again() -> None:
+    detector = BlobDetector(crash_on=["f000001"])
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=detector)) as client:
+        for i in range(3):
+            client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(i)), headers=PROTOBUF)
+        wait_until(lambda: client.get("/v1/maps/m/stats").json()["frames"]["pending"] == 0, 20, "frames done")
+        assert client.get("/v1/maps/m/stats").json()["frames"] == {"accepted": 3, "processed": 2, "failed": 1, "pending": 0}
+        detector.crash_on.clear()
+        again = client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(1)), headers=PROTOBUF)
+        assert again.json()["status"] == "queued"
+        wait_until(lambda: processed(client, "m") == 3, 20, "frame processed again")
+        assert client.get("/v1/maps/m/stats").json()["frames"] == {"accepted": 3, "processed": 3, "failed": 0, "pending": 0}
+        metrics = client.get("/metrics").text
+        assert "arcloud_frames_failed_total 1.0" in metrics and "arcloud_frames_processed_total 3.0" in metrics
+
+
+def test_full_queue_answers_503_with_retry_after() -> None:
+    release = threading.Event()
+
+    class Blocking(BlobDetector):
+        def detect(self, frame):  # type: ignore[no-untyped-def]
+            release.wait(10)
+            return super().detect(frame)
+
+    settings = Settings(detector="sim:0", workers=1, max_queued_frames=1)
+    with AppClient(create_app(settings, detector=Blocking())) as client:
+        codes = [client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(i)), headers=PROTOBUF).status_code for i in range(4)]
+        release.set()
+        assert 503 in codes and codes[0] == 202 and codes.count(202) <= 2, codes
+        refused = client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(9)), headers=PROTOBUF)
+        if refused.status_code == 503:
+            assert refused.headers["retry-after"] == "1" and "queue full" in refused.json()["detail"]
+        wait_until(lambda: client.get("/v1/maps/m/stats").json()["frames"]["pending"] == 0, 20, "queue drained")
+
+
+def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
+    assert client.get("/healthz").json() == {"status": "ok"}
+    assert client.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok", "detector": "ok", "workers": "ok"}}
+    client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(0)), headers=PROTOBUF)
+    client.post("/v1/maps/m/frames", content=b"x", headers={"content-type": "text/plain"})
+    wait_until(lambda: processed(client, "m") == 1, 20, "frame processed")
+    metrics = client.get("/metrics")
+    assert metrics.headers["content-type"].startswith("text/plain")
+    text = metrics.text
+    for line in ("arcloud_frames_accepted_total 1.0", "arcloud_frames_processed_total 1.0", "arcloud_queue_depth 0.0",
+                 'arcloud_frames_rejected_total{status="415"} 1.0', "arcloud_step_latency_seconds_count 1.0",
+                 'arcloud_step_latency_seconds_bucket{le="+Inf"} 1.0'):
+        assert line in text, line
+    spec = client.get("/openapi.json").json()
+    upload = spec["paths"]["/v1/maps/{map_id}/frames"]["post"]
+    assert set(upload["requestBody"]["content"]) == {"application/x-protobuf", "multipart/form-data"}
+    assert json.loads(upload["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]["meta"]["example"])["frame_id"]
+    assert {"202", "413", "415", "422"} <= set(upload["responses"])
+    for path in ("/v1/maps/{map_id}/objects", "/v1/maps/{map_id}/objects/{object_id}", "/v1/maps/{map_id}", "/v1/maps/{map_id}/stats",
+                 "/healthz", "/readyz", "/metrics"):
+        assert path in spec["paths"], path
+
+
+def test_real_uvicorn_server_and_shared_store() -> None:
+    store = MemoryStore()
+    app = create_app(Settings(detector="sim:0", workers=2), store=store, detector=BlobDetector())
+    with UvicornThread(app) as server, httpx.Client(base_url=server.url, timeout=10) as http:
+        for i in range(6):
+            response = http.post("/v1/maps/u/frames", files=multipart_parts(make_test_frame(i, map_id="u")))
+            assert response.status_code == 202, response.text
+        wait_until(lambda: http.get("/v1/maps/u/stats").json()["frames"]["processed"] == 6, 20, "6 frames processed")
+        assert http.post("/v1/maps/u/frames", content=b"x", headers={"content-type": "image/png"}).status_code == 415
+        objects = http.get("/v1/maps/u/objects").json()["objects"]
+    assert [o["id"] for o in objects] == [o.id for o in store.list_objects("u")]
+    assert store.count_frames("u") == 6
+    assert not server.thread.is_alive()
