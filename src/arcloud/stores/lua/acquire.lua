@@ -1,8 +1,10 @@
 -- Take every key (locks or space claims, in sorted order) or none: all-or-nothing in one step.
 -- KEYS: the lock/claim keys. ARGV[1]: token, ARGV[2]: ttl in milliseconds.
+-- Keys already holding this token count as free (a retried call whose reply was lost succeeds).
 -- Returns {0} when all were taken, else {i, pttl}: the first busy key (1-based) and its remaining ms.
 for i, key in ipairs(KEYS) do
-  if redis.call('EXISTS', key) == 1 then
+  local holder = redis.call('GET', key)
+  if holder and holder ~= ARGV[1] then
     return {i, redis.call('PTTL', key)}
   end
 end

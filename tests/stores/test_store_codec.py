@@ -1,0 +1,122 @@
+"""The binary object encoding of the Redis store: exact round trips, documented precision, corrupt input."""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+
+from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject
+from arcloud.core.voxels import KEY_OFFSET, pack_keys
+from arcloud.errors import InvalidInput, StoreError
+from arcloud.stores import codec
+
+
+def random_voxels(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    ijk = rng.integers(-KEY_OFFSET, KEY_OFFSET, size=(n, 3))  # the whole key range, negative indices included
+    keys = np.unique(pack_keys(ijk))
+    weights = rng.random(keys.size, np.float32) * 100
+    votes = rng.random((keys.size, N_CLASSES), np.float32) * (rng.random((keys.size, N_CLASSES)) < 0.3)
+    return keys, weights, votes
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 5000])
+def test_voxels_round_trip_exactly(n: int) -> None:
+    keys, weights, votes = random_voxels(n, seed=n)
+    blob = codec.encode_voxels(keys, weights, votes)
+    got_keys, got_weights, got_votes = codec.decode_voxels(blob)
+    np.testing.assert_array_equal(got_keys, keys)
+    np.testing.assert_array_equal(got_weights, weights)
+    np.testing.assert_array_equal(got_votes, votes)
+    assert (got_keys.dtype, got_weights.dtype, got_votes.dtype) == (np.int64, np.float32, np.float32)
+    assert got_votes.shape == (keys.size, N_CLASSES)
+    assert got_keys.flags.writeable and got_weights.flags.writeable and got_votes.flags.writeable
+
+
+def test_compact_objects_compress_well() -> None:
+    # a dense 20^3 block of voxels with one dominant label: the usual shape of an object
+    ijk = np.stack(np.meshgrid(*(np.arange(20),) * 3, indexing="ij"), axis=-1).reshape(-1, 3) + 400
+    keys = np.sort(pack_keys(ijk))
+    weights = np.ones(keys.size, np.float32) * 3
+    votes = np.zeros((keys.size, N_CLASSES), np.float32)
+    votes[:, 1] = 2.7
+    blob = codec.encode_voxels(keys, weights, votes)
+    assert blob[4:6] == bytes([codec.FORMAT_VERSION, codec.FLAG_ZLIB])
+    raw_bytes = keys.size * (8 + 4 + 4 * N_CLASSES)
+    assert len(blob) < raw_bytes / 10
+    np.testing.assert_array_equal(codec.decode_voxels(blob)[0], keys)
+
+
+def test_votes_as_float16_keep_the_documented_precision() -> None:
+    keys, weights, votes = random_voxels(300, seed=3)
+    votes = votes * 1000
+    blob16 = codec.encode_voxels(keys, weights, votes, votes_f16=True)
+    blob32 = codec.encode_voxels(keys, weights, votes)
+    _, got_weights, got_votes = codec.decode_voxels(blob16)
+    np.testing.assert_array_equal(got_weights, weights)
+    np.testing.assert_allclose(got_votes, votes, rtol=2.0**-11, atol=0)
+    assert not np.array_equal(got_votes, votes)  # it is lossy
+    assert len(zlib.decompress(blob16[12:])) < len(zlib.decompress(blob32[12:]))
+
+
+def test_encode_rejects_malformed_voxels() -> None:
+    keys, weights, votes = random_voxels(10, seed=1)
+    with pytest.raises(InvalidInput, match="keys"):
+        codec.encode_voxels(keys[::-1].copy(), weights, votes)
+    with pytest.raises(InvalidInput, match="keys"):
+        codec.encode_voxels(keys.astype(np.int32), weights, votes)
+    with pytest.raises(InvalidInput, match="weights"):
+        codec.encode_voxels(keys, weights[:-1], votes)
+    with pytest.raises(InvalidInput, match="votes"):
+        codec.encode_voxels(keys, weights, votes[:, 0])
+
+
+def test_decode_refuses_corrupt_blobs() -> None:
+    keys, weights, votes = random_voxels(500, seed=2)
+    blob = codec.encode_voxels(keys, weights, votes)
+    with pytest.raises(StoreError, match="header"):
+        codec.decode_voxels(blob[:5])
+    with pytest.raises(StoreError, match="magic"):
+        codec.decode_voxels(b"XXXX" + blob[4:])
+    with pytest.raises(StoreError, match="zlib"):
+        codec.decode_voxels(blob[:12] + b"not zlib at all")
+    small = codec.encode_voxels(keys[:3], weights[:3], votes[:3])  # stored raw
+    with pytest.raises(StoreError, match="bytes"):
+        codec.decode_voxels(small[:-1])
+
+
+def test_object_fields_round_trip() -> None:
+    keys, weights, votes = random_voxels(50, seed=4)
+    rotation = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
+    obj = MapObject(
+        id=17, keys=keys, weights=weights, votes=votes, n_frames=12, devices=frozenset({"b", "a", "ü-device"}),
+        score_sum=3.141592653589793, version=5, created_at_s=1_700_000_000.000001, updated_at_s=1_700_000_001.5,
+        label="tv", score=0.1 + 0.2,
+        aabb=AABB(np.array([-1.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0000000001])),
+        obb=OBB(center=np.array([0.1, 0.2, 0.3]), size=np.array([1.0, 2.0, 0.5]), rotation=rotation, yaw_rad=0.9272952180016122),
+        bounds=AABB(np.array([-2.0, 0.0, 0.0]), np.array([2.0, 3.0, 4.0])),
+    )
+    fields = {name.encode(): value for name, value in codec.encode_object(obj).items()}
+    got = codec.decode_object(17, fields)
+    for name in ("id", "n_frames", "devices", "score_sum", "version", "created_at_s", "updated_at_s", "label", "score"):
+        assert getattr(got, name) == getattr(obj, name), name
+    np.testing.assert_array_equal(got.keys, keys)
+    for box in ("aabb", "bounds"):
+        np.testing.assert_array_equal(getattr(got, box).min, getattr(obj, box).min)
+        np.testing.assert_array_equal(getattr(got, box).max, getattr(obj, box).max)
+    np.testing.assert_array_equal(got.obb.rotation, rotation)
+    assert got.obb.yaw_rad == obj.obb.yaw_rad
+    meta = codec.decode_meta(17, {k: v for k, v in fields.items() if k != b"voxels"})
+    assert (meta.n_voxels, meta.n_devices, meta.version, meta.label) == (keys.size, 3, 5, "tv")
+    assert codec.meta_of(obj).n_voxels == meta.n_voxels
+
+
+def test_object_without_boxes_round_trips() -> None:
+    keys, weights, votes = random_voxels(3, seed=5)
+    obj = MapObject(id=1, keys=keys, weights=weights, votes=votes)
+    got = codec.decode_object(1, {k.encode(): v for k, v in codec.encode_object(obj).items()})
+    assert got.aabb is None and got.obb is None and got.bounds is None and got.devices == frozenset()
+    with pytest.raises(StoreError, match="metadata"):
+        codec.decode_meta(1, {b"version": b"not a number"})

@@ -1,0 +1,211 @@
+"""What only the Redis store has: its key layout (one hash tag per map), many processes, server failures,
+the large-box fallback of the index, metadata listing."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import redis
+from redis.crc import key_slot
+from redis_server import free_port
+from store_cases import MAP, make_object, step_frame
+
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import Params
+from arcloud.errors import InvalidInput, StaleLease, StoreUnavailable
+from arcloud.stores import keys
+from arcloud.stores.memory import MemoryStore
+from arcloud.stores.redis import RedisStore
+
+pytestmark = pytest.mark.redis
+
+
+def all_keys(store: RedisStore) -> set[str]:
+    return {k.decode() for k in store.client.scan_iter(count=1000)}
+
+
+def test_every_key_of_a_map_shares_its_hash_tag(redis_store: RedisStore) -> None:
+    store = redis_store
+    store.commit(MAP, [], [make_object(1, (0.0, 0, 0)), make_object(2, (1.5, -2.0, 0))], [], frame_key="dev/f1")
+    store.new_ids(MAP, 3)
+    lease = store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0)
+    claim = store.claim(MAP, [(0, 0, 0)], ttl_s=10, timeout_s=0)
+    found = all_keys(store)
+    assert found >= {keys.ids_key(MAP), keys.frames_key(MAP), keys.bounds_key(MAP), keys.object_key(MAP, 1),
+                     keys.lock_key(MAP, 2), keys.claim_key(MAP, (0, 0, 0)), keys.cell_key(MAP, (1, -2, 0))}
+    assert {keys.hash_tag(k) for k in found} == {MAP}
+    assert {key_slot(k.encode()) for k in found} == {key_slot(keys.map_prefix(MAP).encode())}
+    lease.release()
+    claim.release()
+
+
+def test_delete_map_removes_every_key_of_the_map_and_no_other(redis_store: RedisStore) -> None:
+    store = redis_store
+    other = MAP + "2"  # a map id that starts with the other one: patterns must not mix them up
+    store.commit(other, [], [make_object(1, (0.0, 0, 0))], [], frame_key="dev/f1")
+    store.client.set("unrelated", b"1")
+    kept = all_keys(store)
+    store.commit(MAP, [], [make_object(i, (i * 0.7, 0, 0)) for i in (1, 2, 3)], [], frame_key="dev/f1")
+    store.new_ids(MAP, 4)
+    store.lock(MAP, [1], ttl_s=60, timeout_s=0)  # a lease still alive
+    store.claim(MAP, [(9, 9, 9)], ttl_s=60, timeout_s=0)
+    assert len(all_keys(store)) > len(kept) + 5
+    assert store.delete_map(MAP) == 3
+    assert all_keys(store) == kept
+    assert [o.id for o in store.list_objects(other)] == [1]
+
+
+def test_store_on_another_map_prefix_and_key_templates() -> None:
+    assert keys.map_prefix("m") == "arcloud:{m}"
+    assert keys.object_key("m", 7) == "arcloud:{m}:obj:7"
+    assert keys.cell_key("m", (-1, 0, 2)) == "arcloud:{m}:cell:-1:0:2"
+    assert keys.claim_key("m", (np.int64(3), 4, 5)) == "arcloud:{m}:claim:3:4:5"
+    assert keys.hash_tag("arcloud:{m}:lock:1") == "m"
+    assert keys.hash_tag("arcloud:{}:x") == "arcloud:{}:x"  # an empty tag does not count
+    assert keys.hash_tag(keys.INGEST_STREAM) == keys.INGEST_STREAM
+
+
+def test_a_server_that_is_down_raises_store_unavailable() -> None:
+    store = RedisStore(f"redis://127.0.0.1:{free_port()}/0")
+    with pytest.raises(StoreUnavailable, match="127.0.0.1"):
+        store.ping()
+    with pytest.raises(StoreUnavailable):
+        store.query_region(MAP, np.zeros(3), np.ones(3))
+    with pytest.raises(StoreUnavailable):
+        store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [])
+    with pytest.raises(StoreUnavailable):
+        store.lock(MAP, [1], ttl_s=1, timeout_s=0)
+    store.close()
+    with pytest.raises(InvalidInput, match="url"):
+        RedisStore("http://nowhere")
+
+
+def test_large_boxes_read_the_bounds_instead_of_cells(redis_server) -> None:
+    # A store that falls back beyond 8 cells must answer like the embedded store on random boxes.
+    rng = np.random.default_rng(0)
+    small = RedisStore(redis_server.url, cell_m=0.5, max_query_cells=8)
+    small.client.flushdb()
+    reference = MemoryStore(cell_m=0.5)
+    objects = [make_object(i, tuple(rng.uniform(-4, 4, 3)), size_m=float(rng.uniform(0.05, 1.5)), seed=i) for i in range(1, 40)]
+    for store in (small, reference):
+        store.commit(MAP, [], objects, [])
+    for _ in range(60):
+        lo = rng.uniform(-5, 5, 3)
+        hi = lo + rng.uniform(0, 3, 3)
+        got, want = small.query_region(MAP, lo, hi), reference.query_region(MAP, lo, hi)
+        assert got.keys() == want.keys()
+        for object_id, (b_lo, b_hi) in want.items():
+            np.testing.assert_array_equal(got[object_id][0], b_lo)
+            np.testing.assert_array_equal(got[object_id][1], b_hi)
+    assert small.query_region(MAP, np.full(3, -np.inf), np.full(3, np.inf)).keys() == {o.id for o in objects}
+    with pytest.raises(InvalidInput, match="lo"):
+        small.query_region(MAP, np.zeros(2), np.ones(3))
+    small.close()
+
+
+def test_metadata_listing_matches_the_objects(redis_store: RedisStore) -> None:
+    objects = [make_object(i, (i * 1.0, 0, 0), seed=i) for i in (4, 2)]
+    redis_store.commit(MAP, [], objects, [])
+    metas = redis_store.list_meta(MAP)
+    assert [m.id for m in metas] == [2, 4]
+    for meta, obj in zip(metas, objects[::-1]):
+        assert (meta.label, meta.score, meta.version, meta.n_voxels, meta.n_frames, meta.devices) == (
+            obj.label, obj.score, obj.version, obj.n_voxels, obj.n_frames, obj.devices)
+        np.testing.assert_array_equal(meta.aabb.min, obj.aabb.min)
+    assert [m.id for m in redis_store.object_meta(MAP, [4, 99])] == [4]
+
+
+def test_commit_checks_leases_belong_to_the_map(redis_store: RedisStore) -> None:
+    lease = redis_store.lock("map-b", [1], ttl_s=10, timeout_s=0)
+    with pytest.raises(InvalidInput, match="leases"):
+        redis_store.commit(MAP, [lease], [], [])
+    lease.release()
+    with pytest.raises(InvalidInput, match="bounds"):
+        redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0)).replace(bounds=None)], [])
+
+
+def test_stale_errors_say_what_failed(redis_store: RedisStore) -> None:
+    redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [])
+    with pytest.raises(StaleLease, match=r"object 1 written without its lock; nothing written"):
+        redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0), version=2)], [])
+
+
+def test_scripts_are_reloaded_after_a_script_flush(redis_store: RedisStore) -> None:
+    redis_store.client.script_flush()
+    assert redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [])
+    with redis_store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
+        # a retried acquire (its reply lost) with the same token succeeds instead of waiting for itself
+        assert list(redis_store._scripts["acquire"](keys=lease.keys, args=[lease.token, 10_000])) == [0]
+
+
+def test_a_shared_client_is_not_closed_by_the_store(redis_server) -> None:
+    client = redis.Redis.from_url(redis_server.url)
+    with RedisStore(client=client) as store:
+        store.ping()
+    assert client.ping()
+    client.close()
+
+
+CHILD = """
+import json, sys, time
+sys.path.insert(0, sys.argv[1])
+from store_cases import step_frame
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import Params
+from arcloud.stores.redis import RedisStore
+
+url, device = sys.argv[2], int(sys.argv[3])
+store = RedisStore(url)
+store.client.incr("test:ready")
+deadline = time.monotonic() + 30
+while not store.client.exists("test:go") and time.monotonic() < deadline:
+    time.sleep(0.005)
+ids = []
+for i in range(3):
+    frame, detections = step_frame(device, i)
+    integrate_frame(frame, detections, store, Params(lock_timeout_s=20.0))
+    ids += store.new_ids("ids-map", 50)
+for _ in range(20):
+    ids += store.new_ids("ids-map", 5)
+print(json.dumps(ids))
+"""
+
+
+@pytest.mark.timeout(90)
+def test_two_processes_share_one_map(redis_store: RedisStore, redis_server) -> None:
+    cases_dir = str(Path(__file__).parent)
+    children = [
+        subprocess.Popen([sys.executable, "-c", CHILD, cases_dir, redis_server.url, str(device)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for device in range(2)
+    ]
+    try:
+        deadline = time.monotonic() + 60
+        while int(redis_store.client.get("test:ready") or 0) < 2 and time.monotonic() < deadline:
+            assert all(c.poll() is None for c in children), children[0].stderr.read() if children[0].poll() else children[1].stderr.read()
+            time.sleep(0.02)
+        redis_store.client.set("test:go", b"1")
+        outputs = [c.communicate(timeout=60) for c in children]
+    finally:
+        for c in children:
+            if c.poll() is None:
+                c.kill()
+                c.wait()
+    assert [c.returncode for c in children] == [0, 0], [err for _, err in outputs]
+    ids = [i for out, _ in outputs for i in json.loads(out)]
+    assert len(ids) == 2 * (3 * 50 + 20 * 5)
+    assert len(set(ids)) == len(ids)
+    objects = redis_store.list_objects(MAP)
+    assert sorted(o.label for o in objects) == ["chair", "table"]
+    assert sum(o.n_frames for o in objects) == 2 * 2 * 3
+    assert redis_store.count_frames(MAP) == 6
+    frame, _ = step_frame(0, 0)
+    assert redis_store.is_frame_done(MAP, frame.key)
+    # the step replayed in this process is idempotent
+    assert integrate_frame(frame, step_frame(0, 0)[1], redis_store, Params()).skipped
