@@ -181,8 +181,8 @@ class RedisStore:
         n_cells = math.prod(int(b - a + 1) for a, b in zip(c_lo, c_hi)) if np.all(np.isfinite([c_lo, c_hi])) else math.inf
         with self._boundary(f"query_region on map {map_id}"):
             if n_cells <= self.max_query_cells:
-                names = [keys.cell_name(c) for c in self.cells_of(lo, hi)]
-                flat = self._scripts["query"](keys=[keys.bounds_key(map_id)], args=[keys.map_prefix(map_id), *names])
+                ranges = [int(c) for pair in zip(c_lo, c_hi) for c in pair]  # i0 i1 j0 j1 k0 k1
+                flat = self._scripts["query"](keys=[keys.bounds_key(map_id)], args=[keys.map_prefix(map_id), *ranges])
                 pairs = zip(flat[::2], flat[1::2])
             else:
                 pairs = self.client.hgetall(keys.bounds_key(map_id)).items()
