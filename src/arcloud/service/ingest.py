@@ -48,6 +48,9 @@ log = logging.getLogger(__name__)
 # --- Redis keys of the ingest. TODO(keys): move these templates into arcloud.stores.keys -------------
 DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"  # STREAM  frames given up on, with the reason
 INGEST_STATS = f"{INGEST_STREAM}:stats"  # HASH    service-wide counters and the step latency histogram
+WORKERS = f"{INGEST_STREAM}:workers"  # HASH    consumer name -> last heartbeat (Unix seconds)
+HEARTBEAT_S = 1.0  # how often a worker writes its heartbeat
+LIVE_WORKER_S = 10.0  # a worker whose heartbeat is older is presumed gone
 
 
 def accepted_key(map_id: str) -> str:
@@ -394,7 +397,20 @@ class RedisIngest:
         if self.pool is not None:
             alive, total = self.pool.alive(), self.pool.size
             checks["workers"] = "ok" if alive == total else f"{alive} of {total} worker processes alive"
+        elif checks["redis"] == "ok":
+            live = len(live_workers(self.client))
+            checks["workers"] = "ok" if live else f"no worker heartbeat in {LIVE_WORKER_S:.0f} s (frames wait in the stream)"
         return checks
+
+
+def live_workers(client: redis.Redis, max_age_s: float = LIVE_WORKER_S) -> list[str]:
+    """Consumers whose heartbeat is at most ``max_age_s`` old."""
+    now = time.time()
+    return sorted(_text_of(name) for name, seen in client.hgetall(WORKERS).items() if now - float(seen) <= max_age_s)
+
+
+def _text_of(value: bytes | str) -> str:
+    return value.decode() if isinstance(value, bytes) else value
 
 
 def ensure_group(client: redis.Redis, group: str) -> None:
@@ -464,6 +480,7 @@ __all__ = [
     "EmbeddedIngest",
     "INGEST_STATS",
     "INGEST_STREAM",
+    "WORKERS",
     "Ingest",
     "IngestSnapshot",
     "LATENCY_BUCKETS_S",
@@ -474,5 +491,6 @@ __all__ = [
     "ensure_group",
     "failed_key",
     "latency_bucket",
+    "live_workers",
     "parse_stats",
 ]

@@ -37,8 +37,11 @@ from arcloud.errors import InvalidInput
 from arcloud.ports import Detector, ObjectStore, UpdatePublisher
 from arcloud.service.ingest import (
     DEAD_LETTER_STREAM,
+    HEARTBEAT_S,
     INGEST_STATS,
     INGEST_STREAM,
+    WORKERS,
+    accepted_key,
     ensure_group,
     failed_key,
     latency_bucket,
@@ -111,23 +114,38 @@ class StreamWorker:
         self.read_block_ms = max(1, int(read_block_s * 1000))
         self.attempts = attempts
         self._next_claim = 0.0
+        self._next_heartbeat = 0.0
         self._claim_cursor = "0-0"
 
     def run(self, stop: threading.Event) -> None:
         """Work until ``stop`` is set; the frame in hand is finished first."""
         ensure_group(self.client, self.group)
         log.info("worker %s reading %s as group %s", self.consumer, INGEST_STREAM, self.group)
-        while not stop.is_set():
+        try:
+            while not stop.is_set():
+                try:
+                    self.poll_once()
+                except Exception:  # noqa: BLE001 - Redis away for a moment: wait and go on
+                    log.exception("worker %s: polling failed; retrying in 1 s", self.consumer)
+                    stop.wait(1.0)
+        finally:
             try:
-                self.poll_once()
-            except Exception:  # noqa: BLE001 - Redis away for a moment: wait and go on
-                log.exception("worker %s: polling failed; retrying in 1 s", self.consumer)
-                stop.wait(1.0)
+                self.client.hdel(WORKERS, self.consumer)
+            except Exception:  # noqa: BLE001 - leaving anyway; the heartbeat goes stale
+                log.debug("worker %s: heartbeat not removed", self.consumer, exc_info=True)
         log.info("worker %s stopped", self.consumer)
+
+    def heartbeat(self) -> None:
+        """Record that this worker is alive (at most every ``HEARTBEAT_S``)."""
+        now = time.monotonic()
+        if now >= self._next_heartbeat:
+            self.client.hset(WORKERS, self.consumer, repr(time.time()))
+            self._next_heartbeat = now + HEARTBEAT_S
 
     def poll_once(self) -> int:
         """Claim one abandoned entry when due, else read one new entry (blocking). Returns how many
         entries were handled."""
+        self.heartbeat()
         now = time.monotonic()
         if now >= self._next_claim:
             if self.claim_abandoned():
@@ -208,9 +226,9 @@ class StreamWorker:
         pipe.xack(INGEST_STREAM, self.group, entry_id)
         pipe.xdel(INGEST_STREAM, entry_id)
         pipe.hincrby(INGEST_STATS, "failed", 1)
-        if map_id and frame_key:
-            pipe.sadd(failed_key(map_id), frame_key)
         pipe.execute()
+        if map_id and frame_key and self.client.sismember(accepted_key(map_id), frame_key):
+            self.client.sadd(failed_key(map_id), frame_key)  # failed frames are a subset of the accepted ones
 
 
 # --- processes ---------------------------------------------------------------------------------------

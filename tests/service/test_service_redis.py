@@ -1,0 +1,170 @@
+"""Redis mode end to end: the API queues frames on a real redis-server's stream, two worker PROCESSES
+(spawned, as in production) read them through the consumer group, and publish events over Zenoh to the
+API's loopback endpoint. Covers: no frame lost, idempotent re-delivery, poison frames dead-lettered,
+a killed worker's frame claimed by another, graceful stop finishing the frame in hand.
+
+The tests run in file order on one deployment (starting worker processes takes seconds).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+import redis
+from redis_server import RedisServer
+from svc_helpers import AppClient, free_port, make_blob_detector, make_test_frame, wait_until
+
+from arcloud.events.zenoh import query_objects, subscribe_objects
+from arcloud.proto.convert import frame_to_proto
+from arcloud.service.app import create_app
+from arcloud.service.ingest import DEAD_LETTER_STREAM, INGEST_STATS, INGEST_STREAM, live_workers, parse_stats
+from arcloud.service.settings import Settings
+from arcloud.service.worker import WorkerPool
+from arcloud.stores.redis import RedisStore
+
+pytestmark = [pytest.mark.redis, pytest.mark.slow]
+
+PROTOBUF = {"content-type": "application/x-protobuf"}
+SLOW_FRAME = 800  # frame index the detector takes SLOW_S over
+CRASH_FRAME = 900  # frame index the detector raises on
+SLOW_S = 1.0
+CLAIM_MIN_IDLE_S = 1.5  # > SLOW_S: a frame in progress is never taken over
+
+
+@dataclass
+class Deployment:
+    settings: Settings
+    api: AppClient
+    pool: WorkerPool
+    redis: redis.Redis
+    store: RedisStore
+    zenoh_endpoint: str
+
+    def post(self, map_id: str, index: int) -> dict:
+        response = self.api.post(f"/v1/maps/{map_id}/frames", content=frame_to_proto(make_test_frame(index, map_id=map_id)).SerializeToString(), headers=PROTOBUF)
+        assert response.status_code == 202, response.text
+        return response.json()  # type: ignore[no-any-return]
+
+    def stats(self) -> object:
+        return parse_stats(self.redis.hgetall(INGEST_STATS))
+
+    def idle(self) -> bool:
+        """Nothing queued and nothing pending."""
+        return int(self.redis.xlen(INGEST_STREAM)) == 0 and int(self.redis.xpending(INGEST_STREAM, self.settings.consumer_group)["pending"]) == 0
+
+    def holder_pid(self) -> int | None:
+        """Pid of the worker holding a pending entry (consumer names are host-pid)."""
+        pending = self.redis.xpending_range(INGEST_STREAM, self.settings.consumer_group, min="-", max="+", count=1)
+        return int(pending[0]["consumer"].decode().rsplit("-", 1)[1]) if pending else None
+
+
+@pytest.fixture(scope="module")
+def deployment() -> Iterator[Deployment]:
+    server = RedisServer.start()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = Settings(
+        store=server.url, detector="sim:0", workers=0, claim_min_idle_s=CLAIM_MIN_IDLE_S, claim_interval_s=0.2,
+        max_deliveries=2, read_block_s=0.2, zenoh_mode="peer", zenoh_listen=[endpoint],
+    )
+    factory = functools.partial(make_blob_detector, delay_s=SLOW_S, slow_on=[f"f{SLOW_FRAME:06d}"], crash_on=[f"f{CRASH_FRAME:06d}"])
+    pool = WorkerPool(settings, 2, detector_factory=factory)
+    client = server.client()
+    store = RedisStore(server.url)
+    try:
+        with AppClient(create_app(settings)) as api:
+            pool.start()
+            wait_until(lambda: len(live_workers(client, 3.0)) >= 2, 90, "2 workers reading", 0.1)
+            yield Deployment(settings, api, pool, client, store, endpoint)
+            pool.stop(20)
+    finally:
+        pool.stop(5)
+        store.close()
+        client.close()
+        server.stop()
+
+
+def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deployment: Deployment) -> None:
+    events, lock = [], threading.Lock()
+
+    def on_event(event: object) -> None:
+        with lock:
+            events.append(event)
+
+    with subscribe_objects("r1", on_event, connect=[deployment.zenoh_endpoint]):
+        time.sleep(0.5)  # let the subscription propagate to the API's peer
+        for i in range(10):
+            deployment.post("r1", i)
+        wait_until(lambda: deployment.api.get("/v1/maps/r1/stats").json()["frames"]["processed"] == 10, 60, "10 frames processed", 0.05)
+        wait_until(lambda: len(events) >= 2, 10, "events from the worker processes")
+        answer = query_objects("r1", connect=[deployment.zenoh_endpoint], timeout_s=5)
+
+    stats = deployment.api.get("/v1/maps/r1/stats").json()
+    assert stats["frames"] == {"accepted": 10, "processed": 10, "failed": 0, "pending": 0}
+    assert deployment.idle()  # acknowledged and deleted: the stream holds only the backlog
+    (obj,) = deployment.api.get("/v1/maps/r1/objects").json()["objects"]
+    assert obj["n_frames"] == 10 and obj["label"] == "chair"
+    kinds = [e.kind for e in events]
+    assert kinds[0] == events[0].KIND_CREATED and all(e.map_id == "r1" and e.object_id == obj["id"] for e in events)
+    assert events[-1].object.version <= obj["version"] and events[0].object.label == "chair"
+    assert [o.id for o in answer.objects] == [obj["id"]] and answer.objects[0].n_frames == 10
+    assert "arcloud_frames_processed_total" in deployment.api.get("/metrics").text
+
+
+def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
+    before = deployment.stats()
+    payload = frame_to_proto(make_test_frame(0, map_id="r2")).SerializeToString()
+    for _ in range(2):  # as if a worker died after its commit, before XACK: the entry comes again
+        deployment.redis.xadd(INGEST_STREAM, {"map_id": "r2", "frame_key": "d/f000000", "frame": payload})
+    wait_until(deployment.idle, 30, "both deliveries handled", 0.05)
+    after = deployment.stats()
+    assert deployment.store.count_frames("r2") == 1
+    assert after.processed - before.processed == 1 and after.skipped - before.skipped == 1
+    (obj,) = deployment.store.list_objects("r2")
+    assert obj.n_frames == 1 and obj.version == 1
+
+
+def test_poison_frames_go_to_the_dead_letter_stream(deployment: Deployment) -> None:
+    deployment.redis.xadd(INGEST_STREAM, {"map_id": "r3", "frame_key": "d/garbage", "frame": b"\x0f\xff garbage"})
+    deployment.post("r3", 1)
+    deployment.post("r3", CRASH_FRAME)  # raises in the detector on every delivery
+    wait_until(lambda: deployment.redis.xlen(DEAD_LETTER_STREAM) >= 2, 30, "two dead letters", 0.05)
+    wait_until(deployment.idle, 10, "nothing pending")
+    dead = {e[1][b"frame_key"].decode(): e[1] for e in deployment.redis.xrange(DEAD_LETTER_STREAM)}
+    assert dead["d/garbage"][b"reason"].startswith(b"undecodable")
+    assert dead[f"d/f{CRASH_FRAME:06d}"][b"reason"].startswith(b"delivered 3 times")
+    stats = deployment.api.get("/v1/maps/r3/stats").json()["frames"]
+    assert stats == {"accepted": 2, "processed": 1, "failed": 1, "pending": 0}
+
+
+def test_a_killed_workers_frame_is_claimed_by_another(deployment: Deployment) -> None:
+    claimed_before = deployment.stats().claimed
+    deployment.post("r4", SLOW_FRAME)
+    wait_until(lambda: deployment.holder_pid() is not None, 20, "a worker to take the slow frame", 0.01)
+    victim = deployment.holder_pid()
+    assert victim in [p.pid for p in deployment.pool.processes]
+    os.kill(victim, signal.SIGKILL)  # dies mid-frame: no commit, no XACK
+    wait_until(lambda: deployment.store.count_frames("r4") == 1, 30, "the frame processed by another worker", 0.05)
+    wait_until(deployment.idle, 10, "nothing pending")
+    assert deployment.stats().claimed - claimed_before >= 1
+    assert deployment.api.get("/v1/maps/r4/stats").json()["frames"] == {"accepted": 1, "processed": 1, "failed": 0, "pending": 0}
+    wait_until(lambda: deployment.pool.alive() == 2, 30, "the pool to replace the killed worker")
+
+
+def test_workers_stop_gracefully_after_the_frame_in_hand(deployment: Deployment) -> None:
+    wait_until(lambda: len(live_workers(deployment.redis, 3.0)) >= 2, 60, "the new worker reading")
+    assert deployment.api.get("/readyz").json()["checks"]["workers"] == "ok"
+    deployment.post("r5", SLOW_FRAME)
+    wait_until(lambda: deployment.holder_pid() is not None, 20, "a worker to take the slow frame", 0.01)
+    processes = list(deployment.pool.processes)
+    deployment.pool.stop(20)  # SIGTERM
+    assert [p.exitcode for p in processes] == [0, 0]
+    assert deployment.store.count_frames("r5") == 1 and deployment.idle()
+    stopped = {str(p.pid) for p in processes}
+    assert not [w for w in live_workers(deployment.redis) if w.rsplit("-", 1)[1] in stopped]  # heartbeats removed on the way out
