@@ -87,7 +87,7 @@ def test_decode_refuses_corrupt_blobs() -> None:
         codec.decode_voxels(small[:-1])
 
 
-def test_object_fields_round_trip() -> None:
+def test_object_round_trips_through_metadata_and_voxels() -> None:
     keys, weights, votes = random_voxels(50, seed=4)
     rotation = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
     obj = MapObject(
@@ -98,8 +98,8 @@ def test_object_fields_round_trip() -> None:
         obb=OBB(center=np.array([0.1, 0.2, 0.3]), size=np.array([1.0, 2.0, 0.5]), rotation=rotation, yaw_rad=0.9272952180016122),
         bounds=AABB(np.array([-2.0, 0.0, 0.0]), np.array([2.0, 3.0, 4.0])),
     )
-    fields = {name.encode(): value for name, value in codec.encode_object(obj).items()}
-    got = codec.decode_object(17, fields)
+    meta_blob = codec.encode_meta(obj)
+    got = codec.decode_object(17, meta_blob, codec.encode_voxels(keys, weights, votes))
     for name in ("id", "n_frames", "devices", "score_sum", "version", "created_at_s", "updated_at_s", "label", "score"):
         assert getattr(got, name) == getattr(obj, name), name
     np.testing.assert_array_equal(got.keys, keys)
@@ -108,15 +108,28 @@ def test_object_fields_round_trip() -> None:
         np.testing.assert_array_equal(getattr(got, box).max, getattr(obj, box).max)
     np.testing.assert_array_equal(got.obb.rotation, rotation)
     assert got.obb.yaw_rad == obj.obb.yaw_rad
-    meta = codec.decode_meta(17, {k: v for k, v in fields.items() if k != b"voxels"})
+    meta = codec.decode_meta(17, meta_blob)
     assert (meta.n_voxels, meta.n_devices, meta.version, meta.label) == (keys.size, 3, 5, "tv")
     assert codec.meta_of(obj).n_voxels == meta.n_voxels
+    bounds = codec.unpack_boxes([codec.pack_box(obj.bounds), codec.pack_box(obj.aabb)])
+    np.testing.assert_array_equal(bounds, [[-2, 0, 0, 2, 3, 4], [*obj.aabb.min, *obj.aabb.max]])
 
 
 def test_object_without_boxes_round_trips() -> None:
     keys, weights, votes = random_voxels(3, seed=5)
     obj = MapObject(id=1, keys=keys, weights=weights, votes=votes)
-    got = codec.decode_object(1, {k.encode(): v for k, v in codec.encode_object(obj).items()})
+    got = codec.decode_object(1, codec.encode_meta(obj), codec.encode_voxels(keys, weights, votes))
     assert got.aabb is None and got.obb is None and got.bounds is None and got.devices == frozenset()
-    with pytest.raises(StoreError, match="metadata"):
-        codec.decode_meta(1, {b"version": b"not a number"})
+
+
+def test_corrupt_metadata_is_a_store_error() -> None:
+    keys, weights, votes = random_voxels(3, seed=6)
+    meta = codec.encode_meta(MapObject(id=1, keys=keys, weights=weights, votes=votes))
+    with pytest.raises(StoreError, match="corrupt metadata"):
+        codec.decode_meta(1, b'{"version": "not a number"}')
+    with pytest.raises(StoreError, match="corrupt metadata"):
+        codec.decode_meta(1, b"\x00garbage")
+    with pytest.raises(StoreError, match="voxels"):  # metadata and voxels of different writes
+        codec.decode_object(1, meta, codec.encode_voxels(keys[:2], weights[:2], votes[:2]))
+    with pytest.raises(StoreError, match="bounds"):
+        codec.unpack_boxes([b"short"])

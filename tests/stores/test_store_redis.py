@@ -37,7 +37,7 @@ def test_every_key_of_a_map_shares_its_hash_tag(redis_store: RedisStore) -> None
     lease = store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0)
     claim = store.claim(MAP, [(0, 0, 0)], ttl_s=10, timeout_s=0)
     found = all_keys(store)
-    assert found >= {keys.ids_key(MAP), keys.frames_key(MAP), keys.bounds_key(MAP), keys.object_key(MAP, 1),
+    assert found >= {keys.ids_key(MAP), keys.frames_key(MAP), keys.bounds_key(MAP), keys.meta_key(MAP), keys.object_key(MAP, 1),
                      keys.lock_key(MAP, 2), keys.claim_key(MAP, (0, 0, 0)), keys.cell_key(MAP, (1, -2, 0))}
     assert {keys.hash_tag(k) for k in found} == {MAP}
     assert {key_slot(k.encode()) for k in found} == {key_slot(keys.map_prefix(MAP).encode())}

@@ -7,14 +7,15 @@ Voxels: one blob with a 12-byte header and three arrays, optionally zlib-compres
     weights float32 (N,)   exact
     votes   float32 (N, C) exact; or float16 with ``FLAG_VOTES_F16`` (relative error <= 2**-11,
                            largest vote 65504: only for maps whose voxels get fewer than ~60000 votes)
-    (flags: ``FLAG_ZLIB`` = the arrays after the header are one zlib stream)
+    (flags: ``FLAG_ZLIB`` = the arrays after the header are one zlib stream, used from 256 bytes)
 
 Sorted keys of one object are close together, so their differences are small and compress well; the
-votes of a voxel are zero except for the few labels it received. Typical size: 6-12 bytes per voxel.
+votes of a voxel are zero except for the few labels it received. Objects fused from real frames take
+about 1 byte per voxel; random weights and votes (the worst case) about 13.
 
-Metadata: a flat mapping of ASCII field names to bytes (the fields of the object's Redis HASH):
-numbers as decimal text (floats as ``repr``: exact round trip), the devices as a JSON list, boxes
-as packed little-endian float64. ``ObjectMeta`` is an object without its voxels (cheap to list).
+Metadata: compact JSON of the object without its voxels (floats written by ``repr``: exact round
+trip; boxes as lists of floats; devices as a sorted list). ``ObjectMeta`` is that, decoded.
+Bounds: 6 little-endian float64 (min xyz, max xyz), the spatial index's entry of an object.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from __future__ import annotations
 import json
 import struct
 import zlib
-from collections.abc import Mapping
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,15 +39,6 @@ ZLIB_MIN_BYTES = 256  # smaller payloads are stored raw (zlib would not pay for 
 ZLIB_LEVEL = 1
 _HEADER = struct.Struct("<4sBBHI")
 _BOX = struct.Struct("<6d")  # min xyz, max xyz
-_OBB = struct.Struct("<16d")  # center xyz, size xyz, rotation 3x3 row-major, yaw
-
-# Field names of an object's HASH (the Lua scripts read "version" and "cells").
-VOXELS_FIELD = "voxels"
-META_FIELDS = (
-    "label", "score", "version", "n_voxels", "n_frames", "devices", "score_sum",
-    "created_at_s", "updated_at_s", "aabb", "obb", "bounds",
-)
-
 
 def encode_voxels(keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, votes_f16: bool = False) -> bytes:
     """keys (N,) int64 sorted unique, weights (N,) float32, votes (N, C) float32 -> bytes."""
@@ -106,21 +98,12 @@ def pack_box(box: AABB) -> bytes:
     return _BOX.pack(*np.asarray(box.min, np.float64), *np.asarray(box.max, np.float64))
 
 
-def unpack_box(blob: bytes) -> AABB:
-    values = np.array(_BOX.unpack(blob))
-    return AABB(values[:3], values[3:])
-
-
-def pack_obb(obb: OBB) -> bytes:
-    return _OBB.pack(
-        *np.asarray(obb.center, np.float64), *np.asarray(obb.size, np.float64),
-        *np.asarray(obb.rotation, np.float64).reshape(9), float(obb.yaw_rad),
-    )
-
-
-def unpack_obb(blob: bytes) -> OBB:
-    values = np.array(_OBB.unpack(blob))
-    return OBB(center=values[:3], size=values[3:6], rotation=values[6:15].reshape(3, 3), yaw_rad=float(values[15]))
+def unpack_boxes(blobs: Sequence[bytes]) -> np.ndarray:
+    """Many packed boxes -> (N, 6) float64 rows (min xyz, max xyz)."""
+    joined = b"".join(blobs)
+    if len(joined) != _BOX.size * len(blobs):
+        raise StoreError(f"bounds: expected {len(blobs)} boxes of {_BOX.size} bytes, got {len(joined)} bytes")
+    return np.frombuffer(joined, "<f8").reshape(len(blobs), 6).astype(np.float64)
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -155,66 +138,89 @@ def meta_of(obj: MapObject) -> ObjectMeta:
     )
 
 
-def encode_object(obj: MapObject, *, votes_f16: bool = False) -> dict[str, bytes]:
-    """The fields of an object's HASH: metadata and ``voxels``."""
-    fields = {
-        "label": obj.label.encode(),
-        "score": repr(float(obj.score)).encode(),
-        "version": str(int(obj.version)).encode(),
-        "n_voxels": str(obj.n_voxels).encode(),
-        "n_frames": str(int(obj.n_frames)).encode(),
-        "devices": json.dumps(sorted(obj.devices)).encode(),
-        "score_sum": repr(float(obj.score_sum)).encode(),
-        "created_at_s": repr(float(obj.created_at_s)).encode(),
-        "updated_at_s": repr(float(obj.updated_at_s)).encode(),
-        VOXELS_FIELD: encode_voxels(obj.keys, obj.weights, obj.votes, votes_f16=votes_f16),
-    }
-    if obj.aabb is not None:
-        fields["aabb"] = pack_box(obj.aabb)
-    if obj.obb is not None:
-        fields["obb"] = pack_obb(obj.obb)
-    if obj.bounds is not None:
-        fields["bounds"] = pack_box(obj.bounds)
-    return fields
+def encode_meta(obj: MapObject) -> bytes:
+    """The object's metadata (everything but the voxels) as compact JSON."""
+    return json.dumps(
+        {
+            "label": obj.label,
+            "score": float(obj.score),
+            "version": int(obj.version),
+            "n_voxels": obj.n_voxels,
+            "n_frames": int(obj.n_frames),
+            "devices": sorted(obj.devices),
+            "score_sum": float(obj.score_sum),
+            "created_at_s": float(obj.created_at_s),
+            "updated_at_s": float(obj.updated_at_s),
+            "aabb": None if obj.aabb is None else _box_list(obj.aabb),
+            "obb": None if obj.obb is None else _obb_list(obj.obb),
+            "bounds": None if obj.bounds is None else _box_list(obj.bounds),
+        },
+        separators=(",", ":"),
+    ).encode()
 
 
-def _text(fields: Mapping[bytes, bytes], name: str, default: str = "0") -> str:
-    value = fields.get(name.encode())
-    return default if value is None else value.decode()
+def _box_list(box: AABB) -> list[float]:
+    return [float(v) for v in (*np.asarray(box.min).ravel(), *np.asarray(box.max).ravel())]
 
 
-def decode_meta(object_id: int, fields: Mapping[bytes, bytes]) -> ObjectMeta:
-    """An object's HASH (as HGETALL/HMGET return it, bytes keys) -> ``ObjectMeta``."""
-    boxes = {name: fields.get(name.encode()) for name in ("aabb", "obb", "bounds")}
+def _obb_list(obb: OBB) -> list[float]:
+    return [float(v) for v in (*np.ravel(obb.center), *np.ravel(obb.size), *np.ravel(obb.rotation), obb.yaw_rad)]
+
+
+def _box(values: list[float] | None) -> AABB | None:
+    if values is None:
+        return None
+    array = np.array(values, np.float64)
+    return AABB(array[:3], array[3:])
+
+
+def _obb(values: list[float] | None) -> OBB | None:
+    if values is None:
+        return None
+    array = np.array(values, np.float64)
+    return OBB(center=array[:3], size=array[3:6], rotation=array[6:15].reshape(3, 3), yaw_rad=float(array[15]))
+
+
+def decode_meta(object_id: int, blob: bytes) -> ObjectMeta:
+    """The JSON of ``encode_meta`` -> ``ObjectMeta``."""
+    return decode_metas([object_id], [blob])[0]
+
+
+def decode_metas(object_ids: Sequence[int], blobs: Sequence[bytes]) -> list[ObjectMeta]:
+    """Many ``encode_meta`` JSONs at once (one parse) -> ``ObjectMeta`` each."""
     try:
-        return ObjectMeta(
-            id=int(object_id),
-            label=_text(fields, "label", ""),
-            score=float(_text(fields, "score")),
-            version=int(_text(fields, "version")),
-            n_voxels=int(_text(fields, "n_voxels")),
-            n_frames=int(_text(fields, "n_frames")),
-            devices=frozenset(json.loads(_text(fields, "devices", "[]"))),
-            score_sum=float(_text(fields, "score_sum")),
-            created_at_s=float(_text(fields, "created_at_s")),
-            updated_at_s=float(_text(fields, "updated_at_s")),
-            aabb=None if boxes["aabb"] is None else unpack_box(boxes["aabb"]),
-            obb=None if boxes["obb"] is None else unpack_obb(boxes["obb"]),
-            bounds=None if boxes["bounds"] is None else unpack_box(boxes["bounds"]),
-        )
-    except (ValueError, struct.error) as exc:
-        raise StoreError(f"object {object_id}: corrupt metadata ({exc})") from exc
+        parsed = json.loads(b"[" + b",".join(blobs) + b"]")
+        return [_meta(int(i), fields) for i, fields in zip(object_ids, parsed, strict=True)]
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise StoreError(f"objects {list(object_ids)[:5]}: corrupt metadata ({type(exc).__name__}: {exc})") from exc
 
 
-def decode_object(object_id: int, fields: Mapping[bytes, bytes]) -> MapObject:
-    """An object's HASH (HGETALL, bytes keys) -> ``MapObject``."""
-    meta = decode_meta(object_id, fields)
-    blob = fields.get(VOXELS_FIELD.encode())
-    if blob is None:
-        raise StoreError(f"object {object_id}: no voxels field")
-    keys, weights, votes = decode_voxels(blob)
+def _meta(object_id: int, fields: dict) -> ObjectMeta:  # type: ignore[type-arg]
+    return ObjectMeta(
+        id=object_id,
+        label=str(fields["label"]),
+        score=float(fields["score"]),
+        version=int(fields["version"]),
+        n_voxels=int(fields["n_voxels"]),
+        n_frames=int(fields["n_frames"]),
+        devices=frozenset(fields["devices"]),
+        score_sum=float(fields["score_sum"]),
+        created_at_s=float(fields["created_at_s"]),
+        updated_at_s=float(fields["updated_at_s"]),
+        aabb=_box(fields["aabb"]),
+        obb=_obb(fields["obb"]),
+        bounds=_box(fields["bounds"]),
+    )
+
+
+def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes) -> MapObject:
+    """Metadata JSON and voxel blob -> ``MapObject``."""
+    meta = decode_meta(object_id, meta_blob)
+    keys, weights, votes = decode_voxels(voxels_blob)
     if votes.shape[1] != N_CLASSES:
         raise StoreError(f"object {object_id}: expected votes for {N_CLASSES} classes, got {votes.shape[1]}")
+    if keys.size != meta.n_voxels:
+        raise StoreError(f"object {object_id}: metadata says {meta.n_voxels} voxels, the voxels hold {keys.size}")
     return MapObject(
         id=meta.id, keys=keys, weights=weights, votes=votes, n_frames=meta.n_frames, devices=meta.devices,
         score_sum=meta.score_sum, version=meta.version, created_at_s=meta.created_at_s,

@@ -8,7 +8,9 @@ pattern ``map_pattern(map_id)`` and nothing else.
     arcloud:{m}:ids                 STRING  object id counter (INCRBY)
     arcloud:{m}:frames              SET     processed frame keys ("<device_id>/<frame_id>")
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
-    arcloud:{m}:obj:<id>            HASH    one object: metadata fields and its encoded voxels (``codec``)
+    arcloud:{m}:meta                HASH    object id -> metadata JSON (``codec.encode_meta``): listing needs one read
+    arcloud:{m}:obj:<id>            HASH    one object: ``version`` (the fence), ``cells`` (where it is indexed,
+                                            "i:j:k i:j:k ..."), ``voxels`` (``codec.encode_voxels``)
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
@@ -24,6 +26,7 @@ PREFIX = "arcloud"
 IDS = "ids"
 FRAMES = "frames"
 BOUNDS = "bounds"
+META = "meta"
 OBJECT = "obj"
 CELL = "cell"
 LOCK = "lock"
@@ -50,6 +53,10 @@ def frames_key(map_id: str) -> str:
 
 def bounds_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:{BOUNDS}"
+
+
+def meta_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{META}"
 
 
 def object_key(map_id: str, object_id: int) -> str:

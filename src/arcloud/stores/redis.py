@@ -6,8 +6,10 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
 
 - Spatial index: cubic cells of ``cell_m`` -> SET of object ids, plus a HASH id -> packed bounds.
   ``query_region`` reads the cells the box covers and their objects' bounds in one round trip (Lua),
-  then tests the bounds exactly. A box spanning more than ``max_query_cells`` cells (or an unbounded
-  one) reads the whole bounds HASH instead: one round trip, O(objects of the map).
+  then tests the bounds exactly. When the box spans more cells than twice the map's objects (a small
+  map, like the embedded store's "fewer occupied cells" shortcut), the script reads the bounds HASH
+  instead; a box of more than ``max_query_cells`` cells (or an unbounded one) reads the bounds HASH
+  too, to keep one script call short: O(objects of the map) then.
 - Locks and space claims: keys holding a random token with a TTL (``SET key token PX ttl``), taken
   all-or-nothing by one Lua script (in sorted order; never some held while waiting), retried with
   jittered exponential backoff until ``timeout_s`` (0: try once); released by a script that deletes
@@ -51,6 +53,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_URL = "redis://127.0.0.1:6379/0"
 MAX_QUERY_CELLS = 4096  # larger query boxes read the bounds HASH instead of the cells
+SCAN_CELLS_PER_OBJECT = 2  # a box of more cells than this many per object reads the bounds HASH (cheaper)
 BACKOFF_MIN_S = 0.002
 BACKOFF_MAX_S = 0.05
 GET_BATCH = 256  # objects per pipeline when reading many
@@ -182,16 +185,21 @@ class RedisStore:
         with self._boundary(f"query_region on map {map_id}"):
             if n_cells <= self.max_query_cells:
                 ranges = [int(c) for pair in zip(c_lo, c_hi) for c in pair]  # i0 i1 j0 j1 k0 k1
-                flat = self._scripts["query"](keys=[keys.bounds_key(map_id)], args=[keys.map_prefix(map_id), *ranges])
+                flat = self._scripts["query"](
+                    keys=[keys.bounds_key(map_id)], args=[keys.map_prefix(map_id), *ranges, SCAN_CELLS_PER_OBJECT]
+                )
                 pairs = zip(flat[::2], flat[1::2])
             else:
                 pairs = self.client.hgetall(keys.bounds_key(map_id)).items()
-        found = {}
+        ids, blobs = [], []
         for raw_id, blob in pairs:
-            box = codec.unpack_box(blob)
-            if np.all(box.min <= hi) and np.all(lo <= box.max):
-                found[int(raw_id)] = (box.min, box.max)
-        return found
+            ids.append(int(raw_id))
+            blobs.append(blob)
+        if not ids:
+            return {}
+        bounds = codec.unpack_boxes(blobs)  # (N, 6): min xyz, max xyz
+        hit = np.flatnonzero(np.all(bounds[:, :3] <= hi, axis=1) & np.all(lo <= bounds[:, 3:], axis=1))
+        return {ids[n]: (bounds[n, :3], bounds[n, 3:]) for n in hit}
 
     # --- locks and claims --------------------------------------------------------------------------
     def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> RedisLease:
@@ -240,33 +248,32 @@ class RedisStore:
         for start in range(0, len(ids), GET_BATCH):
             batch = ids[start : start + GET_BATCH]
             with self._boundary(f"get on map {map_id}"):
-                with self.client.pipeline(transaction=True) as pipe:
+                with self.client.pipeline(transaction=True) as pipe:  # one consistent snapshot
+                    pipe.hmget(keys.meta_key(map_id), batch)
                     for object_id in batch:
-                        pipe.hgetall(keys.object_key(map_id, object_id))
-                    replies = pipe.execute()
-            found += [codec.decode_object(i, fields) for i, fields in zip(batch, replies) if fields]
+                        pipe.hget(keys.object_key(map_id, object_id), "voxels")
+                    metas, *voxels = pipe.execute()
+            found += [
+                codec.decode_object(i, meta, blob) for i, meta, blob in zip(batch, metas, voxels) if meta is not None and blob is not None
+            ]
         return found
 
     def object_meta(self, map_id: str, ids: Sequence[int]) -> list[codec.ObjectMeta]:
-        """The objects' metadata without their voxels (cheap), in the order given; missing ids skipped."""
+        """The objects' metadata without their voxels (one read), in the order given; missing ids skipped."""
         ids = [int(i) for i in ids]
-        found = []
-        for start in range(0, len(ids), GET_BATCH):
-            batch = ids[start : start + GET_BATCH]
-            with self._boundary(f"object_meta on map {map_id}"):
-                with self.client.pipeline(transaction=False) as pipe:
-                    for object_id in batch:
-                        pipe.hmget(keys.object_key(map_id, object_id), codec.META_FIELDS)
-                    replies = pipe.execute()
-            for object_id, values in zip(batch, replies):
-                if values[codec.META_FIELDS.index("version")] is not None:
-                    fields = {name.encode(): v for name, v in zip(codec.META_FIELDS, values) if v is not None}
-                    found.append(codec.decode_meta(object_id, fields))
-        return found
+        if not ids:
+            return []
+        with self._boundary(f"object_meta on map {map_id}"):
+            metas = self.client.hmget(keys.meta_key(map_id), ids)
+        present = [(i, meta) for i, meta in zip(ids, metas) if meta is not None]
+        return codec.decode_metas([i for i, _ in present], [meta for _, meta in present])
 
     def list_meta(self, map_id: str) -> list[codec.ObjectMeta]:
-        """Metadata of every object of the map, by id."""
-        return self.object_meta(map_id, self._object_ids(map_id))
+        """Metadata of every object of the map (one read), by id."""
+        with self._boundary(f"list_meta on map {map_id}"):
+            metas = self.client.hgetall(keys.meta_key(map_id))
+        ordered = sorted((int(i), meta) for i, meta in metas.items())
+        return codec.decode_metas([i for i, _ in ordered], [meta for _, meta in ordered])
 
     def _object_ids(self, map_id: str) -> list[int]:
         with self._boundary(f"list on map {map_id}"):
@@ -303,19 +310,19 @@ class RedisStore:
             "upserts": [],
             "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
         }
-        payload: list[bytes | str] = []
+        payload: list[bytes] = []
         for obj in upserts:
             assert obj.bounds is not None
-            fields = codec.encode_object(obj, votes_f16=self.votes_f16)
             cells = " ".join(keys.cell_name(c) for c in self.cells_of(obj.bounds.min, obj.bounds.max))
-            fields["cells"] = cells.encode()
-            header["upserts"].append({"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells, "n_fields": len(fields)})
-            payload.append(codec.pack_box(obj.bounds))
-            for name, value in fields.items():
-                payload += [name, value]
+            header["upserts"].append({"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells})
+            payload += [
+                codec.pack_box(obj.bounds),
+                codec.encode_meta(obj),
+                codec.encode_voxels(obj.keys, obj.weights, obj.votes, votes_f16=self.votes_f16),
+            ]
         with self._boundary(f"commit on map {map_id}"):
             written = self._scripts["commit"](
-                keys=[keys.frames_key(map_id), keys.bounds_key(map_id)],
+                keys=[keys.frames_key(map_id), keys.bounds_key(map_id), keys.meta_key(map_id)],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
         return int(written) == 1
@@ -326,7 +333,7 @@ class RedisStore:
     def delete_map(self, map_id: str) -> int:
         with self._boundary(f"delete_map {map_id}"):
             removed = int(self._scripts["delete_map"](
-                keys=[keys.bounds_key(map_id), keys.frames_key(map_id), keys.ids_key(map_id)],
+                keys=[keys.bounds_key(map_id), keys.frames_key(map_id), keys.ids_key(map_id), keys.meta_key(map_id)],
                 args=[keys.map_prefix(map_id)],
             ))
             leftovers = list(self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT))

@@ -1,12 +1,13 @@
 -- Atomic commit of one step: check every fence, then write everything, or write nothing.
--- KEYS[1]: the map's processed-frames SET, KEYS[2]: the map's bounds HASH.
+-- KEYS[1]: the map's processed-frames SET, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH.
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
--- ARGV[2]: JSON {frame, leases: [[key, token]...], held: [id...], upserts: [{id, version, cells, n_fields}...],
---          deletes: [{id, version}...]} (ids and versions as decimal strings; frame "" for none).
--- ARGV[3..]: per upsert in order: its packed bounds, then n_fields pairs of (field, value) of its HASH.
+-- ARGV[2]: JSON {frame, leases: [[key, token]...], held: [id...], upserts: [{id, version, cells}...],
+--          deletes: [{id, version}...]} (ids and versions as decimal strings; frame "" for none;
+--          cells: "i:j:k i:j:k ..." the index cells of the object's bounds).
+-- ARGV[3..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
 -- Returns 1 (written), 0 (the frame was recorded before: nothing written), or an error "STALE ..."
 -- (a fence failed: nothing written).
-local frames_key, bounds_key = KEYS[1], KEYS[2]
+local frames_key, bounds_key, meta_key = KEYS[1], KEYS[2], KEYS[3]
 local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
 
@@ -61,6 +62,7 @@ local function unindex(id)
     end
   end
   redis.call('HDEL', bounds_key, id)
+  redis.call('HDEL', meta_key, id)
 end
 
 for _, d in ipairs(req.deletes) do
@@ -72,12 +74,13 @@ for _, u in ipairs(req.upserts) do
   local key = object_key(u.id)
   unindex(u.id)
   redis.call('DEL', key)
-  redis.call('HSET', key, unpack(ARGV, at + 1, at + 2 * u.n_fields))
+  redis.call('HSET', key, 'version', u.version, 'cells', u.cells, 'voxels', ARGV[at + 2])
   redis.call('HSET', bounds_key, u.id, ARGV[at])
+  redis.call('HSET', meta_key, u.id, ARGV[at + 1])
   for cell in string.gmatch(u.cells, '%S+') do
     redis.call('SADD', prefix .. ':cell:' .. cell, u.id)
   end
-  at = at + 1 + 2 * u.n_fields
+  at = at + 3
 end
 if req.frame ~= '' then
   redis.call('SADD', frames_key, req.frame)
