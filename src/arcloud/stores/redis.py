@@ -14,6 +14,9 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   all-or-nothing by one Lua script (in sorted order; never some held while waiting), retried with
   jittered exponential backoff until ``timeout_s`` (0: try once); released by a script that deletes
   only the keys still holding the lease's token.
+- Objects: a HASH per object (``version``: the fence, ``cells``: where it is indexed, ``voxels``: the
+  ``codec`` blob), the metadata JSON in one HASH per map (listing a map is one read), the bounds in
+  another. ``get`` of many ids is one MULTI/EXEC pipeline (a consistent snapshot).
 - ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
   expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
   mark, or writes nothing. A worker whose lock expired cannot overwrite newer data.
@@ -21,6 +24,11 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
 - ``delete_map``: a Lua script removes the objects, index, frames and counter atomically, then a SCAN
   of ``arcloud:{map}:*`` removes whatever else is left (leases still alive). Not atomic against writers
   of the same map that run at the same time.
+
+redis-py retries a command on connection errors and timeouts (its default policy). If a commit's
+reply is lost and the retry finds the commit already applied, it returns False (with a ``frame_key``:
+the frame is recorded) or raises ``StaleLease`` (without): the data was written once either way. The
+lock script is idempotent per token, so a retried acquire does not wait for itself.
 
 redis-py exceptions become ``arcloud.errors`` at this boundary: ``StoreUnavailable`` (connection,
 timeout), ``StaleLease`` (a fence failed), ``StoreError`` (anything else). The client (a connection
@@ -110,7 +118,8 @@ class RedisStore:
             try:
                 client = redis.Redis.from_url(url, socket_connect_timeout=5.0, socket_timeout=30.0)
             except ValueError as exc:
-                raise InvalidInput("url", "a redis:// or rediss:// or unix:// URL", url) from exc
+                scheme = url.split("://", 1)[0] if "://" in url else "none"
+                raise InvalidInput("url", "a redis://, rediss:// or unix:// URL", f"a URL with scheme {scheme!r}") from exc
             self._owns_client = True
         else:
             self._owns_client = False
