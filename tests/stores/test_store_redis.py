@@ -61,7 +61,7 @@ def test_delete_map_removes_every_key_of_the_map_and_no_other(redis_store: Redis
     assert [o.id for o in store.list_objects(other)] == [1]
 
 
-def test_store_on_another_map_prefix_and_key_templates() -> None:
+def test_key_templates() -> None:
     assert keys.map_prefix("m") == "arcloud:{m}"
     assert keys.object_key("m", 7) == "arcloud:{m}:obj:7"
     assert keys.cell_key("m", (-1, 0, 2)) == "arcloud:{m}:cell:-1:0:2"
@@ -69,6 +69,8 @@ def test_store_on_another_map_prefix_and_key_templates() -> None:
     assert keys.hash_tag("arcloud:{m}:lock:1") == "m"
     assert keys.hash_tag("arcloud:{}:x") == "arcloud:{}:x"  # an empty tag does not count
     assert keys.hash_tag(keys.INGEST_STREAM) == keys.INGEST_STREAM
+    assert keys.hash_tag(keys.ingest_accepted_key("m")) == keys.hash_tag(keys.ingest_failed_key("m")) == "m"
+    assert len({keys.INGEST_STREAM, keys.INGEST_DEAD_LETTER_STREAM, keys.INGEST_STATS, keys.INGEST_WORKERS}) == 4
 
 
 def test_a_server_that_is_down_raises_store_unavailable() -> None:

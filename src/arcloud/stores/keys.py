@@ -15,7 +15,17 @@ pattern ``map_pattern(map_id)`` and nothing else.
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
 
-Keys outside one map (the ingest stream of the service) start with ``arcloud:`` and have no map tag.
+    arcloud:{m}:ingest:accepted     SET     frame keys the service accepted for the map (``arcloud.service.ingest``)
+    arcloud:{m}:ingest:failed       SET     frame keys of the map that were dead-lettered
+
+Service-wide keys (no map tag; the durable ingest of ``arcloud.service.ingest``):
+
+    arcloud:ingest                  STREAM  frames to process (protobuf ``Frame`` bytes), one consumer group of workers
+    arcloud:ingest:dead             STREAM  frames given up on, with the reason
+    arcloud:ingest:stats            HASH    service-wide counters and the step latency histogram
+    arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
+
+``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too.
 """
 
 from __future__ import annotations
@@ -92,5 +102,16 @@ def hash_tag(key: str) -> str:
     return key
 
 
+def ingest_accepted_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:accepted"
+
+
+def ingest_failed_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:failed"
+
+
 # Service-wide keys (no map tag).
 INGEST_STREAM = f"{PREFIX}:ingest"
+INGEST_DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"
+INGEST_STATS = f"{INGEST_STREAM}:stats"
+INGEST_WORKERS = f"{INGEST_STREAM}:workers"
