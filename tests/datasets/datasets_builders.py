@@ -223,8 +223,9 @@ def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return pose
 
 
-def circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, *, eye_height_m, obstacles_xy=()):  # noqa: ANN001, ANN201
+def circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, *, eye_height_m, floor_z_m=0.0, obstacles_xy=()):  # noqa: ANN001, ANN201
     """A stand-in for ``plan_walk``: a circle of radius 2 m around the room centre, looking at it."""
+    eye_height_m = floor_z_m + eye_height_m
     centre = (np.asarray(floor_min_xy) + np.asarray(floor_max_xy)) / 2
     angles = seed * 0.7 + np.linspace(0, 2 * np.pi, n_frames, endpoint=False)
     eyes = [np.array([centre[0] + 2 * np.cos(a), centre[1] + 2 * np.sin(a), eye_height_m]) for a in angles]

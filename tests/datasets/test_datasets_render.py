@@ -20,8 +20,8 @@ SMALL = Intrinsics(120.0, 120.0, 79.5, 59.5)
 def test_room_layout_from_the_annotation(tmp_path: Path) -> None:
     scene = load_scannet_scene(build_room_scene(tmp_path))
     layout = room_layout(scene)
-    np.testing.assert_allclose(layout.floor_min_xy, [-2.8, -2.8], atol=0.15)
-    np.testing.assert_allclose(layout.floor_max_xy, [2.8, 2.8], atol=0.15)
+    np.testing.assert_allclose(layout.floor_min_xy, [-3.0, -3.0], atol=0.15)
+    np.testing.assert_allclose(layout.floor_max_xy, [3.0, 3.0], atol=0.15)
     assert layout.floor_z_m == pytest.approx(0.0, abs=0.05)
     obstacles = {tuple(np.round(np.r_[lo, hi], 2)) for lo, hi in layout.obstacles_xy}
     assert obstacles == {(-3.0, 3.0, 3.0, 3.1), (0.8, 0.8, 1.3, 1.3), (-1.6, -0.9, -0.4, -0.1)}  # wall, chair, table
@@ -55,7 +55,7 @@ def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
     assert rendered.n_frames == 12 and rendered.depth_intrinsics == pytest.approx(SMALL)
     # poses on disk are in the scan frame; the reader brings them back to the walk (aligned frame)
     layout = room_layout(scene)
-    walk1 = circle_walk(layout.floor_min_xy, layout.floor_max_xy, layout.targets, 6, 3 * 1000 + 1, eye_height_m=layout.floor_z_m + 1.5)
+    walk1 = circle_walk(layout.floor_min_xy, layout.floor_max_xy, layout.targets, 6, 3 * 1000 + 1, eye_height_m=1.5, floor_z_m=layout.floor_z_m)
     np.testing.assert_allclose(rendered.pose("7"), walk1[1], atol=1e-6)
     frame = rendered.load_frame("7")
     assert frame.rgb.shape == (120, 160, 3) and frame.depth_m.dtype == np.float32
@@ -100,3 +100,17 @@ def test_eval_on_a_rendered_scene_finds_the_ground_truth(tmp_path: Path) -> None
     assert rows[1]["map25_mean"] == pytest.approx(1.0)
     assert rows[2]["map25_mean"] == pytest.approx(1.0)
     assert exported == [(SCENE_ID, 1, 0), (SCENE_ID, 2, 0), (SCENE_ID, 2, 1)]
+
+
+def test_render_with_the_simulator_walk(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
+    scene_dir = render_scannet(scene, tmp_path / "render", users=2, frames_per_user=30, seed=1, width=80, height=60)
+    rendered = load_scannet_scene(scene_dir)
+    record = json.loads((scene_dir / "render.json").read_text())
+    assert rendered.n_frames == record["frames"] == 60 - record["dropped"] >= 50
+    eyes = rendered.cam2world[:, :3, 3]
+    assert np.all(np.abs(eyes[:, :2]) < 3.0) and np.all((eyes[:, 2] > 1.2) & (eyes[:, 2] < 1.8))  # inside, at eye height
+    assert not np.allclose(rendered.cam2world[0], rendered.cam2world[30])  # two users, two walks
+    detector = GroundTruthMaskDetector(rendered, min_mask_px=10)
+    seen = {d.label for name in rendered.frame_names for d in detector.detect(rendered.load_frame(name))}
+    assert seen == {"chair", "table"}

@@ -45,6 +45,7 @@ def test_frames_are_at_depth_size_with_colour_resized(tiny_scannet: TinyScanNet)
     scene = load_scannet_scene(tiny_scannet.scene_dir)
     frames = list(scene.frames())
     assert [f.frame_id for f in frames] == ["0", "2", "10"]
+    assert [f.timestamp_s for f in frames] == pytest.approx([0.0, 2 / 30, 10 / 30])  # file numbers are 30 Hz frames
     frame = frames[1]
     assert frame.rgb.shape == (DEPTH_WH[1], DEPTH_WH[0], 3) and frame.depth_m.shape == (DEPTH_WH[1], DEPTH_WH[0])
     # left half red, right half blue survives the 2x downsizing

@@ -70,7 +70,7 @@ def _is_structure(raw: str, nyu40: int) -> bool:
     return raw.strip().lower() in STRUCTURE_RAW or nyu40 in (FLOOR_NYU40, CEILING_NYU40, WALL_NYU40)
 
 
-def room_layout(scene: ScanNetScene, *, band_m: tuple[float, float] = (0.1, 1.9), margin_m: float = 0.2) -> RoomLayout:
+def room_layout(scene: ScanNetScene, *, band_m: tuple[float, float] = (0.1, 1.9), margin_m: float = 0.0) -> RoomLayout:
     """The floor, obstacles and targets of an annotated scene (see the module docstring)."""
     vertices = aligned_vertices(scene)
     floors = [i for i in scene.instances if i.nyu40_id == FLOOR_NYU40 or i.raw_category.lower() == "floor"]
@@ -210,7 +210,7 @@ def render_scannet(
         for user in range(users):
             poses = walk(
                 layout.floor_min_xy, layout.floor_max_xy, layout.targets, frames_per_user, seed * 1000 + user,
-                eye_height_m=layout.floor_z_m + eye_height_m, obstacles_xy=layout.obstacles_xy,
+                eye_height_m=eye_height_m, floor_z_m=layout.floor_z_m, obstacles_xy=layout.obstacles_xy,
             )  # fmt: skip
             first = index
             for cam2world in poses:

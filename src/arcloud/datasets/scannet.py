@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -43,6 +44,9 @@ from arcloud.datasets.files import (
     read_rgb,
 )
 from arcloud.errors import DatasetError, InvalidInput
+
+if TYPE_CHECKING:
+    from arcloud.eval.metrics import Box3D
 
 logger = logging.getLogger(__name__)
 
@@ -239,13 +243,12 @@ class ScanNetScene:
             raise DatasetError(f"{self.root}: expected depth intrinsics (intrinsic/ or {self.scene_id}.txt), got none")
         depth_mm = read_png_u16(self.root / "depth" / f"{name}.png")
         rgb = read_rgb(self.root / "color" / f"{name}.jpg", (depth_mm.shape[1], depth_mm.shape[0]))
-        index = self._index.get(name)
         return make_frame(
             rgb,
             depth_mm,
             self.depth_intrinsics,
             self.pose(name),
-            timestamp_s=(index if index is not None else 0) / FRAME_RATE_HZ,
+            timestamp_s=max(natural_key(name)[0], 0) / FRAME_RATE_HZ,  # file numbers count 30 Hz frames
             map_id=self.scene_id,
             device_id=device_id or self.device_id,
             frame_id=name,
@@ -258,7 +261,7 @@ class ScanNetScene:
         for name in names[:limit]:
             yield self.load_frame(name)
 
-    def gt_boxes(self) -> list:
+    def gt_boxes(self) -> list[Box3D]:
         """The ground truth as ``arcloud.eval.metrics.Box3D`` (score 1), one per object of our classes."""
         from arcloud.eval.metrics import Box3D
 
