@@ -51,15 +51,22 @@ class RedisServer:
                 [
                     path, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
                     "--dir", workdir.name, "--daemonize", "no", "--loglevel", "warning",
+                    "--logfile", str(Path(workdir.name) / "redis.log"),
                 ],
                 stdout=subprocess.DEVNULL,
-                stderr=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
             )
             server = cls(process, port, workdir)
             if server._wait_ready():
                 return server
+            log_tail = server.log_tail()
             server.stop()
-        raise RuntimeError(f"redis-server did not answer PING within {START_TIMEOUT_S} s (3 attempts)")
+        raise RuntimeError(f"redis-server did not answer PING within {START_TIMEOUT_S} s (3 attempts); its log ends:\n{log_tail}")
+
+    def log_tail(self, n_lines: int = 20) -> str:
+        """The last lines of the server's log."""
+        log = Path(self.workdir.name) / "redis.log"
+        return "\n".join(log.read_text(errors="replace").splitlines()[-n_lines:]) if log.exists() else "(no log)"
 
     def _wait_ready(self) -> bool:
         deadline = time.monotonic() + START_TIMEOUT_S
@@ -86,8 +93,6 @@ class RedisServer:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
-        if self.process.stderr is not None:
-            self.process.stderr.close()
         self.workdir.cleanup()
 
     def __enter__(self) -> RedisServer:
@@ -95,7 +100,3 @@ class RedisServer:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-
-    @property
-    def workdir_path(self) -> Path:
-        return Path(self.workdir.name)
