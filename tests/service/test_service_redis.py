@@ -158,7 +158,11 @@ def test_a_killed_workers_frame_is_claimed_by_another(deployment: Deployment) ->
 
 
 def test_workers_stop_gracefully_after_the_frame_in_hand(deployment: Deployment) -> None:
-    wait_until(lambda: len(live_workers(deployment.redis, 3.0)) >= 2, 60, "the new worker reading")
+    def current_workers_reading() -> bool:
+        live = {w.rsplit("-", 1)[1] for w in live_workers(deployment.redis, 3.0)}
+        return {str(p.pid) for p in deployment.pool.processes} <= live
+
+    wait_until(current_workers_reading, 60, "the replacement worker reading")
     assert deployment.api.get("/readyz").json()["checks"]["workers"] == "ok"
     deployment.post("r5", SLOW_FRAME)
     wait_until(lambda: deployment.holder_pid() is not None, 20, "a worker to take the slow frame", 0.01)
