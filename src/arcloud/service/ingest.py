@@ -38,29 +38,22 @@ from arcloud.core.step import process_frame
 from arcloud.core.types import Frame, Params
 from arcloud.errors import ArcloudError, LockTimeout, StaleLease, StoreUnavailable
 from arcloud.ports import Detector, ObjectStore, UpdatePublisher
-from arcloud.stores.keys import INGEST_STREAM, map_prefix
+from arcloud.stores import keys
+from arcloud.stores.keys import INGEST_STREAM
 
 if TYPE_CHECKING:
     import redis
 
 log = logging.getLogger(__name__)
 
-# --- Redis keys of the ingest. TODO(keys): move these templates into arcloud.stores.keys -------------
-DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"  # STREAM  frames given up on, with the reason
-INGEST_STATS = f"{INGEST_STREAM}:stats"  # HASH    service-wide counters and the step latency histogram
-WORKERS = f"{INGEST_STREAM}:workers"  # HASH    consumer name -> last heartbeat (Unix seconds)
+# --- Redis keys of the ingest (templates in arcloud.stores.keys) --------------------------------------
+DEAD_LETTER_STREAM = keys.INGEST_DEAD_LETTER_STREAM  # STREAM  frames given up on, with the reason
+INGEST_STATS = keys.INGEST_STATS  # HASH    service-wide counters and the step latency histogram
+WORKERS = keys.INGEST_WORKERS  # HASH    consumer name -> last heartbeat (Unix seconds)
+accepted_key = keys.ingest_accepted_key  # SET of the frame keys accepted for a map (map's hash tag)
+failed_key = keys.ingest_failed_key  # SET of the frame keys of a map that were dead-lettered
 HEARTBEAT_S = 1.0  # how often a worker writes its heartbeat
 LIVE_WORKER_S = 10.0  # a worker whose heartbeat is older is presumed gone
-
-
-def accepted_key(map_id: str) -> str:
-    """SET of the frame keys accepted for a map (under the map's hash tag)."""
-    return f"{map_prefix(map_id)}:ingest:accepted"
-
-
-def failed_key(map_id: str) -> str:
-    """SET of the frame keys of a map that were dead-lettered."""
-    return f"{map_prefix(map_id)}:ingest:failed"
 
 
 #: Upper bounds (seconds) of the step latency histogram's buckets (+Inf implied).
