@@ -17,7 +17,7 @@ from redis_server import free_port
 from store_cases import MAP, make_object, step_frame
 
 from arcloud.core.step import integrate_frame
-from arcloud.core.types import Params
+from arcloud.core.types import AABB, Params
 from arcloud.errors import InvalidInput, StaleLease, StoreUnavailable
 from arcloud.stores import keys
 from arcloud.stores.memory import MemoryStore
@@ -130,6 +130,10 @@ def test_commit_checks_leases_belong_to_the_map(redis_store: RedisStore) -> None
     lease.release()
     with pytest.raises(InvalidInput, match="bounds"):
         redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0)).replace(bounds=None)], [])
+    huge = make_object(1, (0.0, 0, 0)).replace(bounds=AABB(np.zeros(3), np.full(3, 1000.0)))  # a stray voxel 1 km away
+    with pytest.raises(InvalidInput, match="index cells"):
+        redis_store.commit(MAP, [], [huge], [])
+    assert redis_store.list_objects(MAP) == []
 
 
 def test_stale_errors_say_what_failed(redis_store: RedisStore) -> None:
@@ -159,7 +163,7 @@ import json, sys, time
 sys.path.insert(0, sys.argv[1])
 from store_cases import step_frame
 from arcloud.core.step import integrate_frame
-from arcloud.core.types import Params
+from arcloud.core.types import AABB, Params
 from arcloud.stores.redis import RedisStore
 
 url, device = sys.argv[2], int(sys.argv[3])

@@ -61,6 +61,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_URL = "redis://127.0.0.1:6379/0"
 MAX_QUERY_CELLS = 4096  # larger query boxes read the bounds HASH instead of the cells
+MAX_OBJECT_CELLS = 100_000  # an object whose bounds touch more index cells is refused (stray far voxels)
 SCAN_CELLS_PER_OBJECT = 2  # a box of more cells than this many per object reads the bounds HASH (cheaper)
 BACKOFF_MIN_S = 0.002
 BACKOFF_MAX_S = 0.05
@@ -183,16 +184,24 @@ class RedisStore:
         c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m).astype(np.int64)
         return list(itertools.product(*(range(int(a), int(b) + 1) for a, b in zip(c_lo, c_hi))))  # type: ignore[arg-type]
 
+    def _n_cells(self, lo: np.ndarray, hi: np.ndarray) -> float:
+        """How many index cells the box [lo, hi] touches (inf when unbounded)."""
+        with np.errstate(invalid="ignore", over="ignore"):
+            c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m)
+            c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m)
+        if not np.all(np.isfinite([c_lo, c_hi])):
+            return math.inf
+        return math.prod(max(0, int(b - a + 1)) for a, b in zip(c_lo, c_hi))
+
     def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         lo = _vec3("lo", lo)
         hi = _vec3("hi", hi)
         if np.any(lo > hi):
             return {}
-        with np.errstate(invalid="ignore", over="ignore"):
-            c_lo, c_hi = np.floor(lo / self.cell_m), np.floor(hi / self.cell_m)
-        n_cells = math.prod(int(b - a + 1) for a, b in zip(c_lo, c_hi)) if np.all(np.isfinite([c_lo, c_hi])) else math.inf
+        n_cells = self._n_cells(lo, hi)
         with self._boundary(f"query_region on map {map_id}"):
             if n_cells <= self.max_query_cells:
+                c_lo, c_hi = np.floor(lo / self.cell_m), np.floor(hi / self.cell_m)
                 ranges = [int(c) for pair in zip(c_lo, c_hi) for c in pair]  # i0 i1 j0 j1 k0 k1
                 flat = self._scripts["query"](
                     keys=[keys.bounds_key(map_id)], args=[keys.map_prefix(map_id), *ranges, SCAN_CELLS_PER_OBJECT]
@@ -312,6 +321,12 @@ class RedisStore:
         for obj in upserts:
             if obj.bounds is None:
                 raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
+            n_cells = self._n_cells(obj.bounds.min, obj.bounds.max)
+            if n_cells > MAX_OBJECT_CELLS:
+                raise InvalidInput(
+                    f"object {obj.id}.bounds", f"at most {MAX_OBJECT_CELLS} index cells of {self.cell_m} m",
+                    f"{n_cells} cells ({obj.bounds.min} to {obj.bounds.max})",
+                )
         header: dict[str, Any] = {
             "frame": frame_key or "",
             "leases": [[key, lease.token] for lease in leases for key in lease.keys],
