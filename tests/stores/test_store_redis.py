@@ -215,3 +215,19 @@ def test_two_processes_share_one_map(redis_store: RedisStore, redis_server) -> N
     assert redis_store.is_frame_done(MAP, frame.key)
     # the step replayed in this process is idempotent
     assert integrate_frame(frame, step_frame(0, 0)[1], redis_store, Params()).skipped
+
+
+def test_index_cells_hold_exactly_the_current_objects(redis_store: RedisStore) -> None:
+    store = redis_store
+    a, b = make_object(1, (0.1, 0.1, 0.1)), make_object(2, (0.9, 0.9, 0.0))  # b spans 8 cells
+    store.commit(MAP, [], [a, b], [])
+
+    def index() -> dict[str, set[int]]:
+        cells = store.client.scan_iter(match=keys.cell_key(MAP, (0, 0, 0)).rsplit(":", 3)[0] + ":*")
+        return {k.decode().split(":cell:")[1]: {int(i) for i in store.client.smembers(k)} for k in cells}
+
+    assert index() == {"0:0:0": {1, 2}, "1:0:0": {2}, "0:1:0": {2}, "1:1:0": {2}}
+    with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0) as lease:
+        store.commit(MAP, [lease], [make_object(1, (-0.2, 0.1, 0.1), version=2)], [b])  # now spans x = -0.2..0.1
+    assert index() == {"-1:0:0": {1}, "0:0:0": {1}}
+    assert store.client.hkeys(keys.bounds_key(MAP)) == [b"1"] and store.client.hkeys(keys.meta_key(MAP)) == [b"1"]
