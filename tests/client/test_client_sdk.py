@@ -1,0 +1,96 @@
+"""The SDK against a real uvicorn server on loopback: blocking and asyncio clients, errors, waiting,
+and the Zenoh subscription."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from svc_helpers import BlobDetector, UvicornThread, free_port, make_test_frame
+
+from arcloud.client import ArcloudClient, AsyncArcloudClient, ServiceError
+from arcloud.service.app import create_app
+from arcloud.service.settings import Settings
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[tuple[str, str]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = Settings(detector="sim:0", workers=2, zenoh_mode="peer", zenoh_listen=[endpoint])
+    with UvicornThread(create_app(settings, detector=BlobDetector())) as running:
+        yield running.url, endpoint
+
+
+def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
+    url, endpoint = server
+    events: list[object] = []
+    lock = threading.Lock()
+
+    def on_event(event: object) -> None:
+        with lock:
+            events.append(event)
+
+    with ArcloudClient(url) as client:
+        subscription = client.subscribe("c1", on_event, [endpoint])
+        try:
+            time.sleep(0.5)
+            assert client.send_frame(make_test_frame(0, map_id="c1")) == {"map_id": "c1", "device_id": "d", "frame_id": "f000000", "status": "queued"}
+            frame = make_test_frame(1, map_id="c1")
+            depth_mm = np.rint(frame.depth_m * 1000).astype(np.uint16)
+            sent = client.send_frame(map_id="c1", rgb=frame.rgb, depth=depth_mm, intrinsics=(130.0, 130.0, 79.5, 59.5),
+                                     cam2world=frame.cam2world, timestamp_s=1.0, device_id="d2", frame_id="x1", depth_scale=1000.0)
+            assert sent["status"] == "queued" and sent["device_id"] == "d2"
+            stats = client.wait_until_processed("c1", 2, timeout_s=20)
+            assert stats["frames"] == {"accepted": 2, "processed": 2, "failed": 0, "pending": 0}
+            deadline = time.monotonic() + 10
+            while len(events) < 2 and time.monotonic() < deadline:
+                time.sleep(0.02)
+        finally:
+            subscription.close()
+        assert len(events) == 2 and events[0].map_id == "c1"  # type: ignore[attr-defined]
+
+        (obj,) = client.list_objects("c1")
+        assert obj["n_devices"] == 2 and obj["n_frames"] == 2
+        assert client.list_objects("c1", label="tv") == []
+        assert client.list_objects("c1", bbox=(*obj["aabb"]["min"], *obj["aabb"]["max"]))[0]["id"] == obj["id"]
+        detail = client.get_object("c1", obj["id"], voxels=True)
+        assert len(detail["voxels"]["centers"]) == obj["n_voxels"]
+
+        with pytest.raises(ServiceError) as refused:
+            client.send_frame(make_test_frame(2, map_id="other"), map_id="c1")  # body and path disagree
+        assert refused.value.status == 422 and refused.value.field == "map_id"
+        with pytest.raises(ServiceError) as missing:
+            client.get_object("c1", 12345)
+        assert missing.value.status == 404
+        with pytest.raises(TimeoutError, match="not processed"):
+            client.wait_until_processed("c1", 3, timeout_s=0.3)
+        assert client.delete_map("c1") == {"map_id": "c1", "deleted_objects": 1}
+        with pytest.raises(ServiceError) as gone:
+            client.stats("c1")
+        assert gone.value.status == 404
+
+
+def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
+    url, _ = server
+
+    async def run() -> tuple[list[dict], dict, list[dict]]:
+        async with AsyncArcloudClient(url) as client:
+            async def user(k: int) -> list[dict]:
+                return [await client.send_frame(make_test_frame(i, map_id="c2", device_id=f"user-{k}")) for i in range(k * 3, k * 3 + 3)]
+
+            answers = [a for batch in await asyncio.gather(*(user(k) for k in range(3))) for a in batch]
+            stats = await client.wait_until_processed("c2", 9, timeout_s=30)
+            objects = await client.list_objects("c2", min_score=0.0)
+            with pytest.raises(ServiceError):
+                await client.get_object("c2", 999)
+            await client.delete_map("c2")
+            return answers, stats, objects
+
+    answers, stats, objects = asyncio.run(run())
+    assert [a["status"] for a in answers] == ["queued"] * 9
+    assert stats["frames"]["processed"] == 9
+    assert len(objects) == 1 and objects[0]["n_devices"] == 3
