@@ -26,11 +26,10 @@ from __future__ import annotations
 
 import bisect
 import logging
-import math
 import queue
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
@@ -451,20 +450,6 @@ class _redis_errors:
         if isinstance(exc, (redis_lib.ConnectionError, redis_lib.TimeoutError)):
             raise StoreUnavailable(f"cannot {self.doing}: Redis unreachable ({exc})") from exc
         return False
-
-
-def percentile_from_buckets(counts: Sequence[int], q: float) -> float:
-    """Upper bound of the bucket holding quantile ``q`` of a histogram (``inf`` in the last bucket)."""
-    total = sum(counts)
-    if total == 0:
-        return math.nan
-    target = q * total
-    running = 0
-    for bucket, count in enumerate(counts):
-        running += count
-        if running >= target:
-            return LATENCY_BUCKETS_S[bucket] if bucket < len(LATENCY_BUCKETS_S) else math.inf
-    return math.inf
 
 
 __all__ = [

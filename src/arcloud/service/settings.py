@@ -116,7 +116,9 @@ class Settings(BaseSettings):
     def _check_params(cls, value: dict[str, Any]) -> dict[str, Any]:
         checked: dict[str, Any] = {}
         for name, item in value.items():
-            if name not in _PARAMS_TYPES or name in _PARAMS_OWN:
+            if name in _PARAMS_OWN:
+                raise ValueError(f"parameter {name}: set it as its own setting (ARCLOUD_{name.upper()}), not in params")
+            if name not in _PARAMS_TYPES:
                 known = sorted(set(_PARAMS_TYPES) - _PARAMS_OWN)
                 raise ValueError(f"unknown parameter {name!r}; expected one of {', '.join(known)}")
             checked[name] = _coerce_param(name, item)

@@ -1,0 +1,66 @@
+"""`arcloud replay` against a real embedded service running the simulator's detector, and the CLI wiring."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+from svc_helpers import UvicornThread
+
+from arcloud.core.types import Intrinsics, Params
+from arcloud.eval.metrics import Box3D, evaluate
+from arcloud.eval.protocol import object_boxes, run_map
+from arcloud.service.app import create_app
+from arcloud.service.cli import add_service_commands, settings_from_args
+from arcloud.service.settings import Settings
+
+pytestmark = pytest.mark.slow
+
+
+def parser() -> argparse.ArgumentParser:
+    root = argparse.ArgumentParser(prog="arcloud")
+    add_service_commands(root.add_subparsers(dest="command", required=True))
+    return root
+
+
+def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from arcloud.sim.detector import SimulatedDetector
+    from arcloud.sim.room import generate_room
+    from arcloud.sim.sequence import gt_boxes, simulate_sequence
+
+    out = tmp_path / "deep" / "results.json"
+    with UvicornThread(create_app(Settings(detector="sim:0", workers=2))) as server:
+        args = parser().parse_args(["replay", "--url", server.url, "--map", "room", "--users", "3", "--seed", "0", "--frames", "24",
+                                    "--width", "160", "--out", str(out), "--no-progress"])
+        assert args.handler(args) == 0
+    results = json.loads(out.read_text())
+    (row,) = results["table1"]
+    assert {k: row[k] for k in ("approach", "users", "runs", "map25_var", "map50_var")} == {
+        "approach": "distributed", "users": 3, "runs": 1, "map25_var": 0.0, "map50_var": 0.0}
+    assert results["frames"] == {"sent": 24, "accepted": 24, "duplicate": 0, "processed": 24, "failed": 0}
+    assert 0.0 < row["map50_mean"] <= row["map25_mean"] <= 1.0
+    assert "mAP@0.25" in capsys.readouterr().out
+
+    # The same frames in order, in process (the centralized run): the service's map scores the same.
+    room = generate_room(0)
+    frames = simulate_sequence(room, n_frames=24, seed=0, width=160, height=120, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5))
+    objects = run_map(frames, SimulatedDetector(room, seed=0), Params(), users=1)
+    centralized = evaluate({"s": object_boxes(objects)}, {"s": [Box3D(label, lo, hi) for label, lo, hi in gt_boxes(room)]})
+    assert row["map25_mean"] == pytest.approx(centralized.map_at(0.25), abs=0.1)
+    assert results["objects"] == pytest.approx(len(objects), abs=2)
+
+
+def test_cli_options_become_settings(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ARCLOUD_LOCK_TTL_S", "4.5")
+    args = parser().parse_args(["serve", "--redis", "redis://127.0.0.1:6390/2", "--workers", "3", "--detector", "sim:7",
+                                "--zenoh-listen", "tcp/127.0.0.1:7447", "--zenoh-listen", "tcp/127.0.0.1:7448"])
+    settings = settings_from_args(args)
+    assert (settings.store, settings.workers, settings.detector, settings.lock_ttl_s) == ("redis://127.0.0.1:6390/2", 3, "sim:7", 4.5)
+    assert settings.zenoh_mode == "peer" and settings.zenoh_listen == ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:7448"]
+    assert (args.host, args.port) == ("127.0.0.1", 8000)
+    worker = parser().parse_args(["worker", "--redis", "redis://r:6379/0", "--zenoh-connect", "tcp/zenoh:7447", "--zenoh-mode", "client"])
+    assert settings_from_args(worker).zenoh_connect == ["tcp/zenoh:7447"]
+    with pytest.raises(SystemExit):
+        parser().parse_args(["replay", "--users", "0"])

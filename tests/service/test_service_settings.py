@@ -1,0 +1,69 @@
+"""Settings: read from ARCLOUD_* variables, checked up front, secrets never shown."""
+
+from __future__ import annotations
+
+import pytest
+from pydantic import ValidationError
+
+from arcloud.service.ingest import LATENCY_BUCKETS_S, latency_bucket, latency_field, parse_stats
+from arcloud.service.settings import Settings, redact_url
+
+
+def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ARCLOUD_STORE", "redis://127.0.0.1:6379/3")
+    monkeypatch.setenv("ARCLOUD_WORKERS", "4")
+    monkeypatch.setenv("ARCLOUD_DETECTOR", "sim:5")
+    monkeypatch.setenv("ARCLOUD_ZENOH_MODE", "peer")
+    monkeypatch.setenv("ARCLOUD_ZENOH_LISTEN", "tcp/0.0.0.0:7447, tcp/0.0.0.0:7448")
+    monkeypatch.setenv("ARCLOUD_ZENOH_CONNECT", '["tcp/zenoh:7447"]')
+    monkeypatch.setenv("ARCLOUD_PARAMS", '{"voxel_size_m": 0.04, "class_aware": true, "up": [0, 1, 0]}')
+    monkeypatch.setenv("ARCLOUD_LOG_LEVEL", "debug")
+    monkeypatch.setenv("ARCLOUD_MODEL", "ignored.onnx")  # another component's variable: not a setting
+    settings = Settings()
+    assert settings.store == "redis://127.0.0.1:6379/3" and not settings.embedded and settings.workers == 4
+    assert settings.zenoh_listen == ["tcp/0.0.0.0:7447", "tcp/0.0.0.0:7448"] and settings.zenoh_connect == ["tcp/zenoh:7447"]
+    assert settings.log_level == "DEBUG"
+    params = settings.make_params()
+    assert params.voxel_size_m == 0.04 and params.class_aware is True and params.up == (0.0, 1.0, 0.0)
+    assert params.lock_ttl_s == settings.lock_ttl_s
+
+
+@pytest.mark.parametrize(
+    ("changes", "says"),
+    [
+        ({"store": "postgres://db"}, "expected `memory` or a URL"),
+        ({"detector": "yolo:x"}, "PREFIX one of"),
+        ({"detector": "sim:-1"}, "sim:SEED"),
+        ({"workers": 0}, "workers: expected >= 1 with the memory store"),
+        ({"params": {"voxel": 0.1}}, "unknown parameter 'voxel'"),
+        ({"params": {"erode_px": 1.5}}, "expected an integer"),
+        ({"params": {"lock_ttl_s": 3}}, "ARCLOUD_LOCK_TTL_S"),  # a setting of its own
+        ({"zenoh_mode": "client"}, "needs at least one endpoint"),
+        ({"zenoh_frames": True}, "needs zenoh_mode"),
+        ({"max_frame_bytes": 10}, "max_frame_bytes"),
+        ({"colour": "red"}, "colour"),
+    ],
+)
+def test_wrong_settings_fail_at_once_naming_the_field(changes: dict, says: str) -> None:
+    with pytest.raises(ValidationError, match=says):
+        Settings(**changes)
+
+
+def test_secrets_are_masked() -> None:
+    settings = Settings(store="redis://user:s3cret@redis.internal:6380/1", workers=0)
+    for text in (repr(settings), str(settings), str(settings.redacted())):
+        assert "s3cret" not in text and "user:***@redis.internal:6380" in text
+    assert settings.store.endswith("s3cret@redis.internal:6380/1")  # the real value is still there to connect
+    with pytest.raises(ValidationError) as error:
+        Settings(store="mysql://root:s3cret@db")
+    assert "s3cret" not in str(error.value)
+    assert redact_url("redis://:pw@h:1/0") == "redis://:***@h:1/0" and redact_url("redis://h:1/0") == "redis://h:1/0"
+
+
+def test_latency_buckets_and_stats_parsing() -> None:
+    assert latency_bucket(0.0) == 0 and latency_bucket(LATENCY_BUCKETS_S[0]) == 0  # upper bounds are inclusive
+    assert latency_bucket(0.0051) == 1 and latency_bucket(1e9) == len(LATENCY_BUCKETS_S)
+    raw = {b"processed": b"3", b"failed": b"1", latency_field(1): b"2", latency_field(len(LATENCY_BUCKETS_S)): b"1", b"latency_sum_s": b"99.5"}
+    snap = parse_stats(raw)
+    assert (snap.processed, snap.failed, snap.accepted, snap.latency_count, snap.latency_sum_s) == (3, 1, 0, 3, 99.5)
+    assert snap.latency_counts[1] == 2 and snap.latency_counts[-1] == 1
