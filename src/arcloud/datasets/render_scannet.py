@@ -3,7 +3,8 @@
 The room comes from the mesh and its annotation, in the scene's aligned frame (z up): the free floor is
 the extent of the ``floor`` instance, the obstacles are the floor-plan boxes of every other annotated
 instance that stands in the height band a person walks through (walls included), and the targets the
-users look at are the centres of the objects of arcloud's classes and of the other furniture. Each user
+users look at are the centres of the objects of arcloud's classes (and of the other furniture when the
+scene has fewer than three of those). Each user
 walks one ``arcloud.sim.trajectory.plan_walk`` path; the users' frames follow one another in one
 sequence (user u has frames ``u * N .. u * N + N - 1``), so the distributed protocol with K users cuts
 it back into the users' walks.
@@ -70,8 +71,12 @@ def _is_structure(raw: str, nyu40: int) -> bool:
     return raw.strip().lower() in STRUCTURE_RAW or nyu40 in (FLOOR_NYU40, CEILING_NYU40, WALL_NYU40)
 
 
-def room_layout(scene: ScanNetScene, *, band_m: tuple[float, float] = (0.1, 1.9), margin_m: float = 0.0) -> RoomLayout:
-    """The floor, obstacles and targets of an annotated scene (see the module docstring)."""
+def room_layout(
+    scene: ScanNetScene, *, band_m: tuple[float, float] = (0.1, 1.9), margin_m: float = 0.0, min_targets: int = 3
+) -> RoomLayout:
+    """The floor, obstacles and targets of an annotated scene (see the module docstring): the targets are
+    the centres of the objects of our classes, joined by the other furniture when fewer than
+    ``min_targets``."""
     vertices = aligned_vertices(scene)
     floors = [i for i in scene.instances if i.nyu40_id == FLOOR_NYU40 or i.raw_category.lower() == "floor"]
     if floors:
@@ -96,7 +101,9 @@ def room_layout(scene: ScanNetScene, *, band_m: tuple[float, float] = (0.1, 1.9)
             targets.append(inst.center)
         elif not _is_structure(inst.raw_category, inst.nyu40_id):
             other_targets.append(inst.center)
-    all_targets = np.array(targets + other_targets, dtype=np.float64).reshape(-1, 3)
+    # Look at the objects of our classes; at other furniture too only when there are too few of ours.
+    chosen = targets if len(targets) >= min_targets else targets + other_targets
+    all_targets = np.array(chosen, dtype=np.float64).reshape(-1, 3)
     if all_targets.shape[0] == 0:
         all_targets = np.array([[*(lo + hi) / 2, floor_z + 0.8]])
     return RoomLayout(lo, hi, floor_z, tuple(obstacles), all_targets)
@@ -203,7 +210,7 @@ def render_scannet(
 
     from tqdm import tqdm
 
-    record: dict[str, object] = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "user_frames": []}
+    user_frames: list[tuple[int, int]] = []  # [first, stop) frame numbers of each user
     dropped, index = 0, 0
     pending: list[Future[None]] = []
     with ThreadPoolExecutor(max_workers=2) as writer, tqdm(total=users * frames_per_user, disable=not progress, desc="render", unit="frame") as bar:
@@ -224,13 +231,15 @@ def render_scannet(
                 instance = np.where(result.instance < len(lookup), result.instance, 0)
                 pending.append(writer.submit(_write_frame, scene_dir, name, result.rgb, result.depth_m,
                                              instance.astype(instance_dtype), lookup[instance], aligned2scan @ cam2world))  # fmt: skip
-            record["user_frames"].append([first, index])  # type: ignore[union-attr]
+            user_frames.append((first, index))
             for future in pending:
                 future.result()
             pending.clear()
     if dropped:
         logger.warning("scene %s: dropped %d of %d frames that saw too little surface", scene.scene_id, dropped, users * frames_per_user)
-    (scene_dir / "render.json").write_text(json.dumps({**record, "frames": index, "dropped": dropped}, indent=1))
+    record = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "walk_seeds": [seed * 1000 + u for u in range(users)],
+              "user_frames": user_frames, "frames": index, "dropped": dropped}  # fmt: skip
+    (scene_dir / "render.json").write_text(json.dumps(record, indent=1))
     logger.info("rendered %d frames of %s by %d users into %s", index, scene.scene_id, users, scene_dir)
     return scene_dir
 
