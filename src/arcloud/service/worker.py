@@ -347,3 +347,36 @@ class WorkerPool:
 
 
 __all__ = ["StreamWorker", "WorkerPool", "consumer_name", "decode_frame", "run_worker", "worker_publisher"]
+
+
+def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0) -> bool:
+    """Whether a worker on ``host`` (default: this one) wrote a heartbeat in the last ``max_age_s``."""
+    import redis as redis_lib
+
+    from arcloud.service.ingest import live_workers
+
+    prefix = f"{host or socket.gethostname()}-"
+    with redis_lib.Redis.from_url(settings.store, socket_connect_timeout=3.0, socket_timeout=3.0) as client:
+        return any(name.startswith(prefix) for name in live_workers(client, max_age_s))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m arcloud.service.worker``: one worker from ``ARCLOUD_*`` settings until SIGTERM;
+    ``--healthcheck``: exit 0 when a worker of this host is alive (container health checks)."""
+    import argparse
+
+    from arcloud.service.settings import Settings
+
+    parser = argparse.ArgumentParser(prog="python -m arcloud.service.worker", description=main.__doc__)
+    parser.add_argument("--healthcheck", action="store_true", help="check this host's worker heartbeat and exit")
+    args = parser.parse_args(argv)
+    settings = Settings()
+    if args.healthcheck:
+        return 0 if healthy(settings) else 1
+    configure_logging(settings.log_level)
+    run_worker(settings)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

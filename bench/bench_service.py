@@ -1,0 +1,329 @@
+"""Throughput and latency through the service on Redis with 1 and 2 worker processes, against the
+in-process step.
+
+Frames: a simulated walk (``generate_room(seed)``, 640x480 by default) uploaded as protobuf (JPEG colour,
+16-bit PNG depth) to a real API (uvicorn on 127.0.0.1, in this process) whose Redis store and stream run
+on a throwaway redis-server; the API starts ``--workers`` worker processes running ``sim:SEED`` (the
+simulator's detector, which ray-casts each frame's instance image: the detector cost of the step).
+
+For each worker count: warm-up frames on another map (workers loaded), then ``--rounds`` bursts: all
+frames posted at once by 4 concurrent uploaders (bodies encoded beforehand: the client's cost is not
+counted) to a new map each; throughput = frames / (last completion - first post), median over bursts.
+Then latency: the frames posted at a steady ``--paced`` fraction (0.7) of that throughput; latency =
+completion - post (p50, p99), completion seen by polling the store's processed-frames set every 10 ms.
+
+In process: ``process_frame`` on the same frames, one after another, with a fresh detector (no cached
+renders, like the service's workers), on the embedded store and on the same Redis.
+
+Targets on 2 cores: 2 workers >= 1.7x the throughput of 1; the service's time per frame with one
+worker <= 1.25x the in-process step's (Redis store).
+
+    .venv/bin/python bench/bench_service.py [--frames 80] [--out bench/results/service.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import dataclasses
+import os
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import environment, summary_ms, write_json  # noqa: E402
+
+TARGET_SPEEDUP = 1.7
+TARGET_OVERHEAD = 1.25
+POLL_S = 0.01  # completion polling period (latency resolution)
+
+
+def _spin(n: int) -> float:
+    started = time.perf_counter()
+    total = 0
+    for i in range(n):
+        total += i * i
+    return time.perf_counter() - started
+
+
+def parallel_probe(n: int = 3_000_000) -> float:
+    """How much faster two processes finish two equal CPU-bound tasks than one finishes one, twice
+    (2.0 on two idle cores): what the machine can give two workers right now."""
+    import multiprocessing
+
+    with multiprocessing.get_context("spawn").Pool(2) as pool:
+        pool.map(_spin, [10, 10])
+        started = time.perf_counter()
+        pool.map(_spin, [n])
+        one = time.perf_counter() - started
+        started = time.perf_counter()
+        pool.map(_spin, [n, n])
+        two = time.perf_counter() - started
+    return 2 * one / two
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class Redis:
+    """A throwaway redis-server on a free loopback port, no persistence."""
+
+    def __init__(self) -> None:
+        binary = shutil.which("redis-server")
+        if binary is None:
+            raise SystemExit("redis-server not found on PATH (apt-get install redis-server)")
+        self.port = free_port()
+        self.dir = tempfile.TemporaryDirectory(prefix="arcloud-bench-redis-")
+        self.process = subprocess.Popen(
+            [binary, "--port", str(self.port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no", "--dir", self.dir.name, "--loglevel", "warning"],
+            stdout=subprocess.DEVNULL,
+        )
+        self.url = f"redis://127.0.0.1:{self.port}/0"
+        import redis
+
+        self.client = redis.Redis.from_url(self.url)
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                self.client.ping()
+                break
+            except redis.ConnectionError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
+        self.version = self.client.info("server")["redis_version"]
+
+    def stop(self) -> None:
+        self.client.close()
+        self.process.terminate()
+        self.process.wait(10)
+        self.dir.cleanup()
+
+
+class Service:
+    """The API (uvicorn in a thread of this process) with ``workers`` worker processes, on ``redis``."""
+
+    def __init__(self, redis: Redis, workers: int, seed: int) -> None:
+        import uvicorn
+
+        from arcloud.service.app import create_app
+        from arcloud.service.settings import Settings
+
+        self.redis = redis
+        self.workers = workers
+        settings = Settings(store=redis.url, detector=f"sim:{seed}", workers=workers, max_queued_frames=10_000, log_level="WARNING")
+        port = free_port()
+        self.url = f"http://127.0.0.1:{port}"
+        self.server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning", ws="none", access_log=False))
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> Service:
+        self.thread.start()
+        while not self.server.started:
+            time.sleep(0.05)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(60)
+
+    def step_stats(self) -> tuple[int, float]:
+        from arcloud.service.ingest import INGEST_STATS, parse_stats
+
+        snap = parse_stats(self.redis.client.hgetall(INGEST_STATS))
+        return snap.latency_count, snap.latency_sum_s
+
+    def run(self, map_id: str, bodies: list[bytes], keys: list[str], *, concurrency: int, interval_s: float = 0.0) -> dict[str, Any]:
+        """Post every body (all at once, or one every ``interval_s``); per-frame post and completion times."""
+        import httpx
+
+        from arcloud.stores import keys as store_keys
+
+        n = len(bodies)
+        posted = np.zeros(n)
+        done = np.full(n, np.nan)
+        count_before, sum_before = self.step_stats()
+
+        def poll() -> None:
+            frames_key = store_keys.frames_key(map_id)
+            while True:
+                pending = np.flatnonzero(np.isnan(done))
+                if pending.size == 0:
+                    return
+                flags = self.redis.client.smismember(frames_key, [keys[i] for i in pending])
+                now = time.perf_counter()
+                for i, flag in zip(pending, flags):
+                    if flag:
+                        done[i] = now
+                if now - posted.max() > 600:
+                    return
+                time.sleep(POLL_S)
+
+        poller = threading.Thread(target=poll, daemon=True)
+        with httpx.Client(base_url=self.url, timeout=60, limits=httpx.Limits(max_connections=concurrency)) as http:
+
+            def post(i: int) -> None:
+                if interval_s:
+                    time.sleep(max(0.0, start + i * interval_s - time.perf_counter()))
+                posted[i] = time.perf_counter()
+                response = http.post(f"/v1/maps/{map_id}/frames", content=bodies[i], headers={"content-type": "application/x-protobuf"})
+                assert response.status_code == 202, response.text
+
+            start = time.perf_counter()
+            posted[:] = start
+            poller.start()
+            with concurrent.futures.ThreadPoolExecutor(concurrency) as pool:
+                list(pool.map(post, range(n)))
+            poller.join()
+        if np.isnan(done).any():
+            raise SystemExit(f"{int(np.isnan(done).sum())} frames not processed")
+        count_after, sum_after = self.step_stats()
+        wall_s = float(done.max() - posted.min())
+        latency_s = list(done - posted)
+        return {
+            "frames": n,
+            "wall_s": round(wall_s, 3),
+            "frames_per_s": round(n / wall_s, 3),
+            "s_per_frame": round(wall_s / n, 4),
+            "latency": {"p50_ms": round(float(np.percentile(latency_s, 50)) * 1000, 1), "p99_ms": round(float(np.percentile(latency_s, 99)) * 1000, 1),
+                        **summary_ms(latency_s)},
+            "worker_step_mean_ms": round((sum_after - sum_before) / (count_after - count_before) * 1000, 2) if count_after > count_before else None,
+        }
+
+
+def bench_service(redis: Redis, workers: int, seed: int, timed: list[Any], warmup: list[Any], *, concurrency: int, rounds: int,
+                  paced_fraction: float) -> dict[str, Any]:
+    """Throughput (bursts: every frame posted at once, ``rounds`` times) and latency (frames posted at
+    ``paced_fraction`` of the measured throughput) with ``workers`` worker processes."""
+    from arcloud.proto.convert import frame_to_proto
+
+    def encode(frames: list[Any], map_id: str) -> tuple[list[bytes], list[str]]:
+        return [frame_to_proto(dataclasses.replace(f, map_id=map_id)).SerializeToString() for f in frames], [f.key for f in frames]
+
+    redis.client.flushdb()
+    started = time.perf_counter()
+    with Service(redis, workers, seed) as service:
+        warm_bodies, warm_keys = encode(warmup, "warmup")
+        service.run("warmup", warm_bodies, warm_keys, concurrency=1)  # every worker's detector and room loaded
+        ready_s = time.perf_counter() - started
+        bursts = []
+        for r in range(rounds):
+            bodies, keys = encode(timed, f"burst{r}")
+            bursts.append(service.run(f"burst{r}", bodies, keys, concurrency=concurrency))
+        throughput = statistics.median(b["frames_per_s"] for b in bursts)
+        bodies, keys = encode(timed, "paced")
+        paced = service.run("paced", bodies, keys, concurrency=concurrency, interval_s=1.0 / (paced_fraction * throughput))
+    return {
+        "workers": workers,
+        "frames_per_s": round(throughput, 3),
+        "s_per_frame": round(1.0 / throughput, 4),
+        "latency_paced": {"rate_frames_per_s": round(paced_fraction * throughput, 3), **paced["latency"]},
+        "worker_step_mean_ms": statistics.median(b["worker_step_mean_ms"] for b in bursts),
+        "bursts": bursts,
+        "startup_and_warmup_s": round(ready_s, 2),
+    }
+
+
+def run_in_process(frames: list[Any], seed: int, store: Any, map_id: str) -> dict[str, Any]:
+    from arcloud.core.step import process_frame
+    from arcloud.core.types import Params
+    from arcloud.sim.detector import SimulatedDetector
+    from arcloud.sim.room import generate_room
+
+    detector = SimulatedDetector(generate_room(seed), seed=seed)  # a new room: no renders remembered
+    params = Params()
+    process_frame(dataclasses.replace(frames[0], map_id=f"{map_id}-warmup"), detector, store, params)
+    times = []
+    for frame in frames:
+        started = time.perf_counter()
+        process_frame(dataclasses.replace(frame, map_id=map_id), detector, store, params)
+        times.append(time.perf_counter() - started)
+    return {"s_per_frame": round(statistics.fmean(times), 4), "frames_per_s": round(len(times) / sum(times), 3), **summary_ms(times)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=80)
+    parser.add_argument("--warmup", type=int, default=6, help="frames per worker count before timing")
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", default="1,2", help="worker process counts (default 1,2)")
+    parser.add_argument("--concurrency", type=int, default=4, help="concurrent uploads")
+    parser.add_argument("--rounds", type=int, default=2, help="bursts per worker count (median taken)")
+    parser.add_argument("--paced", type=float, default=0.7, help="latency run's rate, as a fraction of the measured throughput")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results/service.json")
+    args = parser.parse_args()
+    load_start = os.getloadavg()  # other processes on the machine share its cores: recorded
+
+    from arcloud.core.types import Intrinsics
+    from arcloud.sim.room import generate_room
+    from arcloud.sim.sequence import simulate_sequence
+    from arcloud.stores.memory import MemoryStore
+    from arcloud.stores.redis import RedisStore
+
+    height = args.width * 3 // 4
+    scale = args.width / 640
+    intrinsics = Intrinsics(525 * scale, 525 * scale, (args.width - 1) / 2, (height - 1) / 2)
+    frames = simulate_sequence(generate_room(args.seed), n_frames=args.frames + args.warmup, seed=args.seed, width=args.width, height=height,
+                               intrinsics=intrinsics, map_id="bench")
+    warmup, timed = frames[: args.warmup], frames[args.warmup :]
+
+    probes = [parallel_probe()]
+    redis = Redis()
+    try:
+        service = [bench_service(redis, int(w), args.seed, timed, warmup, concurrency=args.concurrency, rounds=args.rounds, paced_fraction=args.paced)
+                   for w in args.workers.split(",")]
+        for row in service:
+            print(f"service, {row['workers']} worker(s): {row['frames_per_s']:.2f} frames/s (bursts {[b['frames_per_s'] for b in row['bursts']]}), "
+                  f"latency at {row['latency_paced']['rate_frames_per_s']:.2f} frames/s: p50 {row['latency_paced']['p50_ms']:.0f} ms, "
+                  f"p99 {row['latency_paced']['p99_ms']:.0f} ms; worker step {row['worker_step_mean_ms']} ms")
+        redis.client.flushdb()
+        redis_store = RedisStore(redis.url)
+        in_process = {"memory": run_in_process(timed, args.seed, MemoryStore(), "inproc"), "redis": run_in_process(timed, args.seed, redis_store, "inproc")}
+        redis_store.close()
+        for name, row in in_process.items():
+            print(f"in process ({name} store): {row['frames_per_s']:.2f} frames/s, {row['s_per_frame'] * 1000:.1f} ms per frame")
+    finally:
+        redis.stop()
+    probes.append(parallel_probe())
+    print(f"the machine's parallel speedup for two CPU-bound processes (before, after): {probes[0]:.2f}, {probes[1]:.2f} (2.0 on idle cores)")
+
+    by_workers = {row["workers"]: row for row in service}
+    speedup = by_workers[2]["frames_per_s"] / by_workers[1]["frames_per_s"] if {1, 2} <= set(by_workers) else None
+    overhead = by_workers[1]["s_per_frame"] / in_process["redis"]["s_per_frame"] if 1 in by_workers else None
+    results = {
+        "benchmark": "service",
+        **environment(("arcloud", "numpy", "scipy", "open3d", "fastapi", "uvicorn", "redis", "protobuf")),
+        "redis_server": redis.version,
+        "setup": {"frames": len(timed), "warmup": args.warmup, "width": args.width, "height": height, "seed": args.seed,
+                  "concurrency": args.concurrency, "rounds": args.rounds, "paced_fraction": args.paced, "poll_s": POLL_S,
+                  "detector": f"sim:{args.seed}", "upload": "protobuf, JPEG rgb, 16-bit PNG depth",
+                  "load_average_1_5_15_min": {"start": [round(v, 2) for v in load_start], "end": [round(v, 2) for v in os.getloadavg()]}},
+        "service": service,
+        "in_process": in_process,
+        "machine_parallel_speedup_before_after": [round(p, 3) for p in probes],
+        "speedup_2_over_1": round(speedup, 3) if speedup else None,
+        "service_over_in_process_redis": round(overhead, 3) if overhead else None,
+        "service_over_in_process_memory": round(by_workers[1]["s_per_frame"] / in_process["memory"]["s_per_frame"], 3) if 1 in by_workers else None,
+        "targets": {"speedup_2_over_1": TARGET_SPEEDUP, "service_over_in_process": TARGET_OVERHEAD},
+    }
+    print(f"2 workers / 1 worker: {results['speedup_2_over_1']}x (target >= {TARGET_SPEEDUP}); "
+          f"service / in-process: {results['service_over_in_process_redis']}x (target <= {TARGET_OVERHEAD})")
+    write_json(args.out, results)
+
+
+if __name__ == "__main__":
+    main()
