@@ -111,6 +111,8 @@ def test_eval_7scenes_agreement_and_pictures(tmp_path: Path, monkeypatch: pytest
     results = json.loads(out.read_text())
     assert [(r["approach"], r["users"], r["runs"]) for r in results["agreement"]] == [("distributed", 3, 2)]
     assert results["agreement"][0]["map25_mean"] == pytest.approx(1.0)
+    assert results["agreement"][0]["ap25_per_class"] == {"chair": None, "table": 1.0, "laptop": None, "couch": None, "tv": None}
+    assert results["reference_min_score"] == 0.0
     assert [o["label"] for o in results["centralized_objects"]] == ["table"] and results["frames"] == 12
     assert results["gravity_aligned"] is True
     names = sorted(Path(p).name for p in results["pictures"])

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from arcloud.core.types import Frame, MapObject, Params
+from arcloud.core.types import CLASSES, Frame, MapObject, Params
 from arcloud.errors import DatasetError
 from arcloud.ports import Detector
 
@@ -268,10 +268,13 @@ def agreement(
     workers: int = 1,
     progress: bool = False,
     on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
+    reference_min_score: float = 0.0,
 ) -> tuple[list[dict[str, object]], list[MapObject], dict[int, list[MapObject]]]:
     """Without ground truth: the centralized map, then for each K > 1 ``runs`` distributed maps scored
-    (mAP) against the centralized boxes as ground truth. Returns one row per K > 1 (``approach``
-    "distributed"), the centralized objects and the first run's objects per K."""
+    (mAP) against the centralized boxes (those scoring at least ``reference_min_score``) as ground truth.
+    Returns one row per K > 1 (``approach`` "distributed", plus ``ap25_per_class``: each class's AP@0.25
+    averaged over runs, None without reference boxes), the centralized objects and the first run's
+    objects per K."""
     from arcloud.eval.metrics import evaluate
     from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
 
@@ -285,10 +288,12 @@ def agreement(
         centralized = run_map(frames, cached, params, users=1, seed=seed * 1000, map_id=f"{name}-1-0", progress=bar.update)
         if on_run is not None:
             on_run(name, 1, 0, centralized)
-        reference = {name: object_boxes(centralized)}  # scores are ignored on the ground-truth side
+        # scores are ignored on the ground-truth side, beyond the threshold
+        reference = {name: [b for b in object_boxes(centralized) if b.score >= reference_min_score]}
         logger.info("centralized map: %d objects in %.1f s", len(reference[name]), time.perf_counter() - started)
         for k in distributed:
             scores25, scores50, started = [], [], time.perf_counter()
+            per_class: dict[str, list[float]] = {}
             for run in range(runs):
                 objects = run_map(
                     frames, cached, params, users=k, seed=seed * 1000 + run, workers=workers,
@@ -300,7 +305,12 @@ def agreement(
                 result = evaluate({name: object_boxes(objects)}, reference)
                 scores25.append(result.map_at(0.25))
                 scores50.append(result.map_at(0.5))
-            rows.append(_row("distributed", k, scores25, scores50, time.perf_counter() - started))
+                for label, ap in result.at(0.25).ap.items():
+                    if ap is not None:
+                        per_class.setdefault(label, []).append(ap)
+            row = _row("distributed", k, scores25, scores50, time.perf_counter() - started)
+            row["ap25_per_class"] = {label: float(np.mean(per_class[label])) if label in per_class else None for label in CLASSES}
+            rows.append(row)
     return rows, centralized, first_runs
 
 
@@ -349,7 +359,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
     rows, centralized, first_runs = agreement(
         frames, _make_detector(args.detector), _params(args), name=sequence.name, users=args.users,
         runs=args.runs, seed=args.seed, workers=_workers(args.workers), progress=not args.no_progress,
-        on_run=_export(export_dir),
+        on_run=_export(export_dir), reference_min_score=args.reference_min_score,
     )  # fmt: skip
     stem = out_path.with_suffix("")
     pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name)
@@ -362,6 +372,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
         "stride": args.stride,
         "seed": args.seed,
         "gravity_aligned": sequence.up_file is not None,
+        "reference_min_score": args.reference_min_score,
         "centralized_objects": [
             {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}  # type: ignore[arg-type]
             for o in objects_json(centralized)
@@ -440,6 +451,8 @@ def add_eval_commands(subparsers: Any) -> Any:
     )
     seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
     seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
+    seven.add_argument("--reference-min-score", type=float, default=0.0,
+                       help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)")
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)
     seven.set_defaults(handler=run_eval_7scenes)
 
