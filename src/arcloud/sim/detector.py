@@ -18,7 +18,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
+import weakref
 import zlib
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -204,26 +207,30 @@ def apply_depth_faults(depth_m: np.ndarray, faults: DetectorFaults, rng: np.rand
     """A noisy copy of a true z-depth image (H, W) float32 (0 = no reading): axial noise growing with
     depth squared, dropouts and flying pixels on the far side of depth edges, random dropouts, range."""
     depth = np.array(depth_m, dtype=np.float32, copy=True)
+    flat = depth.ravel()  # a view
     valid = depth > 0
-    h, w = depth.shape
     if faults.depth_edge_dropout > 0 or faults.depth_flying_rate > 0:
         # Far-side edge pixels: a 4-neighbour is nearer by more than the jump.
-        padded = np.pad(np.where(valid, depth, np.inf), 1, mode="edge")
-        nearest = np.minimum.reduce([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
-        jump = np.maximum(faults.depth_edge_jump_m, 0.03 * depth)
-        far_edge = valid & (depth - nearest > jump)
-        draw = rng.random((h, w), dtype=np.float32)
-        drop = far_edge & (draw < faults.depth_edge_dropout)
-        flying = far_edge & ~drop & (draw < faults.depth_edge_dropout + (1 - faults.depth_edge_dropout) * faults.depth_flying_rate)
-        if flying.any():
-            mix = rng.random(int(flying.sum()), dtype=np.float32)
-            depth[flying] = nearest[flying] + mix * (depth[flying] - nearest[flying])
-        depth[drop] = 0.0
+        near = np.where(valid, depth, np.float32(np.inf))
+        nearest = np.full_like(near, np.inf)
+        np.minimum(nearest[1:], near[:-1], out=nearest[1:])
+        np.minimum(nearest[:-1], near[1:], out=nearest[:-1])
+        np.minimum(nearest[:, 1:], near[:, :-1], out=nearest[:, 1:])
+        np.minimum(nearest[:, :-1], near[:, 1:], out=nearest[:, :-1])
+        jump = np.maximum(np.float32(faults.depth_edge_jump_m), np.float32(0.03) * depth)
+        far = np.flatnonzero((valid & (depth - nearest > jump)).ravel())
+        draw = rng.random(far.size)
+        p_drop = faults.depth_edge_dropout
+        drop = far[draw < p_drop]
+        flying = far[(draw >= p_drop) & (draw < p_drop + (1 - p_drop) * faults.depth_flying_rate)]
+        nearer = nearest.ravel()[flying]
+        flat[flying] = nearer + rng.random(flying.size, dtype=np.float32) * (flat[flying] - nearer)
+        flat[drop] = 0.0
     if faults.depth_sigma_a_m > 0 or faults.depth_sigma_b > 0:
-        sigma = faults.depth_sigma_a_m + faults.depth_sigma_b * (depth - faults.depth_sigma_z0_m) ** 2
-        depth += (rng.standard_normal((h, w), dtype=np.float32) * sigma).astype(np.float32)
+        sigma = np.float32(faults.depth_sigma_a_m) + np.float32(faults.depth_sigma_b) * (depth - np.float32(faults.depth_sigma_z0_m)) ** 2
+        depth += rng.standard_normal(depth.shape, dtype=np.float32) * sigma
     if faults.depth_dropout > 0:
-        depth[rng.random((h, w), dtype=np.float32) < faults.depth_dropout] = 0.0
+        flat[rng.integers(0, flat.size, rng.binomial(flat.size, faults.depth_dropout))] = 0.0
     invalid = ~valid | (depth <= 0)
     if faults.depth_min_m is not None:
         invalid |= depth < faults.depth_min_m
@@ -303,6 +310,79 @@ def _visibility(
     return truncated, float(occluded)
 
 
+@dataclass(frozen=True, eq=False)
+class FrameTruth:
+    """What the detector needs to know of a frame, compactly: the hit triangle of every pixel
+    (zlib-compressed, -1 where no hit) and, per visible object instance, its (truncated, occluded)
+    fractions."""
+
+    shape: tuple[int, int]
+    dtype: str
+    triangle_zlib: bytes
+    visibility: dict[int, tuple[float, float]]
+
+    def triangle(self) -> np.ndarray:
+        """(H, W) int32 hit triangle ids, -1 where no hit."""
+        return np.frombuffer(zlib.decompress(self.triangle_zlib), self.dtype).reshape(self.shape).astype(np.int32)
+
+
+def frame_truth(room: Room, triangle: np.ndarray, depth_m: np.ndarray, cam2world: np.ndarray, intrinsics: Intrinsics) -> FrameTruth:
+    """The truth of a frame rendered at ``cam2world`` into ``triangle`` (H, W) ids and z-depth (H, W)."""
+    triangle = np.asarray(triangle)
+    instance = np.where(triangle >= 0, room.triangle_instance[np.maximum(triangle, 0)], 0)
+    world2cam = np.linalg.inv(cam2world)
+    objects = {o.instance_id: o for o in room.objects}
+    visibility = {}
+    for instance_id in np.flatnonzero(np.bincount(instance.ravel())):
+        obj = objects.get(int(instance_id))
+        if obj is not None:
+            mask = instance == instance_id
+            visibility[int(instance_id)] = _visibility(mask, depth_m, obj.aabb_min, obj.aabb_max, world2cam, intrinsics)
+    dtype = np.int16 if len(room.triangles) < np.iinfo(np.int16).max else np.int32
+    packed = np.ascontiguousarray(triangle, dtype=dtype)
+    return FrameTruth(packed.shape, np.dtype(dtype).str, zlib.compress(packed.tobytes(), 1), visibility)  # type: ignore[arg-type]
+
+
+def truth_key(frame_id: str, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> tuple:
+    """What determines a frame's truth: its true pose (bit for bit), camera and size (and id)."""
+    pose = np.ascontiguousarray(cam2world, dtype=np.float64).tobytes()
+    return (frame_id, pose, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, int(width), int(height))
+
+
+#: Truths remembered per room (``remember_truth``), so that detecting a simulated frame needs no second
+#: ray cast. A bounded LRU per room (about 30 KB a frame), dropped with the room.
+TRUTH_CACHE_FRAMES = 20000
+_TRUTHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_TRUTHS_LOCK = threading.Lock()
+
+
+def remember_truth(room: Room, key: tuple, truth: FrameTruth) -> None:
+    with _TRUTHS_LOCK:
+        cache = _TRUTHS.setdefault(room, OrderedDict())
+        cache[key] = truth
+        cache.move_to_end(key)
+        while len(cache) > TRUTH_CACHE_FRAMES:
+            cache.popitem(last=False)
+
+
+def recall_truth(room: Room, key: tuple) -> FrameTruth | None:
+    with _TRUTHS_LOCK:
+        cache = _TRUTHS.get(room)
+        return None if cache is None else cache.get(key)
+
+
+def _surface_ids(room: Room) -> np.ndarray:
+    """(T,) int32: triangles on the same plane (rounded to a millimetre) share an id."""
+    v = room.vertices.astype(np.float64)
+    a, b, c = (v[room.triangles[:, k]] for k in range(3))
+    normal = np.cross(b - a, c - a)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    normal *= np.where(normal[:, [0]] + 2 * normal[:, [1]] + 4 * normal[:, [2]] < 0, -1.0, 1.0)  # one sign
+    offset = np.einsum("ij,ij->i", normal, a)
+    key = np.round(np.column_stack([normal * 1000, offset * 1000])).astype(np.int64)
+    return np.unique(key, axis=0, return_inverse=True)[1].astype(np.int32).ravel()
+
+
 class SimulatedDetector:
     """A ``arcloud.ports.Detector`` for frames of a generated room (see the module docstring).
 
@@ -320,35 +400,42 @@ class SimulatedDetector:
         self._clutter = room.triangle_clutter if room.triangle_clutter is not None else np.zeros_like(room.triangle_instance)
         self._objects = {o.instance_id: o for o in room.objects}
         self._clutter_kinds = {c.clutter_id: c.kind for c in room.clutter}
+        self._surface = _surface_ids(room)
 
     def true_pose(self, frame: Frame) -> np.ndarray:
         return true_pose(frame.cam2world, self.faults, self.seed, frame.frame_id)
 
-    def detect(self, frame: Frame) -> list[Detection]:
-        """Detections of the frame's visible objects with this detector's faults, best score first."""
+    def truth(self, frame: Frame) -> FrameTruth:
+        """The frame's truth: remembered by ``simulate_sequence`` for its frames, else ray-cast now."""
         height, width = frame.shape
         cam2world = self.true_pose(frame)
-        hits = self._renderer.raycast(cam2world, frame.intrinsics, width, height)
-        hit = hits.triangle >= 0
-        tri = np.where(hit, hits.triangle, 0)
-        instance = np.where(hit, self._instance[tri], 0)
-        world2cam = np.linalg.inv(cam2world)
+        truth = recall_truth(self.room, truth_key(frame.frame_id, cam2world, frame.intrinsics, width, height))
+        if truth is None:
+            hits = self._renderer.raycast(cam2world, frame.intrinsics, width, height)
+            truth = frame_truth(self.room, hits.triangle, hits.depth_m, cam2world, frame.intrinsics)
+        return truth
+
+    def detect(self, frame: Frame) -> list[Detection]:
+        """Detections of the frame's visible objects with this detector's faults, best score first."""
         faults = self.faults
+        truth = self.truth(frame)
+        triangle = truth.triangle()
+        hit = triangle >= 0
+        tri = np.maximum(triangle, 0)
+        instance = np.where(hit, self._instance[tri], 0)
         detections: list[Detection] = []
         areas = np.bincount(instance.ravel())
         for instance_id in np.flatnonzero(areas):
             if instance_id == 0 or instance_id not in self._objects or areas[instance_id] < faults.min_area_px:
                 continue
-            obj = self._objects[int(instance_id)]
-            mask = instance == instance_id
-            truncated, occluded = _visibility(mask, hits.depth_m, obj.aabb_min, obj.aabb_max, world2cam, frame.intrinsics)
-            seen = _Visible(mask, int(areas[instance_id]), truncated, occluded)
+            truncated, occluded = truth.visibility[int(instance_id)]
+            seen = _Visible(instance == instance_id, int(areas[instance_id]), truncated, occluded)
             rng = frame_rng(self.seed, frame.frame_id, STREAM_INSTANCE, int(instance_id))
-            detections += self._detect_instance(obj.label, seen, rng)
-        spurious_rng = frame_rng(self.seed, frame.frame_id, STREAM_SPURIOUS)
+            detections += self._detect_instance(self._objects[int(instance_id)].label, seen, rng)
         if faults.spurious_rate > 0:
             clutter = np.where(hit, self._clutter[tri], 0)
-            detections += self._spurious(instance, clutter, hits.depth_m, spurious_rng)
+            surface = np.where(hit, self._surface[tri], -1)
+            detections += self._spurious(instance, clutter, surface, frame_rng(self.seed, frame.frame_id, STREAM_SPURIOUS))
         detections.sort(key=lambda d: -d.score)
         return detections
 
@@ -388,7 +475,7 @@ class SimulatedDetector:
             return []
         return [Detection(label, score, mask)]
 
-    def _spurious(self, instance: np.ndarray, clutter: np.ndarray, depth_m: np.ndarray, rng: np.random.Generator) -> list[Detection]:
+    def _spurious(self, instance: np.ndarray, clutter: np.ndarray, surface: np.ndarray, rng: np.random.Generator) -> list[Detection]:
         f = self.faults
         n = int(rng.poisson(f.spurious_rate))
         out: list[Detection] = []
@@ -397,7 +484,7 @@ class SimulatedDetector:
         areas = np.bincount(clutter.ravel())
         lookalikes = [k for k in np.flatnonzero(areas[1:] >= 300) + 1 if self._clutter_kinds.get(int(k)) in CLUTTER_LOOKALIKES]
         h, w = instance.shape
-        background = np.flatnonzero(((instance == 0) & (depth_m > 0)).ravel())
+        background = np.flatnonzero(((instance == 0) & (surface >= 0)).ravel())
         for _ in range(n):
             score = float(rng.uniform(f.spurious_score_min, f.spurious_score_max))
             if lookalikes and rng.random() < 0.6:
@@ -413,7 +500,7 @@ class SimulatedDetector:
                 ry, rx = rng.uniform(12, 70, 2)
                 ys, xs = np.ogrid[:h, :w]
                 blob = ((ys - cy) / ry) ** 2 + ((xs - cx) / rx) ** 2 <= 1.0
-                mask = blob & (np.abs(depth_m - depth_m[cy, cx]) < 0.25) & (instance == 0)
+                mask = blob & (surface == surface[cy, cx]) & (instance == 0)  # on one wall, floor, ...
                 label = CLASSES[int(rng.integers(len(CLASSES)))]
             if mask.sum() >= 100:
                 out.append(Detection(label, score, mask))
@@ -432,10 +519,15 @@ __all__: Sequence[str] = (
     "CLUTTER_LOOKALIKES",
     "DetectorFaults",
     "SimulatedDetector",
+    "FrameTruth",
     "apply_depth_faults",
+    "frame_truth",
     "frame_rng",
     "pose_noise",
+    "recall_truth",
+    "remember_truth",
     "reported_pose",
     "true_pose",
+    "truth_key",
     "visible_instances",
 )

@@ -28,7 +28,6 @@ AMBIENT = 0.45
 LIGHTS = tuple(
     (w, np.asarray(d, np.float64) / np.linalg.norm(d)) for w, d in ((0.4, (0.3, 0.2, 0.93)), (0.25, (0.8, -0.55, 0.25)))
 )
-_NO_HIT = np.uint32(0xFFFFFFFF)
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,14 +35,12 @@ class RayHits:
     """Per-pixel first hits. depth_m: (H, W) float32 z-depth, 0 where no hit. triangle: (H, W) int32,
     -1 where no hit. uv: (H, W, 2) float32 barycentric (u, v) of the hit (the point is
     (1 - u - v) * a + u * b + v * c for triangle (a, b, c)). normal: (H, W, 3) float32 unit normals
-    of the hit triangles in the world frame. rays_world: (H, W, 3) float32 ray directions (z = 1 in
-    the camera frame)."""
+    of the hit triangles in the world frame."""
 
     depth_m: np.ndarray
     triangle: np.ndarray
     uv: np.ndarray
     normal: np.ndarray
-    rays_world: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,9 +124,13 @@ class MeshRenderer:
         self._light = triangle_light(self.vertices, self.triangles)
         if self.vertex_colors is not None:
             self._vertex_colors_f = self.vertex_colors.astype(np.float32)
-        else:
-            albedo = self.triangle_colors.astype(np.float32) if self.triangle_colors is not None else np.full((n_tri, 3), 180.0, np.float32)
-            self._shaded_colors = np.clip(albedo * self._light[:, None], 0, 255).astype(np.uint8)
+        albedo = self.triangle_colors.astype(np.float32) if self.triangle_colors is not None else np.full((n_tri, 3), 180.0, np.float32)
+        # Lookup tables with a last row for pixels that hit nothing (triangle -1).
+        self._color_table = np.zeros((n_tri + 1, 3), np.uint8)
+        self._color_table[:n_tri] = np.clip(albedo * self._light[:, None], 0, 255).astype(np.uint8)
+        self._instance_table = np.zeros(n_tri + 1, np.int32)
+        if self.triangle_instance is not None:
+            self._instance_table[:n_tri] = self.triangle_instance
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor.from_numpy(self.vertices), o3d.core.Tensor.from_numpy(self.triangles))
         self._tensor = o3d.core.Tensor.from_numpy
@@ -137,52 +138,47 @@ class MeshRenderer:
         # Cast once so that Embree commits the scene now, not inside concurrent calls.
         self._scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))
 
-    def raycast(self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> RayHits:
-        """First hits of the rays through every pixel centre of an (height, width) image."""
+    def raycast(
+        self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int, *, surface: bool = False
+    ) -> RayHits:
+        """First hits of the rays through every pixel centre of an (height, width) image; with
+        ``surface``, also the hits' barycentric coordinates and normals (else None)."""
         pose = check_pose("cam2world", cam2world)
         if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer)) and width > 0 and height > 0):
             raise InvalidInput("width, height", "positive integers", f"{width!r}, {height!r}")
         rays_cam = _camera_rays(float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy), int(width), int(height))
-        rotation = pose[:3, :3].astype(np.float32)
         rays = np.empty((height, width, 6), np.float32)
         rays[..., :3] = pose[:3, 3]
-        rays_world = rays_cam @ rotation.T
-        rays[..., 3:] = rays_world
+        np.matmul(rays_cam, pose[:3, :3].T.astype(np.float32), out=rays[..., 3:])
         with self._lock:
             hits = self._scene.cast_rays(self._tensor(rays))
             t_hit = hits["t_hit"].numpy()
             primitive = hits["primitive_ids"].numpy()
-            uv = hits["primitive_uvs"].numpy()
-            normal = hits["primitive_normals"].numpy()
-        hit = primitive != _NO_HIT
-        depth = np.where(hit, t_hit, np.float32(0.0)).astype(np.float32, copy=False)
-        triangle = np.where(hit, primitive.view(np.int32), np.int32(-1))
-        return RayHits(depth, triangle, uv, normal, rays_world)
+            uv = hits["primitive_uvs"].numpy().copy() if surface else None
+            normal = hits["primitive_normals"].numpy().copy() if surface else None
+        triangle = primitive.view(np.int32).copy()  # Embree's invalid id 0xFFFFFFFF reads -1
+        depth = np.where(triangle >= 0, t_hit, np.float32(0.0))
+        return RayHits(depth, triangle, uv, normal)
 
     def render(self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> RenderResult:
         """Colour, z-depth and instance images of the mesh seen from ``cam2world`` (4, 4)."""
-        hits = self.raycast(cam2world, intrinsics, width, height)
-        hit = hits.triangle >= 0
-        tri = np.where(hit, hits.triangle, 0)
-        if self.triangle_instance is not None:
-            instance = np.where(hit, self.triangle_instance[tri], 0).astype(np.int32, copy=False)
-        else:
-            instance = np.zeros(hit.shape, np.int32)
-        rgb = self._shade(hits, tri, hit)
-        return RenderResult(rgb, hits.depth_m, instance, hits.triangle)
-
-    def _shade(self, hits: RayHits, tri: np.ndarray, hit: np.ndarray) -> np.ndarray:
+        hits = self.raycast(cam2world, intrinsics, width, height, surface=self.vertex_colors is not None)
+        # Per-triangle tables have one more row, for "no hit" (index -1 takes the last row).
+        instance = np.take(self._instance_table, hits.triangle)
         if self.vertex_colors is not None:
+            hit = hits.triangle >= 0
+            tri = np.where(hit, hits.triangle, 0)
             corners = self.triangles[tri]  # (H, W, 3)
+            assert hits.uv is not None
             u, v = hits.uv[..., :1], hits.uv[..., 1:]
             colors = self._vertex_colors_f
             albedo = (1 - u - v) * colors[corners[..., 0]] + u * colors[corners[..., 1]] + v * colors[corners[..., 2]]
-            rgb = albedo * self._light[tri][..., None]
-            rgb[~hit] = 0.0
-            return np.clip(rgb, 0.0, 255.0).astype(np.uint8)
-        rgb = self._shaded_colors[tri]
-        rgb[~hit] = 0
-        return rgb
+            rgb_f = albedo * self._light[tri][..., None]
+            rgb_f[~hit] = 0.0
+            rgb = np.clip(rgb_f, 0.0, 255.0).astype(np.uint8)
+        else:
+            rgb = np.take(self._color_table, hits.triangle, axis=0)
+        return RenderResult(rgb, hits.depth_m, instance, hits.triangle)
 
 
 def triangle_light(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

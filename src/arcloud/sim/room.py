@@ -160,8 +160,9 @@ def _rot_x(angle_rad: float) -> np.ndarray:
 
 
 def rot_z(angle_rad: float) -> np.ndarray:
-    """(3, 3) rotation about +z by ``angle_rad``."""
+    """(3, 3) rotation about +z by ``angle_rad`` (exact for quarter turns)."""
     c, s = math.cos(angle_rad), math.sin(angle_rad)
+    c, s = (0.0 if abs(c) < 1e-12 else c), (0.0 if abs(s) < 1e-12 else s)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
@@ -177,7 +178,7 @@ def box(
     """A box spanning [lo, hi], optionally turned by ``rotation`` about ``pivot`` (default its centre).
     ``face_colors`` recolours faces by name ("-x", "+x", "-y", "+y", "-z", "+z")."""
     lo_arr, hi_arr = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    vertices = (_CUBE + 0.5) * (hi_arr - lo_arr) + lo_arr
+    vertices = np.where(_CUBE > 0, hi_arr, lo_arr)  # exact corners
     if rotation is not None:
         origin = (lo_arr + hi_arr) / 2 if pivot is None else np.asarray(pivot, np.float64)
         vertices = (vertices - origin) @ rotation.T + origin
