@@ -69,6 +69,14 @@ def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -
     assert "voxels" not in client.get(f"/v1/maps/m/objects/{obj['id']}").json() or client.get(f"/v1/maps/m/objects/{obj['id']}").json()["voxels"] is None
 
 
+def test_meta_may_be_a_text_field(client: AppClient) -> None:
+    parts = multipart_parts(make_test_frame(0))
+    response = client.post("/v1/maps/t/frames", data={"meta": parts.pop("meta")[1].decode()}, files=parts)
+    assert response.status_code == 202, response.text
+    as_text_rgb = client.post("/v1/maps/t/frames", data={"rgb": "not a file"}, files={k: v for k, v in multipart_parts(make_test_frame(1)).items() if k != "rgb"})
+    assert as_text_rgb.status_code == 422 and "rgb: expected a file part" in as_text_rgb.json()["detail"]
+
+
 def test_filters_select_objects(client: AppClient) -> None:
     two_boxes = ((30, 80, 10, 50), (30, 80, 110, 150))
     client.post("/v1/maps/f/frames", content=proto_body(make_test_frame(0, map_id="f", boxes=two_boxes)), headers=PROTOBUF)

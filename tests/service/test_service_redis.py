@@ -26,7 +26,8 @@ from arcloud.proto.convert import frame_to_proto
 from arcloud.service.app import create_app
 from arcloud.service.ingest import DEAD_LETTER_STREAM, INGEST_STATS, INGEST_STREAM, live_workers, parse_stats
 from arcloud.service.settings import Settings
-from arcloud.service.worker import WorkerPool
+from arcloud.service.worker import WorkerPool, healthy
+from arcloud.service.worker import main as worker_main
 from arcloud.stores.redis import RedisStore
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
@@ -115,6 +116,13 @@ def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deplo
     assert events[-1].object.version <= obj["version"] and events[0].object.label == "chair"
     assert [o.id for o in answer.objects] == [obj["id"]] and answer.objects[0].n_frames == 10
     assert "arcloud_frames_processed_total" in deployment.api.get("/metrics").text
+
+
+def test_health_checks_see_the_workers_heartbeats(deployment: Deployment, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert healthy(deployment.settings) and not healthy(deployment.settings, host="elsewhere")
+    monkeypatch.setenv("ARCLOUD_STORE", deployment.settings.store)
+    assert worker_main(["--healthcheck"]) == 0
+    assert deployment.api.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok", "redis": "ok", "workers": "ok"}}
 
 
 def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
