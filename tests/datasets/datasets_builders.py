@@ -9,6 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from arcloud.sim.trajectory import look_at
+
 SCENE_ID = "scene0042_00"
 DEPTH_WH = (32, 24)
 COLOR_WH = (64, 48)
@@ -209,18 +211,6 @@ def build_room_scene(root: Path) -> Path:
     (scene / f"{SCENE_ID}.aggregation.json").write_text(json.dumps({"sceneId": SCENE_ID, "segGroups": groups}))
     (scene / f"{SCENE_ID}.txt").write_text("axisAlignment = " + " ".join(f"{v:g}" for v in ALIGNMENT.ravel()) + "\n")
     return scene
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(4, 4) cam2world of an OpenCV camera at ``eye`` looking at ``target`` in a z-up world."""
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([right, down, forward])
-    pose[:3, 3] = eye
-    return pose
 
 
 def circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, *, eye_height_m, floor_z_m=0.0, obstacles_xy=()):  # noqa: ANN001, ANN201

@@ -9,7 +9,7 @@ import pytest
 from datasets_builders import build_seven_scenes
 
 from arcloud.core.types import Intrinsics
-from arcloud.datasets.sevenscenes import DEFAULT_INTRINSICS, load_seven_scenes, rotation_between
+from arcloud.datasets.sevenscenes import DEFAULT_INTRINSICS, load_seven_scenes
 from arcloud.errors import DatasetError
 
 
@@ -34,6 +34,9 @@ def test_gravity_alignment(tmp_path: Path) -> None:
     np.testing.assert_allclose(plain.up, -gravity / np.linalg.norm(gravity))
     aligned = load_seven_scenes(root, align_gravity=True)
     np.testing.assert_allclose(aligned.up, [0, 0, 1], atol=1e-12)
+    rotation = aligned.world2file[:3, :3]
+    np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
+    assert np.linalg.det(rotation) == pytest.approx(1.0)
     # the same point of the file world, seen through both: aligned = inv(world2file) @ file
     np.testing.assert_allclose(aligned.cam2world, np.linalg.inv(aligned.world2file) @ plain.cam2world, atol=1e-12)
     up_in_aligned = np.linalg.inv(aligned.world2file)[:3, :3] @ plain.up_file
@@ -51,15 +54,3 @@ def test_sequences_and_missing_files(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(DatasetError, match="finite poses"):
         load_seven_scenes(tmp_path / "empty")
-
-
-@pytest.mark.parametrize("seed", range(5))
-def test_rotation_between(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    a, b = rng.normal(size=3), rng.normal(size=3)
-    if seed == 4:
-        b = -a
-    rotation = rotation_between(a, b)
-    np.testing.assert_allclose(rotation @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
-    np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
-    assert np.linalg.det(rotation) == pytest.approx(1.0)

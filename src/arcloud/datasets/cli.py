@@ -124,6 +124,58 @@ def _progress_bar(total: int, enabled: bool, desc: str) -> Any:
     return tqdm(total=total, disable=not enabled, desc=desc, unit="frame", leave=False)
 
 
+class _RunCollector:
+    """Collects the runs of ``arcloud.eval.protocol.table1`` through its ``on_run``: each run's boxes,
+    its wall time (since the previous run of the same sequence ended), and the first map of each K."""
+
+    def __init__(self, on_run: Callable[[str, int, int, list[MapObject]], None] | None) -> None:
+        self.on_run = on_run
+        self.boxes: dict[tuple[int, int], dict[str, list[Any]]] = {}
+        self.wall_s: dict[int, float] = {}
+        self.first: dict[int, list[MapObject]] = {}
+        self._last = time.perf_counter()
+
+    def start(self) -> None:
+        self._last = time.perf_counter()
+
+    def __call__(self, name: str, approach: str, users: int, run: int, objects: list[MapObject]) -> None:
+        from arcloud.eval.protocol import object_boxes
+
+        now = time.perf_counter()
+        self.wall_s[users] = self.wall_s.get(users, 0.0) + now - self._last
+        self.boxes.setdefault((users, run), {})[name] = object_boxes(objects)
+        self.first.setdefault(users, objects)
+        if self.on_run is not None:
+            self.on_run(name, users, run, objects)
+        self._last = time.perf_counter()
+
+
+def _table1_runs(
+    sequences: Sequence[tuple[str, Sequence[Frame], Detector, Sequence[Any]]],
+    params: Params,
+    collector: _RunCollector,
+    *,
+    users: Sequence[int],
+    runs: int,
+    seed: int,
+    workers: int,
+    progress: bool,
+) -> None:
+    """Every run of ``table1`` on every sequence (the centralized run always comes first)."""
+    from arcloud.eval.protocol import table1
+
+    distributed = tuple(k for k in users if k > 1)
+    total = sum(len(frames) for _, frames, _, _ in sequences) * (1 + runs * len(distributed))
+    with _progress_bar(total, progress, "eval") as bar:
+        for name, frames, detector, gt in sequences:
+            collector.start()
+            table1(
+                frames, detector, gt, params, users=distributed, runs=runs, seed=seed, workers=workers,
+                scene=name, progress=bar.update,
+                on_run=lambda approach, k, run, objects, name=name: collector(name, approach, k, run, objects),
+            )  # fmt: skip
+
+
 def evaluate_scenes(
     scenes: Sequence[tuple[str, Sequence[Frame], Detector, Sequence[Any]]],
     params: Params,
@@ -135,38 +187,24 @@ def evaluate_scenes(
     on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
     progress: bool = False,
 ) -> dict[str, object]:
-    """Table 1 over several scenes: for each K in ``users`` (K = 1: the centralized run, once; K > 1:
-    ``runs`` distributed runs), every scene is mapped and the predictions of all scenes are evaluated
-    together against ``(name, frames, detector, gt_boxes)``'s ground truth. Run r uses seed
-    ``seed * 1000 + r`` (as ``arcloud.eval.protocol.table1``); detections are computed once per frame."""
+    """Table 1 over several scenes ``(name, frames, detector, gt_boxes)``: each scene's runs come from
+    ``arcloud.eval.protocol.table1`` (the centralized run, then ``runs`` distributed runs per K > 1 in
+    ``users``; run r uses seed ``seed * 1000 + r``; detections computed once per frame), and the
+    predictions of all scenes are evaluated together, run by run (the standard pooled ScanNet mAP).
+    K = 1 in ``users`` reports the centralized run (which is always computed)."""
     from arcloud.eval.metrics import evaluate
-    from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
 
-    cached = [(name, frames, CachedDetector(detector), gt) for name, frames, detector, gt in scenes]
+    collector = _RunCollector(on_run)
+    _table1_runs(scenes, params, collector, users=users, runs=runs, seed=seed, workers=workers, progress=progress)
     ground_truth = {name: list(gt) for name, _, _, gt in scenes}
-    plan = [(k, 1 if k == 1 else runs) for k in users]
-    total = sum(n * sum(len(frames) for _, frames, _, _ in scenes) for _, n in plan)
     rows, centralized = [], None
-    with _progress_bar(total, progress, "eval") as bar:
-        for k, n_runs in plan:
-            scores25, scores50, started = [], [], time.perf_counter()
-            for run in range(n_runs):
-                predictions = {}
-                for name, frames, detector, _ in cached:
-                    objects = run_map(
-                        frames, detector, params, users=k, seed=seed * 1000 + run, workers=workers,
-                        map_id=f"{name}-{k}-{run}", progress=bar.update,
-                    )  # fmt: skip
-                    if on_run is not None:
-                        on_run(name, k, run, objects)
-                    predictions[name] = object_boxes(objects)
-                result = evaluate(predictions, ground_truth)
-                if k == 1:
-                    centralized = result.to_dict()
-                scores25.append(result.map_at(0.25))
-                scores50.append(result.map_at(0.5))
-                logger.info("users %d run %d: mAP@0.25 %.4f mAP@0.5 %.4f", k, run, scores25[-1], scores50[-1])
-            rows.append(_row("centralized" if k == 1 else "distributed", k, scores25, scores50, time.perf_counter() - started))
+    for k in users:
+        results = [evaluate(collector.boxes[(k, run)], ground_truth) for run in range(1 if k == 1 else runs)]
+        if k == 1:
+            centralized = results[0].to_dict()
+        scores25, scores50 = [r.map_at(0.25) for r in results], [r.map_at(0.5) for r in results]
+        logger.info("users %d: mAP@0.25 %s mAP@0.5 %s", k, np.round(scores25, 4), np.round(scores50, 4))
+        rows.append(_row("centralized" if k == 1 else "distributed", k, scores25, scores50, collector.wall_s.get(k, 0.0)))
     out: dict[str, object] = {"table1": rows}
     if centralized is not None:
         out["centralized"] = centralized
@@ -242,17 +280,15 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     return 0
 
 
-def fused_points(frames: Sequence[Frame], *, every: int = 20, step_px: int = 8, max_depth_m: float = 4.0) -> np.ndarray:
-    """(N, 3) world points back-projected from every ``every``-th frame (every ``step_px``-th pixel)."""
-    chunks = []
-    for index in range(0, len(frames), max(1, every)):
-        frame = frames[index]
-        depth = frame.depth_m[::step_px, ::step_px]
-        v, u = np.mgrid[0 : depth.shape[0], 0 : depth.shape[1]] * step_px
-        valid = (depth > 0) & (depth < max_depth_m)
-        k, z = frame.intrinsics, depth[valid]
-        cam = np.stack([(u[valid] - k.cx) / k.fx * z, (v[valid] - k.cy) / k.fy * z, z], axis=1)
-        chunks.append(cam @ frame.cam2world[:3, :3].T + frame.cam2world[:3, 3])
+def fused_points(frames: Sequence[Frame], *, every: int = 20, stride_px: int = 8, max_depth_m: float = 4.0) -> np.ndarray:
+    """(N, 3) world points back-projected from every ``every``-th frame (every ``stride_px``-th pixel)."""
+    from arcloud.core.voxels import mask_points
+
+    params = Params(depth_max_m=max_depth_m, erode_px=0)
+    chunks = [
+        mask_points(frames[i], np.ones(frames[i].shape, bool), params, stride_px)
+        for i in range(0, len(frames), max(1, every))
+    ]
     return np.concatenate(chunks) if chunks else np.zeros((0, 3))
 
 
@@ -270,48 +306,29 @@ def agreement(
     on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
     reference_min_score: float = 0.0,
 ) -> tuple[list[dict[str, object]], list[MapObject], dict[int, list[MapObject]]]:
-    """Without ground truth: the centralized map, then for each K > 1 ``runs`` distributed maps scored
-    (mAP) against the centralized boxes (those scoring at least ``reference_min_score``) as ground truth.
-    Returns one row per K > 1 (``approach`` "distributed", plus ``ap25_per_class``: each class's AP@0.25
-    averaged over runs, None without reference boxes), the centralized objects and the first run's
-    objects per K."""
+    """Without ground truth: the runs of ``table1``, each distributed map scored (mAP) against the
+    centralized boxes (those scoring at least ``reference_min_score``) as ground truth. Returns one row
+    per K > 1 (``approach`` "distributed", plus ``ap25_per_class``: each class's AP@0.25 averaged over
+    runs, None without reference boxes), the centralized objects and the first run's objects per K."""
     from arcloud.eval.metrics import evaluate
-    from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
 
-    cached = CachedDetector(detector)
-    distributed = [k for k in users if k > 1]
-    total = len(frames) * (1 + runs * len(distributed))
+    collector = _RunCollector(on_run)
+    _table1_runs([(name, frames, detector, [])], params, collector, users=users, runs=runs, seed=seed, workers=workers, progress=progress)
+    centralized = collector.first.pop(1)
+    # scores are ignored on the ground-truth side, beyond the threshold
+    reference = {name: [b for b in collector.boxes[(1, 0)][name] if b.score >= reference_min_score]}
+    logger.info("centralized map: %d objects (%d as reference)", len(collector.boxes[(1, 0)][name]), len(reference[name]))
     rows: list[dict[str, object]] = []
-    first_runs: dict[int, list[MapObject]] = {}
-    with _progress_bar(total, progress, "eval") as bar:
-        started = time.perf_counter()
-        centralized = run_map(frames, cached, params, users=1, seed=seed * 1000, map_id=f"{name}-1-0", progress=bar.update)
-        if on_run is not None:
-            on_run(name, 1, 0, centralized)
-        # scores are ignored on the ground-truth side, beyond the threshold
-        reference = {name: [b for b in object_boxes(centralized) if b.score >= reference_min_score]}
-        logger.info("centralized map: %d objects in %.1f s", len(reference[name]), time.perf_counter() - started)
-        for k in distributed:
-            scores25, scores50, started = [], [], time.perf_counter()
-            per_class: dict[str, list[float]] = {}
-            for run in range(runs):
-                objects = run_map(
-                    frames, cached, params, users=k, seed=seed * 1000 + run, workers=workers,
-                    map_id=f"{name}-{k}-{run}", progress=bar.update,
-                )  # fmt: skip
-                if on_run is not None:
-                    on_run(name, k, run, objects)
-                first_runs.setdefault(k, objects)
-                result = evaluate({name: object_boxes(objects)}, reference)
-                scores25.append(result.map_at(0.25))
-                scores50.append(result.map_at(0.5))
-                for label, ap in result.at(0.25).ap.items():
-                    if ap is not None:
-                        per_class.setdefault(label, []).append(ap)
-            row = _row("distributed", k, scores25, scores50, time.perf_counter() - started)
-            row["ap25_per_class"] = {label: float(np.mean(per_class[label])) if label in per_class else None for label in CLASSES}
-            rows.append(row)
-    return rows, centralized, first_runs
+    for k in (k for k in users if k > 1):
+        results = [evaluate(collector.boxes[(k, run)], reference) for run in range(runs)]
+        row = _row("distributed", k, [r.map_at(0.25) for r in results], [r.map_at(0.5) for r in results], collector.wall_s[k])
+        per_class = {label: [r.at(0.25).ap[label] for r in results] for label in CLASSES}
+        row["ap25_per_class"] = {
+            label: None if any(ap is None for ap in aps) else float(np.mean(aps))  # type: ignore[arg-type]
+            for label, aps in per_class.items()
+        }
+        rows.append(row)
+    return rows, centralized, collector.first
 
 
 def write_pictures(

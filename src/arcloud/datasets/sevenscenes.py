@@ -6,8 +6,8 @@ optionally ``camera-intrinsics.txt`` (3x3; default fx = fy = 585, cx = 320, cy =
 Kinect) and ``gravity-direction.txt`` (3 numbers: the direction gravity pulls, in world coordinates).
 A scene folder with ``seq-XX`` sub-folders is read as those sequences one after the other.
 
-7-Scenes worlds are not z-up: with ``align_gravity=True`` the poses are rotated into a world whose +z
-is up (opposite gravity), so that gravity-aligned boxes are simply boxes in that world.
+7-Scenes worlds are not z-up: with ``align_gravity=True`` the poses are rotated (the smallest rotation,
+``arcloud.core.boxes.up_rotation``) into a world whose +z is up (opposite gravity), so that gravity-aligned boxes are simply boxes in that world.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arcloud.core.boxes import up_rotation
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame, Intrinsics
 from arcloud.datasets.files import natural_key, read_matrix, read_png_u16, read_rgb
@@ -31,24 +32,6 @@ DEFAULT_INTRINSICS = Intrinsics(585.0, 585.0, 320.0, 240.0)
 INVALID_DEPTH_MM = 65535
 FRAME_RATE_HZ = 30.0
 _SUFFIX = ".pose.txt"
-
-
-def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(3, 3) the smallest rotation taking unit direction ``a`` to unit direction ``b``."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    sin, cos = float(np.linalg.norm(axis)), float(np.dot(a, b))
-    if sin < 1e-12:
-        if cos > 0:
-            return np.eye(3)
-        # Opposite: turn half a circle about any axis perpendicular to a.
-        perpendicular = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        perpendicular /= np.linalg.norm(perpendicular)
-        return 2.0 * np.outer(perpendicular, perpendicular) - np.eye(3)
-    k = axis / sin
-    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + sin * cross + (1 - cos) * cross @ cross
 
 
 @dataclass(frozen=True, eq=False)
@@ -167,7 +150,7 @@ def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: st
 
     world2file = np.eye(4)
     if align_gravity and up_file is not None:
-        world2file[:3, :3] = rotation_between(np.array([0.0, 0.0, 1.0]), up_file)
+        world2file[:3, :3] = up_rotation(up_file).T  # up_rotation takes up to +z: file -> world
     cam2file = np.asarray(poses)
     cam2world = np.einsum("ij,njk->nik", np.linalg.inv(world2file), cam2file)
     return SevenScenesSequence(
@@ -184,4 +167,4 @@ def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: st
     )
 
 
-__all__ = ["DEFAULT_INTRINSICS", "SevenScenesSequence", "load_seven_scenes", "rotation_between"]
+__all__ = ["DEFAULT_INTRINSICS", "SevenScenesSequence", "load_seven_scenes"]
