@@ -155,6 +155,15 @@ def test_bad_uploads_are_refused_with_a_reason(client: AppClient, case: str, req
     assert client.get("/v1/maps/m/stats").status_code == 404  # nothing was accepted
 
 
+def test_a_large_body_without_content_length_is_cut_off(client: AppClient) -> None:
+    async def chunks():  # type: ignore[no-untyped-def]
+        for _ in range(5):
+            yield b"\0" * 60_000  # 300 kB in all, streamed (chunked): no Content-Length to refuse early
+
+    response = client.post("/v1/maps/m/frames", content=chunks(), headers=PROTOBUF)
+    assert response.status_code == 413 and "at most 200000 bytes" in response.json()["detail"]
+
+
 def test_unknown_maps_objects_and_bad_queries(client: AppClient) -> None:
     assert client.get("/v1/maps/nope/objects").status_code == 404
     assert client.get("/v1/maps/nope/stats").status_code == 404
