@@ -75,10 +75,15 @@ def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str,
         for i in range(2):
             session.put(frames_key("zf", "d"), frame_to_proto(make_test_frame(i, map_id="zf")).SerializeToString())
         session.put(frames_key("zf", "d"), b"not a frame")  # logged and dropped
-        wait_until(lambda: store.count_frames("zf") == 2, 20, "2 frames over zenoh processed")
+        session.put(frames_key("zf", "d"), frame_to_proto(make_test_frame(5, map_id="other")).SerializeToString())  # map ids disagree: dropped
+        unnamed = frame_to_proto(make_test_frame(6, map_id="zf"))
+        unnamed.map_id = ""  # the key names the map
+        session.put(frames_key("zf", "d"), unnamed.SerializeToString())
+        wait_until(lambda: store.count_frames("zf") == 3, 20, "3 frames over zenoh processed")
     finally:
         session.close()
-    assert api.get("/v1/maps/zf/stats").json()["frames"] == {"accepted": 2, "processed": 2, "failed": 0, "pending": 0}
+    assert api.get("/v1/maps/zf/stats").json()["frames"] == {"accepted": 3, "processed": 3, "failed": 0, "pending": 0}
+    assert api.get("/v1/maps/other/stats").status_code == 404
 
 
 def test_publisher_without_store_and_helpers() -> None:

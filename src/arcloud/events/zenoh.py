@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 
 KEY_ROOT = "arcloud"
 SessionMode = Literal["peer", "client", "router"]
-FrameHandler = Callable[[bytes], None]
+FrameHandler = Callable[[str, bytes], None]  # (map id from the key, payload)
 
 
 def objects_key(map_id: str) -> str:
@@ -82,8 +82,8 @@ def connectable(endpoints: Sequence[str]) -> list[str]:
 
 class ZenohPublisher:
     """``UpdatePublisher`` over Zenoh. With a ``store`` it also answers queries for a map's objects;
-    with ``on_frame`` it hands the payloads published on ``arcloud/*/frames/*`` to that callback
-    (called on a Zenoh thread; it must be quick and must not raise).
+    with ``on_frame`` it hands the payloads published on ``arcloud/<map_id>/frames/*`` to
+    ``on_frame(map_id, payload)`` (called on a Zenoh thread; it must be quick; what it raises is logged).
 
     ``session``: an open session to use (not closed by ``close``), else one is opened with ``mode``,
     ``listen`` and ``connect``."""
@@ -159,7 +159,7 @@ def _list_objects(store: ObjectStore, map_id: str) -> list[Any]:
 
 def _call_frame(handler: FrameHandler, sample: Any) -> None:
     try:
-        handler(sample.payload.to_bytes())
+        handler(str(sample.key_expr).split("/")[1], sample.payload.to_bytes())
     except Exception:  # noqa: BLE001 - a bad frame must not kill the Zenoh thread
         log.warning("frame from %s dropped", sample.key_expr, exc_info=True)
 

@@ -132,7 +132,7 @@ def start_runtime(
     if publisher is None and settings.zenoh_mode != "off":
         from arcloud.events.zenoh import ZenohPublisher
 
-        on_frame = (lambda payload: _ingest_zenoh_frame(holder["ingest"], payload, settings)) if settings.zenoh_frames else None
+        on_frame = (lambda map_id, payload: _ingest_zenoh_frame(holder["ingest"], map_id, payload, settings)) if settings.zenoh_frames else None
         publisher = ZenohPublisher(mode=settings.zenoh_mode, listen=settings.zenoh_listen, connect=settings.zenoh_connect, store=store, on_frame=on_frame)
         owned.append(publisher)
     ingest: Ingest
@@ -166,10 +166,11 @@ def stop_runtime(runtime: Runtime) -> None:
     log.info("arcloud service stopped")
 
 
-def _ingest_zenoh_frame(ingest: Ingest, payload: bytes, settings: Settings) -> None:
-    """A frame published on ``arcloud/<map>/frames/<device>``: validated and queued like an upload."""
+def _ingest_zenoh_frame(ingest: Ingest, map_id: str, payload: bytes, settings: Settings) -> None:
+    """A frame published on ``arcloud/<map_id>/frames/<device>``: validated and queued like an upload
+    (the map id of the key plays the part of the path's)."""
     msg = frames_in.parse_message(payload)
-    frame = frames_in.validate_message(msg, msg.map_id, max_pixels=settings.max_frame_pixels)
+    frame = frames_in.validate_message(msg, map_id, max_pixels=settings.max_frame_pixels)
     ingest.submit(frame, msg)
 
 
