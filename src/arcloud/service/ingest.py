@@ -33,7 +33,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
-from arcloud.core.step import process_frame
 from arcloud.core.types import Frame, Params
 from arcloud.errors import ArcloudError, LockTimeout, StaleLease, StoreUnavailable
 from arcloud.ports import Detector, ObjectStore, UpdatePublisher
@@ -155,6 +154,7 @@ def run_step(
 ) -> tuple[Any, int]:
     """``process_frame``, tried again (at most ``attempts`` times) when locks could not be taken or a
     lease went stale: nothing was written then. Returns the result and how many retries it took."""
+    from arcloud.core.step import process_frame  # scipy: loaded with the first frame, not at import
     for attempt in range(1, attempts + 1):
         try:
             return process_frame(frame, detector, store, params, publisher), attempt - 1
