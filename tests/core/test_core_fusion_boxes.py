@@ -59,10 +59,37 @@ def test_refine_drops_stray_voxels_and_fits_tight_boxes():
     params = Params(voxel_size_m=0.05)
     refined = refine(obj, params)
     assert refined.label == "table"
-    assert np.allclose(refined.aabb.min, [0, 0, 0]) and np.allclose(refined.aabb.max, [0.5, 0.3, 0.2])
-    assert np.allclose(sorted(refined.obb.size), [0.2, 0.3, 0.5])
+    # Centre to centre (box_pad_voxels = 0): voxel centres 0.025 .. 0.475 etc.
+    assert np.allclose(refined.aabb.min, [0.025, 0.025, 0.025]) and np.allclose(refined.aabb.max, [0.475, 0.275, 0.175])
+    assert np.allclose(sorted(refined.obb.size), [0.15, 0.25, 0.45])
+    padded = refine(obj, params.replace(box_pad_voxels=0.5))
+    assert np.allclose(padded.aabb.min, [0, 0, 0]) and np.allclose(padded.aabb.max, [0.5, 0.3, 0.2])
     assert 0 < refined.score < 0.9
     assert refined.bounds.max[0] > 2.0  # the index bounds still cover every voxel kept
+
+
+def test_background_seen_often_but_rarely_covered_is_pruned_and_kept_out_of_the_box():
+    body = block((0, 0, 0), (6, 6, 6))
+    wall = block((0, 6, 0), (6, 7, 6))  # one layer behind the object that masks bled onto once
+    obj = new_object(1, det("tv", np.union1d(body, wall)), "a", 0.0)
+    visible = np.ones(np.union1d(body, wall).size, bool)
+    for _ in range(4):  # the wall is visible but not covered: occupancy 1/5
+        obj = fuse_detection(obj, det("tv", body), "a", visible)
+    assert set(box_voxel_mask(obj, Params()).nonzero()[0]) == set(np.flatnonzero(np.isin(obj.keys, body)))
+    assert refine(obj, Params()).n_voxels == obj.n_voxels  # not seen often enough to prune yet
+    for _ in range(8):
+        obj = fuse_detection(obj, det("tv", body), "a", np.ones(obj.keys.size, bool))
+    pruned = refine(obj, Params(prune_min_seen=10, prune_max_occupancy=0.1))
+    assert np.array_equal(pruned.keys, body)
+    # Rarely visible parts (legs) keep their voxels however strong the rest is.
+    legs = block((0, 0, -6), (1, 1, 0))
+    table = new_object(2, det("table", np.union1d(body, legs)), "a", 0.0)
+    for i in range(50):  # the legs are in view (and covered) in 5 frames of 51
+        seen_legs = i % 10 == 0
+        covered = np.union1d(body, legs) if seen_legs else body
+        table = fuse_detection(table, det("table", covered), "a", np.isin(table.keys, covered))
+    assert np.isin(legs, refine(table, Params()).keys).all()
+    assert box_voxel_mask(table, Params())[np.isin(table.keys, legs)].all()
 
 
 def test_small_disconnected_part_is_not_in_the_box():

@@ -33,6 +33,7 @@ def make_object(object_id: int, lo_m: tuple[float, float, float], size_m: float 
         keys=keys,
         weights=rng.random(keys.size, np.float32) * 5,
         votes=votes,
+        seen=rng.random(keys.size, np.float32) * 5 + 5,
         n_frames=int(rng.integers(1, 50)),
         devices=frozenset({"dev-1", f"dev-{seed}"}),
         score_sum=float(rng.random() * 10),
@@ -51,6 +52,7 @@ def assert_same_object(got: MapObject, want: MapObject) -> None:
     np.testing.assert_array_equal(got.keys, want.keys)
     np.testing.assert_array_equal(got.weights, want.weights)
     np.testing.assert_array_equal(got.votes, want.votes)
+    np.testing.assert_array_equal(got.seen_counts, want.seen_counts)
     assert got.keys.dtype == np.int64 and got.weights.dtype == np.float32 and got.votes.dtype == np.float32
     for name in ("id", "n_frames", "devices", "score_sum", "version", "created_at_s", "updated_at_s", "label", "score"):
         assert getattr(got, name) == getattr(want, name), name

@@ -25,10 +25,12 @@ def random_voxels(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
 @pytest.mark.parametrize("n", [0, 1, 7, 5000])
 def test_voxels_round_trip_exactly(n: int) -> None:
     keys, weights, votes = random_voxels(n, seed=n)
-    blob = codec.encode_voxels(keys, weights, votes)
-    got_keys, got_weights, got_votes = codec.decode_voxels(blob)
+    seen = weights + np.float32(2.5)
+    blob = codec.encode_voxels(keys, weights, votes, seen=seen)
+    got_keys, got_weights, got_votes, got_seen = codec.decode_voxels(blob)
     np.testing.assert_array_equal(got_keys, keys)
     np.testing.assert_array_equal(got_weights, weights)
+    np.testing.assert_array_equal(got_seen, seen)
     np.testing.assert_array_equal(got_votes, votes)
     assert (got_keys.dtype, got_weights.dtype, got_votes.dtype) == (np.int64, np.float32, np.float32)
     assert got_votes.shape == (keys.size, N_CLASSES)
@@ -54,11 +56,21 @@ def test_votes_as_float16_keep_the_documented_precision() -> None:
     votes = votes * 1000
     blob16 = codec.encode_voxels(keys, weights, votes, votes_f16=True)
     blob32 = codec.encode_voxels(keys, weights, votes)
-    _, got_weights, got_votes = codec.decode_voxels(blob16)
+    _, got_weights, got_votes, _ = codec.decode_voxels(blob16)
     np.testing.assert_array_equal(got_weights, weights)
     np.testing.assert_allclose(got_votes, votes, rtol=2.0**-11, atol=0)
     assert not np.array_equal(got_votes, votes)  # it is lossy
     assert len(zlib.decompress(blob16[12:])) < len(zlib.decompress(blob32[12:]))
+
+
+def test_format_1_blobs_read_with_seen_equal_to_weights() -> None:
+    keys, weights, votes = random_voxels(5, seed=4)
+    payload = b"".join((np.diff(keys, prepend=0).astype("<i8").tobytes(), weights.tobytes(), votes.tobytes()))
+    blob = codec._HEADER.pack(codec.MAGIC, 1, 0, N_CLASSES, keys.size) + payload
+    got_keys, got_weights, got_votes, got_seen = codec.decode_voxels(blob)
+    np.testing.assert_array_equal(got_keys, keys)
+    np.testing.assert_array_equal(got_votes, votes)
+    np.testing.assert_array_equal(got_seen, weights)
 
 
 def test_encode_rejects_malformed_voxels() -> None:

@@ -9,7 +9,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
-from arcloud.core.fusion import object_label_index
+from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import key_centers, keys_bounds, unpack_keys
 
@@ -18,24 +18,26 @@ _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
 
 
 def prune_voxels(obj: MapObject, params: Params) -> MapObject:
-    """Permanently drop voxels whose weight is below ``prune_rel_weight`` of the object's strongest."""
+    """Permanently drop noise: voxels seen at least ``prune_min_seen`` times with an occupancy below
+    ``prune_max_occupancy`` (background that a few masks bled onto). A weight threshold relative to
+    the object's strongest voxel would also delete parts that are rarely in view (table legs)."""
     if obj.keys.size == 0:
         return obj
-    keep = obj.weights >= params.prune_rel_weight * obj.weights.max()
-    if keep.all():
-        return obj
-    return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep])
+    seen = obj.seen_counts
+    keep = ~((seen >= params.prune_min_seen) & (obj.weights < params.prune_max_occupancy * seen))
+    return obj if keep.all() else keep_voxels(obj, keep)
 
 
 def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
-    """(N,) bool: the voxels the boxes are fitted to. Drops voxels seen too rarely compared with the
-    object's well-observed voxels (weight below ``box_rel_weight`` of the 90th percentile), then
+    """(N,) bool: the voxels the boxes are fitted to. Keeps voxels that were mostly covered when
+    visible (occupancy weights / seen >= ``box_min_occupancy``) and not hit too rarely compared with
+    the object's well-observed voxels (``box_rel_weight`` of the 90th percentile weight), then drops
     connected parts (26-neighbourhood) smaller than ``min_component_fraction`` of the largest."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
     k = int(0.9 * (obj.weights.size - 1))
     reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
-    keep = obj.weights >= params.box_rel_weight * reference
+    keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
     if keep.sum() < 2:
         return keep
     ijk = unpack_keys(obj.keys[keep])
@@ -82,15 +84,14 @@ def footprint_cells(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     return (np.stack([packed >> 32, (packed & 0xFFFFFFFF) - (1 << 31)], axis=1) + 0.5) * voxel_size_m
 
 
-def fit_aabb(centers: np.ndarray, voxel_size_m: float) -> AABB:
-    """The tightest axis-aligned box around voxels with these centres (N, 3)."""
-    half = voxel_size_m / 2
-    return AABB(centers.min(axis=0) - half, centers.max(axis=0) + half)
+def fit_aabb(centers: np.ndarray, pad_m: float) -> AABB:
+    """The tightest axis-aligned box around voxel centres (N, 3), grown by ``pad_m`` on every side."""
+    return AABB(centers.min(axis=0) - pad_m, centers.max(axis=0) + pad_m)
 
 
-def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray) -> OBB:
+def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pad_m: float | None = None) -> OBB:
     """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
-    of the voxels projected on the ground plane."""
+    of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a voxel)."""
     world2gravity = up_rotation(up)
     points = centers if np.array_equal(world2gravity, np.eye(3)) else centers @ world2gravity.T
     xy = footprint_cells(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
@@ -111,7 +112,7 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray) ->
     c, s = math.cos(yaw), math.sin(yaw)
     yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
     local_xy = xy @ yaw_rotation[:2, :2]
-    half = voxel_size_m / 2
+    half = voxel_size_m / 2 if pad_m is None else pad_m
     lo = np.array([*local_xy.min(axis=0), points[:, 2].min()]) - half
     hi = np.array([*local_xy.max(axis=0), points[:, 2].max()]) + half
     box2world = world2gravity.T @ yaw_rotation
@@ -151,7 +152,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     return obj.replace(
         label=CLASSES[label_index],
         score=object_score(obj, label_index, box_mask, params),
-        aabb=fit_aabb(aligned, params.voxel_size_m),
-        obb=fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up)),
+        aabb=fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m),
+        obb=fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m),
         bounds=AABB(lo, hi),
     )

@@ -11,33 +11,33 @@ from arcloud.core.associate import overlap_matrix
 from arcloud.core.types import N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 
 
-def union_voxels(
-    keys_a: np.ndarray, weights_a: np.ndarray, votes_a: np.ndarray,
-    keys_b: np.ndarray, weights_b: np.ndarray, votes_b: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Union of two sparse voxel sets; weights and votes of a voxel in both are added."""
-    keys = np.union1d(keys_a, keys_b)
+def union_voxels(a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray) -> MapObject:
+    """``a`` with a sparse voxel set added: weights, seen counts and votes of a voxel in both add up."""
+    keys = np.union1d(a.keys, keys_b)
     weights = np.zeros(keys.size, np.float32)
+    seen = np.zeros(keys.size, np.float32)
     votes = np.zeros((keys.size, N_CLASSES), np.float32)
-    for k, w, v in ((keys_a, weights_a, votes_a), (keys_b, weights_b, votes_b)):
+    for k, w, n, v in ((a.keys, a.weights, a.seen_counts, a.votes), (keys_b, weights_b, seen_b, votes_b)):
         at = np.searchsorted(keys, k)
         weights[at] += w
+        seen[at] += n
         votes[at] += v
-    return keys, weights, votes
+    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes)
 
 
-def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str) -> MapObject:
-    """The object with one more observation: each voxel seen gains weight 1 and a vote of the
-    detection's score for its label."""
+def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None) -> MapObject:
+    """The object with one more observation: each voxel the detection covers gains weight 1 and a vote
+    of the detection's score for its label; every voxel covered or ``visible`` ((N,) bool over the
+    object's voxels: in view and not occluded in this frame) is counted as seen once more."""
     votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
     votes[:, det.label_index] = det.score
-    keys, weights, all_votes = union_voxels(
-        obj.keys, obj.weights, obj.votes, det.keys, np.ones(det.keys.size, np.float32), votes
-    )
-    return obj.replace(
-        keys=keys,
-        weights=weights,
-        votes=all_votes,
+    ones = np.ones(det.keys.size, np.float32)
+    fused = union_voxels(obj, det.keys, ones, ones, votes)
+    if visible is not None and visible.any():
+        # Visible voxels of the object that the detection did not cover: seen, not hit.
+        missed = obj.keys[visible & ~np.isin(obj.keys, det.keys, assume_unique=True)]
+        fused.seen[np.searchsorted(fused.keys, missed)] += 1
+    return fused.replace(
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},
         score_sum=obj.score_sum + det.score,
@@ -52,16 +52,19 @@ def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float
 
 def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
     """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object)."""
-    keys, weights, votes = union_voxels(keep.keys, keep.weights, keep.votes, absorbed.keys, absorbed.weights, absorbed.votes)
-    return keep.replace(
-        keys=keys,
-        weights=weights,
-        votes=votes,
+    merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes)
+    return merged.replace(
         n_frames=keep.n_frames + absorbed.n_frames,
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,
         created_at_s=min(keep.created_at_s, absorbed.created_at_s),
     )
+
+
+def keep_voxels(obj: MapObject, keep: np.ndarray) -> MapObject:
+    """The object with only the voxels where ``keep`` (N,) is True."""
+    seen = None if obj.seen is None else obj.seen[keep]
+    return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep], seen=seen)
 
 
 def object_label_index(obj: MapObject) -> int:
@@ -92,7 +95,7 @@ def find_duplicates(
         return []
     keys = [o.keys for o in objects]
     overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels, pairs_wanted=wanted)
-    same = wanted & (overlap >= params.merge_min_overlap)
+    same = wanted & ((overlap >= params.merge_min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
     np.fill_diagonal(same, False)
     parent = list(range(len(objects)))
 
@@ -115,6 +118,21 @@ def find_duplicates(
     return pairs
 
 
+def box_containment(objects: Sequence[MapObject]) -> np.ndarray:
+    """(N, N): the share of the smaller object's box volume inside the other's box (0 without boxes).
+
+    Parts of one object seen from different sides (a chair's back from behind, its seat from the front)
+    share few voxels but sit in one box."""
+    n = len(objects)
+    lo = np.array([o.aabb.min if o.aabb is not None else np.full(3, np.nan) for o in objects])
+    hi = np.array([o.aabb.max if o.aabb is not None else np.full(3, np.nan) for o in objects])
+    inter = np.prod(np.clip(np.minimum(hi[:, None], hi[None]) - np.maximum(lo[:, None], lo[None]), 0, None), axis=2)
+    volume = np.prod(hi - lo, axis=1)
+    smaller = np.minimum(volume[:, None], volume[None])
+    out = np.divide(inter, smaller, out=np.zeros((n, n)), where=np.isfinite(smaller) & (smaller > 0))
+    return np.nan_to_num(out)
+
+
 def resolve_conflicts(objects: Sequence[MapObject]) -> list[MapObject]:
     """One instance per voxel: a voxel held by several objects stays with the one that holds it with
     the highest weight (ties: the lower id) and leaves the others."""
@@ -135,5 +153,5 @@ def resolve_conflicts(objects: Sequence[MapObject]) -> list[MapObject]:
     for i, obj in enumerate(objects):
         drop = loser[start : start + obj.keys.size]
         start += obj.keys.size
-        resolved.append(obj if not drop.any() else obj.replace(keys=obj.keys[~drop], weights=obj.weights[~drop], votes=obj.votes[~drop]))
+        resolved.append(obj if not drop.any() else keep_voxels(obj, ~drop))
     return resolved

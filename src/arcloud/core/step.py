@@ -27,7 +27,7 @@ from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
 from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
-from arcloud.core.voxels import keys_bounds, voxelize_detections
+from arcloud.core.voxels import keys_bounds, visible_voxels, voxelize_detections
 from arcloud.errors import LockTimeout
 from arcloud.ports import Detector, Lease, ObjectStore, UpdatePublisher
 
@@ -97,7 +97,7 @@ def integrate_frame(
         clock.lap("lock")
         before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
         objects = list(before.values())
-        objects, unmatched = fuse_matches(objects, observations, params, frame.device_id)
+        objects, unmatched = fuse_matches(objects, observations, params, frame)
         result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
@@ -146,10 +146,11 @@ def find_visible(store: ObjectStore, frame: Frame, params: Params) -> list[int]:
 
 
 def fuse_matches(
-    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, device_id: str
+    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, frame: Frame
 ) -> tuple[list[MapObject], list[VoxelDetection]]:
-    """Associate observations with objects (Hungarian) and fuse the pairs; returns the objects (fused
-    ones replaced) and the observations left unmatched."""
+    """Associate observations with objects (Hungarian) and fuse the pairs, counting which voxels of a
+    matched object the frame saw; returns the objects (fused ones replaced) and the observations left
+    unmatched."""
     if not observations:
         return objects, []
     pairs, unmatched = associate(
@@ -162,7 +163,8 @@ def fuse_matches(
     )
     fused = list(objects)
     for d, o in pairs:
-        fused[o] = fuse_detection(fused[o], observations[d], device_id)
+        visible = visible_voxels(frame, fused[o].keys, params)
+        fused[o] = fuse_detection(fused[o], observations[d], frame.device_id, visible)
     return fused, [observations[d] for d in unmatched]
 
 
@@ -209,7 +211,7 @@ def create_under_claim(
         late_ids = sorted(set(store.query_region(frame.map_id, lo, hi)) - set(held_ids))
         late_leases = try_lock(store, frame.map_id, late_ids, params)
         late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
-        fused_late, still_unmatched = fuse_matches(late, unmatched, params, frame.device_id)
+        fused_late, still_unmatched = fuse_matches(late, unmatched, params, frame)
         new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
         created = [new_object(i, o, frame.device_id, now_s) for i, o in zip(new_ids, still_unmatched)]
     except BaseException:

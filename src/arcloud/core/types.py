@@ -111,14 +111,18 @@ class MapObject:
     """One object of the map: sparse voxels with occupancy weights and label votes, plus what the
     refinement derives from them (label, score, boxes).
 
-    keys: (N,) int64 sorted unique packed voxel keys. weights: (N,) float32 occupancy weights.
-    votes: (N, N_CLASSES) float32 score-weighted label votes per voxel.
+    keys: (N,) int64 sorted unique packed voxel keys. weights: (N,) float32 occupancy weights: the
+    number of detections of this object that covered the voxel. votes: (N, N_CLASSES) float32
+    score-weighted label votes per voxel. seen: (N,) float32, the number of those frames in which the
+    voxel was visible (in view and not occluded) or covered; weights / seen is the voxel's occupancy.
+    None means unknown and reads as equal to ``weights``.
     """
 
     id: int
     keys: np.ndarray
     weights: np.ndarray
     votes: np.ndarray
+    seen: np.ndarray | None = None
     n_frames: int = 0
     devices: frozenset[str] = frozenset()
     score_sum: float = 0.0
@@ -134,6 +138,11 @@ class MapObject:
     @property
     def n_voxels(self) -> int:
         return int(self.keys.size)
+
+    @property
+    def seen_counts(self) -> np.ndarray:
+        """``seen``, or ``weights`` where it is unknown."""
+        return self.weights if self.seen is None else self.seen
 
     def replace(self, **changes: object) -> MapObject:
         return dataclasses.replace(self, **changes)
@@ -170,12 +179,18 @@ class Params:
     class_aware: bool = False
     class_mismatch_penalty: float = 0.3
     # Fusion and refinement
-    prune_rel_weight: float = 0.05
-    box_rel_weight: float = 0.15
+    visibility_tolerance_m: float = 0.1
+    prune_min_seen: float = 10.0
+    prune_max_occupancy: float = 0.1
+    box_rel_weight: float = 0.05
+    box_min_occupancy: float = 0.3
     min_component_fraction: float = 0.2
     merge_min_overlap: float = 0.3
+    merge_min_box_containment: float = 0.6
     score_support_frames: float = 3.0
-    # Boxes
+    # Boxes: voxel centres, grown by this many voxels per side (0: centre to centre, which is unbiased
+    # for surfaces: an extreme voxel's centre is within half a voxel of the true extreme either way)
+    box_pad_voxels: float = 0.0
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     world2aligned: tuple[tuple[float, ...], ...] | None = None
     # Store
@@ -194,6 +209,7 @@ def empty_object(object_id: int) -> MapObject:
         keys=np.empty(0, np.int64),
         weights=np.empty(0, np.float32),
         votes=np.empty((0, N_CLASSES), np.float32),
+        seen=np.empty(0, np.float32),
     )
 
 

@@ -118,3 +118,27 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
         if keys.size >= params.min_voxels_per_detection:
             voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys))
     return voxelized
+
+
+def visible_voxels(frame: Frame, keys: np.ndarray, params: Params) -> np.ndarray:
+    """(N,) bool: which voxels the frame saw: their centre projects into the image, in front of the
+    camera, onto valid depth within ``visibility_tolerance_m`` (plus half a voxel) of the centre's
+    depth. Voxels behind a nearer surface (occluded) or in front of the measured one are not."""
+    if keys.size == 0:
+        return np.zeros(0, bool)
+    centers = key_centers(keys, params.voxel_size_m)
+    world2cam = np.linalg.inv(frame.cam2world)
+    cam = centers @ world2cam[:3, :3].T + world2cam[:3, 3]
+    z = cam[:, 2]
+    intr = frame.intrinsics
+    height, width = frame.depth_m.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(cam[:, 0] * intr.fx / z + intr.cx + 0.5)
+        v = np.floor(cam[:, 1] * intr.fy / z + intr.cy + 0.5)
+    inside = (z > params.depth_min_m) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    visible = np.zeros(keys.size, bool)
+    idx = np.flatnonzero(inside)
+    measured = frame.depth_m[v[idx].astype(np.int64), u[idx].astype(np.int64)]
+    tolerance = params.visibility_tolerance_m + params.voxel_size_m / 2
+    visible[idx] = (measured >= params.depth_min_m) & (np.abs(measured - z[idx]) <= tolerance)
+    return visible

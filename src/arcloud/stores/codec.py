@@ -1,10 +1,11 @@
 """Binary encoding of objects for the Redis store (never pickle).
 
-Voxels: one blob with a 12-byte header and three arrays, optionally zlib-compressed:
+Voxels: one blob with a 12-byte header and four arrays, optionally zlib-compressed:
 
-    header  <4s B B H I   magic b"ARCV", format version (1), flags, n_classes, n_voxels
+    header  <4s B B H I   magic b"ARCV", format version (2), flags, n_classes, n_voxels
     keys    int64 (N,)     first key, then the differences of the sorted unique keys (all > 0)
     weights float32 (N,)   exact
+    seen    float32 (N,)   exact (format 2; format 1 blobs, without it, read as seen = weights)
     votes   float32 (N, C) exact; or float16 with ``FLAG_VOTES_F16`` (relative error <= 2**-11,
                            largest vote 65504: only for maps whose voxels get fewer than ~60000 votes)
     (flags: ``FLAG_ZLIB`` = the arrays after the header are one zlib stream, used from 256 bytes)
@@ -32,7 +33,8 @@ from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject
 from arcloud.errors import InvalidInput, StoreError
 
 MAGIC = b"ARCV"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 FLAG_ZLIB = 1
 FLAG_VOTES_F16 = 2
 ZLIB_MIN_BYTES = 256  # smaller payloads are stored raw (zlib would not pay for its own overhead)
@@ -40,8 +42,11 @@ ZLIB_LEVEL = 1
 _HEADER = struct.Struct("<4sBBHI")
 _BOX = struct.Struct("<6d")  # min xyz, max xyz
 
-def encode_voxels(keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, votes_f16: bool = False) -> bytes:
-    """keys (N,) int64 sorted unique, weights (N,) float32, votes (N, C) float32 -> bytes."""
+def encode_voxels(
+    keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, seen: np.ndarray | None = None, votes_f16: bool = False
+) -> bytes:
+    """keys (N,) int64 sorted unique, weights (N,) float32, votes (N, C) float32, seen (N,) float32
+    (None: equal to weights) -> bytes."""
     keys = np.asarray(keys)
     n = keys.size
     if keys.ndim != 1 or keys.dtype != np.int64:
@@ -50,6 +55,9 @@ def encode_voxels(keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, v
     votes = np.asarray(votes)
     if weights.shape != (n,):
         raise InvalidInput("weights", f"shape ({n},)", f"shape {weights.shape}")
+    seen = weights if seen is None else np.asarray(seen)
+    if seen.shape != (n,):
+        raise InvalidInput("seen", f"shape ({n},)", f"shape {seen.shape}")
     if votes.ndim != 2 or votes.shape[0] != n:
         raise InvalidInput("votes", f"shape ({n}, n_classes)", f"shape {votes.shape}")
     deltas = np.empty(n, np.int64)
@@ -63,6 +71,7 @@ def encode_voxels(keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, v
     payload = b"".join((
         deltas.astype("<i8", copy=False).tobytes(),
         weights.astype("<f4", copy=False).tobytes(),
+        seen.astype("<f4", copy=False).tobytes(),
         np.ascontiguousarray(votes, dtype=votes_dtype).tobytes(),
     ))
     if len(payload) >= ZLIB_MIN_BYTES:
@@ -71,13 +80,13 @@ def encode_voxels(keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, v
     return _HEADER.pack(MAGIC, FORMAT_VERSION, flags, votes.shape[1], n) + payload
 
 
-def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """bytes -> (keys (N,) int64, weights (N,) float32, votes (N, C) float32)."""
+def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """bytes -> (keys (N,) int64, weights (N,) float32, votes (N, C) float32, seen (N,) float32)."""
     if len(blob) < _HEADER.size:
         raise StoreError(f"voxel blob of {len(blob)} bytes is shorter than its {_HEADER.size}-byte header")
     magic, version, flags, n_classes, n = _HEADER.unpack_from(blob)
-    if magic != MAGIC or version != FORMAT_VERSION:
-        raise StoreError(f"voxel blob: expected magic {MAGIC!r} version {FORMAT_VERSION}, got {magic!r} version {version}")
+    if magic != MAGIC or version not in READABLE_VERSIONS:
+        raise StoreError(f"voxel blob: expected magic {MAGIC!r} version in {READABLE_VERSIONS}, got {magic!r} version {version}")
     payload = memoryview(blob)[_HEADER.size :]
     if flags & FLAG_ZLIB:
         try:
@@ -85,13 +94,16 @@ def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         except zlib.error as exc:
             raise StoreError(f"voxel blob: corrupt zlib stream ({exc})") from exc
     votes_dtype = np.dtype("<f2") if flags & FLAG_VOTES_F16 else np.dtype("<f4")
-    expected = n * 8 + n * 4 + n * n_classes * votes_dtype.itemsize
+    n_float_arrays = 2 if version >= 2 else 1
+    expected = n * 8 + n * 4 * n_float_arrays + n * n_classes * votes_dtype.itemsize
     if len(payload) != expected:
         raise StoreError(f"voxel blob: expected {expected} bytes for {n} voxels, got {len(payload)}")
     keys = np.cumsum(np.frombuffer(payload, "<i8", n, 0), dtype=np.int64)
     weights = np.frombuffer(payload, "<f4", n, n * 8).astype(np.float32)
-    votes = np.frombuffer(payload, votes_dtype, n * n_classes, n * 12).astype(np.float32).reshape(n, n_classes)
-    return keys, weights, votes
+    seen = np.frombuffer(payload, "<f4", n, n * 12).astype(np.float32) if version >= 2 else weights.copy()
+    votes_at = n * 8 + n * 4 * n_float_arrays
+    votes = np.frombuffer(payload, votes_dtype, n * n_classes, votes_at).astype(np.float32).reshape(n, n_classes)
+    return keys, weights, votes, seen
 
 
 def pack_box(box: AABB) -> bytes:
@@ -216,13 +228,13 @@ def _meta(object_id: int, fields: dict) -> ObjectMeta:  # type: ignore[type-arg]
 def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes) -> MapObject:
     """Metadata JSON and voxel blob -> ``MapObject``."""
     meta = decode_meta(object_id, meta_blob)
-    keys, weights, votes = decode_voxels(voxels_blob)
+    keys, weights, votes, seen = decode_voxels(voxels_blob)
     if votes.shape[1] != N_CLASSES:
         raise StoreError(f"object {object_id}: expected votes for {N_CLASSES} classes, got {votes.shape[1]}")
     if keys.size != meta.n_voxels:
         raise StoreError(f"object {object_id}: metadata says {meta.n_voxels} voxels, the voxels hold {keys.size}")
     return MapObject(
-        id=meta.id, keys=keys, weights=weights, votes=votes, n_frames=meta.n_frames, devices=meta.devices,
+        id=meta.id, keys=keys, weights=weights, votes=votes, seen=seen, n_frames=meta.n_frames, devices=meta.devices,
         score_sum=meta.score_sum, version=meta.version, created_at_s=meta.created_at_s,
         updated_at_s=meta.updated_at_s, label=meta.label, score=meta.score, aabb=meta.aabb, obb=meta.obb,
         bounds=meta.bounds,

@@ -188,7 +188,7 @@ class MemoryStore:
                 self._unindex(state, obj.id)
                 state.objects.pop(obj.id, None)
             for obj in upserts:
-                for array in (obj.keys, obj.weights, obj.votes):
+                for array in (obj.keys, obj.weights, obj.votes, obj.seen_counts):
                     array.setflags(write=False)  # stored objects are shared: nobody may edit them in place
                 self._unindex(state, obj.id)
                 state.objects[obj.id] = obj

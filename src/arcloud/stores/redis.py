@@ -342,7 +342,7 @@ class RedisStore:
             payload += [
                 codec.pack_box(obj.bounds),
                 codec.encode_meta(obj),
-                codec.encode_voxels(obj.keys, obj.weights, obj.votes, votes_f16=self.votes_f16),
+                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, votes_f16=self.votes_f16),
             ]
         with self._boundary(f"commit on map {map_id}"):
             written = self._scripts["commit"](
