@@ -10,6 +10,7 @@ import pytest
 from svc_helpers import UvicornThread
 
 from arcloud.core.types import Intrinsics, Params
+from arcloud.errors import ArcloudError
 from arcloud.eval.metrics import Box3D, evaluate
 from arcloud.eval.protocol import object_boxes, run_map
 from arcloud.service.app import create_app
@@ -64,3 +65,5 @@ def test_cli_options_become_settings(monkeypatch: pytest.MonkeyPatch) -> None:
     assert settings_from_args(worker).zenoh_connect == ["tcp/zenoh:7447"]
     with pytest.raises(SystemExit):
         parser().parse_args(["replay", "--users", "0"])
+    with pytest.raises(ArcloudError, match=r"store: expected `memory` or a URL.*'mysql://u:\*\*\*@db'; detector: expected PREFIX"):
+        settings_from_args(parser().parse_args(["serve", "--redis", "mysql://u:pw@db", "--detector", "foo"]))

@@ -96,7 +96,18 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         overrides["zenoh_mode"] = args.zenoh_mode
     elif args.zenoh_listen or args.zenoh_connect:
         overrides["zenoh_mode"] = "peer"
-    return Settings(**overrides)
+    from pydantic import ValidationError
+
+    from arcloud.errors import ArcloudError
+
+    try:
+        return Settings(**overrides)
+    except ValidationError as exc:  # the CLI's edge: one line per wrong setting, no traceback
+        problems = []
+        for error in exc.errors():
+            where = ".".join(str(p) for p in error["loc"]) or "settings"
+            problems.append(f"{where}: {error['msg'].removeprefix('Value error, ').removeprefix(f'{where}: ')}")
+        raise ArcloudError(f"invalid settings (options or ARCLOUD_* variables): {'; '.join(problems)}") from None
 
 
 def run_serve(args: argparse.Namespace) -> int:
