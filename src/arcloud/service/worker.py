@@ -3,6 +3,7 @@ consumer group, runs the step and acknowledges.
 
 One loop per worker (``StreamWorker.run``):
 
+0. A thread writes the worker's heartbeat (``arcloud:ingest:workers``) every second.
 1. Every ``claim_interval_s``: XAUTOCLAIM one entry idle for ``claim_min_idle_s`` (its worker died or
    hangs), read how often it was delivered (XPENDING); beyond ``max_deliveries`` it is a poison frame:
    moved to the dead-letter stream, recorded as failed, acknowledged. Otherwise processed here.
@@ -114,13 +115,15 @@ class StreamWorker:
         self.read_block_ms = max(1, int(read_block_s * 1000))
         self.attempts = attempts
         self._next_claim = 0.0
-        self._next_heartbeat = 0.0
         self._claim_cursor = "0-0"
 
     def run(self, stop: threading.Event) -> None:
         """Work until ``stop`` is set; the frame in hand is finished first."""
         ensure_group(self.client, self.group)
         log.info("worker %s reading %s as group %s", self.consumer, INGEST_STREAM, self.group)
+        beating = threading.Event()
+        heart = threading.Thread(target=self._beat, args=(beating,), name="arcloud-heartbeat", daemon=True)
+        heart.start()
         try:
             while not stop.is_set():
                 try:
@@ -129,23 +132,27 @@ class StreamWorker:
                     log.exception("worker %s: polling failed; retrying in 1 s", self.consumer)
                     stop.wait(1.0)
         finally:
+            beating.set()
+            heart.join()
             try:
                 self.client.hdel(WORKERS, self.consumer)
             except Exception:  # noqa: BLE001 - leaving anyway; the heartbeat goes stale
                 log.debug("worker %s: heartbeat not removed", self.consumer, exc_info=True)
         log.info("worker %s stopped", self.consumer)
 
-    def heartbeat(self) -> None:
-        """Record that this worker is alive (at most every ``HEARTBEAT_S``)."""
-        now = time.monotonic()
-        if now >= self._next_heartbeat:
-            self.client.hset(WORKERS, self.consumer, repr(time.time()))
-            self._next_heartbeat = now + HEARTBEAT_S
+    def _beat(self, done: threading.Event) -> None:
+        """Write this worker's heartbeat every ``HEARTBEAT_S`` (also while a long step runs)."""
+        while True:
+            try:
+                self.client.hset(WORKERS, self.consumer, repr(time.time()))
+            except Exception:  # noqa: BLE001 - Redis away: the loop logs it; try again next beat
+                log.debug("worker %s: heartbeat failed", self.consumer, exc_info=True)
+            if done.wait(HEARTBEAT_S):
+                return
 
     def poll_once(self) -> int:
         """Claim one abandoned entry when due, else read one new entry (blocking). Returns how many
         entries were handled."""
-        self.heartbeat()
         now = time.monotonic()
         if now >= self._next_claim:
             if self.claim_abandoned():
