@@ -29,6 +29,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 UP = np.array([0.0, 0.0, 1.0])
+#: Distance per metre of size for a thing to fit in a VGA view (half field of view about 28 degrees).
+FIT_PER_SIZE = 0.5 / math.tan(math.radians(28.0))
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, *, roll_rad: float = 0.0) -> np.ndarray:
@@ -181,17 +183,19 @@ def plan_walk(
     floor_z_m: float = 0.0,
     clearance_m: float = 0.3,
     wall_margin_m: float = 0.35,
-    view_distance_m: tuple[float, float] = (1.2, 2.6),
-    group_radius_m: float = 1.3,
-    fixation_frames: int = 24,
+    ring_inset_m: float | None = None,
+    fixation_frames: int = 20,
     cell_m: float = 0.1,
+    target_extents_m: np.ndarray | Sequence[float] | None = None,
 ) -> list[np.ndarray]:
     """One user's walk: ``n_frames`` (4, 4) cam2world poses, one every ``step_m`` of walking.
 
     floor_min_xy, floor_max_xy: (2,) the walkable floor's extent. targets: (N, 3) points to look at
     (object centres). obstacles_xy: (min_xy, max_xy) footprints to keep ``clearance_m`` from (walls:
     ``wall_margin_m``). The eye is ``eye_height_m`` (plus a per-walk offset within
-    ``eye_height_jitter_m`` and a small bob) above ``floor_z_m``. Deterministic for a seed."""
+    ``eye_height_jitter_m`` and a small bob) above ``floor_z_m``. target_extents_m: (N,) the size of
+    what is around each target (e.g. an object's box diagonal, default 0.8 m): viewpoints and fixations
+    keep far enough for it to fit in view. Deterministic for a seed."""
     lo = np.asarray(floor_min_xy, dtype=np.float64).reshape(2)
     hi = np.asarray(floor_max_xy, dtype=np.float64).reshape(2)
     if not np.all(hi - lo > 2 * wall_margin_m):
@@ -201,11 +205,17 @@ def plan_walk(
         raise InvalidInput("n_frames", "an integer >= 1", repr(n_frames))
     if step_m <= 0 or fixation_frames < 1:
         raise InvalidInput("step_m, fixation_frames", "> 0", f"{step_m}, {fixation_frames}")
+    if target_extents_m is None:
+        extents = np.full(len(targets), 0.8)
+    else:
+        extents = np.asarray(target_extents_m, dtype=np.float64).reshape(-1)
+        if extents.shape != (len(targets),) or not np.all(np.isfinite(extents)) or np.any(extents < 0):
+            raise InvalidInput("target_extents_m", f"{len(targets)} sizes >= 0 (one per target)", np.array2string(extents))
     rng = np.random.default_rng(seed)
     obstacles = [(np.asarray(a, np.float64).reshape(2), np.asarray(b, np.float64).reshape(2)) for a, b in obstacles_xy]
     grid = _FreeGrid(lo, hi, obstacles, cell_m=cell_m, clearance_m=clearance_m, wall_margin_m=wall_margin_m)
 
-    xy = _walk_path(grid, targets, n_frames * step_m, rng, view_distance_m=view_distance_m, group_radius_m=group_radius_m)
+    xy = _walk_path(grid, n_frames * step_m, rng, ring_inset_m=ring_inset_m)
     positions = _resample(xy, step_m)[:n_frames]
     if len(positions) < n_frames:  # a tiny floor: stand at the end
         positions = np.concatenate([positions, np.repeat(positions[-1:], n_frames - len(positions), axis=0)])
@@ -216,74 +226,50 @@ def plan_walk(
     phase = rng.uniform(0, 2 * math.pi, 2)
     z = floor_z_m + base + 0.012 * np.sin(2 * math.pi * s / 0.7 + phase[0]) + 0.02 * np.sin(2 * math.pi * s / 6.0 + phase[1])
     eyes = np.column_stack([positions, z])
-    gaze = _gaze_points(eyes, targets, rng, fixation_frames=fixation_frames)
+    yaw, pitch = _gaze_angles(eyes, targets, extents, rng, fixation_frames=fixation_frames)
     roll = np.radians(1.5) * _smooth(rng.normal(0.0, 1.0, n_frames), 12.0) * 3.0
     poses = []
-    for eye, point, r in zip(eyes, gaze, roll):
-        direction = point - eye
-        horizontal = np.linalg.norm(direction[:2])
-        if horizontal < 1e-3:
-            direction = np.array([1.0, 0.0, 0.0])
-            horizontal = 1.0
-        # Keep the pitch between looking 65 degrees down and 20 degrees up.
-        pitch = np.clip(math.atan2(direction[2], horizontal), -math.radians(65), math.radians(20))
-        direction = np.concatenate([direction[:2] / horizontal * math.cos(pitch), [math.sin(pitch)]])
+    for eye, y, p, r in zip(eyes, yaw, pitch, roll):
+        direction = np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
         poses.append(look_at(eye, eye + direction, roll_rad=float(r)))
     return poses
 
 
-def _walk_path(
-    grid: _FreeGrid,
-    targets: np.ndarray,
-    length_m: float,
-    rng: np.random.Generator,
-    *,
-    view_distance_m: tuple[float, float],
-    group_radius_m: float,
-) -> np.ndarray:
-    """(N, 2) smoothed path at least ``length_m`` long (unless there is nothing to visit)."""
-    start = grid.free_index[int(rng.integers(len(grid.free_index)))]
+def _walk_path(grid: _FreeGrid, length_m: float, rng: np.random.Generator, *, ring_inset_m: float | None) -> np.ndarray:
+    """(N, 2) smoothed path at least ``length_m`` long: laps of a ring around the room, inset from
+    the floor's edges so that one lap is about as long as the walk (things along the walls are then
+    seen from 1-2.5 m, things in the middle from all sides), alternating direction and inset."""
+    lo, hi = grid.origin, grid.origin + np.array([grid.nx, grid.ny]) * grid.cell
+    size = hi - lo
+    if ring_inset_m is None:  # a lap of about 75 % of the walk (detours make up some of the rest)
+        ring_inset_m = (2 * (size[0] + size[1]) - 0.75 * length_m) / 8
+    largest = max(float(min(size)) / 2 - 0.4, 0.0)
     flat_xy = grid.xy.reshape(-1, 2)
-    if len(targets) == 0:
-        groups: list[np.ndarray] = []
-    else:
-        groups = _cluster(targets[:, :2], group_radius_m, rng)
-    centres = [targets[g, :2].mean(axis=0) for g in groups]
-    seen_angles: list[list[float]] = [[] for _ in groups]
-    waypoints = [start]
-    current = start
-    total = 0.0
-    pieces = [flat_xy[[start]]]
-    unvisited: list[int] = []
-    lo_d, hi_d = view_distance_m
-    guard = 0
-    while total < length_m + 1.0 and guard < 200:
-        guard += 1
-        if groups:
-            if not unvisited:
-                unvisited = list(range(len(groups)))
-            here = flat_xy[current]
-            k = min(unvisited, key=lambda g: np.linalg.norm(centres[g] - here) + 0.3 * rng.random())
-            unvisited.remove(k)
-            offsets = grid.free_xy - centres[k]
-            dist = np.linalg.norm(offsets, axis=1)
-            angles = np.arctan2(offsets[:, 1], offsets[:, 0])
-            novelty = np.array([_angle_gap(a, seen_angles[k]) for a in angles]) / math.pi
-            in_range = (dist >= lo_d) & (dist <= hi_d)
-            walk = np.linalg.norm(grid.free_xy - here, axis=1)
-            score = 1.5 * novelty - 0.15 * walk + 0.3 * rng.random(len(dist)) - 2.0 * ~in_range - 0.5 * np.abs(dist - (lo_d + hi_d) / 2)
-            choice = int(np.argmax(score))
-            seen_angles[k].append(float(angles[choice]))
-            goal = int(grid.free_index[choice])
-        else:  # nothing to look at: wander
-            goal = int(grid.free_index[int(rng.integers(len(grid.free_index)))])
-        if goal == current:
-            continue
-        leg = grid.path(current, goal)
-        pieces.append(leg[1:])
-        total += float(np.sum(np.linalg.norm(np.diff(leg, axis=0), axis=1)))
-        waypoints.append(goal)
-        current = goal
+    direction = 1 if rng.random() < 0.5 else -1
+    phase = rng.uniform(0.0, 1.0)
+    current = None
+    pieces = []
+    total, lap = 0.0, 0
+    while total < length_m + 1.0 and lap < 50:
+        inset = float(np.clip(ring_inset_m + (0.35 if lap % 2 else 0.0), 0.0, largest))
+        ring = _rectangle_points(lo + inset, hi - inset, step_m=0.5, phase=phase, direction=direction)
+        goals = []
+        for point in ring:
+            cell = grid.cell_of(point)
+            if not goals or goals[-1] != cell:
+                goals.append(cell)
+        if current is None:
+            current = goals[0]
+            pieces.append(flat_xy[[current]])
+        for goal in goals[1:] + goals[:1]:
+            if goal == current:
+                continue
+            leg = grid.path(current, goal)
+            pieces.append(leg[1:])
+            total += float(np.sum(np.linalg.norm(np.diff(leg, axis=0), axis=1)))
+            current = goal
+        lap += 1
+        direction = -direction
     path = np.concatenate(pieces)
     if len(path) < 2:
         return path
@@ -293,49 +279,187 @@ def _walk_path(
     ij = np.clip(((smooth - grid.origin) / grid.cell).astype(int), 0, [grid.nx - 1, grid.ny - 1])
     ok = grid.free[ij[:, 1], ij[:, 0]]
     smooth[~ok] = dense[~ok]
-    log.debug("walk: %d groups, %d viewpoints, %.1f m", len(groups), len(waypoints) - 1, total)
+    log.debug("walk: ring inset %.2f m, %d laps, %.1f m", ring_inset_m, lap, total)
     return smooth
 
 
-def _gaze_points(eyes: np.ndarray, targets: np.ndarray, rng: np.random.Generator, *, fixation_frames: int) -> np.ndarray:
-    """(N, 3) smoothed points the head looks at, one per eye position."""
+def _rectangle_points(lo: np.ndarray, hi: np.ndarray, *, step_m: float, phase: float, direction: int) -> np.ndarray:
+    """Points every ``step_m`` around the rectangle [lo, hi] (degenerate: a segment or a point),
+    starting ``phase`` (0-1) of the way round, counter-clockwise for ``direction`` 1."""
+    corners = np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]], lo], dtype=np.float64)
+    ring = _resample(corners, step_m) if np.any(hi > lo) else corners[:1]
+    ring = np.roll(ring, -int(phase * len(ring)), axis=0)
+    return ring if direction > 0 else ring[::-1]
+
+
+def _loop_order(points: np.ndarray, start: np.ndarray, rng: np.random.Generator) -> list[int]:
+    """An order of ``points`` (N, 2) for a short open tour from ``start``: nearest neighbour, then
+    2-opt; a random start among the nearest few keeps walks of different seeds apart."""
+    n = len(points)
+    if n <= 1:
+        return list(range(n))
+    nearest = np.argsort(np.linalg.norm(points - start, axis=1))[: min(3, n)]
+    order = [int(rng.choice(nearest))]
+    left = set(range(n)) - set(order)
+    while left:
+        here = points[order[-1]]
+        order.append(min(left, key=lambda i: float(np.linalg.norm(points[i] - here))))
+        left.remove(order[-1])
+
+    def length(route: list[int]) -> float:
+        path = np.concatenate([start[None], points[route]])
+        return float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+
+    improved = True
+    while improved:
+        improved = False
+        for i in range(1, n - 1):
+            for j in range(i + 1, n):
+                candidate = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                if length(candidate) < length(order) - 1e-9:
+                    order, improved = candidate, True
+    return order
+
+
+#: Half the field of view (horizontal, vertical) within which a target counts as in view: a VGA
+#: camera with fx = fy = 525 px sees about 31 x 25 degrees either side of its axis.
+VIEW_HALF_DEG = (28.0, 21.0)
+
+
+def _gaze_angles(
+    eyes: np.ndarray,
+    targets: np.ndarray,
+    extents: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    fixation_frames: int,
+    max_turn_deg: float = 4.0,
+    max_pitch_deg: float = 2.5,
+    pitch_range_deg: tuple[float, float] = (-65.0, 20.0),
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) yaw and (N,) pitch of the view, in radians: the head fixates one target at a time,
+    turning towards it at most ``max_turn_deg`` (yaw) and ``max_pitch_deg`` per frame. Each next
+    target is the one that the turning head would hold in good view (far enough to fit, near enough
+    to see) longest over the next fixation, weighed by how little it has been in view so far, whether
+    it will be in good view again later, and whether this side of it is new."""
     n = len(eyes)
     heading = np.gradient(_smooth(eyes[:, :2], 5.0), axis=0) if n > 1 else np.array([[1.0, 0.0]])
-    if len(targets) == 0:
-        ahead = eyes[:, :2] + 2.0 * heading / np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
-        return np.column_stack([ahead, eyes[:, 2] - 0.6])
-    counts = np.zeros((len(targets), 8))
-    points = np.empty((n, 3))
-    i = 0
-    previous = -1
+    heading_yaw = np.unwrap(np.arctan2(heading[:, 1], heading[:, 0]))
+    if len(targets) == 0:  # look ahead, a little down
+        return _smooth(heading_yaw, 8.0), np.full(n, math.radians(-15.0))
+    n_targets = len(targets)
+    near = np.maximum(0.7, 0.6 * FIT_PER_SIZE * extents)  # most of it in view
+    far = np.maximum(4.5, near + 1.0)
+    low, high = np.radians(pitch_range_deg)
+    # Per frame and target: direction (yaw, pitch) from the eye, and whether the distance suits.
+    delta = targets[None, :, :] - eyes[:, None, :]  # (frames, targets, 3)
+    dist = np.linalg.norm(delta, axis=2)
+    yaw_to = np.arctan2(delta[..., 1], delta[..., 0])
+    pitch_to = np.clip(np.arctan2(delta[..., 2], np.linalg.norm(delta[..., :2], axis=2)), low, high)
+    in_range = (dist >= near) & (dist <= far)
+    ahead = np.abs((yaw_to - heading_yaw[:, None] + math.pi) % (2 * math.pi) - math.pi) < math.radians(100)
+    good = in_range & ahead
+    later = np.concatenate([np.cumsum(good[::-1], axis=0)[::-1], np.zeros((1, n_targets))])  # frames i.. in good view
+    half_yaw, half_pitch = np.radians(VIEW_HALF_DEG)
+    max_turn, max_pitch = math.radians(max_turn_deg), math.radians(max_pitch_deg)
+
+    def follow(k: int, start: int, stop: int, yaw0: float, pitch0: float) -> tuple[np.ndarray, np.ndarray]:
+        """The head's yaw and pitch over frames [start, stop) turning from (yaw0, pitch0) to target k."""
+        yaws, pitches = np.empty(stop - start), np.empty(stop - start)
+        y, p = yaw0, pitch0
+        for f in range(start, stop):
+            dy = (yaw_to[f, k] - y + math.pi) % (2 * math.pi) - math.pi
+            y += min(max(dy, -max_turn), max_turn)
+            p += min(max(pitch_to[f, k] - p, -max_pitch), max_pitch)
+            yaws[f - start], pitches[f - start] = y, p
+        return yaws, pitches
+
+    def in_view(frames: np.ndarray, yaws: np.ndarray, pitches: np.ndarray) -> np.ndarray:
+        """(len(frames), targets) whether each target is in view and in range."""
+        dy = np.abs((yaw_to[frames] - yaws[:, None] + math.pi) % (2 * math.pi) - math.pi)
+        dp = np.abs(pitch_to[frames] - pitches[:, None])
+        return (dy * np.cos(pitch_to[frames]) < half_yaw) & (dp < half_pitch) & in_range[frames]
+
+    seen = np.zeros(n_targets)  # frames each target was in view
+    sides = np.zeros((n_targets, 8))  # fixations per target and 45-degree side
+    yaw, pitch = np.empty(n), np.empty(n)
+    # Start facing what is in range now but rarely ahead later (the user may start facing anywhere).
+    first = int(np.argmax(in_range[0] * (1.0 + fixation_frames / (later[0] + fixation_frames)) + 0.1 * rng.random(n_targets)))
+    y0, p0 = float(yaw_to[0, first]), float(pitch_to[0, first])
+    i, previous = 0, -1
     while i < n:
-        length = int(rng.integers(max(1, fixation_frames * 2 // 3), fixation_frames * 4 // 3 + 1))
-        mid = min(i + length // 2, n - 1)
-        offset = eyes[mid, :2] - targets[:, :2]
-        dist = np.linalg.norm(offset, axis=1)
-        bucket = ((np.arctan2(offset[:, 1], offset[:, 0]) + math.pi) / (2 * math.pi) * 8).astype(int) % 8
-        h = heading[mid] / max(np.linalg.norm(heading[mid]), 1e-9)
-        bearing = np.arccos(np.clip((-offset @ h) / np.maximum(dist, 1e-9), -1, 1))
-        novelty = 1.0 / (1.0 + counts[np.arange(len(targets)), bucket])
+        hold = int(rng.integers(max(1, fixation_frames * 2 // 3), fixation_frames * 4 // 3 + 1))
+        # Each candidate: turn towards it (up to another ``hold`` frames), then hold it ``hold`` frames.
+        horizon = min(2 * hold, n - i)
+        frames = np.arange(i, i + horizon)
+        plans, spans, quality = [], [], np.zeros(n_targets)
+        for k in range(n_targets):
+            plan = follow(k, i, i + horizon, y0, p0)
+            visible = in_view(frames, *plan)[:, k]
+            start = int(np.argmax(visible)) if visible.any() else horizon
+            span = min(horizon, start + hold) if visible.any() else min(hold, horizon)
+            plans.append(plan)
+            spans.append(span)
+            quality[k] = visible[:span].mean()  # share of the time spent with it in view
+        scarce = fixation_frames / (later[min(i + horizon, n)] + fixation_frames)  # 1 when never in good view again
+        deficit = 1.0 / (1.0 + seen / fixation_frames)
+        side = ((yaw_to[i + horizon // 2] + 2 * math.pi) / (2 * math.pi) * 8).astype(int) % 8
+        novelty = 1.0 / (1.0 + sides[np.arange(n_targets), side])
         score = (
-            1.5 * novelty
-            - 1.0 * (bearing / math.pi) ** 2
-            - 0.4 * np.abs(dist - 2.0)
-            - 3.0 * ((dist < 0.7) | (dist > 5.0))
-            - 0.8 * (np.arange(len(targets)) == previous)
-            + 0.4 * rng.random(len(targets))
+            4.0 * quality * (0.25 + deficit)
+            + 1.0 * deficit * (quality > 0)
+            + 2.0 * quality * scarce * deficit
+            + 2.0 * novelty * quality
+            - 0.8 * (np.arange(n_targets) == previous)
+            + 0.3 * rng.random(n_targets)
         )
         k = int(np.argmax(score))
-        counts[k, bucket[k]] += 1
-        previous = k
-        points[i : i + length] = targets[k] + rng.normal(0.0, 0.05, 3)
-        i += length
-    return _smooth(points, max(fixation_frames / 4, 1.0))
+        span = spans[k]
+        frames = frames[:span]
+        yaw[frames], pitch[frames] = plans[k][0][:span], plans[k][1][:span]
+        visible = in_view(frames, yaw[frames], pitch[frames])
+        seen += visible.sum(axis=0)
+        shown = visible.any(axis=0)
+        sides[shown, side[shown]] += 1
+        y0, p0, previous = float(yaw[frames[-1]]), float(pitch[frames[-1]]), k
+        i += span
+    # Repair: a target barely seen gets the stretch of the walk where it is longest in good view,
+    # unless that stretch is where the only view of another target is; the head follows the rate limits.
+    wanted_yaw, wanted_pitch = np.unwrap(yaw), pitch.copy()
+    owner = np.full(n, -1)
+    length = min(fixation_frames + 10, n)
+    for j in np.argsort(seen):
+        if seen[j] >= fixation_frames / 2 or length < 1:
+            continue
+        counts = np.convolve(good[:, j].astype(float), np.ones(length), mode="valid")
+        counts[np.convolve((owner >= 0).astype(float), np.ones(length), mode="valid") > 0] = -1  # one repair per stretch
+        a = int(np.argmax(counts))
+        if counts[a] < length / 2:
+            continue
+        span = np.arange(a, a + length)
+        wanted_yaw[span] = wanted_yaw[a] + (yaw_to[span, j] - wanted_yaw[a] + math.pi) % (2 * math.pi) - math.pi
+        wanted_pitch[span] = pitch_to[span, j]
+        owner[span] = j
+    if np.any(owner >= 0):
+        yaw = _rate_limited(np.unwrap(wanted_yaw), max_turn)
+        pitch = _rate_limited(wanted_pitch, max_pitch)
+    return _smooth(np.unwrap(yaw), 3.0), _smooth(pitch, 3.0)
+
+
+def _rate_limited(wanted: np.ndarray, max_step: float) -> np.ndarray:
+    """Follows ``wanted`` (N,) changing by at most ``max_step`` per sample."""
+    out = np.empty_like(wanted)
+    out[0] = wanted[0]
+    for i in range(1, len(wanted)):
+        out[i] = out[i - 1] + min(max(wanted[i] - out[i - 1], -max_step), max_step)
+    return out
 
 
 def room_walk(room: Room, n_frames: int = 300, seed: int = 0, **kwargs: object) -> list[np.ndarray]:
     """A walk through a generated room looking at its objects (see ``plan_walk`` for ``kwargs``)."""
     targets = np.array([o.center for o in room.objects]).reshape(-1, 3)
+    extents = np.array([np.linalg.norm(o.size) for o in room.objects])
+    kwargs.setdefault("target_extents_m", extents)
     return plan_walk(
         room.floor_min_xy, room.floor_max_xy, targets, n_frames, seed, obstacles_xy=room.obstacles_xy(), **kwargs  # type: ignore[arg-type]
     )
