@@ -109,3 +109,10 @@ def test_gravity_obb_recovers_a_rotated_box():
     assert np.allclose(sorted(obb.size), [0.7, 0.8, 2.0], atol=0.03)
     assert np.allclose(obb.center, [3.0, 1.0, 0.35], atol=0.03)
     assert np.allclose(up_rotation(np.array([0.0, -1.0, 0.0])) @ [0, -1, 0], [0, 0, 1])
+
+
+def test_one_layer_of_voxels_gives_a_box_one_voxel_thick():
+    flat = new_object(1, det("table", block((0, 0, 0), (8, 6, 1))), "a", 0.0)
+    refined = refine(flat, Params(voxel_size_m=0.05))
+    assert np.allclose(refined.aabb.size, [0.35, 0.25, 0.05])
+    assert np.allclose(sorted(refined.obb.size), [0.05, 0.25, 0.35])

@@ -84,9 +84,16 @@ def footprint_cells(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     return (np.stack([packed >> 32, (packed & 0xFFFFFFFF) - (1 << 31)], axis=1) + 0.5) * voxel_size_m
 
 
-def fit_aabb(centers: np.ndarray, pad_m: float) -> AABB:
-    """The tightest axis-aligned box around voxel centres (N, 3), grown by ``pad_m`` on every side."""
-    return AABB(centers.min(axis=0) - pad_m, centers.max(axis=0) + pad_m)
+def at_least(lo: np.ndarray, hi: np.ndarray, min_size_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) grown about their middle to ``min_size_m`` where they are thinner."""
+    grow = np.maximum(min_size_m - (hi - lo), 0) / 2
+    return lo - grow, hi + grow
+
+
+def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
+    """The tightest axis-aligned box around voxel centres (N, 3), grown by ``pad_m`` on every side and
+    at least ``min_size_m`` on every axis (one layer of voxels is one voxel thick, not flat)."""
+    return AABB(*at_least(centers.min(axis=0) - pad_m, centers.max(axis=0) + pad_m, min_size_m))
 
 
 def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pad_m: float | None = None) -> OBB:
@@ -115,6 +122,7 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pa
     half = voxel_size_m / 2 if pad_m is None else pad_m
     lo = np.array([*local_xy.min(axis=0), points[:, 2].min()]) - half
     hi = np.array([*local_xy.max(axis=0), points[:, 2].max()]) + half
+    lo, hi = at_least(lo, hi, voxel_size_m)
     box2world = world2gravity.T @ yaw_rotation
     return OBB(center=box2world @ ((lo + hi) / 2), size=hi - lo, rotation=box2world, yaw_rad=yaw)
 
@@ -152,7 +160,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     return obj.replace(
         label=CLASSES[label_index],
         score=object_score(obj, label_index, box_mask, params),
-        aabb=fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m),
+        aabb=fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m),
         obb=fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m),
         bounds=AABB(lo, hi),
     )
