@@ -12,7 +12,7 @@ import pytest
 from datasets_builders import SCENE_ID, build_room_scene, build_seven_scenes, circle_walk
 
 from arcloud.core.types import Detection, Frame, Intrinsics
-from arcloud.datasets.cli import LazyFrames, add_eval_commands, parse_scenes, parse_users
+from arcloud.datasets.cli import LazyFrames, add_eval_commands, parse_scenes
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
 
@@ -32,12 +32,12 @@ def test_parsing() -> None:
     assert args.users == (1, 10) and callable(args.handler)
     args = parser().parse_args(["render-scannet", "--mesh-dir", "m", "--out", "o", "--users", "3", "--frames", "5", "--seed", "2"])
     assert (args.users, args.frames, args.seed, args.width, args.height) == (3, 5, 2, 640, 480)
-    assert parse_users("1, 10,50") == (1, 10, 50)
-    for bad in ("", "0,10", "a"):
-        with pytest.raises(argparse.ArgumentTypeError):
-            parse_users(bad)
-    with pytest.raises(SystemExit):
-        parser().parse_args(["eval", "scannet", "--root", "r", "--out", "o.json"])  # no --detector
+    args = parser().parse_args(["eval", "scannet", "--root", "r", "--detector", "gt-masks", "--out", "o", "--users", "1, 10"])
+    assert args.users == (1, 10)
+    base = ["eval", "scannet", "--root", "r", "--out", "o.json"]
+    for bad in ([], ["--detector", "x", "--users", "0,10"], ["--detector", "x", "--runs", "0"]):
+        with pytest.raises(SystemExit):  # no --detector; K = 0; no runs
+            parser().parse_args(base + bad)
 
 
 def test_parse_scenes_from_file(tmp_path: Path) -> None:

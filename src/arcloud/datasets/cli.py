@@ -68,17 +68,6 @@ class LazyFrames(Sequence[Frame]):
         return (self[i] for i in range(len(self)))
 
 
-def parse_users(text: str) -> tuple[int, ...]:
-    """'1,10,50' -> (1, 10, 50); every K >= 1."""
-    try:
-        users = tuple(int(part) for part in text.split(",") if part.strip())
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from exc
-    if not users or min(users) < 1:
-        raise argparse.ArgumentTypeError(f"expected user counts >= 1, got {text!r}")
-    return users
-
-
 def parse_scenes(text: str) -> tuple[str, ...]:
     """'scene0000_00,scene0011_00' or '@file' (one name a line, '#' starts a comment) -> scene names."""
     if text.startswith("@"):
@@ -431,11 +420,13 @@ def _print_table(rows: Sequence[dict[str, Any]]) -> None:
 
 
 def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
+    from arcloud.cli import parse_users, positive_int
+
     parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
-    parser.add_argument("--runs", type=int, default=runs, help=f"distributed runs per K (default {runs})")
+    parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
     parser.add_argument("--out", required=True, help="results JSON to write")
     parser.add_argument("--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json")
-    parser.add_argument("--stride", type=int, default=1, help="use every N-th frame (default 1)")
+    parser.add_argument("--stride", type=positive_int, default=1, help="use every N-th frame (default 1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=0, help="worker threads of distributed runs (default: CPU count)")
     parser.add_argument("--voxel-size-m", type=float, default=None, help="override Params.voxel_size_m")
@@ -473,14 +464,16 @@ def add_eval_commands(subparsers: Any) -> Any:
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)
     seven.set_defaults(handler=run_eval_7scenes)
 
+    from arcloud.cli import positive_int
+
     render = subparsers.add_parser(
         "render-scannet",
         help="render an annotated ScanNet mesh into a ScanNet-layout scene walked by K users",
     )
     render.add_argument("--mesh-dir", required=True, help="the scene folder with the mesh, aggregation, segs (and labels tsv)")
     render.add_argument("--out", required=True, help="output root; the scene is written to OUT/<scene>/")
-    render.add_argument("--users", type=int, default=10, help="users walking the room, one after the other (default 10)")
-    render.add_argument("--frames", type=int, default=60, help="frames per user (default 60)")
+    render.add_argument("--users", type=positive_int, default=10, help="users walking the room, one after the other (default 10)")
+    render.add_argument("--frames", type=positive_int, default=60, help="frames per user (default 60)")
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--width", type=int, default=640)
     render.add_argument("--height", type=int, default=480)
@@ -498,6 +491,5 @@ __all__ = [
     "fused_points",
     "objects_json",
     "parse_scenes",
-    "parse_users",
     "write_pictures",
 ]
