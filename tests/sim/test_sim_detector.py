@@ -142,6 +142,24 @@ def test_small_and_truncated_instances_are_missed_more(room: Room, clean_views: 
         assert not hits & tiny  # a 1-pixel instance is never detected when small ones always miss
 
 
+def test_hard_objects_are_missed_in_every_frame_and_classes_can_be_harder(room: Room, clean_views: list[tuple]) -> None:
+    faults = DetectorFaults.none().replace(hard_instance_rate=0.5, hard_miss_rate=1.0)
+    _, _, results = _truth_counts(room, clean_views, faults)
+    visible, detected = set(), set()
+    for instance, detections in results:
+        visible |= {int(k) for k in np.unique(instance) if k != 0}
+        detected |= {int(np.bincount(instance[d.mask]).argmax()) for d in detections}
+    never = visible - detected
+    assert never and detected  # some objects are hard (never found), the others always found
+    for instance, detections in results:
+        found = {int(np.bincount(instance[d.mask]).argmax()) for d in detections}
+        assert found == {int(k) for k in np.unique(instance) if k != 0} - never
+    labels = {o.instance_id: o.label for o in room.objects}
+    _, _, results = _truth_counts(room, clean_views, DetectorFaults.none().replace(class_miss_rates=(("table", 1.0),)))
+    found_labels = {d.label for _, detections in results for d in detections}
+    assert "table" not in found_labels and found_labels == set(labels.values()) - {"table"}
+
+
 def test_spurious_rate_matches_its_setting(room: Room, clean_views: list[tuple]) -> None:
     faults = DetectorFaults.none().replace(spurious_rate=2.0, spurious_score_min=0.2, spurious_score_max=0.6)
     _, _, results = _truth_counts(room, clean_views, faults)
@@ -223,7 +241,17 @@ def test_pose_noise_is_small_and_invertible() -> None:
     np.testing.assert_array_equal(pose_noise(DetectorFaults.none(), 0, "f000001"), np.eye(4))
 
 
-@pytest.mark.parametrize("changes", [{"miss_rate": 1.5}, {"border_px": -1.0}, {"score_min": 0.9, "score_max": 0.5}, {"spurious_rate": float("nan")}])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"miss_rate": 1.5},
+        {"border_px": -1.0},
+        {"score_min": 0.9, "score_max": 0.5},
+        {"spurious_rate": float("nan")},
+        {"class_miss_rates": (("sofa", 0.1),)},
+        {"class_miss_rates": (("table", 2.0),)},
+    ],
+)
 def test_bad_faults_raise_invalid_input(changes: dict) -> None:
     with pytest.raises(InvalidInput):
         DetectorFaults(**changes)

@@ -38,6 +38,7 @@ STREAM_POSE = 1
 STREAM_DEPTH = 2
 STREAM_INSTANCE = 3
 STREAM_SPURIOUS = 4
+STREAM_OBJECT = 5  # per object, not per frame: which objects are hard
 
 #: Labels a detector confuses a class with (COCO detectors on indoor frames).
 CONFUSIONS: dict[str, tuple[str, ...]] = {
@@ -74,6 +75,11 @@ class DetectorFaults:
         truncated_miss_rate: extra miss probability, times the fraction of the instance's projected
             box that falls outside the image.
         occluded_miss_rate: extra miss probability, times the estimated occluded fraction.
+        class_miss_rates: (label, extra miss probability) pairs: COCO detectors find some classes
+            harder (a "dining table" seen from above, a couch seen from its side).
+        hard_instance_rate, hard_miss_rate: the share of objects the detector finds hard (drawn once
+            per object from the seed, the same in every frame, as a real detector's failures are),
+            and their extra miss probability; hard objects are also confused three times as often.
         confusion_rate: probability that the label is replaced by a similar class (``CONFUSIONS``).
         split_rate: probability that one instance comes out as two detections (two halves of its mask).
         border_px: mask border error: the mask is grown or shrunk by up to about ``border_px`` pixels
@@ -103,6 +109,9 @@ class DetectorFaults:
     min_area_px: int = 60
     truncated_miss_rate: float = 0.25
     occluded_miss_rate: float = 0.4
+    class_miss_rates: tuple[tuple[str, float], ...] = (("table", 0.2), ("couch", 0.1))
+    hard_instance_rate: float = 0.25
+    hard_miss_rate: float = 0.35
     confusion_rate: float = 0.05
     split_rate: float = 0.03
     border_px: float = 3.0
@@ -125,14 +134,18 @@ class DetectorFaults:
     pose_noise_deg: float = 0.3
 
     def __post_init__(self) -> None:
+        for label, rate in self.class_miss_rates:
+            if label not in CLASSES or isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 <= rate <= 1:
+                raise InvalidInput("DetectorFaults.class_miss_rates", f"(label in {CLASSES}, probability) pairs", repr((label, rate)))
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if value is None and f.name in ("depth_min_m", "depth_max_m"):
+            if (value is None and f.name in ("depth_min_m", "depth_max_m")) or f.name == "class_miss_rates":
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise InvalidInput(f"DetectorFaults.{f.name}", "a finite number >= 0", repr(value))
         for name in ("miss_rate", "small_miss_rate", "truncated_miss_rate", "occluded_miss_rate", "confusion_rate",
-                     "split_rate", "depth_edge_dropout", "depth_flying_rate", "depth_dropout"):  # fmt: skip
+                     "hard_instance_rate", "hard_miss_rate", "split_rate", "depth_edge_dropout", "depth_flying_rate",
+                     "depth_dropout"):  # fmt: skip
             if getattr(self, name) > 1:
                 raise InvalidInput(f"DetectorFaults.{name}", "a probability in [0, 1]", repr(getattr(self, name)))
         if self.score_min > self.score_max or self.spurious_score_min > self.spurious_score_max or self.score_max > 1:
@@ -147,6 +160,8 @@ class DetectorFaults:
             min_area_px=1,
             truncated_miss_rate=0.0,
             occluded_miss_rate=0.0,
+            class_miss_rates=(),
+            hard_instance_rate=0.0,
             confusion_rate=0.0,
             split_rate=0.0,
             border_px=0.0,
@@ -401,6 +416,11 @@ class SimulatedDetector:
         self._objects = {o.instance_id: o for o in room.objects}
         self._clutter_kinds = {c.clutter_id: c.kind for c in room.clutter}
         self._surface = _surface_ids(room)
+        self._hard = {
+            o.instance_id: bool(np.random.default_rng([self.seed, STREAM_OBJECT, o.instance_id]).random() < faults.hard_instance_rate)
+            for o in room.objects
+        }
+        self._class_miss = dict(faults.class_miss_rates)
 
     def true_pose(self, frame: Frame) -> np.ndarray:
         return true_pose(frame.cam2world, self.faults, self.seed, frame.frame_id)
@@ -431,7 +451,7 @@ class SimulatedDetector:
             truncated, occluded = truth.visibility[int(instance_id)]
             seen = _Visible(instance == instance_id, int(areas[instance_id]), truncated, occluded)
             rng = frame_rng(self.seed, frame.frame_id, STREAM_INSTANCE, int(instance_id))
-            detections += self._detect_instance(self._objects[int(instance_id)].label, seen, rng)
+            detections += self._detect_instance(self._objects[int(instance_id)].label, seen, self._hard[int(instance_id)], rng)
         if faults.spurious_rate > 0:
             clutter = np.where(hit, self._clutter[tri], 0)
             surface = np.where(hit, self._surface[tri], -1)
@@ -439,7 +459,7 @@ class SimulatedDetector:
         detections.sort(key=lambda d: -d.score)
         return detections
 
-    def _detect_instance(self, label: str, seen: _Visible, rng: np.random.Generator) -> list[Detection]:
+    def _detect_instance(self, label: str, seen: _Visible, hard: bool, rng: np.random.Generator) -> list[Detection]:
         f = self.faults
         # Draw every number up front, so that each fault's draw does not depend on the others.
         u_miss, u_confuse, u_split, u_pick = rng.random(4)
@@ -450,10 +470,12 @@ class SimulatedDetector:
             * (1 - f.small_miss_rate * small)
             * (1 - f.truncated_miss_rate * seen.truncated)
             * (1 - f.occluded_miss_rate * seen.occluded)
+            * (1 - self._class_miss.get(label, 0.0))
+            * (1 - f.hard_miss_rate * hard)
         )
         if u_miss >= p_detect:
             return []
-        confused = u_confuse < f.confusion_rate
+        confused = u_confuse < min(1.0, f.confusion_rate * (3 if hard else 1))
         if confused:
             options = CONFUSIONS[label]
             label = options[int(u_pick * len(options)) % len(options)]

@@ -846,7 +846,7 @@ def _build_room(seed: int, size: np.ndarray, layout: _Layout) -> Room:
         for p in parts:
             vertices.append(p.vertices)
             triangles.append(p.triangles + offset)
-            noise = rng.integers(-5, 6, size=(len(p.triangles), 1))
+            noise = rng.integers(-5, 6, size=(1, 3))  # per part: faces of a part stay even
             colors.append(np.clip(p.colors.astype(np.int16) + noise, 0, 255).astype(np.uint8))
             instance.append(np.full(len(p.triangles), instance_id, np.int32))
             clutter_ids.append(np.full(len(p.triangles), clutter_id, np.int32))

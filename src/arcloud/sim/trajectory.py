@@ -4,12 +4,14 @@ Generic: the room is described only by its floor extent, obstacle footprints (x-
 points (object centres), so the same planner serves generated rooms and real scans. The world is z-up;
 cameras follow OpenCV axes (x right, y down, z forward).
 
-The walk: free floor is a grid (cells far enough from walls and obstacles); the user visits groups
-of nearby targets in a nearest-first tour, stopping at a viewpoint 1.2-2.6 m from each group and
-seeing it from a new side on every lap; legs between viewpoints are shortest paths on the grid that
-prefer clearance, then smoothed and walked at a steady step. The head fixates one target at a time
-(preferring the group being approached and targets not yet seen from this side), and the gaze point
-is smoothed in time, so the head turns smoothly from one target to the next.
+The walk: free floor is a grid (cells far enough from walls and obstacles). The user walks laps of
+a ring inset from the floor's edges, sized so that a lap takes most of the walk (things along the
+walls are passed at 1-2.5 m, things in the middle are circled), alternating direction and inset;
+legs between ring points are shortest paths on the grid that prefer clearance, smoothed and walked
+at a steady step. The head fixates one target at a time, turning at a bounded rate: each next
+target is the one the turning head would hold in good view longest, weighed by how little it has
+been seen, whether it will be in good view again, and whether this side of it is new; a final pass
+gives any target still barely seen the stretch of the walk where it is best in view.
 """
 
 from __future__ import annotations
@@ -133,24 +135,8 @@ class _FreeGrid:
         return self.xy.reshape(-1, 2)[cells[::-1]]
 
 
-def _cluster(targets_xy: np.ndarray, radius_m: float, rng: np.random.Generator) -> list[np.ndarray]:
-    """Greedy groups of target indices whose x-y positions lie within ``radius_m`` of a seed target."""
-    left = list(rng.permutation(len(targets_xy)))
-    groups = []
-    while left:
-        seed = left[0]
-        near = [i for i in left if np.linalg.norm(targets_xy[i] - targets_xy[seed]) <= radius_m]
-        groups.append(np.array(sorted(near)))
-        left = [i for i in left if i not in near]
-    return groups
 
 
-def _angle_gap(a: float, others: Sequence[float]) -> float:
-    """Smallest absolute angle between ``a`` and any of ``others`` (pi when there are none)."""
-    if not others:
-        return math.pi
-    d = np.abs((np.asarray(others) - a + math.pi) % (2 * math.pi) - math.pi)
-    return float(d.min())
 
 
 def _resample(points: np.ndarray, step_m: float) -> np.ndarray:
@@ -193,9 +179,11 @@ def plan_walk(
     floor_min_xy, floor_max_xy: (2,) the walkable floor's extent. targets: (N, 3) points to look at
     (object centres). obstacles_xy: (min_xy, max_xy) footprints to keep ``clearance_m`` from (walls:
     ``wall_margin_m``). The eye is ``eye_height_m`` (plus a per-walk offset within
-    ``eye_height_jitter_m`` and a small bob) above ``floor_z_m``. target_extents_m: (N,) the size of
-    what is around each target (e.g. an object's box diagonal, default 0.8 m): viewpoints and fixations
-    keep far enough for it to fit in view. Deterministic for a seed."""
+    ``eye_height_jitter_m`` and a small bob) above ``floor_z_m``. ring_inset_m: the lap's distance
+    from the floor's edges (None: sized so that a lap is about 3/4 of the walk). fixation_frames: the
+    typical time spent looking at one target. target_extents_m: (N,) the size of each target (e.g. its
+    box diagonal; default 0.8 m): fixations prefer distances from which most of it is in view.
+    Deterministic for a seed; a walk of a few hundred frames is planned in well under a second."""
     lo = np.asarray(floor_min_xy, dtype=np.float64).reshape(2)
     hi = np.asarray(floor_max_xy, dtype=np.float64).reshape(2)
     if not np.all(hi - lo > 2 * wall_margin_m):
@@ -227,7 +215,7 @@ def plan_walk(
     z = floor_z_m + base + 0.012 * np.sin(2 * math.pi * s / 0.7 + phase[0]) + 0.02 * np.sin(2 * math.pi * s / 6.0 + phase[1])
     eyes = np.column_stack([positions, z])
     yaw, pitch = _gaze_angles(eyes, targets, extents, rng, fixation_frames=fixation_frames)
-    roll = np.radians(1.5) * _smooth(rng.normal(0.0, 1.0, n_frames), 12.0) * 3.0
+    roll = np.radians(4.5) * _smooth(rng.normal(0.0, 1.0, n_frames), 12.0)  # about 0.7 degrees, slow
     poses = []
     for eye, y, p, r in zip(eyes, yaw, pitch, roll):
         direction = np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
@@ -292,33 +280,6 @@ def _rectangle_points(lo: np.ndarray, hi: np.ndarray, *, step_m: float, phase: f
     return ring if direction > 0 else ring[::-1]
 
 
-def _loop_order(points: np.ndarray, start: np.ndarray, rng: np.random.Generator) -> list[int]:
-    """An order of ``points`` (N, 2) for a short open tour from ``start``: nearest neighbour, then
-    2-opt; a random start among the nearest few keeps walks of different seeds apart."""
-    n = len(points)
-    if n <= 1:
-        return list(range(n))
-    nearest = np.argsort(np.linalg.norm(points - start, axis=1))[: min(3, n)]
-    order = [int(rng.choice(nearest))]
-    left = set(range(n)) - set(order)
-    while left:
-        here = points[order[-1]]
-        order.append(min(left, key=lambda i: float(np.linalg.norm(points[i] - here))))
-        left.remove(order[-1])
-
-    def length(route: list[int]) -> float:
-        path = np.concatenate([start[None], points[route]])
-        return float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-
-    improved = True
-    while improved:
-        improved = False
-        for i in range(1, n - 1):
-            for j in range(i + 1, n):
-                candidate = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
-                if length(candidate) < length(order) - 1e-9:
-                    order, improved = candidate, True
-    return order
 
 
 #: Half the field of view (horizontal, vertical) within which a target counts as in view: a VGA
