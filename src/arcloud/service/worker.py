@@ -116,6 +116,7 @@ class StreamWorker:
         self.attempts = attempts
         self._next_claim = 0.0
         self._claim_cursor = "0-0"
+        self._in_hand: bytes | str | None = None  # the entry being processed, kept fresh by the heartbeat
 
     def run(self, stop: threading.Event) -> None:
         """Work until ``stop`` is set; the frame in hand is finished first."""
@@ -141,13 +142,18 @@ class StreamWorker:
         log.info("worker %s stopped", self.consumer)
 
     def _beat(self, done: threading.Event) -> None:
-        """Write this worker's heartbeat every ``HEARTBEAT_S`` (also while a long step runs)."""
+        """Write this worker's heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to
+        itself: no new delivery), often enough that a long step is never taken for an abandoned one."""
+        interval_s = min(HEARTBEAT_S, self.claim_min_idle_ms / 1000 / 3)
         while True:
             try:
                 self.client.hset(WORKERS, self.consumer, repr(time.time()))
+                in_hand = self._in_hand
+                if in_hand is not None:
+                    self.client.xclaim(INGEST_STREAM, self.group, self.consumer, 0, [in_hand], justid=True)
             except Exception:  # noqa: BLE001 - Redis away: the loop logs it; try again next beat
                 log.debug("worker %s: heartbeat failed", self.consumer, exc_info=True)
-            if done.wait(HEARTBEAT_S):
+            if done.wait(interval_s):
                 return
 
     def poll_once(self) -> int:
@@ -189,6 +195,14 @@ class StreamWorker:
         map_id = _text(fields.get(b"map_id"))
         frame_key = _text(fields.get(b"frame_key"))
         if deliveries > self.max_deliveries:
+            if map_id and frame_key and self.store.is_frame_done(map_id, frame_key):
+                # A slow delivery finished after the entry was claimed again: it counts once, as processed.
+                pipe = self.client.pipeline(transaction=False)
+                pipe.xack(INGEST_STREAM, self.group, entry_id)
+                pipe.xdel(INGEST_STREAM, entry_id)
+                pipe.hincrby(INGEST_STATS, "skipped", 1)
+                pipe.execute()
+                return "skipped"
             self.dead_letter(entry_id, fields, f"delivered {deliveries} times (max {self.max_deliveries})", deliveries)
             return "dead"
         try:
@@ -197,12 +211,15 @@ class StreamWorker:
             self.dead_letter(entry_id, fields, f"undecodable: {exc}", deliveries)
             return "dead"
         started = time.perf_counter()
+        self._in_hand = entry_id
         try:
             result, retries = run_step(frame, self.detector, self.store, self.params, self.publisher, attempts=self.attempts)
         except Exception:  # noqa: BLE001 - left pending: claimed again later, dead-lettered in the end
             log.exception("worker %s: map %s frame %s failed (delivery %d of %d); left pending",
                           self.consumer, map_id, frame_key, deliveries, self.max_deliveries)
             return "pending"
+        finally:
+            self._in_hand = None
         elapsed_s = time.perf_counter() - started
         pipe = self.client.pipeline(transaction=False)
         pipe.xack(INGEST_STREAM, self.group, entry_id)
