@@ -41,7 +41,7 @@ def test_hungarian_matches_brute_force(seed):
     rng = np.random.default_rng(seed)
     dets, objs = random_sets(rng, int(rng.integers(1, 5)), 120), random_sets(rng, int(rng.integers(1, 5)), 120)
     labels_d, labels_o = rng.integers(0, 3, len(dets)), rng.integers(0, 3, len(objs))
-    params = Params(association_min_overlap=0.2, association_tolerance_voxels=0)
+    params = Params(association_min_overlap=0.2, association_tolerance_voxels=0, class_aware=bool(seed % 2))
     cost = association_cost(overlap_matrix(dets, objs, 0), labels_d, labels_o, params)
     assert np.isfinite(cost).all()
     pairs = hungarian_match(cost)
@@ -59,11 +59,17 @@ def test_gating_keeps_weak_pairs_unmatched_and_class_aware_option():
     params = Params(association_min_overlap=0.2, association_tolerance_voxels=0)
     pairs, unmatched = associate([strong, weak], [0, 0], [obj], [0], params)
     assert pairs == [(0, 0)] and unmatched == [1]
-    # A label mismatch is a penalty by default and a gate when class-aware.
-    pairs, _ = associate([strong], [1], [obj], [0], params)
-    assert pairs == [(0, 0)]
-    pairs, unmatched = associate([strong], [1], [obj], [0], params.replace(class_aware=True))
+    # Class-aware (default): a label mismatch is gated unless the overlap is nearly complete.
+    partly = np.arange(40, 140, dtype=np.int64)  # 60 of 100 inside
+    pairs, unmatched = associate([partly], [1], [obj], [0], params)
     assert pairs == [] and unmatched == [0]
+    pairs, _ = associate([strong], [1], [obj], [0], params)
+    assert pairs == [(0, 0)]  # all inside: label confusion on one object
+    pairs, _ = associate([partly], [1], [obj], [0], params.replace(class_aware=False))
+    assert pairs == [(0, 0)]  # not class-aware: only a penalty
+    # With a same-label candidate as good, the penalty makes the matching choose it.
+    pairs, _ = associate([strong], [1], [obj, obj], [0, 1], params)
+    assert pairs == [(0, 1)]
 
 
 def test_overlap_normalised_by_smaller_set_and_empty_sets_are_zero():

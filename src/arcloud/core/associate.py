@@ -8,8 +8,11 @@ on voxels coarsened by ``1 + association_tolerance_voxels`` (two observations of
 centimetres apart still share coarse voxels). Dividing by the smaller set (the overlap coefficient)
 rather than the union (IoU) is deliberate: one frame sees only part of an object, so a correct detection
 of a large fused object has a small IoU but nearly all of its voxels inside the object. Pairs with an
-overlap below ``association_min_overlap`` are gated (never matched); with ``class_aware`` so are pairs
-of different classes, otherwise a class mismatch only adds ``class_mismatch_penalty`` to the cost.
+overlap below ``association_min_overlap`` are gated (never matched). A class mismatch adds
+``class_mismatch_penalty``; with ``class_aware`` (the default) a mismatched pair is also gated unless
+its overlap reaches ``class_mismatch_min_overlap`` — the overlap coefficient of a small object resting on
+a large one (a laptop on a table) is high, so without this the laptop's detections feed the table;
+label confusion on one physical object, by contrast, overlaps it almost entirely.
 Every entry of the cost matrix is finite: empty sets give overlap 0.
 """
 
@@ -106,13 +109,11 @@ def association_cost(
     overlap: np.ndarray, labels_a: Sequence[int], labels_b: Sequence[int], params: Params
 ) -> np.ndarray:
     """(A, B) finite cost: 1 - overlap, plus the class term; gated pairs get ``GATED_COST``."""
-    cost = 1.0 - overlap
     mismatch = np.asarray(labels_a)[:, None] != np.asarray(labels_b)[None, :]
+    cost = 1.0 - overlap + params.class_mismatch_penalty * mismatch
     gated = overlap < params.association_min_overlap
     if params.class_aware:
-        gated |= mismatch
-    else:
-        cost = cost + params.class_mismatch_penalty * mismatch
+        gated |= mismatch & (overlap < params.class_mismatch_min_overlap)
     return np.where(gated, GATED_COST, cost)
 
 

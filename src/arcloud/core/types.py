@@ -176,8 +176,9 @@ class Params:
     # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
-    class_aware: bool = False
+    class_aware: bool = True
     class_mismatch_penalty: float = 0.3
+    class_mismatch_min_overlap: float = 0.8
     # Fusion and refinement
     visibility_tolerance_m: float = 0.1
     prune_min_seen: float = 10.0
