@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull
 
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
@@ -77,11 +77,36 @@ def _up_rotation(up_xyz: tuple[float, ...]) -> np.ndarray:
     return np.eye(3) + s * skew + (1 - c) * skew @ skew
 
 
-def footprint_cells(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
-    """Centres (M, 2) of the distinct ground cells under points (N, 2): the hull needs no more."""
+def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
+    """Centres (M, 2) of the outermost ground cells under points (N, 2): per grid column, the cells at
+    the lowest and highest row. Their convex hull is the footprint's; M is at most twice the columns."""
     cells = np.floor(xy / voxel_size_m).astype(np.int64)
-    packed = np.unique((cells[:, 0] << 32) + (cells[:, 1] + (1 << 31)))
-    return (np.stack([packed >> 32, (packed & 0xFFFFFFFF) - (1 << 31)], axis=1) + 0.5) * voxel_size_m
+    order = np.lexsort((cells[:, 1], cells[:, 0]))
+    cells = cells[order]
+    starts = np.flatnonzero(np.r_[True, cells[1:, 0] != cells[:-1, 0]])
+    ends = np.r_[starts[1:], len(cells)] - 1
+    outline = np.concatenate([cells[starts], cells[ends]])
+    return (outline + 0.5) * voxel_size_m
+
+
+def convex_hull_2d(points: np.ndarray) -> np.ndarray:
+    """Counter-clockwise convex hull (H, 2) of a few points (N, 2) by Andrew's monotone chain."""
+    pts = sorted(set(map(tuple, points.tolist())))
+    if len(pts) < 3:
+        return np.array(pts, dtype=np.float64).reshape(-1, 2)
+
+    def half(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        chain: list[tuple[float, float]] = []
+        for p in seq:
+            while len(chain) >= 2 and (
+                (chain[-1][0] - chain[-2][0]) * (p[1] - chain[-2][1]) - (chain[-1][1] - chain[-2][1]) * (p[0] - chain[-2][0])
+            ) <= 0:
+                chain.pop()
+            chain.append(p)
+        return chain
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
 def at_least(lo: np.ndarray, hi: np.ndarray, min_size_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -101,12 +126,9 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pa
     of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a voxel)."""
     world2gravity = up_rotation(up)
     points = centers if np.array_equal(world2gravity, np.eye(3)) else centers @ world2gravity.T
-    xy = footprint_cells(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
+    xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
+    hull = convex_hull_2d(xy) if len(xy) <= 512 else xy[ConvexHull(xy).vertices]
     yaw = 0.0
-    try:
-        hull = xy[ConvexHull(xy).vertices] if len(xy) >= 3 else xy
-    except QhullError:  # collinear or coincident footprint
-        hull = xy
     if len(hull) >= 3:
         edges = np.roll(hull, -1, axis=0) - hull
         angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))

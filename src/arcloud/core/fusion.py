@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from arcloud.core.associate import overlap_matrix
-from arcloud.core.types import N_CLASSES, MapObject, Params, VoxelDetection, empty_object
+from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 
 
 def union_voxels(a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray) -> MapObject:
@@ -76,6 +76,14 @@ def object_label_index(obj: MapObject) -> int:
     return int(np.bincount(voxel_labels, weights=obj.weights, minlength=N_CLASSES).argmax())
 
 
+def current_label_index(obj: MapObject, changed: bool = True) -> int:
+    """The object's label index: recomputed from its votes when it changed since its last refinement,
+    else the one refinement stored."""
+    if not changed and obj.label in CLASS_INDEX:
+        return CLASS_INDEX[obj.label]
+    return object_label_index(obj)
+
+
 def find_duplicates(
     objects: Sequence[MapObject], params: Params, changed: Sequence[bool] | None = None
 ) -> list[tuple[int, int]]:
@@ -85,11 +93,9 @@ def find_duplicates(
     checked when they last changed)."""
     if len(objects) < 2:
         return []
-    labels = np.array([object_label_index(o) for o in objects])
-    wanted = labels[:, None] == labels[None, :]
-    if changed is not None:
-        flags = np.asarray(changed, bool)
-        wanted &= flags[:, None] | flags[None, :]
+    flags = np.ones(len(objects), bool) if changed is None else np.asarray(changed, bool)
+    labels = np.array([current_label_index(o, bool(c)) for o, c in zip(objects, flags)])
+    wanted = (labels[:, None] == labels[None, :]) & (flags[:, None] | flags[None, :])
     np.fill_diagonal(wanted, False)
     if not wanted.any():
         return []

@@ -25,7 +25,7 @@ from arcloud.core.associate import associate
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
-from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
+from arcloud.core.fusion import current_label_index, find_duplicates, fuse_detection, merge_objects, new_object, resolve_conflicts
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import keys_bounds, visible_voxels, voxelize_detections
 from arcloud.errors import LockTimeout
@@ -157,7 +157,7 @@ def fuse_matches(
         [o.keys for o in observations],
         [o.label_index for o in observations],
         [o.keys for o in objects],
-        [object_label_index(o) for o in objects],
+        [current_label_index(o, changed=False) for o in objects],  # as read: refined
         params,
         object_bounds=[index_bounds_of(o, params) for o in objects],
     )

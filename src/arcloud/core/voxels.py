@@ -126,8 +126,8 @@ def visible_voxels(frame: Frame, keys: np.ndarray, params: Params) -> np.ndarray
     if keys.size == 0:
         return np.zeros(0, bool)
     centers = key_centers(keys, params.voxel_size_m)
-    world2cam = np.linalg.inv(frame.cam2world)
-    cam = centers @ world2cam[:3, :3].T + world2cam[:3, 3]
+    rotation, origin = frame.cam2world[:3, :3], frame.cam2world[:3, 3]
+    cam = (centers - origin) @ rotation  # world2cam of a rigid pose: R^T (x - t)
     z = cam[:, 2]
     intr = frame.intrinsics
     height, width = frame.depth_m.shape
