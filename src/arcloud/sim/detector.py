@@ -344,10 +344,19 @@ class FrameTruth:
         return np.frombuffer(zlib.decompress(self.triangle_zlib), self.dtype).reshape(self.shape).astype(np.int32)
 
 
-def frame_truth(room: Room, triangle: np.ndarray, depth_m: np.ndarray, cam2world: np.ndarray, intrinsics: Intrinsics) -> FrameTruth:
-    """The truth of a frame rendered at ``cam2world`` into ``triangle`` (H, W) ids and z-depth (H, W)."""
+def frame_truth(
+    room: Room,
+    triangle: np.ndarray,
+    depth_m: np.ndarray,
+    cam2world: np.ndarray,
+    intrinsics: Intrinsics,
+    instance: np.ndarray | None = None,
+) -> FrameTruth:
+    """The truth of a frame rendered at ``cam2world`` into ``triangle`` (H, W) ids and z-depth (H, W)
+    (and its instance image, when at hand)."""
     triangle = np.asarray(triangle)
-    instance = np.where(triangle >= 0, room.triangle_instance[np.maximum(triangle, 0)], 0)
+    if instance is None:
+        instance = np.where(triangle >= 0, room.triangle_instance[np.maximum(triangle, 0)], 0)
     world2cam = np.linalg.inv(cam2world)
     objects = {o.instance_id: o for o in room.objects}
     visibility = {}

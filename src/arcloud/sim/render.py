@@ -10,7 +10,6 @@ from __future__ import annotations
 import threading
 import weakref
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -53,19 +52,6 @@ class RenderResult:
     depth_m: np.ndarray
     instance: np.ndarray
     triangle: np.ndarray
-
-
-@lru_cache(maxsize=16)
-def _camera_rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> np.ndarray:
-    """(H, W, 3) float32 ray directions in the camera frame with z = 1 (read-only, cached)."""
-    u = (np.arange(width, dtype=np.float64) - cx) / fx
-    v = (np.arange(height, dtype=np.float64) - cy) / fy
-    rays = np.empty((height, width, 3), np.float32)
-    rays[..., 0] = u[None, :]
-    rays[..., 1] = v[:, None]
-    rays[..., 2] = 1.0
-    rays.flags.writeable = False
-    return rays
 
 
 def _check_mesh(vertices: object, triangles: object) -> tuple[np.ndarray, np.ndarray]:
@@ -136,6 +122,7 @@ class MeshRenderer:
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor.from_numpy(self.vertices), o3d.core.Tensor.from_numpy(self.triangles))
         self._tensor = o3d.core.Tensor.from_numpy
+        self._o3d = o3d
         self._lock = threading.Lock()
         # Cast once so that Embree commits the scene now, not inside concurrent calls.
         self._scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))
@@ -148,12 +135,16 @@ class MeshRenderer:
         pose = check_pose("cam2world", cam2world)
         if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer)) and width > 0 and height > 0):
             raise InvalidInput("width, height", "positive integers", f"{width!r}, {height!r}")
-        rays_cam = _camera_rays(float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy), int(width), int(height))
-        rays = np.empty((height, width, 6), np.float32)
-        rays[..., :3] = pose[:3, 3]
-        np.matmul(rays_cam, pose[:3, :3].T.astype(np.float32), out=rays[..., 3:])
+        # Open3D's rays go through (u + 0.5, v + 0.5); ours through pixel centres (u, v): shift c by 0.5.
+        camera = np.array([[intrinsics.fx, 0.0, intrinsics.cx + 0.5], [0.0, intrinsics.fy, intrinsics.cy + 0.5], [0.0, 0.0, 1.0]])
+        world2cam = np.eye(4)
+        world2cam[:3, :3] = pose[:3, :3].T
+        world2cam[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
+        rays = self._o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+            self._tensor(camera), self._tensor(world2cam), int(width), int(height)
+        )  # (H, W, 6): origin, direction with z = 1 in the camera frame
         with self._lock:
-            hits = self._scene.cast_rays(self._tensor(rays))
+            hits = self._scene.cast_rays(rays)
             t_hit = hits["t_hit"].numpy()
             primitive = hits["primitive_ids"].numpy()
             uv = hits["primitive_uvs"].numpy().copy() if surface else None

@@ -121,7 +121,7 @@ def _render_frames(room: Room, jobs: Sequence[tuple[int, np.ndarray]], settings:
             device_id=device_id,
             frame_id=frame_id,
         )
-        truth = frame_truth(room, result.triangle, result.depth_m, pose, intrinsics)
+        truth = frame_truth(room, result.triangle, result.depth_m, pose, intrinsics, result.instance)
         out.append((frame, truth_key(frame_id, pose, intrinsics, width, height), truth))
     return out
 
