@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 #: Kinect-like VGA intrinsics (the depth camera of ScanNet-style data).
 DEFAULT_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
 FPS = 30.0
-#: Below this many frames ``workers=None`` renders in this process (starting workers costs ~2 s).
+#: Below this many frames ``workers=None`` renders in this process (starting a worker costs ~2 s).
 PARALLEL_MIN_FRAMES = 60
 
 
@@ -67,14 +67,16 @@ def simulate_sequence(
     ``SimulatedDetector(room, faults, seed=seed)``: the same seed and faults recover the true poses,
     and the frames' true instance images, remembered with the room, spare it a second ray cast.
 
-    workers: processes that render (None: one per core, up to 4, for 60 frames or more; 1: this
-    process only). Workers are fresh Python processes; the frames are the same for any number."""
+    workers: processes that render (None: one per two cores, up to 4, for 60 frames or more, so one
+    on a 2-core machine; 1: this process only). Workers are fresh Python processes; the frames are
+    the same for any number. About 65 ms of CPU a VGA frame (two thirds in Open3D's ray cast, which
+    uses two threads): 300 frames take about 20 s on a busy 2-core machine."""
     if poses is None:
         poses = room_walk(room, n_frames, seed)
     elif len(poses) != n_frames:
         raise InvalidInput("poses", f"{n_frames} poses (n_frames)", f"{len(poses)}")
-    if workers is None:
-        workers = min(os.cpu_count() or 1, 4) if n_frames >= PARALLEL_MIN_FRAMES else 1
+    if workers is None:  # Open3D's cast already uses two threads: one process per two cores, up to 4
+        workers = max(1, min((os.cpu_count() or 1) // 2, 4)) if n_frames >= PARALLEL_MIN_FRAMES else 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InvalidInput("workers", "an integer >= 1 or None", repr(workers))
     started = time.perf_counter()
