@@ -7,28 +7,9 @@ import logging
 import sys
 from pathlib import Path
 
+from arcloud.argtypes import parse_users, positive_int
 from arcloud.datasets.cli import add_eval_commands
 from arcloud.service.cli import add_service_commands
-
-
-def parse_users(text: str) -> tuple[int, ...]:
-    try:
-        users = tuple(int(part) for part in text.split(",") if part.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated user counts like 10,50,100, got {text!r}") from None
-    if not users or min(users) < 1:
-        raise argparse.ArgumentTypeError(f"expected user counts >= 1, got {text!r}")
-    return users
-
-
-def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
 
 
 def add_demo_command(subparsers: argparse._SubParsersAction) -> None:

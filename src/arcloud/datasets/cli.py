@@ -420,7 +420,7 @@ def _print_table(rows: Sequence[dict[str, Any]]) -> None:
 
 
 def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
-    from arcloud.cli import parse_users, positive_int
+    from arcloud.argtypes import parse_users, positive_int
 
     parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
     parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
@@ -464,7 +464,7 @@ def add_eval_commands(subparsers: Any) -> Any:
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)
     seven.set_defaults(handler=run_eval_7scenes)
 
-    from arcloud.cli import positive_int
+    from arcloud.argtypes import positive_int
 
     render = subparsers.add_parser(
         "render-scannet",

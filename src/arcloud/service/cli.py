@@ -16,22 +16,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    value = _non_negative_int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
+from arcloud.argtypes import non_negative_int, positive_int
 
 
 def _store_options(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +35,7 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # typ
     )
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     serve.add_argument("--port", type=int, default=8000, help="port (default 8000)")
-    serve.add_argument("--workers", type=_non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2")
+    serve.add_argument("--workers", type=non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2")
     _store_options(serve)
     serve.set_defaults(handler=run_serve)
 
@@ -67,10 +52,10 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # typ
     )
     replay.add_argument("--url", default="http://127.0.0.1:8000", help="service URL (default http://127.0.0.1:8000)")
     replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>); deleted first")
-    replay.add_argument("--users", type=_positive_int, default=10, help="concurrent users K (default 10)")
-    replay.add_argument("--seed", type=_non_negative_int, default=0, help="room, walk and detector seed (default 0)")
-    replay.add_argument("--frames", type=_positive_int, default=300, help="frames in the walk (default 300)")
-    replay.add_argument("--width", type=_positive_int, default=640, help="image width (default 640; height 3/4 of it)")
+    replay.add_argument("--users", type=positive_int, default=10, help="concurrent users K (default 10)")
+    replay.add_argument("--seed", type=non_negative_int, default=0, help="room, walk and detector seed (default 0)")
+    replay.add_argument("--frames", type=positive_int, default=300, help="frames in the walk (default 300)")
+    replay.add_argument("--width", type=positive_int, default=640, help="image width (default 640; height 3/4 of it)")
     replay.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for processing (default 1800)")
     replay.add_argument("--out", type=Path, default=Path("results.json"), help="results JSON (default results.json)")
     replay.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -1,0 +1,36 @@
+"""Argument types shared by every `arcloud` command: each says what it expected when a value is wrong."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def parse_users(text: str) -> tuple[int, ...]:
+    """Comma-separated user counts, e.g. ``10,50,100``."""
+    try:
+        users = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated user counts like 10,50,100, got {text!r}") from None
+    if not users or min(users) < 1:
+        raise argparse.ArgumentTypeError(f"expected user counts >= 1, got {text!r}")
+    return users
