@@ -5,24 +5,23 @@ from __future__ import annotations
 import argparse
 
 
-def non_negative_int(text: str) -> int:
+def int_at_least(text: str, minimum: int) -> int:
+    """``text`` as an integer >= ``minimum``, or an argparse error that says so."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+        value = minimum - 1
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
     return value
+
+
+def non_negative_int(text: str) -> int:
+    return int_at_least(text, 0)
 
 
 def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
+    return int_at_least(text, 1)
 
 
 def parse_users(text: str) -> tuple[int, ...]:

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from arcloud.core.types import Params
+from arcloud.core.types import MapObject, Params
 from arcloud.core.voxels import coarsen_keys, unpack_keys
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
@@ -61,31 +61,48 @@ def index_bounds(keys: np.ndarray) -> np.ndarray:
     return np.stack([ijk.min(axis=0), ijk.max(axis=0)])
 
 
+def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | None:
+    """(2, 3) voxel-index bounds from the bounds refinement stored with the object (exact while its
+    voxels are unchanged), or None when it has none."""
+    if obj.bounds is None:
+        return None
+    lo = np.floor(obj.bounds.min / voxel_size_m + 1e-6).astype(np.int64)
+    hi = np.floor(obj.bounds.max / voxel_size_m - 1e-6).astype(np.int64)
+    return np.stack([lo, hi])
+
+
+def known_or_computed_bounds(
+    sets: Sequence[np.ndarray], live: Sequence[int], known: Sequence[np.ndarray | None] | None
+) -> np.ndarray:
+    """(len(live), 2, 3) voxel-index bounds of ``sets[live]``: the known ones where given."""
+    return np.array([index_bounds(sets[i]) if known is None or known[i] is None else known[i] for i in live])
+
+
 def overlap_matrix(
     sets_a: Sequence[np.ndarray],
     sets_b: Sequence[np.ndarray],
     tolerance_voxels: int,
     *,
+    bounds_a: Sequence[np.ndarray | None] | None = None,
     bounds_b: Sequence[np.ndarray | None] | None = None,
     pairs_wanted: np.ndarray | None = None,
 ) -> np.ndarray:
     """(A, B) overlap coefficient in [0, 1] of coarsened key sets (see the module docstring).
 
     Pairs whose voxel bounds are apart are 0 without looking at their keys, and only the sets in some
-    touching pair are coarsened: in a frame, most detection/object pairs are far apart. ``bounds_b``
-    may give known (2, 3) voxel-index bounds of sets_b (None entries are computed); ``pairs_wanted``
+    touching pair are coarsened: in a frame, most detection/object pairs are far apart. ``bounds_a`` and
+    ``bounds_b`` may give known (2, 3) voxel-index bounds of the sets (None entries are computed); ``pairs_wanted``
     (A, B) bool limits the pairs computed."""
     overlap = np.zeros((len(sets_a), len(sets_b)))
     live_a = [i for i, s in enumerate(sets_a) if s.size]
     live_b = [j for j, s in enumerate(sets_b) if s.size]
     if not live_a or not live_b:
         return overlap
-    bounds_a = np.array([index_bounds(sets_a[i]) for i in live_a])
-    known = bounds_b if bounds_b is not None else [None] * len(sets_b)
-    bounds_b_arr = np.array([index_bounds(sets_b[j]) if known[j] is None else known[j] for j in live_b])
+    bounds_a_arr = known_or_computed_bounds(sets_a, live_a, bounds_a)
+    bounds_b_arr = known_or_computed_bounds(sets_b, live_b, bounds_b)
     reach = tolerance_voxels + 1
     touching = np.all(
-        (bounds_a[:, None, 0] <= bounds_b_arr[None, :, 1] + reach) & (bounds_b_arr[None, :, 0] <= bounds_a[:, None, 1] + reach),
+        (bounds_a_arr[:, None, 0] <= bounds_b_arr[None, :, 1] + reach) & (bounds_b_arr[None, :, 0] <= bounds_a_arr[:, None, 1] + reach),
         axis=2,
     )
     if pairs_wanted is not None:

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from arcloud.core.associate import overlap_matrix
+from arcloud.core.associate import overlap_matrix, stored_index_bounds
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 
 
@@ -100,7 +100,9 @@ def find_duplicates(
     if not wanted.any():
         return []
     keys = [o.keys for o in objects]
-    overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels, pairs_wanted=wanted)
+    # Unchanged objects' stored bounds are exact; only changed ones need their keys unpacked.
+    bounds = [None if c else stored_index_bounds(o, params.voxel_size_m) for o, c in zip(objects, flags)]
+    overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
     same = wanted & ((overlap >= params.merge_min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
     np.fill_diagonal(same, False)
     parent = list(range(len(objects)))

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arcloud.core.associate import associate
+from arcloud.core.associate import associate, stored_index_bounds
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
@@ -159,22 +159,13 @@ def fuse_matches(
         [o.keys for o in objects],
         [current_label_index(o, changed=False) for o in objects],  # as read: refined
         params,
-        object_bounds=[index_bounds_of(o, params) for o in objects],
+        object_bounds=[stored_index_bounds(o, params.voxel_size_m) for o in objects],
     )
     fused = list(objects)
     for d, o in pairs:
         visible = visible_voxels(frame, fused[o].keys, params)
         fused[o] = fuse_detection(fused[o], observations[d], frame.device_id, visible)
     return fused, [observations[d] for d in unmatched]
-
-
-def index_bounds_of(obj: MapObject, params: Params) -> np.ndarray | None:
-    """(2, 3) voxel-index bounds from the object's stored bounds, or None when it has none."""
-    if obj.bounds is None:
-        return None
-    lo = np.floor(obj.bounds.min / params.voxel_size_m + 1e-6).astype(np.int64)
-    hi = np.floor(obj.bounds.max / params.voxel_size_m - 1e-6).astype(np.int64)
-    return np.stack([lo, hi])
 
 
 def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
