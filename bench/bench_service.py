@@ -6,14 +6,23 @@ Frames: a simulated walk (``generate_room(seed)``, 640x480 by default) uploaded 
 on a throwaway redis-server; the API starts ``--workers`` worker processes running ``sim:SEED`` (the
 simulator's detector, which ray-casts each frame's instance image: the detector cost of the step).
 
-For each worker count: warm-up frames on another map (workers loaded), then ``--rounds`` bursts: all
-frames posted at once by 4 concurrent uploaders (bodies encoded beforehand: the client's cost is not
-counted) to a new map each; throughput = frames / (last completion - first post), median over bursts.
-Then latency: the frames posted at a steady ``--paced`` fraction (0.7) of that throughput; latency =
-completion - post (p50, p99), completion seen by polling the store's processed-frames set every 10 ms.
+Rounds (``--rounds``, 3): for each worker count, the in-process step on the frames, then a fresh service
+(workers loaded by warm-up frames on another map) with every frame posted at once by 4 concurrent
+uploaders (bodies encoded beforehand: the client's cost is not counted); throughput = frames / (last
+completion - first post); a last in-process run closes the round. The machine's speed drifts by 10% and
+more over minutes (other tenants), so each round gives its own ratios (2 workers over 1; 1 worker over
+the mean of the in-process runs just before and after it), and the results are their medians. Then latency, per worker count: the frames posted
+at a steady ``--paced`` fraction (0.7) of that throughput; latency = completion - post (p50, p99),
+completion seen by polling the store's processed-frames set every 10 ms.
 
 In process: ``process_frame`` on the same frames, one after another, with a fresh detector (no cached
-renders, like the service's workers), on the embedded store and on the same Redis.
+renders, like the service's workers), on the same Redis (each round) and on the embedded store (once).
+
+Threads: the simulated detector's ray cast runs on Open3D's threads. With ``--detector-threads 1`` (the
+default) every worker, and the in-process step, casts on one thread: the question is how the service
+scales with worker processes, as replicas on machines of their own would. ``--detector-threads 0`` runs
+the service as deployed (each worker takes its share of the cores: both with one worker, one each with
+two) against an in-process step on every core.
 
 Targets on 2 cores: 2 workers >= 1.7x the throughput of 1; the service's time per frame with one
 worker <= 1.25x the in-process step's (Redis store).
@@ -25,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import contextlib
 import dataclasses
 import os
 import shutil
@@ -116,7 +126,7 @@ class Redis:
 class Service:
     """The API (uvicorn in a thread of this process) with ``workers`` worker processes, on ``redis``."""
 
-    def __init__(self, redis: Redis, workers: int, seed: int) -> None:
+    def __init__(self, redis: Redis, workers: int, seed: int, threads: int) -> None:
         import uvicorn
 
         from arcloud.service.app import create_app
@@ -124,7 +134,8 @@ class Service:
 
         self.redis = redis
         self.workers = workers
-        settings = Settings(store=redis.url, detector=f"sim:{seed}", workers=workers, max_queued_frames=10_000, log_level="WARNING")
+        settings = Settings(store=redis.url, detector=f"sim:{seed}", detector_threads=threads or None, workers=workers, max_queued_frames=10_000,
+                            log_level="WARNING")
         port = free_port()
         self.url = f"http://127.0.0.1:{port}"
         self.server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning", ws="none", access_log=False))
@@ -204,46 +215,35 @@ class Service:
         }
 
 
-def bench_service(redis: Redis, workers: int, seed: int, timed: list[Any], warmup: list[Any], *, concurrency: int, rounds: int,
-                  paced_fraction: float) -> dict[str, Any]:
-    """Throughput (bursts: every frame posted at once, ``rounds`` times) and latency (frames posted at
-    ``paced_fraction`` of the measured throughput) with ``workers`` worker processes."""
+def encode(frames: list[Any], map_id: str) -> tuple[list[bytes], list[str]]:
+    """Protobuf bodies (JPEG colour, 16-bit PNG depth) of ``frames`` posted to ``map_id``, and their keys."""
     from arcloud.proto.convert import frame_to_proto
 
-    def encode(frames: list[Any], map_id: str) -> tuple[list[bytes], list[str]]:
-        return [frame_to_proto(dataclasses.replace(f, map_id=map_id)).SerializeToString() for f in frames], [f.key for f in frames]
+    return [frame_to_proto(dataclasses.replace(f, map_id=map_id)).SerializeToString() for f in frames], [f.key for f in frames]
 
+
+def bench_service(redis: Redis, workers: int, seed: int, threads: int, timed: list[Any], warmup: list[Any], *, concurrency: int,
+                  paced_rate: float | None = None) -> dict[str, Any]:
+    """One service start with ``workers`` worker processes: warm-up, then every frame posted at once
+    (throughput), or, with ``paced_rate``, one frame every 1 / ``paced_rate`` s (latency)."""
     redis.client.flushdb()
     started = time.perf_counter()
-    with Service(redis, workers, seed) as service:
+    with Service(redis, workers, seed, threads) as service:
         warm_bodies, warm_keys = encode(warmup, "warmup")
         service.run("warmup", warm_bodies, warm_keys, concurrency=1)  # every worker's detector and room loaded
         ready_s = time.perf_counter() - started
-        bursts = []
-        for r in range(rounds):
-            bodies, keys = encode(timed, f"burst{r}")
-            bursts.append(service.run(f"burst{r}", bodies, keys, concurrency=concurrency))
-        throughput = statistics.median(b["frames_per_s"] for b in bursts)
-        bodies, keys = encode(timed, "paced")
-        paced = service.run("paced", bodies, keys, concurrency=concurrency, interval_s=1.0 / (paced_fraction * throughput))
-    return {
-        "workers": workers,
-        "frames_per_s": round(throughput, 3),
-        "s_per_frame": round(1.0 / throughput, 4),
-        "latency_paced": {"rate_frames_per_s": round(paced_fraction * throughput, 3), **paced["latency"]},
-        "worker_step_mean_ms": statistics.median(b["worker_step_mean_ms"] for b in bursts),
-        "bursts": bursts,
-        "startup_and_warmup_s": round(ready_s, 2),
-    }
+        bodies, keys = encode(timed, "timed")
+        row = service.run("timed", bodies, keys, concurrency=concurrency, interval_s=1.0 / paced_rate if paced_rate else 0.0)
+    return {**row, "startup_and_warmup_s": round(ready_s, 2)}
 
 
-def run_in_process(frames: list[Any], seed: int, store: Any, map_id: str) -> dict[str, Any]:
+def run_in_process(frames: list[Any], seed: int, threads: int, store: Any, map_id: str) -> dict[str, Any]:
     from arcloud.core.step import process_frame
     from arcloud.core.types import Params
     from arcloud.sim.detector import SimulatedDetector
     from arcloud.sim.room import generate_room
 
-    detector = SimulatedDetector(generate_room(seed), seed=seed)  # a new room: no renders remembered
+    detector = SimulatedDetector(generate_room(seed), seed=seed, threads=threads)  # a new room: no renders remembered
     params = Params()
     process_frame(dataclasses.replace(frames[0], map_id=f"{map_id}-warmup"), detector, store, params)
     times = []
@@ -261,8 +261,11 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", default="1,2", help="worker process counts (default 1,2)")
+    parser.add_argument("--detector-threads", type=int, default=1,
+                        help="ray-casting threads per worker and in process (default 1: each worker on one core, as replicas on "
+                             "their own machines; 0: the service's default, the cores shared among the worker processes)")
     parser.add_argument("--concurrency", type=int, default=4, help="concurrent uploads")
-    parser.add_argument("--rounds", type=int, default=2, help="bursts per worker count (median taken)")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of (in process, each worker count), medians taken")
     parser.add_argument("--paced", type=float, default=0.7, help="latency run's rate, as a fraction of the measured throughput")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results/service.json")
     args = parser.parse_args()
@@ -282,18 +285,51 @@ def main() -> None:
     warmup, timed = frames[: args.warmup], frames[args.warmup :]
 
     probes = [parallel_probe()]
+    worker_counts = [int(w) for w in args.workers.split(",")]
     redis = Redis()
     try:
-        service = [bench_service(redis, int(w), args.seed, timed, warmup, concurrency=args.concurrency, rounds=args.rounds, paced_fraction=args.paced)
-                   for w in args.workers.split(",")]
-        for row in service:
-            print(f"service, {row['workers']} worker(s): {row['frames_per_s']:.2f} frames/s (bursts {[b['frames_per_s'] for b in row['bursts']]}), "
+        # Rounds interleave the in-process step and each worker count, so that a drift in the machine's
+        # speed (other tenants) reaches all of them alike: in process, 1 worker, in process, 2 workers, ...
+        bursts: dict[int, list[dict[str, Any]]] = {w: [] for w in worker_counts}
+        in_process_redis: list[list[dict[str, Any]]] = []  # per round: before each worker count, and after the last
+
+        def in_process_now(r: int) -> dict[str, Any]:
+            redis.client.flushdb()
+            with contextlib.closing(RedisStore(redis.url)) as redis_store:
+                row = run_in_process(timed, args.seed, args.detector_threads, redis_store, "inproc")
+            print(f"round {r + 1}: in process (redis store) {row['s_per_frame'] * 1000:.1f} ms per frame", flush=True)
+            return row
+
+        for r in range(args.rounds):
+            in_process_redis.append([])
+            for w in worker_counts:
+                in_process_redis[r].append(in_process_now(r))
+                bursts[w].append(bench_service(redis, w, args.seed, args.detector_threads, timed, warmup, concurrency=args.concurrency))
+                print(f"round {r + 1}: service, {w} worker(s): {bursts[w][-1]['frames_per_s']:.2f} frames/s, "
+                      f"worker step {bursts[w][-1]['worker_step_mean_ms']} ms", flush=True)
+            in_process_redis[r].append(in_process_now(r))
+        service = []
+        for w in worker_counts:
+            throughput = statistics.median(b["frames_per_s"] for b in bursts[w])
+            paced = bench_service(redis, w, args.seed, args.detector_threads, timed, warmup, concurrency=args.concurrency,
+                                  paced_rate=args.paced * throughput)
+            service.append({
+                "workers": w,
+                "frames_per_s": round(throughput, 3),
+                "s_per_frame": round(1.0 / throughput, 4),
+                "latency_paced": {"rate_frames_per_s": round(args.paced * throughput, 3), **paced["latency"]},
+                "worker_step_mean_ms": statistics.median(b["worker_step_mean_ms"] for b in bursts[w]),
+                "bursts": bursts[w],
+            })
+            row = service[-1]
+            print(f"service, {w} worker(s): {row['frames_per_s']:.2f} frames/s (bursts {[b['frames_per_s'] for b in row['bursts']]}), "
                   f"latency at {row['latency_paced']['rate_frames_per_s']:.2f} frames/s: p50 {row['latency_paced']['p50_ms']:.0f} ms, "
                   f"p99 {row['latency_paced']['p99_ms']:.0f} ms; worker step {row['worker_step_mean_ms']} ms")
-        redis.client.flushdb()
-        redis_store = RedisStore(redis.url)
-        in_process = {"memory": run_in_process(timed, args.seed, MemoryStore(), "inproc"), "redis": run_in_process(timed, args.seed, redis_store, "inproc")}
-        redis_store.close()
+        s_per_frame = statistics.median(row["s_per_frame"] for rnd in in_process_redis for row in rnd)
+        in_process = {
+            "memory": run_in_process(timed, args.seed, args.detector_threads, MemoryStore(), "inproc"),
+            "redis": {"s_per_frame": round(s_per_frame, 4), "frames_per_s": round(1.0 / s_per_frame, 3), "rounds": in_process_redis},
+        }
         for name, row in in_process.items():
             print(f"in process ({name} store): {row['frames_per_s']:.2f} frames/s, {row['s_per_frame'] * 1000:.1f} ms per frame")
     finally:
@@ -301,21 +337,34 @@ def main() -> None:
     probes.append(parallel_probe())
     print(f"the machine's parallel speedup for two CPU-bound processes (before, after): {probes[0]:.2f}, {probes[1]:.2f} (2.0 on idle cores)")
 
+    # Per round: 2 workers' throughput over 1 worker's; 1 worker's time per frame over the mean of the
+    # in-process runs just before and after it. Medians over rounds.
+    speedups, overheads = [], []
+    for r in range(args.rounds):
+        by_w = {w: bursts[w][r] for w in worker_counts}
+        if {1, 2} <= set(by_w):
+            speedups.append(by_w[2]["frames_per_s"] / by_w[1]["frames_per_s"])
+        if 1 in by_w:
+            i = worker_counts.index(1)
+            around = statistics.fmean(row["s_per_frame"] for row in in_process_redis[r][i : i + 2])
+            overheads.append(by_w[1]["s_per_frame"] / around)
+    speedup = statistics.median(speedups) if speedups else None
+    overhead = statistics.median(overheads) if overheads else None
     by_workers = {row["workers"]: row for row in service}
-    speedup = by_workers[2]["frames_per_s"] / by_workers[1]["frames_per_s"] if {1, 2} <= set(by_workers) else None
-    overhead = by_workers[1]["s_per_frame"] / in_process["redis"]["s_per_frame"] if 1 in by_workers else None
     results = {
         "benchmark": "service",
         **environment(("arcloud", "numpy", "scipy", "open3d", "fastapi", "uvicorn", "redis", "protobuf")),
         "redis_server": redis.version,
         "setup": {"frames": len(timed), "warmup": args.warmup, "width": args.width, "height": height, "seed": args.seed,
                   "concurrency": args.concurrency, "rounds": args.rounds, "paced_fraction": args.paced, "poll_s": POLL_S,
-                  "detector": f"sim:{args.seed}", "upload": "protobuf, JPEG rgb, 16-bit PNG depth",
+                  "detector": f"sim:{args.seed}", "detector_threads": args.detector_threads or "default", "upload": "protobuf, JPEG rgb, 16-bit PNG depth",
                   "load_average_1_5_15_min": {"start": [round(v, 2) for v in load_start], "end": [round(v, 2) for v in os.getloadavg()]}},
         "service": service,
         "in_process": in_process,
         "machine_parallel_speedup_before_after": [round(p, 3) for p in probes],
         "speedup_2_over_1": round(speedup, 3) if speedup else None,
+        "speedup_2_over_1_per_round": [round(v, 3) for v in speedups],
+        "service_over_in_process_redis_per_round": [round(v, 3) for v in overheads],
         "service_over_in_process_redis": round(overhead, 3) if overhead else None,
         "service_over_in_process_memory": round(by_workers[1]["s_per_frame"] / in_process["memory"]["s_per_frame"], 3) if 1 in by_workers else None,
         "targets": {"speedup_2_over_1": TARGET_SPEEDUP, "service_over_in_process": TARGET_OVERHEAD},

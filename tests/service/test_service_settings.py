@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
+from arcloud.service.components import build_detector, threads_per_process
 from arcloud.service.ingest import LATENCY_BUCKETS_S, latency_bucket, latency_field, parse_stats
 from arcloud.service.settings import Settings, redact_url
 
@@ -67,3 +68,10 @@ def test_latency_buckets_and_stats_parsing() -> None:
     snap = parse_stats(raw)
     assert (snap.processed, snap.failed, snap.accepted, snap.latency_count, snap.latency_sum_s) == (3, 1, 0, 3, 99.5)
     assert snap.latency_counts[1] == 2 and snap.latency_counts[-1] == 1
+
+
+def test_worker_processes_share_the_cores_and_the_detector_gets_its_share(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5, 6, 7})
+    assert [threads_per_process(n) for n in (0, 1, 2, 3, 8, 20)] == [8, 8, 4, 2, 1, 1]
+    assert build_detector("sim:0", threads=2).threads == 2  # type: ignore[attr-defined]
+    assert build_detector("sim:0").threads == 0  # type: ignore[attr-defined]  # Open3D's default: every core

@@ -85,12 +85,13 @@ def test_same_frame_id_same_detections_for_any_device_order_or_detector(room: Ro
     )
 
 
-def test_remembered_truth_and_a_fresh_ray_cast_give_the_same_detections(room: Room, poses: list[np.ndarray]) -> None:
+@pytest.mark.parametrize("threads", [0, 1])  # 0: one ray-casting thread per core
+def test_remembered_truth_and_a_fresh_ray_cast_give_the_same_detections(room: Room, poses: list[np.ndarray], threads: int) -> None:
     faults = DetectorFaults()
     frames = frames_of(room, poses[:4], faults)
     detector = SimulatedDetector(room, faults, seed=2)
     fresh_room = generate_room(2)  # same room, nothing remembered with it
-    fresh = SimulatedDetector(fresh_room, faults, seed=2)
+    fresh = SimulatedDetector(fresh_room, faults, seed=2, threads=threads)
     for frame in frames:
         a, b = detector.detect(frame), fresh.detect(frame)
         assert [(d.label, d.score) for d in a] == [(d.label, d.score) for d in b]
@@ -260,3 +261,9 @@ def test_bad_faults_raise_invalid_input(changes: dict) -> None:
 def test_detector_refuses_other_fault_objects(room: Room) -> None:
     with pytest.raises(InvalidInput):
         SimulatedDetector(room, faults={"miss_rate": 0.1})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("threads", [-1, 1.5, True, "2"])
+def test_detector_refuses_bad_thread_counts(room: Room, threads: object) -> None:
+    with pytest.raises(InvalidInput, match="threads"):
+        SimulatedDetector(room, threads=threads)  # type: ignore[arg-type]

@@ -8,6 +8,7 @@ first use so that importing the service never loads Open3D.
 from __future__ import annotations
 
 import logging
+import os
 from typing import Any
 
 from arcloud.errors import InvalidInput
@@ -18,13 +19,13 @@ log = logging.getLogger(__name__)
 SIM_PREFIX = "sim"
 
 
-def _sim_detector(argument: str, **options: Any) -> Detector:
+def _sim_detector(argument: str, *, threads: int = 0) -> Detector:
     """``sim:SEED`` -> ``SimulatedDetector(generate_room(SEED), seed=SEED)`` with the default faults."""
     from arcloud.sim.detector import SimulatedDetector
     from arcloud.sim.room import generate_room
 
     seed = _sim_seed(argument)
-    return SimulatedDetector(generate_room(seed), seed=seed)
+    return SimulatedDetector(generate_room(seed), seed=seed, threads=threads)
 
 
 def _sim_seed(argument: str) -> int:
@@ -45,6 +46,16 @@ def _registry() -> dict[str, Any]:
     return DETECTOR_FACTORIES
 
 
+def threads_per_process(processes: int) -> int:
+    """This machine's cores (those this process may run on) shared among ``processes`` worker
+    processes: at least one each, so that N workers do not each start a thread per core."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, cores // max(1, processes))
+
+
 def check_detector_spec(spec: str) -> str:
     """The spec, stripped, if its prefix names a known detector (and ``sim:`` has an integer seed);
     raises ``ValueError`` (``InvalidInput``) otherwise. Loads nothing."""
@@ -61,13 +72,14 @@ def check_detector_spec(spec: str) -> str:
 
 
 def build_detector(spec: str, *, threads: int | None = None) -> Detector:
-    """The detector a spec names, loaded now (models, rooms)."""
+    """The detector a spec names, loaded now (models, rooms); ``threads``: its compute threads
+    (onnxruntime's intra-op threads, the simulator's ray-casting threads; None: one per core)."""
     from arcloud.detectors.factory import make_detector
 
     check_detector_spec(spec)
     options: dict[str, Any] = {}
-    if threads is not None and not spec.startswith(SIM_PREFIX):
-        options["intra_op_threads"] = threads
+    if threads is not None:
+        options["threads" if spec.startswith(SIM_PREFIX) else "intra_op_threads"] = threads
     detector = make_detector(spec, **options)
     log.info("detector %s loaded", spec)
     return detector

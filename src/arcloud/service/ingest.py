@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol
 from arcloud.core.types import Frame, Params
 from arcloud.errors import ArcloudError, LockTimeout, StaleLease, StoreUnavailable
 from arcloud.ports import Detector, ObjectStore, UpdatePublisher
+from arcloud.service.frames import stream_message
 from arcloud.stores import keys
 from arcloud.stores.keys import INGEST_STREAM
 
@@ -342,7 +343,7 @@ class RedisIngest:
                 self.client.hincrby(INGEST_STATS, "duplicates", 1)
                 return Accepted(frame.map_id, frame.device_id, frame.frame_id, "duplicate")
             try:
-                fields = {"map_id": frame.map_id, "frame_key": frame.key, "accepted_at_s": repr(time.time()), "frame": message.SerializeToString()}
+                fields = {"map_id": frame.map_id, "frame_key": frame.key, "accepted_at_s": repr(time.time()), "frame": stream_message(message, frame).SerializeToString()}
                 pipe = self.client.pipeline(transaction=False)
                 pipe.xadd(INGEST_STREAM, fields)  # type: ignore[arg-type]
                 pipe.hincrby(INGEST_STATS, "accepted", 1)

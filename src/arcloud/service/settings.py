@@ -61,7 +61,7 @@ class Settings(BaseSettings):
 
     store: str = Field("memory", description="`memory` (embedded, one process) or a Redis URL (redis://host:port/db)")
     detector: str = Field("onnx", description="detector spec: `sim:SEED`, `onnx:PATH` (`onnx` alone: $ARCLOUD_MODEL), `maskrcnn:PATH`, ...")
-    detector_threads: int | None = Field(None, ge=1, description="onnxruntime intra-op threads per worker")
+    detector_threads: int | None = Field(None, ge=1, description="compute threads per worker process (onnxruntime intra-op, simulator ray casting); default: the cores shared among this host's worker processes")
     workers: int = Field(2, ge=0, description="worker threads (memory store) or worker processes (Redis); 0 with Redis: API only")
     max_frame_bytes: int = Field(32 * 2**20, ge=1024, description="largest request body accepted (413 above)")
     max_frame_pixels: int = Field(4096 * 4096, ge=1, description="largest image accepted, in pixels (read from its header before decoding)")

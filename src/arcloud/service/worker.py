@@ -274,11 +274,14 @@ def worker_publisher(settings: Settings) -> UpdatePublisher | None:
     return ZenohPublisher(mode="client", connect=endpoints)
 
 
-def run_worker(settings: Settings, *, detector_factory: DetectorFactory | None = None, stop: threading.Event | None = None) -> None:
-    """One worker in this process until SIGTERM/SIGINT (or ``stop``)."""
+def run_worker(
+    settings: Settings, *, detector_factory: DetectorFactory | None = None, stop: threading.Event | None = None, processes: int = 1
+) -> None:
+    """One worker in this process until SIGTERM/SIGINT (or ``stop``). ``processes``: how many worker
+    processes share this machine's cores (the detector's threads default to this one's share)."""
     import redis as redis_lib
 
-    from arcloud.service.components import build_detector, build_store, close_quietly
+    from arcloud.service.components import build_detector, build_store, close_quietly, threads_per_process
 
     if settings.embedded:
         raise InvalidInput("store", "a Redis URL for stream workers", "memory")
@@ -288,7 +291,10 @@ def run_worker(settings: Settings, *, detector_factory: DetectorFactory | None =
             signal.signal(signum, lambda *_: stop.set())
     params = settings.make_params()
     store = build_store(settings.store, cell_m=params.index_cell_m)
-    detector = detector_factory() if detector_factory is not None else build_detector(settings.detector, threads=settings.detector_threads)
+    if detector_factory is not None:
+        detector = detector_factory()
+    else:
+        detector = build_detector(settings.detector, threads=settings.detector_threads or threads_per_process(processes))
     publisher = worker_publisher(settings)
     client = redis_lib.Redis.from_url(settings.store, socket_connect_timeout=5.0, socket_timeout=max(30.0, 2 * settings.read_block_s + 5))
     try:
@@ -305,9 +311,9 @@ def run_worker(settings: Settings, *, detector_factory: DetectorFactory | None =
             close_quietly(thing)
 
 
-def _process_main(settings: Settings, detector_factory: DetectorFactory | None) -> None:
+def _process_main(settings: Settings, detector_factory: DetectorFactory | None, processes: int) -> None:
     configure_logging(settings.log_level)
-    run_worker(settings, detector_factory=detector_factory)
+    run_worker(settings, detector_factory=detector_factory, processes=processes)
 
 
 class WorkerPool:
@@ -328,7 +334,7 @@ class WorkerPool:
 
     def _spawn(self, index: int) -> multiprocessing.process.BaseProcess:
         process = self._context.Process(
-            target=_process_main, args=(self.settings, self.detector_factory), name=f"arcloud-worker-{index}", daemon=False
+            target=_process_main, args=(self.settings, self.detector_factory, self.size), name=f"arcloud-worker-{index}", daemon=False
         )
         process.start()
         return process

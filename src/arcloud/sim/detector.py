@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from arcloud.core.checks import describe
 from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
 from arcloud.errors import InvalidInput
 from arcloud.sim.room import Room
@@ -414,11 +415,15 @@ class SimulatedDetector:
     """A ``arcloud.ports.Detector`` for frames of a generated room (see the module docstring).
 
     ``seed`` and ``faults`` must be those the frames were simulated with (``simulate_sequence``), so
-    that the true pose of a frame is recovered from its reported one. Thread-safe."""
+    that the true pose of a frame is recovered from its reported one. ``threads``: ray-casting threads
+    (0: one per core; a worker process sharing the machine with others takes its share). Thread-safe."""
 
-    def __init__(self, room: Room, faults: DetectorFaults = DetectorFaults(), *, seed: int = 0) -> None:
+    def __init__(self, room: Room, faults: DetectorFaults = DetectorFaults(), *, seed: int = 0, threads: int = 0) -> None:
         if not isinstance(faults, DetectorFaults):
             raise InvalidInput("faults", "a DetectorFaults", type(faults).__name__)
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+            raise InvalidInput("threads", "an int >= 0 (0: one per core)", describe(threads))
+        self.threads = int(threads)
         self.room = room
         self.faults = faults
         self.seed = int(seed)
@@ -443,7 +448,7 @@ class SimulatedDetector:
         cam2world = self.true_pose(frame)
         truth = recall_truth(self.room, truth_key(frame.frame_id, cam2world, frame.intrinsics, width, height))
         if truth is None:
-            hits = self._renderer.raycast(cam2world, frame.intrinsics, width, height)
+            hits = self._renderer.raycast(cam2world, frame.intrinsics, width, height, threads=self.threads)
             truth = frame_truth(self.room, hits.triangle, hits.depth_m, cam2world, frame.intrinsics)
         return truth
 

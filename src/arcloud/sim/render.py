@@ -128,10 +128,11 @@ class MeshRenderer:
         self._scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))
 
     def raycast(
-        self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int, *, surface: bool = False
+        self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int, *, surface: bool = False, threads: int = 0
     ) -> RayHits:
         """First hits of the rays through every pixel centre of an (height, width) image; with
-        ``surface``, also the hits' barycentric coordinates and normals (else None)."""
+        ``surface``, also the hits' barycentric coordinates and normals (else None). ``threads``: Open3D's
+        threads for the cast (0: one per core)."""
         pose = check_pose("cam2world", cam2world)
         if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer)) and width > 0 and height > 0):
             raise InvalidInput("width, height", "positive integers", f"{width!r}, {height!r}")
@@ -144,7 +145,7 @@ class MeshRenderer:
             self._tensor(camera), self._tensor(world2cam), int(width), int(height)
         )  # (H, W, 6): origin, direction with z = 1 in the camera frame
         with self._lock:
-            hits = self._scene.cast_rays(rays)
+            hits = self._scene.cast_rays(rays, nthreads=threads)
             t_hit = hits["t_hit"].numpy()
             primitive = hits["primitive_ids"].numpy()
             uv = hits["primitive_uvs"].numpy().copy() if surface else None
@@ -153,9 +154,9 @@ class MeshRenderer:
         depth = np.where(triangle >= 0, t_hit, np.float32(0.0))
         return RayHits(depth, triangle, uv, normal)
 
-    def render(self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> RenderResult:
+    def render(self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int, *, threads: int = 0) -> RenderResult:
         """Colour, z-depth and instance images of the mesh seen from ``cam2world`` (4, 4)."""
-        hits = self.raycast(cam2world, intrinsics, width, height, surface=self.vertex_colors is not None)
+        hits = self.raycast(cam2world, intrinsics, width, height, surface=self.vertex_colors is not None, threads=threads)
         # Per-triangle tables have one more row, for "no hit" (index -1 takes the last row).
         instance = np.take(self._instance_table, hits.triangle)
         if self.vertex_colors is not None:
