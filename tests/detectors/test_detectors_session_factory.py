@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from arcloud.detectors import factory
-from arcloud.detectors.factory import MODEL_ENV_VAR, make_detector, register_detector
+from arcloud.detectors.factory import MODEL_ENV_VAR, check_model_file, make_detector, register_detector
 from arcloud.detectors.maskrcnn import MaskRCNNDetector
 from arcloud.detectors.onnx_yolo import YoloSegDetector
 from arcloud.detectors.session import load_session
@@ -67,8 +67,23 @@ def test_bare_onnx_spec_reads_the_model_from_the_environment(tiny_models, monkey
     monkeypatch.setenv(MODEL_ENV_VAR, str(tiny_models["maskrcnn"]))
     assert isinstance(make_detector("onnx"), MaskRCNNDetector)
     monkeypatch.delenv(MODEL_ENV_VAR)
-    with pytest.raises(InvalidInput, match="expected onnx:PATH or ARCLOUD_MODEL set to a model file, got 'onnx' with no path"):
+    with pytest.raises(InvalidInput, match="expected onnx:PATH to a model file, or ARCLOUD_MODEL set to one .*got 'onnx' with no path"):
         make_detector("onnx")
+
+
+def test_model_files_are_checked_before_anything_loads(tiny_models, tmp_path, monkeypatch) -> None:
+    monkeypatch.delenv(MODEL_ENV_VAR, raising=False)
+    for spec in (f"onnx:{tiny_models['yolo']}", f"maskrcnn:{tiny_models['maskrcnn']}", "sim:0", "gt-masks:anything"):
+        check_model_file(spec)  # no model file to check, or one that is there
+    with pytest.raises(InvalidInput, match="sim:SEED runs the simulator's detector.*got 'onnx' with no path"):
+        check_model_file("onnx")
+    missing = tmp_path / "nowhere.onnx"
+    for spec in (f"onnx:{missing}", f"maskrcnn:{missing}"):
+        with pytest.raises(InvalidInput, match=f"got '{missing}', which is not a file"):
+            check_model_file(spec)
+    monkeypatch.setenv(MODEL_ENV_VAR, str(missing))
+    with pytest.raises(InvalidInput, match="which is not a file"):
+        check_model_file("onnx")
 
 
 def test_unknown_specs_name_the_valid_ones() -> None:

@@ -180,3 +180,28 @@ def test_workers_stop_gracefully_after_the_frame_in_hand(deployment: Deployment)
     assert deployment.store.count_frames("r5") == 1 and deployment.idle()
     stopped = {str(p.pid) for p in processes}
     assert not [w for w in live_workers(deployment.redis) if w.rsplit("-", 1)[1] in stopped]  # heartbeats removed on the way out
+
+
+def test_workers_that_die_right_after_starting_are_restarted_later_and_later(monkeypatch: pytest.MonkeyPatch) -> None:
+    class Dead:
+        pid, exitcode = 1, 1
+
+        def is_alive(self) -> bool:
+            return False
+
+    spawned: list[float] = []
+    pool = WorkerPool(Settings(store="redis://127.0.0.1:1/0", detector="sim:0", workers=1), 1)
+    monkeypatch.setattr(pool, "_spawn", lambda index: Dead())
+    pool.processes, pool._started_at = [Dead()], {0: 0.0}
+    for tick in range(200):  # a supervisor looking once a second for 200 s at a worker that always fails at once
+        before = pool.processes[0]
+        pool.tend(float(tick))
+        if pool.processes[0] is not before:
+            spawned.append(float(tick))
+    # Each death is seen a tick after its start, then the next start waits 2, 4, 8, 16, 32 s, then 60 s.
+    assert spawned[:5] == [2.0, 7.0, 16.0, 33.0, 66.0]
+    assert len(spawned) > 6 and all(b - a == 61.0 for a, b in zip(spawned[4:], spawned[5:]))
+    long_lived = Dead()
+    pool.processes, pool._started_at, pool._restart_at = [long_lived], {0: 0.0}, {}
+    pool.tend(100.0)  # one that ran 100 s: replaced at once, and its slot's delay starts over
+    assert pool.processes[0] is not long_lived and pool._quick_exits[0] == 0 and pool._restart_at == {}

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from svc_helpers import UvicornThread
 
+from arcloud.cli import main as cli_main
 from arcloud.core.types import Intrinsics, Params
 from arcloud.errors import ArcloudError
 from arcloud.eval.metrics import Box3D, evaluate
@@ -67,3 +68,13 @@ def test_cli_options_become_settings(monkeypatch: pytest.MonkeyPatch) -> None:
         parser().parse_args(["replay", "--users", "0"])
     with pytest.raises(ArcloudError, match=r"store: expected `memory` or a URL.*'mysql://u:\*\*\*@db'; detector: expected PREFIX"):
         settings_from_args(parser().parse_args(["serve", "--redis", "mysql://u:pw@db", "--detector", "foo"]))
+
+
+def test_serve_and_worker_without_a_model_stop_at_once_with_one_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.delenv("ARCLOUD_MODEL", raising=False)
+    monkeypatch.delenv("ARCLOUD_DETECTOR", raising=False)
+    for argv in (["serve"], ["serve", "--redis", "redis://127.0.0.1:1/0", "--workers", "2"], ["worker", "--redis", "redis://127.0.0.1:1/0"]):
+        assert cli_main(argv) == 2  # before any server, worker process or Redis connection starts
+        err = capsys.readouterr().err
+        assert err.startswith("arcloud: error: detector spec: expected onnx:PATH to a model file") and "sim:SEED" in err
+        assert "Traceback" not in err and err.count("\n") == 1

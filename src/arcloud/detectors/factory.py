@@ -52,12 +52,27 @@ def _known() -> str:
     return ", ".join(sorted(DETECTOR_FACTORIES))
 
 
+#: Spec prefixes that name a model file.
+MODEL_PREFIXES = ("onnx", "maskrcnn")
+
+
 def _model_path(argument: str, prefix: str) -> str:
     path = argument or (os.environ.get(MODEL_ENV_VAR, "") if prefix == "onnx" else "")
+    expected = f"{prefix}:PATH to a model file" + (f", or {MODEL_ENV_VAR} set to one" if prefix == "onnx" else "")
+    expected += " (sim:SEED runs the simulator's detector, no model needed)"
     if not path:
-        expected = f"{prefix}:PATH" + (f" or {MODEL_ENV_VAR} set to a model file" if prefix == "onnx" else "")
         raise InvalidInput("detector spec", expected, f"{prefix!r} with no path")
+    if not os.path.isfile(path):
+        raise InvalidInput("detector spec", expected, f"{path!r}, which is not a file")
     return path
+
+
+def check_model_file(spec: str) -> None:
+    """Raise ``InvalidInput`` when ``spec`` names a model file (``onnx``, ``maskrcnn``) that is not there;
+    loads nothing. A service checks this before it starts worker processes that would each fail."""
+    prefix, _, argument = spec.strip().partition(":")
+    if prefix in MODEL_PREFIXES:
+        _model_path(argument, prefix)
 
 
 def _onnx_detector(argument: str, **options: Any) -> Detector:

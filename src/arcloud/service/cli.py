@@ -100,7 +100,11 @@ def run_serve(args: argparse.Namespace) -> int:
 
     from arcloud.service.app import create_app
 
+    from arcloud.detectors.factory import check_model_file
+
     settings = settings_from_args(args)
+    if settings.embedded or settings.workers > 0:
+        check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
     logging.getLogger("arcloud").setLevel(settings.log_level)
     app = create_app(settings)
     uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(), ws="none", lifespan="on")
@@ -110,7 +114,10 @@ def run_serve(args: argparse.Namespace) -> int:
 def run_worker_command(args: argparse.Namespace) -> int:
     from arcloud.service.worker import configure_logging, run_worker
 
+    from arcloud.detectors.factory import check_model_file
+
     settings = settings_from_args(args)
+    check_model_file(settings.detector)
     configure_logging(settings.log_level)
     run_worker(settings)
     return 0

@@ -316,8 +316,15 @@ def _process_main(settings: Settings, detector_factory: DetectorFactory | None, 
     run_worker(settings, detector_factory=detector_factory, processes=processes)
 
 
+#: A worker that dies sooner than this after its start failed to start: the next start waits, twice as
+#: long each time (up to ``RESTART_MAX_DELAY_S``), so a broken setup does not spawn a process a second.
+QUICK_EXIT_S = 10.0
+RESTART_MAX_DELAY_S = 60.0
+
+
 class WorkerPool:
-    """``size`` worker processes (spawned: no state inherited), restarted when they die.
+    """``size`` worker processes (spawned: no state inherited), restarted when they die; those that die
+    right after starting are restarted with a growing delay.
 
     ``detector_factory``: a picklable callable building each worker's detector (default: the settings'
     spec)."""
@@ -331,6 +338,9 @@ class WorkerPool:
         self._context = multiprocessing.get_context("spawn")
         self._stopping = threading.Event()
         self._supervisor: threading.Thread | None = None
+        self._started_at: dict[int, float] = {}
+        self._quick_exits: dict[int, int] = {}  # consecutive quick exits per slot
+        self._restart_at: dict[int, float] = {}
 
     def _spawn(self, index: int) -> multiprocessing.process.BaseProcess:
         process = self._context.Process(
@@ -342,6 +352,7 @@ class WorkerPool:
     def start(self) -> None:
         self._stopping.clear()
         self.processes = [self._spawn(i) for i in range(self.size)]
+        self._started_at = dict.fromkeys(range(self.size), time.monotonic())
         log.info("started %d worker processes: %s", self.size, ", ".join(str(p.pid) for p in self.processes))
         if self.restart:
             self._supervisor = threading.Thread(target=self._supervise, name="arcloud-worker-supervisor", daemon=True)
@@ -349,11 +360,24 @@ class WorkerPool:
 
     def _supervise(self) -> None:
         while not self._stopping.wait(1.0):
-            for i, process in enumerate(self.processes):
-                if not process.is_alive() and not self._stopping.is_set():
-                    log.error("worker process %s exited with %s; starting another (its frames are claimed after %.0f s)",
-                              process.pid, process.exitcode, self.settings.claim_min_idle_s)
-                    self.processes[i] = self._spawn(i)
+            self.tend(time.monotonic())
+
+    def tend(self, now: float) -> None:
+        """Restart the workers found dead (the supervisor calls this every second)."""
+        for i, process in enumerate(self.processes):
+            if process.is_alive() or self._stopping.is_set():
+                continue
+            if i not in self._restart_at:  # seen dead for the first time
+                quick = now - self._started_at.get(i, now) < QUICK_EXIT_S
+                self._quick_exits[i] = self._quick_exits.get(i, 0) + 1 if quick else 0
+                delay_s = min(RESTART_MAX_DELAY_S, 2.0 ** self._quick_exits[i]) if quick else 0.0
+                self._restart_at[i] = now + delay_s
+                log.error("worker process %s exited with %s%s; starting another in %.0f s (its frames are claimed after %.0f s)",
+                          process.pid, process.exitcode, " right after starting" if quick else "", delay_s, self.settings.claim_min_idle_s)
+            if now >= self._restart_at[i]:
+                del self._restart_at[i]
+                self.processes[i] = self._spawn(i)
+                self._started_at[i] = now
 
     def alive(self) -> int:
         return sum(p.is_alive() for p in self.processes)
