@@ -37,12 +37,8 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import os
-import shutil
-import socket
 import statistics
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -51,7 +47,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import environment, summary_ms, write_json  # noqa: E402
+from common import Redis, environment, free_port, summary_ms, write_json  # noqa: E402
 
 TARGET_SPEEDUP = 1.7
 TARGET_OVERHEAD = 1.25
@@ -80,47 +76,6 @@ def parallel_probe(n: int = 3_000_000) -> float:
         pool.map(_spin, [n, n])
         two = time.perf_counter() - started
     return 2 * one / two
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-class Redis:
-    """A throwaway redis-server on a free loopback port, no persistence."""
-
-    def __init__(self) -> None:
-        binary = shutil.which("redis-server")
-        if binary is None:
-            raise SystemExit("redis-server not found on PATH (apt-get install redis-server)")
-        self.port = free_port()
-        self.dir = tempfile.TemporaryDirectory(prefix="arcloud-bench-redis-")
-        self.process = subprocess.Popen(
-            [binary, "--port", str(self.port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no", "--dir", self.dir.name, "--loglevel", "warning"],
-            stdout=subprocess.DEVNULL,
-        )
-        self.url = f"redis://127.0.0.1:{self.port}/0"
-        import redis
-
-        self.client = redis.Redis.from_url(self.url)
-        deadline = time.monotonic() + 10
-        while True:
-            try:
-                self.client.ping()
-                break
-            except redis.ConnectionError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.05)
-        self.version = self.client.info("server")["redis_version"]
-
-    def stop(self) -> None:
-        self.client.close()
-        self.process.terminate()
-        self.process.wait(10)
-        self.dir.cleanup()
 
 
 class Service:
