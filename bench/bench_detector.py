@@ -86,6 +86,9 @@ def main() -> None:
     parser.add_argument("--models", default=",".join(MODELS), help=f"comma-separated, of: {', '.join(MODELS)}")
     parser.add_argument("--out", type=Path, default=Path("bench/results/detector.json"))
     args = parser.parse_args()
+    from arcloud.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the CLI's commands and the worker processes do
     if args.repeats < 20:
         parser.error("--repeats must be >= 20 for a median and spread worth reporting")
     indices = [int(i) for i in args.frames.split(",")]

@@ -223,6 +223,9 @@ def main() -> None:
                         help=f"TSDF voxel sizes in metres (default: the pipeline's and {DENSE_VOXEL_SIZE_M})")
     parser.add_argument("--out", type=Path, default=Path("bench/results/memory.json"))
     args = parser.parse_args()
+    from arcloud.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the CLI's commands and the worker processes do
     reason = missing_inputs()
     if reason is not None:
         print(f"skipped: {reason}")

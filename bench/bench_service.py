@@ -257,6 +257,9 @@ def main() -> None:
     parser.add_argument("--paced", type=float, default=0.7, help="latency run's rate, as a fraction of the measured throughput")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results/service.json")
     args = parser.parse_args()
+    from arcloud.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the CLI's commands and the worker processes do
     load_start = os.getloadavg()  # other processes on the machine share its cores: recorded
 
     from arcloud.core.types import Intrinsics

@@ -52,6 +52,9 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path("bench/results/step.json"))
     args = parser.parse_args()
+    from arcloud.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the CLI's commands and the worker processes do
     core = pin_to_one_core()
     rng = np.random.default_rng(0)
     depth, masks, labels = make_scene(rng)

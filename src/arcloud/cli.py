@@ -7,6 +7,7 @@ import logging
 import sys
 from pathlib import Path
 
+from arcloud.allocator import keep_freed_memory
 from arcloud.argtypes import parse_users, positive_int
 from arcloud.datasets.cli import add_eval_commands
 from arcloud.service.cli import add_service_commands
@@ -56,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    keep_freed_memory()  # every command processes frame after frame
     try:
         return int(args.handler(args) or 0)
     except KeyboardInterrupt:

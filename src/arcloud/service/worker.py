@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from arcloud.allocator import keep_freed_memory
 from arcloud.core.types import Frame, Params
 from arcloud.errors import InvalidInput
 from arcloud.ports import Detector, ObjectStore, UpdatePublisher
@@ -285,6 +286,7 @@ def run_worker(
 
     if settings.embedded:
         raise InvalidInput("store", "a Redis URL for stream workers", "memory")
+    keep_freed_memory()
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for signum in (signal.SIGTERM, signal.SIGINT):
