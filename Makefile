@@ -21,6 +21,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_step.py
 	$(BIN)/python bench/bench_detector.py
 	$(BIN)/python bench/bench_service.py
+	$(BIN)/python bench/bench_memory.py
 
 proto: $(STAMP)
 	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto --pyi_out=src/arcloud/proto proto/arcloud/v1/*.proto
