@@ -17,6 +17,7 @@ from arcloud.eval.protocol import object_boxes, run_map
 from arcloud.service.app import create_app
 from arcloud.service.cli import add_service_commands, settings_from_args
 from arcloud.service.settings import Settings
+from arcloud.service.worker import main as worker_main
 
 pytestmark = pytest.mark.slow
 
@@ -78,3 +79,5 @@ def test_serve_and_worker_without_a_model_stop_at_once_with_one_line(monkeypatch
         err = capsys.readouterr().err
         assert err.startswith("arcloud: error: detector spec: expected onnx:PATH to a model file") and "sim:SEED" in err
         assert "Traceback" not in err and err.count("\n") == 1
+    monkeypatch.setenv("ARCLOUD_STORE", "redis://127.0.0.1:1/0")
+    assert worker_main([]) == 2  # the container's entry point: logged, exit 2

@@ -430,6 +430,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.healthcheck:
         return 0 if healthy(settings) else 1
     configure_logging(settings.log_level)
+    from arcloud.detectors.factory import check_model_file
+
+    try:
+        check_model_file(settings.detector)
+    except InvalidInput as exc:  # a clear line in the container's log, not a traceback
+        log.error("%s", exc)
+        return 2
     run_worker(settings)
     return 0
 
