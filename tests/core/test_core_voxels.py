@@ -3,7 +3,17 @@ import pytest
 
 from arcloud.core.camera import boxes_in_frustum, frame_frustum, view_frustum
 from arcloud.core.types import Detection, Params
-from arcloud.core.voxels import erode, key_centers, mask_points, pack_keys, unpack_keys, voxelize_detections
+from arcloud.core.voxels import (
+    coarsen_keys,
+    erode,
+    erode_sampled,
+    key_centers,
+    mask_points,
+    pack_keys,
+    sorted_unique,
+    unpack_keys,
+    voxelize_detections,
+)
 
 from handmade_frames import INTRINSICS, plane_frame, rect_mask
 
@@ -86,3 +96,27 @@ def test_frame_frustum_near_far_from_depth():
     depths = frustum.corners[:, 2]
     assert depths.min() == pytest.approx(0.9) and depths.max() == pytest.approx(2.1)
     assert frame_frustum(plane_frame(0.0), Params()) is None
+
+
+@pytest.mark.parametrize("factor", [2, 3, 4, 8])
+def test_coarsen_keys_matches_unpack_divide_pack(factor):
+    rng = np.random.default_rng(factor)
+    ijk = rng.integers(-300, 300, (4000, 3))
+    ijk[:2] = [[-(2**20), -(2**20), -(2**20)], [2**20 - 1, 2**20 - 1, 2**20 - 1]]  # the extreme indices
+    keys = np.unique(pack_keys(ijk))
+    expected = np.unique(pack_keys(np.floor_divide(unpack_keys(keys), factor)))
+    got = coarsen_keys(keys, factor)
+    assert got.dtype == expected.dtype and np.array_equal(got, expected)
+
+
+def test_sorted_unique_matches_np_unique():
+    rng = np.random.default_rng(0)
+    for values in (rng.integers(-50, 50, 1000), rng.integers(0, 3, 1), np.empty(0, np.int64), rng.random(200).round(1)):
+        got, expected = sorted_unique(values), np.unique(values)
+        assert got.dtype == expected.dtype and np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("radius_px, stride_px", [(0, 3), (1, 1), (2, 4), (3, 2)])
+def test_erode_sampled_is_erode_then_sample(radius_px, stride_px):
+    mask = np.random.default_rng(radius_px).random((37, 53)) < 0.9
+    assert np.array_equal(erode_sampled(mask, radius_px, stride_px), erode(mask, radius_px)[::stride_px, ::stride_px])

@@ -11,7 +11,7 @@ from scipy.spatial import ConvexHull
 
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import key_centers, keys_bounds, unpack_keys
+from arcloud.core.voxels import sorted_unique, unpack_keys
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
@@ -35,12 +35,17 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     connected parts (26-neighbourhood) smaller than ``min_component_fraction`` of the largest."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
+    return _box_voxel_mask(obj, params, unpack_keys(obj.keys))
+
+
+def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray) -> np.ndarray:
+    """``box_voxel_mask`` of a non-empty object whose keys unpack to ``ijk_all`` (N, 3)."""
     k = int(0.9 * (obj.weights.size - 1))
     reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
     keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
     if keep.sum() < 2:
         return keep
-    ijk = unpack_keys(obj.keys[keep])
+    ijk = ijk_all[keep]
     origin = ijk.min(axis=0)
     shape = ijk.max(axis=0) - origin + 1
     if np.prod(shape) > MAX_COMPONENT_GRID_CELLS:
@@ -65,6 +70,12 @@ def up_rotation(up: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
+def _is_vertical(up_xyz: tuple[float, ...]) -> bool:
+    """Whether ``up`` needs no rotation (its world2gravity is the identity)."""
+    return bool(np.array_equal(_up_rotation(up_xyz), np.eye(3)))
+
+
+@functools.lru_cache(maxsize=16)
 def _up_rotation(up_xyz: tuple[float, ...]) -> np.ndarray:
     up = np.asarray(up_xyz, np.float64) / np.linalg.norm(up_xyz)
     z = np.array([0.0, 0.0, 1.0])
@@ -83,9 +94,13 @@ def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     cells = np.floor(xy / voxel_size_m).astype(np.int64)
     order = np.lexsort((cells[:, 1], cells[:, 0]))
     cells = cells[order]
-    starts = np.flatnonzero(np.r_[True, cells[1:, 0] != cells[:-1, 0]])
-    ends = np.r_[starts[1:], len(cells)] - 1
-    outline = np.concatenate([cells[starts], cells[ends]])
+    first = np.empty(len(cells), bool)  # the first cell of each column (the lowest row)
+    first[0] = True
+    np.not_equal(cells[1:, 0], cells[:-1, 0], out=first[1:])
+    last = np.empty_like(first)  # the last cell of each column (the highest row)
+    last[-1] = True
+    last[:-1] = first[1:]
+    outline = np.concatenate([cells[first], cells[last]])
     return (outline + 0.5) * voxel_size_m
 
 
@@ -98,9 +113,11 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
     def half(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
         chain: list[tuple[float, float]] = []
         for p in seq:
-            while len(chain) >= 2 and (
-                (chain[-1][0] - chain[-2][0]) * (p[1] - chain[-2][1]) - (chain[-1][1] - chain[-2][1]) * (p[0] - chain[-2][0])
-            ) <= 0:
+            px, py = p
+            while len(chain) >= 2:
+                (ax, ay), (bx, by) = chain[-2], chain[-1]
+                if (bx - ax) * (py - ay) - (by - ay) * (px - ax) > 0:
+                    break
                 chain.pop()
             chain.append(p)
         return chain
@@ -124,19 +141,21 @@ def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
 def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pad_m: float | None = None) -> OBB:
     """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
     of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a voxel)."""
-    world2gravity = up_rotation(up)
-    points = centers if np.array_equal(world2gravity, np.eye(3)) else centers @ world2gravity.T
+    up_xyz = tuple(float(x) for x in np.asarray(up).ravel())
+    world2gravity = _up_rotation(up_xyz)
+    points = centers if _is_vertical(up_xyz) else centers @ world2gravity.T
     xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
     hull = convex_hull_2d(xy) if len(xy) <= 512 else xy[ConvexHull(xy).vertices]
     yaw = 0.0
     if len(hull) >= 3:
-        edges = np.roll(hull, -1, axis=0) - hull
-        angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+        edges = np.concatenate((hull[1:], hull[:1])) - hull  # np.roll(hull, -1, axis=0) - hull
+        # Sorted unique angles (np.mod by a positive divisor gives no -0.0, so equal means identical).
+        angles = sorted_unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
         c, s = np.cos(angles), np.sin(angles)
         # Hull points in each candidate frame: (A, H) coordinates along the two box axes.
         u = hull[:, 0][None] * c[:, None] + hull[:, 1][None] * s[:, None]
         v = -hull[:, 0][None] * s[:, None] + hull[:, 1][None] * c[:, None]
-        areas = np.ptp(u, axis=1) * np.ptp(v, axis=1)
+        areas = (u.max(axis=1) - u.min(axis=1)) * (v.max(axis=1) - v.min(axis=1))  # np.ptp
         yaw = float(angles[np.argmin(areas)])
     c, s = math.cos(yaw), math.sin(yaw)
     yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
@@ -170,15 +189,16 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     obj = prune_voxels(obj, params)
     if obj.keys.size == 0:
         return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None)
-    box_mask = box_voxel_mask(obj, params)
+    ijk = unpack_keys(obj.keys)  # once: the component filter, the box's centres and the bounds use it
+    box_mask = _box_voxel_mask(obj, params, ijk)
     label_index = object_label_index(obj)
-    centers = key_centers(obj.keys[box_mask], params.voxel_size_m)
+    centers = (ijk[box_mask] + 0.5) * params.voxel_size_m  # key_centers(obj.keys[box_mask])
     if params.world2aligned is not None:
         world2aligned = np.asarray(params.world2aligned, np.float64)
         aligned = centers @ world2aligned[:3, :3].T + world2aligned[:3, 3]
     else:
         aligned = centers
-    lo, hi = keys_bounds(obj.keys, params.voxel_size_m)
+    lo, hi = ijk.min(axis=0) * params.voxel_size_m, (ijk.max(axis=0) + 1) * params.voxel_size_m  # keys_bounds
     return obj.replace(
         label=CLASSES[label_index],
         score=object_score(obj, label_index, box_mask, params),

@@ -9,20 +9,30 @@ import numpy as np
 
 from arcloud.core.associate import overlap_matrix, stored_index_bounds
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
+from arcloud.core.voxels import sorted_unique
 
 
 def union_voxels(a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray) -> MapObject:
     """``a`` with a sparse voxel set added: weights, seen counts and votes of a voxel in both add up."""
-    keys = np.union1d(a.keys, keys_b)
+    return _union_voxels(a, keys_b, weights_b, seen_b, votes_b)[0]
+
+
+def _union_voxels(
+    a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray
+) -> tuple[MapObject, np.ndarray, np.ndarray]:
+    """``union_voxels``, plus where ``a``'s keys (N_a,) and ``keys_b`` (N_b,) sit in the union."""
+    keys = sorted_unique(np.concatenate((a.keys, keys_b)))
     weights = np.zeros(keys.size, np.float32)
     seen = np.zeros(keys.size, np.float32)
     votes = np.zeros((keys.size, N_CLASSES), np.float32)
+    positions = []
     for k, w, n, v in ((a.keys, a.weights, a.seen_counts, a.votes), (keys_b, weights_b, seen_b, votes_b)):
         at = np.searchsorted(keys, k)
         weights[at] += w
         seen[at] += n
         votes[at] += v
-    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes)
+        positions.append(at)
+    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes), positions[0], positions[1]
 
 
 def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None) -> MapObject:
@@ -32,11 +42,12 @@ def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str, visible:
     votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
     votes[:, det.label_index] = det.score
     ones = np.ones(det.keys.size, np.float32)
-    fused = union_voxels(obj, det.keys, ones, ones, votes)
+    fused, at_obj, at_det = _union_voxels(obj, det.keys, ones, ones, votes)
     if visible is not None and visible.any():
         # Visible voxels of the object that the detection did not cover: seen, not hit.
-        missed = obj.keys[visible & ~np.isin(obj.keys, det.keys, assume_unique=True)]
-        fused.seen[np.searchsorted(fused.keys, missed)] += 1
+        covered = np.zeros(fused.keys.size, bool)
+        covered[at_det] = True
+        fused.seen[at_obj[visible & ~covered[at_obj]]] += 1
     return fused.replace(
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},
