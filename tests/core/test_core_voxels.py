@@ -7,6 +7,7 @@ from arcloud.core.voxels import (
     coarsen_keys,
     erode,
     erode_sampled,
+    mask_extent,
     key_centers,
     mask_points,
     pack_keys,
@@ -120,3 +121,14 @@ def test_sorted_unique_matches_np_unique():
 def test_erode_sampled_is_erode_then_sample(radius_px, stride_px):
     mask = np.random.default_rng(radius_px).random((37, 53)) < 0.9
     assert np.array_equal(erode_sampled(mask, radius_px, stride_px), erode(mask, radius_px)[::stride_px, ::stride_px])
+
+
+@pytest.mark.parametrize("width", [64, 61])  # read as 64-bit words, and not
+def test_mask_extent_is_the_bounding_box_of_the_pixels(width):
+    rng = np.random.default_rng(width)
+    for _ in range(50):
+        mask = np.zeros((23, width), bool)
+        mask[tuple(rng.integers(0, (23, width), (int(rng.integers(1, 6)), 2)).T)] = True
+        rows, cols = np.nonzero(mask)
+        assert mask_extent(mask) == (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
+    assert mask_extent(np.zeros((23, width), bool)) is None

@@ -58,7 +58,7 @@ def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) ->
 def index_bounds(keys: np.ndarray) -> np.ndarray:
     """(2, 3) min and max voxel indices of non-empty keys."""
     ijk = unpack_keys(keys)
-    return np.stack([ijk.min(axis=0), ijk.max(axis=0)])
+    return np.array((ijk.min(axis=0), ijk.max(axis=0)))
 
 
 def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | None:
@@ -68,7 +68,7 @@ def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | Non
         return None
     lo = np.floor(obj.bounds.min / voxel_size_m + 1e-6).astype(np.int64)
     hi = np.floor(obj.bounds.max / voxel_size_m - 1e-6).astype(np.int64)
-    return np.stack([lo, hi])
+    return np.array((lo, hi))
 
 
 def known_or_computed_bounds(

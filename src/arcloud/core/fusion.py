@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from arcloud.core.associate import overlap_matrix, stored_index_bounds
+from arcloud.core.associate import index_bounds, overlap_matrix, stored_index_bounds
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 from arcloud.core.voxels import sorted_unique
 
@@ -111,8 +111,10 @@ def find_duplicates(
     if not wanted.any():
         return []
     keys = [o.keys for o in objects]
-    # Unchanged objects' stored bounds are exact; only changed ones need their keys unpacked.
-    bounds = [None if c else stored_index_bounds(o, params.voxel_size_m) for o, c in zip(objects, flags)]
+    # Unchanged objects' stored bounds are exact; only changed ones need their keys unpacked (once,
+    # here, rather than once for each side of the matrix).
+    bounds = [stored_index_bounds(o, params.voxel_size_m) if not c else None for o, c in zip(objects, flags)]
+    bounds = [index_bounds(o.keys) if b is None and o.keys.size else b for o, b in zip(objects, bounds)]
     overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
     same = wanted & ((overlap >= params.merge_min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
     np.fill_diagonal(same, False)
@@ -158,6 +160,9 @@ def resolve_conflicts(objects: Sequence[MapObject]) -> list[MapObject]:
     if len(objects) < 2:
         return list(objects)
     keys = np.concatenate([o.keys for o in objects])
+    ordered = np.sort(keys)
+    if not (ordered[1:] == ordered[:-1]).any():
+        return list(objects)  # no voxel is held twice (the common case): skip the three-key sort
     weights = np.concatenate([o.weights for o in objects])
     owner = np.repeat(np.arange(len(objects)), [o.keys.size for o in objects])
     ids = np.array([o.id for o in objects])[owner]

@@ -105,15 +105,43 @@ def erode_sampled(mask: np.ndarray, radius_px: int, stride_px: int) -> np.ndarra
     return both.view(bool)
 
 
+def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """The bounding box (row0, row1, col0, col1), ends exclusive, of an (H, W) bool mask's pixels; None
+    when it has none.
+
+    The first row comes from the first set pixel (argmax stops there); only the rows below it are
+    reduced. A C-contiguous mask whose width is a multiple of 8 has its columns found on 64-bit words:
+    OR-ing the rows' words keeps each pixel's byte non-zero exactly when its column has a pixel set."""
+    height, width = mask.shape
+    if mask.size == 0:
+        return None
+    if mask.flags.c_contiguous:
+        first = int(mask.reshape(-1).argmax())
+        if not mask.flat[first]:
+            return None
+        r0 = first // width
+    else:
+        rows = np.flatnonzero(mask.any(axis=1))
+        if rows.size == 0:
+            return None
+        r0 = int(rows[0])
+    r1 = r0 + int(np.flatnonzero(mask[r0:].any(axis=1))[-1]) + 1
+    band = mask[r0:r1]
+    if mask.flags.c_contiguous and width % 8 == 0 and mask.dtype == np.bool_:
+        cols = np.flatnonzero(np.bitwise_or.reduce(band.view(np.uint64), axis=0).view(np.uint8))
+    else:
+        cols = np.flatnonzero(band.any(axis=0))
+    return r0, r1, int(cols[0]), int(cols[-1]) + 1
+
+
 def mask_points(frame: Frame, mask: np.ndarray, params: Params, stride_px: int = 1) -> np.ndarray:
     """World points (N, 3) of the mask's pixels with valid depth, after eroding the mask's border.
 
     Works on the mask's bounding box only. ``stride_px`` > 1 samples every n-th row and column."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
+    extent = mask_extent(mask)
+    if extent is None:
         return np.empty((0, 3))
-    cols = np.flatnonzero(mask.any(axis=0))
-    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    r0, r1, c0, c1 = extent
     crop = erode_sampled(mask[r0:r1, c0:c1], params.erode_px, stride_px)
     depth = frame.depth_m[r0:r1:stride_px, c0:c1:stride_px]
     keep = crop & (depth >= params.depth_min_m) & (depth <= params.depth_max_m)
