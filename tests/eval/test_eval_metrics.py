@@ -323,3 +323,22 @@ def test_matches_reference_procedure_on_random_scenes(seed):
             else:
                 assert result.at(threshold).ap[name] is None
         assert result.map_at(threshold) == pytest.approx(np.mean(list(expected.values())), abs=1e-12)
+
+
+def test_precision_recall_matches_like_evaluate() -> None:
+    from arcloud.eval.metrics import precision_recall
+
+    gt = {"s": [Box3D("chair", [0, 0, 0], [1, 1, 1]), Box3D("table", [3, 0, 0], [5, 1, 1])]}
+    preds = {
+        "s": [
+            Box3D("chair", [0, 0, 0], [1, 1, 1], 0.9),  # true positive
+            Box3D("chair", [0.1, 0, 0], [1, 1, 1], 0.8),  # second on a matched box: false positive
+            Box3D("table", [9, 9, 9], [10, 10, 10], 0.7),  # nowhere near: false positive
+        ]
+    }
+    pr = precision_recall(preds, gt, iou_threshold=0.25)
+    assert (pr.true_positives, pr.n_predictions, pr.n_gt) == (1, 3, 2)
+    assert pr.precision == pytest.approx(1 / 3)
+    assert pr.recall == pytest.approx(0.5)
+    assert precision_recall({"s": []}, gt).precision == 1.0
+    assert precision_recall({"s": []}, gt).recall == 0.0

@@ -9,6 +9,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
+from arcloud.core.confirm import is_confirmed
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import sorted_unique, unpack_keys
@@ -188,7 +189,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     comes back empty (the caller deletes it)."""
     obj = prune_voxels(obj, params)
     if obj.keys.size == 0:
-        return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None)
+        return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None, confirmed=False)
     ijk = unpack_keys(obj.keys)  # once: the component filter, the box's centres and the bounds use it
     box_mask = _box_voxel_mask(obj, params, ijk)
     label_index = object_label_index(obj)
@@ -199,10 +200,11 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     else:
         aligned = centers
     lo, hi = ijk.min(axis=0) * params.voxel_size_m, (ijk.max(axis=0) + 1) * params.voxel_size_m  # keys_bounds
-    return obj.replace(
+    refined = obj.replace(
         label=CLASSES[label_index],
         score=object_score(obj, label_index, box_mask, params),
         aabb=fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m),
         obb=fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m),
         bounds=AABB(lo, hi),
     )
+    return refined.replace(confirmed=is_confirmed(refined, params))

@@ -134,6 +134,7 @@ class MapObject:
     aabb: AABB | None = None
     obb: OBB | None = None
     bounds: AABB | None = None  # world bounds of all voxels (the spatial index uses these)
+    confirmed: bool = False  # served to clients by default (see ``arcloud.core.confirm``)
 
     @property
     def n_voxels(self) -> int:
@@ -189,6 +190,9 @@ class Params:
     merge_min_overlap: float = 0.3
     merge_min_box_containment: float = 0.6
     score_support_frames: float = 3.0
+    # Confirmation (see core.confirm): what an object needs to be served by default
+    confirm_min_frames: int = 3
+    confirm_min_score: float = 0.3
     # Boxes: voxel centres, grown by this many voxels per side (0: centre to centre, which is unbiased
     # for surfaces: an extreme voxel's centre is within half a voxel of the true extreme either way)
     box_pad_voxels: float = 0.0

@@ -278,6 +278,57 @@ def evaluate(
 
 
 @dataclass(frozen=True, slots=True)
+class PrecisionRecall:
+    """How well a set of boxes (what a client is served, scores ignored but for the matching order)
+    matches the ground truth at one IoU threshold, pooled over scenes and classes: ``true_positives``
+    of ``n_predictions`` predictions and ``n_gt`` ground-truth boxes. Precision is 1 and recall 0 for
+    an empty prediction set; recall is NaN without ground truth."""
+
+    iou_threshold: float
+    true_positives: int
+    n_predictions: int
+    n_gt: int
+
+    @property
+    def precision(self) -> float:
+        return self.true_positives / self.n_predictions if self.n_predictions else 1.0
+
+    @property
+    def recall(self) -> float:
+        return self.true_positives / self.n_gt if self.n_gt else math.nan
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "iou_threshold": self.iou_threshold, "precision": self.precision, "recall": _json_float(self.recall),
+            "true_positives": self.true_positives, "n_predictions": self.n_predictions, "n_gt": self.n_gt,
+        }  # fmt: skip
+
+
+def precision_recall(
+    predictions: Mapping[str, Sequence[Box3D]],
+    ground_truth: Mapping[str, Sequence[Box3D]],
+    *,
+    iou_threshold: float = 0.25,
+    classes: Sequence[str] = CLASSES,
+) -> PrecisionRecall:
+    """Precision and recall of a prediction set, matched exactly as ``evaluate`` matches (by falling
+    score, each ground-truth box to one prediction of its class, IoU strictly above the threshold)."""
+    (threshold,) = _check_thresholds((iou_threshold,))
+    class_names = _check_classes(classes)
+    pred_by_class = _boxes_by_class("predictions", predictions, class_names)
+    gt_by_class = _boxes_by_class("ground_truth", ground_truth, class_names)
+    scene_index = {name: i for i, name in enumerate(dict.fromkeys([*predictions, *ground_truth]))}
+    tp = n_pred = n_gt = 0
+    for name in class_names:
+        preds = _stack(pred_by_class[name], scene_index)
+        gts = _stack(gt_by_class[name], scene_index)
+        tp += int(_true_positives(preds, gts, (threshold,)).sum())
+        n_pred += preds.scene.size
+        n_gt += gts.scene.size
+    return PrecisionRecall(threshold, tp, n_pred, n_gt)
+
+
+@dataclass(frozen=True, slots=True)
 class _Stacked:
     """The boxes of one class, stacked: scene (K,) int, mins and maxs (K, 3), scores (K,)."""
 
@@ -375,9 +426,11 @@ __all__ = [
     "DEFAULT_IOU_THRESHOLDS",
     "Box3D",
     "EvalResult",
+    "PrecisionRecall",
     "ThresholdResult",
     "average_precision",
     "evaluate",
     "iou_aabb",
     "iou_matrix",
+    "precision_recall",
 ]

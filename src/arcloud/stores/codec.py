@@ -135,6 +135,7 @@ class ObjectMeta:
     aabb: AABB | None
     obb: OBB | None
     bounds: AABB | None
+    confirmed: bool = False
 
     @property
     def n_devices(self) -> int:
@@ -146,7 +147,7 @@ def meta_of(obj: MapObject) -> ObjectMeta:
     return ObjectMeta(
         id=obj.id, label=obj.label, score=obj.score, version=obj.version, n_voxels=obj.n_voxels,
         n_frames=obj.n_frames, devices=obj.devices, score_sum=obj.score_sum, created_at_s=obj.created_at_s,
-        updated_at_s=obj.updated_at_s, aabb=obj.aabb, obb=obj.obb, bounds=obj.bounds,
+        updated_at_s=obj.updated_at_s, aabb=obj.aabb, obb=obj.obb, bounds=obj.bounds, confirmed=obj.confirmed,
     )
 
 
@@ -166,6 +167,7 @@ def encode_meta(obj: MapObject) -> bytes:
             "aabb": None if obj.aabb is None else _box_list(obj.aabb),
             "obb": None if obj.obb is None else _obb_list(obj.obb),
             "bounds": None if obj.bounds is None else _box_list(obj.bounds),
+            "confirmed": bool(obj.confirmed),
         },
         separators=(",", ":"),
     ).encode()
@@ -222,6 +224,7 @@ def _meta(object_id: int, fields: dict) -> ObjectMeta:  # type: ignore[type-arg]
         aabb=_box(fields["aabb"]),
         obb=_obb(fields["obb"]),
         bounds=_box(fields["bounds"]),
+        confirmed=bool(fields.get("confirmed", False)),
     )
 
 
@@ -237,5 +240,5 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes) -> MapOb
         id=meta.id, keys=keys, weights=weights, votes=votes, seen=seen, n_frames=meta.n_frames, devices=meta.devices,
         score_sum=meta.score_sum, version=meta.version, created_at_s=meta.created_at_s,
         updated_at_s=meta.updated_at_s, label=meta.label, score=meta.score, aabb=meta.aabb, obb=meta.obb,
-        bounds=meta.bounds,
+        bounds=meta.bounds, confirmed=meta.confirmed,
     )
