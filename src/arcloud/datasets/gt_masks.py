@@ -8,11 +8,17 @@ label id under its mask, mapped through the labels tsv (``label_ids="scannet"``:
 ScanNet and ``render_scannet`` write; ``"nyu40"``: nyu40 ids). Without ``label-filt`` the class comes from
 the aggregation (instance id = objectId + 1).
 
-Importing this module registers the detector spec ``gt-masks:SCENE_DIR`` with ``arcloud.detectors``.
+With ``faults`` (``arcloud.datasets.mask_faults.MaskFaults``) each instance comes out as a model's would:
+borders off by a few pixels, some instances missed, some split, scores below 1, drawn per frame id and
+instance from ``fault_seed`` (so a frame's detections do not depend on processing order).
+
+Importing this module registers the detector spec ``gt-masks[:OPTIONS][:SCENE_DIR]`` with
+``arcloud.detectors`` (``gt_masks_options`` reads OPTIONS).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Literal
 
@@ -20,6 +26,7 @@ import numpy as np
 
 from arcloud.core.types import Detection, Frame
 from arcloud.datasets.files import read_label_png, resize_nearest
+from arcloud.datasets.mask_faults import MaskFaults, faulty_detections, instance_rng, parse_mask_faults
 from arcloud.datasets.scannet import ScanNetScene
 from arcloud.errors import DatasetError, InvalidInput
 
@@ -30,7 +37,8 @@ class GroundTruthMaskDetector:
     """``arcloud.ports.Detector`` replaying the 2D ground-truth masks of ``scene``, keyed by frame id.
 
     Safe to call from many threads (it only reads files). Frames without 2D labels give no detections
-    (logged once per frame id) unless ``strict``, which raises ``DatasetError``."""
+    (logged once per frame id) unless ``strict``, which raises ``DatasetError``. ``faults`` (None:
+    exact masks, score 1) are drawn per frame id and instance id from ``fault_seed``."""
 
     def __init__(
         self,
@@ -39,9 +47,13 @@ class GroundTruthMaskDetector:
         label_ids: Literal["scannet", "nyu40"] = "scannet",
         min_mask_px: int = 64,
         strict: bool = False,
+        faults: MaskFaults | None = None,
+        fault_seed: int = 0,
     ) -> None:
         if label_ids not in ("scannet", "nyu40"):
             raise InvalidInput("label_ids", "'scannet' or 'nyu40'", label_ids)
+        if faults is not None and not isinstance(faults, MaskFaults):
+            raise InvalidInput("faults", "a MaskFaults or None", type(faults).__name__)
         if not scene.has_2d_labels:
             raise DatasetError(f"{scene.root}: expected an instance-filt/ folder of 2D ground truth, got none")
         if scene.labels is None and not scene.instances:
@@ -50,6 +62,8 @@ class GroundTruthMaskDetector:
         self.label_ids = label_ids
         self.min_mask_px = int(min_mask_px)
         self.strict = strict
+        self.faults = faults
+        self.fault_seed = int(fault_seed)
         self._class_of_object = {inst.object_id + 1: inst.label for inst in scene.instances}
 
     def _class_of_label(self, label_id: int) -> str | None:
@@ -82,19 +96,56 @@ class GroundTruthMaskDetector:
                 label = self._class_of_label(int(values[np.argmax(votes)]))
             elif instance_id in self._class_of_object:
                 label = self._class_of_object[instance_id]
-            if label is not None:
+            if label is None:
+                continue
+            if self.faults is None:
                 detections.append(Detection(label, 1.0, mask))
+            else:
+                rng = instance_rng(self.fault_seed, frame.frame_id, instance_id)
+                detections += faulty_detections(label, mask, self.faults, rng)
         return detections
 
 
+#: What the ``gt-masks`` spec accepts, for messages.
+GT_MASKS_SPEC = "gt-masks[:faults=NAME[,seed=N][,FIELD=VALUE...]][:SCENE_DIR]"
+
+
+def gt_masks_options(argument: str) -> tuple[dict[str, object], str]:
+    """The text after ``gt-masks:`` -> (``GroundTruthMaskDetector`` options, scene folder or "").
+
+    OPTIONS are comma-separated ``key=value`` items before the folder: ``faults=NAME`` (a preset of
+    ``MASK_FAULT_PRESETS``: ``default``, ``none``), ``seed=N`` (``fault_seed``), and any field of
+    ``MaskFaults`` (``drop_rate=0.2``, on ``default`` unless ``faults=`` names another). Examples:
+    ``faults=default``, ``faults=default,seed=3:/data/scene0000_00``, ``/data/scene0000_00``."""
+    head, _, rest = argument.partition(":")
+    items = [item.partition("=") for item in head.split(",")] if head else []
+    fields = {f.name for f in dataclasses.fields(MaskFaults)}
+    if not items or not all(eq and key in fields | {"faults", "seed"} for key, eq, _ in items):
+        return {}, argument  # no options: all of it is the folder
+    values = {key: value for key, _, value in items}
+    options: dict[str, object] = {}
+    if "seed" in values:
+        try:
+            options["fault_seed"] = int(values.pop("seed"))
+        except ValueError:
+            raise InvalidInput("detector spec", f"{GT_MASKS_SPEC} with an integer seed", repr(argument)) from None
+        if not values:
+            raise InvalidInput("detector spec", f"{GT_MASKS_SPEC}: seed= with faults= or a fault field", repr(argument))
+    if values:
+        options["faults"] = parse_mask_faults(values.pop("faults", "default"), values)
+    return options, rest
+
+
 def gt_masks_detector(argument: str, **options: object) -> GroundTruthMaskDetector:
-    """The ``gt-masks:SCENE_DIR`` detector spec (``arcloud.detectors.make_detector``): replay the 2D
-    ground truth of the ScanNet-layout scene in SCENE_DIR; ``options`` go to the detector."""
+    """The ``gt-masks[:OPTIONS]:SCENE_DIR`` detector spec (``arcloud.detectors.make_detector``): replay
+    the 2D ground truth of the ScanNet-layout scene in SCENE_DIR, with the faults OPTIONS name
+    (``gt_masks_options``); ``options`` go to the detector too."""
     from arcloud.datasets.scannet import load_scannet_scene
 
-    if not argument:
-        raise InvalidInput("detector spec", "gt-masks:SCENE_DIR (a ScanNet-layout scene folder)", "'gt-masks' with no folder")
-    return GroundTruthMaskDetector(load_scannet_scene(argument), **options)  # type: ignore[arg-type]
+    spec_options, scene_dir = gt_masks_options(argument)
+    if not scene_dir:
+        raise InvalidInput("detector spec", f"{GT_MASKS_SPEC} with a ScanNet-layout scene folder", f"gt-masks:{argument} with no folder")
+    return GroundTruthMaskDetector(load_scannet_scene(scene_dir), **{**spec_options, **options})  # type: ignore[arg-type]
 
 
 def _register() -> None:
@@ -106,4 +157,4 @@ def _register() -> None:
 _register()
 
 
-__all__ = ["GroundTruthMaskDetector", "gt_masks_detector"]
+__all__ = ["GT_MASKS_SPEC", "GroundTruthMaskDetector", "gt_masks_detector", "gt_masks_options"]
