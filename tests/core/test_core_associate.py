@@ -57,18 +57,20 @@ def test_gating_keeps_weak_pairs_unmatched_and_class_aware_option():
     strong = np.arange(50, dtype=np.int64)  # all inside the object
     weak = np.arange(95, 195, dtype=np.int64)  # 5 of 100 inside
     params = Params(association_min_overlap=0.2, association_tolerance_voxels=0)
-    pairs, unmatched = associate([strong, weak], [0, 0], [obj], [0], params)
+    found = associate([strong, weak], [0, 0], [obj], [0], params)
+    pairs, unmatched = found.pairs, found.unmatched
     assert pairs == [(0, 0)] and unmatched == [1]
     # Class-aware (default): a label mismatch is gated unless the overlap is nearly complete.
     partly = np.arange(40, 140, dtype=np.int64)  # 60 of 100 inside
-    pairs, unmatched = associate([partly], [1], [obj], [0], params)
+    found = associate([partly], [1], [obj], [0], params)
+    pairs, unmatched = found.pairs, found.unmatched
     assert pairs == [] and unmatched == [0]
-    pairs, _ = associate([strong], [1], [obj], [0], params)
+    pairs = associate([strong], [1], [obj], [0], params).pairs
     assert pairs == [(0, 0)]  # all inside: label confusion on one object
-    pairs, _ = associate([partly], [1], [obj], [0], params.replace(class_aware=False))
+    pairs = associate([partly], [1], [obj], [0], params.replace(class_aware=False)).pairs
     assert pairs == [(0, 0)]  # not class-aware: only a penalty
     # With a same-label candidate as good, the penalty makes the matching choose it.
-    pairs, _ = associate([strong], [1], [obj, obj], [0, 1], params)
+    pairs = associate([strong], [1], [obj, obj], [0, 1], params).pairs
     assert pairs == [(0, 1)]
 
 
@@ -84,5 +86,6 @@ def test_overlap_normalised_by_smaller_set_and_empty_sets_are_zero():
 def test_each_object_takes_at_most_one_detection():
     obj = np.arange(100, dtype=np.int64)
     a, b = np.arange(0, 60, dtype=np.int64), np.arange(40, 100, dtype=np.int64)
-    pairs, unmatched = associate([a, b], [0, 0], [obj], [0], Params(association_tolerance_voxels=0))
+    found = associate([a, b], [0, 0], [obj], [0], Params(association_tolerance_voxels=0))
+    pairs, unmatched = found.pairs, found.unmatched
     assert len(pairs) == 1 and len(unmatched) == 1

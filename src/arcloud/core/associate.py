@@ -19,6 +19,7 @@ Every entry of the cost matrix is finite: empty sets give overlap 0.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -142,6 +143,17 @@ def hungarian_match(cost: np.ndarray) -> list[tuple[int, int]]:
     return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < GATED_COST]
 
 
+@dataclass(frozen=True, slots=True)
+class Association:
+    """pairs: (detection index, object index). unmatched: detection indices without an object, in
+    order. rivals: matched detection index -> other objects of its label that it also covers (a mask
+    spanning two TVs side by side): fusing all of it into its match would weld them together."""
+
+    pairs: list[tuple[int, int]]
+    unmatched: list[int]
+    rivals: dict[int, list[int]]
+
+
 def associate(
     detection_keys: Sequence[np.ndarray],
     detection_labels: Sequence[int],
@@ -150,10 +162,20 @@ def associate(
     params: Params,
     *,
     object_bounds: Sequence[np.ndarray | None] | None = None,
-) -> tuple[list[tuple[int, int]], list[int]]:
-    """Match detections to objects. Returns (pairs (detection index, object index), unmatched
-    detection indices in order). ``object_bounds``: known (2, 3) voxel-index bounds (see overlap_matrix)."""
+    object_frames: Sequence[int] | None = None,
+) -> Association:
+    """Match detections to objects. ``object_bounds``: known (2, 3) voxel-index bounds (see
+    overlap_matrix). ``object_frames``: how many frames each object was seen in; only objects seen in
+    at least ``split_min_frames`` are rivals (a younger one is more likely a fragment to merge)."""
     overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels, bounds_b=object_bounds)
     pairs = hungarian_match(association_cost(overlap, detection_labels, object_labels, params))
     matched = {d for d, _ in pairs}
-    return pairs, [d for d in range(len(detection_keys)) if d not in matched]
+    established = np.ones(len(object_keys), bool) if object_frames is None else np.asarray(object_frames) >= params.split_min_frames
+    labels = np.asarray(object_labels)
+    rivals = {}
+    for d, o in pairs:
+        others = np.flatnonzero((overlap[d] >= params.association_min_overlap) & (labels == detection_labels[d]) & established)
+        others = [int(j) for j in others if j != o]
+        if others:
+            rivals[d] = others
+    return Association(pairs, [d for d in range(len(detection_keys)) if d not in matched], rivals)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -10,7 +9,9 @@ from scipy import ndimage
 from scipy.spatial import ConvexHull
 
 from arcloud.core.confirm import is_confirmed
+from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
+from arcloud.core.gravity import is_vertical, up_rotation, world2gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import sorted_unique, unpack_keys
 
@@ -63,30 +64,6 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray) -> np.n
         kept_idx = np.flatnonzero(keep)
         keep[kept_idx[~large[part]]] = False
     return keep
-
-
-def up_rotation(up: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation taking the unit vector ``up`` to +z (world2gravity)."""
-    return _up_rotation(tuple(float(x) for x in np.asarray(up).ravel()))
-
-
-@functools.lru_cache(maxsize=16)
-def _is_vertical(up_xyz: tuple[float, ...]) -> bool:
-    """Whether ``up`` needs no rotation (its world2gravity is the identity)."""
-    return bool(np.array_equal(_up_rotation(up_xyz), np.eye(3)))
-
-
-@functools.lru_cache(maxsize=16)
-def _up_rotation(up_xyz: tuple[float, ...]) -> np.ndarray:
-    up = np.asarray(up_xyz, np.float64) / np.linalg.norm(up_xyz)
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, z)
-    s, c = np.linalg.norm(axis), float(up @ z)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * skew + (1 - c) * skew @ skew
 
 
 def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
@@ -142,9 +119,8 @@ def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
 def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pad_m: float | None = None) -> OBB:
     """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
     of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a voxel)."""
-    up_xyz = tuple(float(x) for x in np.asarray(up).ravel())
-    world2gravity = _up_rotation(up_xyz)
-    points = centers if _is_vertical(up_xyz) else centers @ world2gravity.T
+    rotation = world2gravity(up)
+    points = centers if is_vertical(up) else centers @ rotation.T
     xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
     hull = convex_hull_2d(xy) if len(xy) <= 512 else xy[ConvexHull(xy).vertices]
     yaw = 0.0
@@ -165,8 +141,34 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pa
     lo = np.array([*local_xy.min(axis=0), points[:, 2].min()]) - half
     hi = np.array([*local_xy.max(axis=0), points[:, 2].max()]) + half
     lo, hi = at_least(lo, hi, voxel_size_m)
-    box2world = world2gravity.T @ yaw_rotation
+    box2world = rotation.T @ yaw_rotation
     return OBB(center=box2world @ ((lo + hi) / 2), size=hi - lo, rotation=box2world, yaw_rad=yaw)
+
+
+def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[AABB, OBB]:
+    """The boxes of a floor-standing object extended down to the floor at height ``floor_m`` (along
+    ``params.up``), when the gap is at most ``floor_reach_max_m``: legs are thin and often hidden (under a
+    table, behind a seat), but the object stands on the floor. ``aabb`` is in the ``world2aligned``
+    frame (whose z must be up for it to move); ``obb`` is gravity-aligned."""
+    rotation = world2gravity(params.up)
+    bottom_world = obb.center - rotation[2] * obb.size[2] / 2
+    gap = float(rotation[2] @ bottom_world) - floor_m
+    if not 0 < gap <= params.floor_reach_max_m:
+        return aabb, obb
+    grown = obb.size.copy()
+    grown[2] += gap
+    obb = OBB(center=obb.center - rotation[2] * gap / 2, size=grown, rotation=obb.rotation, yaw_rad=obb.yaw_rad)
+    if params.world2aligned is None:
+        aligned_up, floor_aligned = rotation[2], floor_m
+    else:
+        world2aligned = np.asarray(params.world2aligned, np.float64)
+        aligned_up = world2aligned[:3, :3] @ rotation[2]
+        floor_aligned = float((world2aligned[:3, :3] @ (bottom_world - rotation[2] * gap) + world2aligned[:3, 3])[2])
+    if aligned_up[2] > 0.99 and floor_aligned < aabb.min[2]:  # the aligned frame is z-up
+        lo = aabb.min.copy()
+        lo[2] = floor_aligned
+        aabb = AABB(lo, aabb.max)
+    return aabb, obb
 
 
 def object_score(obj: MapObject, label_index: int, box_mask: np.ndarray, params: Params) -> float:
@@ -200,11 +202,17 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     else:
         aligned = centers
     lo, hi = ijk.min(axis=0) * params.voxel_size_m, (ijk.max(axis=0) + 1) * params.voxel_size_m  # keys_bounds
+    label = CLASSES[label_index]
+    aabb = fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m)
+    obb = fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m)
+    floor_m = floor_height(obj.floor_votes, params) if label in params.floor_standing else None
+    if floor_m is not None:
+        aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(
-        label=CLASSES[label_index],
+        label=label,
         score=object_score(obj, label_index, box_mask, params),
-        aabb=fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m),
-        obb=fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m),
+        aabb=aabb,
+        obb=obb,
         bounds=AABB(lo, hi),
     )
     return refined.replace(confirmed=is_confirmed(refined, params))

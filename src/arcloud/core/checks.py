@@ -124,8 +124,11 @@ def make_frame(
     device_id: str,
     frame_id: str,
     depth_scale: float | None = None,
+    rgb_intrinsics: Intrinsics | Mapping[str, float] | Sequence[float] | None = None,
+    depth2rgb: object = None,
 ) -> Frame:
-    """A validated ``Frame``; raises ``InvalidInput`` naming the first wrong field."""
+    """A validated ``Frame``; raises ``InvalidInput`` naming the first wrong field. ``rgb_intrinsics``
+    and ``depth2rgb`` describe an unregistered colour camera (see ``Frame``)."""
     rgb_array = check_rgb(rgb)
     depth_m = check_depth(depth, depth_scale)
     if rgb_array.shape[:2] != depth_m.shape:
@@ -139,6 +142,8 @@ def make_frame(
         map_id=check_id("map_id", map_id),
         device_id=check_id("device_id", device_id),
         frame_id=check_id("frame_id", frame_id),
+        rgb_intrinsics=None if rgb_intrinsics is None else check_intrinsics(rgb_intrinsics),
+        depth2rgb=None if depth2rgb is None else check_pose("depth2rgb", depth2rgb),
     )
 
 

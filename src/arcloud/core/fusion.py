@@ -8,8 +8,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from arcloud.core.associate import index_bounds, overlap_matrix, stored_index_bounds
+from arcloud.core.floor import add_votes
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
-from arcloud.core.voxels import sorted_unique
+from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, sorted_unique
 
 
 def union_voxels(a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray) -> MapObject:
@@ -35,10 +36,13 @@ def _union_voxels(
     return a.replace(keys=keys, weights=weights, seen=seen, votes=votes), positions[0], positions[1]
 
 
-def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None) -> MapObject:
+def fuse_detection(
+    obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None, floor_vote: int | None = None
+) -> MapObject:
     """The object with one more observation: each voxel the detection covers gains weight 1 and a vote
     of the detection's score for its label; every voxel covered or ``visible`` ((N,) bool over the
-    object's voxels: in view and not occluded in this frame) is counted as seen once more."""
+    object's voxels: in view and not occluded in this frame) is counted as seen once more.
+    ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
     votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
     votes[:, det.label_index] = det.score
     ones = np.ones(det.keys.size, np.float32)
@@ -49,22 +53,39 @@ def fuse_detection(obj: MapObject, det: VoxelDetection, device_id: str, visible:
         covered[at_det] = True
         fused.seen[at_obj[visible & ~covered[at_obj]]] += 1
     return fused.replace(
+        floor_votes=obj.floor_votes if floor_vote is None else add_votes(obj.floor_votes, {floor_vote: 1}),
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},
         score_sum=obj.score_sum + det.score,
     )
 
 
-def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float) -> MapObject:
+def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: int) -> list[VoxelDetection]:
+    """The detection's voxels shared out among objects (``owners``: their keys; the first is the one it
+    was matched to): a voxel goes to a later owner when its coarse voxel (``factor`` times coarser) is
+    that owner's and not the first's; every other voxel goes to the first. One part per owner, in order
+    (possibly empty)."""
+    coarse = coarsen_keys_unsorted(det.keys, factor)
+    owner = np.zeros(det.keys.size, np.int64)
+    taken = np.isin(coarse, coarsen_keys(owners[0], factor))
+    for i, keys in enumerate(owners[1:], start=1):
+        mine = ~taken & np.isin(coarse, coarsen_keys(keys, factor))
+        owner[mine] = i
+        taken |= mine
+    return [VoxelDetection(det.label_index, det.score, det.keys[owner == i]) for i in range(len(owners))]
+
+
+def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float, floor_vote: int | None = None) -> MapObject:
     """A new object made of one detection."""
     fresh = empty_object(object_id).replace(created_at_s=now_s)
-    return fuse_detection(fresh, det, device_id)
+    return fuse_detection(fresh, det, device_id, floor_vote=floor_vote)
 
 
 def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
     """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object)."""
     merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes)
     return merged.replace(
+        floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,

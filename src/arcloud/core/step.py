@@ -25,9 +25,18 @@ from arcloud.core.associate import associate, stored_index_bounds
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
-from arcloud.core.fusion import current_label_index, find_duplicates, fuse_detection, merge_objects, new_object, resolve_conflicts
+from arcloud.core.floor import FrameFloor, frame_floor
+from arcloud.core.fusion import (
+    current_label_index,
+    find_duplicates,
+    fuse_detection,
+    merge_objects,
+    new_object,
+    resolve_conflicts,
+    split_detection,
+)
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
-from arcloud.core.voxels import keys_bounds, visible_voxels, voxelize_detections
+from arcloud.core.voxels import key_centers, keys_bounds, visible_voxels, voxelize_detections
 from arcloud.errors import LockTimeout
 from arcloud.ports import Detector, Lease, ObjectStore, UpdatePublisher
 
@@ -82,7 +91,8 @@ def integrate_frame(
     result = StepResult(frame.key)
     clock = _Clock(result.timings_s)
 
-    observations = voxelize_detections(frame, check_detections(detections, frame.shape), params)
+    floor = frame_floor(frame, params)
+    observations = voxelize_detections(frame, check_detections(detections, frame.shape), params, floor)
     result.n_detections = len(observations)
     clock.lap("voxelize")
     if not observations:  # nothing to fuse: only record the frame
@@ -97,13 +107,13 @@ def integrate_frame(
         clock.lap("lock")
         before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
         objects = list(before.values())
-        objects, unmatched = fuse_matches(objects, observations, params, frame)
+        objects, unmatched = fuse_matches(objects, observations, params, frame, floor)
         result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
         try:
             if unmatched:
-                claims, late, created = create_under_claim(store, frame, unmatched, visible_ids, params, now_s)
+                claims, late, created = create_under_claim(store, frame, unmatched, visible_ids, params, now_s, floor)
                 leases += claims
                 before.update({o.id: o for o in late})
                 objects += created
@@ -146,26 +156,43 @@ def find_visible(store: ObjectStore, frame: Frame, params: Params) -> list[int]:
 
 
 def fuse_matches(
-    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, frame: Frame
+    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, frame: Frame, floor: FrameFloor | None = None
 ) -> tuple[list[MapObject], list[VoxelDetection]]:
     """Associate observations with objects (Hungarian) and fuse the pairs, counting which voxels of a
     matched object the frame saw; returns the objects (fused ones replaced) and the observations left
     unmatched."""
     if not observations:
         return objects, []
-    pairs, unmatched = associate(
+    association = associate(
         [o.keys for o in observations],
         [o.label_index for o in observations],
         [o.keys for o in objects],
         [current_label_index(o, changed=False) for o in objects],  # as read: refined
         params,
         object_bounds=[stored_index_bounds(o, params.voxel_size_m) for o in objects],
+        object_frames=[o.n_frames for o in objects],
     )
+    matched = {o for _, o in association.pairs}
+    views: dict[int, VoxelDetection] = {}
+    for d, o in association.pairs:
+        rivals = association.rivals.get(d, [])
+        parts = split_detection(observations[d], [objects[i].keys for i in (o, *rivals)], 1 + params.association_tolerance_voxels)
+        views[o] = parts[0]
+        # A rival's share is a view of it when nothing else in this frame matched it.
+        for rival, part in zip(rivals, parts[1:]):
+            if rival not in matched and rival not in views and part.keys.size >= params.min_voxels_per_detection:
+                views[rival] = part
     fused = list(objects)
-    for d, o in pairs:
-        visible = visible_voxels(frame, fused[o].keys, params)
-        fused[o] = fuse_detection(fused[o], observations[d], frame.device_id, visible)
-    return fused, [observations[d] for d in unmatched]
+    for o, view in views.items():
+        if view.keys.size:
+            visible = visible_voxels(frame, fused[o].keys, params)
+            fused[o] = fuse_detection(fused[o], view, frame.device_id, visible, floor_vote(floor, view, params))
+    return fused, [observations[d] for d in association.unmatched]
+
+
+def floor_vote(floor: FrameFloor | None, observation: VoxelDetection, params: Params) -> int | None:
+    """The frame's vote for the floor under an observed object (``core.floor``)."""
+    return None if floor is None else floor.vote_for(key_centers(observation.keys, params.voxel_size_m), params)
 
 
 def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
@@ -191,6 +218,7 @@ def create_under_claim(
     held_ids: Sequence[int],
     params: Params,
     now_s: float,
+    floor: FrameFloor | None = None,
 ) -> tuple[list[Lease], list[MapObject], list[MapObject]]:
     """Claim the space of the unmatched observations; fuse them into objects that appeared there since
     the frustum query (when their locks are free), create objects for the rest. Returns the claim, the
@@ -202,9 +230,9 @@ def create_under_claim(
         late_ids = sorted(set(store.query_region(frame.map_id, lo, hi)) - set(held_ids))
         late_leases = try_lock(store, frame.map_id, late_ids, params)
         late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
-        fused_late, still_unmatched = fuse_matches(late, unmatched, params, frame)
+        fused_late, still_unmatched = fuse_matches(late, unmatched, params, frame, floor)
         new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
-        created = [new_object(i, o, frame.device_id, now_s) for i, o in zip(new_ids, still_unmatched)]
+        created = [new_object(i, o, frame.device_id, now_s, floor_vote(floor, o, params)) for i, o in zip(new_ids, still_unmatched)]
     except BaseException:
         for lease in [claim, *late_leases]:
             lease.release()

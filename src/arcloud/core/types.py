@@ -39,7 +39,15 @@ class Intrinsics:
 class Frame:
     """One validated RGB-D frame. Build it with ``arcloud.core.checks.make_frame``.
 
-    rgb: (H, W, 3) uint8. depth_m: (H, W) float32 metres, 0 where invalid. cam2world: (4, 4) float64.
+    rgb: (H, W, 3) uint8. depth_m: (H, W) float32 metres, 0 where invalid. cam2world: (4, 4) float64,
+    the depth camera's pose. ``intrinsics`` are the depth camera's.
+
+    Colour and depth from one sensor are often not registered (Kinect v1: another focal length and a
+    few centimetres of baseline), so a mask drawn on the colour image is shifted by tens of pixels
+    against the depth image near its borders. ``rgb_intrinsics`` (the colour camera's; None: the
+    images are registered pixel for pixel) and ``depth2rgb`` ((4, 4) rigid, depth camera to colour
+    camera coordinates; None: identity) let the voxelization look each depth pixel up in the colour
+    image where it really lands.
     """
 
     rgb: np.ndarray
@@ -50,6 +58,13 @@ class Frame:
     map_id: str
     device_id: str
     frame_id: str
+    rgb_intrinsics: Intrinsics | None = None
+    depth2rgb: np.ndarray | None = None
+
+    @property
+    def registered(self) -> bool:
+        """Whether colour pixel (u, v) sees what depth pixel (u, v) measures."""
+        return self.rgb_intrinsics is None and self.depth2rgb is None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -135,6 +150,7 @@ class MapObject:
     obb: OBB | None = None
     bounds: AABB | None = None  # world bounds of all voxels (the spatial index uses these)
     confirmed: bool = False  # served to clients by default (see ``arcloud.core.confirm``)
+    floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)  # height bin -> frames (core.floor)
 
     @property
     def n_voxels(self) -> int:
@@ -174,12 +190,18 @@ class Params:
     depth_max_m: float = 5.0
     erode_px: int = 2
     min_voxels_per_detection: int = 8
+    # Depth cleanup of each mask (core.voxels.front_samples); layer_margin_m None turns it off
+    layer_jump_m: float = 0.03
+    layer_jump_rel: float = 0.04
+    layer_min_fraction: float = 0.25
+    layer_margin_m: float | None = 0.25
     # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
     class_aware: bool = True
     class_mismatch_penalty: float = 0.3
     class_mismatch_min_overlap: float = 0.8
+    split_min_frames: int = 3
     # Fusion and refinement
     visibility_tolerance_m: float = 0.1
     prune_min_seen: float = 10.0
@@ -193,6 +215,18 @@ class Params:
     # Confirmation (see core.confirm): what an object needs to be served by default
     confirm_min_frames: int = 3
     confirm_min_score: float = 0.3
+    # Floor (core.floor): found per frame, voted per object; floor-standing classes reach it
+    floor_cell_m: float = 2.0
+    floor_bin_m: float = 0.04
+    floor_max_tilt_deg: float = 15.0
+    floor_min_samples: int = 30
+    floor_min_share: float = 0.05
+    floor_min_below_camera_m: float = 0.9
+    floor_min_votes: int = 2
+    floor_min_vote_share: float = 0.25
+    floor_clearance_m: float = 0.04
+    floor_standing: tuple[str, ...] = ("chair", "table", "couch")
+    floor_reach_max_m: float = 1.0
     # Boxes: voxel centres, grown by this many voxels per side (0: centre to centre, which is unbiased
     # for surfaces: an extreme voxel's centre is within half a voxel of the true extreme either way)
     box_pad_voxels: float = 0.0

@@ -7,10 +7,12 @@ key with 21 bits per axis (offset 2**20), which spans +-52 km at 5 cm. Packed ke
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
+from arcloud.core.floor import FrameFloor
 from arcloud.core.types import CLASS_INDEX, Detection, Frame, Params, VoxelDetection
 
 KEY_BITS = 21
@@ -77,6 +79,13 @@ def coarsen_keys(keys: np.ndarray, factor: int) -> np.ndarray:
     return sorted_unique(coarse)
 
 
+def coarsen_keys_unsorted(keys: np.ndarray, factor: int) -> np.ndarray:
+    """(N,) keys of the ``factor``-times coarser voxel holding each key, in the order of ``keys``."""
+    if factor == 1:
+        return np.asarray(keys, np.int64)
+    return pack_keys(np.floor_divide(unpack_keys(keys), factor))
+
+
 def keys_bounds(keys: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Outer (min, max) corners in metres of the voxels ``keys`` (non-empty)."""
     ijk = unpack_keys(keys)
@@ -134,24 +143,128 @@ def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     return r0, r1, int(cols[0]), int(cols[-1]) + 1
 
 
-def mask_points(frame: Frame, mask: np.ndarray, params: Params, stride_px: int = 1) -> np.ndarray:
-    """World points (N, 3) of the mask's pixels with valid depth, after eroding the mask's border.
+Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # v_px (N,), u_px (N,) depth pixels and z_m (N,)
 
-    Works on the mask's bounding box only. ``stride_px`` > 1 samples every n-th row and column."""
+
+def mask_samples(frame: Frame, mask: np.ndarray, params: Params, stride_px: int = 1) -> Samples:
+    """The depth samples (every ``stride_px``-th row and column) under a mask of a registered frame,
+    after eroding the mask's border, with depth in range. Works on the mask's bounding box only."""
     extent = mask_extent(mask)
     if extent is None:
-        return np.empty((0, 3))
+        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
     r0, r1, c0, c1 = extent
     crop = erode_sampled(mask[r0:r1, c0:c1], params.erode_px, stride_px)
     depth = frame.depth_m[r0:r1:stride_px, c0:c1:stride_px]
     keep = crop & (depth >= params.depth_min_m) & (depth <= params.depth_max_m)
     v, u = np.nonzero(keep)
-    z = depth[v, u].astype(np.float64)
+    return v * stride_px + r0, u * stride_px + c0, depth[v, u].astype(np.float64)
+
+
+def back_project(frame: Frame, v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray) -> np.ndarray:
+    """World points (N, 3) of depth pixels (v_px, u_px) at depths z_m."""
     intr = frame.intrinsics
-    u = u * stride_px + c0
-    v = v * stride_px + r0
-    points_cam = np.stack(((u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z), axis=1)
+    points_cam = np.stack(((u_px - intr.cx) * z_m / intr.fx, (v_px - intr.cy) * z_m / intr.fy, z_m), axis=1)
     return points_cam @ frame.cam2world[:3, :3].T + frame.cam2world[:3, 3]
+
+
+def mask_points(frame: Frame, mask: np.ndarray, params: Params, stride_px: int = 1) -> np.ndarray:
+    """World points (N, 3) of the mask's pixels with valid depth, after eroding the mask's border."""
+    return back_project(frame, *mask_samples(frame, mask, params, stride_px))
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class RegisteredSamples:
+    """The depth samples of an unregistered frame (every ``stride_px``-th pixel with depth in range),
+    with the colour pixel each one lands on: v_px, u_px (N,) depth pixel; z_m (N,); rgb_v_px, rgb_u_px
+    (N,) int, the colour pixel (samples landing outside the colour image are left out)."""
+
+    stride_px: int
+    v_px: np.ndarray
+    u_px: np.ndarray
+    z_m: np.ndarray
+    rgb_v_px: np.ndarray
+    rgb_u_px: np.ndarray
+
+
+def register_samples(frame: Frame, params: Params, stride_px: int) -> RegisteredSamples:
+    """Project the frame's strided depth samples into its colour image (``Frame.rgb_intrinsics``,
+    ``Frame.depth2rgb``): each measured point is looked up where the colour camera saw it."""
+    depth = frame.depth_m[::stride_px, ::stride_px]
+    v, u = np.nonzero((depth >= params.depth_min_m) & (depth <= params.depth_max_m))
+    z = depth[v, u].astype(np.float64)
+    v, u = v * stride_px, u * stride_px
+    intr = frame.intrinsics
+    points = np.stack(((u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z), axis=1)
+    if frame.depth2rgb is not None:
+        points = points @ frame.depth2rgb[:3, :3].T + frame.depth2rgb[:3, 3]
+    rgb = frame.rgb_intrinsics or intr
+    height, width = frame.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rgb_u = np.floor(points[:, 0] * rgb.fx / points[:, 2] + rgb.cx + 0.5)
+        rgb_v = np.floor(points[:, 1] * rgb.fy / points[:, 2] + rgb.cy + 0.5)
+    inside = (points[:, 2] > 0) & (rgb_u >= 0) & (rgb_u < width) & (rgb_v >= 0) & (rgb_v < height)
+    return RegisteredSamples(
+        stride_px, v[inside], u[inside], z[inside], rgb_v[inside].astype(np.int64), rgb_u[inside].astype(np.int64)
+    )
+
+
+def registered_mask_samples(mask: np.ndarray, params: Params, samples: RegisteredSamples) -> Samples:
+    """The depth samples whose colour pixel lies in the mask (eroded by ``params.erode_px`` in the
+    colour image)."""
+    extent = mask_extent(mask)
+    if extent is None:
+        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
+    r0, r1, c0, c1 = extent
+    crop = erode(mask[r0:r1, c0:c1], params.erode_px)
+    near = np.flatnonzero((samples.rgb_v_px >= r0) & (samples.rgb_v_px < r1) & (samples.rgb_u_px >= c0) & (samples.rgb_u_px < c1))
+    near = near[crop[samples.rgb_v_px[near] - r0, samples.rgb_u_px[near] - c0]]
+    return samples.v_px[near], samples.u_px[near], samples.z_m[near]
+
+
+def depth_layers(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, int]:
+    """Regions of a mask's depth samples, (h, w) with 0 where there is no sample: neighbours (4-way)
+    join when their depths differ by at most ``layer_jump_m + layer_jump_rel * depth``; at a larger
+    jump the farther sample is left out (it is background seen past an edge, or a mixed pixel).
+    Returns the labels (h, w) (0: none) and their count."""
+    valid = z_grid > 0
+    edge = np.zeros_like(valid)
+    height, width = z_grid.shape
+    for dv, du in ((0, 1), (1, 0)):
+        a, b = z_grid[: height - dv, : width - du], z_grid[dv:, du:]
+        jump = (a > 0) & (b > 0) & (np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b))
+        edge[: height - dv, : width - du] |= jump & (a > b)
+        edge[dv:, du:] |= jump & (b > a)
+    labels, n = ndimage.label(valid & ~edge)
+    return labels, int(n)
+
+
+def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px: int, params: Params) -> np.ndarray:
+    """(N,) bool: the samples of one mask that belong to the object, not to what lies behind it.
+
+    A mask covers the object and whatever shows through its gaps (the wall between a chair's slats)
+    or past its border: that is *behind* the object, across a depth jump. The samples are split into
+    depth layers (``depth_layers``); the object's layer is the nearest of the large ones (at least
+    ``layer_min_fraction`` of the largest); layers lying deeper than its 90th percentile depth plus
+    ``layer_margin_m`` are dropped, and so are the samples on the far side of a jump."""
+    if z_m.size == 0:
+        return np.zeros(0, bool)
+    rows, cols = v_px // stride_px, u_px // stride_px
+    r0, c0 = rows.min(), cols.min()
+    grid = np.zeros((rows.max() - r0 + 1, cols.max() - c0 + 1))
+    grid[rows - r0, cols - c0] = z_m
+    labels, n = depth_layers(grid, params)
+    label_of = labels[rows - r0, cols - c0]
+    if n <= 1:
+        return label_of > 0
+    sizes = np.bincount(label_of, minlength=n + 1)[1:]
+    order = np.argsort(label_of, kind="stable")
+    starts = np.concatenate(([0], np.cumsum(np.bincount(label_of, minlength=n + 1))))
+    medians = np.array([np.median(z_m[order[starts[i] : starts[i + 1]]]) for i in range(1, n + 1)])
+    large = np.flatnonzero(sizes >= params.layer_min_fraction * sizes.max())
+    main = large[np.argmin(medians[large])] + 1
+    limit = np.percentile(z_m[label_of == main], 90) + params.layer_margin_m
+    kept = np.concatenate(([False], medians <= limit))
+    return kept[label_of]
 
 
 def sampling_stride_px(frame: Frame, params: Params) -> int:
@@ -169,13 +282,31 @@ def sampling_stride_px(frame: Frame, params: Params) -> int:
     return int(max(1, min(4, np.floor(params.voxel_size_m / 2 * focal / max(near_m, 1e-3)))))
 
 
-def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: Params) -> list[VoxelDetection]:
+def voxelize_detections(
+    frame: Frame, detections: Sequence[Detection], params: Params, floor: FrameFloor | None = None
+) -> list[VoxelDetection]:
     """Each detection's world voxels (sorted unique keys); detections with fewer than
-    ``params.min_voxels_per_detection`` voxels are dropped. Order of the survivors is kept."""
+    ``params.min_voxels_per_detection`` voxels are dropped. Order of the survivors is kept.
+
+    Each mask is cleaned with depth first: samples within ``floor_clearance_m`` of the ``floor`` the
+    frame sees (a mask bleeding onto the floor around a chair's feet) and samples behind the object
+    (``front_samples``) are left out."""
     stride = sampling_stride_px(frame, params)
+    registered = None if frame.registered else register_samples(frame, params, stride)
     voxelized = []
     for det in detections:
-        points = mask_points(frame, det.mask, params, stride)
+        if registered is None:
+            v_px, u_px, z_m = mask_samples(frame, det.mask, params, stride)
+        else:
+            v_px, u_px, z_m = registered_mask_samples(det.mask, params, registered)
+        points = back_project(frame, v_px, u_px, z_m)
+        if floor is not None and floor.cells and z_m.size:
+            heights = points @ floor.world2gravity[2]
+            above = ~(heights <= floor.height_under(points) + params.floor_clearance_m)  # NaN: no floor seen
+            v_px, u_px, z_m, points = v_px[above], u_px[above], z_m[above], points[above]
+        if params.layer_margin_m is not None and z_m.size:
+            front = front_samples(v_px, u_px, z_m, stride, params)
+            points = points[front]
         if len(points) == 0:
             continue
         keys = sorted_unique(points_to_keys(points, params.voxel_size_m))

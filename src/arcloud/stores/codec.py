@@ -25,7 +25,7 @@ import json
 import struct
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -136,6 +136,7 @@ class ObjectMeta:
     obb: OBB | None
     bounds: AABB | None
     confirmed: bool = False
+    floor_votes: dict[int, int] = field(default_factory=dict)
 
     @property
     def n_devices(self) -> int:
@@ -147,7 +148,7 @@ def meta_of(obj: MapObject) -> ObjectMeta:
     return ObjectMeta(
         id=obj.id, label=obj.label, score=obj.score, version=obj.version, n_voxels=obj.n_voxels,
         n_frames=obj.n_frames, devices=obj.devices, score_sum=obj.score_sum, created_at_s=obj.created_at_s,
-        updated_at_s=obj.updated_at_s, aabb=obj.aabb, obb=obj.obb, bounds=obj.bounds, confirmed=obj.confirmed,
+        updated_at_s=obj.updated_at_s, aabb=obj.aabb, obb=obj.obb, bounds=obj.bounds, confirmed=obj.confirmed, floor_votes=obj.floor_votes,
     )
 
 
@@ -168,6 +169,7 @@ def encode_meta(obj: MapObject) -> bytes:
             "obb": None if obj.obb is None else _obb_list(obj.obb),
             "bounds": None if obj.bounds is None else _box_list(obj.bounds),
             "confirmed": bool(obj.confirmed),
+            "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
         },
         separators=(",", ":"),
     ).encode()
@@ -225,6 +227,7 @@ def _meta(object_id: int, fields: dict) -> ObjectMeta:  # type: ignore[type-arg]
         obb=_obb(fields["obb"]),
         bounds=_box(fields["bounds"]),
         confirmed=bool(fields.get("confirmed", False)),
+        floor_votes={int(k): int(v) for k, v in fields.get("floor_votes", {}).items()},
     )
 
 
@@ -240,5 +243,5 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes) -> MapOb
         id=meta.id, keys=keys, weights=weights, votes=votes, seen=seen, n_frames=meta.n_frames, devices=meta.devices,
         score_sum=meta.score_sum, version=meta.version, created_at_s=meta.created_at_s,
         updated_at_s=meta.updated_at_s, label=meta.label, score=meta.score, aabb=meta.aabb, obb=meta.obb,
-        bounds=meta.bounds, confirmed=meta.confirmed,
+        bounds=meta.bounds, confirmed=meta.confirmed, floor_votes=meta.floor_votes,
     )
