@@ -8,7 +8,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -75,13 +75,18 @@ class ObjectStore(Protocol):
         deletes: Sequence[MapObject],
         *,
         frame_key: str | None = None,
+        misses: Mapping[int, int] | None = None,
     ) -> bool:
         """Write atomically, and record ``frame_key`` as processed in the same step.
 
         Every existing object written or deleted must be held by one of ``leases`` (new objects need
         none) and be at version ``obj.version - 1`` in the store (for deletes: at ``obj.version``);
         otherwise nothing is written and ``StaleLease`` is raised (fencing). Returns False, writing
-        nothing, when ``frame_key`` was already recorded (the frame was processed before)."""
+        nothing, when ``frame_key`` was already recorded (the frame was processed before).
+
+        ``misses``: object id -> its new ``n_missed``, for held objects that are not rewritten (the
+        frame saw them and detected nothing there): a counter, so no new version. Written objects
+        carry their own ``n_missed``."""
         ...
 
     def list_objects(self, map_id: str) -> list[MapObject]:

@@ -205,6 +205,25 @@ def test_frame_is_recorded_once(store) -> None:
     assert store.count_frames("map-b") == 0
 
 
+def test_misses_are_counted_under_the_lock_once_per_frame_without_a_new_version(store) -> None:
+    a = make_object(1, (0.1, 0.1, 0.1))
+    assert store.commit(MAP, [], [a], [])
+    with pytest.raises(StaleLease):
+        store.commit(MAP, [], [], [], frame_key="f1", misses={1: 1})  # not held
+    assert store.get(MAP, [1])[0].n_missed == 0
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
+        assert store.commit(MAP, [lease], [], [], frame_key="f1", misses={1: 1})
+        assert not store.commit(MAP, [lease], [], [], frame_key="f1", misses={1: 2})  # re-delivered: nothing
+    stored = store.get(MAP, [1])[0]
+    assert (stored.n_missed, stored.version) == (1, a.version)
+    assert_same_object(stored.replace(n_missed=0), a)
+    # A rewrite carries the object's own count.
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
+        assert store.commit(MAP, [lease], [stored.replace(version=stored.version + 1, n_missed=7)], [])
+    assert store.get(MAP, [1])[0].n_missed == 7
+    assert store.list_objects(MAP)[0].n_missed == 7
+
+
 def test_delete_needs_the_lock_and_removes_the_object(store) -> None:
     a, b = make_object(1, (0.0, 0, 0)), make_object(2, (0.2, 0, 0))
     store.commit(MAP, [], [a, b], [])

@@ -8,7 +8,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from arcloud.core.confirm import is_confirmed
+from arcloud.core.confirm import label_purity, with_evidence
 from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import is_vertical, up_rotation, world2gravity
@@ -171,21 +171,6 @@ def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[A
     return aabb, obb
 
 
-def object_score(obj: MapObject, label_index: int, box_mask: np.ndarray, params: Params) -> float:
-    """Confidence in [0, 1] that ranks objects for AP: mean detection score x label purity x support.
-
-    purity: the share of the kept voxels' occupancy whose voxel label is the object's label.
-    support: 1 - exp(-frames / score_support_frames), so an object seen once ranks below one seen often.
-    The number of devices is not a factor: in the multi-user protocol it reflects how the trajectory
-    was cut, not the evidence, and the score would then depend on the number of users."""
-    if obj.n_frames == 0 or label_index < 0 or not box_mask.any():
-        return 0.0
-    weights = obj.weights[box_mask]
-    purity = float(weights[obj.votes[box_mask].argmax(axis=1) == label_index].sum() / weights.sum())
-    support = 1.0 - math.exp(-obj.n_frames / params.score_support_frames)
-    return float(obj.score_sum / obj.n_frames * purity * support)
-
-
 def refine(obj: MapObject, params: Params) -> MapObject:
     """Prune noisy voxels, then derive label, score, bounds and boxes. An object left without voxels
     comes back empty (the caller deletes it)."""
@@ -194,6 +179,8 @@ def refine(obj: MapObject, params: Params) -> MapObject:
         return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None, confirmed=False)
     ijk = unpack_keys(obj.keys)  # once: the component filter, the box's centres and the bounds use it
     box_mask = _box_voxel_mask(obj, params, ijk)
+    if not box_mask.any():  # no voxel is solid enough yet: box what there is
+        box_mask = np.ones(obj.keys.size, bool)
     label_index = object_label_index(obj)
     centers = (ijk[box_mask] + 0.5) * params.voxel_size_m  # key_centers(obj.keys[box_mask])
     if params.world2aligned is not None:
@@ -210,9 +197,9 @@ def refine(obj: MapObject, params: Params) -> MapObject:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(
         label=label,
-        score=object_score(obj, label_index, box_mask, params),
+        label_purity=label_purity(obj.weights[box_mask], obj.votes[box_mask], label_index),
         aabb=aabb,
         obb=obb,
         bounds=AABB(lo, hi),
     )
-    return refined.replace(confirmed=is_confirmed(refined, params))
+    return with_evidence(refined, params)

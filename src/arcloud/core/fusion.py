@@ -87,6 +87,7 @@ def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
     return merged.replace(
         floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
+        n_missed=keep.n_missed + absorbed.n_missed,
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,
         created_at_s=min(keep.created_at_s, absorbed.created_at_s),

@@ -25,6 +25,7 @@ from arcloud.core.associate import associate, stored_index_bounds
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
+from arcloud.core.confirm import with_evidence
 from arcloud.core.floor import FrameFloor, frame_floor
 from arcloud.core.fusion import (
     current_label_index,
@@ -108,6 +109,7 @@ def integrate_frame(
         before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
         objects = list(before.values())
         objects, unmatched = fuse_matches(objects, observations, params, frame, floor)
+        objects, misses = count_misses(objects, before, frame, params)
         result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
@@ -118,8 +120,10 @@ def integrate_frame(
                 before.update({o.id: o for o in late})
                 objects += created
             changed, removed, events = finish_objects(objects, before, params, frame.map_id, now_s)
+            written = {o.id for o in changed} | {o.id for o in removed}
+            misses = {i: n for i, n in misses.items() if i not in written}
             clock.lap("create_refine")
-            if not store.commit(frame.map_id, leases, changed, removed, frame_key=frame.key):
+            if not store.commit(frame.map_id, leases, changed, removed, frame_key=frame.key, misses=misses):
                 return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
             clock.lap("write")
         finally:
@@ -188,6 +192,27 @@ def fuse_matches(
             visible = visible_voxels(frame, fused[o].keys, params)
             fused[o] = fuse_detection(fused[o], view, frame.device_id, visible, floor_vote(floor, view, params))
     return fused, [observations[d] for d in association.unmatched]
+
+
+def count_misses(
+    objects: list[MapObject], before: dict[int, MapObject], frame: Frame, params: Params
+) -> tuple[list[MapObject], dict[int, int]]:
+    """Objects the frame had in view, mostly unoccluded (``miss_min_visible`` of their voxels
+    visible), whose detection did not come: one more miss each (``core.confirm``). Returns the objects,
+    those whose score or status the miss changes enough replaced to be rewritten, and the new miss
+    counts of the others (a counter the store keeps without a new version)."""
+    out, misses = list(objects), {}
+    for i, obj in enumerate(objects):
+        if before.get(obj.id) is not obj or obj.keys.size == 0:
+            continue  # detected in this frame, or new
+        if visible_voxels(frame, obj.keys, params).mean() < params.miss_min_visible:
+            continue
+        missed = with_evidence(obj.replace(n_missed=obj.n_missed + 1), params)
+        if missed.confirmed != obj.confirmed or abs(missed.score - obj.score) > params.rescore_write_delta:
+            out[i] = missed
+        else:
+            misses[obj.id] = missed.n_missed
+    return out, misses
 
 
 def floor_vote(floor: FrameFloor | None, observation: VoxelDetection, params: Params) -> int | None:

@@ -151,6 +151,8 @@ class MapObject:
     bounds: AABB | None = None  # world bounds of all voxels (the spatial index uses these)
     confirmed: bool = False  # served to clients by default (see ``arcloud.core.confirm``)
     floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)  # height bin -> frames (core.floor)
+    n_missed: int = 0  # frames that saw it in view, unoccluded, and detected nothing there
+    label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
 
     @property
     def n_voxels(self) -> int:
@@ -194,7 +196,7 @@ class Params:
     layer_jump_m: float = 0.03
     layer_jump_rel: float = 0.04
     layer_min_fraction: float = 0.25
-    layer_margin_m: float | None = 0.25
+    layer_margin_m: float | None = 0.1
     # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
@@ -207,14 +209,18 @@ class Params:
     prune_min_seen: float = 10.0
     prune_max_occupancy: float = 0.1
     box_rel_weight: float = 0.05
-    box_min_occupancy: float = 0.3
+    box_min_occupancy: float = 0.4
     min_component_fraction: float = 0.2
     merge_min_overlap: float = 0.3
     merge_min_box_containment: float = 0.6
     score_support_frames: float = 3.0
+    implausible_score_factor: float = 0.3
     # Confirmation (see core.confirm): what an object needs to be served by default
     confirm_min_frames: int = 3
-    confirm_min_score: float = 0.3
+    confirm_min_detection_rate: float = 0.4
+    confirm_min_score: float = 0.2
+    miss_min_visible: float = 0.3  # an undetected object counts as missed when this share of it is visible
+    rescore_write_delta: float = 0.05  # a miss rewrites an object when its score moves by more (else: a counter)
     # Floor (core.floor): found per frame, voted per object; floor-standing classes reach it
     floor_cell_m: float = 2.0
     floor_bin_m: float = 0.04

@@ -137,6 +137,7 @@ class ObjectMeta:
     bounds: AABB | None
     confirmed: bool = False
     floor_votes: dict[int, int] = field(default_factory=dict)
+    label_purity: float = 0.0
 
     @property
     def n_devices(self) -> int:
@@ -149,6 +150,7 @@ def meta_of(obj: MapObject) -> ObjectMeta:
         id=obj.id, label=obj.label, score=obj.score, version=obj.version, n_voxels=obj.n_voxels,
         n_frames=obj.n_frames, devices=obj.devices, score_sum=obj.score_sum, created_at_s=obj.created_at_s,
         updated_at_s=obj.updated_at_s, aabb=obj.aabb, obb=obj.obb, bounds=obj.bounds, confirmed=obj.confirmed, floor_votes=obj.floor_votes,
+        label_purity=obj.label_purity,
     )
 
 
@@ -170,6 +172,7 @@ def encode_meta(obj: MapObject) -> bytes:
             "bounds": None if obj.bounds is None else _box_list(obj.bounds),
             "confirmed": bool(obj.confirmed),
             "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
+            "label_purity": float(obj.label_purity),
         },
         separators=(",", ":"),
     ).encode()
@@ -228,11 +231,12 @@ def _meta(object_id: int, fields: dict) -> ObjectMeta:  # type: ignore[type-arg]
         bounds=_box(fields["bounds"]),
         confirmed=bool(fields.get("confirmed", False)),
         floor_votes={int(k): int(v) for k, v in fields.get("floor_votes", {}).items()},
+        label_purity=float(fields.get("label_purity", 0.0)),
     )
 
 
-def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes) -> MapObject:
-    """Metadata JSON and voxel blob -> ``MapObject``."""
+def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_missed: int = 0) -> MapObject:
+    """Metadata JSON and voxel blob -> ``MapObject`` (``n_missed`` is kept beside them)."""
     meta = decode_meta(object_id, meta_blob)
     keys, weights, votes, seen = decode_voxels(voxels_blob)
     if votes.shape[1] != N_CLASSES:
@@ -243,5 +247,6 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes) -> MapOb
         id=meta.id, keys=keys, weights=weights, votes=votes, seen=seen, n_frames=meta.n_frames, devices=meta.devices,
         score_sum=meta.score_sum, version=meta.version, created_at_s=meta.created_at_s,
         updated_at_s=meta.updated_at_s, label=meta.label, score=meta.score, aabb=meta.aabb, obb=meta.obb,
-        bounds=meta.bounds, confirmed=meta.confirmed, floor_votes=meta.floor_votes,
+        bounds=meta.bounds, confirmed=meta.confirmed, floor_votes=meta.floor_votes, n_missed=n_missed,
+        label_purity=meta.label_purity,
     )

@@ -12,7 +12,7 @@ import itertools
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -154,6 +154,7 @@ class MemoryStore:
         deletes: Sequence[MapObject],
         *,
         frame_key: str | None = None,
+        misses: Mapping[int, int] | None = None,
     ) -> bool:
         state = self._map(map_id)
         with state.changed:
@@ -184,6 +185,12 @@ class MemoryStore:
                     continue
                 if obj.id not in held or current.version != obj.version:
                     raise StaleLease(f"map {map_id}: object {obj.id} deleted without its lock or at a stale version")
+            for object_id in misses or {}:
+                if object_id in state.objects and object_id not in held:
+                    raise StaleLease(f"map {map_id}: object {object_id} counted as missed without its lock")
+            for object_id, count in (misses or {}).items():
+                if object_id in state.objects:
+                    state.objects[object_id] = state.objects[object_id].replace(n_missed=int(count))
             for obj in deletes:
                 self._unindex(state, obj.id)
                 state.objects.pop(obj.id, None)

@@ -44,7 +44,7 @@ import math
 import random
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from functools import cache
 from importlib import resources
@@ -269,10 +269,12 @@ class RedisStore:
                 with self.client.pipeline(transaction=True) as pipe:  # one consistent snapshot
                     pipe.hmget(keys.meta_key(map_id), batch)
                     for object_id in batch:
-                        pipe.hget(keys.object_key(map_id, object_id), "voxels")
-                    metas, *voxels = pipe.execute()
+                        pipe.hmget(keys.object_key(map_id, object_id), ["voxels", "missed"])
+                    metas, *fields = pipe.execute()
             found += [
-                codec.decode_object(i, meta, blob) for i, meta, blob in zip(batch, metas, voxels) if meta is not None and blob is not None
+                codec.decode_object(i, meta, blob, n_missed=int(missed or 0))
+                for i, meta, (blob, missed) in zip(batch, metas, fields)
+                if meta is not None and blob is not None
             ]
         return found
 
@@ -314,6 +316,7 @@ class RedisStore:
         deletes: Sequence[MapObject],
         *,
         frame_key: str | None = None,
+        misses: Mapping[int, int] | None = None,
     ) -> bool:
         for lease in leases:
             if lease.map_id != map_id:
@@ -333,12 +336,13 @@ class RedisStore:
             "held": [str(i) for lease in leases for i in lease.ids],
             "upserts": [],
             "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
+            "misses": [{"id": str(int(i)), "count": str(int(n))} for i, n in (misses or {}).items()],
         }
         payload: list[bytes] = []
         for obj in upserts:
             assert obj.bounds is not None
             cells = " ".join(keys.cell_name(c) for c in self.cells_of(obj.bounds.min, obj.bounds.max))
-            header["upserts"].append({"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells})
+            header["upserts"].append({"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells, "missed": str(int(obj.n_missed))})
             payload += [
                 codec.pack_box(obj.bounds),
                 codec.encode_meta(obj),

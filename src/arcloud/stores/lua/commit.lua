@@ -2,8 +2,9 @@
 -- KEYS[1]: the map's processed-frames SET, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH.
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
 -- ARGV[2]: JSON {frame, leases: [[key, token]...], held: [id...], upserts: [{id, version, cells}...],
---          deletes: [{id, version}...]} (ids and versions as decimal strings; frame "" for none;
---          cells: "i:j:k i:j:k ..." the index cells of the object's bounds).
+--          deletes: [{id, version}...], misses: [{id, count}...]} (ids, versions and counts as decimal
+--          strings; frame "" for none; cells: "i:j:k i:j:k ..." the index cells of the object's bounds;
+--          upserts also carry missed, the object's miss counter, kept in its hash beside the voxels).
 -- ARGV[3..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
 -- Returns 1 (written), 0 (the frame was recorded before: nothing written), or an error "STALE ..."
 -- (a fence failed: nothing written).
@@ -47,6 +48,11 @@ for _, u in ipairs(req.upserts) do
     end
   end
 end
+for _, m in ipairs(req.misses) do
+  if redis.call('EXISTS', object_key(m.id)) == 1 and not held[m.id] then
+    return stale('object ' .. m.id .. ' counted as missed without its lock')
+  end
+end
 for _, d in ipairs(req.deletes) do
   local current = redis.call('HGET', object_key(d.id), 'version')
   if current and (not held[d.id] or tonumber(current) ~= tonumber(d.version)) then
@@ -74,13 +80,18 @@ for _, u in ipairs(req.upserts) do
   local key = object_key(u.id)
   unindex(u.id)
   redis.call('DEL', key)
-  redis.call('HSET', key, 'version', u.version, 'cells', u.cells, 'voxels', ARGV[at + 2])
+  redis.call('HSET', key, 'version', u.version, 'cells', u.cells, 'voxels', ARGV[at + 2], 'missed', u.missed)
   redis.call('HSET', bounds_key, u.id, ARGV[at])
   redis.call('HSET', meta_key, u.id, ARGV[at + 1])
   for cell in string.gmatch(u.cells, '%S+') do
     redis.call('SADD', prefix .. ':cell:' .. cell, u.id)
   end
   at = at + 3
+end
+for _, m in ipairs(req.misses) do
+  if redis.call('EXISTS', object_key(m.id)) == 1 then
+    redis.call('HSET', object_key(m.id), 'missed', m.count)
+  end
 end
 if req.frame ~= '' then
   redis.call('SADD', frames_key, req.frame)
