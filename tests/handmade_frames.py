@@ -42,3 +42,51 @@ def two_box_frame(frame_id: str = "f0", device_id: str = "dev", map_id: str = "m
         Detection("table", 0.8, rect_mask(table[0], table[1])),
     ]
     return frame, detections
+
+
+def look_down_pose(eye: tuple[float, float, float], target: tuple[float, float, float]) -> np.ndarray:
+    """cam2world of a camera at ``eye`` looking at ``target`` in a z-up world (image y down)."""
+    eye_v, forward = np.asarray(eye, float), np.asarray(target, float) - np.asarray(eye, float)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(forward, right), forward, eye_v
+    return pose
+
+
+def cast_boxes(cam2world: np.ndarray, boxes: list[tuple[tuple[float, ...], tuple[float, ...]]], *, floor_z: float | None = 0.0,
+               intrinsics: Intrinsics = INTRINSICS) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (H, W) float32 and instance (H, W) int (-1: floor or nothing, i: ``boxes[i]``) of a world
+    of axis-aligned boxes (min, max) standing on a floor plane z = ``floor_z`` (None: no floor), seen by
+    a pinhole camera: exact ray casting, slab method."""
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(float)
+    rays_cam = np.stack(((u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones_like(u)), -1)
+    rays = rays_cam @ cam2world[:3, :3].T  # world directions with camera z = 1
+    origin = cam2world[:3, 3]
+    t_best = np.full((HEIGHT, WIDTH), np.inf)
+    instance = np.full((HEIGHT, WIDTH), -1)
+    if floor_z is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (floor_z - origin[2]) / rays[..., 2]
+        t_best = np.where((t > 0) & np.isfinite(t), t, np.inf)
+    for i, (lo, hi) in enumerate(boxes):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = (np.asarray(lo) - origin) / rays
+            t1 = (np.asarray(hi) - origin) / rays
+        near = np.nanmax(np.minimum(t0, t1), axis=-1)
+        far = np.nanmin(np.maximum(t0, t1), axis=-1)
+        hit = (near <= far) & (near > 0) & (near < t_best)
+        t_best[hit] = near[hit]
+        instance[hit] = i
+    depth = np.where(np.isfinite(t_best), t_best, 0.0).astype(np.float32)  # camera z = t (rays have z 1)
+    return depth, instance
+
+
+def scene_frame(cam2world: np.ndarray, boxes: list, *, floor_z: float | None = 0.0, frame_id: str = "f0", device_id: str = "dev",
+                map_id: str = "m") -> tuple[Frame, np.ndarray]:
+    """``cast_boxes`` as a frame, and its instance image."""
+    depth, instance = cast_boxes(cam2world, boxes, floor_z=floor_z)
+    frame = make_frame(np.zeros((HEIGHT, WIDTH, 3), np.uint8), depth, INTRINSICS, cam2world,
+                       timestamp_s=0.0, map_id=map_id, device_id=device_id, frame_id=frame_id)
+    return frame, instance

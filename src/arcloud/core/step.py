@@ -96,13 +96,12 @@ def integrate_frame(
     observations = voxelize_detections(frame, check_detections(detections, frame.shape), params, floor)
     result.n_detections = len(observations)
     clock.lap("voxelize")
-    if not observations:  # nothing to fuse: only record the frame
-        result.skipped = not store.commit(frame.map_id, [], [], [], frame_key=frame.key)
-        return result
-
     visible_ids = find_visible(store, frame, params)
     result.n_visible = len(visible_ids)
     clock.lap("query")
+    if not observations and not visible_ids:  # nothing to fuse, nothing to miss: only record the frame
+        result.skipped = not store.commit(frame.map_id, [], [], [], frame_key=frame.key)
+        return result
 
     with store.lock(frame.map_id, visible_ids, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s) as lease:
         clock.lap("lock")

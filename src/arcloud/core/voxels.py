@@ -6,6 +6,7 @@ key with 21 bits per axis (offset 2**20), which spans +-52 km at 5 cm. Packed ke
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -202,10 +203,19 @@ def register_samples(frame: Frame, params: Params, stride_px: int) -> Registered
     with np.errstate(divide="ignore", invalid="ignore"):
         rgb_u = np.floor(points[:, 0] * rgb.fx / points[:, 2] + rgb.cx + 0.5)
         rgb_v = np.floor(points[:, 1] * rgb.fy / points[:, 2] + rgb.cy + 0.5)
-    inside = (points[:, 2] > 0) & (rgb_u >= 0) & (rgb_u < width) & (rgb_v >= 0) & (rgb_v < height)
-    return RegisteredSamples(
-        stride_px, v[inside], u[inside], z[inside], rgb_v[inside].astype(np.int64), rgb_u[inside].astype(np.int64)
-    )
+    inside = np.flatnonzero((points[:, 2] > 0) & (rgb_u >= 0) & (rgb_u < width) & (rgb_v >= 0) & (rgb_v < height))
+    rgb_v, rgb_u = rgb_v[inside].astype(np.int64), rgb_u[inside].astype(np.int64)
+    # The colour camera sees only the nearest of the samples that land on one patch of its image: past
+    # a depth edge, the two cameras see different things. Patches twice the samples' spacing there, so
+    # that every patch of a surface holds a sample of it.
+    patch_px = int(math.ceil(2 * stride_px * max(1.0, rgb.fx / intr.fx, rgb.fy / intr.fy)))
+    cell = (rgb_v // patch_px) * (width // patch_px + 1) + rgb_u // patch_px
+    range_m = points[inside, 2]
+    nearest = np.full(int(cell.max()) + 1 if cell.size else 0, np.inf)
+    np.minimum.at(nearest, cell, range_m)
+    seen = range_m <= nearest[cell] + params.layer_jump_m + params.layer_jump_rel * range_m
+    keep = inside[seen]
+    return RegisteredSamples(stride_px, v[keep], u[keep], z[keep], rgb_v[seen], rgb_u[seen])
 
 
 def registered_mask_samples(mask: np.ndarray, params: Params, samples: RegisteredSamples) -> Samples:

@@ -1,0 +1,80 @@
+"""Masks cleaned with depth before fusing (core.voxels): what shows through a mask's gaps or past its
+border lies behind the object and stays out; colour masks of unregistered frames land where the
+colour camera saw them."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from arcloud.core.types import Detection, Intrinsics, Params
+from arcloud.core.voxels import key_centers, voxelize_detections
+
+from handmade_frames import INTRINSICS, look_down_pose, plane_frame, rect_mask, scene_frame
+
+PARAMS = Params(voxel_size_m=0.05, erode_px=0, floor_min_samples=5)  # tiny frames: few floor samples
+
+
+def depths_of(keys: np.ndarray) -> np.ndarray:
+    return key_centers(keys, PARAMS.voxel_size_m)[:, 2]  # camera at the origin looking along +z
+
+
+def test_a_mask_over_slats_keeps_the_slats_not_the_wall_behind_them():
+    # A chair back of four slats at 1.5 m; between them the wall at 3 m shows through.
+    slats = tuple((slice(r, r + 3), slice(20, 50), 1.5) for r in (10, 16, 22, 28))
+    frame = plane_frame(3.0, patches=slats)
+    mask = rect_mask(slice(10, 31), slice(20, 50))  # the whole back, gaps included
+    (observation,) = voxelize_detections(frame, [Detection("chair", 0.9, mask)], PARAMS)
+    assert depths_of(observation.keys).max() < 1.6
+    without = voxelize_detections(frame, [Detection("chair", 0.9, mask)], PARAMS.replace(layer_margin_m=None))[0]
+    assert depths_of(without.keys).max() > 2.9  # the cleanup is what removed the wall
+
+
+def test_a_mask_bleeding_past_the_border_keeps_only_the_object():
+    frame = plane_frame(3.0, patches=((slice(20, 40), slice(30, 50), 1.5),))
+    mask = rect_mask(slice(16, 44), slice(26, 54))  # 4 px of wall on every side
+    (observation,) = voxelize_detections(frame, [Detection("tv", 0.9, mask)], PARAMS)
+    assert np.all(np.abs(depths_of(observation.keys) - 1.5) < 0.06)
+
+
+def test_a_mask_bleeding_onto_the_floor_keeps_the_object_above_it():
+    pose = look_down_pose((0.0, -2.0, 1.5), (0.0, 0.0, 0.3))
+    frame, instance = scene_frame(pose, [((-0.25, -0.25, 0.0), (0.25, 0.25, 0.5))])  # a box on the floor
+    rows, cols = np.nonzero(instance == 0)
+    mask = rect_mask(slice(rows.min(), rows.max() + 6), slice(cols.min() - 3, cols.max() + 4))  # and the floor around
+    (observation,) = voxelize_detections(frame, [Detection("chair", 0.9, mask)], PARAMS, floor_of(frame))
+    centres = key_centers(observation.keys, PARAMS.voxel_size_m)
+    assert centres[:, 2].min() > PARAMS.floor_clearance_m - PARAMS.voxel_size_m / 2
+    assert np.all(np.abs(centres[:, :2]) <= 0.3)  # nothing of the floor beyond the box
+
+
+def floor_of(frame):
+    from arcloud.core.floor import frame_floor
+
+    return frame_floor(frame, PARAMS)
+
+
+def test_unregistered_colour_masks_are_looked_up_where_the_colour_camera_saw():
+    # Depth camera at the origin; the colour camera has a longer focal length and sits 10 cm to the right.
+    patch = (slice(20, 40), slice(30, 50), 1.5)
+    frame = plane_frame(3.0, patches=(patch,))
+    rgb = Intrinsics(fx=120.0, fy=120.0, cx=42.0, cy=29.0)
+    depth2rgb = np.eye(4)
+    depth2rgb[0, 3] = -0.10
+    unregistered = dataclasses.replace(frame, rgb_intrinsics=rgb, depth2rgb=depth2rgb)
+    # Where the colour camera sees the patch's corners at 1.5 m.
+    corners_px = np.array([[30, 20], [50, 40]], float)
+    x = (corners_px[:, 0] - INTRINSICS.cx) * 1.5 / INTRINSICS.fx - 0.10
+    y = (corners_px[:, 1] - INTRINSICS.cy) * 1.5 / INTRINSICS.fy
+    u0, u1 = np.round(x * rgb.fx / 1.5 + rgb.cx).astype(int)
+    v0, v1 = np.round(y * rgb.fy / 1.5 + rgb.cy).astype(int)
+    colour_mask = rect_mask(slice(v0 + 1, v1 - 1), slice(u0 + 1, u1 - 1))
+    params = PARAMS.replace(layer_margin_m=None)  # registration alone
+    on_patch = lambda detection: np.mean(np.abs(depths_of(detection.keys) - 1.5) < 0.06)  # noqa: E731
+    (registered,) = voxelize_detections(unregistered, [Detection("tv", 0.9, colour_mask)], params)
+    (naive,) = voxelize_detections(frame, [Detection("tv", 0.9, colour_mask)], params)  # as if registered
+    assert on_patch(registered) == 1.0  # the wall beside the patch, hidden from the colour camera, stays out
+    assert on_patch(naive) < 0.75
+    (cleaned,) = voxelize_detections(unregistered, [Detection("tv", 0.9, colour_mask)], PARAMS)
+    assert on_patch(cleaned) == 1.0

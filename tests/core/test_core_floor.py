@@ -1,0 +1,60 @@
+"""The floor (core.floor) and floor-standing objects reaching it (core.boxes.reach_floor), on hand-made
+frames ray cast from boxes on a floor plane."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from arcloud.core.floor import floor_height, frame_floor, height_bin
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import Detection, Params
+from arcloud.stores.memory import MemoryStore
+
+from handmade_frames import look_down_pose, scene_frame
+
+PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)  # tiny frames: few floor samples per cell
+
+
+def test_a_frame_finds_the_floor_below_the_camera_and_not_a_table_top():
+    pose = look_down_pose((0.0, -2.0, 1.5), (0.0, 0.0, 0.3))
+    frame, _ = scene_frame(pose, [((-0.3, -0.3, 0.0), (0.3, 0.3, 0.45))], floor_z=-0.2)
+    heights = set(frame_floor(frame, PARAMS).cells.values())
+    assert heights and all(abs(h + 0.2) <= PARAMS.floor_bin_m for h in heights)
+    # A camera 0.6 m above a table top that fills its view: no floor (a device is held well above it).
+    over_table = look_down_pose((0.0, 0.0, 1.35), (0.0, 0.3, 0.75))
+    frame, _ = scene_frame(over_table, [((-3.0, -3.0, 0.0), (3.0, 3.0, 0.75))], floor_z=None)
+    assert frame_floor(frame, PARAMS).cells == {}
+
+
+def test_floor_votes_take_the_lowest_well_supported_height():
+    floor, table = height_bin(0.0, PARAMS), height_bin(0.75, PARAMS)
+    assert floor_height({table: 30, floor: 12}, PARAMS) == pytest.approx((floor + 0.5) * PARAMS.floor_bin_m)
+    assert floor_height({table: 30, floor: 3}, PARAMS) == pytest.approx((table + 0.5) * PARAMS.floor_bin_m)  # too few
+    assert floor_height({}, PARAMS) is None
+
+
+def walk_around(boxes, label_masks, n=8, radius=2.0, height=1.5, floor_z=0.0):
+    """Frames of a camera circling the origin, with detections from ``label_masks`` (label, box index,
+    rows kept: a function of the instance image giving the mask)."""
+    for i in range(n):
+        angle = 2 * np.pi * i / n
+        eye = (radius * np.cos(angle), radius * np.sin(angle), height)
+        frame, instance = scene_frame(look_down_pose(eye, (0.0, 0.0, 0.45)), boxes, floor_z=floor_z, frame_id=f"f{i}")
+        yield frame, [Detection(label, 0.9, mask_of(instance)) for label, mask_of in label_masks]
+
+
+@pytest.mark.parametrize("label, reaches", [("chair", True), ("tv", False)])
+def test_floor_standing_objects_reach_the_floor_their_frames_saw(label, reaches):
+    # Only the upper part of the object is in view and detected (its legs are hidden): it floats at 0.45 m.
+    seat_and_back = ((-0.23, -0.23, 0.46), (0.23, 0.23, 0.93))
+    store = MemoryStore()
+    for frame, detections in walk_around([seat_and_back], [(label, lambda inst: inst == 0)]):
+        integrate_frame(frame, detections, store, PARAMS)
+    (obj,) = store.list_objects("m")
+    assert obj.aabb.max[2] == pytest.approx(0.925, abs=0.03)
+    if reaches:
+        assert obj.aabb.min[2] == pytest.approx(0.0, abs=PARAMS.floor_bin_m)
+        assert obj.obb.center[2] - obj.obb.size[2] / 2 == pytest.approx(0.0, abs=PARAMS.floor_bin_m)
+    else:
+        assert obj.aabb.min[2] >= 0.45  # a TV does not stand on the floor: it stays where it was seen

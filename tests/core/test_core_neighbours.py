@@ -1,0 +1,41 @@
+"""Two objects of one class side by side stay two: a mask that spans both (a detector's merged
+instance) is shared out between them instead of welding them (core.fusion.split_detection)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import Detection, Params
+from arcloud.stores.memory import MemoryStore
+
+from handmade_frames import look_down_pose, scene_frame
+
+PARAMS = Params(voxel_size_m=0.05)
+# Two TVs touching side by side, 0.7 m wide each, on a wall (the wall itself is not drawn).
+TVS = [((-0.7, 1.95, 1.0), (0.0, 2.0, 1.4)), ((0.0, 1.95, 1.0), (0.7, 2.0, 1.4))]
+
+
+def frames(n, first=0):
+    for i in range(first, first + n):
+        eye = (0.3 * np.sin(i), 0.0, 1.3)
+        yield scene_frame(look_down_pose(eye, (0.0, 2.0, 1.2)), TVS, floor_z=None, frame_id=f"f{i}")
+
+
+@pytest.mark.parametrize("split", [True, False])
+def test_a_mask_spanning_two_tvs_does_not_weld_them(split):
+    params = PARAMS if split else PARAMS.replace(split_min_frames=10**9)  # no rival is ever established
+    store = MemoryStore()
+    for frame, instance in frames(4):  # seen apart first
+        integrate_frame(frame, [Detection("tv", 0.9, instance == 0), Detection("tv", 0.9, instance == 1)], store, params)
+    for frame, instance in frames(6, first=4):  # then as one instance
+        integrate_frame(frame, [Detection("tv", 0.8, instance >= 0)], store, params)
+    objects = sorted(store.list_objects("m"), key=lambda o: o.aabb.min[0])
+    if not split:  # what happened before the split rule: one 1.4 m TV
+        assert len(objects) == 1 and objects[0].aabb.size[0] > 1.2
+        return
+    assert len(objects) == 2
+    for obj, (lo, hi) in zip(objects, TVS):
+        assert obj.aabb.min[0] == pytest.approx(lo[0], abs=0.1) and obj.aabb.max[0] == pytest.approx(hi[0], abs=0.1)
+        assert obj.n_frames == 10  # the merged masks counted as a view of each
