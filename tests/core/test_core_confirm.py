@@ -40,12 +40,13 @@ def test_plausible_boxes_by_class(label, size, expected):
 
 
 def test_the_rule_needs_frames_rate_geometry_and_score():
-    good = boxed("chair", (0.5, 0.5, 0.9), n_frames=10, n_missed=2, score=0.6)
+    good = boxed("chair", (0.5, 0.5, 0.9), n_frames=10, n_missed=2, score_sum=8.0, label_purity=0.9)
     assert is_confirmed(good, PARAMS) and detection_rate(good) == pytest.approx(10 / 12)
-    assert not is_confirmed(good.replace(n_frames=2), PARAMS)
+    assert not is_confirmed(good.replace(n_frames=2, score_sum=1.6), PARAMS)
     assert not is_confirmed(good.replace(n_missed=40), PARAMS)  # detected in 10 of 50 frames that saw it
-    assert not is_confirmed(good.replace(score=0.1), PARAMS)
-    assert not is_confirmed(boxed("chair", (0.3, 0.25, 0.1), n_frames=10, score=0.6), PARAMS)
+    assert not is_confirmed(good.replace(score_sum=1.5), PARAMS)  # mean detection score 0.15
+    assert not is_confirmed(good.replace(label_purity=0.2), PARAMS)  # its voxels mostly vote for other labels
+    assert not is_confirmed(boxed("chair", (0.3, 0.25, 0.1), n_frames=10, score_sum=8.0, label_purity=0.9), PARAMS)
 
 
 def circle(n, first=0, boxes=(CHAIR,)):

@@ -122,7 +122,7 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pa
     rotation = world2gravity(up)
     points = centers if is_vertical(up) else centers @ rotation.T
     xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
-    hull = convex_hull_2d(xy) if len(xy) <= 512 else xy[ConvexHull(xy).vertices]
+    hull = convex_hull_2d(xy) if len(xy) <= 64 else xy[ConvexHull(xy).vertices]  # qhull wins beyond ~60 points
     yaw = 0.0
     if len(hull) >= 3:
         edges = np.concatenate((hull[1:], hull[:1])) - hull  # np.roll(hull, -1, axis=0) - hull

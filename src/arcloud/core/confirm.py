@@ -41,9 +41,10 @@ CLASS_SIZES_M: dict[str, tuple[tuple[float, float], tuple[float, float], float |
 }
 
 
-def detection_rate(obj: MapObject) -> float:
-    """The share of the frames that saw the object in which it was detected."""
-    seen = obj.n_frames + obj.n_missed
+def detection_rate(obj: MapObject, n_missed: int | None = None) -> float:
+    """The share of the frames that saw the object in which it was detected (with ``n_missed`` misses
+    instead of its own, when given)."""
+    seen = obj.n_frames + (obj.n_missed if n_missed is None else n_missed)
     return obj.n_frames / seen if seen else 0.0
 
 
@@ -70,29 +71,34 @@ def plausible(obj: MapObject, params: Params) -> bool:
     )
 
 
-def object_score(obj: MapObject, params: Params) -> float:
-    """Confidence in [0, 1] that ranks objects for AP (see the module docstring)."""
+def evidence(obj: MapObject, params: Params, *, n_missed: int | None = None) -> tuple[float, bool]:
+    """The object's (score, confirmed) from its evidence (see the module docstring); ``n_missed``
+    replaces its own miss count (what one more miss would do)."""
     if obj.n_frames == 0:
-        return 0.0
+        return 0.0, False
+    is_plausible = plausible(obj, params)
+    rate = detection_rate(obj, n_missed)
     support = 1.0 - math.exp(-obj.n_frames / params.score_support_frames)
-    score = obj.score_sum / obj.n_frames * obj.label_purity * support * detection_rate(obj)
-    return float(score if plausible(obj, params) else score * params.implausible_score_factor)
+    score = obj.score_sum / obj.n_frames * obj.label_purity * support * rate
+    score = float(score if is_plausible else score * params.implausible_score_factor)
+    confirmed = (
+        obj.n_frames >= params.confirm_min_frames
+        and rate >= params.confirm_min_detection_rate
+        and is_plausible
+        and score >= params.confirm_min_score
+    )
+    return score, confirmed
 
 
 def is_confirmed(obj: MapObject, params: Params) -> bool:
-    """Whether a refined object has the evidence to be served (see the module docstring)."""
-    return (
-        obj.n_frames >= params.confirm_min_frames
-        and detection_rate(obj) >= params.confirm_min_detection_rate
-        and plausible(obj, params)
-        and obj.score >= params.confirm_min_score
-    )
+    """Whether an object has the evidence to be served (see the module docstring)."""
+    return evidence(obj, params)[1]
 
 
 def with_evidence(obj: MapObject, params: Params) -> MapObject:
     """The object with its score and confirmation brought up to date with its evidence."""
-    scored = obj.replace(score=object_score(obj, params))
-    return scored.replace(confirmed=is_confirmed(scored, params))
+    score, confirmed = evidence(obj, params)
+    return obj.replace(score=score, confirmed=confirmed)
 
 
 def label_purity(weights: np.ndarray, votes: np.ndarray, label_index: int) -> float:

@@ -26,7 +26,7 @@ import numpy as np
 from arcloud.core.gravity import world2gravity
 from arcloud.core.types import Frame, Params
 
-FLOOR_GRID_STRIDE_PX = 4  # depth samples for normals: every 4th pixel (a VGA frame: 120 x 160)
+FLOOR_GRID_COLUMNS = 80  # depth samples for normals: about 80 across (a VGA frame: every 8th pixel)
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -71,7 +71,7 @@ def height_bin(height_m: float, params: Params) -> int:
 def upward_samples(frame: Frame, params: Params) -> np.ndarray:
     """(N, 3) gravity coordinates (ground x, y and height) of the frame's depth samples on surfaces
     that face up (a floor, a seat, a table top)."""
-    stride = FLOOR_GRID_STRIDE_PX
+    stride = max(1, frame.depth_m.shape[1] // FLOOR_GRID_COLUMNS)
     depth = frame.depth_m[::stride, ::stride].astype(np.float64)
     rows, cols = depth.shape
     v, u = np.mgrid[0:rows, 0:cols] * stride
@@ -81,13 +81,12 @@ def upward_samples(frame: Frame, params: Params) -> np.ndarray:
     gravity += world2gravity(params.up) @ frame.cam2world[:3, 3]
     valid = (depth >= params.depth_min_m) & (depth <= params.depth_max_m)
     inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
-    across = gravity[1:-1, 2:] - gravity[1:-1, :-2]
-    down = gravity[2:, 1:-1] - gravity[:-2, 1:-1]
-    normal = np.cross(across, down)
-    length = np.linalg.norm(normal, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        vertical = np.abs(normal[..., 2]) / length
-    facing_up = inner & (length > 0) & (vertical >= math.cos(math.radians(params.floor_max_tilt_deg)))
+    ax, ay, az = (gravity[1:-1, 2:, k] - gravity[1:-1, :-2, k] for k in range(3))  # along the row
+    dx, dy, dz = (gravity[2:, 1:-1, k] - gravity[:-2, 1:-1, k] for k in range(3))  # down the column
+    nx, ny, nz = ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx  # the surface normal
+    squared = nx * nx + ny * ny + nz * nz
+    cos_tilt = math.cos(math.radians(params.floor_max_tilt_deg))
+    facing_up = inner & (squared > 0) & (nz * nz >= cos_tilt * cos_tilt * squared)
     return gravity[1:-1, 1:-1][facing_up]
 
 

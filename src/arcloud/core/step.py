@@ -25,7 +25,7 @@ from arcloud.core.associate import associate, stored_index_bounds
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
-from arcloud.core.confirm import with_evidence
+from arcloud.core.confirm import evidence
 from arcloud.core.floor import FrameFloor, frame_floor
 from arcloud.core.fusion import (
     current_label_index,
@@ -42,6 +42,8 @@ from arcloud.errors import LockTimeout
 from arcloud.ports import Detector, Lease, ObjectStore, UpdatePublisher
 
 log = logging.getLogger(__name__)
+
+MISS_SAMPLE_VOXELS = 256  # a miss looks at this many of an object's voxels, spread over it
 
 
 @dataclass(slots=True)
@@ -179,6 +181,9 @@ def fuse_matches(
     views: dict[int, VoxelDetection] = {}
     for d, o in association.pairs:
         rivals = association.rivals.get(d, [])
+        if not rivals:
+            views[o] = observations[d]
+            continue
         parts = split_detection(observations[d], [objects[i].keys for i in (o, *rivals)], 1 + params.association_tolerance_voxels)
         views[o] = parts[0]
         # A rival's share is a view of it when nothing else in this frame matched it.
@@ -201,16 +206,21 @@ def count_misses(
     those whose score or status the miss changes enough replaced to be rewritten, and the new miss
     counts of the others (a counter the store keeps without a new version)."""
     out, misses = list(objects), {}
-    for i, obj in enumerate(objects):
-        if before.get(obj.id) is not obj or obj.keys.size == 0:
-            continue  # detected in this frame, or new
-        if visible_voxels(frame, obj.keys, params).mean() < params.miss_min_visible:
+    undetected = [i for i, obj in enumerate(objects) if before.get(obj.id) is obj and obj.keys.size]  # not new, not fused
+    if not undetected:
+        return out, misses
+    samples = [objects[i].keys[:: max(1, objects[i].keys.size // MISS_SAMPLE_VOXELS)] for i in undetected]
+    visible = visible_voxels(frame, np.concatenate(samples), params)  # one projection for all
+    shares = np.add.reduceat(visible, np.cumsum([0] + [s.size for s in samples[:-1]])) / [s.size for s in samples]
+    for i, share in zip(undetected, shares):
+        obj = objects[i]
+        if share < params.miss_min_visible:
             continue
-        missed = with_evidence(obj.replace(n_missed=obj.n_missed + 1), params)
-        if missed.confirmed != obj.confirmed or abs(missed.score - obj.score) > params.rescore_write_delta:
-            out[i] = missed
+        score, confirmed = evidence(obj, params, n_missed=obj.n_missed + 1)
+        if confirmed != obj.confirmed or abs(score - obj.score) > params.rescore_write_delta:
+            out[i] = obj.replace(n_missed=obj.n_missed + 1, score=score, confirmed=confirmed)
         else:
-            misses[obj.id] = missed.n_missed
+            misses[obj.id] = obj.n_missed + 1
     return out, misses
 
 

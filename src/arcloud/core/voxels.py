@@ -235,7 +235,7 @@ def depth_layers(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, int]:
     """Regions of a mask's depth samples, (h, w) with 0 where there is no sample: neighbours (4-way)
     join when their depths differ by at most ``layer_jump_m + layer_jump_rel * depth``; at a larger
     jump the farther sample is left out (it is background seen past an edge, or a mixed pixel).
-    Returns the labels (h, w) (0: none) and their count."""
+    Returns the labels (h, w) (0: none) and their count; without any jump, all samples are one layer."""
     valid = z_grid > 0
     edge = np.zeros_like(valid)
     height, width = z_grid.shape
@@ -244,6 +244,8 @@ def depth_layers(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, int]:
         jump = (a > 0) & (b > 0) & (np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b))
         edge[: height - dv, : width - du] |= jump & (a > b)
         edge[dv:, du:] |= jump & (b > a)
+    if not edge.any():  # one surface, however many pieces: nothing lies behind anything
+        return valid.astype(np.int32), int(valid.any())
     labels, n = ndimage.label(valid & ~edge)
     return labels, int(n)
 
@@ -253,9 +255,9 @@ def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px
 
     A mask covers the object and whatever shows through its gaps (the wall between a chair's slats)
     or past its border: that is *behind* the object, across a depth jump. The samples are split into
-    depth layers (``depth_layers``); the object's layer is the nearest of the large ones (at least
-    ``layer_min_fraction`` of the largest); layers lying deeper than its 90th percentile depth plus
-    ``layer_margin_m`` are dropped, and so are the samples on the far side of a jump."""
+    depth layers (``depth_layers``); the object's layer is the nearest (by mean depth) of the large ones
+    (at least ``layer_min_fraction`` of the largest); layers whose mean depth lies beyond its 90th
+    percentile depth plus ``layer_margin_m`` are dropped, and so are the samples on the far side of a jump."""
     if z_m.size == 0:
         return np.zeros(0, bool)
     rows, cols = v_px // stride_px, u_px // stride_px
@@ -267,13 +269,13 @@ def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px
     if n <= 1:
         return label_of > 0
     sizes = np.bincount(label_of, minlength=n + 1)[1:]
-    order = np.argsort(label_of, kind="stable")
-    starts = np.concatenate(([0], np.cumsum(np.bincount(label_of, minlength=n + 1))))
-    medians = np.array([np.median(z_m[order[starts[i] : starts[i + 1]]]) for i in range(1, n + 1)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.bincount(label_of, weights=z_m, minlength=n + 1)[1:] / sizes
     large = np.flatnonzero(sizes >= params.layer_min_fraction * sizes.max())
-    main = large[np.argmin(medians[large])] + 1
-    limit = np.percentile(z_m[label_of == main], 90) + params.layer_margin_m
-    kept = np.concatenate(([False], medians <= limit))
+    main = large[np.argmin(means[large])] + 1
+    in_main = z_m[label_of == main]
+    limit = np.partition(in_main, int(0.9 * (in_main.size - 1)))[int(0.9 * (in_main.size - 1))] + params.layer_margin_m
+    kept = np.concatenate(([False], means <= limit))
     return kept[label_of]
 
 
