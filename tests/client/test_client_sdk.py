@@ -1,5 +1,5 @@
 """The SDK against a real uvicorn server on loopback: blocking and asyncio clients, errors, waiting,
-and the Zenoh subscription."""
+the served map (confirmed objects) against every object, and the Zenoh subscription."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import pytest
 from svc_helpers import BlobDetector, UvicornThread, free_port, make_test_frame
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient, ServiceError
+from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.service.app import create_app
 from arcloud.service.settings import Settings
 
@@ -25,36 +26,60 @@ def server() -> Iterator[tuple[str, str]]:
         yield running.url, endpoint
 
 
+class Events:
+    def __init__(self) -> None:
+        self.events: list[pb.ObjectEvent] = []
+        self._lock = threading.Lock()
+
+    def __call__(self, event: pb.ObjectEvent) -> None:
+        with self._lock:
+            self.events.append(event)
+
+    def states(self) -> list[tuple[int, int]]:
+        with self._lock:
+            return [(e.object.version, e.object.status) for e in self.events]
+
+
 def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
     url, endpoint = server
-    events: list[object] = []
-    lock = threading.Lock()
-
-    def on_event(event: object) -> None:
-        with lock:
-            events.append(event)
+    served, everything = Events(), Events()
 
     with ArcloudClient(url) as client:
-        subscription = client.subscribe("c1", on_event, [endpoint])
+        subscriptions = [client.subscribe("c1", served, [endpoint]), client.subscribe("c1", everything, [endpoint], include_tentative=True)]
         try:
             time.sleep(0.5)
-            assert client.send_frame(make_test_frame(0, map_id="c1")) == {"map_id": "c1", "device_id": "d", "frame_id": "f000000", "status": "queued"}
-            frame = make_test_frame(1, map_id="c1")
+            first = client.send_frame(make_test_frame(0, map_id="c1", level=True))
+            assert first == {"map_id": "c1", "device_id": "d", "frame_id": "f000000", "status": "queued"}
+            frame = make_test_frame(1, map_id="c1", level=True)
             depth_mm = np.rint(frame.depth_m * 1000).astype(np.uint16)
             sent = client.send_frame(map_id="c1", rgb=frame.rgb, depth=depth_mm, intrinsics=(130.0, 130.0, 79.5, 59.5),
                                      cam2world=frame.cam2world, timestamp_s=1.0, device_id="d2", frame_id="x1", depth_scale=1000.0)
             assert sent["status"] == "queued" and sent["device_id"] == "d2"
             stats = client.wait_until_processed("c1", 2, timeout_s=20)
             assert stats["frames"] == {"accepted": 2, "processed": 2, "failed": 0, "pending": 0}
+            (tentative,) = client.list_objects("c1", include_tentative=True)
+            assert tentative["status"] == "tentative" and client.list_objects("c1") == []  # two frames: not yet served
+            assert client.get_object("c1", tentative["id"])["status"] == "tentative"
+            for i in (2, 3, 4):
+                client.send_frame(make_test_frame(i, map_id="c1", level=True))
+            client.wait_until_processed("c1", 5, timeout_s=20)
             deadline = time.monotonic() + 10
-            while len(events) < 2 and time.monotonic() < deadline:
+            while (not everything.events or everything.events[-1].object.version < 5) and time.monotonic() < deadline:
                 time.sleep(0.02)
+            time.sleep(0.2)
         finally:
-            subscription.close()
-        assert len(events) == 2 and events[0].map_id == "c1"  # type: ignore[attr-defined]
+            for subscription in subscriptions:
+                subscription.close()
 
         (obj,) = client.list_objects("c1")
-        assert obj["n_devices"] == 2 and obj["n_frames"] == 2
+        assert obj["n_devices"] == 2 and obj["n_frames"] == 5 and obj["status"] == "confirmed" and obj["id"] == tentative["id"]
+        assert client.list_objects("c1", include_tentative=True) == [obj]
+        # Zenoh: every state to who asked for tentative objects too; the served map's subscriber from confirmation on.
+        versions = [v for v, _ in everything.states()]  # two workers: a state routed after a newer one is dropped
+        assert versions == sorted(set(versions)) and everything.states()[-1] == (5, pb.Object.STATUS_CONFIRMED)
+        confirmed = [(v, s) for v, s in everything.states() if s == pb.Object.STATUS_CONFIRMED]
+        assert [(v, s) for v, s in served.states() if s == pb.Object.STATUS_CONFIRMED] == confirmed and served.states()[-1] == (5, pb.Object.STATUS_CONFIRMED)
+        assert all(e.map_id == "c1" and e.object_id == obj["id"] for e in everything.events)
         assert client.list_objects("c1", label="tv") == []
         assert client.list_objects("c1", bbox=(*obj["aabb"]["min"], *obj["aabb"]["max"]))[0]["id"] == obj["id"]
         detail = client.get_object("c1", obj["id"], voxels=True)
@@ -67,7 +92,7 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
             client.get_object("c1", 12345)
         assert missing.value.status == 404
         with pytest.raises(TimeoutError, match="not processed"):
-            client.wait_until_processed("c1", 3, timeout_s=0.3)
+            client.wait_until_processed("c1", 6, timeout_s=0.3)
         assert client.delete_map("c1") == {"map_id": "c1", "deleted_objects": 1}
         with pytest.raises(ServiceError) as gone:
             client.stats("c1")
@@ -84,13 +109,17 @@ def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
 
             answers = [a for batch in await asyncio.gather(*(user(k) for k in range(3))) for a in batch]
             stats = await client.wait_until_processed("c2", 9, timeout_s=30)
-            objects = await client.list_objects("c2", min_score=0.0)
+            assert await client.list_objects("c2", min_score=0.0) == []  # lying flat: never confirmed
+            objects = await client.list_objects("c2", min_score=0.0, include_tentative=True)
             with pytest.raises(ServiceError):
                 await client.get_object("c2", 999)
+            with pytest.raises(ServiceError) as refused:
+                await client.list_objects("c2", label="dog")
+            assert refused.value.status == 422 and refused.value.field == "label"
             await client.delete_map("c2")
             return answers, stats, objects
 
     answers, stats, objects = asyncio.run(run())
     assert [a["status"] for a in answers] == ["queued"] * 9
-    assert stats["frames"]["processed"] == 9
-    assert len(objects) == 1 and objects[0]["n_devices"] == 3
+    assert stats["frames"]["processed"] == 9 and stats["objects"] == {"confirmed": 0, "tentative": 1}
+    assert len(objects) == 1 and objects[0]["n_devices"] == 3 and objects[0]["status"] == "tentative"

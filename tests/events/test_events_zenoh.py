@@ -1,5 +1,6 @@
 """Zenoh events with real sessions on loopback (multicast scouting off): the service's peer publishes
-object events, answers the objects query, and takes frames published on arcloud/<map>/frames/<device>."""
+object events (the served map's and the tentative ones on their own key spaces), answers the objects
+query, and takes frames published on arcloud/<map>/frames/<device>."""
 
 from __future__ import annotations
 
@@ -9,10 +10,21 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from svc_helpers import AppClient, BlobDetector, free_port, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, free_port, make_test_frame, wait_until
 
-from arcloud.core.types import ObjectEvent
-from arcloud.events.zenoh import ZenohPublisher, connectable, frames_key, object_key, open_session, query_objects, subscribe_objects, zenoh_config
+from arcloud.core.types import N_CLASSES, MapObject, ObjectEvent
+from arcloud.events.zenoh import (
+    ServedRouter,
+    ZenohPublisher,
+    connectable,
+    frames_key,
+    object_key,
+    open_session,
+    query_objects,
+    subscribe_objects,
+    tentative_key,
+    zenoh_config,
+)
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.app import create_app
@@ -20,6 +32,7 @@ from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
+CONFIRMED, TENTATIVE = pb.Object.STATUS_CONFIRMED, pb.Object.STATUS_TENTATIVE
 
 
 class Collector:
@@ -35,40 +48,77 @@ class Collector:
         with self._lock:
             return [e.kind for e in self.events]
 
+    def of(self, object_id: int) -> list[tuple[int, int]]:
+        """(version, status) of each event of the object that carries its state, in arrival order."""
+        with self._lock:
+            return [(e.object.version, e.object.status) for e in self.events if e.object_id == object_id and e.HasField("object")]
+
 
 @pytest.fixture
-def service() -> Iterator[tuple[AppClient, str, MemoryStore]]:
+def service() -> Iterator[tuple[AppClient, str, MemoryStore, BlobDetector]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(detector="sim:0", workers=1, zenoh_mode="peer", zenoh_listen=[endpoint], zenoh_frames=True)
     store = MemoryStore()
-    with AppClient(create_app(settings, store=store, detector=BlobDetector())) as api:
-        yield api, endpoint, store
+    detector = BlobDetector()
+    with AppClient(create_app(settings, store=store, detector=detector)) as api:
+        yield api, endpoint, store, detector
 
 
-def test_events_reach_a_subscriber_and_the_query_answers_the_map(service: tuple[AppClient, str, MemoryStore]) -> None:
-    api, endpoint, store = service
-    collected = Collector()
-    with subscribe_objects("z", collected, connect=[endpoint]):
-        time.sleep(0.5)  # the subscription reaches the service's peer
-        for i in range(3):
-            api.post("/v1/maps/z/frames", content=frame_to_proto(make_test_frame(i, map_id="z")).SerializeToString(), headers=PROTOBUF)
-        wait_until(lambda: len(collected.events) >= 3, 20, "3 events")
-    (obj,) = store.list_objects("z")
-    assert collected.kinds() == [pb.ObjectEvent.KIND_CREATED, pb.ObjectEvent.KIND_UPDATED, pb.ObjectEvent.KIND_UPDATED]
-    last = collected.events[-1]
-    assert last.map_id == "z" and last.object_id == obj.id and last.object.version == obj.version == 3
-    assert last.object.label == "chair" and last.object.n_frames == 3
-    assert np.allclose([last.object.aabb.min.x, last.object.aabb.min.y, last.object.aabb.min.z], obj.aabb.min)
+def test_default_subscribers_see_the_served_map_and_are_told_when_an_object_leaves_it(
+    service: tuple[AppClient, str, MemoryStore, BlobDetector],
+) -> None:
+    api, endpoint, store, detector = service
 
-    answer = query_objects("z", connect=[endpoint], timeout_s=5)
-    assert answer.map_id == "z" and [o.id for o in answer.objects] == [obj.id]
+    def send(index: int, boxes: tuple = (LEFT,)) -> None:
+        body = frame_to_proto(make_test_frame(index, map_id="z", boxes=boxes, level=True)).SerializeToString()
+        assert api.post("/v1/maps/z/frames", content=body, headers=PROTOBUF).status_code == 202
+        wait_until(lambda: store.count_frames("z") == index + 1, 20, f"frame {index} processed")
+
+    served, everything = Collector(), Collector()
+    with subscribe_objects("z", served, connect=[endpoint]), subscribe_objects("z", everything, connect=[endpoint], include_tentative=True):
+        time.sleep(0.5)  # the subscriptions reach the service's peer
+        for i in range(6):  # an upright chair seen in six frames: confirmed on the way
+            send(i)
+        (chair,) = store.list_objects("z")
+        assert chair.confirmed
+        answer = query_objects("z", connect=[endpoint], timeout_s=5)
+        assert [(o.id, o.status) for o in answer.objects] == [(chair.id, CONFIRMED)]
+
+        detector.miss_left_on.update(f"f{i:06d}" for i in range(6, 60))  # in view, no longer detected
+        index = 6
+        while store.get("z", [chair.id])[0].confirmed:
+            assert index < 60, "the missed chair stayed confirmed"
+            send(index, (LEFT, RIGHT))
+            index += 1
+        last = store.get("z", [chair.id])[0]
+        wait_until(lambda: (last.version, TENTATIVE) in everything.of(chair.id), 10, "the chair's tentative state")
+        wait_until(lambda: (last.version, TENTATIVE) in served.of(chair.id), 10, "the served map's subscriber told")
+        time.sleep(0.2)
+
+        answer = query_objects("z", connect=[endpoint], timeout_s=5)
+        both = query_objects("z", connect=[endpoint], timeout_s=5, include_tentative=True)
+        with open_session("peer", connect=[endpoint]) as session:
+            (reply,) = list(session.get("arcloud/z/objects?include=everything", timeout=5))
+            assert reply.ok is None and b"include: expected tentative" in reply.err.payload.to_bytes()
+
+    # Subscribed to both key spaces: every state of the chair once, in order, tentative until confirmed.
+    states = everything.of(chair.id)
+    first = next(v for v, status in states if status == CONFIRMED)
+    assert [v for v, _ in states] == list(range(1, last.version + 1))
+    assert states == [(v, TENTATIVE if v < first else CONFIRMED) for v in range(1, last.version)] + [(last.version, TENTATIVE)]
+    # The served map's subscriber: every confirmed state, then the state that takes the chair out; nothing while tentative.
+    assert served.of(chair.id) == [(v, CONFIRMED) for v in range(first, last.version)] + [(last.version, TENTATIVE)]
+    assert all(e.object.status == CONFIRMED for e in served.events if e.object_id != chair.id)  # the right chair: once confirmed
+    now = {o.id: o.confirmed for o in store.list_objects("z")}
+    assert not now[chair.id] and [o.id for o in answer.objects] == sorted(i for i, confirmed in now.items() if confirmed)
+    assert {o.id: o.status == CONFIRMED for o in both.objects} == now and {o.status for o in answer.objects} <= {CONFIRMED}
     assert query_objects("empty", connect=[endpoint], timeout_s=5).objects == []
     with pytest.raises(RuntimeError, match="one map"):
         query_objects("*", connect=[endpoint], timeout_s=5)
 
 
-def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str, MemoryStore]) -> None:
-    api, endpoint, store = service
+def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str, MemoryStore, BlobDetector]) -> None:
+    api, endpoint, store, _ = service
     session = open_session("peer", connect=[endpoint])
     try:
         time.sleep(0.5)
@@ -86,23 +136,79 @@ def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str,
     assert api.get("/v1/maps/other/stats").status_code == 404
 
 
-def test_publisher_without_store_and_helpers() -> None:
+def state(object_id: int, version: int, confirmed: bool) -> MapObject:
+    """An object's state as the step's events carry it (three voxels; what matters is version and status)."""
+    return MapObject(id=object_id, keys=np.arange(3, dtype=np.int64), weights=np.ones(3, np.float32), votes=np.zeros((3, N_CLASSES), np.float32),
+                     version=version, label="chair", score=0.5, n_frames=version, updated_at_s=1000.0 + version, confirmed=confirmed)
+
+
+def test_router_sends_each_event_to_one_key_space() -> None:
+    router = ServedRouter()
+    # (event, where it goes) in the order published
+    steps = [
+        (ObjectEvent("created", "m", 1, state(1, 1, False)), "tentative"),  # new and tentative: nobody was served it
+        (ObjectEvent("updated", "m", 1, state(1, 2, False)), "tentative"),
+        (ObjectEvent("updated", "m", 1, state(1, 3, True)), "served"),  # confirmed: enters the served map
+        (ObjectEvent("updated", "m", 1, state(1, 4, True)), "served"),
+        (ObjectEvent("updated", "m", 1, state(1, 3, True)), None),  # older than one published (two workers): dropped
+        (ObjectEvent("updated", "m", 1, state(1, 5, False)), "served"),  # turned tentative: the served map's subscribers are told
+        (ObjectEvent("updated", "m", 1, state(1, 6, False)), "tentative"),  # and hear no more of it
+        (ObjectEvent("updated", "m", 1, state(1, 7, True)), "served"),  # confirmed again
+        (ObjectEvent("merged", "m", 1, merged_into=2), "served"),  # merged away: whoever had it is told
+        (ObjectEvent("updated", "m", 1, state(1, 8, True)), None),  # nothing of a merged object is newer
+        (ObjectEvent("created", "m", 2, state(2, 1, False)), "tentative"),
+        (ObjectEvent("deleted", "m", 2), "served"),
+        # States published elsewhere (another worker process): the one before is unknown, so it may have been served.
+        (ObjectEvent("updated", "m", 3, state(3, 9, False)), "served"),
+        (ObjectEvent("updated", "m", 3, state(3, 10, False)), "tentative"),  # follows the one published here
+        (ObjectEvent("updated", "m", 3, state(3, 12, False)), "served"),  # 11 was published elsewhere
+        (ObjectEvent("updated", "m", 3, state(3, 13, False)), "tentative"),
+        (ObjectEvent("created", "other", 1, state(1, 1, True)), "served"),  # maps are apart
+    ]
+    assert [router.route(event) for event, _ in steps] == [where for _, where in steps]
+    small = ServedRouter(max_objects=2)
+    for object_id in (1, 2, 3):
+        small.route(ObjectEvent("updated", "m", object_id, state(object_id, 5, True)))
+    assert small.route(ObjectEvent("updated", "m", 1, state(1, 4, True))) == "served"  # forgotten (the oldest of 3): not stale any more
+    assert small.route(ObjectEvent("updated", "m", 3, state(3, 4, True))) is None
+
+
+def test_publisher_puts_each_event_on_its_key_space() -> None:
     port = free_port()
     publisher = ZenohPublisher(mode="peer", listen=[f"tcp/127.0.0.1:{port}"])
-    collected = Collector()
+    received: list[tuple[str, pb.ObjectEvent]] = []
+    lock = threading.Lock()
+
+    def on_sample(sample: object) -> None:
+        with lock:
+            received.append((str(sample.key_expr), pb.ObjectEvent.FromString(sample.payload.to_bytes())))  # type: ignore[attr-defined]
+
+    served, everything = Collector(), Collector()
+    session = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"])
     try:
-        with subscribe_objects("p", collected, connect=[f"tcp/127.0.0.1:{port}"]):
+        raw = session.declare_subscriber("arcloud/p/**", on_sample)
+        with subscribe_objects("p", served, session=session), subscribe_objects("p", everything, session=session, include_tentative=True):
             time.sleep(0.5)
-            publisher.publish([ObjectEvent("deleted", "p", 4), ObjectEvent("merged", "p", 5, merged_into=2), ObjectEvent("deleted", "other", 1)])
-            wait_until(lambda: len(collected.events) >= 2, 10, "2 events")
+            publisher.publish([
+                ObjectEvent("created", "p", 1, state(1, 1, False)), ObjectEvent("updated", "p", 1, state(1, 2, True)),
+                ObjectEvent("updated", "p", 1, state(1, 3, False)), ObjectEvent("updated", "p", 1, state(1, 4, False)),
+                ObjectEvent("merged", "p", 5, merged_into=2), ObjectEvent("deleted", "other", 1),
+            ])
+            wait_until(lambda: len(everything.events) >= 5, 10, "5 events")
             time.sleep(0.2)
-        assert collected.kinds() == [pb.ObjectEvent.KIND_DELETED, pb.ObjectEvent.KIND_MERGED]
-        assert collected.events[1].merged_into == 2 and not collected.events[1].HasField("object")
+        raw.undeclare()
         with pytest.raises(LookupError, match="no answer"):  # nobody serves the map's objects
-            query_objects("p", connect=[f"tcp/127.0.0.1:{port}"], timeout_s=0.5)
+            query_objects("p", session=session, timeout_s=0.5)
     finally:
+        session.close()
         publisher.close()
+    assert [(key, e.object.version) for key, e in received if e.HasField("object")] == [
+        (tentative_key("p", 1), 1), (object_key("p", 1), 2), (object_key("p", 1), 3), (tentative_key("p", 1), 4)]
+    assert [(e.object.version, e.object.status) for e in served.events if e.HasField("object")] == [(2, CONFIRMED), (3, TENTATIVE)]
+    assert served.kinds()[-1] == pb.ObjectEvent.KIND_MERGED and served.events[-1].merged_into == 2
+    assert [e.object.version for e in everything.events if e.HasField("object")] == [1, 2, 3, 4] and len(everything.events) == 5
     publisher.publish([ObjectEvent("deleted", "p", 4)])  # after close: dropped quietly
-    assert object_key("m", 3) == "arcloud/m/objects/3" and frames_key("m", "d") == "arcloud/m/frames/d"
+    assert object_key("m", 3) == "arcloud/m/objects/3" and tentative_key("m", 3) == "arcloud/m/objects/tentative/3"
+    assert frames_key("m", "d") == "arcloud/m/frames/d"
     assert connectable(["tcp/0.0.0.0:7447", "tcp/[::]:7447"]) == ["tcp/127.0.0.1:7447", "tcp/[::1]:7447"]
     assert '"client"' in str(zenoh_config("client", connect=["tcp/127.0.0.1:1"]).get_json("mode"))

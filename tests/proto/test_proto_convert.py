@@ -174,6 +174,9 @@ def test_object_snapshot() -> None:
         assert (msg.aabb.min.x, msg.aabb.min.y, msg.aabb.min.z, msg.aabb.max.z) == (0.0, 1.0, 2.0, 3.5)
         assert (msg.obb.center.z, msg.obb.size.y, msg.obb.yaw_rad) == (2.75, 0.8, np.pi / 2)
         np.testing.assert_array_equal(np.reshape(msg.obb.rotation, (3, 3)), obj.obb.rotation)
+        assert msg.status == pb.Object.STATUS_TENTATIVE  # not confirmed
+    for source in (obj.replace(confirmed=True), meta_of(obj.replace(confirmed=True))):
+        assert pb.Object.FromString(object_to_proto(source, "lab").SerializeToString()).status == pb.Object.STATUS_CONFIRMED
     bare = object_to_proto(obj.replace(aabb=None, obb=None, label=""), "lab")
     assert not bare.HasField("aabb") and not bare.HasField("obb") and bare.label == ""
     listed = objects_to_proto([obj, obj.replace(id=8)], "lab")

@@ -42,8 +42,9 @@ def test_field_numbers_never_change() -> None:
     assert numbers(pb.Intrinsics) == {"fx": 1, "fy": 2, "cx": 3, "cy": 4}
     assert numbers(pb.Object) == {
         "id": 1, "map_id": 2, "label": 3, "score": 4, "aabb": 5, "obb": 6, "version": 7, "created_at_s": 8,
-        "updated_at_s": 9, "n_voxels": 10, "n_frames": 11, "n_devices": 12,
+        "updated_at_s": 9, "n_voxels": 10, "n_frames": 11, "n_devices": 12, "status": 13,
     }
+    assert dict(pb.Object.Status.items()) == {"STATUS_UNSPECIFIED": 0, "STATUS_CONFIRMED": 1, "STATUS_TENTATIVE": 2}
     assert numbers(pb.ObjectEvent) == {"kind": 1, "map_id": 2, "object_id": 3, "object": 4, "merged_into": 5, "time_s": 6}
     assert numbers(pb.Box3) == {"min": 1, "max": 2}
     assert numbers(pb.OrientedBox) == {"center": 1, "size": 2, "yaw_rad": 3, "rotation": 4}

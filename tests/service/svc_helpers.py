@@ -22,6 +22,10 @@ from arcloud.core.types import Detection, Frame
 
 HEIGHT, WIDTH = 120, 160
 INTRINSICS = (130.0, 130.0, 79.5, 59.5)
+LEFT, RIGHT = (30, 80, 20, 70), (30, 80, 110, 150)  # near rectangles (rows r0:r1, cols c0:c1) left and right of centre
+# A level camera 1 m above the floor looking along world +y (camera x -> world x, y (down) -> -z, z -> y):
+# a near rectangle stands upright, 0.77 m wide and tall at 2 m, the size of a chair's front.
+LEVEL_CAM2WORLD = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 def make_test_frame(
@@ -29,18 +33,22 @@ def make_test_frame(
     *,
     map_id: str = "m",
     device_id: str = "d",
-    boxes: Sequence[tuple[int, int, int, int]] = ((30, 80, 20, 70),),
+    boxes: Sequence[tuple[int, int, int, int]] = (LEFT,),
     near_m: float = 2.0,
     far_m: float = 3.0,
+    level: bool = False,
 ) -> Frame:
     """A 160x120 frame: a far plane with near rectangles (rows r0:r1, cols c0:c1), the camera moved
-    1 cm along x per index. Camera axes OpenCV; pose a pure translation."""
+    1 cm along x per index. Camera axes OpenCV; pose a pure translation (camera axes = world axes, so
+    a rectangle lies flat in a z-up world: a box no chair has, never confirmed), or with ``level`` the
+    camera of ``LEVEL_CAM2WORLD`` (a rectangle stands upright: a chair's size, confirmed when seen in
+    enough frames)."""
     depth = np.full((HEIGHT, WIDTH), far_m, np.float32)
     rgb = np.full((HEIGHT, WIDTH, 3), 90, np.uint8)
     for r0, r1, c0, c1 in boxes:
         depth[r0:r1, c0:c1] = near_m
         rgb[r0:r1, c0:c1] = (200, 60, 40)
-    pose = np.eye(4)
+    pose = LEVEL_CAM2WORLD.copy() if level else np.eye(4)
     pose[0, 3] = 0.01 * index
     return make_frame(rgb, depth, INTRINSICS, pose, timestamp_s=index / 30, map_id=map_id, device_id=device_id, frame_id=f"f{index:06d}")
 
@@ -71,7 +79,8 @@ def multipart_parts(frame: Frame, **meta_changes: Any) -> dict[str, tuple[str, b
 class BlobDetector:
     """Detects each connected region nearer than ``threshold_m`` as one ``label`` instance.
     ``delay_s`` slows every frame down (only those in ``slow_on`` when given); frames whose id is in
-    ``crash_on`` raise."""
+    ``crash_on`` raise; in frames whose id is in ``miss_left_on`` the regions left of the image's
+    centre go undetected (as a detector misses what it sees)."""
 
     def __init__(
         self,
@@ -81,12 +90,14 @@ class BlobDetector:
         delay_s: float = 0.0,
         crash_on: Sequence[str] = (),
         slow_on: Sequence[str] | None = None,
+        miss_left_on: Sequence[str] = (),
     ) -> None:
         self.label = label
         self.threshold_m = threshold_m
         self.delay_s = delay_s
         self.crash_on = set(crash_on)
         self.slow_on = None if slow_on is None else set(slow_on)
+        self.miss_left_on = set(miss_left_on)
 
     def detect(self, frame: Frame) -> list[Detection]:
         import cv2
@@ -96,13 +107,17 @@ class BlobDetector:
         if self.delay_s and (self.slow_on is None or frame.frame_id in self.slow_on):
             time.sleep(self.delay_s)
         near = ((frame.depth_m > 0) & (frame.depth_m < self.threshold_m)).astype(np.uint8)
+        if frame.frame_id in self.miss_left_on:
+            near[:, : frame.shape[1] // 2] = 0
         n, labels = cv2.connectedComponents(near)
         return [Detection(self.label, 0.9, labels == i) for i in range(1, n) if (labels == i).sum() >= 20]
 
 
-def make_blob_detector(delay_s: float = 0.0, crash_on: Sequence[str] = (), slow_on: Sequence[str] | None = None) -> BlobDetector:
+def make_blob_detector(
+    delay_s: float = 0.0, crash_on: Sequence[str] = (), slow_on: Sequence[str] | None = None, miss_left_on: Sequence[str] = ()
+) -> BlobDetector:
     """Picklable factory for worker processes (``functools.partial(make_blob_detector, ...)``)."""
-    return BlobDetector(delay_s=delay_s, crash_on=crash_on, slow_on=slow_on)
+    return BlobDetector(delay_s=delay_s, crash_on=crash_on, slow_on=slow_on, miss_left_on=miss_left_on)
 
 
 def free_port() -> int:

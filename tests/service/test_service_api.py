@@ -1,7 +1,8 @@
 """The HTTP API in embedded mode: httpx against the app (in process, lifespan run) and a real uvicorn.
 
 Frames are 160x120 with a near rectangle that ``BlobDetector`` reports as a chair, so every assertion
-about objects is exact geometry, not a model's opinion.
+about objects is exact geometry, not a model's opinion. Lying flat (the default frames) it is never
+confirmed; standing upright (``level=True``) it is once seen in enough frames.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from svc_helpers import HEIGHT, WIDTH, AppClient, BlobDetector, UvicornThread, make_test_frame, multipart_parts, wait_until
+from svc_helpers import HEIGHT, LEFT, RIGHT, WIDTH, AppClient, BlobDetector, UvicornThread, make_test_frame, multipart_parts, wait_until
 
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.app import create_app
@@ -22,6 +23,7 @@ from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
+TENTATIVE = {"include": "tentative"}
 
 
 def proto_body(frame: object, **changes: object) -> bytes:
@@ -53,9 +55,10 @@ def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -
     wait_until(lambda: processed(client, "m") == 8, 20, "8 frames processed")
 
     stats = client.get("/v1/maps/m/stats").json()
-    assert stats == {"map_id": "m", "frames": {"accepted": 8, "processed": 8, "failed": 0, "pending": 0}, "objects": 1}
-    (obj,) = client.get("/v1/maps/m/objects").json()["objects"]
-    assert obj["label"] == "chair" and obj["n_frames"] == 8 and obj["version"] >= 1
+    assert stats == {"map_id": "m", "frames": {"accepted": 8, "processed": 8, "failed": 0, "pending": 0}, "objects": {"confirmed": 0, "tentative": 1}}
+    assert client.get("/v1/maps/m/objects").json()["objects"] == []  # lying flat: no chair has that box
+    (obj,) = client.get("/v1/maps/m/objects", params=TENTATIVE).json()["objects"]
+    assert obj["label"] == "chair" and obj["n_frames"] == 8 and obj["version"] >= 1 and obj["status"] == "tentative"
     # The near rectangle (rows 30:80, cols 20:70 at 2 m, fx 130) spans x in [-0.91, -0.15] + camera shift, z = 2 m.
     assert obj["aabb"]["min"][2] == pytest.approx(2.0, abs=0.06)
     assert obj["aabb"]["min"][0] == pytest.approx((20 - 79.5) * 2.0 / 130, abs=0.1)
@@ -81,18 +84,60 @@ def test_filters_select_objects(client: AppClient) -> None:
     two_boxes = ((30, 80, 10, 50), (30, 80, 110, 150))
     client.post("/v1/maps/f/frames", content=proto_body(make_test_frame(0, map_id="f", boxes=two_boxes)), headers=PROTOBUF)
     wait_until(lambda: processed(client, "f") == 1, 20, "frame processed")
-    objects = client.get("/v1/maps/f/objects").json()["objects"]
+    objects = client.get("/v1/maps/f/objects", params=TENTATIVE).json()["objects"]
     assert len(objects) == 2
     left = min(objects, key=lambda o: o["aabb"]["min"][0])
     x0, y0, z0 = left["aabb"]["min"]
     x1, y1, z1 = left["aabb"]["max"]
-    inside = client.get("/v1/maps/f/objects", params={"bbox": f"{x0},{y0},{z0},{x1},{y1},{z1}"}).json()["objects"]
+    box = f"{x0},{y0},{z0},{x1},{y1},{z1}"
+    inside = client.get("/v1/maps/f/objects", params={"bbox": box, **TENTATIVE}).json()["objects"]
     assert [o["id"] for o in inside] == [left["id"]]
-    assert client.get("/v1/maps/f/objects", params={"bbox": "10,10,10,11,11,11"}).json()["objects"] == []
-    assert client.get("/v1/maps/f/objects", params={"label": "tv"}).json()["objects"] == []
-    assert len(client.get("/v1/maps/f/objects", params={"label": "chair"}).json()["objects"]) == 2
+    assert client.get("/v1/maps/f/objects", params={"bbox": box}).json()["objects"] == []  # tentative: not served
+    assert client.get("/v1/maps/f/objects", params={"bbox": "10,10,10,11,11,11", **TENTATIVE}).json()["objects"] == []
+    assert client.get("/v1/maps/f/objects", params={"label": "tv", **TENTATIVE}).json()["objects"] == []
+    assert len(client.get("/v1/maps/f/objects", params={"label": "chair", **TENTATIVE}).json()["objects"]) == 2
     best = max(o["score"] for o in objects)
-    assert client.get("/v1/maps/f/objects", params={"min_score": min(1.0, best + 1e-6)}).json()["objects"] == []
+    assert client.get("/v1/maps/f/objects", params={"min_score": min(1.0, best + 1e-6), **TENTATIVE}).json()["objects"] == []
+
+
+def test_the_served_map_holds_confirmed_objects_and_loses_those_that_turn_tentative() -> None:
+    detector = BlobDetector()
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=detector)) as client:
+
+        def send(index: int, boxes: tuple = (LEFT,)) -> None:
+            response = client.post("/v1/maps/s/frames", content=proto_body(make_test_frame(index, map_id="s", boxes=boxes, level=True)), headers=PROTOBUF)
+            assert response.status_code == 202, response.text
+            wait_until(lambda: processed(client, "s") == index + 1, 20, f"frame {index} processed")
+
+        def listed(**params: str) -> dict[int, str]:
+            return {o["id"]: o["status"] for o in client.get("/v1/maps/s/objects", params=params).json()["objects"]}
+
+        send(0)  # one frame: a faint, half-formed object
+        ((chair, status),) = listed(**TENTATIVE).items()
+        assert status == "tentative" and listed() == {}
+        assert client.get(f"/v1/maps/s/objects/{chair}").json()["status"] == "tentative"
+        assert client.get("/v1/maps/s/stats").json()["objects"] == {"confirmed": 0, "tentative": 1}
+
+        for i in range(1, 6):  # seen upright in six frames: confirmed, served
+            send(i)
+        assert listed() == listed(**TENTATIVE) == {chair: "confirmed"}
+        assert client.get(f"/v1/maps/s/objects/{chair}").json()["status"] == "confirmed"
+        assert client.get("/v1/maps/s/stats").json()["objects"] == {"confirmed": 1, "tentative": 0}
+
+        # The chair stays in view but the detector stops finding it: misses count until it is tentative again.
+        detector.miss_left_on.update(f"f{i:06d}" for i in range(6, 60))
+        index = 6
+        while client.get(f"/v1/maps/s/objects/{chair}").json()["status"] == "confirmed":
+            assert index < 60, "the missed chair stayed confirmed"
+            send(index, (LEFT, RIGHT))
+            index += 1
+        assert chair not in listed() and listed(**TENTATIVE)[chair] == "tentative"
+        detail = client.get(f"/v1/maps/s/objects/{chair}", params={"voxels": "true"})
+        assert detail.status_code == 200 and detail.json()["status"] == "tentative" and detail.json()["voxels"]["centers"]
+        everything = listed(**TENTATIVE)
+        counts = client.get("/v1/maps/s/stats").json()["objects"]
+        assert counts == {"confirmed": sum(s == "confirmed" for s in everything.values()), "tentative": sum(s == "tentative" for s in everything.values())}
+        assert listed() == {i: s for i, s in everything.items() if s == "confirmed"}
 
 
 def _jpeg(rgb: np.ndarray) -> bytes:
@@ -173,9 +218,11 @@ def test_unknown_maps_objects_and_bad_queries(client: AppClient) -> None:
     wait_until(lambda: processed(client, "m") == 1, 20, "frame processed")
     missing = client.get("/v1/maps/m/objects/999")
     assert missing.status_code == 404 and "999" in missing.json()["detail"]
-    for params, field in (({"label": "dog"}, "label"), ({"min_score": "2"}, "min_score"), ({"bbox": "1,2,3"}, "bbox"), ({"bbox": "1,1,1,0,0,0"}, "bbox")):
+    for params, field in (({"label": "dog"}, "label"), ({"min_score": "2"}, "min_score"), ({"bbox": "1,2,3"}, "bbox"), ({"bbox": "1,1,1,0,0,0"}, "bbox"),
+                          ({"include": "all"}, "include"), ({"include": "confirmed"}, "include")):
         response = client.get("/v1/maps/m/objects", params=params)
-        assert response.status_code == 422 and field in response.json()["detail"], response.text
+        assert response.status_code == 422 and field in response.json()["detail"] and response.json()["field"] == field, response.text
+    assert "tentative" in client.get("/v1/maps/m/objects", params={"include": "all"}).json()["detail"]  # says what it takes
     assert client.get("/v1/maps/m/objects/-1").status_code == 422
 
 
@@ -247,6 +294,12 @@ def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
     for path in ("/v1/maps/{map_id}/objects", "/v1/maps/{map_id}/objects/{object_id}", "/v1/maps/{map_id}", "/v1/maps/{map_id}/stats",
                  "/healthz", "/readyz", "/metrics"):
         assert path in spec["paths"], path
+    listing = {p["name"]: p for p in spec["paths"]["/v1/maps/{map_id}/objects"]["get"]["parameters"]}
+    assert listing["include"]["schema"]["anyOf"][0]["const"] == "tentative" and "tentative" in listing["include"]["description"]
+    schemas = spec["components"]["schemas"]
+    assert schemas["ObjectOut"]["properties"]["status"]["enum"] == ["confirmed", "tentative"] and "status" in schemas["ObjectOut"]["required"]
+    assert schemas["ObjectOut"]["examples"][0]["status"] == "confirmed"
+    assert schemas["MapStats"]["examples"][0]["objects"] == {"confirmed": 14, "tentative": 31}
 
 
 def test_real_uvicorn_server_and_shared_store() -> None:
@@ -258,7 +311,9 @@ def test_real_uvicorn_server_and_shared_store() -> None:
             assert response.status_code == 202, response.text
         wait_until(lambda: http.get("/v1/maps/u/stats").json()["frames"]["processed"] == 6, 20, "6 frames processed")
         assert http.post("/v1/maps/u/frames", content=b"x", headers={"content-type": "image/png"}).status_code == 415
-        objects = http.get("/v1/maps/u/objects").json()["objects"]
+        objects = http.get("/v1/maps/u/objects", params=TENTATIVE).json()["objects"]
+        served = http.get("/v1/maps/u/objects").json()["objects"]
     assert [o["id"] for o in objects] == [o.id for o in store.list_objects("u")]
+    assert [o["id"] for o in served] == [o.id for o in store.list_objects("u") if o.confirmed]
     assert store.count_frames("u") == 6
     assert not server.thread.is_alive()

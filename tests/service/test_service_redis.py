@@ -1,7 +1,8 @@
 """Redis mode end to end: the API queues frames on a real redis-server's stream, two worker PROCESSES
 (spawned, as in production) read them through the consumer group, and publish events over Zenoh to the
-API's loopback endpoint. Covers: no frame lost, idempotent re-delivery, poison frames dead-lettered,
-a killed worker's frame claimed by another, graceful stop finishing the frame in hand.
+API's loopback endpoint. Covers: no frame lost, the served map (confirmed objects) against every object,
+idempotent re-delivery, poison frames dead-lettered, a killed worker's frame claimed by another,
+graceful stop finishing the frame in hand.
 
 The tests run in file order on one deployment (starting worker processes takes seconds).
 """
@@ -15,13 +16,15 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import pytest
 import redis
 from redis_server import RedisServer
-from svc_helpers import AppClient, free_port, make_blob_detector, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, AppClient, free_port, make_blob_detector, make_test_frame, wait_until
 
 from arcloud.events.zenoh import query_objects, subscribe_objects
+from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.app import create_app
 from arcloud.service.ingest import DEAD_LETTER_STREAM, INGEST_STATS, INGEST_STREAM, live_workers, parse_stats
@@ -37,6 +40,8 @@ SLOW_FRAME = 800  # frame index the detector takes SLOW_S over
 CRASH_FRAME = 900  # frame index the detector raises on
 SLOW_S = 1.0
 CLAIM_MIN_IDLE_S = 1.5  # > SLOW_S: a frame in progress is never taken over
+MISSED = [f"miss{i:03d}" for i in range(60)]  # frame ids in which the detector misses what is left of centre
+TENTATIVE = {"include": "tentative"}
 
 
 @dataclass
@@ -48,8 +53,10 @@ class Deployment:
     store: RedisStore
     zenoh_endpoint: str
 
-    def post(self, map_id: str, index: int) -> dict:
-        response = self.api.post(f"/v1/maps/{map_id}/frames", content=frame_to_proto(make_test_frame(index, map_id=map_id)).SerializeToString(), headers=PROTOBUF)
+    def post(self, map_id: str, index: int, *, level: bool = False, boxes: tuple = (LEFT,), frame_id: str | None = None) -> dict:
+        msg = frame_to_proto(make_test_frame(index, map_id=map_id, level=level, boxes=boxes))
+        msg.frame_id = frame_id or msg.frame_id
+        response = self.api.post(f"/v1/maps/{map_id}/frames", content=msg.SerializeToString(), headers=PROTOBUF)
         assert response.status_code == 202, response.text
         return response.json()  # type: ignore[no-any-return]
 
@@ -74,7 +81,7 @@ def deployment() -> Iterator[Deployment]:
         store=server.url, detector="sim:0", workers=0, claim_min_idle_s=CLAIM_MIN_IDLE_S, claim_interval_s=0.2,
         max_deliveries=2, read_block_s=0.2, zenoh_mode="peer", zenoh_listen=[endpoint],
     )
-    factory = functools.partial(make_blob_detector, delay_s=SLOW_S, slow_on=[f"f{SLOW_FRAME:06d}"], crash_on=[f"f{CRASH_FRAME:06d}"])
+    factory = functools.partial(make_blob_detector, delay_s=SLOW_S, slow_on=[f"f{SLOW_FRAME:06d}"], crash_on=[f"f{CRASH_FRAME:06d}"], miss_left_on=MISSED)
     pool = WorkerPool(settings, 2, detector_factory=factory)
     client = server.client()
     store = RedisStore(server.url)
@@ -91,31 +98,74 @@ def deployment() -> Iterator[Deployment]:
         server.stop()
 
 
+class Events:
+    def __init__(self) -> None:
+        self.events: list[Any] = []
+        self._lock = threading.Lock()
+
+    def __call__(self, event: object) -> None:
+        with self._lock:
+            self.events.append(event)
+
+    def states(self, status: int | None = None) -> list[int]:
+        """Versions of the events carrying a state (of ``status`` when given), in arrival order."""
+        with self._lock:
+            return [e.object.version for e in self.events if e.HasField("object") and status in (None, e.object.status)]
+
+
 def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deployment: Deployment) -> None:
-    events, lock = [], threading.Lock()
-
-    def on_event(event: object) -> None:
-        with lock:
-            events.append(event)
-
-    with subscribe_objects("r1", on_event, connect=[deployment.zenoh_endpoint]):
-        time.sleep(0.5)  # let the subscription propagate to the API's peer
+    served, everything = Events(), Events()
+    with subscribe_objects("r1", served, connect=[deployment.zenoh_endpoint]), \
+            subscribe_objects("r1", everything, connect=[deployment.zenoh_endpoint], include_tentative=True):
+        time.sleep(0.5)  # let the subscriptions propagate to the API's peer
         for i in range(10):
-            deployment.post("r1", i)
+            deployment.post("r1", i, level=True)  # an upright chair: confirmed on the way
         wait_until(lambda: deployment.api.get("/v1/maps/r1/stats").json()["frames"]["processed"] == 10, 60, "10 frames processed", 0.05)
-        wait_until(lambda: len(events) >= 2, 10, "events from the worker processes")
+        wait_until(lambda: 10 in everything.states(), 10, "events from the worker processes")
+        time.sleep(0.2)
         answer = query_objects("r1", connect=[deployment.zenoh_endpoint], timeout_s=5)
 
     stats = deployment.api.get("/v1/maps/r1/stats").json()
     assert stats["frames"] == {"accepted": 10, "processed": 10, "failed": 0, "pending": 0}
+    assert stats["objects"] == {"confirmed": 1, "tentative": 0}
     assert deployment.idle()  # acknowledged and deleted: the stream holds only the backlog
     (obj,) = deployment.api.get("/v1/maps/r1/objects").json()["objects"]
-    assert obj["n_frames"] == 10 and obj["label"] == "chair"
-    kinds = [e.kind for e in events]
-    assert kinds[0] == events[0].KIND_CREATED and all(e.map_id == "r1" and e.object_id == obj["id"] for e in events)
-    assert events[-1].object.version <= obj["version"] and events[0].object.label == "chair"
-    assert [o.id for o in answer.objects] == [obj["id"]] and answer.objects[0].n_frames == 10
+    assert obj["n_frames"] == 10 and obj["label"] == "chair" and obj["status"] == "confirmed" and obj["version"] == 10
+    # Two worker processes publish: every state once to a subscriber of both key spaces, in any order between them.
+    assert sorted(everything.states()) == list(range(1, 11)) and all(e.map_id == "r1" and e.object_id == obj["id"] for e in everything.events)
+    # The served map's subscriber: every confirmed state (and perhaps a worker's unsure removal of the then tentative chair).
+    assert sorted(served.states(pb.Object.STATUS_CONFIRMED)) == sorted(everything.states(pb.Object.STATUS_CONFIRMED)) and 10 in served.states()
+    assert [(o.id, o.status) for o in answer.objects] == [(obj["id"], pb.Object.STATUS_CONFIRMED)] and answer.objects[0].n_frames == 10
     assert "arcloud_frames_processed_total" in deployment.api.get("/metrics").text
+
+
+def test_the_served_map_loses_an_object_that_turns_tentative(deployment: Deployment) -> None:
+    api = deployment.api
+
+    def post(index: int, **kwargs: Any) -> None:
+        deployment.post("r6", index, level=True, **kwargs)
+        wait_until(lambda: api.get("/v1/maps/r6/stats").json()["frames"]["processed"] == index + 1, 30, f"frame {index} processed", 0.02)
+
+    def status(object_id: int) -> str:
+        return str(api.get(f"/v1/maps/r6/objects/{object_id}").json()["status"])
+
+    post(0)
+    (chair,) = api.get("/v1/maps/r6/objects", params=TENTATIVE).json()["objects"]
+    assert chair["status"] == "tentative" and api.get("/v1/maps/r6/objects").json()["objects"] == []
+    assert api.get("/v1/maps/r6/stats").json()["objects"] == {"confirmed": 0, "tentative": 1}
+    for i in range(1, 6):
+        post(i)
+    assert [(o["id"], o["status"]) for o in api.get("/v1/maps/r6/objects").json()["objects"]] == [(chair["id"], "confirmed")]
+    index = 6
+    while status(chair["id"]) == "confirmed":  # in view, no longer detected: misses, counted in Redis, until tentative
+        assert index < len(MISSED), "the missed chair stayed confirmed"
+        post(index, boxes=(LEFT, RIGHT), frame_id=MISSED[index])
+        index += 1
+    assert chair["id"] not in [o["id"] for o in api.get("/v1/maps/r6/objects").json()["objects"]]
+    every = {o["id"]: o["status"] for o in api.get("/v1/maps/r6/objects", params=TENTATIVE).json()["objects"]}
+    assert every[chair["id"]] == "tentative" and deployment.store.get("r6", [chair["id"]])[0].n_missed > 0
+    counts = api.get("/v1/maps/r6/stats").json()["objects"]
+    assert counts == {"confirmed": list(every.values()).count("confirmed"), "tentative": list(every.values()).count("tentative")}
 
 
 def test_health_checks_see_the_workers_heartbeats(deployment: Deployment, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -44,15 +44,30 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
         "approach": "distributed", "users": 3, "runs": 1, "map25_var": 0.0, "map50_var": 0.0}
     assert results["frames"] == {"sent": 24, "accepted": 24, "duplicate": 0, "processed": 24, "failed": 0}
     assert 0.0 < row["map50_mean"] <= row["map25_mean"] <= 1.0
-    assert "mAP@0.25" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "mAP@0.25" in printed and "precision/recall@0.25" in printed
+
+    # The room's boxes, in the map's frame, and what a plain GET served, scored against them.
+    room = generate_room(0)
+    truth = gt_boxes(room)
+    assert [(g["label"], g["aabb_min"], g["aabb_max"]) for g in results["ground_truth"]] == [(label, lo.tolist(), hi.tolist()) for label, lo, hi in truth]
+    served, counts = results["served"], results["objects"]
+    assert served["objects"] == counts["confirmed"] and counts["confirmed"] + counts["tentative"] >= served["objects"]
+    for iou, key in ((0.25, "25"), (0.5, "50")):
+        matches = served["matches"][f"{iou:g}"]
+        assert matches["iou_threshold"] == iou and matches["n_predictions"] == served["objects"] and matches["n_gt"] == len(truth)
+        assert served[f"precision{key}"] == (matches["true_positives"] / served["objects"] if served["objects"] else 1.0)
+        assert served[f"recall{key}"] == matches["true_positives"] / len(truth)
+    assert served["precision50"] <= served["precision25"] and served["recall50"] <= served["recall25"]
+    assert served["map25"] is None or 0.0 <= served["map25"] <= 1.0
 
     # The same frames in order, in process (the centralized run): the service's map scores the same.
-    room = generate_room(0)
     frames = simulate_sequence(room, n_frames=24, seed=0, width=160, height=120, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5))
     objects = run_map(frames, SimulatedDetector(room, seed=0), Params(), users=1)
     centralized = evaluate({"s": object_boxes(objects)}, {"s": [Box3D(label, lo, hi) for label, lo, hi in gt_boxes(room)]})
     assert row["map25_mean"] == pytest.approx(centralized.map_at(0.25), abs=0.1)
-    assert results["objects"] == pytest.approx(len(objects), abs=2)
+    assert counts["confirmed"] + counts["tentative"] == pytest.approx(len(objects), abs=2)
+    assert counts["confirmed"] == pytest.approx(sum(o.confirmed for o in objects), abs=2)
 
 
 def test_cli_options_become_settings(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -5,7 +5,7 @@
         client.send_frame(frame)                       # a core Frame, or arrays (see send_frame)
         client.wait_until_processed("office", n_frames=100, timeout_s=60)
         for obj in client.list_objects("office", label="chair", min_score=0.5):
-            print(obj["id"], obj["aabb"])
+            print(obj["id"], obj["aabb"])     # confirmed objects; include_tentative=True for every object
 
 Frames travel as protobuf (``arcloud.v1.Frame``: JPEG colour, 16-bit PNG depth in millimetres by
 default). A 503 (queue full, store away) is retried after the server's Retry-After, ``max_retries``
@@ -75,8 +75,8 @@ def frame_body(
     return target, msg.SerializeToString()
 
 
-def object_query(label: str | None, min_score: float | None, bbox: Sequence[float] | None) -> dict[str, str]:
-    params: dict[str, str] = {}
+def object_query(label: str | None, min_score: float | None, bbox: Sequence[float] | None, include_tentative: bool = False) -> dict[str, str]:
+    params: dict[str, str] = {"include": "tentative"} if include_tentative else {}
     if label is not None:
         params["label"] = label
     if min_score is not None:
@@ -112,12 +112,16 @@ def _done(stats: Mapping[str, Any], n_frames: int) -> bool:
     return bool(frames["processed"] + frames["failed"] >= n_frames)
 
 
-def subscribe(map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, mode: str = "peer") -> Subscription:
+def subscribe(
+    map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, mode: str = "peer", include_tentative: bool = False
+) -> Subscription:
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
-    (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop."""
+    (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
+    By default the served map's: confirmed objects, and an event when one leaves it (a tentative
+    state, MERGED or DELETED); ``include_tentative``: tentative objects' events too."""
     from arcloud.events.zenoh import subscribe_objects
 
-    return subscribe_objects(map_id, callback, connect=endpoints, mode=mode)  # type: ignore[arg-type]
+    return subscribe_objects(map_id, callback, connect=endpoints, mode=mode, include_tentative=include_tentative)  # type: ignore[arg-type]
 
 
 class ArcloudClient:
@@ -154,10 +158,15 @@ class ArcloudClient:
         map_id, body = frame_body(frame, **arrays)
         return self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
 
-    def list_objects(self, map_id: str, *, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None) -> list[dict[str, Any]]:
-        return self._request("GET", f"/v1/maps/{map_id}/objects", params=object_query(label, min_score, bbox))["objects"]  # type: ignore[no-any-return]
+    def list_objects(
+        self, map_id: str, *, include_tentative: bool = False, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None
+    ) -> list[dict[str, Any]]:
+        """The map's confirmed objects (``include_tentative``: tentative ones too), each with its ``status``."""
+        params = object_query(label, min_score, bbox, include_tentative)
+        return self._request("GET", f"/v1/maps/{map_id}/objects", params=params)["objects"]  # type: ignore[no-any-return]
 
     def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
+        """Any object of the map, confirmed or tentative (its ``status`` says)."""
         return self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})  # type: ignore[no-any-return]
 
     def delete_map(self, map_id: str) -> dict[str, Any]:
@@ -183,8 +192,11 @@ class ArcloudClient:
                 raise TimeoutError(f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})")
             time.sleep(poll_s)
 
-    def subscribe(self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str]) -> Subscription:
-        return subscribe(map_id, callback, endpoints)
+    def subscribe(
+        self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, include_tentative: bool = False
+    ) -> Subscription:
+        """As the module's ``subscribe``."""
+        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative)
 
 
 class AsyncArcloudClient:
@@ -223,8 +235,11 @@ class AsyncArcloudClient:
         """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
         return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
 
-    async def list_objects(self, map_id: str, *, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None) -> list[dict[str, Any]]:
-        return (await self._request("GET", f"/v1/maps/{map_id}/objects", params=object_query(label, min_score, bbox)))["objects"]  # type: ignore[no-any-return]
+    async def list_objects(
+        self, map_id: str, *, include_tentative: bool = False, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None
+    ) -> list[dict[str, Any]]:
+        params = object_query(label, min_score, bbox, include_tentative)
+        return (await self._request("GET", f"/v1/maps/{map_id}/objects", params=params))["objects"]  # type: ignore[no-any-return]
 
     async def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
         return await self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})  # type: ignore[no-any-return]
@@ -250,6 +265,8 @@ class AsyncArcloudClient:
                 raise TimeoutError(f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})")
             await asyncio.sleep(poll_s)
 
-    def subscribe(self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str]) -> Subscription:
+    def subscribe(
+        self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, include_tentative: bool = False
+    ) -> Subscription:
         """As ``ArcloudClient.subscribe`` (the callback runs on a Zenoh thread)."""
-        return subscribe(map_id, callback, endpoints)
+        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative)

@@ -3,9 +3,26 @@
 Key expressions (``map_id`` is checked by ``check_id``; ids with Zenoh's reserved ``#`` or ``$`` cannot
 be published and are logged):
 
-    arcloud/<map_id>/objects/<object_id>   PUT      ``arcloud.v1.ObjectEvent`` (protobuf) for each change
-    arcloud/<map_id>/objects               QUERY    answered with ``arcloud.v1.ObjectList`` (current objects)
-    arcloud/<map_id>/frames/<device_id>    PUT      ``arcloud.v1.Frame`` (optional ingest path)
+    arcloud/<map_id>/objects/<object_id>             PUT    ``arcloud.v1.ObjectEvent`` (protobuf): the served map
+    arcloud/<map_id>/objects/tentative/<object_id>   PUT    ``arcloud.v1.ObjectEvent`` of objects outside it
+    arcloud/<map_id>/objects                         QUERY  ``arcloud.v1.ObjectList``: confirmed objects; with
+                                                            ``?include=tentative``, every object
+    arcloud/<map_id>/frames/<device_id>              PUT    ``arcloud.v1.Frame`` (optional ingest path)
+
+Each event goes to exactly one key. The served key space carries every state of a confirmed object, the
+state that takes one out of the served map (its first tentative state: ``Object.status`` TENTATIVE),
+and every MERGED and DELETED event; the tentative key space carries the other tentative states. A
+viewer of the served map subscribes to ``arcloud/<map_id>/objects/*`` and drops an object on a
+tentative state, MERGED or DELETED; one that wants every object subscribes to
+``arcloud/<map_id>/objects/**`` (one subscriber: events arrive in the order they were published).
+
+The step's events carry an object's new state, not its previous one, so the publisher remembers the
+version and status it last published of each object (``ServedRouter``). When the state before a
+tentative one is not the one it remembers (another worker process published states in between, or it
+never saw the object), it cannot tell whether the object was served, and publishes the tentative state
+on the served key space: a viewer is never left with an object that is no longer served, at the cost
+of removals of objects it never had. With one publisher (the embedded service) every tentative state
+is placed exactly.
 
 Sessions: the API's session runs in peer mode (``listen`` and/or ``connect`` endpoints, e.g.
 ``tcp/127.0.0.1:7447``) or connects to a router. Multicast scouting is off by default: a deployment
@@ -17,7 +34,9 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -42,8 +61,13 @@ def objects_key(map_id: str) -> str:
 
 
 def object_key(map_id: str, object_id: int) -> str:
-    """``arcloud/<map_id>/objects/<object_id>``: where an object's events are published."""
+    """``arcloud/<map_id>/objects/<object_id>``: where an object's events in the served map are published."""
     return f"{objects_key(map_id)}/{int(object_id)}"
+
+
+def tentative_key(map_id: str, object_id: int) -> str:
+    """``arcloud/<map_id>/objects/tentative/<object_id>``: where events of objects outside the served map go."""
+    return f"{objects_key(map_id)}/tentative/{int(object_id)}"
 
 
 def frames_key(map_id: str = "*", device_id: str = "*") -> str:
@@ -80,8 +104,52 @@ def connectable(endpoints: Sequence[str]) -> list[str]:
     return out
 
 
+Route = Literal["served", "tentative"]
+_GONE = sys.maxsize  # the version remembered for a merged or deleted object: nothing of it is newer
+
+
+class ServedRouter:
+    """Decides where each event goes (see the module docstring) from what was last published of its
+    object: that state's version and whether it was served. Remembers the ``max_objects`` objects
+    published most recently. Not thread-safe: the publisher routes and puts under one lock, so that
+    events leave in the order they were routed.
+
+    ``route(event)``: ``"served"``, ``"tentative"``, or None for a state not newer than one already
+    published (two worker threads' events of one object can come out of order: the older is dropped,
+    so that a viewer never goes back)."""
+
+    def __init__(self, max_objects: int = 100_000) -> None:
+        self.max_objects = max_objects
+        self._last: OrderedDict[tuple[str, int], tuple[int, bool]] = OrderedDict()  # -> (version, served)
+
+    def route(self, event: ObjectEvent) -> Route | None:
+        key = (event.map_id, int(event.object_id))
+        last = self._last.get(key)
+        if event.object is None:  # merged or deleted: whoever had it is told
+            self._remember(key, (_GONE, False))
+            return "served"
+        version, confirmed = int(event.object.version), bool(event.object.confirmed)
+        if last is not None and version <= last[0]:
+            return None
+        self._remember(key, (version, confirmed))
+        if confirmed:
+            return "served"
+        if event.kind == "created":
+            return "tentative"
+        if last is None or last[0] != version - 1:
+            return "served"  # the state before was published elsewhere: it may have been served
+        return "served" if last[1] else "tentative"
+
+    def _remember(self, key: tuple[str, int], value: tuple[int, bool]) -> None:
+        self._last[key] = value
+        self._last.move_to_end(key)
+        while len(self._last) > self.max_objects:
+            self._last.popitem(last=False)
+
+
 class ZenohPublisher:
-    """``UpdatePublisher`` over Zenoh. With a ``store`` it also answers queries for a map's objects;
+    """``UpdatePublisher`` over Zenoh: each event on the served or the tentative key space
+    (``ServedRouter``). With a ``store`` it also answers queries for a map's objects;
     with ``on_frame`` it hands the payloads published on ``arcloud/<map_id>/frames/*`` to
     ``on_frame(map_id, payload)`` (called on a Zenoh thread; it must be quick; what it raises is logged).
 
@@ -101,6 +169,8 @@ class ZenohPublisher:
         self._owns_session = session is None
         self.session = session if session is not None else open_session(mode, listen=listen, connect=connect)
         self.store = store
+        self.router = ServedRouter()
+        self._publishing = threading.Lock()  # routing and putting: worker threads publish at once
         self._declared: list[Any] = []
         self._closed = threading.Event()
         if store is not None:
@@ -110,17 +180,26 @@ class ZenohPublisher:
         log.info("zenoh %s session open (listen %s, connect %s)", mode, list(listen) or "-", list(connect) or "-")
 
     def publish(self, events: Sequence[ObjectEvent]) -> None:
-        """Put each event on its object's key. Never raises: a lost event is logged (viewers can
-        always re-read the map with a query)."""
+        """Put each event on its key space's key for its object. Never raises: a lost event is logged
+        (viewers can always re-read the map with a query)."""
         if self._closed.is_set():
             return
+        with self._publishing:
+            for event in events:
+                self._put(event)
+
+    def _put(self, event: ObjectEvent) -> None:
         from arcloud.proto.convert import event_to_proto
 
-        for event in events:
-            try:
-                self.session.put(object_key(event.map_id, event.object_id), event_to_proto(event).SerializeToString())
-            except Exception:  # noqa: BLE001 - publishing must not fail the step
-                log.warning("map %s: event %s of object %d not published", event.map_id, event.kind, event.object_id, exc_info=True)
+        route = self.router.route(event)
+        if route is None:
+            log.debug("map %s: object %d: a state older than one published, not published", event.map_id, event.object_id)
+            return
+        key = object_key(event.map_id, event.object_id) if route == "served" else tentative_key(event.map_id, event.object_id)
+        try:
+            self.session.put(key, event_to_proto(event).SerializeToString())
+        except Exception:  # noqa: BLE001 - publishing must not fail the step
+            log.warning("map %s: event %s of object %d not published", event.map_id, event.kind, event.object_id, exc_info=True)
 
     def _answer_objects(self, query: Any) -> None:
         key = str(query.key_expr)
@@ -129,8 +208,12 @@ class ZenohPublisher:
             query.reply_err(f"ask for one map: {KEY_ROOT}/<map_id>/objects, got {key}".encode())
             return
         map_id = parts[1]
+        include = query.parameters.get("include")
+        if include not in (None, "tentative"):
+            query.reply_err(f"include: expected tentative (or nothing: confirmed objects only), got {include!r}".encode())
+            return
         try:
-            objects = _list_objects(self.store, map_id)  # type: ignore[arg-type]
+            objects = [o for o in _list_objects(self.store, map_id) if include == "tentative" or o.confirmed]  # type: ignore[arg-type]
             from arcloud.proto.convert import objects_to_proto
 
             query.reply(key, objects_to_proto(objects, map_id).SerializeToString())
@@ -191,8 +274,11 @@ def subscribe_objects(
     connect: Sequence[str] = (),
     mode: SessionMode = "peer",
     session: zenoh.Session | None = None,
+    include_tentative: bool = False,
 ) -> Subscription:
-    """Call ``callback(ObjectEvent message)`` for every event of ``map_id`` (on a Zenoh thread)."""
+    """Call ``callback(ObjectEvent message)`` for every event of ``map_id``'s served map (on a Zenoh
+    thread): states of confirmed objects, and the event that takes one out (a tentative state, MERGED or
+    DELETED). ``include_tentative``: the events of tentative objects too."""
     from arcloud.proto.arcloud.v1 import arcloud_pb2
 
     def on_sample(sample: Any) -> None:
@@ -203,7 +289,7 @@ def subscribe_objects(
 
     owns = session is None
     session = session if session is not None else open_session(mode, connect=connect)
-    subscriber = session.declare_subscriber(f"{objects_key(map_id)}/*", on_sample)
+    subscriber = session.declare_subscriber(f"{objects_key(map_id)}/{'**' if include_tentative else '*'}", on_sample)
     return Subscription(session, subscriber, owns)
 
 
@@ -214,15 +300,18 @@ def query_objects(
     mode: SessionMode = "peer",
     session: zenoh.Session | None = None,
     timeout_s: float = 5.0,
+    include_tentative: bool = False,
 ) -> arcloud_pb2.ObjectList:
-    """The map's current objects, asked of whoever answers ``arcloud/<map_id>/objects``.
+    """The map's confirmed objects (``include_tentative``: every object), asked of whoever answers
+    ``arcloud/<map_id>/objects``.
     Raises ``LookupError`` when nobody answers in time, ``RuntimeError`` with the answerer's error."""
     from arcloud.proto.arcloud.v1 import arcloud_pb2
 
     owns = session is None
     session = session if session is not None else open_session(mode, connect=connect)
     try:
-        for reply in session.get(objects_key(map_id), timeout=timeout_s):
+        selector = f"{objects_key(map_id)}?include=tentative" if include_tentative else objects_key(map_id)
+        for reply in session.get(selector, timeout=timeout_s):
             if reply.ok is not None:
                 return arcloud_pb2.ObjectList.FromString(reply.ok.payload.to_bytes())
             raise RuntimeError(f"objects of map {map_id}: {reply.err.payload.to_bytes().decode(errors='replace')}")
@@ -233,6 +322,7 @@ def query_objects(
 
 
 __all__ = [
+    "ServedRouter",
     "Subscription",
     "ZenohPublisher",
     "connectable",
@@ -242,5 +332,6 @@ __all__ = [
     "open_session",
     "query_objects",
     "subscribe_objects",
+    "tentative_key",
     "zenoh_config",
 ]

@@ -2,7 +2,8 @@
 
 Frames coming in are decoded (JPEG/PNG with OpenCV) and validated by ``arcloud.core.checks.make_frame``;
 every problem is an ``InvalidInput`` naming the message field. Objects and events going out become
-``Object`` / ``ObjectEvent`` snapshots (no voxels).
+``Object`` / ``ObjectEvent`` snapshots (no voxels), with their status (``MapObject.confirmed`` ->
+``Object.STATUS_CONFIRMED`` or ``STATUS_TENTATIVE``).
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ class ObjectLike(Protocol):
     updated_at_s: float
     aabb: AABB | None
     obb: OBB | None
+    confirmed: bool
 
     @property
     def n_voxels(self) -> int: ...
@@ -261,6 +263,7 @@ def object_to_proto(obj: MapObject | ObjectLike, map_id: str) -> pb.Object:
         n_voxels=int(obj.n_voxels),
         n_frames=int(obj.n_frames),
         n_devices=len(obj.devices),
+        status=pb.Object.STATUS_CONFIRMED if obj.confirmed else pb.Object.STATUS_TENTATIVE,
     )
     if obj.aabb is not None:
         msg.aabb.CopyFrom(pb.Box3(min=_vec3(obj.aabb.min), max=_vec3(obj.aabb.max)))

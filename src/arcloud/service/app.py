@@ -5,13 +5,15 @@ Nothing happens at import or at ``create_app``: the lifespan builds the adapters
 ports (``ObjectStore``) and to the ingest, never to a concrete store.
 
     POST   /v1/maps/{map_id}/frames           protobuf Frame or multipart (meta, rgb, depth) -> 202 queued
-    GET    /v1/maps/{map_id}/objects          ?label= &min_score= &bbox=x0,y0,z0,x1,y1,z1
-    GET    /v1/maps/{map_id}/objects/{id}     ?voxels=true
+    GET    /v1/maps/{map_id}/objects          confirmed objects; ?include=tentative &label= &min_score= &bbox=x0,y0,z0,x1,y1,z1
+    GET    /v1/maps/{map_id}/objects/{id}     any object, with its status; ?voxels=true
     DELETE /v1/maps/{map_id}
     GET    /v1/maps/{map_id}/stats
     GET    /healthz  /readyz  /metrics
 
-A map exists once a frame of it was accepted; unknown maps and objects answer 404. Errors are JSON
+A map exists once a frame of it was accepted; unknown maps and objects answer 404. Listings serve
+confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
+its ``status``. Errors are JSON
 ``{"detail": ..., "field": ...}``: 413 body too large, 415 wrong content type, 422 invalid input,
 503 store unreachable or queue full (with Retry-After).
 """
@@ -273,10 +275,19 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
 
 
-@router.get("/v1/maps/{map_id}/objects", response_model=ObjectList, responses=PROBLEM_RESPONSES, tags=["objects"], summary="The map's objects")
+@router.get(
+    "/v1/maps/{map_id}/objects",
+    response_model=ObjectList,
+    responses=PROBLEM_RESPONSES,
+    tags=["objects"],
+    summary="The map's objects",
+    description="The served map: confirmed objects only, unless `include=tentative` (then tentative ones too). "
+    "A confirmed object may become tentative again, and then leaves the default listing.",
+)
 def list_objects(
     map_id: MapId,
     runtime: RuntimeDep,
+    include: Annotated[Literal["tentative"] | None, Query(description="tentative: tentative objects too", examples=["tentative"])] = None,
     label: Annotated[Label | None, Query(description="only this class")] = None,  # type: ignore[valid-type]
     min_score: Annotated[float, Query(ge=0.0, le=1.0, description="only objects scoring at least this")] = 0.0,
     bbox: Annotated[str | None, Query(description="only objects whose voxels' bounds meet this box: x0,y0,z0,x1,y1,z1 (m)", examples=["0,0,0,2,2,2"])] = None,
@@ -287,11 +298,19 @@ def list_objects(
         objects = _meta(runtime.store, map_id, sorted(runtime.store.query_region(map_id, lo, hi)))
     else:
         objects = _list_meta(runtime.store, map_id)
-    chosen = [o for o in objects if (label is None or o.label == label) and o.score >= min_score]
+    chosen = [o for o in objects if (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score]
     return {"objects": [object_out(o) for o in sorted(chosen, key=lambda o: o.id)]}
 
 
-@router.get("/v1/maps/{map_id}/objects/{object_id}", response_model=ObjectDetail, responses=PROBLEM_RESPONSES, tags=["objects"], summary="One object")
+@router.get(
+    "/v1/maps/{map_id}/objects/{object_id}",
+    response_model=ObjectDetail,
+    responses=PROBLEM_RESPONSES,
+    tags=["objects"],
+    summary="One object",
+    description="Any object of the map, confirmed or tentative (see its `status`): an id a client holds keeps answering "
+    "while the object exists.",
+)
 def get_object(
     map_id: MapId,
     object_id: Annotated[int, Path(ge=0)],
@@ -319,15 +338,17 @@ def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
     return MapDeleted(map_id=map_id, deleted_objects=removed)
 
 
-@router.get("/v1/maps/{map_id}/stats", response_model=MapStats, responses=PROBLEM_RESPONSES, tags=["maps"], summary="Frames and objects of a map")
+@router.get("/v1/maps/{map_id}/stats", response_model=MapStats, responses=PROBLEM_RESPONSES, tags=["maps"],
+            summary="Frames and objects (confirmed and tentative) of a map")
 def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     known_map(runtime, map_id)
     counts = runtime.ingest.counts(map_id)
-    n_objects = len(_list_meta(runtime.store, map_id))
+    objects = _list_meta(runtime.store, map_id)
+    confirmed = sum(1 for o in objects if o.confirmed)
     return {
         "map_id": map_id,
         "frames": {"accepted": counts.accepted, "processed": counts.processed, "failed": counts.failed, "pending": counts.pending},
-        "objects": n_objects,
+        "objects": {"confirmed": confirmed, "tentative": len(objects) - confirmed},
     }
 
 

@@ -48,7 +48,8 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # typ
 
     replay = subparsers.add_parser(
         "replay", help="stream a simulated room through a running service as K users and score the map",
-        description="The service must run `--detector sim:SEED` with the same seed.",
+        description="The service must run `--detector sim:SEED` with the same seed. Writes mAP of every object (Table 1), "
+        "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes.",
     )
     replay.add_argument("--url", default="http://127.0.0.1:8000", help="service URL (default http://127.0.0.1:8000)")
     replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>); deleted first")
@@ -57,7 +58,7 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # typ
     replay.add_argument("--frames", type=positive_int, default=300, help="frames in the walk (default 300)")
     replay.add_argument("--width", type=positive_int, default=640, help="image width (default 640; height 3/4 of it)")
     replay.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for processing (default 1800)")
-    replay.add_argument("--out", type=Path, default=Path("results.json"), help="results JSON (default results.json)")
+    replay.add_argument("--out", type=Path, default=Path("results.json"), help="results JSON (default results.json): scores, counts, ground truth")
     replay.add_argument("--no-progress", action="store_true", help="no progress bar")
     replay.set_defaults(handler=run_replay_command)
 
@@ -132,9 +133,12 @@ def run_replay_command(args: argparse.Namespace) -> int:
                      timeout_s=args.timeout, show_progress=not args.no_progress)
     row = results["table1"][0]
     frames = results["frames"]
+    served = results["served"]
     print(f"{row['users']} users, {frames['sent']} frames sent, {frames['accepted']} accepted, {frames['processed']} processed "
           f"in {results['seconds']['stream_and_process']:.1f} s: mAP@0.25 {_fmt(row['map25_mean'])}, mAP@0.5 {_fmt(row['map50_mean'])} "
-          f"-> {args.out}")
+          f"(every object); served {served['objects']} of {served['objects'] + results['objects']['tentative']} objects: "
+          f"precision/recall@0.25 {_fmt(served['precision25'])}/{_fmt(served['recall25'])}, "
+          f"@0.5 {_fmt(served['precision50'])}/{_fmt(served['recall50'])} -> {args.out}")
     return 0
 
 

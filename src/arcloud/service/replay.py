@@ -4,15 +4,22 @@ the map it built.
 The walk through ``generate_room(seed)`` is rendered (``simulate_sequence``), cut into K contiguous
 segments that are shuffled (``eval.protocol.user_streams``, as the paper's protocol does), and each
 segment is uploaded by its own user (device ``user-<k>``) over HTTP, all users at once, each in order.
-When every frame is processed, the map's objects are fetched and scored (mAP at 3D IoU 0.25 and 0.5)
-against the room's exact boxes. The service must run the same simulated detector: ``--detector
-sim:<seed>`` (the simulator's detector derives each frame's faults from its frame id, so the result does
-not depend on which user sent a frame).
+When every frame is processed, the map's objects are fetched and scored against the room's exact boxes
+(its ground truth, in the map's frame: the walk's poses are the room's): every object
+(``?include=tentative``) for Table 1's mAP, as the in-process protocol scores its maps; and what a
+client is served (a plain ``GET /v1/maps/{map}/objects``: confirmed objects) for its precision and
+recall at 3D IoU 0.25 and 0.5 (``eval.metrics.precision_recall``) and its mAP. The service must run the
+same simulated detector: ``--detector sim:<seed>`` (the simulator's detector derives each frame's
+faults from its frame id, so the result does not depend on which user sent a frame).
 
 Results JSON::
 
     {"table1": [{"approach": "distributed", "users": K, "runs": 1, "map25_mean", "map25_var": 0,
                  "map50_mean", "map50_var": 0}],
+     "served": {"objects", "precision25", "recall25", "precision50", "recall50", "map25", "map50",
+                "matches": {"0.25": {"true_positives", "n_predictions", "n_gt", ...}, "0.5": {...}}},
+     "objects": {"confirmed", "tentative"},
+     "ground_truth": [{"label", "aabb_min", "aabb_max"}],
      "frames": {"sent", "accepted", "processed"}, ...}
 """
 
@@ -52,7 +59,7 @@ def replay(
     """Replay and score; writes the results JSON to ``out`` (unless None) and returns it. The map is
     deleted first (unless ``keep_map``) so that earlier frames do not count."""
     from arcloud.core.types import Intrinsics
-    from arcloud.eval.metrics import Box3D, evaluate
+    from arcloud.eval.metrics import Box3D, evaluate, precision_recall
     from arcloud.eval.protocol import user_streams
     from arcloud.sim.room import generate_room
     from arcloud.sim.sequence import gt_boxes, simulate_sequence
@@ -66,18 +73,30 @@ def replay(
     rendered_s = time.perf_counter() - started
 
     sent_at = time.perf_counter()
-    sent, answers, stats, objects = asyncio.run(_stream(url, map_id, frames, streams, timeout_s, show_progress, keep_map))
+    sent, answers, stats, served, every = asyncio.run(_stream(url, map_id, frames, streams, timeout_s, show_progress, keep_map))
     processed_s = time.perf_counter() - sent_at
 
-    predictions = [Box3D(o["label"], o["aabb"]["min"], o["aabb"]["max"], o["score"]) for o in objects if o["aabb"] is not None and o["label"]]
     ground_truth = [Box3D(label, lo, hi) for label, lo, hi in gt_boxes(room)]
-    scores = evaluate({map_id: predictions}, {map_id: ground_truth})
+    gt = {map_id: ground_truth}
+    scores = evaluate({map_id: _boxes(every)}, gt)
+    served_boxes = {map_id: _boxes(served)}
+    served_scores = evaluate(served_boxes, gt)
+    matches = {f"{iou:g}": precision_recall(served_boxes, gt, iou_threshold=iou) for iou in (0.25, 0.5)}
     results: dict[str, Any] = {
         "table1": [{
             "approach": "distributed", "users": users, "runs": 1,
             "map25_mean": _finite(scores.map_at(0.25)), "map25_var": 0.0,
             "map50_mean": _finite(scores.map_at(0.5)), "map50_var": 0.0,
         }],
+        "served": {
+            "objects": len(served),
+            "precision25": matches["0.25"].precision, "recall25": _finite(matches["0.25"].recall),
+            "precision50": matches["0.5"].precision, "recall50": _finite(matches["0.5"].recall),
+            "map25": _finite(served_scores.map_at(0.25)), "map50": _finite(served_scores.map_at(0.5)),
+            "matches": {iou: pr.to_dict() for iou, pr in matches.items()},
+        },
+        "objects": {"confirmed": sum(1 for o in every if o["status"] == "confirmed"), "tentative": sum(1 for o in every if o["status"] == "tentative")},
+        "ground_truth": [{"label": box.label, "aabb_min": box.min.tolist(), "aabb_max": box.max.tolist()} for box in ground_truth],
         "frames": {
             "sent": sent,
             "accepted": sum(1 for a in answers if a == "queued"),
@@ -85,7 +104,6 @@ def replay(
             "processed": stats["frames"]["processed"],
             "failed": stats["frames"]["failed"],
         },
-        "objects": len(objects),
         "evaluation": scores.to_dict(),
         "scene": {"seed": seed, "frames": n_frames, "width": width, "height": height, "objects": len(ground_truth)},
         "service": {"url": url, "map_id": map_id},
@@ -105,9 +123,18 @@ def _finite(value: float) -> float | None:
     return None if not np.isfinite(value) else float(value)
 
 
+def _boxes(objects: list[dict[str, Any]]) -> list[Any]:
+    """The listed objects that have a box, as scored boxes."""
+    from arcloud.eval.metrics import Box3D
+
+    return [Box3D(o["label"], o["aabb"]["min"], o["aabb"]["max"], o["score"]) for o in objects if o["aabb"] is not None and o["label"]]
+
+
 async def _stream(
     url: str, map_id: str, frames: list[Any], streams: list[list[int]], timeout_s: float, show_progress: bool, keep_map: bool
-) -> tuple[int, list[str], dict[str, Any], list[dict[str, Any]]]:
+) -> tuple[int, list[str], dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
+    """Upload every user's frames, wait until they are processed; returns (frames sent, answers, the
+    map's stats, the served objects (a plain GET), every object)."""
     from tqdm import tqdm
 
     answers: list[str] = []
@@ -130,5 +157,6 @@ async def _stream(
 
             await asyncio.gather(*(user(k, indices) for k, indices in enumerate(streams)))
         stats = await client.wait_until_processed(map_id, len(frames), timeout_s, poll_s=0.25)
-        objects = await client.list_objects(map_id)
-    return len(frames), answers, stats, objects
+        served = await client.list_objects(map_id)
+        every = await client.list_objects(map_id, include_tentative=True)
+    return len(frames), answers, stats, served, every

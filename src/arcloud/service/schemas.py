@@ -1,6 +1,8 @@
 """The HTTP API's JSON shapes (pydantic stops here: routes turn core objects into these and back).
 
-Times are ISO 8601 in UTC (``updated_at``), lengths in metres, angles in radians.
+Times are ISO 8601 in UTC (``updated_at``), lengths in metres, angles in radians. An object's ``status``
+is ``confirmed`` (served by default) or ``tentative`` (shown only when asked for), from the core's
+``MapObject.confirmed``.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 Vec3 = tuple[float, float, float]
+ObjectStatus = Literal["confirmed", "tentative"]
 
 
 class FrameAccepted(BaseModel):
@@ -88,6 +91,7 @@ class ObjectOut(BaseModel):
                 "aabb": {"min": [1.2, 0.4, 0.0], "max": [1.7, 0.95, 0.92]},
                 "obb": {"center": [1.45, 0.67, 0.46], "size": [0.5, 0.52, 0.92], "yaw_rad": 0.31},
                 "version": 12, "updated_at": "2025-01-01T12:00:00.250000Z", "n_voxels": 1380, "n_frames": 11, "n_devices": 2,
+                "status": "confirmed",
             }]
         }
     )
@@ -102,6 +106,8 @@ class ObjectOut(BaseModel):
     n_voxels: int
     n_frames: int
     n_devices: int
+    status: ObjectStatus = Field(description="confirmed: served by default; tentative: kept, shown only with ?include=tentative "
+                                 "(a confirmed object may become tentative again)")
 
 
 class ObjectDetail(ObjectOut):
@@ -119,12 +125,19 @@ class FrameCounts(BaseModel):
     pending: int
 
 
+class ObjectCounts(BaseModel):
+    confirmed: int = Field(description="objects served by default")
+    tentative: int = Field(description="objects shown only with ?include=tentative")
+
+
 class MapStats(BaseModel):
-    model_config = ConfigDict(json_schema_extra={"examples": [{"map_id": "office", "frames": {"accepted": 120, "processed": 118, "failed": 0, "pending": 2}, "objects": 14}]})
+    model_config = ConfigDict(json_schema_extra={"examples": [{
+        "map_id": "office", "frames": {"accepted": 120, "processed": 118, "failed": 0, "pending": 2}, "objects": {"confirmed": 14, "tentative": 31},
+    }]})
 
     map_id: str
     frames: FrameCounts
-    objects: int
+    objects: ObjectCounts
 
 
 class MapDeleted(BaseModel):
@@ -161,6 +174,11 @@ def _vec(values: Any) -> Vec3:
     return (x, y, z)
 
 
+def object_status(obj: Any) -> ObjectStatus:
+    """``confirmed`` or ``tentative``, of a ``MapObject`` or a store's ``ObjectMeta``."""
+    return "confirmed" if obj.confirmed else "tentative"
+
+
 def object_out(obj: Any) -> dict[str, Any]:
     """JSON-ready dict of a ``MapObject`` or a store's ``ObjectMeta``."""
     return {
@@ -174,6 +192,7 @@ def object_out(obj: Any) -> dict[str, Any]:
         "n_voxels": int(obj.n_voxels),
         "n_frames": int(obj.n_frames),
         "n_devices": len(obj.devices),
+        "status": object_status(obj),
     }
 
 

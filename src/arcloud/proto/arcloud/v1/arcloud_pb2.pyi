@@ -102,7 +102,15 @@ class OrientedBox(_message.Message):
     def __init__(self, center: _Optional[_Union[Vec3, _Mapping]] = ..., size: _Optional[_Union[Vec3, _Mapping]] = ..., yaw_rad: _Optional[float] = ..., rotation: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class Object(_message.Message):
-    __slots__ = ("id", "map_id", "label", "score", "aabb", "obb", "version", "created_at_s", "updated_at_s", "n_voxels", "n_frames", "n_devices")
+    __slots__ = ("id", "map_id", "label", "score", "aabb", "obb", "version", "created_at_s", "updated_at_s", "n_voxels", "n_frames", "n_devices", "status")
+    class Status(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        STATUS_UNSPECIFIED: _ClassVar[Object.Status]
+        STATUS_CONFIRMED: _ClassVar[Object.Status]
+        STATUS_TENTATIVE: _ClassVar[Object.Status]
+    STATUS_UNSPECIFIED: Object.Status
+    STATUS_CONFIRMED: Object.Status
+    STATUS_TENTATIVE: Object.Status
     ID_FIELD_NUMBER: _ClassVar[int]
     MAP_ID_FIELD_NUMBER: _ClassVar[int]
     LABEL_FIELD_NUMBER: _ClassVar[int]
@@ -115,6 +123,7 @@ class Object(_message.Message):
     N_VOXELS_FIELD_NUMBER: _ClassVar[int]
     N_FRAMES_FIELD_NUMBER: _ClassVar[int]
     N_DEVICES_FIELD_NUMBER: _ClassVar[int]
+    STATUS_FIELD_NUMBER: _ClassVar[int]
     id: int
     map_id: str
     label: str
@@ -127,7 +136,8 @@ class Object(_message.Message):
     n_voxels: int
     n_frames: int
     n_devices: int
-    def __init__(self, id: _Optional[int] = ..., map_id: _Optional[str] = ..., label: _Optional[str] = ..., score: _Optional[float] = ..., aabb: _Optional[_Union[Box3, _Mapping]] = ..., obb: _Optional[_Union[OrientedBox, _Mapping]] = ..., version: _Optional[int] = ..., created_at_s: _Optional[float] = ..., updated_at_s: _Optional[float] = ..., n_voxels: _Optional[int] = ..., n_frames: _Optional[int] = ..., n_devices: _Optional[int] = ...) -> None: ...
+    status: Object.Status
+    def __init__(self, id: _Optional[int] = ..., map_id: _Optional[str] = ..., label: _Optional[str] = ..., score: _Optional[float] = ..., aabb: _Optional[_Union[Box3, _Mapping]] = ..., obb: _Optional[_Union[OrientedBox, _Mapping]] = ..., version: _Optional[int] = ..., created_at_s: _Optional[float] = ..., updated_at_s: _Optional[float] = ..., n_voxels: _Optional[int] = ..., n_frames: _Optional[int] = ..., n_devices: _Optional[int] = ..., status: _Optional[_Union[Object.Status, str]] = ...) -> None: ...
 
 class ObjectEvent(_message.Message):
     __slots__ = ("kind", "map_id", "object_id", "object", "merged_into", "time_s")
