@@ -1,7 +1,9 @@
-"""Rendering an annotated mesh into a ScanNet-layout scene, reading it back, and evaluating on it."""
+"""Rendering an annotated mesh into a ScanNet-layout scene (default and random walks), reading it back,
+and evaluating on it."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -11,8 +13,17 @@ from datasets_builders import ALIGNMENT, ROOM_PARTS, SCENE_ID, build_room_scene,
 
 from arcloud.core.types import Intrinsics, Params
 from arcloud.datasets.gt_masks import GroundTruthMaskDetector
-from arcloud.datasets.render_scannet import label_lookup, render_scannet, room_layout, scaled_intrinsics, triangle_instances
+from arcloud.datasets.render_scannet import (
+    label_lookup,
+    random_user_walk,
+    render_scannet,
+    room_layout,
+    scaled_intrinsics,
+    shake,
+    triangle_instances,
+)
 from arcloud.datasets.scannet import load_scannet_scene
+from arcloud.errors import InvalidInput
 
 SMALL = Intrinsics(120.0, 120.0, 79.5, 59.5)
 
@@ -114,3 +125,60 @@ def test_render_with_the_simulator_walk(tmp_path: Path) -> None:
     detector = GroundTruthMaskDetector(rendered, min_mask_px=10)
     seen = {d.label for name in rendered.frame_names for d in detector.detect(rendered.load_frame(name))}
     assert seen == {"chair", "table"}
+
+
+def test_random_user_walks_are_drawn_per_seed_and_user() -> None:
+    walks = [random_user_walk(seed, user) for seed in range(5) for user in range(10)]
+    assert random_user_walk(3, 4) == random_user_walk(3, 4) and len(set(walks)) == len(walks)
+    heights = np.array([w.eye_height_m for w in walks])
+    assert np.all((heights >= 1.1) & (heights <= 1.9)) and heights.min() < 1.3 and heights.max() > 1.7
+    assert all(0.03 <= w.step_m <= 0.1 and 6 <= w.fixation_frames <= 30 and 0.5 <= w.coverage <= 1.5 for w in walks)
+    assert all(0.2 <= w.shake_deg <= 1.5 and 0.002 <= w.shake_m <= 0.01 for w in walks)
+
+
+def _rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
+    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def test_shake_moves_poses_like_a_hand_held_camera() -> None:
+    from arcloud.sim.trajectory import look_at
+
+    poses = [look_at(np.array([0.1 * i, 0.0, 1.5]), np.array([0.1 * i, 3.0, 1.0])) for i in range(2000)]
+    assert all(np.array_equal(a, b) for a, b in zip(shake(poses, 0.0, 0.0, np.random.default_rng(0)), poses))
+    shaken = shake(poses, 1.0, 0.005, np.random.default_rng(0))
+    turned = np.array([_rotation_deg(p, s) for p, s in zip(poses, shaken)])
+    moved = np.array([np.linalg.norm(s[:3, 3] - p[:3, 3]) for p, s in zip(poses, shaken)])
+    # per axis about 1 degree and 5 mm: the norm of three such is about 1.6 degrees and 8 mm
+    assert 1.2 < np.sqrt(np.mean(turned**2)) < 2.1 and 0.006 < np.sqrt(np.mean(moved**2)) < 0.011
+    # smooth over a few frames: neighbours differ much less than the shake itself
+    steps = np.array([_rotation_deg(a, b) for a, b in zip(shaken[:-1], shaken[1:])])
+    assert np.sqrt(np.mean(steps**2)) < 0.7 * np.sqrt(np.mean(turned**2))
+    for s in shaken[:5]:
+        np.testing.assert_allclose(s[:3, :3] @ s[:3, :3].T, np.eye(3), atol=1e-9)  # still rigid
+
+
+def test_render_with_random_walks(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
+    asked: list[dict] = []
+
+    def recording_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, **options):  # noqa: ANN001, ANN003, ANN202
+        asked.append({"seed": seed, **options})
+        return circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, eye_height_m=options["eye_height_m"], floor_z_m=options["floor_z_m"])
+
+    scene_dir = render_scannet(scene, tmp_path / "render", users=3, frames_per_user=4, seed=2, width=80, height=60, walk=recording_walk, style="random")
+    record = json.loads((scene_dir / "render.json").read_text())
+    drawn = [random_user_walk(2, user) for user in range(3)]
+    assert record["style"] == "random" and record["walk_styles"] == [dataclasses.asdict(w) for w in drawn]
+    assert [a["seed"] for a in asked] == [2000, 2001, 2002]
+    assert [a["eye_height_m"] for a in asked] == [w.eye_height_m for w in drawn]
+    assert all(a["eye_height_jitter_m"] == 0.0 and a["step_m"] == w.step_m for a, w in zip(asked, drawn))
+    # the poses on disk are the planned walk shaken by a few degrees at most
+    rendered = load_scannet_scene(scene_dir)
+    layout = room_layout(scene)
+    planned = circle_walk(layout.floor_min_xy, layout.floor_max_xy, layout.targets, 4, 2001, eye_height_m=drawn[1].eye_height_m, floor_z_m=layout.floor_z_m)
+    for i, pose in enumerate(planned):
+        shaken = rendered.pose(str(4 + i))
+        assert 0.0 < _rotation_deg(pose, shaken) < 6.0 and np.linalg.norm(shaken[:3, 3] - pose[:3, 3]) < 0.05
+    with pytest.raises(InvalidInput, match="style"):
+        render_scannet(scene, tmp_path / "other", users=1, frames_per_user=2, style="wobbly")

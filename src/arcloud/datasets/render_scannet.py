@@ -15,17 +15,23 @@ shaded), ``depth/N.png`` (uint16 millimetres, 0 = no surface), ``pose/N.txt`` (c
 unannotated; 8-bit, or 16-bit beyond 255 instances) and ``label-filt/N.png`` (uint16 ScanNet label ids,
 the labels tsv's ``id`` of the instance's raw category). Per scene: ``intrinsic/`` (colour = depth, both
 at the render size), ``<scene>.txt`` with ``axisAlignment``, copies of the mesh, aggregation and segs
-(for the 3D ground truth), the labels tsv beside the scene folder, and ``render.json`` (users, seeds).
+(for the 3D ground truth), the labels tsv beside the scene folder, and ``render.json`` (users, seeds,
+walk style and each user's drawn walk).
+
+Walk styles: ``"default"`` walks every user at ``eye_height_m`` with ``plan_walk``'s defaults;
+``"random"`` draws each user's walk from the seed (``random_user_walk``): eye height 1.1-1.9 m, speed,
+how much of the room a lap covers, glances or long looks, and a hand-held camera's shake.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import shutil
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +49,14 @@ DEFAULT_DEPTH_INTRINSICS = Intrinsics(577.87, 577.87, 319.5, 239.5)
 FLOOR_NYU40, CEILING_NYU40, WALL_NYU40 = 2, 22, 1
 STRUCTURE_RAW = {"floor", "ceiling", "wall", "window", "door", "doorframe", "curtain", "blinds", "ceiling light"}
 JPEG_QUALITY = 90
+WALK_STYLES = ("default", "random")
+#: Ranges of a random user's walk (``random_user_walk``), drawn uniformly.
+EYE_HEIGHT_RANGE_M = (1.1, 1.9)
+STEP_RANGE_M = (0.03, 0.1)  # walking speed: metres per frame
+COVERAGE_RANGE = (0.5, 1.5)  # one lap of the room / the walk's length
+FIXATION_RANGE_FRAMES = (6, 30)  # glances .. long looks
+SHAKE_RANGE_DEG = (0.2, 1.5)  # hand-held camera: rotation noise
+SHAKE_RANGE_M = (0.002, 0.01)  # and translation noise, per frame, smoothed over a few frames
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +121,62 @@ def room_layout(
     if all_targets.shape[0] == 0:
         all_targets = np.array([[*(lo + hi) / 2, floor_z + 0.8]])
     return RoomLayout(lo, hi, floor_z, tuple(obstacles), all_targets)
+
+
+@dataclass(frozen=True)
+class UserWalk:
+    """One user's walk through a room, as drawn for the ``"random"`` style: ``plan_walk``'s eye height,
+    step (speed), fixation length and ring inset (from ``coverage``: one lap / the walk's length), and the
+    hand-held camera's shake (standard deviations per frame, smoothed over about two frames)."""
+
+    eye_height_m: float
+    step_m: float
+    coverage: float
+    fixation_frames: int
+    shake_deg: float
+    shake_m: float
+
+    def walk_options(self, layout: RoomLayout, n_frames: int) -> dict[str, float | int]:
+        """``plan_walk`` keyword arguments of this walk through ``layout``."""
+        size = layout.floor_max_xy - layout.floor_min_xy
+        ring_inset_m = max(0.0, float(2 * size.sum() - self.coverage * n_frames * self.step_m) / 8)
+        return {"eye_height_m": self.eye_height_m, "eye_height_jitter_m": 0.0, "step_m": self.step_m,
+                "fixation_frames": self.fixation_frames, "ring_inset_m": ring_inset_m}  # fmt: skip
+
+
+def random_user_walk(seed: int, user: int) -> UserWalk:
+    """User ``user``'s walk of a ``"random"`` render with ``seed``: every figure drawn uniformly from
+    its range (``EYE_HEIGHT_RANGE_M``, ...)."""
+    rng = np.random.default_rng([int(seed), int(user), 17])
+    return UserWalk(
+        eye_height_m=round(float(rng.uniform(*EYE_HEIGHT_RANGE_M)), 3),
+        step_m=round(float(rng.uniform(*STEP_RANGE_M)), 4),
+        coverage=round(float(rng.uniform(*COVERAGE_RANGE)), 3),
+        fixation_frames=int(rng.integers(FIXATION_RANGE_FRAMES[0], FIXATION_RANGE_FRAMES[1] + 1)),
+        shake_deg=round(float(rng.uniform(*SHAKE_RANGE_DEG)), 3),
+        shake_m=round(float(rng.uniform(*SHAKE_RANGE_M)), 4),
+    )
+
+
+def shake(poses: list[np.ndarray], shake_deg: float, shake_m: float, rng: np.random.Generator) -> list[np.ndarray]:
+    """(4, 4) cam2world poses moved as a hand-held camera moves about them: each pose times a small
+    rigid motion in its camera frame, rotation and translation noise (standard deviations ``shake_deg``
+    and ``shake_m`` per axis) smoothed over about two frames."""
+    from scipy.ndimage import gaussian_filter1d
+    from scipy.spatial.transform import Rotation
+
+    n = len(poses)
+    if n == 0 or (shake_deg == 0 and shake_m == 0):
+        return [np.array(p, dtype=np.float64) for p in poses]
+    sigma_frames = 2.0
+    # Smoothing shrinks white noise by about 1 / sqrt(2 sqrt(pi) sigma); scale it back.
+    gain = math.sqrt(2 * math.sqrt(math.pi) * sigma_frames)
+    angles = gaussian_filter1d(rng.normal(0.0, math.radians(shake_deg), (n, 3)), sigma_frames, axis=0, mode="nearest") * gain
+    offsets = gaussian_filter1d(rng.normal(0.0, shake_m, (n, 3)), sigma_frames, axis=0, mode="nearest") * gain
+    motion = np.tile(np.eye(4), (n, 1, 1))
+    motion[:, :3, :3] = Rotation.from_rotvec(angles).as_matrix()
+    motion[:, :3, 3] = offsets
+    return [np.asarray(p, dtype=np.float64) @ m for p, m in zip(poses, motion)]
 
 
 def triangle_instances(scene: ScanNetScene) -> np.ndarray:
@@ -179,19 +249,25 @@ def render_scannet(
     min_valid_fraction: float = 0.5,
     progress: bool = False,
     walk: Callable[..., list[np.ndarray]] | None = None,
+    style: str = "default",
 ) -> Path:
     """Render ``users`` walks of ``frames_per_user`` frames through ``scene``'s mesh into
     ``out_root/<scene>/`` (see the module docstring); returns that folder.
 
-    User u walks with seed ``seed * 1000 + u``. A frame that sees less than ``min_valid_fraction`` of
-    surface (a camera in a wall, or looking out through a hole of the scan) is dropped, logged.
-    ``walk`` replaces ``arcloud.sim.trajectory.plan_walk`` (same signature)."""
+    User u walks with seed ``seed * 1000 + u``: at ``eye_height_m`` (``style="default"``), or as
+    ``random_user_walk(seed, u)`` draws it (``style="random"``, which ignores ``eye_height_m``). A frame
+    that sees less than ``min_valid_fraction`` of surface (a camera in a wall, or looking out through a
+    hole of the scan) is dropped, logged. ``walk`` replaces ``arcloud.sim.trajectory.plan_walk`` (same
+    signature; the random style passes it plan_walk's ``eye_height_jitter_m``, ``step_m``,
+    ``fixation_frames`` and ``ring_inset_m`` too)."""
     from arcloud.sim.render import MeshRenderer
 
     if walk is None:
         from arcloud.sim.trajectory import plan_walk as walk
     if users < 1 or frames_per_user < 1:
         raise InvalidInput("users, frames_per_user", "both >= 1", (users, frames_per_user))
+    if style not in WALK_STYLES:
+        raise InvalidInput("style", f"one of {WALK_STYLES}", repr(style))
     if scene.mesh is None or not scene.instances:
         raise DatasetError(f"{scene.root}: expected a mesh with an aggregation and segs (the annotation), got none")
     base = intrinsics or (
@@ -212,13 +288,17 @@ def render_scannet(
 
     user_frames: list[tuple[int, int]] = []  # [first, stop) frame numbers of each user
     dropped, index = 0, 0
+    user_walks = [random_user_walk(seed, u) if style == "random" else None for u in range(users)]
     pending: list[Future[None]] = []
     with ThreadPoolExecutor(max_workers=2) as writer, tqdm(total=users * frames_per_user, disable=not progress, desc="render", unit="frame") as bar:
-        for user in range(users):
+        for user, user_walk in enumerate(user_walks):
+            options = user_walk.walk_options(layout, frames_per_user) if user_walk else {"eye_height_m": eye_height_m}
             poses = walk(
                 layout.floor_min_xy, layout.floor_max_xy, layout.targets, frames_per_user, seed * 1000 + user,
-                eye_height_m=eye_height_m, floor_z_m=layout.floor_z_m, obstacles_xy=layout.obstacles_xy,
+                floor_z_m=layout.floor_z_m, obstacles_xy=layout.obstacles_xy, **options,
             )  # fmt: skip
+            if user_walk is not None:
+                poses = shake(poses, user_walk.shake_deg, user_walk.shake_m, np.random.default_rng([seed, user, 18]))
             first = index
             for cam2world in poses:
                 bar.update(1)
@@ -237,7 +317,9 @@ def render_scannet(
             pending.clear()
     if dropped:
         logger.warning("scene %s: dropped %d of %d frames that saw too little surface", scene.scene_id, dropped, users * frames_per_user)
-    record = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "walk_seeds": [seed * 1000 + u for u in range(users)],
+    record = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "style": style, "width": width, "height": height,
+              "walk_seeds": [seed * 1000 + u for u in range(users)],
+              "walk_styles": [asdict(w) if w else {"eye_height_m": eye_height_m} for w in user_walks],
               "user_frames": user_frames, "frames": index, "dropped": dropped}  # fmt: skip
     (scene_dir / "render.json").write_text(json.dumps(record, indent=1))
     logger.info("rendered %d frames of %s by %d users into %s", index, scene.scene_id, users, scene_dir)
@@ -259,4 +341,14 @@ def _write_frame(
     write_matrix(scene_dir / "pose" / f"{name}.txt", cam2scan)
 
 
-__all__ = ["RoomLayout", "render_scannet", "room_layout", "scaled_intrinsics", "triangle_instances"]
+__all__ = [
+    "WALK_STYLES",
+    "RoomLayout",
+    "UserWalk",
+    "random_user_walk",
+    "render_scannet",
+    "room_layout",
+    "scaled_intrinsics",
+    "shake",
+    "triangle_instances",
+]
