@@ -399,7 +399,7 @@ def run_render_scannet(args: argparse.Namespace) -> int:
     scene = load_scannet_scene(args.mesh_dir, scan2aligned=args.axis_alignment)
     scene_dir = render_scannet(
         scene, Path(args.out), users=args.users, frames_per_user=args.frames, seed=args.seed,
-        width=args.width, height=args.height, progress=not args.no_progress,
+        width=args.width, height=args.height, progress=not args.no_progress, style=args.style,
     )  # fmt: skip
     print(f"wrote {scene_dir}")
     return 0
@@ -475,6 +475,9 @@ def add_eval_commands(subparsers: Any) -> Any:
     render.add_argument("--users", type=positive_int, default=10, help="users walking the room, one after the other (default 10)")
     render.add_argument("--frames", type=positive_int, default=60, help="frames per user (default 60)")
     render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--style", choices=("default", "random"), default="default",
+                        help="walks: default (every user at 1.5 m, plan_walk's defaults) or random (each user's eye height, "
+                        "speed, coverage, glances and hand-held shake drawn from --seed; recorded in render.json)")
     render.add_argument("--width", type=int, default=640)
     render.add_argument("--height", type=int, default=480)
     render.add_argument("--axis-alignment", default=None, help="scan2aligned when the scene's .txt has none (as for eval scannet)")
