@@ -9,7 +9,9 @@ import dataclasses
 import numpy as np
 
 from arcloud.core.types import Detection, Intrinsics, Params
+from arcloud.core.step import integrate_frame
 from arcloud.core.voxels import key_centers, voxelize_detections
+from arcloud.stores.memory import MemoryStore
 
 from handmade_frames import INTRINSICS, look_down_pose, plane_frame, rect_mask, scene_frame
 
@@ -38,21 +40,17 @@ def test_a_mask_bleeding_past_the_border_keeps_only_the_object():
     assert np.all(np.abs(depths_of(observation.keys) - 1.5) < 0.06)
 
 
-def test_a_mask_bleeding_onto_the_floor_keeps_the_object_above_it():
-    pose = look_down_pose((0.0, -2.0, 1.5), (0.0, 0.0, 0.3))
-    frame, instance = scene_frame(pose, [((-0.25, -0.25, 0.0), (0.25, 0.25, 0.5))])  # a box on the floor
-    rows, cols = np.nonzero(instance == 0)
-    mask = rect_mask(slice(rows.min(), rows.max() + 6), slice(cols.min() - 3, cols.max() + 4))  # and the floor around
-    (observation,) = voxelize_detections(frame, [Detection("chair", 0.9, mask)], PARAMS, floor_of(frame))
-    centres = key_centers(observation.keys, PARAMS.voxel_size_m)
-    assert centres[:, 2].min() > PARAMS.floor_clearance_m - PARAMS.voxel_size_m / 2
-    assert np.all(np.abs(centres[:, :2]) <= 0.3)  # nothing of the floor beyond the box
-
-
-def floor_of(frame):
-    from arcloud.core.floor import frame_floor
-
-    return frame_floor(frame, PARAMS)
+def test_a_mask_bleeding_onto_the_floor_boxes_the_object_above_it():
+    store = MemoryStore()
+    for i, angle in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False)):
+        eye = (2.0 * np.cos(angle), 2.0 * np.sin(angle), 1.5)
+        frame, instance = scene_frame(look_down_pose(eye, (0.0, 0.0, 0.3)), [((-0.25, -0.25, 0.0), (0.25, 0.25, 0.5))], frame_id=f"f{i}")
+        rows, cols = np.nonzero(instance == 0)
+        mask = rect_mask(slice(rows.min(), rows.max() + 6), slice(cols.min() - 3, cols.max() + 4))  # and the floor around
+        integrate_frame(frame, [Detection("tv", 0.9, mask)], store, PARAMS)  # a TV: no reaching for the floor
+    (obj,) = store.list_objects("m")
+    assert obj.aabb.min[2] > PARAMS.floor_clearance_m - PARAMS.voxel_size_m / 2  # the floor layer is not boxed
+    assert np.all(np.abs(obj.aabb.min[:2]) <= 0.3) and np.all(np.abs(obj.aabb.max[:2]) <= 0.3)
 
 
 def test_unregistered_colour_masks_are_looked_up_where_the_colour_camera_saw():

@@ -19,12 +19,11 @@ PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)  # tiny frames: few floo
 def test_a_frame_finds_the_floor_below_the_camera_and_not_a_table_top():
     pose = look_down_pose((0.0, -2.0, 1.5), (0.0, 0.0, 0.3))
     frame, _ = scene_frame(pose, [((-0.3, -0.3, 0.0), (0.3, 0.3, 0.45))], floor_z=-0.2)
-    heights = set(frame_floor(frame, PARAMS).cells.values())
-    assert heights and all(abs(h + 0.2) <= PARAMS.floor_bin_m for h in heights)
+    assert frame_floor(frame, PARAMS).height_m == pytest.approx(-0.2, abs=PARAMS.floor_bin_m)
     # A camera 0.6 m above a table top that fills its view: no floor (a device is held well above it).
     over_table = look_down_pose((0.0, 0.0, 1.35), (0.0, 0.3, 0.75))
     frame, _ = scene_frame(over_table, [((-3.0, -3.0, 0.0), (3.0, 3.0, 0.75))], floor_z=None)
-    assert frame_floor(frame, PARAMS).cells == {}
+    assert frame_floor(frame, PARAMS).height_m is None
 
 
 def test_floor_votes_take_the_lowest_well_supported_height():

@@ -40,11 +40,16 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     return _box_voxel_mask(obj, params, unpack_keys(obj.keys))
 
 
-def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray) -> np.ndarray:
-    """``box_voxel_mask`` of a non-empty object whose keys unpack to ``ijk_all`` (N, 3)."""
+def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m: float | None = None) -> np.ndarray:
+    """``box_voxel_mask`` of a non-empty object whose keys unpack to ``ijk_all`` (N, 3); with the
+    object's ``floor_m`` (``core.floor``), voxels within ``floor_clearance_m`` above it are floor a mask
+    bled onto, not the object."""
     k = int(0.9 * (obj.weights.size - 1))
     reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
     keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
+    if floor_m is not None:
+        bottoms = ijk_all @ (params.voxel_size_m * world2gravity(params.up)[2])  # (exactly so when up is +z)
+        keep &= bottoms > floor_m + params.floor_clearance_m
     if keep.sum() < 2:
         return keep
     ijk = ijk_all[keep]
@@ -178,7 +183,8 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     if obj.keys.size == 0:
         return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None, confirmed=False)
     ijk = unpack_keys(obj.keys)  # once: the component filter, the box's centres and the bounds use it
-    box_mask = _box_voxel_mask(obj, params, ijk)
+    floor_m = floor_height(obj.floor_votes, params)
+    box_mask = _box_voxel_mask(obj, params, ijk, floor_m)
     if not box_mask.any():  # no voxel is solid enough yet: box what there is
         box_mask = np.ones(obj.keys.size, bool)
     label_index = object_label_index(obj)
@@ -192,8 +198,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     label = CLASSES[label_index]
     aabb = fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m)
     obb = fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m)
-    floor_m = floor_height(obj.floor_votes, params) if label in params.floor_standing else None
-    if floor_m is not None:
+    if floor_m is not None and label in params.floor_standing:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(
         label=label,

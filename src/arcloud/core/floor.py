@@ -1,18 +1,18 @@
 """The floor under objects: where the legs that a camera rarely sees end.
 
 Each frame finds its floor: the depth map's upward-facing surfaces (normals from neighbouring depth
-samples, within ``floor_max_tilt_deg`` of up), grouped into ground cells (``floor_cell_m``); in each
-cell the floor is the lowest height bin (``floor_bin_m``) holding at least ``floor_min_share`` of the
-cell's upward samples (and ``floor_min_samples``), provided it lies at least
-``floor_min_below_camera_m`` below the camera: a hand-held device is held well above the floor, so a
-frame that sees only a table top does not take it for the floor.
+samples, within ``floor_max_tilt_deg`` of up); the floor is the lowest height bin (``floor_bin_m``)
+holding at least ``floor_min_share`` of them (and ``floor_min_samples``), among those at least
+``floor_min_below_camera_m`` below the camera: a hand-held device is held well above the floor, and a
+frame that sees only a table top or a seat offers no floor rather than a wrong one. The lowest surface
+of the whole view, not of the spot under an object: a coffee table often hides the floor right under
+it, seldom the floor of the whole view.
 
-Every object seen in a frame takes one vote: the frame's floor in the object's ground cell (or, when
-that cell shows none, in the nearest neighbouring cell that does). An object's floor is the lowest
-height its votes support: the lowest bin with at least ``floor_min_votes`` votes and
-``floor_min_vote_share`` of the most-voted bin's (frames that saw only a table top vote higher, never
-lower). Votes add up, so an object's floor does not depend on the order in which frames arrive.
-Heights are measured along ``Params.up``.
+Every object seen in a frame takes one vote for the frame's floor, when it lies below the object. An
+object's floor is the lowest height its votes support: the lowest bin with at least
+``floor_min_votes`` votes and ``floor_min_vote_share`` of the most-voted bin's (frames that saw only a
+table top vote higher, never lower). Votes add up, so an object's floor does not depend on the order in
+which frames arrive. Heights are measured along ``Params.up``.
 """
 
 from __future__ import annotations
@@ -31,37 +31,21 @@ FLOOR_GRID_COLUMNS = 80  # depth samples for normals: about 80 across (a VGA fra
 
 @dataclass(frozen=True, eq=False, slots=True)
 class FrameFloor:
-    """A frame's floor: ground cell (i, j) -> floor height (metres along up), and the rotation that
-    gives ground coordinates (x, y) and height (z) of a world point: ``world2gravity @ p``."""
+    """A frame's floor: its height (metres along up; None: this frame offers none), and the rotation
+    that gives ground coordinates (x, y) and height (z) of a world point: ``world2gravity @ p``."""
 
-    cells: dict[tuple[int, int], float]
+    height_m: float | None
     world2gravity: np.ndarray
-    cell_m: float
-
-    def height_under(self, points_xyz: np.ndarray) -> np.ndarray:
-        """(N,) the floor height under each world point (N, 3); NaN where this frame saw no floor."""
-        gravity = np.asarray(points_xyz, np.float64).reshape(-1, 3) @ self.world2gravity.T
-        out = np.full(len(gravity), np.nan)
-        if not self.cells:
-            return out
-        ij = np.floor(gravity[:, :2] / self.cell_m).astype(np.int64)
-        for cell, height in self.cells.items():
-            out[(ij[:, 0] == cell[0]) & (ij[:, 1] == cell[1])] = height
-        return out
 
     def vote_for(self, points_xyz: np.ndarray, params: Params) -> int | None:
-        """The height bin this frame votes for as the floor under points (N, 3) of one object: the
-        floor of the cell under their centroid, else of the nearest neighbouring cell; None if none."""
-        if not self.cells or len(points_xyz) == 0:
+        """The height bin this frame votes for as the floor under an object of points (N, 3) in world
+        coordinates; None when the frame saw no floor, or none below the object."""
+        if self.height_m is None or len(points_xyz) == 0:
             return None
-        centre = np.asarray(points_xyz, np.float64).reshape(-1, 3).mean(axis=0) @ self.world2gravity.T
-        i, j = (int(v) for v in np.floor(centre[:2] / self.cell_m))
-        candidates = [
-            (math.hypot(di, dj), cell) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (cell := (i + di, j + dj)) in self.cells
-        ]
-        if not candidates:
+        lowest = float((np.asarray(points_xyz, np.float64).reshape(-1, 3) @ self.world2gravity[2]).min())
+        if self.height_m > lowest + params.floor_bin_m:
             return None
-        return height_bin(self.cells[min(candidates)[1]], params)
+        return height_bin(self.height_m, params)
 
 
 def height_bin(height_m: float, params: Params) -> int:
@@ -91,26 +75,19 @@ def upward_samples(frame: Frame, params: Params) -> np.ndarray:
 
 
 def frame_floor(frame: Frame, params: Params) -> FrameFloor:
-    """The floor this frame sees, cell by cell (see the module docstring)."""
+    """The floor this frame sees (see the module docstring)."""
     rotation = world2gravity(params.up)
-    samples = upward_samples(frame, params)
+    heights = upward_samples(frame, params)[:, 2]
     camera_height = float((rotation @ frame.cam2world[:3, 3])[2])
-    cells: dict[tuple[int, int], float] = {}
-    if len(samples):
-        ij = np.floor(samples[:, :2] / params.floor_cell_m).astype(np.int64)
-        bins = np.floor(samples[:, 2] / params.floor_bin_m).astype(np.int64)
-        order = np.lexsort((bins, ij[:, 1], ij[:, 0]))
-        ij, bins = ij[order], bins[order]
-        starts = np.flatnonzero(np.r_[True, np.any(ij[1:] != ij[:-1], axis=1)])
-        for start, stop in zip(starts, np.r_[starts[1:], len(bins)]):
-            values, counts = np.unique(bins[start:stop], return_counts=True)
-            dense = values[(counts >= params.floor_min_samples) & (counts >= params.floor_min_share * (stop - start))]
-            if dense.size == 0:
-                continue
-            height = (float(dense[0]) + 0.5) * params.floor_bin_m
-            if camera_height - height >= params.floor_min_below_camera_m:
-                cells[(int(ij[start, 0]), int(ij[start, 1]))] = height
-    return FrameFloor(cells, rotation, params.floor_cell_m)
+    floor = None
+    if heights.size:
+        values, counts = np.unique(np.floor(heights / params.floor_bin_m).astype(np.int64), return_counts=True)
+        centres = (values + 0.5) * params.floor_bin_m
+        dense = (counts >= params.floor_min_samples) & (counts >= params.floor_min_share * heights.size)
+        dense &= camera_height - centres >= params.floor_min_below_camera_m
+        if dense.any():
+            floor = float(centres[np.flatnonzero(dense)[0]])
+    return FrameFloor(floor, rotation)
 
 
 def floor_height(votes: Mapping[int, int], params: Params) -> float | None:

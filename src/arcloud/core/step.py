@@ -95,7 +95,7 @@ def integrate_frame(
     clock = _Clock(result.timings_s)
 
     floor = frame_floor(frame, params)
-    observations = voxelize_detections(frame, check_detections(detections, frame.shape), params, floor)
+    observations = voxelize_detections(frame, check_detections(detections, frame.shape), params)
     result.n_detections = len(observations)
     clock.lap("voxelize")
     visible_ids = find_visible(store, frame, params)

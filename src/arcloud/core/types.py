@@ -197,6 +197,8 @@ class Params:
     layer_jump_rel: float = 0.04
     layer_min_fraction: float = 0.25
     layer_margin_m: float | None = 0.1
+    layer_touch_m: float = 0.15
+    layer_classes: tuple[str, ...] = ("chair", "table", "laptop", "tv")  # a couch is solid and often seen in parts
     # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
@@ -222,7 +224,6 @@ class Params:
     miss_min_visible: float = 0.3  # an undetected object counts as missed when this share of it is visible
     rescore_write_delta: float = 0.05  # a miss rewrites an object when its score moves by more (else: a counter)
     # Floor (core.floor): found per frame, voted per object; floor-standing classes reach it
-    floor_cell_m: float = 2.0
     floor_bin_m: float = 0.04
     floor_max_tilt_deg: float = 15.0
     floor_min_samples: int = 30

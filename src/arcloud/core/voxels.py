@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from arcloud.core.floor import FrameFloor
 from arcloud.core.types import CLASS_INDEX, Detection, Frame, Params, VoxelDetection
 
 KEY_BITS = 21
@@ -250,14 +249,17 @@ def depth_layers(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, int]:
     return labels, int(n)
 
 
-def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px: int, params: Params) -> np.ndarray:
+def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px: int, params: Params, points: np.ndarray) -> np.ndarray:
     """(N,) bool: the samples of one mask that belong to the object, not to what lies behind it.
 
     A mask covers the object and whatever shows through its gaps (the wall between a chair's slats)
-    or past its border: that is *behind* the object, across a depth jump. The samples are split into
-    depth layers (``depth_layers``); the object's layer is the nearest (by mean depth) of the large ones
-    (at least ``layer_min_fraction`` of the largest); layers whose mean depth lies beyond its 90th
-    percentile depth plus ``layer_margin_m`` are dropped, and so are the samples on the far side of a jump."""
+    or past its border: that lies *behind* the object, across a depth jump, and apart from it. The
+    samples are split into depth layers (``depth_layers``); the object's layer is the nearest (by mean
+    depth) of the large ones (at least ``layer_min_fraction`` of the largest). A layer is dropped when it
+    lies deeper than that layer's 90th percentile depth plus ``layer_margin_m`` and does not touch the
+    object in space (no point within the same ``layer_touch_m`` cell as a point of a kept layer): the
+    far arm of a couch seen end on is deep but joined to the rest, the wall behind the slats is not.
+    ``points``: (N, 3) the samples' world points."""
     if z_m.size == 0:
         return np.zeros(0, bool)
     rows, cols = v_px // stride_px, u_px // stride_px
@@ -276,7 +278,27 @@ def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px
     in_main = z_m[label_of == main]
     limit = np.partition(in_main, int(0.9 * (in_main.size - 1)))[int(0.9 * (in_main.size - 1))] + params.layer_margin_m
     kept = np.concatenate(([False], means <= limit))
+    if not kept.all():
+        kept = _touching_layers(label_of, points, kept, n, params.layer_touch_m)
     return kept[label_of]
+
+
+def _touching_layers(label_of: np.ndarray, points: np.ndarray, kept: np.ndarray, n: int, touch_m: float) -> np.ndarray:
+    """``kept`` (n + 1,) bool over layer labels, grown by every layer that shares a ``touch_m`` cell
+    of space with a kept layer, repeatedly."""
+    cells = points_to_keys(points, touch_m)
+    order = np.lexsort((label_of, cells))
+    cell, layer = cells[order], label_of[order]
+    joined = np.flatnonzero((cell[1:] == cell[:-1]) & (layer[1:] != layer[:-1]))  # one cell, two layers
+    edges = np.stack((layer[joined], layer[joined + 1]), axis=1)
+    edges = edges[(edges > 0).all(axis=1)]
+    kept = kept.copy()
+    while edges.size:
+        grow = kept[edges[:, 0]] ^ kept[edges[:, 1]]
+        if not grow.any():
+            break
+        kept[edges[grow].ravel()] = True
+    return kept
 
 
 def sampling_stride_px(frame: Frame, params: Params) -> int:
@@ -294,14 +316,11 @@ def sampling_stride_px(frame: Frame, params: Params) -> int:
     return int(max(1, min(4, np.floor(params.voxel_size_m / 2 * focal / max(near_m, 1e-3)))))
 
 
-def voxelize_detections(
-    frame: Frame, detections: Sequence[Detection], params: Params, floor: FrameFloor | None = None
-) -> list[VoxelDetection]:
+def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: Params) -> list[VoxelDetection]:
     """Each detection's world voxels (sorted unique keys); detections with fewer than
     ``params.min_voxels_per_detection`` voxels are dropped. Order of the survivors is kept.
 
-    Each mask is cleaned with depth first: samples within ``floor_clearance_m`` of the ``floor`` the
-    frame sees (a mask bleeding onto the floor around a chair's feet) and samples behind the object
+    Each mask is cleaned with depth first: samples of what lies behind or apart from the object
     (``front_samples``) are left out."""
     stride = sampling_stride_px(frame, params)
     registered = None if frame.registered else register_samples(frame, params, stride)
@@ -312,13 +331,8 @@ def voxelize_detections(
         else:
             v_px, u_px, z_m = registered_mask_samples(det.mask, params, registered)
         points = back_project(frame, v_px, u_px, z_m)
-        if floor is not None and floor.cells and z_m.size:
-            heights = points @ floor.world2gravity[2]
-            above = ~(heights <= floor.height_under(points) + params.floor_clearance_m)  # NaN: no floor seen
-            v_px, u_px, z_m, points = v_px[above], u_px[above], z_m[above], points[above]
-        if params.layer_margin_m is not None and z_m.size:
-            front = front_samples(v_px, u_px, z_m, stride, params)
-            points = points[front]
+        if params.layer_margin_m is not None and z_m.size and det.label in params.layer_classes:
+            points = points[front_samples(v_px, u_px, z_m, stride, params, points)]
         if len(points) == 0:
             continue
         keys = sorted_unique(points_to_keys(points, params.voxel_size_m))
