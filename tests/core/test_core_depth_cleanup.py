@@ -36,8 +36,10 @@ def test_a_mask_over_slats_keeps_the_slats_not_the_wall_behind_them():
 def test_a_mask_bleeding_past_the_border_keeps_only_the_object():
     frame = plane_frame(3.0, patches=((slice(20, 40), slice(30, 50), 1.5),))
     mask = rect_mask(slice(16, 44), slice(26, 54))  # 4 px of wall on every side
-    (observation,) = voxelize_detections(frame, [Detection("tv", 0.9, mask)], PARAMS)
+    (observation,) = voxelize_detections(frame, [Detection("chair", 0.9, mask)], PARAMS)
     assert np.all(np.abs(depths_of(observation.keys) - 1.5) < 0.06)
+    (untouched,) = voxelize_detections(frame, [Detection("couch", 0.9, mask)], PARAMS)  # couches are not cleaned
+    assert depths_of(untouched.keys).max() > 2.9
 
 
 def test_a_mask_bleeding_onto_the_floor_boxes_the_object_above_it():
@@ -74,5 +76,5 @@ def test_unregistered_colour_masks_are_looked_up_where_the_colour_camera_saw():
     (naive,) = voxelize_detections(frame, [Detection("tv", 0.9, colour_mask)], params)  # as if registered
     assert on_patch(registered) == 1.0  # the wall beside the patch, hidden from the colour camera, stays out
     assert on_patch(naive) < 0.75
-    (cleaned,) = voxelize_detections(unregistered, [Detection("tv", 0.9, colour_mask)], PARAMS)
+    (cleaned,) = voxelize_detections(unregistered, [Detection("chair", 0.9, colour_mask)], PARAMS)
     assert on_patch(cleaned) == 1.0

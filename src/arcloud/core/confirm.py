@@ -36,7 +36,7 @@ CLASS_SIZES_M: dict[str, tuple[tuple[float, float], tuple[float, float], float |
     "chair": ((0.25, 1.4), (0.3, 1.6), None),
     "table": ((0.4, 4.5), (0.25, 1.4), None),
     "couch": ((0.7, 4.5), (0.3, 1.5), None),
-    "tv": ((0.3, 3.0), (0.15, 2.0), 0.6),
+    "tv": ((0.3, 3.0), (0.15, 2.0), 0.8),  # thickness: a screen on its stand
     "laptop": ((0.2, 0.55), (0.0, 0.5), 0.5),
 }
 

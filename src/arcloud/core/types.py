@@ -198,7 +198,7 @@ class Params:
     layer_min_fraction: float = 0.25
     layer_margin_m: float | None = 0.1
     layer_touch_m: float = 0.15
-    layer_classes: tuple[str, ...] = ("chair", "table", "laptop", "tv")  # a couch is solid and often seen in parts
+    layer_classes: tuple[str, ...] = ("chair", "table", "laptop")  # see core.voxels.front_samples
     # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
