@@ -309,16 +309,16 @@ def finish_objects(
         if refined.keys.size == 0:
             if old is not None:
                 removed.append(old)
-                events.append(ObjectEvent("deleted", map_id, obj.id))
+                events.append(ObjectEvent("deleted", map_id, obj.id, was_confirmed=old.confirmed))
             continue
         version = (old.version if old is not None else 0) + 1
         final = refined.replace(version=version, updated_at_s=now_s, created_at_s=refined.created_at_s or now_s)
         changed.append(final)
-        events.append(ObjectEvent("created" if old is None else "updated", map_id, obj.id, final))
+        events.append(ObjectEvent("created" if old is None else "updated", map_id, obj.id, final, was_confirmed=old is not None and old.confirmed))
     for absorbed_id, keeper_id in absorbed_into.items():
         if absorbed_id in before:
             removed.append(before[absorbed_id])
-            events.append(ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id))
+            events.append(ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id, was_confirmed=before[absorbed_id].confirmed))
     return changed, removed, events
 
 

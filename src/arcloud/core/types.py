@@ -173,13 +173,16 @@ EventKind = Literal["created", "updated", "merged", "deleted"]
 @dataclass(frozen=True, eq=False, slots=True)
 class ObjectEvent:
     """A change to the map. ``object`` is the new state (None for deleted/merged); a merged object
-    names the one it was merged into in ``merged_into``."""
+    names the one it was merged into in ``merged_into``. ``was_confirmed``: whether the object was
+    confirmed (served) before this change, so that a listener to the served map can tell an object
+    leaving it from one it never had."""
 
     kind: EventKind
     map_id: str
     object_id: int
     object: MapObject | None = None
     merged_into: int | None = None
+    was_confirmed: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,20 +9,13 @@ be published and are logged):
                                                             ``?include=tentative``, every object
     arcloud/<map_id>/frames/<device_id>              PUT    ``arcloud.v1.Frame`` (optional ingest path)
 
-Each event goes to exactly one key. The served key space carries every state of a confirmed object, the
-state that takes one out of the served map (its first tentative state: ``Object.status`` TENTATIVE),
-and every MERGED and DELETED event; the tentative key space carries the other tentative states. A
+Each event goes to exactly one key. The served key space carries every state of a confirmed object
+and every change that takes one out of the served map (its first tentative state: ``Object.status``
+TENTATIVE; MERGED or DELETED of an object that was served: the step's events say whether the object
+was confirmed before, ``ObjectEvent.was_confirmed``); the tentative key space carries the rest. A
 viewer of the served map subscribes to ``arcloud/<map_id>/objects/*`` and drops an object on a
 tentative state, MERGED or DELETED; one that wants every object subscribes to
 ``arcloud/<map_id>/objects/**`` (one subscriber: events arrive in the order they were published).
-
-The step's events carry an object's new state, not its previous one, so the publisher remembers the
-version and status it last published of each object (``ServedRouter``). When the state before a
-tentative one is not the one it remembers (another worker process published states in between, or it
-never saw the object), it cannot tell whether the object was served, and publishes the tentative state
-on the served key space: a viewer is never left with an object that is no longer served, at the cost
-of removals of objects it never had. With one publisher (the embedded service) every tentative state
-is placed exactly.
 
 Sessions: the API's session runs in peer mode (``listen`` and/or ``connect`` endpoints, e.g.
 ``tcp/127.0.0.1:7447``) or connects to a router. Multicast scouting is off by default: a deployment
@@ -109,38 +102,31 @@ _GONE = sys.maxsize  # the version remembered for a merged or deleted object: no
 
 
 class ServedRouter:
-    """Decides where each event goes (see the module docstring) from what was last published of its
-    object: that state's version and whether it was served. Remembers the ``max_objects`` objects
-    published most recently. Not thread-safe: the publisher routes and puts under one lock, so that
-    events leave in the order they were routed.
+    """Decides where each event goes (see the module docstring), and drops a state that is not newer
+    than one already published of its object (two worker threads' events of one object can come out
+    of order: the older is dropped, so that a viewer never goes back). Remembers the versions of the
+    ``max_objects`` objects published most recently. Not thread-safe: the publisher routes and puts
+    under one lock, so that events leave in the order they were routed.
 
-    ``route(event)``: ``"served"``, ``"tentative"``, or None for a state not newer than one already
-    published (two worker threads' events of one object can come out of order: the older is dropped,
-    so that a viewer never goes back)."""
+    ``route(event)``: ``"served"``, ``"tentative"``, or None for a state to drop."""
 
     def __init__(self, max_objects: int = 100_000) -> None:
         self.max_objects = max_objects
-        self._last: OrderedDict[tuple[str, int], tuple[int, bool]] = OrderedDict()  # -> (version, served)
+        self._last: OrderedDict[tuple[str, int], int] = OrderedDict()  # -> version last published
 
     def route(self, event: ObjectEvent) -> Route | None:
         key = (event.map_id, int(event.object_id))
-        last = self._last.get(key)
         if event.object is None:  # merged or deleted: whoever had it is told
-            self._remember(key, (_GONE, False))
-            return "served"
-        version, confirmed = int(event.object.version), bool(event.object.confirmed)
-        if last is not None and version <= last[0]:
+            self._remember(key, _GONE)
+            return "served" if event.was_confirmed else "tentative"
+        version = int(event.object.version)
+        last = self._last.get(key)
+        if last is not None and version <= last:
             return None
-        self._remember(key, (version, confirmed))
-        if confirmed:
-            return "served"
-        if event.kind == "created":
-            return "tentative"
-        if last is None or last[0] != version - 1:
-            return "served"  # the state before was published elsewhere: it may have been served
-        return "served" if last[1] else "tentative"
+        self._remember(key, version)
+        return "served" if event.object.confirmed or event.was_confirmed else "tentative"
 
-    def _remember(self, key: tuple[str, int], value: tuple[int, bool]) -> None:
+    def _remember(self, key: tuple[str, int], value: int) -> None:
         self._last[key] = value
         self._last.move_to_end(key)
         while len(self._last) > self.max_objects:
