@@ -52,37 +52,41 @@ def height_bin(height_m: float, params: Params) -> int:
     return int(math.floor(height_m / params.floor_bin_m))
 
 
-def upward_samples(frame: Frame, params: Params) -> np.ndarray:
-    """(N, 3) gravity coordinates (ground x, y and height) of the frame's depth samples on surfaces
-    that face up (a floor, a seat, a table top)."""
+def upward_heights(frame: Frame, params: Params) -> np.ndarray:
+    """(N,) heights (metres along up) of the frame's depth samples on surfaces that face up (a floor, a
+    seat, a table top): normals from neighbouring samples, within ``floor_max_tilt_deg`` of up. Worked
+    out in the camera frame, where up is ``cam2world``'s rotation applied backwards."""
     stride = max(1, frame.depth_m.shape[1] // FLOOR_GRID_COLUMNS)
-    depth = frame.depth_m[::stride, ::stride].astype(np.float64)
-    rows, cols = depth.shape
-    v, u = np.mgrid[0:rows, 0:cols] * stride
+    z = frame.depth_m[::stride, ::stride].astype(np.float64)
+    rows, cols = z.shape
     intr = frame.intrinsics
-    points = np.stack(((u - intr.cx) * depth / intr.fx, (v - intr.cy) * depth / intr.fy, depth), axis=-1)
-    gravity = points @ (world2gravity(params.up) @ frame.cam2world[:3, :3]).T
-    gravity += world2gravity(params.up) @ frame.cam2world[:3, 3]
-    valid = (depth >= params.depth_min_m) & (depth <= params.depth_max_m)
+    x = (np.arange(cols) * stride - intr.cx)[None, :] / intr.fx * z
+    y = (np.arange(rows) * stride - intr.cy)[:, None] / intr.fy * z
+    up_world = world2gravity(params.up)[2]
+    up_cam = frame.cam2world[:3, :3].T @ up_world
+    valid = (z >= params.depth_min_m) & (z <= params.depth_max_m)
     inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
-    ax, ay, az = (gravity[1:-1, 2:, k] - gravity[1:-1, :-2, k] for k in range(3))  # along the row
-    dx, dy, dz = (gravity[2:, 1:-1, k] - gravity[:-2, 1:-1, k] for k in range(3))  # down the column
+    ax, ay, az = (c[1:-1, 2:] - c[1:-1, :-2] for c in (x, y, z))  # along the row
+    dx, dy, dz = (c[2:, 1:-1] - c[:-2, 1:-1] for c in (x, y, z))  # down the column
     nx, ny, nz = ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx  # the surface normal
-    squared = nx * nx + ny * ny + nz * nz
+    along_up = nx * up_cam[0] + ny * up_cam[1] + nz * up_cam[2]
     cos_tilt = math.cos(math.radians(params.floor_max_tilt_deg))
-    facing_up = inner & (squared > 0) & (nz * nz >= cos_tilt * cos_tilt * squared)
-    return gravity[1:-1, 1:-1][facing_up]
+    facing_up = inner & (along_up * along_up >= cos_tilt * cos_tilt * (nx * nx + ny * ny + nz * nz)) & (along_up != 0)
+    heights = x[1:-1, 1:-1] * up_cam[0] + y[1:-1, 1:-1] * up_cam[1] + z[1:-1, 1:-1] * up_cam[2]
+    return heights[facing_up] + float(frame.cam2world[:3, 3] @ up_world)
 
 
 def frame_floor(frame: Frame, params: Params) -> FrameFloor:
     """The floor this frame sees (see the module docstring)."""
     rotation = world2gravity(params.up)
-    heights = upward_samples(frame, params)[:, 2]
-    camera_height = float((rotation @ frame.cam2world[:3, 3])[2])
+    heights = upward_heights(frame, params)
+    camera_height = float(frame.cam2world[:3, 3] @ rotation[2])
     floor = None
     if heights.size:
-        values, counts = np.unique(np.floor(heights / params.floor_bin_m).astype(np.int64), return_counts=True)
-        centres = (values + 0.5) * params.floor_bin_m
+        bins = np.floor(heights / params.floor_bin_m).astype(np.int64)
+        lowest = int(bins.min())
+        counts = np.bincount(bins - lowest)
+        centres = (np.arange(counts.size) + lowest + 0.5) * params.floor_bin_m
         dense = (counts >= params.floor_min_samples) & (counts >= params.floor_min_share * heights.size)
         dense &= camera_height - centres >= params.floor_min_below_camera_m
         if dense.any():
