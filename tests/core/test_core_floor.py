@@ -63,8 +63,8 @@ def test_thin_legs_are_kept_in_the_box():
     # A table: a 4 cm top at 0.72 m on four 5 cm legs, seen from around; floor reaching turned off, so
     # only the legs' own voxels can take the box down to the floor. (These 80 x 60 frames see a leg 2 px
     # wide, as a VGA frame sees it 10 px wide: no erosion, which would take all of it here.)
-    top = ((-0.6, -0.4, 0.72), (0.6, 0.4, 0.76))
-    legs = [((x - 0.025, y - 0.025, 0.0), (x + 0.025, y + 0.025, 0.72)) for x in (-0.55, 0.55) for y in (-0.35, 0.35)]
+    top = ((-0.58, -0.38, 0.72), (0.58, 0.38, 0.76))
+    legs = [((x - 0.025, y - 0.025, 0.0), (x + 0.025, y + 0.025, 0.72)) for x in (-0.53, 0.53) for y in (-0.33, 0.33)]
     store = MemoryStore()
     params = PARAMS.replace(floor_standing=(), erode_px=0)
     for frame, detections in walk_around([top, *legs], [("table", lambda inst: inst >= 0)], n=12, radius=2.2, height=1.4):
