@@ -73,17 +73,19 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
 
 def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     """Centres (M, 2) of the outermost ground cells under points (N, 2): per grid column, the cells at
-    the lowest and highest row. Their convex hull is the footprint's; M is at most twice the columns."""
+    the lowest and highest row (by column). Their convex hull is the footprint's; M is at most twice the
+    columns."""
     cells = np.floor(xy / voxel_size_m).astype(np.int64)
-    order = np.lexsort((cells[:, 1], cells[:, 0]))
-    cells = cells[order]
-    first = np.empty(len(cells), bool)  # the first cell of each column (the lowest row)
-    first[0] = True
-    np.not_equal(cells[1:, 0], cells[:-1, 0], out=first[1:])
-    last = np.empty_like(first)  # the last cell of each column (the highest row)
-    last[-1] = True
-    last[:-1] = first[1:]
-    outline = np.concatenate([cells[first], cells[last]])
+    first_col = int(cells[:, 0].min())
+    column = cells[:, 0] - first_col
+    n_cols = int(column.max()) + 1
+    lowest = np.full(n_cols, np.iinfo(np.int64).max)
+    highest = np.full(n_cols, np.iinfo(np.int64).min)
+    np.minimum.at(lowest, column, cells[:, 1])
+    np.maximum.at(highest, column, cells[:, 1])
+    present = np.flatnonzero(highest >= lowest)
+    cols = present + first_col
+    outline = np.concatenate([np.column_stack((cols, lowest[present])), np.column_stack((cols, highest[present]))])
     return (outline + 0.5) * voxel_size_m
 
 

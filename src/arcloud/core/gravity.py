@@ -19,7 +19,12 @@ def world2gravity(up: np.ndarray | tuple[float, ...]) -> np.ndarray:
 
 def is_vertical(up: np.ndarray | tuple[float, ...]) -> bool:
     """Whether ``up`` needs no rotation (its world2gravity is the identity)."""
-    return bool(np.array_equal(world2gravity(up), np.eye(3)))
+    return _is_vertical(tuple(float(x) for x in np.asarray(up).ravel()))
+
+
+@functools.lru_cache(maxsize=16)
+def _is_vertical(up_xyz: tuple[float, ...]) -> bool:
+    return bool(np.array_equal(_up_rotation(up_xyz), np.eye(3)))
 
 
 @functools.lru_cache(maxsize=16)
