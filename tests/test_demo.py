@@ -21,8 +21,10 @@ def test_demo_writes_table1_results_and_pictures(tmp_path, capsys):
     assert results["scene"]["frames"] == 40 and results["scene"]["objects"] > 0
     for name in results["pictures"].values():
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    served = results["served"]["centralized_1"]
+    assert served["n_served"] <= served["n_objects"] and 0.0 <= served["served_precision25"] <= 1.0
     printed = capsys.readouterr().out
-    assert "centralized" in printed and "results.json" in printed
+    assert "centralized" in printed and "results.json" in printed and "served (confirmed)" in printed
 
 
 def test_demo_refuses_bad_arguments(capsys):
