@@ -75,3 +75,53 @@ def test_seven_scenes_gravity_makes_floor_and_table_horizontal(shared: type) -> 
     # a horizontal surface (the table top, about 0.7 m above the floor) makes a sharp peak in height
     assert counts.max() > 4 * np.median(counts)
     assert 0.5 < peak - np.percentile(heights, 1) < 0.9
+
+
+def test_seven_scenes_ground_truth_frame(shared: type) -> None:
+    """gt-boxes.json's aligned frame is z-up like the loader's gravity-aligned world, and its table
+    stands on the floor (z = 0) under the table top seen in the frames."""
+    sequence = load_seven_scenes(shared.path("data/7scenes-redkitchen/gt-boxes.json").parent, align_gravity=True)
+    truth = sequence.ground_truth
+    assert truth is not None and len(truth.objects) == 9
+    assert sorted(o.label for o in truth.objects) == ["chair"] * 6 + ["table"] + ["tv"] * 2
+    world2gt = sequence.world2gt
+    assert (world2gt[:3, :3] @ [0, 0, 1])[2] > np.cos(np.radians(2.0))  # gravity-direction.txt and the file agree within 2 degrees
+    (table,) = (o for o in truth.objects if o.label == "table")
+    assert table.observed.min[2] < 0.05 and 0.7 < table.observed.max[2] < 0.8
+    heights = np.concatenate([_backproject(sequence.load_frame(n), step=8) for n in sequence.frame_names[::100]])
+    heights = heights @ world2gt[:3, :3].T + world2gt[:3, 3]
+    over_table = np.all((heights[:, :2] > table.observed.min[:2] + 0.2) & (heights[:, :2] < table.observed.max[:2] - 0.2), axis=1)
+    assert np.median(heights[over_table, 2]) == pytest.approx(table.observed.max[2], abs=0.05)
+
+
+@pytest.mark.slow
+def test_eval_7scenes_exports_rescored_independently(shared: type, tmp_path) -> None:
+    """``arcloud eval 7scenes`` on every 20th frame with the real model: its exports, carried through
+    ``world_from_export`` and the ground truth's ``world_to_aligned`` by an independent scorer, give the
+    command's mAP, precision and recall against the observed boxes."""
+    import argparse
+
+    from test_datasets_cli import rescore_export
+
+    from arcloud.datasets.cli import add_eval_commands
+
+    root = shared.path("data/7scenes-redkitchen/gt-boxes.json").parent
+    model = shared.path("models/yolov8n-seg-fp32-640.onnx")
+    parser = argparse.ArgumentParser(prog="arcloud")
+    add_eval_commands(parser.add_subparsers(dest="command", required=True))
+    out = tmp_path / "seven.json"
+    args = parser.parse_args(["eval", "7scenes", "--root", str(root), "--detector", f"onnx:{model}", "--users", "1,10", "--runs", "1",
+                              "--stride", "20", "--out", str(out), "--export", str(tmp_path / "exp"), "--no-progress", "--workers", "2"])  # fmt: skip
+    assert args.handler(args) == 0
+    results = json.loads(out.read_text())
+    gt_file = json.loads((root / "gt-boxes.json").read_text())
+    rows = [r for r in results["accuracy"] if r["boxes"] == "observed"]
+    assert [(r["users"], r["runs"], r["n_gt"]) for r in rows] == [(1, 1, 9), (10, 1, 9)]
+    for row in rows:
+        export = json.loads((tmp_path / "exp" / f"{results['sequence']}_{row['users']}_0.json").read_text())
+        np.testing.assert_allclose(np.asarray(export["world_from_export"]) @ gt_file["gravity_aligned"]["world_to_aligned"], np.eye(4), atol=1e-9)
+        at25, at50 = rescore_export(export, gt_file, 0.25), rescore_export(export, gt_file, 0.5)
+        assert at25["map"] == pytest.approx(row["map25_mean"], abs=0.01) and at50["map"] == pytest.approx(row["map50_mean"], abs=0.01)
+        assert at25["precision"] == pytest.approx(row["served_precision25"], abs=0.01)
+        assert at25["recall"] == pytest.approx(row["served_recall25"], abs=0.01)
+    assert rows[0]["map25_mean"] > 0.0  # something matched: the agreement is not of two zeros

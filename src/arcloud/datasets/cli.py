@@ -8,8 +8,13 @@ the CLI's edge). Results are JSON::
                  "map25_mean": .., "map25_var": .., "map50_mean": .., "map50_var": ..}, ...], ...}
 
 ScanNet: mAP against the scenes' ground truth, predictions pooled across scenes (the standard ScanNet
-evaluation). 7-Scenes has no 3D ground truth: ``agreement`` rows hold the mAP of each distributed map
-taken against the centralized map as ground truth, and pictures are written next to ``--out``.
+evaluation). 7-Scenes: ``agreement`` rows hold the mAP of each distributed map taken against the
+centralized map as ground truth; with ``gt-boxes.json`` in the sequence folder, boxes are fitted in its
+aligned frame and ``accuracy`` rows score every run against its observed and amodal boxes. Pictures are
+written next to ``--out``.
+
+Every exported map (``--export``) declares its frame: ``"world_from_export"`` (4x4, row-major) maps its
+coordinates to the dataset's pose frame, and ``"frame"`` says which frame that is in words.
 """
 
 from __future__ import annotations
@@ -20,15 +25,23 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from arcloud.core.types import CLASSES, Frame, MapObject, Params
 from arcloud.errors import DatasetError
 from arcloud.ports import Detector
+
+if TYPE_CHECKING:
+    from arcloud.datasets.scannet import ScanNetScene
+    from arcloud.datasets.sevenscenes import SevenScenesGroundTruth, SevenScenesSequence
+    from arcloud.eval.metrics import Box3D
+
+OnRun = Callable[[str, int, int, list[MapObject]], None]
 
 logger = logging.getLogger(__name__)
 
@@ -94,6 +107,57 @@ def objects_json(objects: Sequence[MapObject]) -> list[dict[str, object]]:
     ]
 
 
+@dataclass(frozen=True, eq=False)
+class ExportFrame:
+    """The frame a dataset's maps are boxed and exported in.
+
+    description: the frame in words. world2export: (4, 4) maps the map's world to it, for
+    ``Params.world2aligned`` (None: the map's world itself). export2pose: (4, 4) maps it to the
+    dataset's pose frame (the frame of its pose files), written as ``world_from_export``."""
+
+    description: str
+    export2pose: np.ndarray
+    world2export: np.ndarray | None = None
+
+    def params(self, params: Params) -> Params:
+        """``params`` fitting boxes in this frame."""
+        if self.world2export is None:
+            return params
+        return params.replace(world2aligned=tuple(tuple(float(v) for v in row) for row in self.world2export))
+
+
+def scannet_export_frame(scene: ScanNetScene) -> ExportFrame:
+    """ScanNet maps are built in the scene's aligned frame (the reader aligns the poses)."""
+    return ExportFrame("ScanNet axis-aligned frame (axisAlignment applied to the scan frame)", np.linalg.inv(scene.scan2aligned))
+
+
+def seven_scenes_export_frame(sequence: SevenScenesSequence) -> ExportFrame:
+    """With ground truth, its aligned frame (the sequence's declared evaluation frame, as ScanNet's
+    axisAlignment is); without, the sequence's (gravity-aligned) world."""
+    if sequence.ground_truth is not None:
+        return ExportFrame(
+            f"{sequence.ground_truth.path.name} aligned frame (gravity_aligned.world_to_aligned: z up, floor at z = 0, x along the walls)",
+            np.linalg.inv(sequence.ground_truth.file2aligned),
+            sequence.world2gt,
+        )  # fmt: skip
+    if np.allclose(sequence.world2file, np.eye(4)):
+        return ExportFrame("7-Scenes pose frame", sequence.world2file)
+    return ExportFrame("gravity-aligned world (the pose frame turned by the smallest rotation that takes up to +z)", sequence.world2file)
+
+
+def export_payload(objects: Sequence[MapObject], frame: ExportFrame, **facts: object) -> dict[str, object]:
+    """An exported map: ``facts`` (scene, users, run...), the frame (``frame`` in words,
+    ``world_from_export``), the served objects (``MapObject.confirmed``) under ``objects`` and the
+    tentative ones under ``tentative`` (both as ``objects_json``)."""
+    return {
+        **facts,
+        "frame": frame.description,
+        "world_from_export": [[float(v) for v in row] for row in frame.export2pose],
+        "objects": objects_json([o for o in objects if o.confirmed]),
+        "tentative": objects_json([o for o in objects if not o.confirmed]),
+    }
+
+
 def _row(approach: str, users: int, scores25: list[float], scores50: list[float], wall_s: float) -> dict[str, object]:
     return {
         "approach": approach,
@@ -117,7 +181,7 @@ class _RunCollector:
     """Collects the runs of ``arcloud.eval.protocol.table1`` through its ``on_run``: each run's boxes,
     its wall time (since the previous run of the same sequence ended), and the first map of each K."""
 
-    def __init__(self, on_run: Callable[[str, int, int, list[MapObject]], None] | None) -> None:
+    def __init__(self, on_run: OnRun | None) -> None:
         self.on_run = on_run
         self.boxes: dict[tuple[int, int], dict[str, list[Any]]] = {}
         self.wall_s: dict[int, float] = {}
@@ -173,7 +237,7 @@ def evaluate_scenes(
     runs: int,
     seed: int = 0,
     workers: int = 1,
-    on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
+    on_run: OnRun | None = None,
     progress: bool = False,
 ) -> dict[str, object]:
     """Table 1 over several scenes ``(name, frames, detector, gt_boxes)``: each scene's runs come from
@@ -200,16 +264,29 @@ def evaluate_scenes(
     return out
 
 
-def _export(export_dir: Path | None) -> Callable[[str, int, int, list[MapObject]], None] | None:
+def _export(export_dir: Path | None, frames: Mapping[str, ExportFrame]) -> OnRun | None:
+    """Writes every run's map as ``<export_dir>/<scene>_<users>_<run>.json`` (``export_payload``)."""
     if export_dir is None:
         return None
     export_dir.mkdir(parents=True, exist_ok=True)
 
     def write(scene: str, users: int, run: int, objects: list[MapObject]) -> None:
-        payload = {"scene": scene, "users": users, "run": run, "objects": objects_json(objects)}
+        payload = export_payload(objects, frames[scene], scene=scene, users=users, run=run)
         (export_dir / f"{scene}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
 
     return write
+
+
+def _each(*callbacks: OnRun | None) -> OnRun | None:
+    chosen = [c for c in callbacks if c is not None]
+    if not chosen:
+        return None
+
+    def call(scene: str, users: int, run: int, objects: list[MapObject]) -> None:
+        for callback in chosen:
+            callback(scene, users, run, objects)
+
+    return call
 
 
 def _workers(value: int | None) -> int:
@@ -239,7 +316,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     if args.axis_alignment and len(scene_dirs) != 1:
         raise DatasetError(f"--axis-alignment: expected one scene, got {len(scene_dirs)}")
     shared_detector = None if args.detector == GT_MASKS else _make_detector(args.detector)
-    entries, frame_counts = [], {}
+    entries, frame_counts, export_frames = [], {}, {}
     for scene_dir in scene_dirs:
         scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
         names = scene.frame_names[:: args.stride]
@@ -247,12 +324,13 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         detector = GroundTruthMaskDetector(scene) if shared_detector is None else shared_detector
         entries.append((scene.scene_id, frames, detector, scene.gt_boxes()))
         frame_counts[scene.scene_id] = len(names)
+        export_frames[scene.scene_id] = scannet_export_frame(scene)
         if not scene.objects:
             logger.warning("scene %s has no ground truth of our classes", scene.scene_id)
     export_dir = Path(args.export) if args.export else None
     result = evaluate_scenes(
         entries, _params(args), users=args.users, runs=args.runs, seed=args.seed,
-        workers=_workers(args.workers), on_run=_export(export_dir), progress=not args.no_progress,
+        workers=_workers(args.workers), on_run=_export(export_dir, export_frames), progress=not args.no_progress,
     )  # fmt: skip
     out = {
         **result,
@@ -292,12 +370,11 @@ def agreement(
     seed: int = 0,
     workers: int = 1,
     progress: bool = False,
-    on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
+    on_run: OnRun | None = None,
     reference_min_score: float = 0.0,
 ) -> tuple[list[dict[str, object]], list[MapObject], dict[int, list[MapObject]]]:
-    """Without ground truth: the runs of ``table1``, each distributed map scored (mAP) against the
-    centralized boxes (those scoring at least ``reference_min_score``) as ground truth. Returns one row
-    per K > 1 (``approach`` "distributed", plus ``ap25_per_class``: each class's AP@0.25 averaged over
+    """The runs of ``table1``, each distributed map scored (mAP) against the centralized boxes (those
+    scoring at least ``reference_min_score``) as ground truth. Returns one row per K > 1 (``approach`` "distributed", plus ``ap25_per_class``: each class's AP@0.25 averaged over
     runs, None without reference boxes), the centralized objects and the first run's objects per K."""
     from arcloud.eval.metrics import evaluate
 
@@ -328,49 +405,106 @@ def write_pictures(
     *,
     title: str = "",
     n_frames: int = 4,
+    gt: Sequence[Box3D] = (),
+    world2boxes: np.ndarray | None = None,
 ) -> list[str]:
     """Top-down pictures (boxes over fused points) of the centralized and first distributed maps, and
-    the centralized boxes drawn into ``n_frames`` frames spread over the sequence. Returns the paths."""
-    from arcloud.eval.plot import draw_boxes_in_image, draw_top_down, write_png
+    the centralized boxes drawn into ``n_frames`` frames spread over the sequence; ground-truth boxes
+    ``gt`` in green in all of them. ``world2boxes`` (4, 4) maps the world of the frames to the frame
+    the boxes are in (``Params.world2aligned``; None: the world). Returns the paths."""
+    from arcloud.eval.plot import GT_COLOR_RGB, draw_boxes_in_image, draw_top_down, write_png
     from arcloud.eval.protocol import object_boxes
 
-    points = fused_points(frames)
+    world2boxes = np.eye(4) if world2boxes is None else np.asarray(world2boxes, np.float64)
+    points = fused_points(frames) @ world2boxes[:3, :3].T + world2boxes[:3, 3]
     written = [
-        draw_top_down(f"{stem}_topdown_users1.png", predictions=object_boxes(centralized), points_xyz=points,
+        draw_top_down(f"{stem}_topdown_users1.png", gt=gt, predictions=object_boxes(centralized), points_xyz=points,
                       title=f"{title or stem.name}: centralized, {len(frames)} frames")
     ]  # fmt: skip
     for k, objects in sorted(first_runs.items()):
         written.append(
-            draw_top_down(f"{stem}_topdown_users{k}.png", predictions=object_boxes(objects), points_xyz=points,
+            draw_top_down(f"{stem}_topdown_users{k}.png", gt=gt, predictions=object_boxes(objects), points_xyz=points,
                           title=f"{title or stem.name}: {k} users, run 0")
         )  # fmt: skip
     boxes = object_boxes(centralized)
     for index in np.linspace(0, len(frames) - 1, n_frames).round().astype(int) if len(frames) else []:
         frame = frames[int(index)]
-        image = draw_boxes_in_image(frame.rgb, boxes, frame.cam2world, frame.intrinsics)
+        cam2boxes = world2boxes @ frame.cam2world
+        image = draw_boxes_in_image(frame.rgb, gt, cam2boxes, frame.intrinsics, color_rgb=GT_COLOR_RGB, show_labels=False)
+        image = draw_boxes_in_image(image, boxes, cam2boxes, frame.intrinsics)
         written.append(write_png(f"{stem}_frame_{frame.frame_id}.png", image))
     return [str(p) for p in written]
 
 
+def accuracy_rows(scores: Mapping[int, Sequence[Mapping[str, Mapping[str, Any]]]]) -> list[dict[str, object]]:
+    """Rows of the runs' figures against ground truth: ``scores[K]`` holds each run's
+    ``arcloud.accuracy.sevenscenes.score_against`` (``score_run`` figures per box kind). One row per K
+    and box kind: mean and variance over runs of mAP, and the means of the served set's precision and
+    recall at IoU 0.25 and 0.5 (a missing figure, e.g. recall without ground truth, reads as NaN)."""
+    rows: list[dict[str, object]] = []
+    for k, runs in sorted(scores.items()):
+        for kind in runs[0]:
+            figures = [run[kind] for run in runs]
+            values = {key: [float("nan") if f[key] is None else float(f[key]) for f in figures] for key in ("map25", "map50", *_SERVED_FIGURES)}
+            rows.append({
+                "approach": "centralized" if k == 1 else "distributed",
+                "users": k,
+                "runs": len(figures),
+                "boxes": kind,
+                "map25_mean": float(np.mean(values["map25"])),
+                "map25_var": float(np.var(values["map25"])),
+                "map50_mean": float(np.mean(values["map50"])),
+                "map50_var": float(np.var(values["map50"])),
+                **{key: float(np.mean(values[key])) for key in _SERVED_FIGURES},
+                "n_gt": figures[0]["n_gt"],
+                "n_served_mean": float(np.mean([f["n_served"] for f in figures])),
+            })  # fmt: skip
+    return rows
+
+
+_SERVED_FIGURES = ("served_precision25", "served_recall25", "served_precision50", "served_recall50")
+
+
+def _scorer(ground_truth: SevenScenesGroundTruth | None, scores: dict[int, list[dict[str, dict[str, Any]]]]) -> OnRun | None:
+    """Appends each run's ``score_against`` to ``scores[K]`` (None without ground truth)."""
+    if ground_truth is None:
+        return None
+    from arcloud.accuracy.sevenscenes import score_against
+
+    def score(scene: str, users: int, run: int, objects: list[MapObject]) -> None:
+        scores.setdefault(users, []).append(score_against(objects, ground_truth, scene=scene))
+
+    return score
+
+
 def run_eval_7scenes(args: argparse.Namespace) -> int:
-    """``arcloud eval 7scenes``: agreement of distributed maps with the centralized one, and pictures."""
+    """``arcloud eval 7scenes``: agreement of distributed maps with the centralized one, accuracy against
+    ``gt-boxes.json`` when the sequence has it, and pictures."""
     from arcloud.datasets.sevenscenes import load_seven_scenes
 
     started = time.perf_counter()
     sequence = load_seven_scenes(args.root, align_gravity=True)
+    ground_truth = sequence.ground_truth
     names = sequence.frame_names[:: args.stride]
     frames = LazyFrames(names, sequence.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
     out_path = Path(args.out)
     export_dir = Path(args.export) if args.export else None
+    frame = seven_scenes_export_frame(sequence)
+    scores: dict[int, list[dict[str, dict[str, Any]]]] = {}
     rows, centralized, first_runs = agreement(
-        frames, _make_detector(args.detector), _params(args), name=sequence.name, users=args.users,
+        frames, _make_detector(args.detector), frame.params(_params(args)), name=sequence.name, users=args.users,
         runs=args.runs, seed=args.seed, workers=_workers(args.workers), progress=not args.no_progress,
-        on_run=_export(export_dir), reference_min_score=args.reference_min_score,
+        on_run=_each(_export(export_dir, {sequence.name: frame}), _scorer(ground_truth, scores)),
+        reference_min_score=args.reference_min_score,
     )  # fmt: skip
     stem = out_path.with_suffix("")
-    pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name)
-    out = {
-        "agreement": rows,
+    gt_boxes = ground_truth.boxes("observed") if ground_truth is not None else []
+    pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name, gt=gt_boxes, world2boxes=frame.world2export)
+    out: dict[str, object] = {"agreement": rows}
+    if ground_truth is not None:
+        out["accuracy"] = accuracy_rows(scores)
+        out["ground_truth"] = {"file": str(ground_truth.path), "objects": [o.id for o in ground_truth.objects], "primary": "observed"}
+    out |= {
         "dataset": "7scenes",
         "detector": args.detector,
         "sequence": sequence.name,
@@ -378,6 +512,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
         "stride": args.stride,
         "seed": args.seed,
         "gravity_aligned": sequence.up_file is not None,
+        "frame": frame.description,
         "reference_min_score": args.reference_min_score,
         "centralized_objects": [
             {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}  # type: ignore[arg-type]
@@ -388,6 +523,8 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
     }
     _write_json(out_path, out)
     _print_table(rows)
+    if ground_truth is not None:
+        _print_accuracy(out["accuracy"])  # type: ignore[arg-type]
     return 0
 
 
@@ -419,13 +556,22 @@ def _print_table(rows: Sequence[dict[str, Any]]) -> None:
         print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {map25:>16} {map50:>16} {r['wall_s']:>8}")
 
 
+def _print_accuracy(rows: Sequence[dict[str, Any]]) -> None:
+    print(f"{'approach':<12} {'users':>5} {'runs':>4} {'boxes':>8} {'mAP@0.25':>16} {'mAP@0.5':>16} {'P@0.25':>7} {'R@0.25':>7}")
+    for r in rows:
+        map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
+        map50 = f"{r['map50_mean']:.4f}±{np.sqrt(r['map50_var']):.4f}"
+        print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {r['boxes']:>8} {map25:>16} {map50:>16} "
+              f"{r['served_precision25']:>7.3f} {r['served_recall25']:>7.3f}")  # fmt: skip
+
+
 def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
     from arcloud.argtypes import parse_users, positive_int
 
     parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
     parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
     parser.add_argument("--out", required=True, help="results JSON to write")
-    parser.add_argument("--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json")
+    parser.add_argument("--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json (with world_from_export)")
     parser.add_argument("--stride", type=positive_int, default=1, help="use every N-th frame (default 1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=0, help="worker threads of distributed runs (default: CPU count)")
@@ -455,7 +601,8 @@ def add_eval_commands(subparsers: Any) -> Any:
 
     seven = kinds.add_parser(
         "7scenes",
-        help="agreement of distributed maps with the centralized map on a 7-Scenes sequence, and pictures",
+        help="accuracy against gt-boxes.json (when the sequence has it), agreement of distributed maps with "
+        "the centralized map, and pictures, on a 7-Scenes sequence",
     )
     seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
     seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
@@ -487,12 +634,17 @@ def add_eval_commands(subparsers: Any) -> Any:
 
 
 __all__ = [
+    "ExportFrame",
     "LazyFrames",
+    "accuracy_rows",
     "add_eval_commands",
     "agreement",
     "evaluate_scenes",
+    "export_payload",
     "fused_points",
     "objects_json",
     "parse_scenes",
+    "scannet_export_frame",
+    "seven_scenes_export_frame",
     "write_pictures",
 ]

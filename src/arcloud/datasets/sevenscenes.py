@@ -8,12 +8,18 @@ A scene folder with ``seq-XX`` sub-folders is read as those sequences one after 
 
 7-Scenes worlds are not z-up: with ``align_gravity=True`` the poses are rotated (the smallest rotation,
 ``arcloud.core.boxes.up_rotation``) into a world whose +z is up (opposite gravity), so that gravity-aligned boxes are simply boxes in that world.
+
+Optional 3D ground truth, ``gt-boxes.json`` (hand-checked boxes, see ``load_ground_truth``), is parsed into
+``SevenScenesGroundTruth``: boxes in its own *aligned* frame (z up, floor at z = 0, x along the walls),
+related to the file's world by ``file2aligned``. The map's world reaches it through
+``SevenScenesSequence.world2gt`` (``file2aligned @ world2file``).
 """
 
 from __future__ import annotations
 
+import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -22,9 +28,10 @@ import numpy as np
 
 from arcloud.core.boxes import up_rotation
 from arcloud.core.checks import make_frame
-from arcloud.core.types import Frame, Intrinsics
+from arcloud.core.types import CLASSES, Frame, Intrinsics
 from arcloud.datasets.files import natural_key, read_matrix, read_png_u16, read_rgb
-from arcloud.errors import DatasetError
+from arcloud.errors import DatasetError, InvalidInput
+from arcloud.eval.metrics import Box3D
 
 logger = logging.getLogger(__name__)
 
@@ -32,6 +39,62 @@ DEFAULT_INTRINSICS = Intrinsics(585.0, 585.0, 320.0, 240.0)
 INVALID_DEPTH_MM = 65535
 FRAME_RATE_HZ = 30.0
 _SUFFIX = ".pose.txt"
+GT_BOXES_FILE = "gt-boxes.json"
+#: The two boxes of every ground-truth object: what the sensor saw (the primary score) and amodal.
+BOX_KINDS = ("observed", "amodal")
+#: How far from orthonormal a file's rotation may be (its numbers are rounded to 4 decimals).
+_GT_ROTATION_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class SevenScenesObject:
+    """One hand-checked object of ``gt-boxes.json``; boxes in the ground truth's aligned frame.
+
+    observed: the box of the depth points the sensor saw (ScanNet's convention for ground truth).
+    amodal: completed (chairs under the table from a fitted template, the table down to the floor).
+    visible_frames: (first, last) frame numbers in which it is visible, inclusive."""
+
+    id: str
+    label: str
+    observed: Box3D
+    amodal: Box3D
+    visible_frames: tuple[int, int]
+    confidence: str
+    uncertainty_m: float | None
+    notes: str
+
+    def box(self, kind: str) -> Box3D:
+        """The ``observed`` or ``amodal`` box."""
+        if kind not in BOX_KINDS:
+            raise InvalidInput("box kind", f"one of {BOX_KINDS}", repr(kind))
+        return self.observed if kind == "observed" else self.amodal
+
+    def visible_within(self, first_frame: int, last_frame: int) -> bool:
+        """Whether its visible range meets the frame numbers ``first_frame..last_frame`` (inclusive)."""
+        return self.visible_frames[0] <= last_frame and first_frame <= self.visible_frames[1]
+
+
+@dataclass(frozen=True, eq=False)
+class SevenScenesGroundTruth:
+    """``gt-boxes.json`` parsed: ``file2aligned`` (4, 4) maps the file's (pose) world to the aligned
+    frame of the boxes (the file's ``gravity_aligned.world_to_aligned``: z up, floor at z = 0, x along
+    the walls); ``objects`` hold the boxes there. ``not_annotated``: things a detector may fire on that
+    are none of our classes; ``method``: how the boxes were made."""
+
+    path: Path
+    file2aligned: np.ndarray
+    objects: tuple[SevenScenesObject, ...]
+    not_annotated: tuple[str, ...]
+    method: str
+
+    def boxes(self, kind: str = "observed", *, frames: tuple[int, int] | None = None) -> list[Box3D]:
+        """The ``kind`` boxes (see ``BOX_KINDS``), of the objects visible within ``frames`` = (first,
+        last) frame numbers when given."""
+        return [o.box(kind) for o in self.objects_within(frames)]
+
+    def objects_within(self, frames: tuple[int, int] | None = None) -> list[SevenScenesObject]:
+        """The objects visible within ``frames`` = (first, last) frame numbers (all when None)."""
+        return [o for o in self.objects if frames is None or o.visible_within(*frames)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,7 +103,8 @@ class SevenScenesSequence:
     file world, or the gravity-aligned one when ``world2file`` is not the identity).
 
     up_file: (3,) unit up (opposite gravity) in the file's world, or None without gravity-direction.txt.
-    world2file: (4, 4) maps output-world points to the file's world (identity unless gravity-aligned)."""
+    world2file: (4, 4) maps output-world points to the file's world (identity unless gravity-aligned).
+    ground_truth: ``gt-boxes.json`` parsed, or None when the folder has none."""
 
     name: str
     root: Path
@@ -52,6 +116,7 @@ class SevenScenesSequence:
     skipped_frames: tuple[str, ...]
     up_file: np.ndarray | None
     world2file: np.ndarray
+    ground_truth: SevenScenesGroundTruth | None = None
     device_id: str = "user-0"
 
     @cached_property
@@ -69,6 +134,19 @@ class SevenScenesSequence:
             return (0.0, 0.0, 1.0)
         up = self.world2file[:3, :3].T @ self.up_file
         return tuple(float(v) for v in up / np.linalg.norm(up))  # type: ignore[return-value]
+
+    @property
+    def world2gt(self) -> np.ndarray | None:
+        """(4, 4) maps output-world points to the ground truth's aligned frame (None without ground truth)."""
+        if self.ground_truth is None:
+            return None
+        return self.ground_truth.file2aligned @ self.world2file
+
+    def frame_number(self, name: str) -> int:
+        """The number in a frame's file name (``frame-000123`` -> 123), as ground truth counts frames."""
+        if name not in self._index:
+            raise DatasetError(f"{self.root}: expected a frame named {name!r} with a valid pose, got none")
+        return int(self.frame_stems[self._index[name]])
 
     def load_frame(self, name: str, *, device_id: str | None = None) -> Frame:
         """The frame ``name``: RGB resized to the depth size if they differ; invalid depth -> 0."""
@@ -109,8 +187,8 @@ def _find_file(root: Path, folders: list[Path], name: str) -> Path | None:
 
 
 def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: str | None = None) -> SevenScenesSequence:
-    """Parse a 7-Scenes sequence (or a scene of ``seq-XX`` folders). Frames whose pose is not finite
-    are skipped with a logged count."""
+    """Parse a 7-Scenes sequence (or a scene of ``seq-XX`` folders), with its ``gt-boxes.json`` when the
+    folder has one. Frames whose pose is not finite are skipped with a logged count."""
     base = Path(root)
     if not base.is_dir():
         raise DatasetError(f"{base}: expected a 7-Scenes folder, got no such folder")
@@ -153,6 +231,8 @@ def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: st
         world2file[:3, :3] = up_rotation(up_file).T  # up_rotation takes up to +z: file -> world
     cam2file = np.asarray(poses)
     cam2world = np.einsum("ij,njk->nik", np.linalg.inv(world2file), cam2file)
+    gt_path = base / GT_BOXES_FILE
+    ground_truth = load_ground_truth(gt_path) if gt_path.is_file() else None
     return SevenScenesSequence(
         name=name or base.name,
         root=base,
@@ -164,7 +244,107 @@ def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: st
         skipped_frames=tuple(skipped),
         up_file=up_file,
         world2file=world2file,
+        ground_truth=ground_truth,
     )
 
 
-__all__ = ["DEFAULT_INTRINSICS", "SevenScenesSequence", "load_seven_scenes"]
+def load_ground_truth(path: str | Path) -> SevenScenesGroundTruth:
+    """Parse ``gt-boxes.json``: ``gravity_aligned.world_to_aligned`` (4x4, rigid) and, per object of
+    ``gravity_aligned.objects``, ``id``, ``label`` (one of ``CLASSES``), ``aabb_observed_min/max`` and
+    ``aabb_min/max`` (the aligned frame), ``visible_frames`` ([first, last]). The top-level ``objects``
+    (boxes in the tilted pose frame, much larger) are not read. Raises ``DatasetError`` naming the
+    field that is missing or malformed."""
+    file = Path(path)
+    try:
+        data = json.loads(file.read_text())
+    except OSError as exc:
+        raise DatasetError(f"{file}: expected a readable ground-truth file, got {exc}") from exc
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{file}: expected JSON, got {exc}") from exc
+    aligned = _field(file, data, "gravity_aligned", Mapping)
+    file2aligned = _rigid(file, "gravity_aligned.world_to_aligned", _field(file, aligned, "world_to_aligned", list, "gravity_aligned."))
+    entries = _field(file, aligned, "objects", list, "gravity_aligned.")
+    if not entries:
+        raise DatasetError(f"{file}: gravity_aligned.objects: expected at least one object, got none")
+    objects = tuple(_ground_truth_object(file, i, entry) for i, entry in enumerate(entries))
+    ids = [o.id for o in objects]
+    if len(set(ids)) != len(ids):
+        raise DatasetError(f"{file}: gravity_aligned.objects: expected distinct ids, got {ids}")
+    not_annotated = tuple(
+        f"{item.get('what', '')} ({item.get('why', '')})" if isinstance(item, Mapping) else str(item)
+        for item in data.get("not_annotated", [])
+    )
+    return SevenScenesGroundTruth(file, file2aligned, objects, not_annotated, str(data.get("method", "")))
+
+
+def _field(file: Path, data: object, key: str, kind: type, prefix: str = "") -> object:
+    if not isinstance(data, Mapping) or key not in data:
+        raise DatasetError(f"{file}: expected a field {prefix}{key}, got none")
+    value = data[key]
+    if not isinstance(value, kind):
+        raise DatasetError(f"{file}: {prefix}{key}: expected a {kind.__name__}, got {type(value).__name__}")
+    return value
+
+
+def _numbers(file: Path, name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DatasetError(f"{file}: {name}: expected finite numbers of shape {shape}, got {value!r}") from exc
+    if array.shape != shape or not np.all(np.isfinite(array)):
+        raise DatasetError(f"{file}: {name}: expected finite numbers of shape {shape}, got {value!r}")
+    return array
+
+
+def _rigid(file: Path, name: str, value: object) -> np.ndarray:
+    matrix = _numbers(file, name, value, (4, 4))
+    rotation = matrix[:3, :3]
+    error, det = float(np.abs(rotation.T @ rotation - np.eye(3)).max()), float(np.linalg.det(rotation))
+    if not np.allclose(matrix[3], (0, 0, 0, 1)) or error > _GT_ROTATION_TOLERANCE or det < 0:
+        raise DatasetError(f"{file}: {name}: expected a rigid transform (rotation, translation, last row 0 0 0 1), "
+                           f"got last row {matrix[3].tolist()}, orthonormality error {error:.2g}, det {det:.3f}")  # fmt: skip
+    return matrix
+
+
+def _ground_truth_object(file: Path, index: int, entry: object) -> SevenScenesObject:
+    where = f"gravity_aligned.objects[{index}]"
+    if not isinstance(entry, Mapping):
+        raise DatasetError(f"{file}: {where}: expected an object, got {type(entry).__name__}")
+    object_id = str(_field(file, entry, "id", str, f"{where}."))
+    where = f"{where} ({object_id})"
+    label = str(_field(file, entry, "label", str, f"{where}."))
+    if label not in CLASSES:
+        raise DatasetError(f"{file}: {where}.label: expected one of {CLASSES}, got {label!r}")
+    boxes = {}
+    for kind, prefix in (("observed", "aabb_observed_"), ("amodal", "aabb_")):
+        lo = _numbers(file, f"{where}.{prefix}min", entry.get(f"{prefix}min"), (3,))
+        hi = _numbers(file, f"{where}.{prefix}max", entry.get(f"{prefix}max"), (3,))
+        if np.any(hi <= lo):
+            raise DatasetError(f"{file}: {where}.{prefix}max: expected above {prefix}min {lo.tolist()}, got {hi.tolist()}")
+        boxes[kind] = Box3D(label, lo, hi)
+    frames = _numbers(file, f"{where}.visible_frames", entry.get("visible_frames"), (2,))
+    if np.any(frames != np.round(frames)) or frames[0] > frames[1] or frames[0] < 0:
+        raise DatasetError(f"{file}: {where}.visible_frames: expected [first, last] frame numbers, got {frames.tolist()}")
+    uncertainty = entry.get("uncertainty_m")
+    return SevenScenesObject(
+        id=object_id,
+        label=label,
+        observed=boxes["observed"],
+        amodal=boxes["amodal"],
+        visible_frames=(int(frames[0]), int(frames[1])),
+        confidence=str(entry.get("confidence", "")),
+        uncertainty_m=None if uncertainty is None else float(_numbers(file, f"{where}.uncertainty_m", uncertainty, ())),
+        notes=str(entry.get("notes", "")),
+    )
+
+
+__all__ = [
+    "BOX_KINDS",
+    "DEFAULT_INTRINSICS",
+    "GT_BOXES_FILE",
+    "SevenScenesGroundTruth",
+    "SevenScenesObject",
+    "SevenScenesSequence",
+    "load_ground_truth",
+    "load_seven_scenes",
+]

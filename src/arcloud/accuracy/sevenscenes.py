@@ -1,0 +1,203 @@
+"""The 7-Scenes suite: the real redkitchen sequence (1000 frames, Kinect v1) through the real
+YOLOv8n-seg model, scored against its hand-checked boxes (``gt-boxes.json``: 1 table, 6 chairs, 2 TVs).
+
+Boxes are fitted and scored in the ground truth's aligned frame (z up, floor at z = 0, x along the
+walls): ``Params.world2aligned`` is the sequence's ``world2gt``, as ScanNet scores in its axis-aligned
+frame. Every run is scored twice with ``arcloud.accuracy.common.score_run``: against the *observed*
+boxes (what the sensor saw, ScanNet's convention: the primary figures of the record) and against the
+*amodal* ones (chairs completed under the table, the table down to the floor: ``amodal`` beside them).
+
+Cases: the whole sequence (``report``) and its two halves, frames 0-499 and 500-999 (``tune``), each
+scored against the objects visible in it (the ground truth's ``visible_frames``). Each case is mapped
+centralized and by ``USERS`` users (``runs`` runs, run r with seed r: ``arcloud.eval.protocol.run_map``).
+The model runs once per frame (``CachedDetector``; the halves reuse the whole sequence's detections);
+frames are read from disk for every run rather than kept (1000 VGA frames are 2 GB).
+
+Written under ``out_dir``: every run's map as ``exports/<case>_<K>_<run>.json``
+(``arcloud.datasets.cli.export_payload``: ``world_from_export`` maps it to the pose frame of
+``gt-boxes.json``, whose ``world_to_aligned`` then takes it to the boxes), and pictures of each case
+with the ground truth in green under ``pictures/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from arcloud.accuracy.common import case_record, score_run, summarise
+from arcloud.accuracy.scannet import default_shared_dir
+from arcloud.core.types import MapObject, Params
+from arcloud.errors import DatasetError
+
+if TYPE_CHECKING:
+    from arcloud.datasets.cli import ExportFrame
+    from arcloud.datasets.sevenscenes import SevenScenesGroundTruth, SevenScenesSequence
+    from arcloud.ports import Detector
+
+logger = logging.getLogger(__name__)
+
+SEQUENCE_REL = "data/7scenes-redkitchen"
+MODEL_REL = "models/yolov8n-seg-fp32-640.onnx"
+USERS = 10
+RUNS = 3
+QUICK_RUNS = 1
+#: The quick mode takes every ``QUICK_STRIDE``-th frame.
+QUICK_STRIDE = 10
+
+
+@dataclass(frozen=True)
+class SequenceCase:
+    """Frames numbered ``first_frame..last_frame`` (inclusive) of the sequence, in the ``tune`` or
+    ``report`` split."""
+
+    first_frame: int
+    last_frame: int
+    split: str
+
+    @property
+    def name(self) -> str:
+        return f"redkitchen_{self.first_frame:03d}-{self.last_frame:03d}"
+
+    @property
+    def frame_range(self) -> tuple[int, int]:
+        return (self.first_frame, self.last_frame)
+
+
+CASES = (SequenceCase(0, 999, "report"), SequenceCase(0, 499, "tune"), SequenceCase(500, 999, "tune"))
+
+
+def score_against(
+    objects: Sequence[MapObject], ground_truth: SevenScenesGroundTruth, *, frames: tuple[int, int] | None = None, scene: str = "scene"
+) -> dict[str, dict[str, Any]]:
+    """``score_run`` of a map (boxed in the ground truth's aligned frame) against the observed and the
+    amodal boxes of the objects visible within ``frames`` (first, last frame numbers; None: all)."""
+    from arcloud.datasets.sevenscenes import BOX_KINDS
+
+    return {kind: score_run(objects, ground_truth.boxes(kind, frames=frames), scene=scene) for kind in BOX_KINDS}
+
+
+def run_suite(
+    *,
+    quick: bool,
+    out_dir: Path,
+    shared: Path | None = None,
+    cases: Sequence[SequenceCase] = CASES,
+    params: Params | None = None,
+    runs: int | None = None,
+    stride: int | None = None,
+    workers: int = 2,
+) -> dict[str, Any]:
+    """Map and score every case (see the module docstring): ``runs`` distributed runs per case (default
+    ``QUICK_RUNS`` when ``quick``, else ``RUNS``) on every ``stride``-th frame (default ``QUICK_STRIDE``
+    when ``quick``, else 1). Returns ``{"suite": "7scenes", "cases": [...], "summary": summarise(cases),
+    "summary_amodal": ..., ...}`` (see ``arcloud.accuracy.common``). ``shared``: the folder holding
+    ``data/7scenes-redkitchen`` and ``models/`` (default ``default_shared_dir()``); raises
+    ``DatasetError`` when the sequence, its ground truth or the model is not there."""
+    from arcloud.datasets.cli import seven_scenes_export_frame
+    from arcloud.datasets.sevenscenes import load_seven_scenes
+    from arcloud.detectors import make_detector
+    from arcloud.eval.protocol import CachedDetector
+
+    started = time.perf_counter()
+    shared_dir = Path(shared if shared is not None else default_shared_dir())
+    root, model = shared_dir / SEQUENCE_REL, shared_dir / MODEL_REL
+    if not (root / "gt-boxes.json").is_file():
+        raise DatasetError(f"{root}: expected the 7-Scenes redkitchen sequence with gt-boxes.json, got no gt-boxes.json there")
+    if not model.is_file():
+        raise DatasetError(f"{model}: expected the YOLOv8n-seg ONNX model, got no such file")
+    n_runs = runs if runs is not None else (QUICK_RUNS if quick else RUNS)
+    step = stride if stride is not None else (QUICK_STRIDE if quick else 1)
+    sequence = load_seven_scenes(root, align_gravity=True)
+    frame = seven_scenes_export_frame(sequence)
+    params = frame.params(params if params is not None else Params())
+    detector = CachedDetector(make_detector(f"onnx:{model}"))
+    out_dir = Path(out_dir)
+    records = [
+        evaluate_case(sequence, case, detector, params, frame, runs=n_runs, stride=step, workers=workers, out_dir=out_dir)
+        for case in cases
+    ]
+    amodal = [{**r, "centralized": r["amodal"]["centralized"], "distributed": r["amodal"]["distributed"]} for r in records]
+    return {
+        "suite": "7scenes",
+        "quick": quick,
+        "sequence": sequence.name,
+        "model": model.name,
+        "ground_truth": str(root / "gt-boxes.json"),
+        "primary_boxes": "observed",
+        "frame": frame.description,
+        "cases": records,
+        "summary": summarise(records),
+        "summary_amodal": summarise(amodal),
+        "users": USERS,
+        "runs": n_runs,
+        "stride": step,
+        "params": dataclasses.asdict(params),
+        "wall_s": round(time.perf_counter() - started, 2),
+    }
+
+
+def evaluate_case(
+    sequence: SevenScenesSequence,
+    case: SequenceCase,
+    detector: Detector,
+    params: Params,
+    frame: ExportFrame,
+    *,
+    runs: int,
+    stride: int,
+    workers: int,
+    out_dir: Path,
+) -> dict[str, Any]:
+    """The case's record: its centralized map and ``runs`` maps of ``USERS`` users, scored against the
+    objects visible in it (observed boxes; amodal ones under ``amodal``), exported and drawn."""
+    from arcloud.datasets.cli import LazyFrames, export_payload, write_pictures
+    from arcloud.eval.protocol import run_map
+
+    started = time.perf_counter()
+    ground_truth = sequence.ground_truth
+    if ground_truth is None:
+        raise DatasetError(f"{sequence.root}: expected gt-boxes.json to score case {case.name}, got none")
+    names = [n for n in sequence.frame_names[::stride] if case.first_frame <= sequence.frame_number(n) <= case.last_frame]
+    if len(names) < USERS:
+        raise DatasetError(f"{sequence.root}: case {case.name}: expected at least {USERS} frames, got {len(names)}")
+    frames = LazyFrames(names, sequence.load_frame, cache=False)
+    gt_ids = [o.id for o in ground_truth.objects_within(case.frame_range)]
+    exports = out_dir / "exports"
+    exports.mkdir(parents=True, exist_ok=True)
+    first_maps: dict[int, list[MapObject]] = {}
+
+    def build(users: int, run: int) -> dict[str, dict[str, Any]]:
+        objects = run_map(frames, detector, params, users=users, seed=run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        payload = export_payload(objects, frame, scene=sequence.name, case=case.name, users=users, run=run, gt_objects=gt_ids)
+        (exports / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
+        first_maps.setdefault(users, objects)
+        return score_against(objects, ground_truth, frames=case.frame_range, scene=sequence.name)
+
+    centralized = build(1, 0)
+    distributed = [build(USERS, run) for run in range(runs)]
+    eval_s = time.perf_counter() - started
+    pictures = write_pictures(
+        out_dir / "pictures" / case.name, frames, first_maps.pop(1), first_maps, title=case.name,
+        gt=ground_truth.boxes("observed", frames=case.frame_range), world2boxes=frame.world2export,
+    )  # fmt: skip
+    amodal = case_record(case.name, case.split, centralized["amodal"], [d["amodal"] for d in distributed], users=USERS)
+    record = case_record(
+        case.name, case.split, centralized["observed"], [d["observed"] for d in distributed], users=USERS,
+        amodal={"centralized": amodal["centralized"], "distributed": amodal["distributed"]},
+        first_frame=case.first_frame, last_frame=case.last_frame, frames=len(names), stride=stride, gt_objects=gt_ids,
+        pictures=pictures, eval_s=round(eval_s, 2),
+    )  # fmt: skip
+    mean = record["distributed"]["mean"]
+    logger.info("case %s (%d frames): centralized mAP@0.25 %.3f @0.5 %.3f; K=%d mean %.3f / %.3f", case.name, len(names),
+                centralized["observed"]["map25"] or 0.0, centralized["observed"]["map50"] or 0.0, USERS,
+                mean.get("map25", 0.0), mean.get("map50", 0.0))  # fmt: skip
+    return record
+
+
+__all__ = ["CASES", "QUICK_STRIDE", "SequenceCase", "evaluate_case", "run_suite", "score_against"]
