@@ -8,7 +8,16 @@ import pytest
 from arcloud.core.checks import check_pose
 from arcloud.errors import InvalidInput
 from arcloud.sim.room import generate_room
-from arcloud.sim.trajectory import look_at, plan_walk, room_walk
+from arcloud.sim.trajectory import (
+    EYE_HEIGHT_RANGE_M,
+    FIXATION_RANGE_FRAMES,
+    LAPS_RANGE,
+    STEP_RANGE_M,
+    WalkStyle,
+    look_at,
+    plan_walk,
+    room_walk,
+)
 
 FX, CX, CY, W, H = 525.0, 319.5, 239.5, 640, 480
 TARGETS = np.array([[1.5, 1.5, 0.4], [4.5, 1.2, 0.7], [3.0, 3.5, 0.5], [5.0, 3.8, 1.0]])
@@ -127,3 +136,127 @@ def test_room_walk_sees_every_object_often_and_free_standing_ones_from_several_s
 def test_bad_arguments_raise_invalid_input(args: tuple, kwargs: dict) -> None:
     with pytest.raises(InvalidInput):
         plan_walk(*args, **kwargs)
+
+
+# Walk styles
+
+
+def pitch_and_yaw_deg(poses: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) pitch of the optical axis above the horizon and (N,) unwrapped yaw, in degrees."""
+    forward = np.array([p[:3, 2] for p in poses])
+    pitch = np.degrees(np.arcsin(np.clip(forward[:, 2], -1, 1)))
+    yaw = np.degrees(np.unwrap(np.arctan2(forward[:, 1], forward[:, 0])))
+    return pitch, yaw
+
+
+def styled(style: WalkStyle, n_frames: int = 240, seed: int = 3) -> list[np.ndarray]:
+    return plan_walk((0, 0), (6, 5), TARGETS, n_frames, seed, obstacles_xy=OBSTACLES, style=style)
+
+
+def test_style_sets_eye_height_and_speed_and_keeps_the_path_of_the_default_walk(walk: list[np.ndarray]) -> None:
+    for height, step in ((1.1, 0.03), (1.9, 0.07)):
+        poses = styled(WalkStyle(eye_height_m=height, step_m=step))
+        eyes = np.array([check_pose("cam2world", p)[:3, 3] for p in poses])
+        assert abs(np.median(eyes[:, 2]) - height) < 0.03 and np.ptp(eyes[:, 2]) < 0.1
+        assert abs(np.median(np.linalg.norm(np.diff(eyes[:, :2], axis=0), axis=1)) - step) < 0.005
+    # The default figures walk the default path (only the per-walk eye height offset is gone).
+    same = styled(WalkStyle())
+    np.testing.assert_array_equal(np.array(same)[:, :2, 3], np.array(walk)[:, :2, 3])
+
+
+def angles_around_room(poses: list[np.ndarray], centre: np.ndarray) -> set[int]:
+    """The 10-degree sectors around ``centre`` that the walk passes through."""
+    offset = np.array([p[:2, 3] for p in poses]) - centre
+    return set((np.degrees(np.arctan2(offset[:, 1], offset[:, 0])) // 10).astype(int).tolist())
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_laps_below_one_walk_only_part_of_the_room(seed: int) -> None:
+    centre = np.array([3.0, 2.5])
+    partial = styled(WalkStyle(laps=0.4), n_frames=150, seed=seed)
+    full = styled(WalkStyle(laps=1.0), n_frames=150, seed=seed)
+    assert len(angles_around_room(partial, centre)) <= 0.6 * 36
+    assert len(angles_around_room(full, centre)) >= 0.9 * 36
+
+
+def test_glances_pitch_to_the_floor_and_the_ceiling_and_come_back() -> None:
+    calm = styled(WalkStyle(), n_frames=300)
+    glancing = styled(WalkStyle(glances_per_100_frames=1.5), n_frames=300)
+    calm_pitch, _ = pitch_and_yaw_deg(calm)
+    pitch, _ = pitch_and_yaw_deg(glancing)
+    assert calm_pitch.max() < 25.0
+    assert np.count_nonzero(pitch > 30.0) >= 3 and np.count_nonzero(pitch < -55.0) >= 3
+    assert np.abs(pitch).max() < 85.0  # never straight up or down
+    assert np.count_nonzero(np.abs(pitch - calm_pitch) > 5.0) < 0.6 * len(pitch)  # and back to the targets
+
+
+def test_fast_turns_are_bursts_of_high_yaw_rate() -> None:
+    calm = styled(WalkStyle(), n_frames=300)
+    turning = styled(WalkStyle(fast_turns_per_100_frames=1.5), n_frames=300)
+    calm_rate = np.abs(np.diff(pitch_and_yaw_deg(calm)[1]))
+    rate = np.abs(np.diff(pitch_and_yaw_deg(turning)[1]))
+    assert calm_rate.max() < 5.0
+    assert rate.max() > 10.0
+    assert 2 <= np.count_nonzero(rate > 6.0) < 0.4 * len(rate)  # bursts, not a spin
+
+
+def test_jitter_moves_the_camera_by_its_standard_deviations() -> None:
+    from scipy.spatial.transform import Rotation
+
+    steady = np.array(styled(WalkStyle(), n_frames=300))
+    shaky = np.array(styled(WalkStyle(jitter_deg=0.5, jitter_m=0.004), n_frames=300))
+    motion = np.linalg.inv(steady) @ shaky  # in each camera's frame
+    angles_deg = np.degrees(Rotation.from_matrix(motion[:, :3, :3]).as_rotvec())
+    assert 0.35 < np.std(angles_deg) < 0.65
+    assert 0.0028 < np.std(motion[:, :3, 3]) < 0.0052
+    for pose in shaky:
+        check_pose("cam2world", pose)
+
+
+def test_sampled_styles_are_varied_within_their_ranges_and_seeded() -> None:
+    rng = np.random.default_rng(11)
+    styles = [WalkStyle.sample(rng) for _ in range(40)]
+    assert styles[:5] == [WalkStyle.sample(r) for r in [np.random.default_rng(11)] for _ in range(5)]
+    heights = np.array([s.eye_height_m for s in styles])
+    assert EYE_HEIGHT_RANGE_M[0] <= heights.min() < 1.3 and 1.7 < heights.max() <= EYE_HEIGHT_RANGE_M[1]
+    assert all(STEP_RANGE_M[0] <= s.step_m <= STEP_RANGE_M[1] for s in styles)
+    assert all(LAPS_RANGE[0] <= s.laps <= LAPS_RANGE[1] for s in styles)
+    assert any(s.laps < 1 for s in styles) and any(s.laps > 1 for s in styles)
+    assert all(FIXATION_RANGE_FRAMES[0] <= s.fixation_frames <= FIXATION_RANGE_FRAMES[1] for s in styles)
+    assert len({s.fixation_frames for s in styles}) > 10
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sampled_walks_stay_rigid_inside_the_free_floor(seed: int) -> None:
+    room = generate_room(seed)
+    style = WalkStyle.sample(np.random.default_rng(seed))
+    poses = room_walk(room, 200, seed=seed, style=style)
+    assert len(poses) == 200
+    eyes = np.array([check_pose("cam2world", p)[:3, 3] for p in poses])
+    assert np.all(eyes[:, :2] > 0.25) and np.all(eyes[:, :2] < room.size_m[:2] - 0.25)
+    assert np.all(np.abs(eyes[:, 2] - style.eye_height_m) < 0.06)
+    np.testing.assert_array_equal(np.array(poses), np.array(room_walk(room, 200, seed=seed, style=style)))
+
+
+@pytest.mark.parametrize(
+    ("changes", "field"),
+    [
+        ({"eye_height_m": 3.0}, "WalkStyle.eye_height_m"),
+        ({"step_m": 0.0}, "WalkStyle.step_m"),
+        ({"laps": -1.0}, "WalkStyle.laps"),
+        ({"fixation_frames": 0}, "WalkStyle.fixation_frames"),
+        ({"glances_per_100_frames": float("nan")}, "WalkStyle.glances_per_100_frames"),
+        ({"jitter_deg": True}, "WalkStyle.jitter_deg"),
+    ],
+)
+def test_bad_styles_name_their_field(changes: dict, field: str) -> None:
+    with pytest.raises(InvalidInput) as info:
+        WalkStyle(**changes)
+    assert info.value.field == field
+
+
+def test_a_style_does_not_come_with_the_figures_it_sets() -> None:
+    with pytest.raises(InvalidInput, match="eye_height_m"):
+        plan_walk((0, 0), (6, 5), TARGETS, 10, 0, style=WalkStyle(), eye_height_m=1.6)
+    with pytest.raises(InvalidInput, match="WalkStyle or None"):
+        plan_walk((0, 0), (6, 5), TARGETS, 10, 0, style="random")  # type: ignore[arg-type]

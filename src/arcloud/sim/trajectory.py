@@ -12,6 +12,10 @@ at a steady step. The head fixates one target at a time, turning at a bounded ra
 target is the one the turning head would hold in good view longest, weighed by how little it has
 been seen, whether it will be in good view again, and whether this side of it is new; a final pass
 gives any target still barely seen the stretch of the walk where it is best in view.
+
+A ``WalkStyle`` varies how the user walks (``WalkStyle.sample`` draws one): eye height, speed, how
+much of the ring the walk covers, how long a look lasts, glances at the floor and the ceiling, fast
+turns of the head, and a hand-held camera's jitter. Without a style a walk is the default one.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,6 +38,75 @@ log = logging.getLogger(__name__)
 UP = np.array([0.0, 0.0, 1.0])
 #: Distance per metre of size for a thing to fit in a VGA view (half field of view about 28 degrees).
 FIT_PER_SIZE = 0.5 / math.tan(math.radians(28.0))
+
+#: Ranges ``WalkStyle.sample`` draws from, uniformly. Eye height: a child or a phone at chest height up
+#: to a tall adult's eye; steps of 2.5-8 cm a frame are 0.75-2.4 m/s at 30 Hz.
+EYE_HEIGHT_RANGE_M = (1.1, 1.9)
+STEP_RANGE_M = (0.025, 0.08)
+LAPS_RANGE = (0.5, 1.6)
+FIXATION_RANGE_FRAMES = (8, 30)
+GLANCES_RANGE_PER_100_FRAMES = (0.0, 1.0)
+FAST_TURNS_RANGE_PER_100_FRAMES = (0.0, 1.0)
+JITTER_RANGE_DEG = (0.1, 0.8)
+JITTER_RANGE_M = (0.001, 0.005)
+#: Seed word of a styled walk's own random stream (glances, fast turns, jitter), apart from the path's.
+_STYLE_STREAM = 7
+
+
+@dataclass(frozen=True)
+class WalkStyle:
+    """How one user walks (``plan_walk(..., style=...)``).
+
+    eye_height_m: the camera's height above the floor (plus a small bob and sway).
+    step_m: walking speed, metres per frame.
+    laps: laps of the ring the walk makes; below 1 only that share of the ring is walked, so part of
+        the room is seen from afar or not at all (the ring cannot grow past the room's walls, so a long
+        walk in a small room makes more laps than asked).
+    fixation_frames: the typical time one look at a target lasts (short: glances; long: long looks).
+    glances_per_100_frames: mean number of glances at the floor or the ceiling (the head pitches
+        down or up, holds a few frames and comes back).
+    fast_turns_per_100_frames: mean number of fast head turns (60-150 degrees at 8-15 degrees a frame,
+        held a few frames, then back).
+    jitter_deg, jitter_m: a hand-held camera's jitter, standard deviations per frame and axis of its
+        rotation and translation (high-frequency: correlated over about a frame).
+
+    The defaults are the default walk's figures without any glance, turn or jitter."""
+
+    eye_height_m: float = 1.5
+    step_m: float = 0.05
+    laps: float = 4 / 3
+    fixation_frames: int = 20
+    glances_per_100_frames: float = 0.0
+    fast_turns_per_100_frames: float = 0.0
+    jitter_deg: float = 0.0
+    jitter_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        limits = {
+            "eye_height_m": (0.5, 2.5), "step_m": (1e-3, 0.5), "laps": (0.05, 20.0), "glances_per_100_frames": (0.0, 20.0),
+            "fast_turns_per_100_frames": (0.0, 20.0), "jitter_deg": (0.0, 5.0), "jitter_m": (0.0, 0.05),
+        }  # fmt: skip
+        for name, (low, high) in limits.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+                raise InvalidInput(f"WalkStyle.{name}", f"a number in [{low}, {high}]", repr(value))
+        frames = self.fixation_frames
+        if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
+            raise InvalidInput("WalkStyle.fixation_frames", "an integer >= 1", repr(frames))
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator) -> WalkStyle:
+        """A style with every figure drawn uniformly from its range (``EYE_HEIGHT_RANGE_M``, ...)."""
+        return cls(
+            eye_height_m=round(float(rng.uniform(*EYE_HEIGHT_RANGE_M)), 3),
+            step_m=round(float(rng.uniform(*STEP_RANGE_M)), 4),
+            laps=round(float(rng.uniform(*LAPS_RANGE)), 3),
+            fixation_frames=int(rng.integers(FIXATION_RANGE_FRAMES[0], FIXATION_RANGE_FRAMES[1] + 1)),
+            glances_per_100_frames=round(float(rng.uniform(*GLANCES_RANGE_PER_100_FRAMES)), 3),
+            fast_turns_per_100_frames=round(float(rng.uniform(*FAST_TURNS_RANGE_PER_100_FRAMES)), 3),
+            jitter_deg=round(float(rng.uniform(*JITTER_RANGE_DEG)), 3),
+            jitter_m=round(float(rng.uniform(*JITTER_RANGE_M)), 4),
+        )
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, *, roll_rad: float = 0.0) -> np.ndarray:
@@ -162,28 +236,52 @@ def plan_walk(
     n_frames: int,
     seed: int,
     *,
-    eye_height_m: float = 1.5,
-    eye_height_jitter_m: float = 0.15,
+    eye_height_m: float | None = None,
+    eye_height_jitter_m: float | None = None,
     obstacles_xy: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
-    step_m: float = 0.05,
+    step_m: float | None = None,
     floor_z_m: float = 0.0,
     clearance_m: float = 0.3,
     wall_margin_m: float = 0.35,
     ring_inset_m: float | None = None,
-    fixation_frames: int = 20,
+    fixation_frames: int | None = None,
     cell_m: float = 0.1,
     target_extents_m: np.ndarray | Sequence[float] | None = None,
+    style: WalkStyle | None = None,
 ) -> list[np.ndarray]:
     """One user's walk: ``n_frames`` (4, 4) cam2world poses, one every ``step_m`` of walking.
 
     floor_min_xy, floor_max_xy: (2,) the walkable floor's extent. targets: (N, 3) points to look at
     (object centres). obstacles_xy: (min_xy, max_xy) footprints to keep ``clearance_m`` from (walls:
-    ``wall_margin_m``). The eye is ``eye_height_m`` (plus a per-walk offset within
-    ``eye_height_jitter_m`` and a small bob) above ``floor_z_m``. ring_inset_m: the lap's distance
-    from the floor's edges (None: sized so that a lap is about 3/4 of the walk). fixation_frames: the
-    typical time spent looking at one target. target_extents_m: (N,) the size of each target (e.g. its
-    box diagonal; default 0.8 m): fixations prefer distances from which most of it is in view.
+    ``wall_margin_m``). The eye is ``eye_height_m`` (default 1.5, plus a per-walk offset within
+    ``eye_height_jitter_m``, default 0.15, and a small bob) above ``floor_z_m``. step_m: default 0.05.
+    ring_inset_m: the lap's distance from the floor's edges (None: sized so that a lap is about 3/4 of
+    the walk). fixation_frames: the typical time spent looking at one target (default 20).
+    target_extents_m: (N,) the size of each target (e.g. its box diagonal; default 0.8 m): fixations
+    prefer distances from which most of it is in view.
+
+    style: a ``WalkStyle`` sets the eye height (without a per-walk offset), the step, the ring (from
+    its ``laps``) and the fixation time, so it cannot come with ``eye_height_m``,
+    ``eye_height_jitter_m``, ``step_m``, ``ring_inset_m`` or ``fixation_frames``; its glances, fast
+    turns and jitter are drawn from a stream of their own, so a style without them walks the same path
+    and looks at the same things. None: the default walk (the same poses as before styles existed).
     Deterministic for a seed; a walk of a few hundred frames is planned in well under a second."""
+    overridden = {"eye_height_m": eye_height_m, "eye_height_jitter_m": eye_height_jitter_m, "step_m": step_m,
+                  "ring_inset_m": ring_inset_m, "fixation_frames": fixation_frames}  # fmt: skip
+    lap_share = 0.75  # a lap's length over the walk's
+    if style is None:
+        eye_height_m = 1.5 if eye_height_m is None else eye_height_m
+        eye_height_jitter_m = 0.15 if eye_height_jitter_m is None else eye_height_jitter_m
+        step_m = 0.05 if step_m is None else step_m
+        fixation_frames = 20 if fixation_frames is None else fixation_frames
+    elif not isinstance(style, WalkStyle):
+        raise InvalidInput("style", "a WalkStyle or None", type(style).__name__)
+    elif any(value is not None for value in overridden.values()):
+        given = sorted(name for name, value in overridden.items() if value is not None)
+        raise InvalidInput("style", "no eye height, jitter, step, ring inset or fixation beside a WalkStyle (it sets them)", f"also {given}")
+    else:
+        eye_height_m, eye_height_jitter_m, step_m = style.eye_height_m, 0.0, style.step_m
+        fixation_frames, lap_share = style.fixation_frames, 1.0 / style.laps
     lo = np.asarray(floor_min_xy, dtype=np.float64).reshape(2)
     hi = np.asarray(floor_max_xy, dtype=np.float64).reshape(2)
     if not np.all(hi - lo > 2 * wall_margin_m):
@@ -203,7 +301,7 @@ def plan_walk(
     obstacles = [(np.asarray(a, np.float64).reshape(2), np.asarray(b, np.float64).reshape(2)) for a, b in obstacles_xy]
     grid = _FreeGrid(lo, hi, obstacles, cell_m=cell_m, clearance_m=clearance_m, wall_margin_m=wall_margin_m)
 
-    xy = _walk_path(grid, n_frames * step_m, rng, ring_inset_m=ring_inset_m)
+    xy = _walk_path(grid, n_frames * step_m, rng, ring_inset_m=ring_inset_m, lap_share=lap_share)
     positions = _resample(xy, step_m)[:n_frames]
     if len(positions) < n_frames:  # a tiny floor: stand at the end
         positions = np.concatenate([positions, np.repeat(positions[-1:], n_frames - len(positions), axis=0)])
@@ -216,21 +314,101 @@ def plan_walk(
     eyes = np.column_stack([positions, z])
     yaw, pitch = _gaze_angles(eyes, targets, extents, rng, fixation_frames=fixation_frames)
     roll = np.radians(4.5) * _smooth(rng.normal(0.0, 1.0, n_frames), 12.0)  # about 0.7 degrees, slow
+    if style is not None:
+        pitch = _with_glances(pitch, style.glances_per_100_frames, np.random.default_rng([int(seed), _STYLE_STREAM, 1]))
+        yaw = _with_fast_turns(yaw, style.fast_turns_per_100_frames, np.random.default_rng([int(seed), _STYLE_STREAM, 2]))
     poses = []
     for eye, y, p, r in zip(eyes, yaw, pitch, roll):
         direction = np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), math.sin(p)])
         poses.append(look_at(eye, eye + direction, roll_rad=float(r)))
+    if style is not None:
+        poses = _with_jitter(poses, style.jitter_deg, style.jitter_m, np.random.default_rng([int(seed), _STYLE_STREAM, 3]))
     return poses
 
 
-def _walk_path(grid: _FreeGrid, length_m: float, rng: np.random.Generator, *, ring_inset_m: float | None) -> np.ndarray:
+#: Glances: the head pitches to the floor (60 % of glances) or the ceiling at about this rate, holds, comes back.
+GLANCE_RATE_DEG = 6.0
+GLANCE_FLOOR_DEG, GLANCE_CEILING_DEG = (-80.0, -55.0), (35.0, 65.0)
+GLANCE_HOLD_FRAMES = (3, 15)
+#: Fast turns: this much yaw at this mean rate (degrees a frame), held, then back.
+FAST_TURN_DEG, FAST_TURN_RATE_DEG = (60.0, 150.0), (8.0, 15.0)
+FAST_TURN_HOLD_FRAMES = (3, 15)
+
+
+def _excursion(n: int, start: int, ramp_frames: int, hold_frames: int) -> np.ndarray:
+    """(n,) weights in [0, 1]: a raised-cosine rise over ``ramp_frames`` from ``start``, a hold of
+    ``hold_frames``, the same fall."""
+    t = np.arange(n) - start
+    rise = 0.5 - 0.5 * np.cos(np.pi * np.clip(t / ramp_frames, 0.0, 1.0))
+    fall = 0.5 - 0.5 * np.cos(np.pi * np.clip((ramp_frames + hold_frames + ramp_frames - t) / ramp_frames, 0.0, 1.0))
+    return np.minimum(rise, fall)
+
+
+def _with_glances(pitch: np.ndarray, per_100_frames: float, rng: np.random.Generator) -> np.ndarray:
+    """``pitch`` (N,) radians with glances at the floor and the ceiling, one at a time: exponential
+    gaps (mean ``100 / per_100_frames`` frames) from the end of one to the start of the next."""
+    n = len(pitch)
+    out = pitch.copy()
+    t = 0.0
+    while per_100_frames > 0:
+        t += float(rng.exponential(100.0 / per_100_frames))
+        if t >= n:
+            break
+        start, floor, hold = int(t), rng.random() < 0.6, int(rng.integers(GLANCE_HOLD_FRAMES[0], GLANCE_HOLD_FRAMES[1] + 1))
+        target = math.radians(float(rng.uniform(*(GLANCE_FLOOR_DEG if floor else GLANCE_CEILING_DEG))))
+        ramp = max(2, math.ceil(abs(math.degrees(target - out[start])) / GLANCE_RATE_DEG))
+        out = out + _excursion(n, start, ramp, hold) * (target - out)
+        t = start + 2 * ramp + hold
+    return out
+
+
+def _with_fast_turns(yaw: np.ndarray, per_100_frames: float, rng: np.random.Generator) -> np.ndarray:
+    """``yaw`` (N,) radians with fast turns of the head away and back, one at a time (gaps as glances')."""
+    n = len(yaw)
+    out = yaw.copy()
+    t = 0.0
+    while per_100_frames > 0:
+        t += float(rng.exponential(100.0 / per_100_frames))
+        if t >= n:
+            break
+        start, hold = int(t), int(rng.integers(FAST_TURN_HOLD_FRAMES[0], FAST_TURN_HOLD_FRAMES[1] + 1))
+        turn_deg = float(rng.uniform(*FAST_TURN_DEG)) * (1 if rng.random() < 0.5 else -1)
+        ramp = max(2, math.ceil(abs(turn_deg) / float(rng.uniform(*FAST_TURN_RATE_DEG))))
+        out = out + math.radians(turn_deg) * _excursion(n, start, ramp, hold)
+        t = start + 2 * ramp + hold
+    return out
+
+
+def _with_jitter(poses: list[np.ndarray], jitter_deg: float, jitter_m: float, rng: np.random.Generator) -> list[np.ndarray]:
+    """Each (4, 4) cam2world pose times a small rigid motion in its camera frame: rotation and
+    translation noise with standard deviations ``jitter_deg`` and ``jitter_m`` per axis, smoothed
+    over about a frame (a hand's tremor)."""
+    from scipy.spatial.transform import Rotation
+
+    n = len(poses)
+    if n == 0 or (jitter_deg == 0 and jitter_m == 0):
+        return poses
+    sigma_frames = 1.0
+    gain = math.sqrt(2 * math.sqrt(math.pi) * sigma_frames)  # smoothing shrinks white noise by this much
+    angles = _smooth(rng.normal(0.0, math.radians(jitter_deg), (n, 3)), sigma_frames) * gain
+    offsets = _smooth(rng.normal(0.0, jitter_m, (n, 3)), sigma_frames) * gain
+    motion = np.tile(np.eye(4), (n, 1, 1))
+    motion[:, :3, :3] = Rotation.from_rotvec(angles).as_matrix()
+    motion[:, :3, 3] = offsets
+    return [pose @ m for pose, m in zip(poses, motion)]
+
+
+def _walk_path(
+    grid: _FreeGrid, length_m: float, rng: np.random.Generator, *, ring_inset_m: float | None, lap_share: float = 0.75
+) -> np.ndarray:
     """(N, 2) smoothed path at least ``length_m`` long: laps of a ring around the room, inset from
-    the floor's edges so that one lap is about as long as the walk (things along the walls are then
-    seen from 1-2.5 m, things in the middle from all sides), alternating direction and inset."""
+    the floor's edges so that one lap is about ``lap_share`` of the walk (by default things along the
+    walls are then seen from 1-2.5 m, things in the middle from all sides), alternating direction and
+    inset."""
     lo, hi = grid.origin, grid.origin + np.array([grid.nx, grid.ny]) * grid.cell
     size = hi - lo
-    if ring_inset_m is None:  # a lap of about 75 % of the walk (detours make up some of the rest)
-        ring_inset_m = (2 * (size[0] + size[1]) - 0.75 * length_m) / 8
+    if ring_inset_m is None:  # detours make up some of the rest of the walk
+        ring_inset_m = (2 * (size[0] + size[1]) - lap_share * length_m) / 8
     largest = max(float(min(size)) / 2 - 0.4, 0.0)
     flat_xy = grid.xy.reshape(-1, 2)
     direction = 1 if rng.random() < 0.5 else -1
@@ -416,11 +594,12 @@ def _rate_limited(wanted: np.ndarray, max_step: float) -> np.ndarray:
     return out
 
 
-def room_walk(room: Room, n_frames: int = 300, seed: int = 0, **kwargs: object) -> list[np.ndarray]:
-    """A walk through a generated room looking at its objects (see ``plan_walk`` for ``kwargs``)."""
+def room_walk(room: Room, n_frames: int = 300, seed: int = 0, *, style: WalkStyle | None = None, **kwargs: object) -> list[np.ndarray]:
+    """A walk through a generated room looking at its objects, in ``style`` (None: the default walk;
+    see ``plan_walk`` for ``kwargs``)."""
     targets = np.array([o.center for o in room.objects]).reshape(-1, 3)
     extents = np.array([np.linalg.norm(o.size) for o in room.objects])
     kwargs.setdefault("target_extents_m", extents)
     return plan_walk(
-        room.floor_min_xy, room.floor_max_xy, targets, n_frames, seed, obstacles_xy=room.obstacles_xy(), **kwargs  # type: ignore[arg-type]
+        room.floor_min_xy, room.floor_max_xy, targets, n_frames, seed, obstacles_xy=room.obstacles_xy(), style=style, **kwargs  # type: ignore[arg-type]
     )
