@@ -291,3 +291,16 @@ def test_eval_7scenes_exports_declare_the_gravity_aligned_world_without_ground_t
     corners = np.where(bits == 1, board["aabb_max"], board["aabb_min"]) @ world2file[:3, :3].T + world2file[:3, 3]
     np.testing.assert_allclose(corners.min(axis=0), BOARD_MIN_FILE, atol=0.08)
     np.testing.assert_allclose(corners.max(axis=0), BOARD_MAX_FILE, atol=0.08)
+
+
+def test_colour_camera_option_parses_or_says_what_it_expected() -> None:
+    import argparse
+
+    from arcloud.datasets.cli import parse_colour_camera
+
+    camera = parse_colour_camera("527,527,324,239,-0.035,0,0")
+    assert camera.intrinsics.fx == 527.0 and camera.depth2rgb[0, 3] == -0.035
+    assert parse_colour_camera("500,500,320,240").depth2rgb[0, 3] == 0.0
+    for bad in ("527,527,324", "a,b,c,d", "-1,527,324,239", "1,2,3,4,5"):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected fx,fy,cx,cy"):
+            parse_colour_camera(bad)

@@ -12,7 +12,7 @@ import pytest
 from datasets_builders import build_seven_scenes
 
 from arcloud.core.types import Intrinsics
-from arcloud.datasets.sevenscenes import DEFAULT_INTRINSICS, load_ground_truth, load_seven_scenes
+from arcloud.datasets.sevenscenes import DEFAULT_INTRINSICS, ColourCamera, load_ground_truth, load_seven_scenes
 from arcloud.errors import DatasetError
 
 
@@ -98,6 +98,22 @@ def test_ground_truth_boxes_in_its_aligned_frame(tmp_path: Path) -> None:
     assert sequence.frame_number("000002") == 2
     assert load_seven_scenes(build_seven_scenes(tmp_path / "plain")).ground_truth is None
     assert load_seven_scenes(tmp_path / "plain").world2gt is None
+
+
+def test_the_colour_camera_comes_with_the_ground_truth_or_is_given(tmp_path: Path) -> None:
+    root = build_seven_scenes(tmp_path / "kitchen", n_frames=2)
+    colour = {"fx": 527.0, "fy": 526.0, "cx": 324.0, "cy": 239.0, "depth_to_colour_translation_m": [-0.035, 0, 0]}
+    (root / "gt-boxes.json").write_text(json.dumps({**gt_file(), "colour_intrinsics_estimated": colour}))
+    sequence = load_seven_scenes(root)
+    frame = sequence.load_frame(sequence.frame_names[0])
+    assert frame.rgb_intrinsics == Intrinsics(527.0, 526.0, 324.0, 239.0) and not frame.registered
+    np.testing.assert_array_equal(frame.depth2rgb[:3, 3], [-0.035, 0, 0])
+    given = ColourCamera(Intrinsics(500.0, 500.0, 320.0, 240.0), np.eye(4))
+    assert load_seven_scenes(root, colour=given).load_frame(sequence.frame_names[0]).rgb_intrinsics.fx == 500.0
+    assert load_seven_scenes(build_seven_scenes(tmp_path / "plain", n_frames=2)).load_frame("000000").registered
+    (root / "gt-boxes.json").write_text(json.dumps({**gt_file(), "colour_intrinsics_estimated": {**colour, "fx": -1}}))
+    with pytest.raises(DatasetError, match="colour_intrinsics_estimated: expected positive focal lengths"):
+        load_seven_scenes(root)
 
 
 @pytest.mark.parametrize(

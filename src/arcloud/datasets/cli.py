@@ -81,6 +81,22 @@ class LazyFrames(Sequence[Frame]):
         return (self[i] for i in range(len(self)))
 
 
+def parse_colour_camera(text: str) -> Any:
+    """'fx,fy,cx,cy[,tx,ty,tz]' -> ``ColourCamera`` (intrinsics in pixels; depth->colour translation in m)."""
+    from arcloud.core.types import Intrinsics
+    from arcloud.datasets.sevenscenes import ColourCamera
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (4, 7) or not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f"expected fx,fy,cx,cy[,tx,ty,tz] (7 or 4 finite numbers, positive focal lengths), got {text!r}")
+    depth2rgb = np.eye(4)
+    depth2rgb[:3, 3] = values[4:7] if len(values) == 7 else (0.0, 0.0, 0.0)
+    return ColourCamera(Intrinsics(*values[:4]), depth2rgb)
+
+
 def parse_scenes(text: str) -> tuple[str, ...]:
     """'scene0000_00,scene0011_00' or '@file' (one name a line, '#' starts a comment) -> scene names."""
     if text.startswith("@"):
@@ -308,20 +324,22 @@ def _make_detector(spec: str) -> Detector:
 
 def run_eval_scannet(args: argparse.Namespace) -> int:
     """``arcloud eval scannet``: Table 1 on ScanNet-layout scenes; writes ``--out`` (and ``--export``)."""
-    from arcloud.datasets.gt_masks import GroundTruthMaskDetector
+    from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options
     from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
 
     started = time.perf_counter()
     scene_dirs = find_scene_dirs(args.root, args.scenes)
     if args.axis_alignment and len(scene_dirs) != 1:
         raise DatasetError(f"--axis-alignment: expected one scene, got {len(scene_dirs)}")
-    shared_detector = None if args.detector == GT_MASKS else _make_detector(args.detector)
+    prefix, _, argument = args.detector.partition(":")
+    gt_options = gt_masks_options(argument)[0] if prefix == GT_MASKS else {}
+    shared_detector = None if prefix == GT_MASKS else _make_detector(args.detector)
     entries, frame_counts, export_frames = [], {}, {}
     for scene_dir in scene_dirs:
         scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
         names = scene.frame_names[:: args.stride]
         frames = LazyFrames(names, scene.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
-        detector = GroundTruthMaskDetector(scene) if shared_detector is None else shared_detector
+        detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector  # type: ignore[arg-type]
         entries.append((scene.scene_id, frames, detector, scene.gt_boxes()))
         frame_counts[scene.scene_id] = len(names)
         export_frames[scene.scene_id] = scannet_export_frame(scene)
@@ -483,7 +501,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
     from arcloud.datasets.sevenscenes import load_seven_scenes
 
     started = time.perf_counter()
-    sequence = load_seven_scenes(args.root, align_gravity=True)
+    sequence = load_seven_scenes(args.root, align_gravity=True, colour=args.colour_camera)
     ground_truth = sequence.ground_truth
     names = sequence.frame_names[:: args.stride]
     frames = LazyFrames(names, sequence.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
@@ -594,7 +612,9 @@ def add_eval_commands(subparsers: Any) -> Any:
     )
     scannet.add_argument("--root", required=True, help="a scene folder, a folder of scenes, or one holding scans/")
     scannet.add_argument("--scenes", type=parse_scenes, default=None, help="scene names, comma-separated, or @FILE")
-    scannet.add_argument("--detector", required=True, help=f"onnx:PATH (a YOLO-seg ONNX model) or {GT_MASKS}")
+    scannet.add_argument("--detector", required=True,
+                         help=f"onnx:PATH (a YOLO-seg ONNX model), or {GT_MASKS}[:OPTIONS] (each scene's own masks; "
+                         "OPTIONS e.g. faults=default,seed=3: a model's mask faults, see docs/datasets.md)")
     scannet.add_argument("--axis-alignment", default=None, help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt")
     _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
     scannet.set_defaults(handler=run_eval_scannet)
@@ -606,6 +626,9 @@ def add_eval_commands(subparsers: Any) -> Any:
     )
     seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
     seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
+    seven.add_argument("--colour-camera", type=parse_colour_camera, default=None, metavar="FX,FY,CX,CY[,TX,TY,TZ]",
+                       help="the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
+                       "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)")
     seven.add_argument("--reference-min-score", type=float, default=0.0,
                        help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)")
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)

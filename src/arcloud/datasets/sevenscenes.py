@@ -75,17 +75,28 @@ class SevenScenesObject:
 
 
 @dataclass(frozen=True, eq=False)
+class ColourCamera:
+    """The colour camera of an unregistered RGB-D pair: its intrinsics (at the depth image's size) and
+    ``depth2rgb`` (4, 4), depth camera coordinates to colour camera coordinates (see ``core.types.Frame``)."""
+
+    intrinsics: Intrinsics
+    depth2rgb: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class SevenScenesGroundTruth:
     """``gt-boxes.json`` parsed: ``file2aligned`` (4, 4) maps the file's (pose) world to the aligned
     frame of the boxes (the file's ``gravity_aligned.world_to_aligned``: z up, floor at z = 0, x along
     the walls); ``objects`` hold the boxes there. ``not_annotated``: things a detector may fire on that
-    are none of our classes; ``method``: how the boxes were made."""
+    are none of our classes; ``method``: how the boxes were made; ``colour``: the colour camera as the
+    annotation estimated it (``colour_intrinsics_estimated``), None when the file has none."""
 
     path: Path
     file2aligned: np.ndarray
     objects: tuple[SevenScenesObject, ...]
     not_annotated: tuple[str, ...]
     method: str
+    colour: ColourCamera | None = None
 
     def boxes(self, kind: str = "observed", *, frames: tuple[int, int] | None = None) -> list[Box3D]:
         """The ``kind`` boxes (see ``BOX_KINDS``), of the objects visible within ``frames`` = (first,
@@ -104,7 +115,9 @@ class SevenScenesSequence:
 
     up_file: (3,) unit up (opposite gravity) in the file's world, or None without gravity-direction.txt.
     world2file: (4, 4) maps output-world points to the file's world (identity unless gravity-aligned).
-    ground_truth: ``gt-boxes.json`` parsed, or None when the folder has none."""
+    ground_truth: ``gt-boxes.json`` parsed, or None when the folder has none.
+    colour: the colour camera, when colour and depth are not registered (Kinect v1: frames then carry it,
+    and masks drawn on colour land where the colour camera saw); None: registered pixel for pixel."""
 
     name: str
     root: Path
@@ -117,6 +130,7 @@ class SevenScenesSequence:
     up_file: np.ndarray | None
     world2file: np.ndarray
     ground_truth: SevenScenesGroundTruth | None = None
+    colour: ColourCamera | None = None
     device_id: str = "user-0"
 
     @cached_property
@@ -167,6 +181,8 @@ class SevenScenesSequence:
             device_id=device_id or self.device_id,
             frame_id=name,
             depth_scale=1000.0,
+            rgb_intrinsics=None if self.colour is None else self.colour.intrinsics,
+            depth2rgb=None if self.colour is None else self.colour.depth2rgb,
         )
 
     def frames(self, *, stride: int = 1, limit: int | None = None) -> Iterator[Frame]:
@@ -186,9 +202,16 @@ def _find_file(root: Path, folders: list[Path], name: str) -> Path | None:
     return None
 
 
-def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: str | None = None) -> SevenScenesSequence:
+def load_seven_scenes(
+    root: str | Path, *, align_gravity: bool = False, name: str | None = None, colour: ColourCamera | None = None
+) -> SevenScenesSequence:
     """Parse a 7-Scenes sequence (or a scene of ``seq-XX`` folders), with its ``gt-boxes.json`` when the
-    folder has one. Frames whose pose is not finite are skipped with a logged count."""
+    folder has one. Frames whose pose is not finite are skipped with a logged count.
+
+    ``colour``: the colour camera (the 7-Scenes release does not calibrate it; its Kinect's colour and
+    depth differ by focal length and a 3.5 cm baseline, so masks miss the depth by up to ~35 px near the
+    borders). None takes the one ``gt-boxes.json`` estimated, when present, else treats the images as
+    registered."""
     base = Path(root)
     if not base.is_dir():
         raise DatasetError(f"{base}: expected a 7-Scenes folder, got no such folder")
@@ -245,6 +268,7 @@ def load_seven_scenes(root: str | Path, *, align_gravity: bool = False, name: st
         up_file=up_file,
         world2file=world2file,
         ground_truth=ground_truth,
+        colour=colour if colour is not None else (ground_truth.colour if ground_truth is not None else None),
     )
 
 
@@ -274,7 +298,21 @@ def load_ground_truth(path: str | Path) -> SevenScenesGroundTruth:
         f"{item.get('what', '')} ({item.get('why', '')})" if isinstance(item, Mapping) else str(item)
         for item in data.get("not_annotated", [])
     )
-    return SevenScenesGroundTruth(file, file2aligned, objects, not_annotated, str(data.get("method", "")))
+    colour = _colour_camera(file, data["colour_intrinsics_estimated"]) if "colour_intrinsics_estimated" in data else None
+    return SevenScenesGroundTruth(file, file2aligned, objects, not_annotated, str(data.get("method", "")), colour)
+
+
+def _colour_camera(file: Path, entry: object) -> ColourCamera:
+    """``colour_intrinsics_estimated``: fx, fy, cx, cy (pixels) and depth_to_colour_translation_m (3)."""
+    where = "colour_intrinsics_estimated"
+    if not isinstance(entry, Mapping):
+        raise DatasetError(f"{file}: {where}: expected an object with fx, fy, cx, cy, got {type(entry).__name__}")
+    values = _numbers(file, f"{where}.fx/fy/cx/cy", [entry.get(k) for k in ("fx", "fy", "cx", "cy")], (4,))
+    if values[0] <= 0 or values[1] <= 0:
+        raise DatasetError(f"{file}: {where}: expected positive focal lengths, got fx {values[0]}, fy {values[1]}")
+    depth2rgb = np.eye(4)
+    depth2rgb[:3, 3] = _numbers(file, f"{where}.depth_to_colour_translation_m", entry.get("depth_to_colour_translation_m", [0, 0, 0]), (3,))
+    return ColourCamera(Intrinsics(*(float(v) for v in values)), depth2rgb)
 
 
 def _field(file: Path, data: object, key: str, kind: type, prefix: str = "") -> object:
@@ -345,6 +383,7 @@ __all__ = [
     "SevenScenesGroundTruth",
     "SevenScenesObject",
     "SevenScenesSequence",
+    "ColourCamera",
     "load_ground_truth",
     "load_seven_scenes",
 ]
