@@ -1,7 +1,8 @@
 """The per-frame step (the paper's Algorithm 1), over the ports.
 
-detect -> voxelize -> find visible objects -> lock -> associate -> fuse -> create -> refine -> write
--> unlock -> publish.
+detect -> voxelize (masks cleaned with depth) -> find visible objects -> lock -> associate -> fuse (and
+count a miss for each visible object nothing was detected on) -> create -> refine (boxes reach the floor
+the frames saw; score and confirmation from the evidence) -> write -> unlock -> publish.
 
 Creation is where two workers that see the same new object at the same moment would make it twice
 (locks only protect objects that exist). So new objects are created under a *space claim* on the index
@@ -94,7 +95,6 @@ def integrate_frame(
     result = StepResult(frame.key)
     clock = _Clock(result.timings_s)
 
-    floor = frame_floor(frame, params)
     observations = voxelize_detections(frame, check_detections(detections, frame.shape), params)
     result.n_detections = len(observations)
     clock.lap("voxelize")
@@ -105,6 +105,7 @@ def integrate_frame(
         result.skipped = not store.commit(frame.map_id, [], [], [], frame_key=frame.key)
         return result
 
+    floor = frame_floor(frame, params) if observations else None  # only fused objects take its vote
     with store.lock(frame.map_id, visible_ids, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s) as lease:
         clock.lap("lock")
         before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
