@@ -106,6 +106,7 @@ def integrate_frame(
         return result
 
     floor = frame_floor(frame, params) if observations else None  # only fused objects take its vote
+    clock.lap("floor")
     with store.lock(frame.map_id, visible_ids, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s) as lease:
         clock.lap("lock")
         before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
