@@ -148,6 +148,19 @@ def build_scannet(
     return TinyScanNet(scene, poses, parts)
 
 
+def write_v2_labels(scene_dir: Path, instance_ids: np.ndarray, nyu40_ids: np.ndarray, *, scene_id: str = SCENE_ID) -> None:
+    """The v2 annotation files ``labels_v2/<scene>_{ins,sem}_label_all.npy`` (saved as given: ScanNet's are uint32)."""
+    folder = scene_dir / "labels_v2"
+    folder.mkdir(exist_ok=True)
+    np.save(folder / f"{scene_id}_ins_label_all.npy", instance_ids)
+    np.save(folder / f"{scene_id}_sem_label_all.npy", nyu40_ids)
+
+
+#: v2 labels of ``build_scannet``'s 32 vertices (8 a box: chair, table, desk, floor): the chair is
+#: instance 12 (nyu40 5), the table and the desk one instance 5 whose vertices vote nyu40 7 (10) over 14
+#: (6), the floor instance 1 (nyu40 2).
+TINY_V2_INSTANCES = np.repeat(np.array([12, 5, 5, 1], np.uint32), 8)
+TINY_V2_NYU40 = np.array([5] * 8 + [7] * 8 + [14] * 6 + [7] * 2 + [2] * 8, np.uint32)
 
 
 def build_seven_scenes(root: Path, *, n_frames: int = 3, gravity: np.ndarray | None = None, sequences: int = 0) -> Path:
@@ -188,9 +201,15 @@ ROOM_WALLS = [
 ]
 
 
-def build_room_scene(root: Path) -> Path:
+#: The v2 annotation of ``build_room_scene(v2=True)`` per part (8 vertices each): instance id, nyu40 id.
+#: The table is a desk (nyu40 14: class table, ScanNet label id 9); the walls are unannotated.
+ROOM_V2 = {"floor": (3, 2), "wall": (0, 0), "chair": (9, 5), "table": (300, 14)}
+
+
+def build_room_scene(root: Path, *, v2: bool = False) -> Path:
     """A closed 6 x 6 m room mesh with a chair and a table, annotated like ScanNet (aggregation, segs,
-    v2 tsv), its scan frame related to the aligned frame by ``ALIGNMENT``; no frames. Returns the scene folder."""
+    v2 tsv; with ``v2`` also ``labels_v2/`` as ``ROOM_V2`` says), its scan frame related to the aligned
+    frame by ``ALIGNMENT``; no frames. Returns the scene folder."""
     scene = root / SCENE_ID
     scene.mkdir(parents=True)
     write_tsv(root / "scannetv2-labels.combined.tsv", 2)
@@ -210,6 +229,9 @@ def build_room_scene(root: Path) -> Path:
     groups = [{"id": i, "objectId": i, "segments": [100 + i], "label": raw} for i, raw in enumerate(ROOM_PARTS)]
     (scene / f"{SCENE_ID}.aggregation.json").write_text(json.dumps({"sceneId": SCENE_ID, "segGroups": groups}))
     (scene / f"{SCENE_ID}.txt").write_text("axisAlignment = " + " ".join(f"{v:g}" for v in ALIGNMENT.ravel()) + "\n")
+    if v2:
+        per_box = [ROOM_V2[raw] for raw in ROOM_PARTS] + [(0, 0)] * len(ROOM_WALLS)
+        write_v2_labels(scene, np.repeat(np.array([i for i, _ in per_box], np.uint32), 8), np.repeat(np.array([n for _, n in per_box], np.uint32), 8))
     return scene
 
 

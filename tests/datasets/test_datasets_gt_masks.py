@@ -3,6 +3,7 @@ or with the faults of a model's masks."""
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -42,6 +43,25 @@ def test_nyu40_label_images(tiny_scannet: TinyScanNet) -> None:
     cv2.imwrite(str(label_dir / "0.png"), np.select([instance == 1, instance == 2], [7, 5], 2).astype(np.uint16))
     detections = GroundTruthMaskDetector(scene, label_ids="nyu40").detect(scene.load_frame("0"))
     assert [d.label for d in detections] == ["table", "chair"]
+
+
+def test_label_ids_come_from_render_json(tiny_scannet: TinyScanNet) -> None:
+    scene = load_scannet_scene(tiny_scannet.scene_dir)
+    assert GroundTruthMaskDetector(scene).label_ids == "scannet"  # a ScanNet export: no render.json
+    record = tiny_scannet.scene_dir / "render.json"
+    record.write_text(json.dumps({"frames": 3}))  # a render from before label_ids was recorded: v1, ScanNet ids
+    assert GroundTruthMaskDetector(scene).label_ids == "scannet"
+    record.write_text(json.dumps({"annotation": "v2", "label_ids": "nyu40"}))
+    assert GroundTruthMaskDetector(scene).label_ids == "nyu40"
+    # the tiny scene's label ids read as nyu40 ids: chair 2 and table 4 are floor and cabinet, none of ours
+    assert GroundTruthMaskDetector(scene).detect(scene.load_frame("0")) == []
+    assert GroundTruthMaskDetector(scene, label_ids="scannet").label_ids == "scannet"  # an explicit value wins
+    record.write_text(json.dumps({"label_ids": "coco"}))
+    with pytest.raises(DatasetError, match=r"render\.json: expected label_ids 'scannet' or 'nyu40', got 'coco'"):
+        GroundTruthMaskDetector(scene)
+    record.write_text("{")
+    with pytest.raises(DatasetError, match=r"render\.json: expected a JSON render record"):
+        GroundTruthMaskDetector(scene)
 
 
 def test_without_label_images_classes_come_from_the_aggregation(tiny_scannet: TinyScanNet) -> None:

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from arcloud.datasets.scannet import load_scannet_scene
+from arcloud.datasets.scannet import ScanNetInstance, load_scannet_scene
 from arcloud.datasets.sevenscenes import load_seven_scenes
 
 pytestmark = pytest.mark.shared
@@ -16,8 +16,8 @@ pytestmark = pytest.mark.shared
 def test_scannet_scene0000_ground_truth(shared: type) -> None:
     root = shared.path("data/scannet-scene0000_00")
     meta = json.loads((root / "real_frames" / "frames.json").read_text())
-    scene = load_scannet_scene(root, scan2aligned=np.asarray(meta["axis_align_matrix"]))
-    assert scene.scene_id == "scene0000_00" and len(scene.instances) == 55
+    scene = load_scannet_scene(root, scan2aligned=np.asarray(meta["axis_align_matrix"]), annotation="v1")
+    assert scene.scene_id == "scene0000_00" and scene.annotation == "v1" and len(scene.instances) == 55
     objects = {(o.raw_category, o.label) for o in scene.objects}
     assert objects == {("table", "table"), ("desk", "table"), ("couch", "couch"), ("tv", "tv")}
     assert sorted(o.label for o in scene.objects) == ["couch", "table", "table", "table", "tv"]
@@ -35,6 +35,36 @@ def test_scannet_scene0000_ground_truth(shared: type) -> None:
     # the alignment is applied: the aligned room is centred near the origin
     floor = next(o for o in scene.instances if o.raw_category == "floor")
     assert np.all(np.abs(floor.center[:2]) < 0.5)
+
+
+def test_scannet_scene0000_v2_annotation(shared: type) -> None:
+    """v2 (the default here: labels_v2/ is there) boxes v1's table-top-only table down to the floor and
+    makes v1's counter a table; its boxes are those of the benchmark's bbox file."""
+    root = shared.path("data/scannet-scene0000_00/labels_v2").parent
+    alignment = root / "real_frames" / "frames.json"
+    v2 = load_scannet_scene(root, scan2aligned=alignment)
+    v1 = load_scannet_scene(root, scan2aligned=alignment, annotation="v1")
+    assert v2.annotation == "v2" and len(v2.instances) == 67
+    assert sorted((o.label, o.nyu40_id) for o in v2.objects) == [("couch", 6), ("table", 7), ("table", 7), ("table", 7), ("table", 14), ("tv", 25)]
+
+    def v1_majority(obj: ScanNetInstance) -> ScanNetInstance:
+        """The v1 instance holding most of ``obj``'s vertices."""
+        return max(v1.instances, key=lambda w: np.intersect1d(obj.vertex_indices, w.vertex_indices).size)
+
+    # v1's objectId 35 is a table top, 8 cm tall; v2's instance on the same vertices stands on the floor
+    top = next(o for o in v1.objects if o.object_id == 35)
+    assert top.size[2] < 0.1 and top.aabb_min[2] > 0.4
+    (table,) = (o for o in v2.objects if v1_majority(o) is top)
+    assert np.isin(top.vertex_indices, table.vertex_indices).all()
+    assert table.aabb_min[2] == pytest.approx(0.0, abs=0.05) and table.aabb_max[2] == pytest.approx(top.aabb_max[2], abs=0.02)
+    # the table v1 lacks: v1 files it as a counter, none of our classes
+    assert [(o.label, v1_majority(o).raw_category) for o in v2.objects if v1_majority(o).label is None] == [("table", "counter")]
+    # every box of ours matches the benchmark's bbox file (cx, cy, cz, dx, dy, dz, nyu40) within a centimetre
+    benchmark = np.load(root / "labels_v2" / "scene0000_00_bbox.npy")
+    for obj in (o for o in v2.objects if o.nyu40_id != 25):  # the benchmark's 18 classes have no tv
+        rows = benchmark[benchmark[:, 6] == obj.nyu40_id]
+        error = np.abs(rows[:, :6] - np.r_[obj.center, obj.size]).max(axis=1)
+        assert error.min() < 0.01, (obj.object_id, error.min())
 
 
 def _backproject(frame, step: int = 2) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""Rendering an annotated mesh into a ScanNet-layout scene (default and random walks), reading it back,
-and evaluating on it."""
+"""Rendering an annotated mesh into a ScanNet-layout scene (default and random walks, v1 and v2
+annotations), reading it back, and evaluating on it."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import pytest
 from datasets_builders import ALIGNMENT, ROOM_PARTS, SCENE_ID, build_room_scene, circle_walk
 
 from arcloud.core.types import Intrinsics, Params
+from arcloud.datasets.files import read_label_png
 from arcloud.datasets.gt_masks import GroundTruthMaskDetector
 from arcloud.datasets.render_scannet import (
     label_lookup,
@@ -59,9 +60,11 @@ def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
     scene_dir = render_scannet(scene, out, users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
     record = json.loads((scene_dir / "render.json").read_text())
     assert record["frames"] == 12 and record["user_frames"] == [[0, 6], [6, 12]] and record["dropped"] == 0
-    assert (out / "scannetv2-labels.combined.tsv").is_file()
+    assert record["annotation"] == "v1" and record["label_ids"] == "scannet"
+    assert (out / "scannetv2-labels.combined.tsv").is_file() and not (scene_dir / "labels_v2").exists()
 
     rendered = load_scannet_scene(scene_dir)
+    assert rendered.annotation == "v1" and len(rendered.instances) == len(ROOM_PARTS)
     np.testing.assert_allclose(rendered.scan2aligned, ALIGNMENT, atol=1e-6)
     assert rendered.n_frames == 12 and rendered.depth_intrinsics == pytest.approx(SMALL)
     # poses on disk are in the scan frame; the reader brings them back to the walk (aligned frame)
@@ -88,6 +91,52 @@ def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
             lo, hi = ROOM_PARTS[det.label]
             assert np.all(world >= lo - 0.02) and np.all(world <= hi + 0.02), det.label
     assert labels_seen == {"chair", "table"}
+
+
+def test_v2_scene_labels(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path, v2=True))
+    assert scene.annotation == "v2"
+    # label-filt ids of instance ids 0..301: the nyu40 ids, floor 2 (instance 3 -> 4), chair 5 (9 -> 10), desk 14 (300 -> 301)
+    lookup = label_lookup(scene)
+    assert len(lookup) == 302 and {i: int(v) for i, v in enumerate(lookup) if v} == {4: 2, 10: 5, 301: 14}
+    assert np.bincount(triangle_instances(scene))[[0, 4, 10, 301]].tolist() == [48, 12, 12, 12]  # walls unannotated in v2
+    layout = room_layout(scene)
+    np.testing.assert_allclose(layout.targets, [[1.05, 1.05, 0.45], [-1.0, -0.5, 0.375]])  # chair, desk
+
+
+def test_render_of_a_v2_scene_reads_back_as_v2(tmp_path: Path) -> None:
+    scene = load_scannet_scene(build_room_scene(tmp_path / "mesh", v2=True))
+    scene_dir = render_scannet(scene, tmp_path / "render", users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
+    record = json.loads((scene_dir / "render.json").read_text())
+    assert record["annotation"] == "v2" and record["label_ids"] == "nyu40"
+    assert sorted(p.name for p in (scene_dir / "labels_v2").iterdir()) == [f"{SCENE_ID}_ins_label_all.npy", f"{SCENE_ID}_sem_label_all.npy"]
+    assert not (scene_dir / f"{SCENE_ID}.aggregation.json").exists()  # its objectIds are not what the images hold
+
+    rendered = load_scannet_scene(scene_dir)
+    assert rendered.annotation == "v2"
+    assert [(i.object_id, i.nyu40_id, i.label) for i in rendered.instances] == [(3, 2, None), (9, 5, "chair"), (300, 14, "table")]
+    for a, b in zip(rendered.instances, scene.instances):
+        np.testing.assert_allclose(a.aabb_min, b.aabb_min, atol=1e-6)
+        np.testing.assert_allclose(a.aabb_max, b.aabb_max, atol=1e-6)
+    # the images hold v2 instance ids + 1 (16-bit: beyond 255) and nyu40 ids
+    instance_ids = np.unique(np.concatenate([read_label_png(scene_dir / "instance-filt" / f"{n}.png").ravel() for n in rendered.frame_names]))
+    label_ids = np.unique(np.concatenate([read_label_png(scene_dir / "label-filt" / f"{n}.png").ravel() for n in rendered.frame_names]))
+    assert set(instance_ids.tolist()) <= {0, 4, 10, 301} and 301 in instance_ids
+    assert set(label_ids.tolist()) <= {0, 2, 5, 14} and 14 in label_ids
+
+    # the detector reads render.json and takes the ids as nyu40 ids: 14 is a desk (table), 5 a chair
+    detector = GroundTruthMaskDetector(rendered)
+    assert detector.label_ids == "nyu40"
+    seen = {d.label for n in rendered.frame_names for d in detector.detect(rendered.load_frame(n))}
+    assert seen == {"chair", "table"}
+    # an explicit value wins; read as ScanNet label ids the floor's 2 is a chair and 5 and 14 are nothing
+    as_scannet = GroundTruthMaskDetector(rendered, label_ids="scannet")
+    by_mask_size = [(d.label, d.mask.sum()) for n in rendered.frame_names for d in as_scannet.detect(rendered.load_frame(n))]
+    assert {label for label, _ in by_mask_size} == {"chair"} and max(size for _, size in by_mask_size) > 0.3 * 160 * 120
+    chair, desk = rendered.gt_boxes()
+    assert (chair.label, desk.label) == ("chair", "table")
+    np.testing.assert_allclose(desk.min, ROOM_PARTS["table"][0], atol=1e-6)
+    np.testing.assert_allclose(desk.max, ROOM_PARTS["table"][1], atol=1e-6)
 
 
 def test_eval_on_a_rendered_scene_finds_the_ground_truth(tmp_path: Path) -> None:

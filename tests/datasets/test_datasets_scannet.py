@@ -1,5 +1,5 @@
 """The ScanNet reader on a tiny scene built in tmp_path: parsing, invalid poses, colour resize, axis
-alignment, label mapping (v1 and v2 tsv), ground-truth boxes."""
+alignment, label mapping (v1 and v2 tsv), ground-truth boxes from the v1 and the v2 annotation."""
 
 from __future__ import annotations
 
@@ -9,7 +9,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from datasets_builders import ALIGNMENT, DEPTH_K, DEPTH_WH, SCENE_ID, TinyScanNet, build_scannet
+from datasets_builders import (
+    ALIGNMENT,
+    DEPTH_K,
+    DEPTH_WH,
+    SCENE_ID,
+    TINY_V2_INSTANCES,
+    TINY_V2_NYU40,
+    TinyScanNet,
+    build_scannet,
+    write_v2_labels,
+)
 
 from arcloud.core.types import Intrinsics
 from arcloud.datasets.files import read_ply_mesh
@@ -150,3 +160,76 @@ def test_find_scene_dirs(tmp_path: Path) -> None:
     assert [p.name for p in find_scene_dirs(tmp_path / "scans" / SCENE_ID)] == [SCENE_ID]
     with pytest.raises(DatasetError, match="scene0999_00"):
         find_scene_dirs(tmp_path, ["scene0999_00"])
+
+
+def test_v2_instances_and_boxes(tiny_scannet: TinyScanNet, caplog: pytest.LogCaptureFixture) -> None:
+    write_v2_labels(tiny_scannet.scene_dir, TINY_V2_INSTANCES, TINY_V2_NYU40)
+    with caplog.at_level(logging.INFO):
+        scene = load_scannet_scene(tiny_scannet.scene_dir, annotation="v2")
+    assert scene.annotation == "v2" and "from the v2 annotation" in caplog.text
+    by_id = {inst.object_id: inst for inst in scene.instances}
+    assert sorted(by_id) == [1, 5, 12]
+    assert {i: (inst.nyu40_id, inst.label, inst.raw_category) for i, inst in by_id.items()} == {
+        1: (2, None, "nyu40:2"),
+        5: (7, "table", "nyu40:7"),  # 10 vertices vote table, 6 desk
+        12: (5, "chair", "nyu40:5"),
+    }
+    np.testing.assert_array_equal(by_id[5].vertex_indices, np.arange(8, 24))
+    # boxes in the aligned frame, as v1's: the table and the desk together
+    table_lo, table_hi = aligned_box(*tiny_scannet.boxes_scan["table"], ALIGNMENT)
+    desk_lo, desk_hi = aligned_box(*tiny_scannet.boxes_scan["desk"], ALIGNMENT)
+    np.testing.assert_allclose(by_id[5].aabb_min, np.minimum(table_lo, desk_lo), atol=1e-6)
+    np.testing.assert_allclose(by_id[5].aabb_max, np.maximum(table_hi, desk_hi), atol=1e-6)
+    np.testing.assert_allclose(by_id[12].aabb_min, aligned_box(*tiny_scannet.boxes_scan["chair"], ALIGNMENT)[0], atol=1e-6)
+    assert sorted(b.label for b in scene.gt_boxes()) == ["chair", "table"]
+
+
+def test_ties_take_the_smallest_nyu40_id(tiny_scannet: TinyScanNet) -> None:
+    nyu40 = TINY_V2_NYU40.copy()
+    nyu40[8:24] = [14] * 8 + [7] * 8  # table and desk, 8 votes each
+    write_v2_labels(tiny_scannet.scene_dir, TINY_V2_INSTANCES, nyu40)
+    table = next(i for i in load_scannet_scene(tiny_scannet.scene_dir).instances if i.object_id == 5)
+    assert table.nyu40_id == 7
+
+
+def test_auto_takes_v2_when_both_files_are_there(tiny_scannet: TinyScanNet, caplog: pytest.LogCaptureFixture) -> None:
+    scene = load_scannet_scene(tiny_scannet.scene_dir)
+    assert scene.annotation == "v1" and len(scene.instances) == 4
+    write_v2_labels(tiny_scannet.scene_dir, TINY_V2_INSTANCES, TINY_V2_NYU40)
+    assert load_scannet_scene(tiny_scannet.scene_dir).annotation == "v2"
+    assert len(load_scannet_scene(tiny_scannet.scene_dir, annotation="v1").instances) == 4  # v1 still on request
+    (tiny_scannet.scene_dir / "labels_v2" / f"{SCENE_ID}_sem_label_all.npy").unlink()
+    with caplog.at_level(logging.WARNING):
+        assert load_scannet_scene(tiny_scannet.scene_dir).annotation == "v1"
+    assert "only one of the two v2 label files" in caplog.text
+    assert load_scannet_scene(tiny_scannet.scene_dir, load_mesh=False).annotation is None  # no instances read
+
+
+@pytest.mark.parametrize(
+    ("instance_ids", "nyu40_ids", "message"),
+    [
+        (TINY_V2_INSTANCES[:-1], TINY_V2_NYU40, r"ins_label_all\.npy: expected one label per mesh vertex \(32\), got 31"),
+        (TINY_V2_INSTANCES, np.append(TINY_V2_NYU40, 0), r"sem_label_all\.npy: expected one label per mesh vertex \(32\), got 33"),
+        (TINY_V2_INSTANCES.astype(np.float32), TINY_V2_NYU40, r"ins_label_all\.npy: expected integer labels .*got dtype float32"),
+        (TINY_V2_INSTANCES.reshape(4, 8), TINY_V2_NYU40, r"ins_label_all\.npy: expected shape \(32,\).*got \(4, 8\)"),
+        (TINY_V2_INSTANCES.astype(np.int32) - 2, TINY_V2_NYU40, r"ins_label_all\.npy: expected labels >= 0, got -1"),
+    ],
+)
+def test_malformed_v2_files_are_named(tiny_scannet: TinyScanNet, instance_ids: np.ndarray, nyu40_ids: np.ndarray, message: str) -> None:
+    write_v2_labels(tiny_scannet.scene_dir, instance_ids, nyu40_ids)
+    with pytest.raises(DatasetError, match=message):
+        load_scannet_scene(tiny_scannet.scene_dir)
+
+
+def test_v2_asked_for_without_its_files(tiny_scannet: TinyScanNet) -> None:
+    with pytest.raises(DatasetError, match=rf"labels_v2: expected the v2 annotation files \['{SCENE_ID}_ins_label_all.npy', '{SCENE_ID}_sem_label_all.npy'\]"):
+        load_scannet_scene(tiny_scannet.scene_dir, annotation="v2")
+    (tiny_scannet.scene_dir / "labels_v2").mkdir()
+    (tiny_scannet.scene_dir / "labels_v2" / f"{SCENE_ID}_ins_label_all.npy").write_bytes(b"not numpy")
+    with pytest.raises(DatasetError, match=rf"expected the v2 annotation files \['{SCENE_ID}_sem_label_all.npy'\]"):
+        load_scannet_scene(tiny_scannet.scene_dir, annotation="v2", load_mesh=False)
+    np.save(tiny_scannet.scene_dir / "labels_v2" / f"{SCENE_ID}_sem_label_all.npy", TINY_V2_NYU40)
+    with pytest.raises(DatasetError, match=r"ins_label_all\.npy: expected a numpy array"):
+        load_scannet_scene(tiny_scannet.scene_dir, annotation="v2")
+    with pytest.raises(InvalidInput, match="annotation"):
+        load_scannet_scene(tiny_scannet.scene_dir, annotation="v3")  # type: ignore[arg-type]

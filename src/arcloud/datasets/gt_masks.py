@@ -5,8 +5,10 @@ For a frame named N it reads ``instance-filt/N.png`` (8-bit instance ids, 0 = no
 ``label-filt/N.png`` (16-bit label ids), resizes both to the frame by nearest neighbour, and returns one
 ``Detection`` (score 1.0) per instance of arcloud's classes. An instance's class is the most frequent
 label id under its mask, mapped through the labels tsv (``label_ids="scannet"``: ScanNet label ids, as
-ScanNet and ``render_scannet`` write; ``"nyu40"``: nyu40 ids). Without ``label-filt`` the class comes from
-the aggregation (instance id = objectId + 1).
+ScanNet and ``render_scannet`` write for v1 scenes; ``"nyu40"``: nyu40 ids, as it writes for v2 scenes).
+By default the scene says which: the ``label_ids`` of its ``render.json`` (a render), else ``"scannet"``
+(real ScanNet exports are made from the v1 annotation). Without ``label-filt`` the class comes from the
+scene's instances (instance id = ``object_id + 1``).
 
 With ``faults`` (``arcloud.datasets.mask_faults.MaskFaults``) each instance comes out as a model's would:
 borders off by a few pixels, some instances missed, some split, scores below 1, drawn per frame id and
@@ -19,6 +21,7 @@ Importing this module registers the detector spec ``gt-masks[:OPTIONS][:SCENE_DI
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 from typing import Literal
 
@@ -32,26 +35,32 @@ from arcloud.errors import DatasetError, InvalidInput
 
 logger = logging.getLogger(__name__)
 
+LabelIds = Literal["scannet", "nyu40"]
+LABEL_IDS = ("scannet", "nyu40")
+
 
 class GroundTruthMaskDetector:
     """``arcloud.ports.Detector`` replaying the 2D ground-truth masks of ``scene``, keyed by frame id.
 
     Safe to call from many threads (it only reads files). Frames without 2D labels give no detections
-    (logged once per frame id) unless ``strict``, which raises ``DatasetError``. ``faults`` (None:
-    exact masks, score 1) are drawn per frame id and instance id from ``fault_seed``."""
+    (logged once per frame id) unless ``strict``, which raises ``DatasetError``. ``label_ids``: what
+    ``label-filt`` holds (None: ``scene_label_ids(scene)``). ``faults`` (None: exact masks, score 1) are
+    drawn per frame id and instance id from ``fault_seed``."""
 
     def __init__(
         self,
         scene: ScanNetScene,
         *,
-        label_ids: Literal["scannet", "nyu40"] = "scannet",
+        label_ids: LabelIds | None = None,
         min_mask_px: int = 64,
         strict: bool = False,
         faults: MaskFaults | None = None,
         fault_seed: int = 0,
     ) -> None:
-        if label_ids not in ("scannet", "nyu40"):
-            raise InvalidInput("label_ids", "'scannet' or 'nyu40'", label_ids)
+        if label_ids is None:
+            label_ids = scene_label_ids(scene)
+        elif label_ids not in LABEL_IDS:
+            raise InvalidInput("label_ids", "'scannet', 'nyu40' or None", repr(label_ids))
         if faults is not None and not isinstance(faults, MaskFaults):
             raise InvalidInput("faults", "a MaskFaults or None", type(faults).__name__)
         if not scene.has_2d_labels:
@@ -106,6 +115,22 @@ class GroundTruthMaskDetector:
         return detections
 
 
+def scene_label_ids(scene: ScanNetScene) -> LabelIds:
+    """What the scene's ``label-filt`` images hold: the ``label_ids`` its ``render.json`` records (a
+    ``render_scannet`` output), else ``"scannet"`` (ScanNet's own exports)."""
+    record_path = scene.root / "render.json"
+    if not record_path.is_file():
+        return "scannet"
+    try:
+        record = json.loads(record_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{record_path}: expected a JSON render record ({exc})") from exc
+    label_ids = record.get("label_ids", "scannet") if isinstance(record, dict) else None
+    if label_ids not in LABEL_IDS:
+        raise DatasetError(f"{record_path}: expected label_ids 'scannet' or 'nyu40', got {label_ids!r}")
+    return label_ids  # type: ignore[no-any-return]
+
+
 #: What the ``gt-masks`` spec accepts, for messages.
 GT_MASKS_SPEC = "gt-masks[:faults=NAME[,seed=N][,FIELD=VALUE...]][:SCENE_DIR]"
 
@@ -157,4 +182,4 @@ def _register() -> None:
 _register()
 
 
-__all__ = ["GT_MASKS_SPEC", "GroundTruthMaskDetector", "gt_masks_detector", "gt_masks_options"]
+__all__ = ["GT_MASKS_SPEC", "LABEL_IDS", "GroundTruthMaskDetector", "gt_masks_detector", "gt_masks_options", "scene_label_ids"]

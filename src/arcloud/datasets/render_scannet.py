@@ -11,12 +11,19 @@ it back into the users' walks.
 
 Written per frame, with ScanNet's conventions (see docs/datasets.md): ``color/N.jpg`` (vertex colours,
 shaded), ``depth/N.png`` (uint16 millimetres, 0 = no surface), ``pose/N.txt`` (cam2world in the
-*unaligned* scan frame, as ScanNet stores it), ``instance-filt/N.png`` (aggregation objectId + 1, 0 =
-unannotated; 8-bit, or 16-bit beyond 255 instances) and ``label-filt/N.png`` (uint16 ScanNet label ids,
-the labels tsv's ``id`` of the instance's raw category). Per scene: ``intrinsic/`` (colour = depth, both
-at the render size), ``<scene>.txt`` with ``axisAlignment``, copies of the mesh, aggregation and segs
-(for the 3D ground truth), the labels tsv beside the scene folder, and ``render.json`` (users, seeds,
-walk style and each user's drawn walk).
+*unaligned* scan frame, as ScanNet stores it), ``instance-filt/N.png`` (the instance's ``object_id + 1``,
+0 = unannotated; 8-bit, or 16-bit beyond 255 instances) and ``label-filt/N.png`` (uint16). Per scene:
+``intrinsic/`` (colour = depth, both at the render size), ``<scene>.txt`` with ``axisAlignment``, the
+mesh and the 3D annotation the scene was read with, the labels tsv beside the scene folder, and
+``render.json`` (users, seeds, walk style and each user's drawn walk, ``annotation`` and ``label_ids``).
+
+The 2D ground truth follows the scene's annotation (``ScanNetScene.annotation``), so that a render reads
+back with the same instances and names its classes one way:
+
+- v1: the aggregation and segs are copied; ``label-filt`` holds ScanNet label ids (the labels tsv's
+  ``id`` of the raw category, as ScanNet's images do), ``render.json`` says ``"label_ids": "scannet"``;
+- v2: ``labels_v2/`` is copied (and not the aggregation, whose objectIds the images do not hold);
+  ``label-filt`` holds nyu40 ids (v2 has no raw categories), ``render.json`` says ``"label_ids": "nyu40"``.
 
 Walk styles: ``"default"`` walks every user at ``eye_height_m`` with ``plan_walk``'s defaults;
 ``"random"`` draws each user's walk from the seed (``random_user_walk``): eye height 1.1-1.9 m, speed,
@@ -38,7 +45,7 @@ import numpy as np
 
 from arcloud.core.types import Intrinsics
 from arcloud.datasets.files import write_matrix, write_png
-from arcloud.datasets.scannet import LABEL_TSV_NAMES, ScanNetScene, find_label_table
+from arcloud.datasets.scannet import LABEL_TSV_NAMES, ScanNetScene, find_label_table, v2_label_paths
 from arcloud.errors import DatasetError, InvalidInput
 
 logger = logging.getLogger(__name__)
@@ -48,6 +55,10 @@ DEFAULT_DEPTH_INTRINSICS = Intrinsics(577.87, 577.87, 319.5, 239.5)
 #: nyu40 ids and raw categories that are room structure, not obstacles one walks around or looks at.
 FLOOR_NYU40, CEILING_NYU40, WALL_NYU40 = 2, 22, 1
 STRUCTURE_RAW = {"floor", "ceiling", "wall", "window", "door", "doorframe", "curtain", "blinds", "ceiling light"}
+#: The same structure by nyu40 id (door, window, blinds, curtain), for v2 scenes that have no raw categories.
+STRUCTURE_NYU40 = {FLOOR_NYU40, CEILING_NYU40, WALL_NYU40, 8, 9, 13, 16}
+#: What ``label-filt`` images hold, by the scene's annotation.
+LABEL_IDS_OF_ANNOTATION = {"v1": "scannet", "v2": "nyu40"}
 JPEG_QUALITY = 90
 WALK_STYLES = ("default", "random")
 #: Ranges of a random user's walk (``random_user_walk``), drawn uniformly.
@@ -82,7 +93,7 @@ def aligned_vertices(scene: ScanNetScene) -> np.ndarray:
 
 
 def _is_structure(raw: str, nyu40: int) -> bool:
-    return raw.strip().lower() in STRUCTURE_RAW or nyu40 in (FLOOR_NYU40, CEILING_NYU40, WALL_NYU40)
+    return raw.strip().lower() in STRUCTURE_RAW or nyu40 in STRUCTURE_NYU40
 
 
 def room_layout(
@@ -180,7 +191,7 @@ def shake(poses: list[np.ndarray], shake_deg: float, shake_m: float, rng: np.ran
 
 
 def triangle_instances(scene: ScanNetScene) -> np.ndarray:
-    """(T,) int32 per triangle: aggregation objectId + 1 of its vertices (majority), 0 = unannotated."""
+    """(T,) int32 per triangle: ``object_id + 1`` of its vertices (majority), 0 = unannotated."""
     assert scene.mesh is not None
     vertex_instance = np.zeros(len(scene.mesh.vertices), np.int32)
     for inst in scene.instances:
@@ -190,11 +201,14 @@ def triangle_instances(scene: ScanNetScene) -> np.ndarray:
 
 
 def label_lookup(scene: ScanNetScene) -> np.ndarray:
-    """(max instance id + 1,) uint16: ScanNet label id of each 2D instance id (0 -> 0)."""
+    """(max instance id + 1,) uint16: the ``label-filt`` id of each 2D instance id (0 -> 0): its nyu40 id
+    for a v2 scene, else its ScanNet label id (0 without a labels tsv)."""
     ids = [inst.object_id + 1 for inst in scene.instances]
     lookup = np.zeros(max(ids, default=0) + 1, np.uint16)
-    if scene.labels is not None:
-        for inst in scene.instances:
+    for inst in scene.instances:
+        if scene.annotation == "v2":
+            lookup[inst.object_id + 1] = inst.nyu40_id
+        elif scene.labels is not None:
             lookup[inst.object_id + 1] = scene.labels.label_id_of(inst.raw_category)
     return lookup
 
@@ -225,9 +239,16 @@ def _write_scene_files(scene: ScanNetScene, scene_dir: Path, out_root: Path, k: 
         "numColorFrames": n, "numDepthFrames": n, "sceneType": "Rendered",
     }  # fmt: skip
     (scene_dir / f"{scene.scene_id}.txt").write_text("".join(f"{key} = {value}\n" for key, value in meta.items()))
-    for pattern in (f"{scene.scene_id}_vh_clean_2.ply", f"{scene.scene_id}.aggregation.json", f"{scene.scene_id}_vh_clean*.segs.json"):
+    copied = [f"{scene.scene_id}_vh_clean_2.ply"]
+    if scene.annotation == "v1":
+        copied += [f"{scene.scene_id}.aggregation.json", f"{scene.scene_id}_vh_clean*.segs.json"]
+    for pattern in copied:
         for source in scene.root.glob(pattern):
             shutil.copyfile(source, scene_dir / source.name)
+    if scene.annotation == "v2":
+        for source in v2_label_paths(scene.root, scene.scene_id):
+            (scene_dir / source.parent.name).mkdir(exist_ok=True)
+            shutil.copyfile(source, scene_dir / source.parent.name / source.name)
     tsv = find_label_table(scene.root)
     if tsv is not None:
         shutil.copyfile(tsv, out_root / tsv.name)
@@ -268,8 +289,9 @@ def render_scannet(
         raise InvalidInput("users, frames_per_user", "both >= 1", (users, frames_per_user))
     if style not in WALK_STYLES:
         raise InvalidInput("style", f"one of {WALK_STYLES}", repr(style))
-    if scene.mesh is None or not scene.instances:
-        raise DatasetError(f"{scene.root}: expected a mesh with an aggregation and segs (the annotation), got none")
+    if scene.mesh is None or not scene.instances or scene.annotation not in LABEL_IDS_OF_ANNOTATION:
+        raise DatasetError(f"{scene.root}: expected a mesh with its annotation (aggregation and segs, or labels_v2/), got none")
+    label_ids = LABEL_IDS_OF_ANNOTATION[scene.annotation]
     base = intrinsics or (
         scaled_intrinsics(scene.depth_intrinsics, (640, 480), (width, height)) if scene.depth_intrinsics
         else scaled_intrinsics(DEFAULT_DEPTH_INTRINSICS, (640, 480), (width, height))
@@ -320,7 +342,8 @@ def render_scannet(
     record = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "style": style, "width": width, "height": height,
               "walk_seeds": [seed * 1000 + u for u in range(users)],
               "walk_styles": [asdict(w) if w else {"eye_height_m": eye_height_m} for w in user_walks],
-              "user_frames": user_frames, "frames": index, "dropped": dropped}  # fmt: skip
+              "user_frames": user_frames, "frames": index, "dropped": dropped,
+              "annotation": scene.annotation, "label_ids": label_ids}  # fmt: skip
     (scene_dir / "render.json").write_text(json.dumps(record, indent=1))
     logger.info("rendered %d frames of %s by %d users into %s", index, scene.scene_id, users, scene_dir)
     return scene_dir
@@ -342,9 +365,11 @@ def _write_frame(
 
 
 __all__ = [
+    "LABEL_IDS_OF_ANNOTATION",
     "WALK_STYLES",
     "RoomLayout",
     "UserWalk",
+    "label_lookup",
     "random_user_walk",
     "render_scannet",
     "room_layout",

@@ -11,8 +11,14 @@ A scene folder ``<root>/<scene>/`` may hold (everything but the poses is optiona
 - ``<scene>_vh_clean_2.ply`` (mesh with vertex colours, scan frame), ``<scene>.aggregation.json``
   (instances as groups of over-segments, raw category labels), ``<scene>_vh_clean_2.0.010000.segs.json``
   (the over-segment of every vertex);
+- ``labels_v2/<scene>_ins_label_all.npy`` and ``<scene>_sem_label_all.npy``: the ScanNet v2 annotation,
+  one instance id (0 = none) and one nyu40 id per mesh vertex, in the mesh's vertex order;
 - ``instance-filt/N.png`` (8-bit: aggregation ``objectId + 1``, 0 = none) and ``label-filt/N.png``
   (16-bit: ScanNet label ids, the ``id`` column of the labels tsv), the 2D ground truth.
+
+The 3D annotation is v1 (aggregation + segs: instances with raw categories) or v2 (``labels_v2/``: the
+annotation of the ScanNet v2 benchmark, which fixes v1 instances such as a table boxed as its top only);
+``annotation="auto"`` takes v2 when its two files are there.
 
 The world of every frame and box is the scene's *aligned* frame (``axisAlignment`` applied to the poses),
 so predictions and ground truth share a frame. Raw categories become arcloud's ``CLASSES`` through
@@ -29,7 +35,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -51,6 +57,9 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 LABEL_TSV_NAMES = ("scannetv2-labels.combined.tsv", "scannet-labels.combined.tsv")
+ANNOTATIONS = ("auto", "v1", "v2")
+Annotation = Literal["auto", "v1", "v2"]
+V2_LABELS_DIR = "labels_v2"
 FRAME_RATE_HZ = 30.0
 DEFAULT_DEVICE_ID = "user-0"
 
@@ -175,6 +184,9 @@ class ScanNetMesh:
 class ScanNetInstance:
     """One annotated instance. 2D instance images hold ``object_id + 1``.
 
+    v1: ``object_id`` is the aggregation's objectId, ``raw_category`` its label. v2: ``object_id`` is the
+    instance id of ``labels_v2``, ``raw_category`` ``"nyu40:<id>"`` (v2 names no raw categories).
+
     vertex_indices: (N,) int64 into the mesh. aabb_min, aabb_max: (3,) float64 in the aligned frame."""
 
     object_id: int
@@ -199,7 +211,8 @@ class ScanNetScene:
     """A parsed ScanNet scene. Images are read lazily by ``load_frame``/``frames``.
 
     scan2aligned: (4, 4) the axisAlignment. cam2world: (N, 4, 4) poses of ``frame_names`` in the
-    aligned frame (invalid poses already dropped, their names in ``skipped_frames``)."""
+    aligned frame (invalid poses already dropped, their names in ``skipped_frames``). ``annotation``:
+    the 3D annotation ``instances`` come from, ``"v1"`` or ``"v2"``; None when none was read."""
 
     scene_id: str
     root: Path
@@ -212,6 +225,7 @@ class ScanNetScene:
     instances: tuple[ScanNetInstance, ...]
     mesh: ScanNetMesh | None
     labels: LabelTable | None
+    annotation: Literal["v1", "v2"] | None = None
     device_id: str = DEFAULT_DEVICE_ID
 
     @cached_property
@@ -346,7 +360,7 @@ def read_instances(
         raise DatasetError(
             f"{segs_paths[0]}: expected one segment index per mesh vertex ({vertices_scan.shape[0]}), got {seg_indices.shape[0]}"
         )
-    vertices_aligned = vertices_scan.astype(np.float64) @ scan2aligned[:3, :3].T + scan2aligned[:3, 3]
+    vertices_aligned = _aligned(vertices_scan, scan2aligned)
     instances = []
     for group in groups:
         raw = str(group.get("label", ""))
@@ -356,19 +370,94 @@ def read_instances(
             logger.warning("scene %s: instance %d (%s) has no vertices; skipped", scene_id, object_id, raw)
             continue
         nyu40 = labels.nyu40_of(raw) if labels is not None else 0
-        points = vertices_aligned[indices]
-        instances.append(
-            ScanNetInstance(
-                object_id=object_id,
-                raw_category=raw,
-                nyu40_id=nyu40,
-                label=mapping.class_of(raw, nyu40),
-                vertex_indices=indices,
-                aabb_min=points.min(axis=0),
-                aabb_max=points.max(axis=0),
-            )
-        )
+        instances.append(_instance(object_id, raw, nyu40, mapping.class_of(raw, nyu40), indices, vertices_aligned))
     return tuple(instances)
+
+
+def v2_label_paths(scene_dir: Path, scene_id: str) -> tuple[Path, Path]:
+    """(instance ids, nyu40 ids) files of the v2 annotation: ``labels_v2/<scene>_{ins,sem}_label_all.npy``."""
+    folder = scene_dir / V2_LABELS_DIR
+    return folder / f"{scene_id}_ins_label_all.npy", folder / f"{scene_id}_sem_label_all.npy"
+
+
+def _require_v2_files(scene_dir: Path, scene_id: str) -> tuple[Path, Path]:
+    paths = v2_label_paths(scene_dir, scene_id)
+    missing = [p.name for p in paths if not p.is_file()]
+    if missing:
+        raise DatasetError(f"{scene_dir / V2_LABELS_DIR}: expected the v2 annotation files {missing}, got none")
+    return paths
+
+
+def _read_vertex_labels(path: Path, n_vertices: int) -> np.ndarray:
+    """(V,) int64 from a per-vertex .npy of non-negative integers, checked against the mesh."""
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: expected a numpy array of one integer per mesh vertex ({exc})") from exc
+    if array.dtype.kind not in "ui":
+        raise DatasetError(f"{path}: expected integer labels (ScanNet writes uint32), got dtype {array.dtype}")
+    if array.ndim != 1:
+        raise DatasetError(f"{path}: expected shape ({n_vertices},), one label per mesh vertex, got {array.shape}")
+    if array.shape[0] != n_vertices:
+        raise DatasetError(f"{path}: expected one label per mesh vertex ({n_vertices}), got {array.shape[0]}")
+    if array.size and array.min() < 0:
+        raise DatasetError(f"{path}: expected labels >= 0, got {array.min()}")
+    return array.astype(np.int64)
+
+
+def read_v2_instances(
+    scene_dir: Path,
+    scene_id: str,
+    vertices_scan: np.ndarray,
+    scan2aligned: np.ndarray,
+    mapping: ClassMapping = DEFAULT_CLASS_MAPPING,
+) -> tuple[ScanNetInstance, ...]:
+    """Instances of the v2 annotation (``v2_label_paths``), boxes in the aligned frame: one per instance
+    id > 0, its nyu40 id the most common of its vertices' (ties: the smallest), its class ``mapping.nyu40``'s."""
+    instance_path, semantic_path = _require_v2_files(scene_dir, scene_id)
+    instance_ids = _read_vertex_labels(instance_path, vertices_scan.shape[0])
+    nyu40_ids = _read_vertex_labels(semantic_path, vertices_scan.shape[0])
+    vertices_aligned = _aligned(vertices_scan, scan2aligned)
+    order = np.argsort(instance_ids, kind="stable")
+    ids, starts = np.unique(instance_ids[order], return_index=True)
+    instances = []
+    for instance_id, indices in zip(ids.tolist(), np.split(order, starts[1:])):
+        if instance_id == 0:
+            continue
+        values, votes = np.unique(nyu40_ids[indices], return_counts=True)
+        nyu40 = int(values[np.argmax(votes)])
+        label = mapping.nyu40.get(nyu40)
+        instances.append(_instance(instance_id, f"nyu40:{nyu40}", nyu40, label, np.sort(indices), vertices_aligned))
+    return tuple(instances)
+
+
+def _aligned(vertices_scan: np.ndarray, scan2aligned: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 vertices carried from the scan frame to the aligned frame."""
+    return vertices_scan.astype(np.float64) @ scan2aligned[:3, :3].T + scan2aligned[:3, 3]
+
+
+def _instance(
+    object_id: int, raw: str, nyu40: int, label: str | None, indices: np.ndarray, vertices_aligned: np.ndarray
+) -> ScanNetInstance:
+    """An instance boxed by the aligned-frame axis-aligned bounds of its vertices."""
+    points = vertices_aligned[indices]
+    return ScanNetInstance(object_id, raw, nyu40, label, indices, points.min(axis=0), points.max(axis=0))
+
+
+def choose_annotation(scene_dir: Path, scene_id: str, annotation: str) -> Literal["v1", "v2"]:
+    """The annotation to read: ``"auto"`` takes v2 when both ``v2_label_paths`` exist, else v1;
+    ``"v2"`` without them raises ``DatasetError``."""
+    if annotation not in ANNOTATIONS:
+        raise InvalidInput("annotation", f"one of {ANNOTATIONS}", repr(annotation))
+    if annotation == "v1":
+        return "v1"
+    if annotation == "v2":
+        _require_v2_files(scene_dir, scene_id)
+        return "v2"
+    present = [p.is_file() for p in v2_label_paths(scene_dir, scene_id)]
+    if any(present) and not all(present):
+        logger.warning("scene %s: only one of the two v2 label files in %s; using the v1 annotation", scene_id, V2_LABELS_DIR)
+    return "v2" if all(present) else "v1"
 
 
 def _read_poses(scene_dir: Path) -> tuple[list[str], list[np.ndarray], list[str]]:
@@ -404,13 +493,16 @@ def load_scannet_scene(
     scan2aligned: np.ndarray | None = None,
     mapping: ClassMapping = DEFAULT_CLASS_MAPPING,
     load_mesh: bool = True,
+    annotation: Annotation = "auto",
 ) -> ScanNetScene:
     """Parse a scene folder (see the module docstring). ``labels_tsv`` defaults to the tsv found in the
-    folder or its two parents; ``scan2aligned`` overrides the ``axisAlignment`` of ``<scene>.txt``."""
+    folder or its two parents; ``scan2aligned`` overrides the ``axisAlignment`` of ``<scene>.txt``;
+    ``annotation`` picks the 3D annotation (``choose_annotation``; ``"v2"`` without its files raises)."""
     root = Path(scene_dir)
     if not root.is_dir():
         raise DatasetError(f"{root}: expected a ScanNet scene folder, got no such folder")
     scene_id = scene_id_of(root)
+    chosen = choose_annotation(root, scene_id, annotation)
     meta_path = root / f"{scene_id}.txt"
     meta = read_key_values(meta_path) if meta_path.is_file() else {}
     if scan2aligned is not None:
@@ -439,7 +531,10 @@ def load_scannet_scene(
         if colors is None:
             colors = np.full(vertices.shape, 128, np.uint8)
         mesh = ScanNetMesh(vertices, colors, triangles)
-        instances = read_instances(root, scene_id, vertices, alignment, labels, mapping)
+        if chosen == "v2":
+            instances = read_v2_instances(root, scene_id, vertices, alignment, mapping)
+        else:
+            instances = read_instances(root, scene_id, vertices, alignment, labels, mapping)
 
     scene = ScanNetScene(
         scene_id=scene_id,
@@ -453,10 +548,12 @@ def load_scannet_scene(
         instances=instances,
         mesh=mesh,
         labels=labels,
+        annotation=chosen if instances else None,
     )
     logger.info(
-        "scene %s: %d frames, %d instances (%d of our classes)", scene_id, scene.n_frames, len(instances), len(scene.objects)
-    )
+        "scene %s: %d frames, %d instances (%d of our classes) from the %s annotation",
+        scene_id, scene.n_frames, len(instances), len(scene.objects), scene.annotation or "no",
+    )  # fmt: skip
     return scene
 
 
@@ -482,16 +579,20 @@ def find_scene_dirs(root: str | Path, scenes: Sequence[str] | None = None) -> li
 
 
 __all__ = [
+    "ANNOTATIONS",
     "DEFAULT_CLASS_MAPPING",
     "ClassMapping",
     "LabelTable",
     "ScanNetInstance",
     "ScanNetMesh",
     "ScanNetScene",
+    "choose_annotation",
     "find_label_table",
     "find_scene_dirs",
     "load_axis_alignment",
     "load_scannet_scene",
     "read_instances",
     "read_label_table",
+    "read_v2_instances",
+    "v2_label_paths",
 ]
