@@ -40,10 +40,10 @@ UP = np.array([0.0, 0.0, 1.0])
 FIT_PER_SIZE = 0.5 / math.tan(math.radians(28.0))
 
 #: Ranges ``WalkStyle.sample`` draws from, uniformly. Eye height: a child or a phone at chest height up
-#: to a tall adult's eye; steps of 2.5-8 cm a frame are 0.75-2.4 m/s at 30 Hz.
+#: to a tall adult's eye; steps of 2-5 cm a frame are 0.6-1.5 m/s at 30 Hz.
 EYE_HEIGHT_RANGE_M = (1.1, 1.9)
-STEP_RANGE_M = (0.025, 0.08)
-LAPS_RANGE = (0.5, 1.6)
+STEP_RANGE_M = (0.02, 0.05)
+LAPS_RANGE = (0.35, 1.6)
 FIXATION_RANGE_FRAMES = (8, 30)
 GLANCES_RANGE_PER_100_FRAMES = (0.0, 1.0)
 FAST_TURNS_RANGE_PER_100_FRAMES = (0.0, 1.0)
@@ -59,9 +59,9 @@ class WalkStyle:
 
     eye_height_m: the camera's height above the floor (plus a small bob and sway).
     step_m: walking speed, metres per frame.
-    laps: laps of the ring the walk makes; below 1 only that share of the ring is walked, so part of
-        the room is seen from afar or not at all (the ring cannot grow past the room's walls, so a long
-        walk in a small room makes more laps than asked).
+    laps: laps of the ring the walk makes. Below 1 only that share of the ring is walked (back and
+        forth when the walk is longer), so part of the room is seen from afar or not at all; the ring
+        cannot grow past the room's walls, so from 1 lap a long walk in a small room makes more laps.
     fixation_frames: the typical time one look at a target lasts (short: glances; long: long looks).
     glances_per_100_frames: mean number of glances at the floor or the ceiling (the head pitches
         down or up, holds a few frames and comes back).
@@ -404,11 +404,13 @@ def _walk_path(
     """(N, 2) smoothed path at least ``length_m`` long: laps of a ring around the room, inset from
     the floor's edges so that one lap is about ``lap_share`` of the walk (by default things along the
     walls are then seen from 1-2.5 m, things in the middle from all sides), alternating direction and
-    inset."""
+    inset. A ``lap_share`` above 1 walks ``1 / lap_share`` of the ring, back and forth when that share
+    is shorter than the walk (the ring cannot grow past the walls)."""
     lo, hi = grid.origin, grid.origin + np.array([grid.nx, grid.ny]) * grid.cell
     size = hi - lo
     if ring_inset_m is None:  # detours make up some of the rest of the walk
         ring_inset_m = (2 * (size[0] + size[1]) - lap_share * length_m) / 8
+    partial = lap_share > 1.0
     largest = max(float(min(size)) / 2 - 0.4, 0.0)
     flat_xy = grid.xy.reshape(-1, 2)
     direction = 1 if rng.random() < 0.5 else -1
@@ -419,6 +421,9 @@ def _walk_path(
     while total < length_m + 1.0 and lap < 50:
         inset = float(np.clip(ring_inset_m + (0.35 if lap % 2 else 0.0), 0.0, largest))
         ring = _rectangle_points(lo + inset, hi - inset, step_m=0.5, phase=phase, direction=direction)
+        if partial:  # the share of the ring, forth on even laps and back on odd ones
+            ring = ring[: max(2, math.ceil(len(ring) / lap_share))]
+            ring = ring[::-1] if lap % 2 else ring
         goals = []
         for point in ring:
             cell = grid.cell_of(point)
@@ -427,7 +432,7 @@ def _walk_path(
         if current is None:
             current = goals[0]
             pieces.append(flat_xy[[current]])
-        for goal in goals[1:] + goals[:1]:
+        for goal in goals[1:] if partial else goals[1:] + goals[:1]:
             if goal == current:
                 continue
             leg = grid.path(current, goal)
@@ -435,7 +440,7 @@ def _walk_path(
             total += float(np.sum(np.linalg.norm(np.diff(leg, axis=0), axis=1)))
             current = goal
         lap += 1
-        direction = -direction
+        direction = direction if partial else -direction
     path = np.concatenate(pieces)
     if len(path) < 2:
         return path
