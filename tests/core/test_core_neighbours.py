@@ -39,3 +39,21 @@ def test_a_mask_spanning_two_tvs_does_not_weld_them(split):
     for obj, (lo, hi) in zip(objects, TVS):
         assert obj.aabb.min[0] == pytest.approx(lo[0], abs=0.1) and obj.aabb.max[0] == pytest.approx(hi[0], abs=0.1)
         assert obj.n_frames == 10  # the merged masks counted as a view of each
+
+
+def test_a_couch_seen_in_parts_is_joined_by_a_mask_that_spans_them():
+    # A couch's two halves first seen apart (two objects), then whole: large objects are seen in parts
+    # more often than side by side, so the spanning mask is not shared out and the merge pass joins them.
+    halves = [((-0.9, 1.6, 0.0), (0.0, 2.4, 0.8)), ((0.0, 1.6, 0.0), (0.9, 2.4, 0.8))]
+    store = MemoryStore()
+    for i in range(4):
+        eye = (0.3 * np.sin(i), 0.0, 1.3)
+        frame, instance = scene_frame(look_down_pose(eye, (0.0, 2.0, 0.4)), halves, floor_z=None, frame_id=f"f{i}")
+        integrate_frame(frame, [Detection("couch", 0.9, instance == 0), Detection("couch", 0.9, instance == 1)], store, PARAMS)
+    assert len(store.list_objects("m")) == 2
+    for i in range(4, 10):
+        eye = (0.3 * np.sin(i), 0.0, 1.3)
+        frame, instance = scene_frame(look_down_pose(eye, (0.0, 2.0, 0.4)), halves, floor_z=None, frame_id=f"f{i}")
+        integrate_frame(frame, [Detection("couch", 0.9, instance >= 0)], store, PARAMS)
+    (couch,) = store.list_objects("m")
+    assert couch.aabb.size[0] > 1.4  # both halves (each 0.9 m)

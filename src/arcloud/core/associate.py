@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from arcloud.core.types import MapObject, Params
+from arcloud.core.types import CLASS_INDEX, MapObject, Params
 from arcloud.core.voxels import coarsen_keys, unpack_keys
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
@@ -147,7 +147,9 @@ def hungarian_match(cost: np.ndarray) -> list[tuple[int, int]]:
 class Association:
     """pairs: (detection index, object index). unmatched: detection indices without an object, in
     order. rivals: matched detection index -> other objects of its label that it also covers (a mask
-    spanning two TVs side by side): fusing all of it into its match would weld them together."""
+    spanning two TVs side by side): fusing all of it into its match would weld them together. Only for
+    ``split_classes``: chairs, TVs and laptops stand side by side in rooms, while a table or a couch
+    that a detection spans with another of its kind is more often one object first seen in parts."""
 
     pairs: list[tuple[int, int]]
     unmatched: list[int]
@@ -173,7 +175,10 @@ def associate(
     established = np.ones(len(object_keys), bool) if object_frames is None else np.asarray(object_frames) >= params.split_min_frames
     labels = np.asarray(object_labels)
     rivals = {}
+    splittable = {CLASS_INDEX[name] for name in params.split_classes}
     for d, o in pairs:
+        if detection_labels[d] not in splittable:
+            continue
         others = np.flatnonzero((overlap[d] >= params.association_min_overlap) & (labels == detection_labels[d]) & established)
         others = [int(j) for j in others if j != o]
         if others:

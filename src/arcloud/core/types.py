@@ -209,6 +209,7 @@ class Params:
     class_mismatch_penalty: float = 0.3
     class_mismatch_min_overlap: float = 0.8
     split_min_frames: int = 3
+    split_classes: tuple[str, ...] = ("chair", "laptop", "tv")  # see core.associate.Association
     # Fusion and refinement
     visibility_tolerance_m: float = 0.1
     prune_min_seen: float = 10.0
