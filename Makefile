@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
 
-.PHONY: demo test lint bench proto lock clean
+.PHONY: demo test lint bench accuracy proto lock clean
 
 $(STAMP): pyproject.toml constraints.txt scripts/bootstrap.sh
 	VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh
@@ -22,6 +22,11 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_detector.py
 	$(BIN)/python bench/bench_service.py
 	$(BIN)/python bench/bench_memory.py
+
+# Accuracy suites (simulated rooms, ScanNet renders, 7-Scenes) -> bench/results/accuracy.json; about 20 min.
+# ACCURACY_ARGS=--quick for the short versions, --suites sim for one suite.
+accuracy: $(STAMP)
+	$(BIN)/python bench/bench_accuracy.py $(ACCURACY_ARGS)
 
 proto: $(STAMP)
 	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto --pyi_out=src/arcloud/proto proto/arcloud/v1/*.proto
