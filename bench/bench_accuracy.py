@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import subprocess
 import sys
 import time
 from collections.abc import Mapping
@@ -87,6 +88,21 @@ def sim_targets(record: Mapping[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
+def source_version() -> dict[str, Any]:
+    """The checkout measured: its commit and whether ``src/`` differs from it (None outside git)."""
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], capture_output=True, text=True, check=True, cwd=Path(__file__).parent)
+        except (OSError, subprocess.CalledProcessError):
+            return None
+        return done.stdout.strip()
+
+    commit = git("rev-parse", "HEAD")
+    changed = git("status", "--porcelain", "--", "../src")
+    return {"commit": commit, "src_changed": None if changed is None else bool(changed)}
+
+
 def _mean_worst(entry: Mapping[str, Any]) -> str:
     if entry["mean"] is None:
         return "-"
@@ -113,8 +129,8 @@ def main() -> int:
     started = time.perf_counter()
     records: dict[str, dict[str, Any]] = {}
     skipped: dict[str, str] = {}
-    payload: dict[str, Any] = {"benchmark": "accuracy suites", "quick": args.quick, "suites": records, "skipped": skipped, **environment(
-        ("arcloud", "numpy", "scipy", "open3d", "onnxruntime"))}  # fmt: skip
+    payload: dict[str, Any] = {"benchmark": "accuracy suites", "quick": args.quick, "source": source_version(), "suites": records,
+                               "skipped": skipped, **environment(("arcloud", "numpy", "scipy", "open3d", "onnxruntime"))}  # fmt: skip
     for name in suites:
         print(f"suite {name}: running{' (quick)' if args.quick else ''}", flush=True)
         record, reason = run_suite(name, quick=args.quick, work_dir=args.work, shared=args.shared)
