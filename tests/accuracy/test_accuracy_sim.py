@@ -8,13 +8,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
-from arcloud.accuracy.sim import FULL_CASES, QUICK_CASES, REPORT_ROOMS, TUNE_ROOMS, SimCase, observable_objects, run_suite
-from arcloud.core.types import Params
+from arcloud.accuracy.sim import FULL_CASES, QUICK_CASES, REPORT_ROOMS, TUNE_ROOMS, SimCase, observable_objects, run_suite, without_unseen
+from arcloud.core.types import AABB, MapObject, Params
 from arcloud.errors import InvalidInput
 from arcloud.sim.detector import DetectorFaults, SimulatedDetector, visible_instances
-from arcloud.sim.room import generate_room
+from arcloud.sim.room import RoomObject, generate_room
 from arcloud.sim.sequence import DEFAULT_INTRINSICS, simulate_sequence
 from arcloud.sim.trajectory import WalkStyle, room_walk
 
@@ -81,6 +82,23 @@ def test_observable_objects_are_those_seen_well_enough_in_enough_frames() -> Non
     assert len(observable_objects(room, frames, detector, min_visible_px=1, min_frames=1)) > len(
         observable_objects(room, frames, detector, min_visible_px=20000, min_frames=3)
     )
+
+
+def test_map_objects_matching_an_unseen_object_are_left_out_of_the_scoring() -> None:
+    unseen = [RoomObject(5, "couch", np.array([0.0, 0.0, 0.0]), np.array([2.0, 1.0, 0.8]))]
+
+    def map_object(object_id: int, label: str, lo: list[float], hi: list[float]) -> MapObject:
+        empty = np.zeros(0, np.int64)
+        return MapObject(object_id, empty, empty.astype(np.float32), np.zeros((0, 5), np.float32), label=label, aabb=AABB(np.array(lo), np.array(hi)))
+
+    objects = [
+        map_object(1, "couch", [0.2, 0.0, 0.0], [1.6, 0.9, 0.7]),  # the unseen couch, found: IoU 0.55
+        map_object(2, "chair", [0.2, 0.0, 0.0], [1.6, 0.9, 0.7]),  # there, but another label
+        map_object(3, "couch", [1.6, 0.0, 0.0], [3.0, 1.0, 0.8]),  # beside it: IoU 0.13, an object of its own
+        map_object(4, "couch", [0.0, 0.0, 0.0], [2.0, 1.0, 0.8]),
+    ]
+    assert [o.id for o in without_unseen(objects, unseen)] == [2, 3]
+    assert without_unseen(objects, []) == objects
 
 
 @pytest.fixture(scope="module")
