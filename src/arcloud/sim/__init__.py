@@ -4,7 +4,8 @@
   exact ground-truth boxes.
 - ``render``: ``MeshRenderer`` ray-casts any triangle mesh (a generated room or a real scan) into colour,
   z-depth and per-pixel instance ids with Open3D's ``RaycastingScene``.
-- ``trajectory``: ``plan_walk`` plans one user's smooth walk through free floor space looking at targets.
+- ``trajectory``: ``plan_walk`` plans one user's smooth walk through free floor space looking at targets,
+  the default walk or one in a ``WalkStyle`` (eye height, speed, coverage, glances, fast turns, jitter).
 - ``detector``: ``SimulatedDetector`` turns the true instance image into detections with seeded faults
   (``DetectorFaults``); the same faults model depth and pose noise.
 - ``sequence``: ``simulate_sequence`` renders a walk into validated ``Frame`` objects.
