@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -112,7 +112,7 @@ def integrate_frame(
         before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
         objects = list(before.values())
         objects, unmatched = fuse_matches(objects, observations, params, frame, floor)
-        objects, misses = count_misses(objects, before, frame, params)
+        objects, misses, rescored = count_misses(objects, before, frame, params)
         result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
@@ -122,7 +122,7 @@ def integrate_frame(
                 leases += claims
                 before.update({o.id: o for o in late})
                 objects += created
-            changed, removed, events = finish_objects(objects, before, params, frame.map_id, now_s)
+            changed, removed, events = finish_objects(objects, before, params, frame.map_id, now_s, rescored)
             written = {o.id for o in changed} | {o.id for o in removed}
             misses = {i: n for i, n in misses.items() if i not in written}
             clock.lap("create_refine")
@@ -202,15 +202,16 @@ def fuse_matches(
 
 def count_misses(
     objects: list[MapObject], before: dict[int, MapObject], frame: Frame, params: Params
-) -> tuple[list[MapObject], dict[int, int]]:
+) -> tuple[list[MapObject], dict[int, int], dict[int, MapObject]]:
     """Objects the frame had in view, mostly unoccluded (``miss_min_visible`` of their voxels
     visible), whose detection did not come: one more miss each (``core.confirm``). Returns the objects,
-    those whose score or status the miss changes enough replaced to be rewritten, and the new miss
-    counts of the others (a counter the store keeps without a new version)."""
-    out, misses = list(objects), {}
+    those whose score or status the miss changes enough replaced (rescored, to be rewritten), the new
+    miss counts of the others (a counter the store keeps without a new version), and the rescored ones
+    by id (their voxels did not change: they need no refinement)."""
+    out, misses, rescored = list(objects), {}, {}
     undetected = [i for i, obj in enumerate(objects) if before.get(obj.id) is obj and obj.keys.size]  # not new, not fused
     if not undetected:
-        return out, misses
+        return out, misses, rescored
     samples = [objects[i].keys[:: max(1, objects[i].keys.size // MISS_SAMPLE_VOXELS)] for i in undetected]
     visible = visible_voxels(frame, np.concatenate(samples), params)  # one projection for all
     shares = np.add.reduceat(visible, np.cumsum([0] + [s.size for s in samples[:-1]])) / [s.size for s in samples]
@@ -220,10 +221,10 @@ def count_misses(
             continue
         score, confirmed = evidence(obj, params, n_missed=obj.n_missed + 1)
         if confirmed != obj.confirmed or abs(score - obj.score) > params.rescore_write_delta:
-            out[i] = obj.replace(n_missed=obj.n_missed + 1, score=score, confirmed=confirmed)
+            out[i] = rescored[obj.id] = obj.replace(n_missed=obj.n_missed + 1, score=score, confirmed=confirmed)
         else:
             misses[obj.id] = obj.n_missed + 1
-    return out, misses
+    return out, misses, rescored
 
 
 def floor_vote(floor: FrameFloor | None, observation: VoxelDetection, params: Params) -> int | None:
@@ -288,14 +289,22 @@ def try_lock(store: ObjectStore, map_id: str, ids: Sequence[int], params: Params
 
 
 def finish_objects(
-    objects: Sequence[MapObject], before: dict[int, MapObject], params: Params, map_id: str, now_s: float
+    objects: Sequence[MapObject],
+    before: dict[int, MapObject],
+    params: Params,
+    map_id: str,
+    now_s: float,
+    rescored: Mapping[int, MapObject] | None = None,
 ) -> tuple[list[MapObject], list[MapObject], list[ObjectEvent]]:
-    """Merge duplicates, give each voxel to one object, refine, and work out what changed.
+    """Merge duplicates, give each voxel to one object, refine, and work out what changed. ``rescored``:
+    objects (by id) whose evidence changed but not their voxels: written as they are unless a merge or a
+    conflict changes them.
 
     Returns (objects to write with their versions bumped, objects to delete as stored, events)."""
     objects = list(objects)
+    rescored = rescored or {}
     absorbed_into: dict[int, int] = {}
-    changed_flags = [before.get(o.id) is not o for o in objects]
+    changed_flags = [before.get(o.id) is not o and rescored.get(o.id) is not o for o in objects]
     for keep, absorb in find_duplicates(objects, params, changed_flags):
         objects[keep] = merge_objects(objects[keep], objects[absorb])
         absorbed_into[objects[absorb].id] = objects[keep].id
@@ -307,7 +316,7 @@ def finish_objects(
         old = before.get(obj.id)
         if old is not None and obj is old:
             continue  # untouched
-        refined = refine(obj, params)
+        refined = obj if rescored.get(obj.id) is obj else refine(obj, params)
         if refined.keys.size == 0:
             if old is not None:
                 removed.append(old)

@@ -231,20 +231,24 @@ def registered_mask_samples(mask: np.ndarray, params: Params, samples: Registere
 
 
 def depth_layers(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, int]:
-    """Regions of a mask's depth samples, (h, w) with 0 where there is no sample: neighbours (4-way)
+    """Regions of a mask's depth samples, (h, w) with NaN where there is no sample: neighbours (4-way)
     join when their depths differ by at most ``layer_jump_m + layer_jump_rel * depth``; at a larger
     jump the farther sample is left out (it is background seen past an edge, or a mixed pixel).
     Returns the labels (h, w) (0: none) and their count; without any jump, all samples are one layer."""
-    valid = z_grid > 0
-    edge = np.zeros_like(valid)
     height, width = z_grid.shape
+    jumps = []
     for dv, du in ((0, 1), (1, 0)):
         a, b = z_grid[: height - dv, : width - du], z_grid[dv:, du:]
-        jump = (a > 0) & (b > 0) & (np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b))
+        with np.errstate(invalid="ignore"):  # NaN (no sample) compares False: no jump
+            jumps.append(np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b))
+    valid = ~np.isnan(z_grid)
+    if not (jumps[0].any() or jumps[1].any()):  # one surface, however many pieces: nothing lies behind anything
+        return valid.astype(np.int32), int(valid.any())
+    edge = np.zeros_like(valid)
+    for (dv, du), jump in zip(((0, 1), (1, 0)), jumps):
+        a, b = z_grid[: height - dv, : width - du], z_grid[dv:, du:]
         edge[: height - dv, : width - du] |= jump & (a > b)
         edge[dv:, du:] |= jump & (b > a)
-    if not edge.any():  # one surface, however many pieces: nothing lies behind anything
-        return valid.astype(np.int32), int(valid.any())
     labels, n = ndimage.label(valid & ~edge)
     return labels, int(n)
 
@@ -264,7 +268,7 @@ def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px
         return np.zeros(0, bool)
     rows, cols = v_px // stride_px, u_px // stride_px
     r0, c0 = rows.min(), cols.min()
-    grid = np.zeros((rows.max() - r0 + 1, cols.max() - c0 + 1))
+    grid = np.full((rows.max() - r0 + 1, cols.max() - c0 + 1), np.nan, np.float32)
     grid[rows - r0, cols - c0] = z_m
     labels, n = depth_layers(grid, params)
     label_of = labels[rows - r0, cols - c0]
