@@ -2,8 +2,9 @@
 
 Suites (``arcloud.accuracy``): ``sim`` (generated rooms walked in varied styles), ``scannet`` (a real
 scan rendered along randomised walks) and ``7scenes`` (a real sequence through the real model). A suite
-whose module is not there, or whose data is missing from ../shared, is skipped with its reason. The
-file is rewritten after each suite, so a suite that fails leaves the finished ones in it. Prints, per
+whose module is not there, or whose data is missing from ../shared, is skipped with its reason; a suite
+that crashes is recorded under ``failed`` with its traceback, the others still run, and the exit status
+is 1. The file is rewritten after each suite. Prints, per
 suite, split and approach, the mean and the worst case (lowest) of mAP@0.25, mAP@0.5 and the served
 set's precision and recall at IoU 0.25, then the simulated suite's targets on its report split.
 
@@ -18,6 +19,7 @@ import logging
 import subprocess
 import sys
 import time
+import traceback
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -129,17 +131,24 @@ def main() -> int:
     started = time.perf_counter()
     records: dict[str, dict[str, Any]] = {}
     skipped: dict[str, str] = {}
+    failed: dict[str, str] = {}
     payload: dict[str, Any] = {"benchmark": "accuracy suites", "quick": args.quick, "source": source_version(), "suites": records,
-                               "skipped": skipped, **environment(("arcloud", "numpy", "scipy", "open3d", "onnxruntime"))}  # fmt: skip
+                               "skipped": skipped, "failed": failed,
+                               **environment(("arcloud", "numpy", "scipy", "open3d", "onnxruntime"))}  # fmt: skip
     for name in suites:
         print(f"suite {name}: running{' (quick)' if args.quick else ''}", flush=True)
-        record, reason = run_suite(name, quick=args.quick, work_dir=args.work, shared=args.shared)
-        if record is None:
-            skipped[name] = str(reason)
-            print(f"suite {name}: skipped: {reason}", flush=True)
+        try:
+            record, reason = run_suite(name, quick=args.quick, work_dir=args.work, shared=args.shared)
+        except Exception:  # one suite's crash must not cost the others' figures
+            failed[name] = traceback.format_exc()
+            print(f"suite {name}: FAILED\n{failed[name]}", file=sys.stderr, flush=True)
         else:
-            records[name] = record
-            print(f"suite {name}: done in {record.get('wall_s', 0.0):.0f} s", flush=True)
+            if record is None:
+                skipped[name] = str(reason)
+                print(f"suite {name}: skipped: {reason}", flush=True)
+            else:
+                records[name] = record
+                print(f"suite {name}: done in {record.get('wall_s', 0.0):.0f} s", flush=True)
         if "sim" in records:
             payload["sim_targets"] = sim_targets(records["sim"])
         payload["wall_s"] = round(time.perf_counter() - started, 1)
@@ -148,8 +157,8 @@ def main() -> int:
     for row in payload.get("sim_targets", []):
         value = "-" if row["value"] is None else f"{row['value']:.3f}"
         print(f"target sim/report {row['figure']}: {value} {row['bound']}: {'met' if row['met'] else 'NOT MET'}{' (quick run: indicative)' if args.quick else ''}")
-    print(f"accuracy suites: {len(records)} run, {len(skipped)} skipped, {payload['wall_s']:.0f} s")
-    return 0
+    print(f"accuracy suites: {len(records)} run, {len(skipped)} skipped, {len(failed)} failed ({', '.join(failed) or 'none'}), {payload['wall_s']:.0f} s")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -144,7 +144,13 @@ def run_suite(
     if isinstance(n_runs, bool) or not isinstance(n_runs, int) or n_runs < 1:
         raise InvalidInput("runs", "an integer >= 1 (distributed runs per case)", repr(runs))
     params = params if params is not None else Params()
-    records = [evaluate_case(case, faults, params, runs=n_runs, workers=workers, out_dir=out_dir) for case in chosen]
+    records = []
+    for case in chosen:
+        try:
+            records.append(evaluate_case(case, faults, params, runs=n_runs, workers=workers, out_dir=out_dir))
+        except Exception as exc:  # a crash is a failure of the suite: say which case to rerun
+            exc.add_note(f"in sim case {case.name} ({case})")
+            raise
     return {
         "suite": "sim",
         "quick": quick,
