@@ -116,3 +116,12 @@ def test_one_layer_of_voxels_gives_a_box_one_voxel_thick():
     refined = refine(flat, Params(voxel_size_m=0.05))
     assert np.allclose(refined.aabb.size, [0.35, 0.25, 0.05])
     assert np.allclose(sorted(refined.obb.size), [0.05, 0.25, 0.35])
+
+
+def test_objects_on_one_line_get_a_box_along_it():
+    # qhull refuses collinear footprints (more than 64 outline points go to it): a long thin row of voxels.
+    line = np.stack([np.arange(100) * 0.05 + 0.025, np.arange(100) * 0.05 + 0.025, np.full(100, 0.5)], axis=1)
+    obb = fit_gravity_obb(line, 0.05, np.array([0.0, 0.0, 1.0]), 0.0)
+    assert sorted(obb.size[:2].round(2)) == [0.05, pytest.approx(np.hypot(4.95, 4.95), abs=0.01)]
+    straight = line * np.array([1.0, 0.0, 1.0]) + np.array([0.0, 0.025, 0.0])
+    assert fit_gravity_obb(straight, 0.05, np.array([0.0, 0.0, 1.0]), 0.0).size[:2].round(2).tolist() == [4.95, 0.05]

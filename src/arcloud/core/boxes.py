@@ -89,6 +89,12 @@ def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     return (outline + 0.5) * voxel_size_m
 
 
+def _collinear(points: np.ndarray) -> bool:
+    """Whether points (N, 2) lie on one line (qhull refuses them; the monotone chain does not)."""
+    spread = points - points[0]
+    return bool(np.linalg.matrix_rank(spread, tol=1e-9) < 2)
+
+
 def convex_hull_2d(points: np.ndarray) -> np.ndarray:
     """Counter-clockwise convex hull (H, 2) of a few points (N, 2) by Andrew's monotone chain."""
     pts = sorted(set(map(tuple, points.tolist())))
@@ -129,9 +135,12 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pa
     rotation = world2gravity(up)
     points = centers if is_vertical(up) else centers @ rotation.T
     xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
-    hull = convex_hull_2d(xy) if len(xy) <= 64 else xy[ConvexHull(xy).vertices]  # qhull wins beyond ~60 points
+    hull = convex_hull_2d(xy) if len(xy) <= 64 or _collinear(xy) else xy[ConvexHull(xy).vertices]  # qhull wins beyond ~60 points
     yaw = 0.0
-    if len(hull) >= 3:
+    if len(hull) == 2:  # collinear: the box lies along the line
+        dx, dy = hull[1] - hull[0]
+        yaw = float(np.mod(np.arctan2(dy, dx), np.pi / 2))
+    elif len(hull) >= 3:
         edges = np.concatenate((hull[1:], hull[:1])) - hull  # np.roll(hull, -1, axis=0) - hull
         # Sorted unique angles (np.mod by a positive divisor gives no -0.0, so equal means identical).
         angles = sorted_unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
