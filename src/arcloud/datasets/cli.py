@@ -34,6 +34,7 @@ import numpy as np
 
 from arcloud.core.types import CLASSES, Frame, MapObject, Params
 from arcloud.errors import DatasetError
+from arcloud.eval.metrics import variance
 from arcloud.ports import Detector
 
 if TYPE_CHECKING:
@@ -180,9 +181,9 @@ def _row(approach: str, users: int, scores25: list[float], scores50: list[float]
         "users": users,
         "runs": len(scores25),
         "map25_mean": float(np.mean(scores25)),
-        "map25_var": float(np.var(scores25)),
+        "map25_var": variance(scores25),
         "map50_mean": float(np.mean(scores50)),
-        "map50_var": float(np.var(scores50)),
+        "map50_var": variance(scores50),
         "wall_s": round(wall_s, 2),
     }
 
@@ -470,9 +471,9 @@ def accuracy_rows(scores: Mapping[int, Sequence[Mapping[str, Mapping[str, Any]]]
                 "runs": len(figures),
                 "boxes": kind,
                 "map25_mean": float(np.mean(values["map25"])),
-                "map25_var": float(np.var(values["map25"])),
+                "map25_var": variance(values["map25"]),
                 "map50_mean": float(np.mean(values["map50"])),
-                "map50_var": float(np.var(values["map50"])),
+                "map50_var": variance(values["map50"]),
                 **{key: float(np.mean(values[key])) for key in _SERVED_FIGURES},
                 "n_gt": figures[0]["n_gt"],
                 "n_served_mean": float(np.mean([f["n_served"] for f in figures])),

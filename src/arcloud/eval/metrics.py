@@ -277,6 +277,12 @@ def evaluate(
     return EvalResult(class_names, n_gt, n_pred, tuple(results))
 
 
+def variance(values: Iterable[float]) -> float:
+    """The population variance (ddof 0) of mAPs over runs, rounded to 1e-12: equal runs give 0, not the
+    1e-32 of float noise."""
+    return round(float(np.var(np.asarray(list(values), dtype=np.float64))), 12)
+
+
 @dataclass(frozen=True, slots=True)
 class PrecisionRecall:
     """How well a set of boxes (what a client is served, scores ignored but for the matching order)
@@ -433,4 +439,5 @@ __all__ = [
     "iou_aabb",
     "iou_matrix",
     "precision_recall",
+    "variance",
 ]
