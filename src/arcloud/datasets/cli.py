@@ -416,6 +416,11 @@ def agreement(
     return rows, centralized, collector.first
 
 
+def served(objects: Sequence[MapObject]) -> list[MapObject]:
+    """What a client is served: the confirmed objects."""
+    return [o for o in objects if o.confirmed]
+
+
 def write_pictures(
     stem: Path,
     frames: Sequence[Frame],
@@ -427,7 +432,7 @@ def write_pictures(
     gt: Sequence[Box3D] = (),
     world2boxes: np.ndarray | None = None,
 ) -> list[str]:
-    """Top-down pictures (boxes over fused points) of the centralized and first distributed maps, and
+    """Top-down pictures (served boxes over fused points) of the centralized and first distributed maps, and
     the centralized boxes drawn into ``n_frames`` frames spread over the sequence; ground-truth boxes
     ``gt`` in green in all of them. ``world2boxes`` (4, 4) maps the world of the frames to the frame
     the boxes are in (``Params.world2aligned``; None: the world). Returns the paths."""
@@ -437,15 +442,15 @@ def write_pictures(
     world2boxes = np.eye(4) if world2boxes is None else np.asarray(world2boxes, np.float64)
     points = fused_points(frames) @ world2boxes[:3, :3].T + world2boxes[:3, 3]
     written = [
-        draw_top_down(f"{stem}_topdown_users1.png", gt=gt, predictions=object_boxes(centralized), points_xyz=points,
-                      title=f"{title or stem.name}: centralized, {len(frames)} frames")
+        draw_top_down(f"{stem}_topdown_users1.png", gt=gt, predictions=object_boxes(served(centralized)), points_xyz=points,
+                      title=f"{title or stem.name}: centralized, {len(frames)} frames, served objects")
     ]  # fmt: skip
     for k, objects in sorted(first_runs.items()):
         written.append(
-            draw_top_down(f"{stem}_topdown_users{k}.png", gt=gt, predictions=object_boxes(objects), points_xyz=points,
-                          title=f"{title or stem.name}: {k} users, run 0")
+            draw_top_down(f"{stem}_topdown_users{k}.png", gt=gt, predictions=object_boxes(served(objects)), points_xyz=points,
+                          title=f"{title or stem.name}: {k} users, run 0, served objects")
         )  # fmt: skip
-    boxes = object_boxes(centralized)
+    boxes = object_boxes(served(centralized))
     for index in np.linspace(0, len(frames) - 1, n_frames).round().astype(int) if len(frames) else []:
         frame = frames[int(index)]
         cam2boxes = world2boxes @ frame.cam2world
