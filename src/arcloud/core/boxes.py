@@ -129,7 +129,7 @@ def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
     return AABB(*at_least(centers.min(axis=0) - pad_m, centers.max(axis=0) + pad_m, min_size_m))
 
 
-def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray, pad_m: float | None = None) -> OBB:
+def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray | tuple[float, ...], pad_m: float | None = None) -> OBB:
     """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
     of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a voxel)."""
     rotation = world2gravity(up)
@@ -208,7 +208,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     lo, hi = ijk.min(axis=0) * params.voxel_size_m, (ijk.max(axis=0) + 1) * params.voxel_size_m  # keys_bounds
     label = CLASSES[label_index]
     aabb = fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m)
-    obb = fit_gravity_obb(centers, params.voxel_size_m, np.asarray(params.up), params.box_pad_voxels * params.voxel_size_m)
+    obb = fit_gravity_obb(centers, params.voxel_size_m, params.up, params.box_pad_voxels * params.voxel_size_m)
     if floor_m is not None and label in params.floor_standing:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(

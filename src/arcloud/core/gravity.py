@@ -14,12 +14,19 @@ def up_rotation(up: np.ndarray | tuple[float, ...]) -> np.ndarray:
 
 def world2gravity(up: np.ndarray | tuple[float, ...]) -> np.ndarray:
     """``up_rotation(up)``, shared and read-only (cached: every frame asks for the same few)."""
-    return _up_rotation(tuple(float(x) for x in np.asarray(up).ravel()))
+    return _up_rotation(_key(up))
 
 
 def is_vertical(up: np.ndarray | tuple[float, ...]) -> bool:
     """Whether ``up`` needs no rotation (its world2gravity is the identity)."""
-    return _is_vertical(tuple(float(x) for x in np.asarray(up).ravel()))
+    return _is_vertical(_key(up))
+
+
+def _key(up: np.ndarray | tuple[float, ...]) -> tuple[float, ...]:
+    """``up`` as the cache's key: ``Params.up`` is a tuple of floats already (asked for every object)."""
+    if isinstance(up, tuple) and all(type(x) is float for x in up):
+        return up
+    return tuple(float(x) for x in np.asarray(up).ravel())
 
 
 @functools.lru_cache(maxsize=16)

@@ -230,26 +230,27 @@ def registered_mask_samples(mask: np.ndarray, params: Params, samples: Registere
     return samples.v_px[near], samples.u_px[near], samples.z_m[near]
 
 
-def depth_layers(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, int]:
+def depth_jumps(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where neighbouring depth samples (along rows, then columns) of a grid, NaN where there is no
+    sample, differ by more than ``layer_jump_m + layer_jump_rel * depth``; None when nowhere (NaN
+    compares False: no jump)."""
+    threshold = lambda a, b: np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b)  # noqa: E731
+    along_rows, along_cols = threshold(z_grid[:, :-1], z_grid[:, 1:]), threshold(z_grid[:-1], z_grid[1:])
+    return (along_rows, along_cols) if along_rows.any() or along_cols.any() else None
+
+
+def depth_layers(z_grid: np.ndarray, jumps: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, int]:
     """Regions of a mask's depth samples, (h, w) with NaN where there is no sample: neighbours (4-way)
-    join when their depths differ by at most ``layer_jump_m + layer_jump_rel * depth``; at a larger
-    jump the farther sample is left out (it is background seen past an edge, or a mixed pixel).
-    Returns the labels (h, w) (0: none) and their count; without any jump, all samples are one layer."""
-    height, width = z_grid.shape
-    jumps = []
-    for dv, du in ((0, 1), (1, 0)):
-        a, b = z_grid[: height - dv, : width - du], z_grid[dv:, du:]
-        with np.errstate(invalid="ignore"):  # NaN (no sample) compares False: no jump
-            jumps.append(np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b))
-    valid = ~np.isnan(z_grid)
-    if not (jumps[0].any() or jumps[1].any()):  # one surface, however many pieces: nothing lies behind anything
-        return valid.astype(np.int32), int(valid.any())
-    edge = np.zeros_like(valid)
-    for (dv, du), jump in zip(((0, 1), (1, 0)), jumps):
-        a, b = z_grid[: height - dv, : width - du], z_grid[dv:, du:]
-        edge[: height - dv, : width - du] |= jump & (a > b)
-        edge[dv:, du:] |= jump & (b > a)
-    labels, n = ndimage.label(valid & ~edge)
+    join unless there is a jump between them (``depth_jumps``); at a jump the farther sample is left out
+    (it is background seen past an edge, or a mixed pixel). Returns the labels (h, w) (0: none) and
+    their count."""
+    along_rows, along_cols = jumps
+    edge = np.zeros(z_grid.shape, bool)
+    edge[:, :-1] |= along_rows & (z_grid[:, :-1] > z_grid[:, 1:])
+    edge[:, 1:] |= along_rows & (z_grid[:, 1:] > z_grid[:, :-1])
+    edge[:-1] |= along_cols & (z_grid[:-1] > z_grid[1:])
+    edge[1:] |= along_cols & (z_grid[1:] > z_grid[:-1])
+    labels, n = ndimage.label(~np.isnan(z_grid) & ~edge)
     return labels, int(n)
 
 
@@ -257,12 +258,13 @@ def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px
     """(N,) bool: the samples of one mask that belong to the object, not to what lies behind it.
 
     A mask covers the object and whatever shows through its gaps (the wall between a chair's slats)
-    or past its border: that lies *behind* the object, across a depth jump, and apart from it. The
-    samples are split into depth layers (``depth_layers``); the object's layer is the nearest (by mean
-    depth) of the large ones (at least ``layer_min_fraction`` of the largest). A layer is dropped when it
-    lies deeper than that layer's 90th percentile depth plus ``layer_margin_m`` and does not touch the
-    object in space (no point within the same ``layer_touch_m`` cell as a point of a kept layer): the
-    far arm of a couch seen end on is deep but joined to the rest, the wall behind the slats is not.
+    or past its border: that lies *behind* the object, across a depth jump, and apart from it. Without
+    any jump all samples are kept; else they are split into depth layers (``depth_layers``), and the
+    object's layer is the nearest (by mean depth) of the large ones (at least ``layer_min_fraction`` of
+    the largest). A layer is dropped when it lies deeper than that layer's 90th percentile depth plus
+    ``layer_margin_m`` and does not touch the object in space (no point within the same
+    ``layer_touch_m`` cell as a point of a kept layer): the far arm of a couch seen end on is deep but
+    joined to the rest, the wall behind the slats is not.
     ``points``: (N, 3) the samples' world points."""
     if z_m.size == 0:
         return np.zeros(0, bool)
@@ -270,7 +272,10 @@ def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px
     r0, c0 = rows.min(), cols.min()
     grid = np.full((rows.max() - r0 + 1, cols.max() - c0 + 1), np.nan, np.float32)
     grid[rows - r0, cols - c0] = z_m
-    labels, n = depth_layers(grid, params)
+    jumps = depth_jumps(grid, params)
+    if jumps is None:  # one surface, however many pieces: nothing lies behind anything
+        return np.ones(z_m.size, bool)
+    labels, n = depth_layers(grid, jumps)
     label_of = labels[rows - r0, cols - c0]
     if n <= 1:
         return label_of > 0
