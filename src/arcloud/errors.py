@@ -1,54 +1,23 @@
-"""The exceptions arcloud raises, in one tree.
+"""The exceptions arcloud raises (defined in ``arcloud.core.errors``, which the core raises too)."""
 
-    ArcloudError                 base of everything below
-    ├── InvalidInput (ValueError) a value at an edge is wrong; names the field, what was expected, what came
-    ├── ModelError               a detector model cannot be loaded or does not fit its adapter
-    ├── DatasetError             a dataset folder is missing files or holds malformed ones
-    └── StoreError               the object store failed
-        ├── LockTimeout          per-object locks or space claims not acquired in time
-        ├── StaleLease           a write whose lock expired or whose object changed since it was read
-        │                        (fencing): nothing was written
-        └── StoreUnavailable     the store's server cannot be reached
+from arcloud.core.errors import (
+    ArcloudError,
+    DatasetError,
+    InvalidInput,
+    LockTimeout,
+    ModelError,
+    StaleLease,
+    StoreError,
+    StoreUnavailable,
+)
 
-Adapters map their library's exceptions to these at the boundary (``raise StoreUnavailable(...) from exc``).
-"""
-
-from __future__ import annotations
-
-
-class ArcloudError(Exception):
-    """Base class of arcloud's exceptions."""
-
-
-class InvalidInput(ArcloudError, ValueError):
-    """A value given at an edge is wrong. ``field`` names it, ``expected`` and ``got`` say how."""
-
-    def __init__(self, field: str, expected: str, got: object) -> None:
-        self.field = field
-        self.expected = expected
-        self.got = got
-        super().__init__(f"{field}: expected {expected}, got {got}")
-
-
-class ModelError(ArcloudError):
-    """A detector model cannot be loaded, or its inputs/outputs do not fit the adapter."""
-
-
-class DatasetError(ArcloudError):
-    """A dataset folder is missing files or holds malformed ones."""
-
-
-class StoreError(ArcloudError):
-    """The object store failed."""
-
-
-class LockTimeout(StoreError):
-    """Locks or space claims were not acquired within the timeout."""
-
-
-class StaleLease(StoreError):
-    """A write was refused: its lease expired, or an object changed since it was read. Nothing was written."""
-
-
-class StoreUnavailable(StoreError):
-    """The store's server cannot be reached."""
+__all__ = [
+    "ArcloudError",
+    "DatasetError",
+    "InvalidInput",
+    "LockTimeout",
+    "ModelError",
+    "StaleLease",
+    "StoreError",
+    "StoreUnavailable",
+]

@@ -39,8 +39,8 @@ from arcloud.core.fusion import (
 )
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import key_centers, keys_bounds, visible_voxels, voxelize_detections
-from arcloud.errors import LockTimeout
-from arcloud.ports import Detector, Lease, ObjectStore, UpdatePublisher
+from arcloud.core.errors import LockTimeout
+from arcloud.core.ports import Detector, Lease, MapStore, UpdatePublisher
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +66,7 @@ class StepResult:
 def process_frame(
     frame: Frame,
     detector: Detector,
-    store: ObjectStore,
+    store: MapStore,
     params: Params,
     publisher: UpdatePublisher | None = None,
 ) -> StepResult:
@@ -83,7 +83,7 @@ def process_frame(
 def integrate_frame(
     frame: Frame,
     detections: Sequence[Detection],
-    store: ObjectStore,
+    store: MapStore,
     params: Params,
     publisher: UpdatePublisher | None = None,
     *,
@@ -147,7 +147,7 @@ def integrate_frame(
     return result
 
 
-def find_visible(store: ObjectStore, frame: Frame, params: Params) -> list[int]:
+def find_visible(store: MapStore, frame: Frame, params: Params) -> list[int]:
     """Ids of the objects whose bounds intersect the frame's view frustum (sorted)."""
     frustum = frame_frustum(frame, params)
     if frustum is None:
@@ -249,7 +249,7 @@ def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple
 
 
 def create_under_claim(
-    store: ObjectStore,
+    store: MapStore,
     frame: Frame,
     unmatched: Sequence[VoxelDetection],
     held_ids: Sequence[int],
@@ -277,7 +277,7 @@ def create_under_claim(
     return [claim, *late_leases], late, fused_late + created
 
 
-def try_lock(store: ObjectStore, map_id: str, ids: Sequence[int], params: Params) -> list[Lease]:
+def try_lock(store: MapStore, map_id: str, ids: Sequence[int], params: Params) -> list[Lease]:
     """Locks on whichever of ``ids`` are free now, one lease each, without waiting."""
     leases = []
     for object_id in ids:

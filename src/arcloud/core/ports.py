@@ -1,0 +1,109 @@
+"""The ports of the core: the small interfaces the per-frame step talks to. Adapters implement them;
+``arcloud.ports`` re-exports them beside the service's own.
+
+- ``Detector``: frame -> 2D detections (ONNX models, ground-truth-mask replay, the simulator's detector).
+- ``MapStore``: objects with their sparse voxels, a spatial index, per-object locks with fencing,
+  space claims for creation, unique ids, idempotent frame marks (embedded store, Redis store).
+- ``UpdatePublisher``: object change events out (Zenoh, or nothing).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent
+
+
+@runtime_checkable
+class Detector(Protocol):
+    """Turns a frame into 2D instance detections of arcloud's classes (``CLASSES``)."""
+
+    def detect(self, frame: Frame) -> list[Detection]: ...
+
+
+class Lease(Protocol):
+    """Held locks (on object ids) or space claims (on index cells) of one map.
+
+    A lease is a context manager that releases on exit. Locks expire after their TTL; a write made
+    through an expired lease is refused (``StaleLease``). ``ids`` are the object ids held (empty for
+    a space claim)."""
+
+    map_id: str
+    ids: tuple[int, ...]
+
+    def release(self) -> None: ...
+
+    def __enter__(self) -> Lease: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class MapStore(Protocol):
+    """What the per-frame step needs of a store: objects of many maps, with a spatial index, locks, space
+    claims, unique ids and idempotent frame marks (``arcloud.ports.ObjectStore`` adds what a service needs).
+
+    Every method is safe to call from many threads (and, for a shared store, many processes)."""
+
+    def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Ids and (min, max) bounds of the objects whose bounds intersect the box [lo, hi] (3,) each.
+        Reads only the index cells the box covers, never every object."""
+        ...
+
+    def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> Lease:
+        """Lock objects in sorted id order, blocking up to ``timeout_s`` (0: try once); raise
+        ``LockTimeout`` when not all could be taken (none stay held)."""
+        ...
+
+    def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> Lease:
+        """Claim index cells for creating objects there, in sorted order, like ``lock``."""
+        ...
+
+    def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
+        """The objects with these ids, in the order given; ids that do not exist are skipped."""
+        ...
+
+    def new_ids(self, map_id: str, n: int) -> list[int]:
+        """``n`` object ids never used before in this map, unique across every process of the store."""
+        ...
+
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        upserts: Sequence[MapObject],
+        deletes: Sequence[MapObject],
+        *,
+        frame_key: str | None = None,
+        misses: Mapping[int, int] | None = None,
+    ) -> bool:
+        """Write atomically, and record ``frame_key`` as processed in the same step.
+
+        Every existing object written or deleted must be held by one of ``leases`` (new objects need
+        none) and be at version ``obj.version - 1`` in the store (for deletes: at ``obj.version``);
+        otherwise nothing is written and ``StaleLease`` is raised (fencing). Returns False, writing
+        nothing, when ``frame_key`` was already recorded (the frame was processed before).
+
+        ``misses``: object id -> its new ``n_missed``, for held objects that are not rewritten (the
+        frame saw them and detected nothing there): a counter, so no new version. Written objects
+        carry their own ``n_missed``."""
+        ...
+
+    def is_frame_done(self, map_id: str, frame_key: str) -> bool:
+        """Whether a commit recorded this frame as processed."""
+        ...
+
+
+class UpdatePublisher(Protocol):
+    """Sends object change events to whoever listens."""
+
+    def publish(self, events: Sequence[ObjectEvent]) -> None: ...
+
+
+class NullPublisher:
+    """A publisher that drops events (the default when nothing listens)."""
+
+    def publish(self, events: Sequence[ObjectEvent]) -> None:
+        return None
