@@ -1,26 +1,85 @@
 """The ports: the interfaces adapters implement. The step's own (``Detector``, ``MapStore``, ``Lease``,
-``UpdatePublisher``) are defined in ``arcloud.core.ports``; a service needs more of a store:
+``UpdatePublisher``) are defined in ``arcloud.core.ports``; a service needs more:
 
-- ``ObjectStore``: a ``MapStore`` that also lists, counts and deletes (embedded store, Redis store).
+- ``ObjectStore``: a ``MapStore`` that also lists (with or without voxels), counts, deletes and answers a
+  health check (embedded ``stores.memory``, ``stores.redis``).
+- ``FrameQueue``: validated frames from the API to the workers that run the step, with per-map frame
+  counts and service-wide counters (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``).
+
+The service (``arcloud.service``) talks to these and never to an adapter; ``arcloud.tools.wiring``
+chooses the adapters.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+import bisect
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
-from arcloud.core.types import MapObject
+from arcloud.core.types import AABB, OBB, Frame, MapObject
+from arcloud.errors import ArcloudError
 
-__all__ = ["Detector", "Lease", "MapStore", "NullPublisher", "ObjectStore", "UpdatePublisher"]
+__all__ = [
+    "LATENCY_BUCKETS_S",
+    "Detector",
+    "FrameQueue",
+    "Lease",
+    "MapStore",
+    "NullPublisher",
+    "ObjectMeta",
+    "ObjectStore",
+    "QueueFull",
+    "QueueStats",
+    "QueuedFrame",
+    "UpdatePublisher",
+    "latency_bucket",
+]
+
+
+# --- the object store --------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False, slots=True)
+class ObjectMeta:
+    """An object without its voxels: what listing the map needs (a ``MapObject`` has the same fields)."""
+
+    id: int
+    label: str
+    score: float
+    version: int
+    n_voxels: int
+    n_frames: int
+    devices: frozenset[str]
+    score_sum: float
+    created_at_s: float
+    updated_at_s: float
+    aabb: AABB | None
+    obb: OBB | None
+    bounds: AABB | None
+    confirmed: bool = False
+    floor_votes: dict[int, int] = field(default_factory=dict)
+    label_purity: float = 0.0
+
+    @property
+    def n_devices(self) -> int:
+        return len(self.devices)
 
 
 class ObjectStore(MapStore, Protocol):
-    """A ``MapStore`` with what a service needs beside the step: listing, counting, deleting.
+    """A ``MapStore`` with what a service needs beside the step: listing, counting, deleting, health.
 
     Every method is safe to call from many threads (and, for a shared store, many processes)."""
 
     def list_objects(self, map_id: str) -> list[MapObject]:
-        """Every object of the map."""
+        """Every object of the map, by id."""
+        ...
+
+    def list_meta(self, map_id: str) -> list[ObjectMeta]:
+        """Every object of the map without its voxels (cheaper than ``list_objects``), by id."""
+        ...
+
+    def object_meta(self, map_id: str, ids: Sequence[int]) -> list[ObjectMeta]:
+        """These objects without their voxels, in the order given; ids that do not exist are skipped."""
         ...
 
     def delete_map(self, map_id: str) -> int:
@@ -29,4 +88,134 @@ class ObjectStore(MapStore, Protocol):
 
     def count_frames(self, map_id: str) -> int:
         """How many frames were recorded as processed in this map."""
+        ...
+
+    def ping(self) -> None:
+        """Return when the store answers; raise ``StoreUnavailable`` otherwise."""
+        ...
+
+
+# --- the frame queue ---------------------------------------------------------------------------------
+#: Upper bounds (seconds) of the step latency histogram's buckets (+Inf implied).
+LATENCY_BUCKETS_S: tuple[float, ...] = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
+
+
+def latency_bucket(seconds: float) -> int:
+    """Index of the histogram bucket holding ``seconds`` (upper bounds inclusive)."""
+    return bisect.bisect_left(LATENCY_BUCKETS_S, seconds)
+
+
+class QueueFull(ArcloudError):
+    """The queue holds its maximum of frames (or the service is stopping); retry later (HTTP 503)."""
+
+
+@dataclass(slots=True)
+class QueueStats:
+    """Service-wide counters of a ``FrameQueue`` (every worker's, for a shared queue). ``latency_counts``
+    are per bucket of ``LATENCY_BUCKETS_S`` (not cumulative), the last one for +Inf."""
+
+    accepted: int = 0
+    duplicates: int = 0
+    processed: int = 0
+    redelivered: int = 0  # deliveries of frames processed before (idempotent: not counted as processed)
+    failed: int = 0
+    claimed: int = 0  # frames taken over from a consumer that stopped answering
+    retried: int = 0  # steps tried again after a lock timeout or a stale lease
+    queue_depth: int = 0  # frames queued or in progress
+    latency_counts: list[int] = field(default_factory=lambda: [0] * (len(LATENCY_BUCKETS_S) + 1))
+    latency_sum_s: float = 0.0
+
+    @property
+    def latency_count(self) -> int:
+        return sum(self.latency_counts)
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class QueuedFrame:
+    """One delivery of a queued frame to one consumer, until it is acknowledged, failed or dead-lettered.
+
+    ``frame`` is None when the queued bytes do not decode (``undecodable`` says why). ``deliveries``
+    counts this one (1 the first time). ``receipt`` is the adapter's own handle; nothing else reads it."""
+
+    map_id: str
+    frame_key: str
+    consumer: str
+    deliveries: int
+    frame: Frame | None
+    undecodable: str = ""
+    receipt: Any = field(default=None, repr=False)
+
+
+class FrameQueue(Protocol):
+    """Validated frames from the API to the consumers that run the step, at least once.
+
+    Producer side (the API): ``put`` (deduplicated per map: a frame accepted before is not queued again
+    unless it failed), per-map counts, service-wide ``stats``. Consumer side (workers): ``take`` a new
+    frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
+    (the step ran, or the frame had been processed before), ``fail`` (the step raised) or
+    ``dead_letter`` (given up on: counted as failed). A queue that redelivers (Redis) leaves a failed
+    frame for a later delivery; one that does not (embedded) counts it failed at once.
+
+    Every method is safe to call from many threads; a shared queue's state is every process's."""
+
+    # producer
+    def put(self, frame: Frame, message: Any = None) -> bool:
+        """Queue a validated frame; False (nothing queued) when it was accepted before and did not fail.
+        ``message``: the protobuf ``arcloud.v1.Frame`` it was validated from, which a queue that
+        serialises may carry instead of encoding the frame again. Raises ``QueueFull``."""
+        ...
+
+    def map_counts(self, map_id: str) -> tuple[int, int]:
+        """(accepted, failed) frames of the map."""
+        ...
+
+    def known_map(self, map_id: str) -> bool:
+        """Whether any frame of the map was accepted (creates nothing)."""
+        ...
+
+    def forget_map(self, map_id: str) -> None:
+        """Drop the map's frame counts (after its objects were deleted)."""
+        ...
+
+    def stats(self) -> QueueStats: ...
+
+    def health(self) -> dict[str, str]:
+        """Check name -> "ok" or what is wrong, for what the queue itself depends on (never raises)."""
+        ...
+
+    def prepare(self) -> None:
+        """Create what the queue needs before frames flow (idempotent)."""
+        ...
+
+    # consumer
+    def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
+        """A new frame for ``consumer``, waiting up to ``block_s``; None when there was none."""
+        ...
+
+    def claim_abandoned(self, consumer: str, *, min_idle_s: float) -> QueuedFrame | None:
+        """A frame another consumer took ``min_idle_s`` ago or more without settling it, or None."""
+        ...
+
+    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
+        """The step ran (``redelivered``: the frame had been processed before); remove it, count it."""
+        ...
+
+    def fail(self, item: QueuedFrame, reason: str) -> None:
+        """The step raised: leave the frame for a later delivery, or count it failed at once."""
+        ...
+
+    def dead_letter(self, item: QueuedFrame, reason: str) -> None:
+        """Give the frame up (kept with ``reason`` where the queue keeps dead letters); counted failed."""
+        ...
+
+    def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
+        """``consumer`` is alive, and ``in_hand`` is still being worked on (not abandoned)."""
+        ...
+
+    def leave(self, consumer: str) -> None:
+        """``consumer`` stops (its heartbeat is removed)."""
+        ...
+
+    def live_consumers(self, max_age_s: float) -> list[str]:
+        """Consumers whose heartbeat is at most ``max_age_s`` old, sorted."""
         ...

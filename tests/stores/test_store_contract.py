@@ -299,3 +299,21 @@ def test_concurrent_steps_lose_no_update_and_leave_no_duplicate(store) -> None:
     assert sum(o.n_frames for o in objects) == 2 * n_threads * n_frames  # no lost update
     assert {d for o in objects for d in o.devices} == {f"dev-{d}" for d in range(n_threads)}
     assert store.count_frames(MAP) == n_threads * n_frames
+
+
+# --- what the service reads --------------------------------------------------------------------------
+def test_metadata_listing_matches_the_objects(store) -> None:
+    objects = [make_object(i, (i * 1.0, 0, 0), seed=i) for i in (4, 2)]
+    store.commit(MAP, [], objects, [])
+    metas = store.list_meta(MAP)
+    assert [m.id for m in metas] == [2, 4]
+    for meta, obj in zip(metas, objects[::-1]):
+        assert (meta.label, meta.score, meta.version, meta.n_voxels, meta.n_frames, meta.devices, meta.confirmed) == (
+            obj.label, obj.score, obj.version, obj.n_voxels, obj.n_frames, obj.devices, obj.confirmed)
+        np.testing.assert_array_equal(meta.aabb.min, obj.aabb.min)
+    assert [m.id for m in store.object_meta(MAP, [4, 99])] == [4]
+    assert store.list_meta("empty-map") == [] and store.object_meta(MAP, []) == []
+
+
+def test_a_reachable_store_answers_its_health_check(store) -> None:
+    assert store.ping() is None

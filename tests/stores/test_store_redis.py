@@ -111,18 +111,6 @@ def test_large_boxes_read_the_bounds_instead_of_cells(redis_server) -> None:
     small.close()
 
 
-def test_metadata_listing_matches_the_objects(redis_store: RedisStore) -> None:
-    objects = [make_object(i, (i * 1.0, 0, 0), seed=i) for i in (4, 2)]
-    redis_store.commit(MAP, [], objects, [])
-    metas = redis_store.list_meta(MAP)
-    assert [m.id for m in metas] == [2, 4]
-    for meta, obj in zip(metas, objects[::-1]):
-        assert (meta.label, meta.score, meta.version, meta.n_voxels, meta.n_frames, meta.devices) == (
-            obj.label, obj.score, obj.version, obj.n_voxels, obj.n_frames, obj.devices)
-        np.testing.assert_array_equal(meta.aabb.min, obj.aabb.min)
-    assert [m.id for m in redis_store.object_meta(MAP, [4, 99])] == [4]
-
-
 def test_commit_checks_leases_belong_to_the_map(redis_store: RedisStore) -> None:
     lease = redis_store.lock("map-b", [1], ttl_s=10, timeout_s=0)
     with pytest.raises(InvalidInput, match="leases"):

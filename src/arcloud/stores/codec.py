@@ -15,7 +15,7 @@ votes of a voxel are zero except for the few labels it received. Objects fused f
 about 1 byte per voxel; random weights and votes (the worst case) about 13.
 
 Metadata: compact JSON of the object without its voxels (floats written by ``repr``: exact round
-trip; boxes as lists of floats; devices as a sorted list). ``ObjectMeta`` is that, decoded.
+trip; boxes as lists of floats; devices as a sorted list). ``arcloud.ports.ObjectMeta`` is that, decoded.
 Bounds: 6 little-endian float64 (min xyz, max xyz), the spatial index's entry of an object.
 """
 
@@ -25,12 +25,12 @@ import json
 import struct
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject
 from arcloud.errors import InvalidInput, StoreError
+from arcloud.ports import ObjectMeta
 
 MAGIC = b"ARCV"
 FORMAT_VERSION = 2
@@ -116,32 +116,6 @@ def unpack_boxes(blobs: Sequence[bytes]) -> np.ndarray:
     if len(joined) != _BOX.size * len(blobs):
         raise StoreError(f"bounds: expected {len(blobs)} boxes of {_BOX.size} bytes, got {len(joined)} bytes")
     return np.frombuffer(joined, "<f8").reshape(len(blobs), 6).astype(np.float64)
-
-
-@dataclass(frozen=True, eq=False, slots=True)
-class ObjectMeta:
-    """An object without its voxels: what listing the map needs."""
-
-    id: int
-    label: str
-    score: float
-    version: int
-    n_voxels: int
-    n_frames: int
-    devices: frozenset[str]
-    score_sum: float
-    created_at_s: float
-    updated_at_s: float
-    aabb: AABB | None
-    obb: OBB | None
-    bounds: AABB | None
-    confirmed: bool = False
-    floor_votes: dict[int, int] = field(default_factory=dict)
-    label_purity: float = 0.0
-
-    @property
-    def n_devices(self) -> int:
-        return len(self.devices)
 
 
 def meta_of(obj: MapObject) -> ObjectMeta:

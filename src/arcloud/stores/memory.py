@@ -19,6 +19,8 @@ import numpy as np
 
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease
+from arcloud.ports import ObjectMeta
+from arcloud.stores.codec import meta_of
 
 
 @dataclass(slots=True)
@@ -223,6 +225,12 @@ class MemoryStore:
         with state.changed:
             return [state.objects[i] for i in sorted(state.objects)]
 
+    def list_meta(self, map_id: str) -> list[ObjectMeta]:
+        return [meta_of(obj) for obj in self.list_objects(map_id)]
+
+    def object_meta(self, map_id: str, ids: Sequence[int]) -> list[ObjectMeta]:
+        return [meta_of(obj) for obj in self.get(map_id, ids)]
+
     def delete_map(self, map_id: str) -> int:
         with self._maps_lock:
             state = self._maps.pop(map_id, None)
@@ -237,3 +245,7 @@ class MemoryStore:
         state = self._map(map_id)
         with state.changed:
             return len(state.frames)
+
+    def ping(self) -> None:
+        """Always answers: the store is this process."""
+        return None
