@@ -22,8 +22,7 @@ from tqdm import tqdm
 
 from arcloud import __version__
 from arcloud.accuracy.common import score_run
-from arcloud.core.types import MapObject, Params
-from arcloud.eval.metrics import Box3D
+from arcloud.core.types import LabelledBox, MapObject, Params
 from arcloud.eval.plot import draw_top_down
 from arcloud.eval.protocol import object_boxes, table1
 from arcloud.sim.detector import DetectorFaults, SimulatedDetector
@@ -53,7 +52,7 @@ def run_demo(
 
     room = generate_room(seed)
     frames = simulate_sequence(room, n_frames=n_frames, seed=seed, faults=faults)
-    ground_truth = [Box3D(label, lo, hi) for label, lo, hi in gt_boxes(room)]
+    ground_truth = [LabelledBox(label, lo, hi) for label, lo, hi in gt_boxes(room)]
     detector = SimulatedDetector(room, faults, seed=seed)
     rendered_s = time.perf_counter() - started
 

@@ -8,15 +8,16 @@ import math
 import numpy as np
 import pytest
 
+from arcloud.core.types import LabelledBox
 from arcloud.errors import InvalidInput
-from arcloud.eval.metrics import Box3D, average_precision, evaluate, iou_aabb, iou_matrix
+from arcloud.eval.metrics import average_precision, evaluate, iou_aabb, iou_matrix
 
 
-def box(label: str, lo, hi, score: float = 1.0) -> Box3D:
-    return Box3D(label, np.array(lo, float), np.array(hi, float), score)
+def box(label: str, lo, hi, score: float = 1.0) -> LabelledBox:
+    return LabelledBox(label, np.array(lo, float), np.array(hi, float), score)
 
 
-def unit(label: str, x: float = 0.0, score: float = 1.0) -> Box3D:
+def unit(label: str, x: float = 0.0, score: float = 1.0) -> LabelledBox:
     """A unit cube with its min corner at (x, 0, 0)."""
     return box(label, (x, 0, 0), (x + 1, 1, 1), score)
 
@@ -63,22 +64,22 @@ def test_iou_matrix_rejects_wrong_shapes():
         iou_matrix(np.zeros(4), np.zeros(4), np.zeros((1, 3)), np.zeros((1, 3)))
 
 
-# ---------------------------------------------------------------- Box3D and AP
+# ---------------------------------------------------------------- LabelledBox and AP
 
 
 def test_box3d_normalises_and_validates():
-    b = Box3D("chair", [0, 0, 0], (1, 2, 3), score=np.float32(0.5))
+    b = LabelledBox("chair", [0, 0, 0], (1, 2, 3), score=np.float32(0.5))
     assert b.min.dtype == np.float64 and not b.min.flags.writeable
     np.testing.assert_array_equal(b.size, (1, 2, 3))
     assert b.volume_m3 == 6.0 and isinstance(b.score, float)
-    c = Box3D.from_center_size("tv", (1, 1, 1), (2, 2, 2))
+    c = LabelledBox.from_center_size("tv", (1, 1, 1), (2, 2, 2))
     np.testing.assert_array_equal(c.min, (0, 0, 0))
-    with pytest.raises(InvalidInput, match="Box3D.max: expected max >= min"):
-        Box3D("chair", (0, 0, 0), (1, -1, 1))
-    with pytest.raises(InvalidInput, match=r"Box3D.min: expected shape \(3,\)"):
-        Box3D("chair", (0, 0), (1, 1, 1))
-    with pytest.raises(InvalidInput, match="Box3D.score: expected a finite number"):
-        Box3D("chair", (0, 0, 0), (1, 1, 1), score=math.nan)
+    with pytest.raises(InvalidInput, match="LabelledBox.max: expected max >= min"):
+        LabelledBox("chair", (0, 0, 0), (1, -1, 1))
+    with pytest.raises(InvalidInput, match=r"LabelledBox.min: expected shape \(3,\)"):
+        LabelledBox("chair", (0, 0), (1, 1, 1))
+    with pytest.raises(InvalidInput, match="LabelledBox.score: expected a finite number"):
+        LabelledBox("chair", (0, 0, 0), (1, 1, 1), score=math.nan)
 
 
 def test_average_precision_by_hand():
@@ -236,7 +237,7 @@ def test_evaluate_rejects_bad_options(kwargs, message):
 
 
 def test_evaluate_rejects_bad_boxes():
-    with pytest.raises(InvalidInput, match=r"predictions\['s'\]\[0\]: expected a Box3D"):
+    with pytest.raises(InvalidInput, match=r"predictions\['s'\]\[0\]: expected a LabelledBox"):
         evaluate({"s": [((0, 0, 0), (1, 1, 1))]}, {})
     with pytest.raises(InvalidInput, match="ground_truth: expected a mapping"):
         evaluate({}, [unit("chair")])
@@ -290,25 +291,25 @@ def reference_ap(pred: dict, gt: dict, threshold: float) -> float:
 def test_matches_reference_procedure_on_random_scenes(seed):
     rng = np.random.default_rng(seed)
     classes = ("chair", "table", "tv")
-    gt: dict[str, list[Box3D]] = {}
-    pred: dict[str, list[Box3D]] = {}
+    gt: dict[str, list[LabelledBox]] = {}
+    pred: dict[str, list[LabelledBox]] = {}
     for s in range(4):
         scene = f"scene{s}"
         gt[scene], pred[scene] = [], []
         for _ in range(rng.integers(0, 8)):
             label = classes[rng.integers(len(classes))]
             lo = rng.uniform(0, 4, 3)
-            g = Box3D(label, lo, lo + rng.uniform(0.3, 1.5, 3))
+            g = LabelledBox(label, lo, lo + rng.uniform(0.3, 1.5, 3))
             gt[scene].append(g)
             for _ in range(rng.integers(0, 3)):  # noisy detections, sometimes duplicates
                 jitter = rng.normal(0, 0.15, (2, 3))
                 hi = np.maximum(g.max + jitter[1], g.min + jitter[0] + 0.05)
                 score = round(float(rng.uniform()), 1)  # coarse scores: ties happen
-                pred[scene].append(Box3D(label, g.min + jitter[0], hi, score))
+                pred[scene].append(LabelledBox(label, g.min + jitter[0], hi, score))
         for _ in range(rng.integers(0, 4)):  # clutter
             lo = rng.uniform(0, 4, 3)
             label = classes[rng.integers(len(classes))]
-            pred[scene].append(Box3D(label, lo, lo + rng.uniform(0.2, 1, 3), float(rng.uniform())))
+            pred[scene].append(LabelledBox(label, lo, lo + rng.uniform(0.2, 1, 3), float(rng.uniform())))
     result = evaluate(pred, gt, classes=classes, iou_thresholds=(0.25, 0.5))
     for threshold in (0.25, 0.5):
         expected = {}
@@ -328,12 +329,12 @@ def test_matches_reference_procedure_on_random_scenes(seed):
 def test_precision_recall_matches_like_evaluate() -> None:
     from arcloud.eval.metrics import precision_recall
 
-    gt = {"s": [Box3D("chair", [0, 0, 0], [1, 1, 1]), Box3D("table", [3, 0, 0], [5, 1, 1])]}
+    gt = {"s": [LabelledBox("chair", [0, 0, 0], [1, 1, 1]), LabelledBox("table", [3, 0, 0], [5, 1, 1])]}
     preds = {
         "s": [
-            Box3D("chair", [0, 0, 0], [1, 1, 1], 0.9),  # true positive
-            Box3D("chair", [0.1, 0, 0], [1, 1, 1], 0.8),  # second on a matched box: false positive
-            Box3D("table", [9, 9, 9], [10, 10, 10], 0.7),  # nowhere near: false positive
+            LabelledBox("chair", [0, 0, 0], [1, 1, 1], 0.9),  # true positive
+            LabelledBox("chair", [0.1, 0, 0], [1, 1, 1], 0.8),  # second on a matched box: false positive
+            LabelledBox("table", [9, 9, 9], [10, 10, 10], 0.7),  # nowhere near: false positive
         ]
     }
     pr = precision_recall(preds, gt, iou_threshold=0.25)

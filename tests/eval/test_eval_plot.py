@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
+from arcloud.core.types import OBB, LabelledBox
 from arcloud.errors import InvalidInput
-from arcloud.eval.metrics import Box3D
 from arcloud.eval.plot import (
     CLASS_COLORS_RGB,
     GT_COLOR_RGB,
@@ -33,12 +33,19 @@ def pixels_of(image: np.ndarray, color) -> np.ndarray:
 # ---------------------------------------------------------------- top-down
 
 
+def gravity_obb(center, size, yaw_rad):
+    """A z-up gravity-aligned OBB turned by ``yaw_rad`` about z."""
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return OBB(np.asarray(center, float), np.asarray(size, float), rotation, yaw_rad)
+
+
 def test_draw_top_down_writes_a_png_of_plausible_size(tmp_path):
     rng = np.random.default_rng(0)
-    gt = [Box3D("chair", (0, 0, 0), (0.5, 0.5, 1)), Box3D("table", (1, 1, 0), (3, 2, 0.8))]
-    pred = [Box3D("chair", (0.05, 0, 0), (0.55, 0.5, 1), 0.9), Box3D("sofa", (2, 0, 0), (3, 0.5, 1), 0.4)]
+    gt = [LabelledBox("chair", (0, 0, 0), (0.5, 0.5, 1)), LabelledBox("table", (1, 1, 0), (3, 2, 0.8))]
+    pred = [LabelledBox("chair", (0.05, 0, 0), (0.55, 0.5, 1), 0.9), LabelledBox("sofa", (2, 0, 0), (3, 0.5, 1), 0.4)]
     points = rng.uniform((0, 0, 0), (3, 2, 1), (500, 3))
-    obbs = [((1.5, 0.5, 0.5), (0.6, 0.3, 1.0), 0.3, "tv")]
+    obbs = [("tv", gravity_obb((1.5, 0.5, 0.5), (0.6, 0.3, 1.0), 0.3))]
     path = draw_top_down(
         tmp_path / "nested" / "dir" / "scene.png", gt=gt, predictions=pred, points_xyz=points, obbs=obbs, title="t"
     )
@@ -55,8 +62,8 @@ def test_draw_top_down_writes_a_png_of_plausible_size(tmp_path):
 
 
 def test_box_lands_where_the_view_says_with_x_right_and_y_up():
-    gt = Box3D("chair", (0, 0, 0), (1, 1, 1))
-    pred = Box3D("table", (2, 3, 0), (3, 4, 1), 0.5)  # right of and above the GT box
+    gt = LabelledBox("chair", (0, 0, 0), (1, 1, 1))
+    pred = LabelledBox("table", (2, 3, 0), (3, 4, 1), 0.5)  # right of and above the GT box
     picture = render_top_down(gt=[gt], predictions=[pred], px_per_m=50)
     image, view = picture.image_rgb, picture.view
 
@@ -78,7 +85,7 @@ def test_box_lands_where_the_view_says_with_x_right_and_y_up():
 
 def test_points_are_drawn_grey_under_the_boxes():
     points = np.array([[0.25, 0.75, 0.0], [5.0, 5.0, 1.0]])
-    picture = render_top_down(gt=[Box3D("tv", (0, 0, 0), (1, 1, 1))], points_xyz=points, point_radius_px=0)
+    picture = render_top_down(gt=[LabelledBox("tv", (0, 0, 0), (1, 1, 1))], points_xyz=points, point_radius_px=0)
     u, v = np.rint(picture.view.to_px(points[:, :2])).astype(int).T
     assert tuple(picture.image_rgb[v[0], u[0]]) == POINT_COLOR_RGB
     assert tuple(picture.image_rgb[v[1], u[1]]) == POINT_COLOR_RGB  # content extends to fit the far point
@@ -87,7 +94,7 @@ def test_points_are_drawn_grey_under_the_boxes():
 
 def test_oriented_box_footprint_is_rotated():
     # A 2 m x 0.2 m box turned 90 degrees: tall and thin in the picture.
-    picture = render_top_down(obbs=[((0, 0, 0), (2.0, 0.2, 1.0), np.pi / 2, "couch")], px_per_m=40)
+    picture = render_top_down(obbs=[("couch", gravity_obb((0, 0, 0), (2.0, 0.2, 1.0), np.pi / 2))], px_per_m=40)
     image, couch = picture.image_rgb, CLASS_COLORS_RGB["couch"]
     rotated = np.rint(picture.view.to_px(np.array([[0.1, 1.0], [-0.1, 1.0], [-0.1, -1.0], [0.1, -1.0]])))
     for u, v in rotated.astype(int):
@@ -100,7 +107,7 @@ def test_oriented_box_footprint_is_rotated():
 def test_empty_and_huge_content():
     empty = render_top_down()
     assert empty.image_rgb.ndim == 3 and empty.image_rgb.dtype == np.uint8
-    huge = render_top_down(gt=[Box3D("table", (0, 0, 0), (200, 1, 1))], px_per_m=80)
+    huge = render_top_down(gt=[LabelledBox("table", (0, 0, 0), (200, 1, 1))], px_per_m=80)
     assert huge.view.px_per_m == pytest.approx(MAX_SIDE_PX / 200)
     assert huge.image_rgb.shape[1] <= MAX_SIDE_PX + 100
 
@@ -110,10 +117,12 @@ def test_top_down_rejects_bad_input(tmp_path):
         draw_top_down(tmp_path / "scene.jpg")
     with pytest.raises(InvalidInput, match=r"points_xyz: expected shape \(N, 3\)"):
         render_top_down(points_xyz=np.zeros((4, 5)))
-    with pytest.raises(InvalidInput, match=r"predictions\[0\]: expected a Box3D"):
+    with pytest.raises(InvalidInput, match=r"predictions\[0\]: expected a LabelledBox"):
         render_top_down(predictions=[((0, 0, 0), (1, 1, 1))])
     with pytest.raises(InvalidInput, match=r"obbs\[0\]"):
         render_top_down(obbs=[((0, 0, 0), (1, 1, 1))])
+    with pytest.raises(InvalidInput, match=r"obbs\[0\]: expected \(label, OBB\)"):
+        render_top_down(obbs=[("tv", ((0, 0, 0), (1, 1, 1), 0.0))])
     with pytest.raises(InvalidInput, match="px_per_m: expected a number > 0"):
         render_top_down(px_per_m=0)
 
@@ -131,13 +140,13 @@ H, W = 240, 320
 
 
 def test_box_corners_are_the_eight_extremes():
-    corners = box_corners(Box3D("tv", (0, 1, 2), (3, 4, 5)))
+    corners = box_corners(LabelledBox("tv", (0, 1, 2), (3, 4, 5)))
     assert corners.shape == (8, 3)
     assert {tuple(c) for c in corners} == {(x, y, z) for x in (0, 3) for y in (1, 4) for z in (2, 5)}
 
 
 def test_box_in_front_projects_where_the_pinhole_model_says():
-    box = Box3D("tv", (-0.2, -0.1, 2.0), (0.3, 0.2, 3.0))
+    box = LabelledBox("tv", (-0.2, -0.1, 2.0), (0.3, 0.2, 3.0))
     black = np.zeros((H, W, 3), np.uint8)
     image = draw_boxes_in_image(
         black, [box], np.eye(4), (FX, FY, CX, CY), color_rgb=RED, thickness_px=1, show_labels=False
@@ -158,7 +167,7 @@ def test_box_in_front_projects_where_the_pinhole_model_says():
 
 
 def test_camera_pose_moves_the_projection():
-    box = Box3D("tv", (-0.1, -0.1, -0.1), (0.1, 0.1, 0.1))  # around the world origin
+    box = LabelledBox("tv", (-0.1, -0.1, -0.1), (0.1, 0.1, 0.1))  # around the world origin
     cam2world = np.eye(4)
     cam2world[:3, 3] = (0.5, 0.0, -2.0)  # camera 2 m behind the origin and 0.5 m to its right
     image = draw_boxes_in_image(
@@ -171,19 +180,19 @@ def test_camera_pose_moves_the_projection():
 
 def test_box_behind_the_camera_draws_nothing_and_straddling_edges_are_clipped():
     black = np.zeros((H, W, 3), np.uint8)
-    behind = Box3D("chair", (-0.5, -0.5, -3.0), (0.5, 0.5, -1.0))
+    behind = LabelledBox("chair", (-0.5, -0.5, -3.0), (0.5, 0.5, -1.0))
     out = draw_boxes_in_image(black, [behind], np.eye(4), (FX, FY, CX, CY), show_labels=False)
     assert not out.any()
     # A floor-like slab from behind the camera to 4 m ahead, 1 m below it: the visible part is drawn,
     # nothing is drawn above the horizon row (where points at infinite depth would land).
-    slab = Box3D("table", (-1.0, 1.0, -2.0), (1.0, 1.0, 4.0))
+    slab = LabelledBox("table", (-1.0, 1.0, -2.0), (1.0, 1.0, 4.0))
     out = draw_boxes_in_image(black, [slab], np.eye(4), (FX, FY, CX, CY), color_rgb=RED, show_labels=False)
     drawn = pixels_of(out, RED)
     assert drawn.size and drawn[:, 1].min() >= CY + FY * 1.0 / 4.0 - 1.5  # the far edge at z = 4
 
 
 def test_edges_far_outside_the_image_are_clipped_not_overflowed():
-    wide = Box3D("couch", (-1e6, -0.01, 2.0), (1e6, 0.01, 2.0))  # a line across the whole view
+    wide = LabelledBox("couch", (-1e6, -0.01, 2.0), (1e6, 0.01, 2.0))  # a line across the whole view
     out = draw_boxes_in_image(
         np.zeros((H, W, 3), np.uint8), [wide], np.eye(4), (FX, FY, CX, CY), color_rgb=RED, show_labels=False
     )
@@ -193,7 +202,7 @@ def test_edges_far_outside_the_image_are_clipped_not_overflowed():
 
 
 def test_labels_are_drawn_when_asked():
-    box = Box3D("tv", (-0.2, -0.1, 2.0), (0.3, 0.2, 3.0), score=0.75)
+    box = LabelledBox("tv", (-0.2, -0.1, 2.0), (0.3, 0.2, 3.0), score=0.75)
     grey = np.full((H, W, 3), 90, np.uint8)
     plain = draw_boxes_in_image(grey, [box], np.eye(4), (FX, FY, CX, CY), show_labels=False)
     labelled = draw_boxes_in_image(grey, [box], np.eye(4), (FX, FY, CX, CY), show_labels=True)

@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
 
-from arcloud.core.types import Params
-from arcloud.eval.metrics import Box3D
+from arcloud.core.types import LabelledBox, Params
 from arcloud.eval.protocol import CachedDetector, interleave, run_map, table1, user_streams
 
 from handmade_frames import two_box_frame
@@ -45,7 +44,7 @@ def test_distributed_runs_give_the_centralized_map_on_a_simple_scene():
     frames = [f for f, _ in pairs]
     detector = CachedDetector(CountingDetector({f.frame_id: d for f, d in pairs}))
     # Exact extents of the two patches over the walk (see two_box_frame), one voxel thick.
-    gt = [Box3D("chair", [-0.45, -0.3, 1.5], [-0.1, 0.0, 1.55]), Box3D("table", [0.15, 0.05, 2.5], [0.9, 0.6, 2.55])]
+    gt = [LabelledBox("chair", [-0.45, -0.3, 1.5], [-0.1, 0.0, 1.55]), LabelledBox("table", [0.15, 0.05, 2.5], [0.9, 0.6, 2.55])]
     central = run_map(frames, detector, Params())
     assert sorted(o.label for o in central) == ["chair", "table"]
     results = table1(frames, detector, gt, Params(), users=(3, 12), runs=2, workers=3)

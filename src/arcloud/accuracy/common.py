@@ -22,20 +22,16 @@ from typing import Any
 
 import numpy as np
 
-from arcloud.core.types import MapObject
-from arcloud.eval.metrics import Box3D, evaluate, precision_recall
+from arcloud.core.types import LabelledBox, MapObject
+from arcloud.eval.metrics import evaluate, precision_recall
+from arcloud.eval.protocol import object_boxes
 
 SPLITS = ("tune", "report")
 #: Figures of a run that ``summarise`` reports (mean and worst); higher is better for all of them.
 FIGURES = ("map25", "map50", "served_map25", "served_precision25", "served_recall25", "served_precision50", "served_recall50")
 
 
-def object_boxes(objects: Sequence[MapObject]) -> list[Box3D]:
-    """The objects with a box, as scored boxes (in the frame their ``aabb`` was fitted in)."""
-    return [Box3D.from_aabb(o.label, o.aabb, o.score) for o in objects if o.aabb is not None and o.label]
-
-
-def score_run(objects: Sequence[MapObject], ground_truth: Sequence[Box3D], *, scene: str = "scene") -> dict[str, Any]:
+def score_run(objects: Sequence[MapObject], ground_truth: Sequence[LabelledBox], *, scene: str = "scene") -> dict[str, Any]:
     """The figures of one run (see the module docstring) as a flat JSON-friendly dict."""
     gt = {scene: list(ground_truth)}
     every = object_boxes(objects)

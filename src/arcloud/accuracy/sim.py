@@ -33,11 +33,11 @@ from typing import Any
 
 import numpy as np
 
-from arcloud.accuracy.common import case_record, object_boxes, score_run, summarise
-from arcloud.core.types import Frame, MapObject, Params
+from arcloud.accuracy.common import case_record, score_run, summarise
+from arcloud.core.types import Frame, LabelledBox, MapObject, Params
 from arcloud.errors import InvalidInput
-from arcloud.eval.metrics import Box3D, iou_aabb
-from arcloud.eval.protocol import CachedDetector, run_map
+from arcloud.eval.metrics import iou_aabb
+from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
 from arcloud.sim.detector import DetectorFaults, SimulatedDetector
 from arcloud.sim.room import Room, RoomObject, generate_room
 from arcloud.sim.sequence import simulate_sequence
@@ -180,7 +180,7 @@ def evaluate_case(
     frames = simulate_sequence(room, n_frames=case.frames, seed=case.walk_seed, faults=faults, map_id=case.name, poses=poses)
     detector = SimulatedDetector(room, faults, seed=case.walk_seed)
     observable = observable_objects(room, frames, detector)
-    ground_truth = [Box3D(o.label, o.aabb_min, o.aabb_max) for o in observable]
+    ground_truth = [LabelledBox(o.label, o.aabb_min, o.aabb_max) for o in observable]
     unseen = [o for o in room.objects if o not in observable]
     simulated_s = time.perf_counter() - started
 
@@ -214,7 +214,7 @@ def evaluate_case(
     return record
 
 
-def _draw_case(path: Path, case: SimCase, ground_truth: list[Box3D], objects: list[MapObject], poses: Sequence[np.ndarray]) -> None:
+def _draw_case(path: Path, case: SimCase, ground_truth: list[LabelledBox], objects: list[MapObject], poses: Sequence[np.ndarray]) -> None:
     from arcloud.eval.plot import draw_top_down
 
     walk_xyz = np.array([pose[:3, 3] for pose in poses])

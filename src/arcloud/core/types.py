@@ -15,6 +15,8 @@ from typing import Literal
 
 import numpy as np
 
+from arcloud.core.errors import InvalidInput
+
 #: The object classes arcloud detects (the paper's five). Label indices refer to this tuple.
 CLASSES: tuple[str, ...] = ("chair", "table", "laptop", "couch", "tv")
 N_CLASSES = len(CLASSES)
@@ -119,6 +121,71 @@ class OBB:
     size: np.ndarray
     rotation: np.ndarray
     yaw_rad: float
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class LabelledBox:
+    """An axis-aligned box of one class, as evaluation, datasets and pictures use it: ``label``, ``min``
+    and ``max`` corners ((3,) float64 each, metres, stored as read-only copies) and a ``score`` (1 for
+    ground truth)."""
+
+    label: str
+    min: np.ndarray
+    max: np.ndarray
+    score: float = 1.0
+
+    def __post_init__(self) -> None:
+        from arcloud.core.checks import check_finite_number, describe  # checks imports this module
+
+        if not isinstance(self.label, str) or not self.label:
+            raise InvalidInput("LabelledBox.label", "a non-empty class name", describe(self.label))
+        lo = _check_corner("LabelledBox.min", self.min)
+        hi = _check_corner("LabelledBox.max", self.max)
+        if np.any(hi < lo):
+            raise InvalidInput("LabelledBox.max", f"max >= min on every axis (min {lo.tolist()})", hi.tolist())
+        object.__setattr__(self, "min", lo)
+        object.__setattr__(self, "max", hi)
+        object.__setattr__(self, "score", check_finite_number("LabelledBox.score", self.score))
+
+    @classmethod
+    def from_center_size(cls, label: str, center: object, size: object, score: float = 1.0) -> LabelledBox:
+        """A box from its centre (3,) and full size (3,)."""
+        c = _check_corner("center", center)
+        half = _check_corner("size", size) / 2
+        return cls(label, c - half, c + half, score)
+
+    @classmethod
+    def from_aabb(cls, label: str, aabb: AABB, score: float = 1.0) -> LabelledBox:
+        return cls(label, aabb.min, aabb.max, score)
+
+    @property
+    def center(self) -> np.ndarray:
+        return (self.min + self.max) / 2
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.max - self.min
+
+    @property
+    def volume_m3(self) -> float:
+        return float(np.prod(self.max - self.min))
+
+    def __repr__(self) -> str:
+        return f"LabelledBox({self.label!r}, min={self.min.tolist()}, max={self.max.tolist()}, score={self.score:.4g})"
+
+
+def _check_corner(field_name: str, value: object) -> np.ndarray:
+    """A read-only (3,) float64 copy of finite corner coordinates."""
+    try:
+        corner = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(field_name, "3 numbers", repr(value)[:80]) from exc
+    if corner.shape != (3,):
+        raise InvalidInput(field_name, "shape (3,)", f"shape {corner.shape}")
+    if not np.all(np.isfinite(corner)):
+        raise InvalidInput(field_name, "finite values", corner.tolist())
+    corner.setflags(write=False)
+    return corner
 
 
 @dataclass(eq=False, slots=True)

@@ -38,9 +38,9 @@ from arcloud.eval.metrics import variance
 from arcloud.ports import Detector
 
 if TYPE_CHECKING:
+    from arcloud.core.types import LabelledBox
     from arcloud.datasets.scannet import ScanNetScene
     from arcloud.datasets.sevenscenes import SevenScenesGroundTruth, SevenScenesSequence
-    from arcloud.eval.metrics import Box3D
 
 OnRun = Callable[[str, int, int, list[MapObject]], None]
 
@@ -429,7 +429,7 @@ def write_pictures(
     *,
     title: str = "",
     n_frames: int = 4,
-    gt: Sequence[Box3D] = (),
+    gt: Sequence[LabelledBox] = (),
     world2boxes: np.ndarray | None = None,
 ) -> list[str]:
     """Top-down pictures (served boxes over fused points) of the centralized and first distributed maps, and

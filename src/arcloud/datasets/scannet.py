@@ -52,7 +52,7 @@ from arcloud.datasets.files import (
 from arcloud.errors import DatasetError, InvalidInput
 
 if TYPE_CHECKING:
-    from arcloud.eval.metrics import Box3D
+    from arcloud.core.types import LabelledBox
 
 logger = logging.getLogger(__name__)
 
@@ -275,11 +275,11 @@ class ScanNetScene:
         for name in names[:limit]:
             yield self.load_frame(name)
 
-    def gt_boxes(self) -> list[Box3D]:
-        """The ground truth as ``arcloud.eval.metrics.Box3D`` (score 1), one per object of our classes."""
-        from arcloud.eval.metrics import Box3D
+    def gt_boxes(self) -> list[LabelledBox]:
+        """The ground truth as ``arcloud.core.types.LabelledBox`` (score 1), one per object of our classes."""
+        from arcloud.core.types import LabelledBox
 
-        return [Box3D(inst.label, inst.aabb_min, inst.aabb_max, 1.0) for inst in self.objects]
+        return [LabelledBox(inst.label, inst.aabb_min, inst.aabb_max, 1.0) for inst in self.objects]
 
 
 def parse_axis_alignment(text: str, source: object = "axisAlignment") -> np.ndarray:

@@ -28,10 +28,9 @@ import numpy as np
 
 from arcloud.core.boxes import up_rotation
 from arcloud.core.checks import make_frame
-from arcloud.core.types import CLASSES, Frame, Intrinsics
+from arcloud.core.types import CLASSES, Frame, Intrinsics, LabelledBox
 from arcloud.datasets.files import natural_key, read_matrix, read_png_u16, read_rgb
 from arcloud.errors import DatasetError, InvalidInput
-from arcloud.eval.metrics import Box3D
 
 logger = logging.getLogger(__name__)
 
@@ -56,14 +55,14 @@ class SevenScenesObject:
 
     id: str
     label: str
-    observed: Box3D
-    amodal: Box3D
+    observed: LabelledBox
+    amodal: LabelledBox
     visible_frames: tuple[int, int]
     confidence: str
     uncertainty_m: float | None
     notes: str
 
-    def box(self, kind: str) -> Box3D:
+    def box(self, kind: str) -> LabelledBox:
         """The ``observed`` or ``amodal`` box."""
         if kind not in BOX_KINDS:
             raise InvalidInput("box kind", f"one of {BOX_KINDS}", repr(kind))
@@ -98,7 +97,7 @@ class SevenScenesGroundTruth:
     method: str
     colour: ColourCamera | None = None
 
-    def boxes(self, kind: str = "observed", *, frames: tuple[int, int] | None = None) -> list[Box3D]:
+    def boxes(self, kind: str = "observed", *, frames: tuple[int, int] | None = None) -> list[LabelledBox]:
         """The ``kind`` boxes (see ``BOX_KINDS``), of the objects visible within ``frames`` = (first,
         last) frame numbers when given."""
         return [o.box(kind) for o in self.objects_within(frames)]
@@ -359,7 +358,7 @@ def _ground_truth_object(file: Path, index: int, entry: object) -> SevenScenesOb
         hi = _numbers(file, f"{where}.{prefix}max", entry.get(f"{prefix}max"), (3,))
         if np.any(hi <= lo):
             raise DatasetError(f"{file}: {where}.{prefix}max: expected above {prefix}min {lo.tolist()}, got {hi.tolist()}")
-        boxes[kind] = Box3D(label, lo, hi)
+        boxes[kind] = LabelledBox(label, lo, hi)
     frames = _numbers(file, f"{where}.visible_frames", entry.get("visible_frames"), (2,))
     if np.any(frames != np.round(frames)) or frames[0] > frames[1] or frames[0] < 0:
         raise DatasetError(f"{file}: {where}.visible_frames: expected [first, last] frame numbers, got {frames.tolist()}")

@@ -17,8 +17,8 @@ The procedure is the one of VoteNet's ``utils/eval_det.py`` (``eval_det_cls``, `
    prediction has AP 0 and lowers the mean; a class with predictions but no ground truth has no AP
    (``None``) and is left out of the mean (the references would give it NaN).
 
-Boxes are axis-aligned ``Box3D`` (min and max corners, metres). For ScanNet, both the ground truth and
-the predictions must be in the scene's axis-aligned frame.
+Boxes are ``arcloud.core.types.LabelledBox`` (axis-aligned, min and max corners, metres). For ScanNet,
+both the ground truth and the predictions must be in the scene's axis-aligned frame.
 """
 
 from __future__ import annotations
@@ -31,74 +31,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arcloud.core.checks import check_finite_number, describe
-from arcloud.core.types import AABB, CLASSES
+from arcloud.core.types import CLASSES, LabelledBox
 from arcloud.errors import InvalidInput
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_IOU_THRESHOLDS: tuple[float, ...] = (0.25, 0.5)
-
-
-@dataclass(frozen=True, eq=False, slots=True)
-class Box3D:
-    """An axis-aligned 3D box of one class: ``min`` and ``max`` corners, (3,) float64 each, metres, and
-    a ``score`` (ignored for ground truth). The corners are stored as read-only copies."""
-
-    label: str
-    min: np.ndarray
-    max: np.ndarray
-    score: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.label, str) or not self.label:
-            raise InvalidInput("Box3D.label", "a non-empty class name", describe(self.label))
-        lo = _check_corner("Box3D.min", self.min)
-        hi = _check_corner("Box3D.max", self.max)
-        if np.any(hi < lo):
-            raise InvalidInput("Box3D.max", f"max >= min on every axis (min {lo.tolist()})", hi.tolist())
-        object.__setattr__(self, "min", lo)
-        object.__setattr__(self, "max", hi)
-        object.__setattr__(self, "score", check_finite_number("Box3D.score", self.score))
-
-    @classmethod
-    def from_center_size(cls, label: str, center: object, size: object, score: float = 1.0) -> Box3D:
-        """A box from its centre (3,) and full size (3,)."""
-        c = _check_corner("center", center)
-        half = _check_corner("size", size) / 2
-        return cls(label, c - half, c + half, score)
-
-    @classmethod
-    def from_aabb(cls, label: str, aabb: AABB, score: float = 1.0) -> Box3D:
-        """A box from the core's ``AABB``."""
-        return cls(label, aabb.min, aabb.max, score)
-
-    @property
-    def center(self) -> np.ndarray:
-        return (self.min + self.max) / 2
-
-    @property
-    def size(self) -> np.ndarray:
-        return self.max - self.min
-
-    @property
-    def volume_m3(self) -> float:
-        return float(np.prod(self.max - self.min))
-
-    def __repr__(self) -> str:
-        return f"Box3D({self.label!r}, min={self.min.tolist()}, max={self.max.tolist()}, score={self.score:.4g})"
-
-
-def _check_corner(field_name: str, value: object) -> np.ndarray:
-    try:
-        corner = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(field_name, "3 numbers", describe(value)) from exc
-    if corner.shape != (3,):
-        raise InvalidInput(field_name, "shape (3,)", f"shape {corner.shape}")
-    if not np.all(np.isfinite(corner)):
-        raise InvalidInput(field_name, "finite values", corner.tolist())
-    corner.setflags(write=False)
-    return corner
 
 
 def _check_corners(field_name: str, value: object) -> np.ndarray:
@@ -227,8 +165,8 @@ def _format_ap(value: float | None) -> str:
 
 
 def evaluate(
-    predictions: Mapping[str, Sequence[Box3D]],
-    ground_truth: Mapping[str, Sequence[Box3D]],
+    predictions: Mapping[str, Sequence[LabelledBox]],
+    ground_truth: Mapping[str, Sequence[LabelledBox]],
     *,
     iou_thresholds: Iterable[float] = DEFAULT_IOU_THRESHOLDS,
     classes: Sequence[str] = CLASSES,
@@ -311,8 +249,8 @@ class PrecisionRecall:
 
 
 def precision_recall(
-    predictions: Mapping[str, Sequence[Box3D]],
-    ground_truth: Mapping[str, Sequence[Box3D]],
+    predictions: Mapping[str, Sequence[LabelledBox]],
+    ground_truth: Mapping[str, Sequence[LabelledBox]],
     *,
     iou_threshold: float = 0.25,
     classes: Sequence[str] = CLASSES,
@@ -344,7 +282,7 @@ class _Stacked:
     scores: np.ndarray
 
 
-def _stack(boxes: list[tuple[str, Box3D]], scene_index: Mapping[str, int]) -> _Stacked:
+def _stack(boxes: list[tuple[str, LabelledBox]], scene_index: Mapping[str, int]) -> _Stacked:
     if not boxes:
         empty = np.empty((0, 3))
         return _Stacked(np.empty(0, np.int64), empty, empty, np.empty(0))
@@ -384,20 +322,20 @@ def _true_positives(preds: _Stacked, gts: _Stacked, thresholds: tuple[float, ...
 
 
 def _boxes_by_class(
-    field_name: str, boxes_by_scene: Mapping[str, Sequence[Box3D]], classes: tuple[str, ...]
-) -> dict[str, list[tuple[str, Box3D]]]:
+    field_name: str, boxes_by_scene: Mapping[str, Sequence[LabelledBox]], classes: tuple[str, ...]
+) -> dict[str, list[tuple[str, LabelledBox]]]:
     if not isinstance(boxes_by_scene, Mapping):
-        raise InvalidInput(field_name, "a mapping of scene name to a sequence of Box3D", describe(boxes_by_scene))
-    by_class: dict[str, list[tuple[str, Box3D]]] = {name: [] for name in classes}
+        raise InvalidInput(field_name, "a mapping of scene name to a sequence of LabelledBox", describe(boxes_by_scene))
+    by_class: dict[str, list[tuple[str, LabelledBox]]] = {name: [] for name in classes}
     ignored: dict[str, int] = {}
     for scene, boxes in boxes_by_scene.items():
         if not isinstance(scene, str):
             raise InvalidInput(f"{field_name} key", "a scene name (str)", describe(scene))
         if isinstance(boxes, (str, bytes)) or not isinstance(boxes, Iterable):
-            raise InvalidInput(f"{field_name}[{scene!r}]", "a sequence of Box3D", describe(boxes))
+            raise InvalidInput(f"{field_name}[{scene!r}]", "a sequence of LabelledBox", describe(boxes))
         for i, box in enumerate(boxes):
-            if not isinstance(box, Box3D):
-                raise InvalidInput(f"{field_name}[{scene!r}][{i}]", "a Box3D", describe(box))
+            if not isinstance(box, LabelledBox):
+                raise InvalidInput(f"{field_name}[{scene!r}][{i}]", "a LabelledBox", describe(box))
             if box.label in by_class:
                 by_class[box.label].append((scene, box))
             else:
@@ -428,9 +366,12 @@ def _check_classes(classes: Sequence[str]) -> tuple[str, ...]:
     return names
 
 
+#: The box type's old name, kept while ``arcloud.service.replay`` imports it from here; use
+#: ``arcloud.core.types.LabelledBox``.
+Box3D = LabelledBox
+
 __all__ = [
     "DEFAULT_IOU_THRESHOLDS",
-    "Box3D",
     "EvalResult",
     "PrecisionRecall",
     "ThresholdResult",

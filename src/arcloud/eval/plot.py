@@ -19,16 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from arcloud.core.checks import check_finite_number, check_intrinsics, check_pose, check_rgb, describe
-from arcloud.core.types import Intrinsics
+from arcloud.core.types import OBB, Intrinsics, LabelledBox
 from arcloud.errors import InvalidInput
-from arcloud.eval.metrics import Box3D
 
 logger = logging.getLogger(__name__)
 
 RGB = tuple[int, int, int]
-#: An oriented box for the top-down picture: centre (3,), full size (3,) along its own axes, yaw about
-#: world z in radians (box x axis = (cos yaw, sin yaw)), and a label.
-OrientedBox = tuple[object, object, float, str]
+#: An oriented box for the top-down picture: the core's gravity-aligned ``OBB`` (yaw about world z) and
+#: the label drawn beside it.
+LabelledOBB = tuple[str, OBB]
 
 GT_COLOR_RGB: RGB = (0, 160, 60)
 CLASS_COLORS_RGB: Mapping[str, RGB] = {
@@ -62,7 +61,7 @@ def color_for(label: str) -> RGB:
     return tuple(int(40 + c * 160 / 255) for c in channels)  # type: ignore[return-value]
 
 
-def box_corners(box: Box3D) -> np.ndarray:
+def box_corners(box: LabelledBox) -> np.ndarray:
     """(8, 3) corners of a box; corner i takes max on x if bit 0 of i is set, y for bit 1, z for bit 2."""
     bits = (np.arange(8)[:, None] >> np.arange(3)) & 1
     return np.where(bits == 1, box.max, box.min)
@@ -100,10 +99,10 @@ class TopDownPicture:
 
 def render_top_down(
     *,
-    gt: Sequence[Box3D] = (),
-    predictions: Sequence[Box3D] = (),
+    gt: Sequence[LabelledBox] = (),
+    predictions: Sequence[LabelledBox] = (),
     points_xyz: np.ndarray | None = None,
-    obbs: Sequence[OrientedBox] = (),
+    obbs: Sequence[LabelledOBB] = (),
     title: str = "",
     px_per_m: float = 80,
     point_radius_px: int = 1,
@@ -168,10 +167,10 @@ def render_top_down(
 def draw_top_down(
     path: str | Path,
     *,
-    gt: Sequence[Box3D] = (),
-    predictions: Sequence[Box3D] = (),
+    gt: Sequence[LabelledBox] = (),
+    predictions: Sequence[LabelledBox] = (),
     points_xyz: np.ndarray | None = None,
-    obbs: Sequence[OrientedBox] = (),
+    obbs: Sequence[LabelledOBB] = (),
     title: str = "",
     px_per_m: float = 80,
     point_radius_px: int = 1,
@@ -180,7 +179,7 @@ def draw_top_down(
 
     World x is right and y is up. ``points_xyz`` (N, 3) (e.g. fused voxel centres) are drawn as grey
     dots underneath; ``gt`` boxes as thick green outlines; ``predictions`` in a colour per class with
-    their label and score; ``obbs`` (centre, size, yaw_rad, label) as rotated outlines with a heading
+    their label and score; ``obbs`` (label, OBB) as rotated outlines with a heading
     tick. The picture fits all content with a margin, with a legend and a scale bar below. The side is
     at most ``MAX_SIDE_PX``: larger content lowers ``px_per_m``. The parent folder is created."""
     picture = render_top_down(
@@ -211,11 +210,11 @@ def write_png(path: str | Path, image_rgb: np.ndarray) -> Path:
     return out
 
 
-def _check_boxes(field_name: str, boxes: Sequence[Box3D]) -> list[Box3D]:
+def _check_boxes(field_name: str, boxes: Sequence[LabelledBox]) -> list[LabelledBox]:
     checked = list(boxes)
     for i, b in enumerate(checked):
-        if not isinstance(b, Box3D):
-            raise InvalidInput(f"{field_name}[{i}]", "a Box3D", describe(b))
+        if not isinstance(b, LabelledBox):
+            raise InvalidInput(f"{field_name}[{i}]", "a LabelledBox", describe(b))
     return checked
 
 
@@ -228,17 +227,19 @@ def _check_points(points_xyz: np.ndarray | None) -> np.ndarray:
     return points[np.all(np.isfinite(points), axis=1)]
 
 
-def _check_obb(i: int, obb: OrientedBox) -> tuple[np.ndarray, str, np.ndarray]:
+def _check_obb(i: int, obb: LabelledOBB) -> tuple[np.ndarray, str, np.ndarray]:
     """(4, 2) footprint corners, the label, and the (2, 2) heading tick (centre to the +x face)."""
     try:
-        center, size, yaw_rad, label = obb
+        label, box = obb
     except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"obbs[{i}]", "(center (3,), size (3,), yaw_rad, label)", describe(obb)) from exc
-    c = np.asarray(center, dtype=np.float64).ravel()
-    s = np.asarray(size, dtype=np.float64).ravel()
+        raise InvalidInput(f"obbs[{i}]", "(label, OBB)", describe(obb)) from exc
+    if not isinstance(box, OBB):
+        raise InvalidInput(f"obbs[{i}]", "(label, OBB)", describe(obb))
+    c = np.asarray(box.center, dtype=np.float64).ravel()
+    s = np.asarray(box.size, dtype=np.float64).ravel()
     if c.shape != (3,) or s.shape != (3,) or not (np.all(np.isfinite(c)) and np.all(np.isfinite(s))):
         raise InvalidInput(f"obbs[{i}]", "finite center (3,) and size (3,)", f"{describe(c)}, {describe(s)}")
-    yaw = check_finite_number(f"obbs[{i}].yaw_rad", yaw_rad)
+    yaw = check_finite_number(f"obbs[{i}].yaw_rad", box.yaw_rad)
     axes = np.array([[math.cos(yaw), math.sin(yaw)], [-math.sin(yaw), math.cos(yaw)]])  # box x, y in world
     half = s[:2] / 2
     signs = np.array([(1, 1), (-1, 1), (-1, -1), (1, -1)])
@@ -252,7 +253,7 @@ def _fixed(px: np.ndarray) -> np.ndarray:
     return np.rint(np.asarray(px) * (1 << _LINE_SHIFT)).astype(np.int32)
 
 
-def _rectangle(cv2: object, image: np.ndarray, view: TopDownView, b: Box3D, color: RGB, thickness: int) -> None:
+def _rectangle(cv2: object, image: np.ndarray, view: TopDownView, b: LabelledBox, color: RGB, thickness: int) -> None:
     corners = view.to_px(np.array([[b.min[0], b.max[1]], [b.max[0], b.min[1]]]))
     top_left, bottom_right = np.rint(corners).astype(int)
     cv2.rectangle(image, tuple(top_left.tolist()), tuple(bottom_right.tolist()), color, thickness, cv2.LINE_8)
@@ -327,7 +328,7 @@ class _LegendEntry:
 
 
 def _legend_entries(
-    gt: list[Box3D], predictions: list[Box3D], oriented: list[tuple[np.ndarray, str, np.ndarray]], has_points: bool
+    gt: list[LabelledBox], predictions: list[LabelledBox], oriented: list[tuple[np.ndarray, str, np.ndarray]], has_points: bool
 ) -> list[_LegendEntry]:
     entries = []
     if gt:
@@ -372,7 +373,7 @@ def _draw_legend(cv2: object, image: np.ndarray, rows: list[list[tuple[int, _Leg
 
 def draw_boxes_in_image(
     rgb: np.ndarray,
-    boxes: Sequence[Box3D],
+    boxes: Sequence[LabelledBox],
     cam2world: np.ndarray,
     intrinsics: Intrinsics | Mapping[str, float] | Sequence[float],
     *,
@@ -457,7 +458,7 @@ def _clip_to_rect(uv: np.ndarray, width: int, height: int, pad_px: float = 4.0) 
 __all__ = [
     "CLASS_COLORS_RGB",
     "GT_COLOR_RGB",
-    "OrientedBox",
+    "LabelledOBB",
     "TopDownPicture",
     "TopDownView",
     "box_corners",

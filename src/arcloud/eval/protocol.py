@@ -18,8 +18,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from arcloud.core.step import integrate_frame
-from arcloud.core.types import Detection, Frame, MapObject, Params
-from arcloud.eval.metrics import Box3D, evaluate, variance
+from arcloud.core.types import Detection, Frame, LabelledBox, MapObject, Params
+from arcloud.eval.metrics import evaluate, variance
 from arcloud.ports import Detector, ObjectStore
 from arcloud.stores.memory import MemoryStore
 
@@ -120,15 +120,15 @@ def run_map(
     return store.list_objects(map_id)
 
 
-def object_boxes(objects: Sequence[MapObject]) -> list[Box3D]:
+def object_boxes(objects: Sequence[MapObject]) -> list[LabelledBox]:
     """The objects as scored axis-aligned boxes for evaluation."""
-    return [Box3D.from_aabb(o.label, o.aabb, o.score) for o in objects if o.aabb is not None and o.label]
+    return [LabelledBox.from_aabb(o.label, o.aabb, o.score) for o in objects if o.aabb is not None and o.label]
 
 
 def table1(
     frames: Sequence[Frame],
     detector: Detector,
-    ground_truth: Sequence[Box3D],
+    ground_truth: Sequence[LabelledBox],
     params: Params,
     *,
     users: Sequence[int] = (10, 50, 100),
