@@ -15,13 +15,15 @@ from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, sorted_uniq
 
 def union_voxels(a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray) -> MapObject:
     """``a`` with a sparse voxel set added: weights, seen counts and votes of a voxel in both add up."""
-    return _union_voxels(a, keys_b, weights_b, seen_b, votes_b)[0]
+    keys, weights, seen, votes, _, _ = _union_arrays(a, keys_b, weights_b, seen_b, votes_b)
+    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes)
 
 
-def _union_voxels(
+def _union_arrays(
     a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray
-) -> tuple[MapObject, np.ndarray, np.ndarray]:
-    """``union_voxels``, plus where ``a``'s keys (N_a,) and ``keys_b`` (N_b,) sit in the union."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The new (writable) keys, weights, seen and votes of ``union_voxels``, and where ``a``'s keys
+    (N_a,) and ``keys_b`` (N_b,) sit in them."""
     keys = sorted_unique(np.concatenate((a.keys, keys_b)))
     weights = np.zeros(keys.size, np.float32)
     seen = np.zeros(keys.size, np.float32)
@@ -33,7 +35,7 @@ def _union_voxels(
         seen[at] += n
         votes[at] += v
         positions.append(at)
-    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes), positions[0], positions[1]
+    return keys, weights, seen, votes, positions[0], positions[1]
 
 
 def fuse_detection(
@@ -43,16 +45,20 @@ def fuse_detection(
     of the detection's score for its label; every voxel covered or ``visible`` ((N,) bool over the
     object's voxels: in view and not occluded in this frame) is counted as seen once more.
     ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
-    votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
-    votes[:, det.label_index] = det.score
+    det_votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
+    det_votes[:, det.label_index] = det.score
     ones = np.ones(det.keys.size, np.float32)
-    fused, at_obj, at_det = _union_voxels(obj, det.keys, ones, ones, votes)
+    keys, weights, seen, votes, at_obj, at_det = _union_arrays(obj, det.keys, ones, ones, det_votes)
     if visible is not None and visible.any():
         # Visible voxels of the object that the detection did not cover: seen, not hit.
-        covered = np.zeros(fused.keys.size, bool)
+        covered = np.zeros(keys.size, bool)
         covered[at_det] = True
-        fused.seen[at_obj[visible & ~covered[at_obj]]] += 1
-    return fused.replace(
+        seen[at_obj[visible & ~covered[at_obj]]] += 1
+    return obj.replace(
+        keys=keys,
+        weights=weights,
+        seen=seen,
+        votes=votes,
         floor_votes=obj.floor_votes if floor_vote is None else add_votes(obj.floor_votes, {floor_vote: 1}),
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},

@@ -109,24 +109,30 @@ def integrate_frame(
     clock.lap("floor")
     with store.lock(frame.map_id, visible_ids, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s) as lease:
         clock.lap("lock")
-        before = {o.id: o for o in store.get(frame.map_id, visible_ids)}
-        objects = list(before.values())
-        objects, unmatched = fuse_matches(objects, observations, params, frame, floor)
-        objects, misses, rescored = count_misses(objects, before, frame, params)
+        # What changed is tracked by id: ``voxels_changed`` objects are refined before they are written,
+        # ``rescored`` ones (a miss moved their score) are written as they are, the rest are left alone.
+        stored = {o.id: o for o in store.get(frame.map_id, visible_ids)}
+        objects, unmatched, voxels_changed = fuse_matches(list(stored.values()), observations, params, frame, floor)
+        objects, misses, rescored = count_misses(objects, voxels_changed, frame, params)
         result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
         try:
             if unmatched:
-                claims, late, created = create_under_claim(store, frame, unmatched, visible_ids, params, now_s, floor)
+                claims, late, late_and_new, late_changed = create_under_claim(store, frame, unmatched, visible_ids, params, now_s, floor)
                 leases += claims
-                before.update({o.id: o for o in late})
-                objects += created
-            changed, removed, events = finish_objects(objects, before, params, frame.map_id, now_s, rescored)
-            written = {o.id for o in changed} | {o.id for o in removed}
+                stored.update({o.id: o for o in late})
+                objects += late_and_new
+                voxels_changed |= late_changed
+            objects, absorbed_into = merge_duplicates(objects, voxels_changed, params)
+            objects, trimmed = resolve_shared_voxels(objects)
+            voxels_changed |= set(absorbed_into.values()) | trimmed
+            to_write = refine_changed(objects, voxels_changed, rescored, params)
+            upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
+            written = {o.id for o in upserts} | {o.id for o in removed}
             misses = {i: n for i, n in misses.items() if i not in written}
             clock.lap("create_refine")
-            if not store.commit(frame.map_id, leases, changed, removed, frame_key=frame.key, misses=misses):
+            if not store.commit(frame.map_id, leases, upserts, removed, frame_key=frame.key, misses=misses):
                 return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
             clock.lap("write")
         finally:
@@ -164,12 +170,12 @@ def find_visible(store: MapStore, frame: Frame, params: Params) -> list[int]:
 
 def fuse_matches(
     objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, frame: Frame, floor: FrameFloor | None = None
-) -> tuple[list[MapObject], list[VoxelDetection]]:
+) -> tuple[list[MapObject], list[VoxelDetection], set[int]]:
     """Associate observations with objects (Hungarian) and fuse the pairs, counting which voxels of a
-    matched object the frame saw; returns the objects (fused ones replaced) and the observations left
-    unmatched."""
+    matched object the frame saw; returns the objects (fused ones replaced), the observations left
+    unmatched and the ids of the fused objects."""
     if not observations:
-        return objects, []
+        return objects, [], set()
     association = associate(
         [o.keys for o in observations],
         [o.label_index for o in observations],
@@ -193,23 +199,28 @@ def fuse_matches(
             if rival not in matched and rival not in views and part.keys.size >= params.min_voxels_per_detection:
                 views[rival] = part
     fused = list(objects)
+    fused_ids = set()
     for o, view in views.items():
         if view.keys.size:
             visible = visible_voxels(frame, fused[o].keys, params)
             fused[o] = fuse_detection(fused[o], view, frame.device_id, visible, floor_vote(floor, view, params))
-    return fused, [observations[d] for d in association.unmatched]
+            fused_ids.add(fused[o].id)
+    return fused, [observations[d] for d in association.unmatched], fused_ids
 
 
 def count_misses(
-    objects: list[MapObject], before: dict[int, MapObject], frame: Frame, params: Params
-) -> tuple[list[MapObject], dict[int, int], dict[int, MapObject]]:
+    objects: list[MapObject], fused_ids: set[int], frame: Frame, params: Params
+) -> tuple[list[MapObject], dict[int, int], set[int]]:
     """Objects the frame had in view, mostly unoccluded (``miss_min_visible`` of their voxels
-    visible), whose detection did not come: one more miss each (``core.confirm``). Returns the objects,
-    those whose score or status the miss changes enough replaced (rescored, to be rewritten), the new
-    miss counts of the others (a counter the store keeps without a new version), and the rescored ones
-    by id (their voxels did not change: they need no refinement)."""
-    out, misses, rescored = list(objects), {}, {}
-    undetected = [i for i, obj in enumerate(objects) if before.get(obj.id) is obj and obj.keys.size]  # not new, not fused
+    visible), whose detection did not come (not in ``fused_ids``): one more miss each
+    (``core.confirm``). Returns the objects, those whose score or status the miss changes enough
+    replaced (rescored, to be rewritten), the new miss counts of the others (a counter the store keeps
+    without a new version), and the ids of the rescored ones (their voxels did not change: they need no
+    refinement)."""
+    out: list[MapObject] = list(objects)
+    misses: dict[int, int] = {}
+    rescored: set[int] = set()
+    undetected = [i for i, obj in enumerate(objects) if obj.id not in fused_ids and obj.keys.size]
     if not undetected:
         return out, misses, rescored
     samples = [objects[i].keys[:: max(1, objects[i].keys.size // MISS_SAMPLE_VOXELS)] for i in undetected]
@@ -221,7 +232,8 @@ def count_misses(
             continue
         score, confirmed = evidence(obj, params, n_missed=obj.n_missed + 1)
         if confirmed != obj.confirmed or abs(score - obj.score) > params.rescore_write_delta:
-            out[i] = rescored[obj.id] = obj.replace(n_missed=obj.n_missed + 1, score=score, confirmed=confirmed)
+            out[i] = obj.replace(n_missed=obj.n_missed + 1, score=score, confirmed=confirmed)
+            rescored.add(obj.id)
         else:
             misses[obj.id] = obj.n_missed + 1
     return out, misses, rescored
@@ -256,10 +268,11 @@ def create_under_claim(
     params: Params,
     now_s: float,
     floor: FrameFloor | None = None,
-) -> tuple[list[Lease], list[MapObject], list[MapObject]]:
+) -> tuple[list[Lease], list[MapObject], list[MapObject], set[int]]:
     """Claim the space of the unmatched observations; fuse them into objects that appeared there since
-    the frustum query (when their locks are free), create objects for the rest. Returns the claim, the
-    leases on the late objects, the late objects as read, and the late (fused) plus new objects."""
+    the frustum query (when their locks are free), create objects for the rest. Returns the claim and
+    the leases on the late objects, the late objects as read, the late (fused) plus new objects, and
+    the ids of those whose voxels changed (fused or new)."""
     cells, lo, hi = claim_cells(unmatched, params)
     claim = store.claim(frame.map_id, cells, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s)
     late_leases: list[Lease] = []
@@ -267,14 +280,14 @@ def create_under_claim(
         late_ids = sorted(set(store.query_region(frame.map_id, lo, hi)) - set(held_ids))
         late_leases = try_lock(store, frame.map_id, late_ids, params)
         late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
-        fused_late, still_unmatched = fuse_matches(late, unmatched, params, frame, floor)
+        fused_late, still_unmatched, fused_ids = fuse_matches(late, unmatched, params, frame, floor)
         new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
         created = [new_object(i, o, frame.device_id, now_s, floor_vote(floor, o, params)) for i, o in zip(new_ids, still_unmatched)]
     except BaseException:
         for lease in [claim, *late_leases]:
             lease.release()
         raise
-    return [claim, *late_leases], late, fused_late + created
+    return [claim, *late_leases], late, fused_late + created, fused_ids | set(new_ids)
 
 
 def try_lock(store: MapStore, map_id: str, ids: Sequence[int], params: Params) -> list[Lease]:
@@ -288,49 +301,56 @@ def try_lock(store: MapStore, map_id: str, ids: Sequence[int], params: Params) -
     return leases
 
 
-def finish_objects(
-    objects: Sequence[MapObject],
-    before: dict[int, MapObject],
-    params: Params,
-    map_id: str,
-    now_s: float,
-    rescored: Mapping[int, MapObject] | None = None,
-) -> tuple[list[MapObject], list[MapObject], list[ObjectEvent]]:
-    """Merge duplicates, give each voxel to one object, refine, and work out what changed. ``rescored``:
-    objects (by id) whose evidence changed but not their voxels: written as they are unless a merge or a
-    conflict changes them.
-
-    Returns (objects to write with their versions bumped, objects to delete as stored, events)."""
+def merge_duplicates(
+    objects: Sequence[MapObject], voxels_changed: set[int], params: Params
+) -> tuple[list[MapObject], dict[int, int]]:
+    """The merge pass: objects that are one physical object (``find_duplicates``; only pairs with an
+    object whose voxels changed are looked at) merged into one keeper each. Returns the objects left
+    and ``absorbed_into``: absorbed id -> keeper id."""
     objects = list(objects)
-    rescored = rescored or {}
     absorbed_into: dict[int, int] = {}
-    changed_flags = [before.get(o.id) is not o and rescored.get(o.id) is not o for o in objects]
-    for keep, absorb in find_duplicates(objects, params, changed_flags):
+    for keep, absorb in find_duplicates(objects, params, [o.id in voxels_changed for o in objects]):
         objects[keep] = merge_objects(objects[keep], objects[absorb])
         absorbed_into[objects[absorb].id] = objects[keep].id
-    survivors = [o for o in objects if o.id not in absorbed_into]
-    survivors = resolve_conflicts(survivors)
+    return [o for o in objects if o.id not in absorbed_into], absorbed_into
 
-    changed, removed, events = [], [], []
-    for obj in survivors:
-        old = before.get(obj.id)
-        if old is not None and obj is old:
-            continue  # untouched
-        refined = obj if rescored.get(obj.id) is obj else refine(obj, params)
-        if refined.keys.size == 0:
+
+def resolve_shared_voxels(objects: Sequence[MapObject]) -> tuple[list[MapObject], set[int]]:
+    """One instance per voxel (``resolve_conflicts``); returns the objects and the ids of those that
+    gave up voxels (resolving only removes voxels, so they are the ones with fewer)."""
+    resolved = resolve_conflicts(objects)
+    return resolved, {new.id for old, new in zip(objects, resolved) if new.keys.size != old.keys.size}
+
+
+def refine_changed(objects: Sequence[MapObject], voxels_changed: set[int], rescored: set[int], params: Params) -> list[MapObject]:
+    """The objects to write, in order: those whose voxels changed, refined (an object refined to no
+    voxels comes back empty), and those only rescored, as they are."""
+    return [refine(o, params) if o.id in voxels_changed else o for o in objects if o.id in voxels_changed or o.id in rescored]
+
+
+def diff_with_stored(
+    to_write: Sequence[MapObject], stored: Mapping[int, MapObject], absorbed_into: Mapping[int, int], map_id: str, now_s: float
+) -> tuple[list[MapObject], list[MapObject], list[ObjectEvent]]:
+    """What the commit writes, against the objects as read (``stored``): each object of ``to_write``
+    with its version bumped (created or updated; one left without voxels is deleted), and the stored
+    objects absorbed by a merge deleted. Returns (upserts, deletes as stored, events)."""
+    upserts, removed, events = [], [], []
+    for obj in to_write:
+        old = stored.get(obj.id)
+        if obj.keys.size == 0:
             if old is not None:
                 removed.append(old)
                 events.append(ObjectEvent("deleted", map_id, obj.id, was_confirmed=old.confirmed))
             continue
         version = (old.version if old is not None else 0) + 1
-        final = refined.replace(version=version, updated_at_s=now_s, created_at_s=refined.created_at_s or now_s)
-        changed.append(final)
+        final = obj.replace(version=version, updated_at_s=now_s, created_at_s=obj.created_at_s or now_s)
+        upserts.append(final)
         events.append(ObjectEvent("created" if old is None else "updated", map_id, obj.id, final, was_confirmed=old is not None and old.confirmed))
     for absorbed_id, keeper_id in absorbed_into.items():
-        if absorbed_id in before:
-            removed.append(before[absorbed_id])
-            events.append(ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id, was_confirmed=before[absorbed_id].confirmed))
-    return changed, removed, events
+        if absorbed_id in stored:
+            removed.append(stored[absorbed_id])
+            events.append(ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id, was_confirmed=stored[absorbed_id].confirmed))
+    return upserts, removed, events
 
 
 class _Clock:

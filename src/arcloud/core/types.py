@@ -188,7 +188,7 @@ def _check_corner(field_name: str, value: object) -> np.ndarray:
     return corner
 
 
-@dataclass(eq=False, slots=True)
+@dataclass(frozen=True, eq=False, slots=True)
 class MapObject:
     """One object of the map: sparse voxels with occupancy weights and label votes, plus what the
     refinement derives from them (label, score, boxes).
@@ -198,6 +198,10 @@ class MapObject:
     score-weighted label votes per voxel. seen: (N,) float32, the number of those frames in which the
     voxel was visible (in view and not occluded) or covered; weights / seen is the voxel's occupancy.
     None means unknown and reads as equal to ``weights``.
+
+    Immutable: a change is a new object (``replace``). Construction makes the four voxel arrays
+    read-only (the arrays themselves, not copies: hand over arrays you no longer write to), so one
+    object can be shared by the store, the step and its events; ``floor_votes`` is never edited either.
     """
 
     id: int
@@ -220,6 +224,11 @@ class MapObject:
     floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)  # height bin -> frames (core.floor)
     n_missed: int = 0  # frames that saw it in view, unoccluded, and detected nothing there
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
+
+    def __post_init__(self) -> None:
+        for array in (self.keys, self.weights, self.votes, self.seen):
+            if array is not None:
+                array.flags.writeable = False
 
     @property
     def n_voxels(self) -> int:
