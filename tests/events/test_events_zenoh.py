@@ -27,7 +27,7 @@ from arcloud.events.zenoh import (
 )
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
-from arcloud.service.app import create_app
+from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
 

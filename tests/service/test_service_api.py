@@ -18,7 +18,7 @@ import pytest
 from svc_helpers import HEIGHT, LEFT, RIGHT, WIDTH, AppClient, BlobDetector, UvicornThread, make_test_frame, multipart_parts, wait_until
 
 from arcloud.proto.convert import frame_to_proto
-from arcloud.service.app import create_app
+from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
 

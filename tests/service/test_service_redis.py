@@ -26,12 +26,15 @@ from svc_helpers import LEFT, RIGHT, AppClient, free_port, make_blob_detector, m
 from arcloud.events.zenoh import query_objects, subscribe_objects
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
-from arcloud.service.app import create_app
-from arcloud.service.ingest import DEAD_LETTER_STREAM, INGEST_STATS, INGEST_STREAM, live_workers, parse_stats
+from arcloud.tools.wiring import create_app
+from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
-from arcloud.service.worker import WorkerPool, healthy
-from arcloud.service.worker import main as worker_main
+from arcloud.stores.keys import INGEST_DEAD_LETTER_STREAM as DEAD_LETTER_STREAM
+from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM
 from arcloud.stores.redis import RedisStore
+from arcloud.stores.redis_queue import RedisFrameQueue, parse_stats
+from arcloud.tools.wiring import healthy, worker_pool
+from arcloud.tools.worker import main as worker_main
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
 
@@ -51,6 +54,7 @@ class Deployment:
     pool: WorkerPool
     redis: redis.Redis
     store: RedisStore
+    queue: RedisFrameQueue
     zenoh_endpoint: str
 
     def post(self, map_id: str, index: int, *, level: bool = False, boxes: tuple = (LEFT,), frame_id: str | None = None) -> dict:
@@ -82,17 +86,19 @@ def deployment() -> Iterator[Deployment]:
         max_deliveries=2, read_block_s=0.2, zenoh_mode="peer", zenoh_listen=[endpoint],
     )
     factory = functools.partial(make_blob_detector, delay_s=SLOW_S, slow_on=[f"f{SLOW_FRAME:06d}"], crash_on=[f"f{CRASH_FRAME:06d}"], miss_left_on=MISSED)
-    pool = WorkerPool(settings, 2, detector_factory=factory)
+    pool = worker_pool(settings, 2, detector_factory=factory)
     client = server.client()
     store = RedisStore(server.url)
+    queue = RedisFrameQueue(server.url)
     try:
         with AppClient(create_app(settings)) as api:
             pool.start()
-            wait_until(lambda: len(live_workers(client, 3.0)) >= 2, 90, "2 workers reading", 0.1)
-            yield Deployment(settings, api, pool, client, store, endpoint)
+            wait_until(lambda: len(queue.live_consumers(3.0)) >= 2, 90, "2 workers reading", 0.1)
+            yield Deployment(settings, api, pool, client, store, queue, endpoint)
             pool.stop(20)
     finally:
         pool.stop(5)
+        queue.close()
         store.close()
         client.close()
         server.stop()
@@ -183,7 +189,7 @@ def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
     wait_until(deployment.idle, 30, "both deliveries handled", 0.05)
     after = deployment.stats()
     assert deployment.store.count_frames("r2") == 1
-    assert after.processed - before.processed == 1 and after.skipped - before.skipped == 1
+    assert after.processed - before.processed == 1 and after.redelivered - before.redelivered == 1
     (obj,) = deployment.store.list_objects("r2")
     assert obj.n_frames == 1 and obj.version == 1
 
@@ -217,7 +223,7 @@ def test_a_killed_workers_frame_is_claimed_by_another(deployment: Deployment) ->
 
 def test_workers_stop_gracefully_after_the_frame_in_hand(deployment: Deployment) -> None:
     def current_workers_reading() -> bool:
-        live = {w.rsplit("-", 1)[1] for w in live_workers(deployment.redis, 3.0)}
+        live = {w.rsplit("-", 1)[1] for w in deployment.queue.live_consumers(3.0)}
         return {str(p.pid) for p in deployment.pool.processes} <= live
 
     wait_until(current_workers_reading, 60, "the replacement worker reading")
@@ -229,7 +235,7 @@ def test_workers_stop_gracefully_after_the_frame_in_hand(deployment: Deployment)
     assert [p.exitcode for p in processes] == [0, 0]
     assert deployment.store.count_frames("r5") == 1 and deployment.idle()
     stopped = {str(p.pid) for p in processes}
-    assert not [w for w in live_workers(deployment.redis) if w.rsplit("-", 1)[1] in stopped]  # heartbeats removed on the way out
+    assert not [w for w in deployment.queue.live_consumers(10.0) if w.rsplit("-", 1)[1] in stopped]  # heartbeats removed on the way out
 
 
 def test_workers_that_die_right_after_starting_are_restarted_later_and_later(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -240,7 +246,7 @@ def test_workers_that_die_right_after_starting_are_restarted_later_and_later(mon
             return False
 
     spawned: list[float] = []
-    pool = WorkerPool(Settings(store="redis://127.0.0.1:1/0", detector="sim:0", workers=1), 1)
+    pool = WorkerPool(1, print)
     monkeypatch.setattr(pool, "_spawn", lambda index: Dead())
     pool.processes, pool._started_at = [Dead()], {0: 0.0}
     for tick in range(200):  # a supervisor looking once a second for 200 s at a worker that always fails at once

@@ -12,12 +12,13 @@ from svc_helpers import UvicornThread
 from arcloud.cli import main as cli_main
 from arcloud.core.types import Intrinsics, Params
 from arcloud.errors import ArcloudError
-from arcloud.eval.metrics import Box3D, evaluate
+from arcloud.eval.metrics import evaluate
 from arcloud.eval.protocol import object_boxes, run_map
-from arcloud.service.app import create_app
-from arcloud.service.cli import add_service_commands, settings_from_args
+from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
-from arcloud.service.worker import main as worker_main
+from arcloud.stores.memory import MemoryStore
+from arcloud.tools.service_cli import add_service_commands, settings_from_args
+from arcloud.tools.worker import main as worker_main
 
 pytestmark = pytest.mark.slow
 
@@ -31,7 +32,7 @@ def parser() -> argparse.ArgumentParser:
 def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from arcloud.sim.detector import SimulatedDetector
     from arcloud.sim.room import generate_room
-    from arcloud.sim.sequence import gt_boxes, simulate_sequence
+    from arcloud.sim.sequence import simulate_sequence
 
     out = tmp_path / "deep" / "results.json"
     with UvicornThread(create_app(Settings(detector="sim:0", workers=2))) as server:
@@ -49,8 +50,8 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
 
     # The room's boxes, in the map's frame, and what a plain GET served, scored against them.
     room = generate_room(0)
-    truth = gt_boxes(room)
-    assert [(g["label"], g["aabb_min"], g["aabb_max"]) for g in results["ground_truth"]] == [(label, lo.tolist(), hi.tolist()) for label, lo, hi in truth]
+    truth = [o.box for o in room.objects]
+    assert [(g["label"], g["aabb_min"], g["aabb_max"]) for g in results["ground_truth"]] == [(b.label, b.min.tolist(), b.max.tolist()) for b in truth]
     served, counts = results["served"], results["objects"]
     assert served["objects"] == counts["confirmed"] and counts["confirmed"] + counts["tentative"] >= served["objects"]
     for iou, key in ((0.25, "25"), (0.5, "50")):
@@ -63,8 +64,8 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
 
     # The same frames in order, in process (the centralized run): the service's map scores the same.
     frames = simulate_sequence(room, n_frames=24, seed=0, width=160, height=120, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5))
-    objects = run_map(frames, SimulatedDetector(room, seed=0), Params(), users=1)
-    centralized = evaluate({"s": object_boxes(objects)}, {"s": [Box3D(label, lo, hi) for label, lo, hi in gt_boxes(room)]})
+    objects = run_map(frames, SimulatedDetector(room, seed=0), Params(), new_store=MemoryStore, users=1)
+    centralized = evaluate({"s": object_boxes(objects)}, {"s": truth})
     assert row["map25_mean"] == pytest.approx(centralized.map_at(0.25), abs=0.1)
     assert counts["confirmed"] + counts["tentative"] == pytest.approx(len(objects), abs=2)
     assert counts["confirmed"] == pytest.approx(sum(o.confirmed for o in objects), abs=2)

@@ -5,9 +5,11 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
-from arcloud.service.components import build_detector, threads_per_process
-from arcloud.service.ingest import LATENCY_BUCKETS_S, latency_bucket, latency_field, parse_stats
+from arcloud.errors import InvalidInput
+from arcloud.ports import LATENCY_BUCKETS_S, latency_bucket
 from arcloud.service.settings import Settings, redact_url
+from arcloud.stores.redis_queue import latency_field, parse_stats
+from arcloud.tools.wiring import build_detector, check_detector_spec, create_app, threads_per_process
 
 
 def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -33,8 +35,7 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
     ("changes", "says"),
     [
         ({"store": "postgres://db"}, "expected `memory` or a URL"),
-        ({"detector": "yolo:x"}, "PREFIX one of"),
-        ({"detector": "sim:-1"}, "sim:SEED"),
+        ({"detector": ":x"}, "PREFIX"),
         ({"workers": 0}, "workers: expected >= 1 with the memory store"),
         ({"params": {"voxel": 0.1}}, "unknown parameter 'voxel'"),
         ({"params": {"erode_px": 1.5}}, "expected an integer"),
@@ -48,6 +49,16 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
 def test_wrong_settings_fail_at_once_naming_the_field(changes: dict, says: str) -> None:
     with pytest.raises(ValidationError, match=says):
         Settings(**changes)
+
+
+@pytest.mark.parametrize(("spec", "says"), [("yolo:x", "PREFIX one of"), ("sim:-1", "sim:SEED"), ("sim:x", "sim:SEED")])
+def test_unknown_detectors_fail_before_anything_is_built(spec: str, says: str) -> None:
+    settings = Settings(detector=spec)  # the service knows no detector; the composition root does
+    with pytest.raises(InvalidInput, match=says):
+        check_detector_spec(settings.detector)
+    with pytest.raises(InvalidInput, match=says):
+        create_app(settings)
+    assert check_detector_spec(" sim:3 ") == "sim:3"
 
 
 def test_secrets_are_masked() -> None:
@@ -66,7 +77,7 @@ def test_latency_buckets_and_stats_parsing() -> None:
     assert latency_bucket(0.0051) == 1 and latency_bucket(1e9) == len(LATENCY_BUCKETS_S)
     raw = {b"processed": b"3", b"failed": b"1", latency_field(1): b"2", latency_field(len(LATENCY_BUCKETS_S)): b"1", b"latency_sum_s": b"99.5"}
     snap = parse_stats(raw)
-    assert (snap.processed, snap.failed, snap.accepted, snap.latency_count, snap.latency_sum_s) == (3, 1, 0, 3, 99.5)
+    assert (snap.processed, snap.failed, snap.accepted, snap.redelivered, snap.latency_count, snap.latency_sum_s) == (3, 1, 0, 0, 3, 99.5)
     assert snap.latency_counts[1] == 2 and snap.latency_counts[-1] == 1
 
 

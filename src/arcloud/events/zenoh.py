@@ -199,7 +199,7 @@ class ZenohPublisher:
             query.reply_err(f"include: expected tentative (or nothing: confirmed objects only), got {include!r}".encode())
             return
         try:
-            objects = [o for o in _list_objects(self.store, map_id) if include == "tentative" or o.confirmed]  # type: ignore[arg-type]
+            objects = [o for o in self.store.list_meta(map_id) if include == "tentative" or o.confirmed]  # type: ignore[union-attr]
             from arcloud.proto.convert import objects_to_proto
 
             query.reply(key, objects_to_proto(objects, map_id).SerializeToString())
@@ -218,12 +218,6 @@ class ZenohPublisher:
                 log.debug("undeclare failed", exc_info=True)
         if self._owns_session:
             self.session.close()
-
-
-def _list_objects(store: ObjectStore, map_id: str) -> list[Any]:
-    """Objects without voxels when the store offers that (``list_meta``), else full objects."""
-    list_meta = getattr(store, "list_meta", None)
-    return list_meta(map_id) if list_meta is not None else store.list_objects(map_id)
 
 
 def _call_frame(handler: FrameHandler, sample: Any) -> None:

@@ -1,8 +1,9 @@
-"""The HTTP API, built by one factory: ``create_app(settings, *, store=None, detector=None, publisher=None)``.
+"""The HTTP API, built by one factory: ``create_app(settings, connect)``.
 
-Nothing happens at import or at ``create_app``: the lifespan builds the adapters the settings name
-(unless given), starts the ingest, and stops everything in reverse on shutdown. Routes talk to the
-ports (``ObjectStore``) and to the ingest, never to a concrete store.
+Nothing happens at import or at ``create_app``: the lifespan calls ``connect`` (the composition root's,
+``arcloud.tools.wiring``, which also offers ``create_app`` with the adapters chosen from the settings),
+starts the ingest, and stops everything in reverse on shutdown (``runtime``). Routes talk to the ports
+(``ObjectStore``) and to the ingest, never to an adapter.
 
     POST   /v1/maps/{map_id}/frames           protobuf Frame or multipart (meta, rgb, depth) -> 202 queued
     GET    /v1/maps/{map_id}/objects          confirmed objects; ?include=tentative &label= &min_score= &bbox=x0,y0,z0,x1,y1,z1
@@ -24,7 +25,6 @@ import json
 import logging
 from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -36,12 +36,12 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from arcloud import __version__
 from arcloud.core.checks import check_id
-from arcloud.core.types import CLASSES, Params
+from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, StoreUnavailable
-from arcloud.ports import Detector, ObjectStore, UpdatePublisher
+from arcloud.ports import QueueFull
 from arcloud.service import frames as frames_in
-from arcloud.service.ingest import EmbeddedIngest, Ingest, QueueFull, RedisIngest
+from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
     FrameAccepted,
@@ -60,19 +60,6 @@ from arcloud.service.settings import Settings
 log = logging.getLogger(__name__)
 
 Label = Literal[CLASSES]  # type: ignore[valid-type]
-
-
-@dataclass(eq=False)
-class Runtime:
-    """What the lifespan built; routes reach it through the ``RuntimeDep`` dependency."""
-
-    settings: Settings
-    params: Params
-    store: ObjectStore
-    ingest: Ingest
-    detector: Detector | None = None
-    publisher: UpdatePublisher | None = None
-    owned: list[object] = field(default_factory=list)  # closed on shutdown, last first
 
 
 class BodyTooLarge(Exception):
@@ -115,67 +102,6 @@ class BodyLimit:
         await self.app(scope, limited, send)
 
 
-# --- start and stop ----------------------------------------------------------------------------------
-def start_runtime(
-    settings: Settings,
-    store: ObjectStore | None = None,
-    detector: Detector | None = None,
-    publisher: UpdatePublisher | None = None,
-) -> Runtime:
-    """Build (or take) the adapters, start the ingest. Blocking: loads models and connects."""
-    from arcloud.service.components import build_detector, build_store
-
-    params = settings.make_params()
-    owned: list[object] = []
-    if store is None:
-        store = build_store(settings.store, cell_m=params.index_cell_m)
-        owned.append(store)
-    holder: dict[str, Ingest] = {}
-    if publisher is None and settings.zenoh_mode != "off":
-        from arcloud.events.zenoh import ZenohPublisher
-
-        on_frame = (lambda map_id, payload: _ingest_zenoh_frame(holder["ingest"], map_id, payload, settings)) if settings.zenoh_frames else None
-        publisher = ZenohPublisher(mode=settings.zenoh_mode, listen=settings.zenoh_listen, connect=settings.zenoh_connect, store=store, on_frame=on_frame)
-        owned.append(publisher)
-    ingest: Ingest
-    if settings.embedded:
-        if detector is None:
-            detector = build_detector(settings.detector, threads=settings.detector_threads)
-        ingest = EmbeddedIngest(store, detector, params, publisher, workers=settings.workers, max_queued_frames=settings.max_queued_frames,
-                                attempts=settings.max_deliveries)
-    else:
-        if detector is not None:
-            raise InvalidInput("detector", "none with a Redis store (worker processes build theirs from settings.detector)", type(detector).__name__)
-        import redis
-
-        from arcloud.service.worker import WorkerPool
-
-        client = getattr(store, "client", None) or redis.Redis.from_url(settings.store)
-        pool = WorkerPool(settings, settings.workers) if settings.workers > 0 else None
-        ingest = RedisIngest(client, store, group=settings.consumer_group, max_queued_frames=settings.max_queued_frames, pool=pool)
-    holder["ingest"] = ingest
-    ingest.start()
-    log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
-    return Runtime(settings, params, store, ingest, detector, publisher, owned)
-
-
-def stop_runtime(runtime: Runtime) -> None:
-    from arcloud.service.components import close_quietly
-
-    runtime.ingest.stop()
-    for thing in reversed(runtime.owned):
-        close_quietly(thing)
-    log.info("arcloud service stopped")
-
-
-def _ingest_zenoh_frame(ingest: Ingest, map_id: str, payload: bytes, settings: Settings) -> None:
-    """A frame published on ``arcloud/<map_id>/frames/<device>``: validated and queued like an upload
-    (the map id of the key plays the part of the path's)."""
-    msg = frames_in.parse_message(payload)
-    frame = frames_in.validate_message(msg, map_id, max_pixels=settings.max_frame_pixels)
-    ingest.submit(frame, msg)
-
-
 # --- dependencies ------------------------------------------------------------------------------------
 def get_runtime(request: Request) -> Runtime:
     return request.app.state.runtime  # type: ignore[no-any-return]
@@ -190,16 +116,6 @@ def known_map(runtime: Runtime, map_id: str) -> str:
     if not runtime.ingest.known_map(map_id):
         raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted)")
     return map_id
-
-
-def _list_meta(store: ObjectStore, map_id: str) -> list[Any]:
-    list_meta = getattr(store, "list_meta", None)
-    return list_meta(map_id) if list_meta is not None else store.list_objects(map_id)
-
-
-def _meta(store: ObjectStore, map_id: str, ids: list[int]) -> list[Any]:
-    object_meta = getattr(store, "object_meta", None)
-    return object_meta(map_id, ids) if object_meta is not None else store.get(map_id, ids)
 
 
 def parse_bbox(text: str) -> tuple[np.ndarray, np.ndarray]:
@@ -295,9 +211,9 @@ def list_objects(
     known_map(runtime, map_id)
     if bbox is not None:
         lo, hi = parse_bbox(bbox)
-        objects = _meta(runtime.store, map_id, sorted(runtime.store.query_region(map_id, lo, hi)))
+        objects = runtime.store.object_meta(map_id, sorted(runtime.store.query_region(map_id, lo, hi)))
     else:
-        objects = _list_meta(runtime.store, map_id)
+        objects = runtime.store.list_meta(map_id)
     chosen = [o for o in objects if (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score]
     return {"objects": [object_out(o) for o in sorted(chosen, key=lambda o: o.id)]}
 
@@ -318,7 +234,7 @@ def get_object(
     voxels: Annotated[bool, Query(description="add voxel centres (m) and occupancy weights")] = False,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
-    found = runtime.store.get(map_id, [object_id]) if voxels else _meta(runtime.store, map_id, [object_id])
+    found: list[Any] = runtime.store.get(map_id, [object_id]) if voxels else runtime.store.object_meta(map_id, [object_id])
     if not found:
         raise HTTPException(404, f"object {object_id} not found in map {map_id!r}")
     obj = found[0]
@@ -343,7 +259,7 @@ def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
 def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     known_map(runtime, map_id)
     counts = runtime.ingest.counts(map_id)
-    objects = _list_meta(runtime.store, map_id)
+    objects = runtime.store.list_meta(map_id)
     confirmed = sum(1 for o in objects if o.confirmed)
     return {
         "map_id": map_id,
@@ -360,10 +276,8 @@ def healthz() -> dict[str, str]:
 @router.get("/readyz", response_model=Ready, responses={503: {"model": Ready}}, tags=["operations"], summary="Store reachable, detector loaded, workers alive")
 def readyz(runtime: RuntimeDep) -> JSONResponse:
     checks: dict[str, str] = {}
-    ping = getattr(runtime.store, "ping", None)
     try:
-        if ping is not None:
-            ping()
+        runtime.store.ping()
         checks["store"] = "ok"
     except Exception as exc:  # noqa: BLE001 - readiness reports
         checks["store"] = f"unreachable: {exc}"
@@ -383,22 +297,13 @@ async def metrics(request: Request) -> Response:
 
 
 # --- the factory -------------------------------------------------------------------------------------
-def create_app(
-    settings: Settings | None = None,
-    *,
-    store: ObjectStore | None = None,
-    detector: Detector | None = None,
-    publisher: UpdatePublisher | None = None,
-) -> FastAPI:
-    """The service. ``store``, ``detector``, ``publisher``: adapters to use instead of those the
-    settings name (tests, embedding); the caller keeps ownership of what it passes."""
+def create_app(settings: Settings, connect: Connect) -> FastAPI:
+    """The service on the adapters ``connect`` gives (called once, by the lifespan, off the event loop)."""
     from arcloud.service.metrics import make_registry
-
-    settings = settings if settings is not None else Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        app.state.runtime = await run_in_threadpool(start_runtime, settings, store, detector, publisher)
+        app.state.runtime = await run_in_threadpool(start_runtime, settings, connect)
         try:
             yield
         finally:
@@ -452,4 +357,4 @@ def create_app(
     return app
 
 
-__all__ = ["BodyLimit", "Runtime", "create_app", "parse_bbox", "start_runtime", "stop_runtime"]
+__all__ = ["BodyLimit", "create_app", "parse_bbox"]

@@ -6,9 +6,8 @@ file). Both become one message. Everything is checked before the frame is queued
 sizes (pixels are counted from the headers before decoding, so a small file cannot expand into a huge
 image), decoding, dtypes, shapes, pose, ids, and the map id of the body against the path.
 
-The Redis stream carries that message with its PNG images replaced by the pixels the API decoded
-(``stream_message``): a worker then decodes only JPEG colour (about 1 ms at 640 x 480) instead of a
-16-bit PNG depth image again (about 6 ms), for about 0.6 MB a VGA frame in the stream instead of 0.35.
+The ingest queues the validated ``Frame`` with its message (a queue that serialises, such as the Redis
+one, carries the message rather than encoding the frame again).
 """
 
 from __future__ import annotations
@@ -18,7 +17,6 @@ import struct
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 from pydantic import ValidationError
 
 from arcloud.core.checks import check_id, describe
@@ -151,23 +149,3 @@ def form_bytes(form: Mapping[str, Any], name: str, what: str) -> bytes | None:
             return part.encode()
         raise InvalidInput(name, f"a file part ({what})", "a text field")
     return None  # a file: the caller reads it (async)
-
-
-def stream_message(msg: pb.Frame, frame: Frame) -> pb.Frame:
-    """The message the ingest stream carries for ``frame``, validated from ``msg``: PNG images (lossless,
-    slow to decode) become their pixels (``RAW_*``), JPEG stays as uploaded (lossy: never re-encoded).
-    A worker decodes it to the same ``Frame``, bit for bit."""
-    out = pb.Frame()
-    out.CopyFrom(msg)
-    height, width = frame.shape
-    out.width, out.height = width, height
-    if msg.depth_encoding == pb.DEPTH_ENCODING_PNG:
-        # depth_m = float32(units) / float32(scale) (check_depth): multiplying back is within 0.004 of
-        # the integer for any 16-bit value, so rounding gives the uploaded units exactly.
-        units = np.rint(frame.depth_m.astype(np.float64) * np.float32(msg.depth_scale))
-        out.depth = units.astype("<u2").tobytes()
-        out.depth_encoding = pb.DEPTH_ENCODING_RAW_UINT16
-    if msg.rgb_encoding == pb.RGB_ENCODING_PNG:
-        out.rgb = np.ascontiguousarray(frame.rgb, np.uint8).tobytes()
-        out.rgb_encoding = pb.RGB_ENCODING_RAW_RGB8
-    return out

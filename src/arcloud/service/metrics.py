@@ -1,8 +1,8 @@
-"""Prometheus metrics of the service, read from the ingest's counters at scrape time.
+"""Prometheus metrics of the service, read from the frame queue's counters (``QueueStats``) at scrape time.
 
-One collector per app on the app's own registry (several apps in one process never clash). In Redis
-mode the counters are the shared ones of every worker (one hash in Redis), so any API replica reports
-the whole deployment's frames and step latencies.
+One collector per app on the app's own registry (several apps in one process never clash). With a
+shared queue (Redis) the counters are every worker's, so any API replica reports the whole deployment's
+frames and step latencies.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from prometheus_client import CollectorRegistry, Counter
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from arcloud.service.ingest import LATENCY_BUCKETS_S, Ingest
+from arcloud.ports import LATENCY_BUCKETS_S
+from arcloud.service.ingest import Ingest
 
 
 class IngestCollector(Collector):
@@ -26,12 +27,12 @@ class IngestCollector(Collector):
         ingest = self._ingest()
         if ingest is None:  # before start-up
             return
-        snap = ingest.snapshot()
+        snap = ingest.stats()
         for name, value, text in (
             ("arcloud_frames_accepted", snap.accepted, "Frames validated and queued"),
             ("arcloud_frames_duplicate", snap.duplicates, "Frames posted again after being accepted (not queued)"),
             ("arcloud_frames_processed", snap.processed, "Frames whose step committed"),
-            ("arcloud_frames_redelivered", snap.skipped, "Frames delivered again after their commit (skipped, idempotent)"),
+            ("arcloud_frames_redelivered", snap.redelivered, "Frames delivered again after their commit (not processed again: idempotent)"),
             ("arcloud_frames_failed", snap.failed, "Frames given up on (dead-lettered)"),
             ("arcloud_frames_claimed", snap.claimed, "Frames taken over from a worker that stopped"),
             ("arcloud_step_retries", snap.retried, "Steps tried again after a lock timeout or a stale lease"),

@@ -107,9 +107,13 @@ class Settings(BaseSettings):
     @field_validator("detector")
     @classmethod
     def _check_detector(cls, value: str) -> str:
-        from arcloud.service.components import check_detector_spec
-
-        return check_detector_spec(value)
+        """The spec's form only: which detectors exist is for the composition root to say
+        (``arcloud.tools.wiring.check_detector_spec``, run before anything is built)."""
+        value = value.strip()
+        prefix = value.partition(":")[0]
+        if not prefix or not prefix.replace("-", "").replace("_", "").isalnum():
+            raise ValueError(f"expected PREFIX[:ARGUMENT] naming a detector, got {value!r}")
+        return value
 
     @field_validator("params")
     @classmethod

@@ -15,14 +15,14 @@ pattern ``map_pattern(map_id)`` and nothing else.
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
 
-    arcloud:{m}:ingest:accepted     SET     frame keys the service accepted for the map (``arcloud.service.ingest``)
+    arcloud:{m}:ingest:accepted     SET     frame keys the ingest accepted for the map (``redis_queue``)
     arcloud:{m}:ingest:failed       SET     frame keys of the map that were dead-lettered
 
-Service-wide keys (no map tag; the durable ingest of ``arcloud.service.ingest``):
+Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queue``):
 
     arcloud:ingest                  STREAM  frames to process (protobuf ``Frame`` bytes), one consumer group of workers
     arcloud:ingest:dead             STREAM  frames given up on, with the reason
-    arcloud:ingest:stats            HASH    service-wide counters and the step latency histogram
+    arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
 
 ``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too.

@@ -249,3 +249,7 @@ class MemoryStore:
     def ping(self) -> None:
         """Always answers: the store is this process."""
         return None
+
+    def close(self) -> None:
+        """Nothing to release (the maps stay readable)."""
+        return None

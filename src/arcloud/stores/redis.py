@@ -70,7 +70,8 @@ SCAN_COUNT = 1000
 
 
 @cache
-def _lua(name: str) -> str:
+def lua_source(name: str) -> str:
+    """The text of ``stores/lua/<name>.lua``."""
     return (resources.files("arcloud.stores") / "lua" / f"{name}.lua").read_text()
 
 
@@ -129,7 +130,7 @@ class RedisStore:
         self.max_query_cells = int(max_query_cells)
         self.votes_f16 = votes_f16
         self._scripts = {
-            name: client.register_script(_lua(name)) for name in ("acquire", "release", "query", "commit", "delete_map")
+            name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "commit", "delete_map")
         }
 
     @classmethod

@@ -1,0 +1,103 @@
+"""Worker processes beside the API: ``size`` processes (spawned: no state inherited) each running
+``target(*args)``, restarted when they die; those that die right after starting are restarted with a
+growing delay, so a broken setup does not spawn a process a second. SIGTERM stops a worker after its
+current frame.
+
+The target builds its own adapters (a process cannot share the API's connections); the composition root
+(``arcloud.tools.wiring``) gives it.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+#: A worker that dies sooner than this after its start failed to start: the next start waits, twice as
+#: long each time (up to ``RESTART_MAX_DELAY_S``).
+QUICK_EXIT_S = 10.0
+RESTART_MAX_DELAY_S = 60.0
+
+
+class WorkerPool:
+    """``size`` processes running ``target(*args)`` (a picklable top-level function). ``claim_after_s``:
+    how long the frames of a dead worker wait before another claims them (for the log)."""
+
+    def __init__(
+        self, size: int, target: Callable[..., None], args: tuple[Any, ...] = (), *, claim_after_s: float = 60.0, restart: bool = True
+    ) -> None:
+        self.size = size
+        self.target = target
+        self.args = args
+        self.claim_after_s = claim_after_s
+        self.restart = restart
+        self.processes: list[multiprocessing.process.BaseProcess] = []
+        self._context = multiprocessing.get_context("spawn")
+        self._stopping = threading.Event()
+        self._supervisor: threading.Thread | None = None
+        self._started_at: dict[int, float] = {}
+        self._quick_exits: dict[int, int] = {}  # consecutive quick exits per slot
+        self._restart_at: dict[int, float] = {}
+
+    def _spawn(self, index: int) -> multiprocessing.process.BaseProcess:
+        process = self._context.Process(target=self.target, args=self.args, name=f"arcloud-worker-{index}", daemon=False)
+        process.start()
+        return process
+
+    def start(self) -> None:
+        self._stopping.clear()
+        self.processes = [self._spawn(i) for i in range(self.size)]
+        self._started_at = dict.fromkeys(range(self.size), time.monotonic())
+        log.info("started %d worker processes: %s", self.size, ", ".join(str(p.pid) for p in self.processes))
+        if self.restart:
+            self._supervisor = threading.Thread(target=self._supervise, name="arcloud-worker-supervisor", daemon=True)
+            self._supervisor.start()
+
+    def _supervise(self) -> None:
+        while not self._stopping.wait(1.0):
+            self.tend(time.monotonic())
+
+    def tend(self, now: float) -> None:
+        """Restart the workers found dead (the supervisor calls this every second)."""
+        for i, process in enumerate(self.processes):
+            if process.is_alive() or self._stopping.is_set():
+                continue
+            if i not in self._restart_at:  # seen dead for the first time
+                quick = now - self._started_at.get(i, now) < QUICK_EXIT_S
+                self._quick_exits[i] = self._quick_exits.get(i, 0) + 1 if quick else 0
+                delay_s = min(RESTART_MAX_DELAY_S, 2.0 ** self._quick_exits[i]) if quick else 0.0
+                self._restart_at[i] = now + delay_s
+                log.error("worker process %s exited with %s%s; starting another in %.0f s (its frames are claimed after %.0f s)",
+                          process.pid, process.exitcode, " right after starting" if quick else "", delay_s, self.claim_after_s)
+            if now >= self._restart_at[i]:
+                del self._restart_at[i]
+                self.processes[i] = self._spawn(i)
+                self._started_at[i] = now
+
+    def alive(self) -> int:
+        return sum(p.is_alive() for p in self.processes)
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """SIGTERM every worker (each finishes its frame), wait ``timeout_s``, then kill the rest."""
+        self._stopping.set()
+        if self._supervisor is not None:
+            self._supervisor.join()
+        for process in self.processes:
+            if process.is_alive():
+                process.terminate()
+        deadline = time.monotonic() + timeout_s
+        for process in self.processes:
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                log.warning("worker process %s did not stop in %.0f s; killing it", process.pid, timeout_s)
+                process.kill()
+                process.join()
+        self.processes = []
+
+
+__all__ = ["QUICK_EXIT_S", "RESTART_MAX_DELAY_S", "WorkerPool"]

@@ -1,0 +1,125 @@
+"""Start and stop of the service: the adapters the composition root connects, the ingest on them.
+
+The service never builds an adapter. ``create_app`` takes a ``Connect`` callable (the composition root's,
+``arcloud.tools.wiring``) that the lifespan calls once with the settings and the handler of frames
+published over Zenoh; it returns ``Adapters``: the ports, the worker processes to start (if any) and
+what to close on shutdown. A detector among them means the step runs in threads of this process.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from arcloud.core.types import Params
+from arcloud.ports import Detector, FrameQueue, ObjectStore, UpdatePublisher
+from arcloud.service import frames as frames_in
+from arcloud.service.ingest import Ingest
+from arcloud.service.pool import WorkerPool
+from arcloud.service.settings import Settings
+from arcloud.service.worker import FrameWorker, consumer_name
+
+log = logging.getLogger(__name__)
+
+#: How long an idle worker thread of the API waits for a frame before it looks at its stop flag.
+IN_PROCESS_READ_BLOCK_S = 0.1
+
+FrameHandler = Callable[[str, bytes], None]  # (map id, protobuf Frame bytes) published by a device
+
+
+class Closeable(Protocol):
+    """What the runtime closes on shutdown (connections, sessions)."""
+
+    def close(self) -> None: ...
+
+
+@dataclass(eq=False)
+class Adapters:
+    """What the composition root connected for one app. ``detector``: run the step in ``settings.workers``
+    threads of this process (None: workers run elsewhere); ``pool``: worker processes to start and stop
+    with the app; ``owned``: closed on shutdown, last first."""
+
+    store: ObjectStore
+    queue: FrameQueue
+    detector: Detector | None = None
+    publisher: UpdatePublisher | None = None
+    pool: WorkerPool | None = None
+    owned: list[Closeable] = field(default_factory=list)
+
+
+Connect = Callable[[Settings, FrameHandler], Adapters]
+
+
+@dataclass(eq=False)
+class Runtime:
+    """What the lifespan started; routes reach it through the app's ``RuntimeDep`` dependency."""
+
+    settings: Settings
+    params: Params
+    store: ObjectStore
+    ingest: Ingest
+    detector: Detector | None = None
+    publisher: UpdatePublisher | None = None
+    owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
+
+
+def start_runtime(settings: Settings, connect: Connect) -> Runtime:
+    """Connect the adapters, start the ingest. Blocking: loads models and connects."""
+    params = settings.make_params()
+    holder: dict[str, Ingest] = {}
+    adapters = connect(settings, lambda map_id, payload: ingest_published_frame(holder["ingest"], map_id, payload, settings))
+    threads = []
+    if adapters.detector is not None:
+        threads = [
+            FrameWorker(
+                adapters.queue, adapters.store, adapters.detector, params, adapters.publisher,
+                consumer=f"{consumer_name()}-{i}", read_block_s=IN_PROCESS_READ_BLOCK_S, attempts=settings.max_deliveries,
+                claim_min_idle_s=settings.claim_min_idle_s, claim_interval_s=settings.claim_interval_s,
+                max_deliveries=settings.max_deliveries, heartbeat_s=None,
+            )
+            for i in range(settings.workers)
+        ]
+    ingest = holder["ingest"] = Ingest(adapters.queue, adapters.store, threads=threads, pool=adapters.pool)
+    try:
+        ingest.start()
+    except BaseException:
+        close_all(adapters.owned)
+        raise
+    log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
+    return Runtime(settings, params, adapters.store, ingest, adapters.detector, adapters.publisher, adapters.owned)
+
+
+def stop_runtime(runtime: Runtime) -> None:
+    runtime.ingest.stop()
+    close_all(runtime.owned)
+    log.info("arcloud service stopped")
+
+
+def ingest_published_frame(ingest: Ingest, map_id: str, payload: bytes, settings: Settings) -> None:
+    """A frame published on ``arcloud/<map_id>/frames/<device>``: validated and queued like an upload
+    (the map id of the key plays the part of the path's)."""
+    msg = frames_in.parse_message(payload)
+    frame = frames_in.validate_message(msg, map_id, max_pixels=settings.max_frame_pixels)
+    ingest.submit(frame, msg)
+
+
+def close_all(things: list[Closeable]) -> None:
+    """``close_quietly`` each, last first."""
+    for thing in reversed(things):
+        close_quietly(thing)
+
+
+def close_quietly(thing: Closeable | None) -> None:
+    """``thing.close()``, logging (not raising) what goes wrong."""
+    if thing is None:
+        return
+    try:
+        thing.close()
+    except Exception:  # noqa: BLE001 - shutdown must go on
+        log.warning("closing %s failed", type(thing).__name__, exc_info=True)
+
+
+__all__ = ["Adapters", "Closeable", "Connect", "FrameHandler", "Runtime", "close_quietly", "start_runtime", "stop_runtime"]

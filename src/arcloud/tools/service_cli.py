@@ -1,0 +1,160 @@
+"""CLI commands of the service: ``serve``, ``worker`` and ``replay`` (``arcloud.cli`` adds them with
+``add_service_commands(subparsers)``; each sets ``handler``). Adapters come from ``tools.wiring``.
+
+    arcloud serve                                        # embedded: one process, in-memory store
+    arcloud serve --redis redis://127.0.0.1:6379/0 --workers 4 --detector sim:0
+    arcloud worker --redis redis://redis:6379/0          # one more worker process (e.g. in a container)
+    arcloud replay --url http://127.0.0.1:8000 --map room0 --users 10 --seed 0 --out results.json
+
+Options left out come from ``ARCLOUD_*`` environment variables (``service.settings``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+from arcloud.argtypes import non_negative_int, positive_int
+
+
+def _store_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--redis", metavar="URL", help="Redis URL (default: $ARCLOUD_STORE, else the embedded in-memory store)")
+    parser.add_argument("--detector", metavar="SPEC", help="sim:SEED, onnx:PATH, maskrcnn:PATH, ... (default: $ARCLOUD_DETECTOR or onnx)")
+    parser.add_argument("--zenoh-mode", choices=("off", "peer", "client", "router"), help="Zenoh session mode (default off; on when endpoints are given)")
+    parser.add_argument("--zenoh-listen", metavar="ENDPOINT", action="append", help="e.g. tcp/0.0.0.0:7447 (repeatable)")
+    parser.add_argument("--zenoh-connect", metavar="ENDPOINT", action="append", help="e.g. tcp/zenoh:7447 (repeatable)")
+
+
+def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    serve = subparsers.add_parser(
+        "serve", help="run the HTTP service (embedded, or on Redis with worker processes)",
+        description="The FastAPI service on uvicorn. Embedded by default (one process, worker threads); with --redis, "
+        "frames go through a Redis Stream to --workers worker processes started here (0: run them elsewhere).",
+    )
+    serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    serve.add_argument("--workers", type=non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2")
+    _store_options(serve)
+    serve.set_defaults(handler=run_serve)
+
+    worker = subparsers.add_parser(
+        "worker", help="run one ingest worker process on Redis (more with more processes or containers)",
+        description="Reads frames from the Redis ingest stream through the consumer group until SIGTERM.",
+    )
+    _store_options(worker)
+    worker.set_defaults(handler=run_worker_command)
+
+    replay = subparsers.add_parser(
+        "replay", help="stream a simulated room through a running service as K users and score the map",
+        description="The service must run `--detector sim:SEED` with the same seed. Writes mAP of every object (Table 1), "
+        "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes.",
+    )
+    replay.add_argument("--url", default="http://127.0.0.1:8000", help="service URL (default http://127.0.0.1:8000)")
+    replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>); deleted first")
+    replay.add_argument("--users", type=positive_int, default=10, help="concurrent users K (default 10)")
+    replay.add_argument("--seed", type=non_negative_int, default=0, help="room, walk and detector seed (default 0)")
+    replay.add_argument("--frames", type=positive_int, default=300, help="frames in the walk (default 300)")
+    replay.add_argument("--width", type=positive_int, default=640, help="image width (default 640; height 3/4 of it)")
+    replay.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for processing (default 1800)")
+    replay.add_argument("--out", type=Path, default=Path("results.json"), help="results JSON (default results.json): scores, counts, ground truth")
+    replay.add_argument("--no-progress", action="store_true", help="no progress bar")
+    replay.set_defaults(handler=run_replay_command)
+
+
+def settings_from_args(args: argparse.Namespace) -> Any:
+    """Settings from the environment, overridden by the options given."""
+    from arcloud.service.settings import Settings
+
+    overrides: dict[str, Any] = {}
+    if args.redis:
+        overrides["store"] = args.redis
+    if args.detector:
+        overrides["detector"] = args.detector
+    if getattr(args, "workers", None) is not None:
+        overrides["workers"] = args.workers
+    if args.zenoh_listen:
+        overrides["zenoh_listen"] = args.zenoh_listen
+    if args.zenoh_connect:
+        overrides["zenoh_connect"] = args.zenoh_connect
+    if args.zenoh_mode:
+        overrides["zenoh_mode"] = args.zenoh_mode
+    elif args.zenoh_listen or args.zenoh_connect:
+        overrides["zenoh_mode"] = "peer"
+    from pydantic import ValidationError
+
+    from arcloud.errors import ArcloudError, InvalidInput
+    from arcloud.tools.wiring import check_detector_spec
+
+    problems: list[str] = []
+    settings = None
+    try:
+        settings = Settings(**overrides)
+    except ValidationError as exc:  # the CLI's edge: one line per wrong setting, no traceback
+        for error in exc.errors():
+            where = ".".join(str(p) for p in error["loc"]) or "settings"
+            problems.append(f"{where}: {error['msg'].removeprefix('Value error, ').removeprefix(f'{where}: ')}")
+    if not any(p.startswith("detector:") for p in problems):  # its form is right: is it a detector we have?
+        try:
+            check_detector_spec(settings.detector if settings is not None else overrides.get("detector") or _detector_from_env())
+        except InvalidInput as exc:
+            problems.append(str(exc))
+    if problems:
+        raise ArcloudError(f"invalid settings (options or ARCLOUD_* variables): {'; '.join(problems)}")
+    return settings
+
+
+def _detector_from_env() -> str:
+    """The detector spec the settings would read when none is given on the command line."""
+    import os
+
+    from arcloud.service.settings import Settings
+
+    return os.environ.get("ARCLOUD_DETECTOR", Settings.model_fields["detector"].default)
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from arcloud.tools.wiring import check_model_file, create_app
+
+    settings = settings_from_args(args)
+    if settings.embedded or settings.workers > 0:
+        check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
+    logging.getLogger("arcloud").setLevel(settings.log_level)
+    app = create_app(settings)
+    uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(), ws="none", lifespan="on")
+    return 0
+
+
+def run_worker_command(args: argparse.Namespace) -> int:
+    from arcloud.tools.wiring import check_model_file, configure_logging, run_worker
+
+    settings = settings_from_args(args)
+    check_model_file(settings.detector)
+    configure_logging(settings.log_level)
+    run_worker(settings)
+    return 0
+
+
+def run_replay_command(args: argparse.Namespace) -> int:
+    from arcloud.tools.replay import replay
+
+    map_id = args.map_id or f"room{args.seed}"
+    height = args.width * 3 // 4
+    results = replay(args.url, map_id, args.users, args.seed, args.out, n_frames=args.frames, width=args.width, height=height,
+                     timeout_s=args.timeout, show_progress=not args.no_progress)
+    row = results["table1"][0]
+    frames = results["frames"]
+    served = results["served"]
+    print(f"{row['users']} users, {frames['sent']} frames sent, {frames['accepted']} accepted, {frames['processed']} processed "
+          f"in {results['seconds']['stream_and_process']:.1f} s: mAP@0.25 {_fmt(row['map25_mean'])}, mAP@0.5 {_fmt(row['map50_mean'])} "
+          f"(every object); served {served['objects']} of {served['objects'] + results['objects']['tentative']} objects: "
+          f"precision/recall@0.25 {_fmt(served['precision25'])}/{_fmt(served['recall25'])}, "
+          f"@0.5 {_fmt(served['precision50'])}/{_fmt(served['recall50'])} -> {args.out}")
+    return 0
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"

@@ -1,0 +1,317 @@
+"""The composition root of the service: the only code that chooses adapters, from ``Settings``.
+
+    create_app(settings)         the HTTP service (uvicorn: ``arcloud.tools.wiring:create_app --factory``)
+    run_worker(settings)         one ingest worker in this process, until SIGTERM
+    worker_pool(settings, n)     n worker processes, each running ``run_worker``
+
+``settings.store`` picks the store and the queue: ``memory`` -> ``MemoryStore`` and ``MemoryFrameQueue``
+(worker threads in the API process run the step); a Redis URL -> ``RedisStore`` and ``RedisFrameQueue``
+(worker processes run it). ``settings.detector`` picks the detector: the specs of
+``arcloud.detectors.factory`` plus ``sim:SEED``, the simulator's faulty detector on ``generate_room(SEED)``
+(the one ``arcloud replay`` streams frames of), registered by ``register_sim_detector`` before any spec is
+checked or built so that importing this module never loads Open3D. ``settings.zenoh_*`` picks the
+publisher. The service (``arcloud.service``) sees only the ports.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+from fastapi import FastAPI
+
+from arcloud.errors import InvalidInput
+from arcloud.ports import Detector, FrameQueue, ObjectStore, UpdatePublisher
+from arcloud.service import app as service_app
+from arcloud.service.pool import WorkerPool
+from arcloud.service.runtime import Adapters, Closeable, FrameHandler, close_all
+from arcloud.service.settings import Settings
+from arcloud.service.worker import FrameWorker
+
+log = logging.getLogger(__name__)
+
+SIM_PREFIX = "sim"
+
+DetectorFactory = Callable[[], Detector]
+
+
+# --- detectors ---------------------------------------------------------------------------------------
+def _sim_detector(argument: str, *, threads: int = 0) -> Detector:
+    """``sim:SEED`` -> ``SimulatedDetector(generate_room(SEED), seed=SEED)`` with the default faults."""
+    from arcloud.sim.detector import SimulatedDetector
+    from arcloud.sim.room import generate_room
+
+    seed = _sim_seed(argument)
+    return SimulatedDetector(generate_room(seed), seed=seed, threads=threads)
+
+
+def _sim_seed(argument: str) -> int:
+    try:
+        seed = int(argument)
+    except ValueError:
+        raise InvalidInput("detector spec", "sim:SEED with SEED a non-negative integer", repr(f"sim:{argument}")) from None
+    if seed < 0:
+        raise InvalidInput("detector spec", "sim:SEED with SEED a non-negative integer", repr(f"sim:{argument}"))
+    return seed
+
+
+def register_sim_detector() -> dict[str, Any]:
+    """Add ``sim:SEED`` to the detector registry (once); returns the registry."""
+    from arcloud.detectors.factory import DETECTOR_FACTORIES, register_detector
+
+    if SIM_PREFIX not in DETECTOR_FACTORIES:
+        register_detector(SIM_PREFIX, _sim_detector)
+    return DETECTOR_FACTORIES
+
+
+def check_detector_spec(spec: str) -> str:
+    """The spec, stripped, if its prefix names a known detector (and ``sim:`` has an integer seed);
+    raises ``InvalidInput`` otherwise. Loads nothing."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise InvalidInput("detector", "PREFIX[:ARGUMENT]", repr(spec))
+    spec = spec.strip()
+    prefix, _, argument = spec.partition(":")
+    known = register_sim_detector()
+    if prefix not in known:
+        raise InvalidInput("detector", f"PREFIX[:ARGUMENT] with PREFIX one of {', '.join(sorted(known))}", repr(spec))
+    if prefix == SIM_PREFIX:
+        _sim_seed(argument)
+    return spec
+
+
+def check_model_file(spec: str) -> None:
+    """``InvalidInput`` when the spec names a model file that is not there (before workers start)."""
+    from arcloud.detectors.factory import check_model_file as check
+
+    check(spec)
+
+
+def threads_per_process(processes: int) -> int:
+    """This machine's cores (those this process may run on) shared among ``processes`` worker
+    processes: at least one each, so that N workers do not each start a thread per core."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, cores // max(1, processes))
+
+
+def build_detector(spec: str, *, threads: int | None = None) -> Detector:
+    """The detector a spec names, loaded now (models, rooms); ``threads``: its compute threads
+    (onnxruntime's intra-op threads, the simulator's ray-casting threads; None: one per core)."""
+    from arcloud.detectors.factory import make_detector
+
+    check_detector_spec(spec)
+    options: dict[str, Any] = {}
+    if threads is not None:
+        options["threads" if spec.startswith(SIM_PREFIX) else "intra_op_threads"] = threads
+    detector = make_detector(spec, **options)
+    log.info("detector %s loaded", spec)
+    return detector
+
+
+# --- store, queue, publisher -------------------------------------------------------------------------
+def build_store(url: str, *, cell_m: float) -> ObjectStore:
+    """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore``."""
+    if url == "memory":
+        from arcloud.stores.memory import MemoryStore
+
+        return MemoryStore(cell_m=cell_m)
+    from arcloud.stores.redis import RedisStore
+
+    return RedisStore(url, cell_m=cell_m)
+
+
+def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_block_s: float = 0.0) -> FrameQueue:
+    """``memory`` -> ``MemoryFrameQueue``; a Redis URL -> ``RedisFrameQueue`` (on ``store``'s connections
+    when it is a ``RedisStore``, else its own, whose reads may block ``read_block_s``)."""
+    if settings.embedded:
+        from arcloud.stores.memory_queue import MemoryFrameQueue
+
+        return MemoryFrameQueue(max_queued_frames=settings.max_queued_frames)
+    from arcloud.stores.redis import RedisStore
+    from arcloud.stores.redis_queue import RedisFrameQueue
+
+    client = store.client if isinstance(store, RedisStore) else None
+    return RedisFrameQueue(settings.store, client=client, group=settings.consumer_group, max_queued_frames=settings.max_queued_frames,
+                           socket_timeout_s=max(30.0, 2 * read_block_s + 5))
+
+
+def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandler | None) -> UpdatePublisher | None:
+    """The API's Zenoh session (answering map queries from ``store``; taking published frames when
+    ``zenoh_frames``), or None when Zenoh is off."""
+    if settings.zenoh_mode == "off":
+        return None
+    from arcloud.events.zenoh import ZenohPublisher
+
+    return ZenohPublisher(mode=settings.zenoh_mode, listen=settings.zenoh_listen, connect=settings.zenoh_connect, store=store,
+                          on_frame=on_frame if settings.zenoh_frames else None)
+
+
+def worker_publisher(settings: Settings) -> UpdatePublisher | None:
+    """A Zenoh client session for a worker process: to ``zenoh_connect`` (a router), else to the API's
+    listen endpoints. None when Zenoh is off."""
+    if settings.zenoh_mode == "off":
+        return None
+    from arcloud.events.zenoh import ZenohPublisher, connectable
+
+    endpoints = settings.zenoh_connect or connectable(settings.zenoh_listen)
+    if not endpoints:
+        log.warning("zenoh is on but no endpoint to connect to: this worker publishes no events")
+        return None
+    return ZenohPublisher(mode="client", connect=endpoints)
+
+
+# --- the app -----------------------------------------------------------------------------------------
+def connect(
+    settings: Settings,
+    on_frame: FrameHandler,
+    *,
+    store: ObjectStore | None = None,
+    queue: FrameQueue | None = None,
+    detector: Detector | None = None,
+    publisher: UpdatePublisher | None = None,
+) -> Adapters:
+    """The adapters of one app: those given, and the ones the settings name for the rest (owned by the
+    app: closed on shutdown). Embedded: the detector, run by ``settings.workers`` threads. Redis:
+    ``settings.workers`` worker processes (none: they run elsewhere); a detector cannot be given."""
+    owned: list[Closeable] = []
+    try:
+        if not settings.embedded and detector is not None:
+            raise InvalidInput("detector", "none with a Redis store (worker processes build theirs from settings.detector)", type(detector).__name__)
+        params = settings.make_params()
+        if store is None:
+            store = build_store(settings.store, cell_m=params.index_cell_m)
+            _own(owned, store)
+        if publisher is None:
+            publisher = build_publisher(settings, store, on_frame)
+            _own(owned, publisher)
+        if queue is None:
+            queue = build_queue(settings, store=store)
+            _own(owned, queue)
+        pool = None
+        if settings.embedded:
+            if detector is None:
+                detector = build_detector(settings.detector, threads=settings.detector_threads)
+        elif settings.workers > 0:
+            pool = worker_pool(settings, settings.workers)
+    except BaseException:
+        close_all(owned)
+        raise
+    return Adapters(store, queue, detector, publisher, pool, owned)
+
+
+def _own(owned: list[Closeable], thing: Any) -> None:
+    """Keep ``thing`` (an adapter built here, or None) to close on shutdown."""
+    if thing is not None:
+        owned.append(thing)
+
+
+def create_app(
+    settings: Settings | None = None,
+    *,
+    store: ObjectStore | None = None,
+    queue: FrameQueue | None = None,
+    detector: Detector | None = None,
+    publisher: UpdatePublisher | None = None,
+) -> FastAPI:
+    """The service on the adapters the settings name (read from ``ARCLOUD_*`` when not given).
+    ``store``, ``queue``, ``detector``, ``publisher``: adapters to use instead (tests, embedding); the
+    caller keeps ownership of what it passes. Checks the detector spec now; builds nothing until the
+    app starts."""
+    settings = settings if settings is not None else Settings()
+    check_detector_spec(settings.detector)
+    return service_app.create_app(settings, partial(connect, store=store, queue=queue, detector=detector, publisher=publisher))
+
+
+# --- workers -----------------------------------------------------------------------------------------
+def run_worker(
+    settings: Settings, *, detector_factory: DetectorFactory | None = None, stop: threading.Event | None = None, processes: int = 1
+) -> None:
+    """One worker in this process until SIGTERM/SIGINT (or ``stop``). ``processes``: how many worker
+    processes share this machine's cores (the detector's threads default to this one's share)."""
+    from arcloud.allocator import keep_freed_memory
+
+    if settings.embedded:
+        raise InvalidInput("store", "a Redis URL for stream workers", "memory")
+    keep_freed_memory()
+    stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, lambda *_: stop.set())
+    params = settings.make_params()
+    owned: list[Closeable] = []
+    try:
+        store = build_store(settings.store, cell_m=params.index_cell_m)
+        _own(owned, store)
+        if detector_factory is not None:
+            detector = detector_factory()
+        else:
+            detector = build_detector(settings.detector, threads=settings.detector_threads or threads_per_process(processes))
+        publisher = worker_publisher(settings)
+        _own(owned, publisher)
+        queue = build_queue(settings, read_block_s=settings.read_block_s)
+        _own(owned, queue)
+        FrameWorker(
+            queue, store, detector, params, publisher,
+            claim_min_idle_s=settings.claim_min_idle_s,
+            claim_interval_s=settings.claim_interval_s,
+            max_deliveries=settings.max_deliveries,
+            read_block_s=settings.read_block_s,
+        ).run(stop)
+    finally:
+        close_all(owned)
+
+
+def configure_logging(level: str) -> None:
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(processName)s %(name)s: %(message)s")
+
+
+def worker_process(settings: Settings, detector_factory: DetectorFactory | None, processes: int) -> None:
+    """The body of a worker process of a ``WorkerPool`` (spawned: it configures its own logging)."""
+    configure_logging(settings.log_level)
+    run_worker(settings, detector_factory=detector_factory, processes=processes)
+
+
+def worker_pool(settings: Settings, size: int, *, detector_factory: DetectorFactory | None = None, restart: bool = True) -> WorkerPool:
+    """``size`` worker processes on the settings' queue. ``detector_factory``: a picklable callable
+    building each worker's detector (default: the settings' spec)."""
+    return WorkerPool(size, worker_process, (settings, detector_factory, size), claim_after_s=settings.claim_min_idle_s, restart=restart)
+
+
+def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0) -> bool:
+    """Whether a worker on ``host`` (default: this one) wrote a heartbeat in the last ``max_age_s``."""
+    import socket
+
+    from arcloud.stores.redis_queue import RedisFrameQueue
+
+    prefix = f"{host or socket.gethostname()}-"
+    queue = RedisFrameQueue(settings.store, group=settings.consumer_group, socket_timeout_s=3.0)
+    try:
+        return any(name.startswith(prefix) for name in queue.live_consumers(max_age_s))
+    finally:
+        queue.close()
+
+
+__all__ = [
+    "build_detector",
+    "build_publisher",
+    "build_queue",
+    "build_store",
+    "check_detector_spec",
+    "check_model_file",
+    "connect",
+    "create_app",
+    "healthy",
+    "register_sim_detector",
+    "run_worker",
+    "threads_per_process",
+    "worker_pool",
+    "worker_process",
+    "worker_publisher",
+]

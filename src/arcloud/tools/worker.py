@@ -1,0 +1,36 @@
+"""``python -m arcloud.tools.worker``: one ingest worker from ``ARCLOUD_*`` settings until SIGTERM (the
+containers' entry point); ``--healthcheck``: exit 0 when a worker of this host wrote a heartbeat lately."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from arcloud.errors import InvalidInput
+from arcloud.service.settings import Settings
+from arcloud.tools.wiring import check_detector_spec, check_model_file, configure_logging, healthy, run_worker
+
+log = logging.getLogger(__name__)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """One worker until SIGTERM; ``--healthcheck``: whether this host's worker is alive (exit 0 or 1)."""
+    parser = argparse.ArgumentParser(prog="python -m arcloud.tools.worker", description=__doc__)
+    parser.add_argument("--healthcheck", action="store_true", help="check this host's worker heartbeat and exit")
+    args = parser.parse_args(argv)
+    settings = Settings()
+    if args.healthcheck:
+        return 0 if healthy(settings) else 1
+    configure_logging(settings.log_level)
+    try:
+        check_detector_spec(settings.detector)
+        check_model_file(settings.detector)
+    except InvalidInput as exc:  # a clear line in the container's log, not a traceback
+        log.error("%s", exc)
+        return 2
+    run_worker(settings)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
