@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from arcloud.core.boxes import box_voxel_mask, fit_gravity_obb, refine, up_rotation
+from arcloud.core.boxes import box_voxel_mask, fit_gravity_obb, refine
+from arcloud.core.gravity import Gravity, up_rotation
 from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
 from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection
 from arcloud.core.voxels import pack_keys
@@ -105,7 +106,7 @@ def test_gravity_obb_recovers_a_rotated_box():
     yaw = 0.4
     local = rng.uniform([-1.0, -0.4, 0.0], [1.0, 0.4, 0.7], (4000, 3))
     rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
-    obb = fit_gravity_obb(local @ rot.T + [3.0, 1.0, 0.0], 0.0, np.array([0.0, 0.0, 1.0]))
+    obb = fit_gravity_obb(local @ rot.T + [3.0, 1.0, 0.0], 0.0, Gravity.of((0.0, 0.0, 1.0)))
     assert np.allclose(sorted(obb.size), [0.7, 0.8, 2.0], atol=0.03)
     assert np.allclose(obb.center, [3.0, 1.0, 0.35], atol=0.03)
     assert np.allclose(up_rotation(np.array([0.0, -1.0, 0.0])) @ [0, -1, 0], [0, 0, 1])
@@ -121,7 +122,7 @@ def test_one_layer_of_voxels_gives_a_box_one_voxel_thick():
 def test_objects_on_one_line_get_a_box_along_it():
     # qhull refuses collinear footprints (more than 64 outline points go to it): a long thin row of voxels.
     line = np.stack([np.arange(100) * 0.05 + 0.025, np.arange(100) * 0.05 + 0.025, np.full(100, 0.5)], axis=1)
-    obb = fit_gravity_obb(line, 0.05, np.array([0.0, 0.0, 1.0]), 0.0)
+    obb = fit_gravity_obb(line, 0.05, Gravity.of((0.0, 0.0, 1.0)), 0.0)
     assert sorted(obb.size[:2].round(2)) == [0.05, pytest.approx(np.hypot(4.95, 4.95), abs=0.01)]
     straight = line * np.array([1.0, 0.0, 1.0]) + np.array([0.0, 0.025, 0.0])
-    assert fit_gravity_obb(straight, 0.05, np.array([0.0, 0.0, 1.0]), 0.0).size[:2].round(2).tolist() == [4.95, 0.05]
+    assert fit_gravity_obb(straight, 0.05, Gravity.of((0.0, 0.0, 1.0)), 0.0).size[:2].round(2).tolist() == [4.95, 0.05]

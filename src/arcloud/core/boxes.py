@@ -11,12 +11,13 @@ from scipy.spatial import ConvexHull
 from arcloud.core.confirm import label_purity, with_evidence
 from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
-from arcloud.core.gravity import is_vertical, up_rotation, world2gravity
+from arcloud.core.gravity import Gravity, up_rotation  # noqa: F401 (up_rotation: datasets import it from here)
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import sorted_unique, unpack_keys
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
+_CONNECTIVITY_26.setflags(write=False)
 
 
 def prune_voxels(obj: MapObject, params: Params) -> MapObject:
@@ -48,7 +49,7 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
     reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
     keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
     if floor_m is not None:
-        bottoms = ijk_all @ (params.voxel_size_m * world2gravity(params.up)[2])  # (exactly so when up is +z)
+        bottoms = ijk_all @ (params.voxel_size_m * params.gravity.up)  # (exactly so when up is +z)
         keep &= bottoms > floor_m + params.floor_clearance_m
     if keep.sum() < 2:
         return keep
@@ -129,11 +130,12 @@ def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
     return AABB(*at_least(centers.min(axis=0) - pad_m, centers.max(axis=0) + pad_m, min_size_m))
 
 
-def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, up: np.ndarray | tuple[float, ...], pad_m: float | None = None) -> OBB:
-    """The smallest-footprint box whose vertical axis is ``up``: rotating calipers on the convex hull
-    of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a voxel)."""
-    rotation = world2gravity(up)
-    points = centers if is_vertical(up) else centers @ rotation.T
+def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, pad_m: float | None = None) -> OBB:
+    """The smallest-footprint box whose vertical axis is up (``gravity``): rotating calipers on the
+    convex hull of the voxel centres projected on the ground plane, grown by ``pad_m`` (default half a
+    voxel)."""
+    rotation = gravity.world2gravity
+    points = centers if gravity.is_identity else centers @ rotation.T
     xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
     hull = convex_hull_2d(xy) if len(xy) <= 64 or _collinear(xy) else xy[ConvexHull(xy).vertices]  # qhull wins beyond ~60 points
     yaw = 0.0
@@ -166,7 +168,7 @@ def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[A
     ``params.up``), when the gap is at most ``floor_reach_max_m``: legs are thin and often hidden (under a
     table, behind a seat), but the object stands on the floor. ``aabb`` is in the ``world2aligned``
     frame (whose z must be up for it to move); ``obb`` is gravity-aligned."""
-    rotation = world2gravity(params.up)
+    rotation = params.gravity.world2gravity
     bottom_world = obb.center - rotation[2] * obb.size[2] / 2
     gap = float(rotation[2] @ bottom_world) - floor_m
     if not 0 < gap <= params.floor_reach_max_m:
@@ -208,7 +210,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     lo, hi = ijk.min(axis=0) * params.voxel_size_m, (ijk.max(axis=0) + 1) * params.voxel_size_m  # keys_bounds
     label = CLASSES[label_index]
     aabb = fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m)
-    obb = fit_gravity_obb(centers, params.voxel_size_m, params.up, params.box_pad_voxels * params.voxel_size_m)
+    obb = fit_gravity_obb(centers, params.voxel_size_m, params.gravity, params.box_pad_voxels * params.voxel_size_m)
     if floor_m is not None and label in params.floor_standing:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(

@@ -27,7 +27,6 @@ import math
 import numpy as np
 
 from arcloud.core.floor import floor_height
-from arcloud.core.gravity import world2gravity
 from arcloud.core.types import MapObject, Params
 
 #: Plausible sizes per class, metres: (longest footprint side min, max), (height min, max), thickness max
@@ -62,7 +61,7 @@ def plausible(obj: MapObject, params: Params) -> bool:
     if obj.label in params.floor_standing:
         floor_m = floor_height(obj.floor_votes, params)
         if floor_m is not None:
-            top_m = float(world2gravity(params.up)[2] @ obj.obb.center) + height / 2
+            top_m = float(params.gravity.up @ obj.obb.center) + height / 2
             height = top_m - floor_m
     return (
         long_min <= longest <= long_max

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arcloud.core.gravity import world2gravity
 from arcloud.core.types import Frame, Params
 
 FLOOR_GRID_COLUMNS = 48  # depth samples for normals: about 48 across (a VGA frame: every 13th pixel)
@@ -62,7 +61,7 @@ def upward_heights(frame: Frame, params: Params) -> np.ndarray:
     intr = frame.intrinsics
     x = (np.arange(cols) * stride - intr.cx)[None, :] / intr.fx * z
     y = (np.arange(rows) * stride - intr.cy)[:, None] / intr.fy * z
-    up_world = world2gravity(params.up)[2]
+    up_world = params.gravity.up
     up_cam = frame.cam2world[:3, :3].T @ up_world
     valid = (z >= params.depth_min_m) & (z <= params.depth_max_m)
     inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
@@ -78,7 +77,7 @@ def upward_heights(frame: Frame, params: Params) -> np.ndarray:
 
 def frame_floor(frame: Frame, params: Params) -> FrameFloor:
     """The floor this frame sees (see the module docstring)."""
-    rotation = world2gravity(params.up)
+    rotation = params.gravity.world2gravity
     heights = upward_heights(frame, params)
     camera_height = float(frame.cam2world[:3, 3] @ rotation[2])
     floor = None
