@@ -13,7 +13,7 @@ from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity, up_rotation  # noqa: F401 (up_rotation: datasets import it from here)
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import sorted_unique, unpack_keys
+from arcloud.core.voxels import ijk_bounds, ijk_centers, sorted_unique, unpack_keys
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
@@ -75,7 +75,7 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
 def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     """Centres (M, 2) of the outermost ground cells under points (N, 2): per grid column, the cells at
     the lowest and highest row (by column). Their convex hull is the footprint's; M is at most twice the
-    columns."""
+    columns. ``footprint_outline_plain`` without the sort (a test holds them equal)."""
     cells = np.floor(xy / voxel_size_m).astype(np.int64)
     first_col = int(cells[:, 0].min())
     column = cells[:, 0] - first_col
@@ -90,6 +90,14 @@ def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     return (outline + 0.5) * voxel_size_m
 
 
+def footprint_outline_plain(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
+    """``footprint_outline`` from the sorted unique cells: the first and last cell of each column."""
+    cells = np.unique(np.floor(xy / voxel_size_m).astype(np.int64), axis=0)  # sorted by column, then row
+    first = np.flatnonzero(np.r_[True, cells[1:, 0] != cells[:-1, 0]])
+    last = np.r_[first[1:] - 1, len(cells) - 1]
+    return (np.concatenate([cells[first], cells[last]]) + 0.5) * voxel_size_m
+
+
 def _collinear(points: np.ndarray) -> bool:
     """Whether points (N, 2) lie on one line (qhull refuses them; the monotone chain does not)."""
     spread = points - points[0]
@@ -97,7 +105,10 @@ def _collinear(points: np.ndarray) -> bool:
 
 
 def convex_hull_2d(points: np.ndarray) -> np.ndarray:
-    """Counter-clockwise convex hull (H, 2) of a few points (N, 2) by Andrew's monotone chain."""
+    """Counter-clockwise convex hull (H, 2) of a few points (N, 2) by Andrew's monotone chain: faster
+    than qhull (``scipy.spatial.ConvexHull``, its plain version) up to about 60 points, and it takes
+    collinear points. A test holds the polygons equal: qhull's vertices in its order, plus the odd point
+    on an edge that rounding makes look convex to the chain (qhull leaves those out)."""
     pts = sorted(set(map(tuple, points.tolist())))
     if len(pts) < 3:
         return np.array(pts, dtype=np.float64).reshape(-1, 2)
@@ -143,14 +154,14 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, 
         dx, dy = hull[1] - hull[0]
         yaw = float(np.mod(np.arctan2(dy, dx), np.pi / 2))
     elif len(hull) >= 3:
-        edges = np.concatenate((hull[1:], hull[:1])) - hull  # np.roll(hull, -1, axis=0) - hull
+        edges = np.concatenate((hull[1:], hull[:1])) - hull  # each point to the next, wrapping (np.roll costs 4x)
         # Sorted unique angles (np.mod by a positive divisor gives no -0.0, so equal means identical).
         angles = sorted_unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
         c, s = np.cos(angles), np.sin(angles)
         # Hull points in each candidate frame: (A, H) coordinates along the two box axes.
         u = hull[:, 0][None] * c[:, None] + hull[:, 1][None] * s[:, None]
         v = -hull[:, 0][None] * s[:, None] + hull[:, 1][None] * c[:, None]
-        areas = (u.max(axis=1) - u.min(axis=1)) * (v.max(axis=1) - v.min(axis=1))  # np.ptp
+        areas = np.ptp(u, axis=1) * np.ptp(v, axis=1)
         yaw = float(angles[np.argmin(areas)])
     c, s = math.cos(yaw), math.sin(yaw)
     yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
@@ -201,13 +212,13 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     if not box_mask.any():  # no voxel is solid enough yet: box what there is
         box_mask = np.ones(obj.keys.size, bool)
     label_index = object_label_index(obj)
-    centers = (ijk[box_mask] + 0.5) * params.voxel_size_m  # key_centers(obj.keys[box_mask])
+    centers = ijk_centers(ijk[box_mask], params.voxel_size_m)
     if params.world2aligned is not None:
         world2aligned = np.asarray(params.world2aligned, np.float64)
         aligned = centers @ world2aligned[:3, :3].T + world2aligned[:3, 3]
     else:
         aligned = centers
-    lo, hi = ijk.min(axis=0) * params.voxel_size_m, (ijk.max(axis=0) + 1) * params.voxel_size_m  # keys_bounds
+    lo, hi = ijk_bounds(ijk, params.voxel_size_m)
     label = CLASSES[label_index]
     aabb = fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m)
     obb = fit_gravity_obb(centers, params.voxel_size_m, params.gravity, params.box_pad_voxels * params.voxel_size_m)

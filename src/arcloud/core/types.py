@@ -288,6 +288,9 @@ class Params:
     depth_max_m: float = 5.0
     erode_px: int = 2
     min_voxels_per_detection: int = 8
+    # Masks are sampled every n-th pixel row and column, n per frame the largest that still gives a voxel
+    # at the frame's near depth (5th percentile) two samples per edge, and at most this (1: every pixel)
+    pixel_stride_max_px: int = 4
     # Depth cleanup of each mask (core.voxels.front_samples); layer_margin_m None turns it off
     layer_jump_m: float = 0.03
     layer_jump_rel: float = 0.04

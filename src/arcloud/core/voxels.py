@@ -45,12 +45,18 @@ def points_to_keys(points_xyz: np.ndarray, voxel_size_m: float) -> np.ndarray:
 
 def key_centers(keys: np.ndarray, voxel_size_m: float) -> np.ndarray:
     """(N,) keys -> (N, 3) voxel centres in metres."""
-    return (unpack_keys(keys) + 0.5) * voxel_size_m
+    return ijk_centers(unpack_keys(keys), voxel_size_m)
+
+
+def ijk_centers(ijk: np.ndarray, voxel_size_m: float) -> np.ndarray:
+    """(N, 3) voxel indices -> (N, 3) voxel centres in metres (``key_centers`` of unpacked keys)."""
+    return (ijk + 0.5) * voxel_size_m
 
 
 def sorted_unique(values: np.ndarray) -> np.ndarray:
-    """(M,) sorted unique values of a 1-D array (N,): what ``np.unique`` returns, by a sort and a
-    comparison of neighbours, which costs a fraction of ``np.unique``'s hash pass on a few thousand keys."""
+    """(M,) sorted unique values of a 1-D array (N,): what ``np.unique`` returns (its plain version; a
+    test holds them equal), by a sort and a comparison of neighbours, which costs a fraction of
+    ``np.unique``'s hash pass on a few thousand keys."""
     ordered = np.sort(values)
     if ordered.size < 2:
         return ordered
@@ -61,12 +67,13 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
 
 
 def coarsen_keys(keys: np.ndarray, factor: int) -> np.ndarray:
-    """Sorted unique keys of the ``factor``-times coarser voxels holding ``keys``."""
+    """Sorted unique keys of the ``factor``-times coarser voxels holding ``keys``: ``coarsen_keys_plain``,
+    without unpacking when ``factor`` is a power of two (a test holds them equal)."""
     if factor == 1:
         return keys
     shift = factor.bit_length() - 1
     if factor != 1 << shift or shift >= KEY_BITS - 1:
-        return sorted_unique(pack_keys(np.floor_divide(unpack_keys(keys), factor)))
+        return coarsen_keys_plain(keys, factor)
     # A power of two divides the offset 2**20, so on each packed field s = i + 2**20 the coarse field is
     # floor(i / factor) + 2**20 = (s >> shift) + 2**20 - 2**(20 - shift): one shift of the whole key,
     # the bits that slid into a lower field cleared, and a constant added (no field overflows).
@@ -79,6 +86,11 @@ def coarsen_keys(keys: np.ndarray, factor: int) -> np.ndarray:
     return sorted_unique(coarse)
 
 
+def coarsen_keys_plain(keys: np.ndarray, factor: int) -> np.ndarray:
+    """Sorted unique keys of the ``factor``-times coarser voxels holding ``keys``: unpack, divide, pack."""
+    return sorted_unique(pack_keys(np.floor_divide(unpack_keys(keys), factor)))
+
+
 def coarsen_keys_unsorted(keys: np.ndarray, factor: int) -> np.ndarray:
     """(N,) keys of the ``factor``-times coarser voxel holding each key, in the order of ``keys``."""
     if factor == 1:
@@ -88,13 +100,18 @@ def coarsen_keys_unsorted(keys: np.ndarray, factor: int) -> np.ndarray:
 
 def keys_bounds(keys: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Outer (min, max) corners in metres of the voxels ``keys`` (non-empty)."""
-    ijk = unpack_keys(keys)
+    return ijk_bounds(unpack_keys(keys), voxel_size_m)
+
+
+def ijk_bounds(ijk: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Outer (min, max) corners in metres of the voxels at indices ``ijk`` (N, 3), N > 0."""
     return ijk.min(axis=0) * voxel_size_m, (ijk.max(axis=0) + 1) * voxel_size_m
 
 
 def erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
     """Binary erosion by a (2r+1)^2 square (outside the array counts as background): a separable
-    minimum filter."""
+    minimum filter (``ndimage.binary_erosion`` with ``border_value=0`` is its plain version; a test
+    holds them equal)."""
     if radius_px <= 0:
         return mask
     eroded = ndimage.minimum_filter(mask.view(np.uint8), size=2 * radius_px + 1, mode="constant", cval=0)
@@ -102,7 +119,8 @@ def erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
 
 
 def erode_sampled(mask: np.ndarray, radius_px: int, stride_px: int) -> np.ndarray:
-    """``erode(mask, radius_px)[::stride_px, ::stride_px]``, eroding along columns only the rows kept.
+    """``erode(mask, radius_px)[::stride_px, ::stride_px]`` (its plain version; a test holds them
+    equal), eroding along columns only the rows kept.
 
     The square's minimum is separable, so filtering along rows, keeping every n-th row, then filtering
     along columns gives the same booleans as the full erosion sampled afterwards."""
@@ -118,9 +136,10 @@ def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     """The bounding box (row0, row1, col0, col1), ends exclusive, of an (H, W) bool mask's pixels; None
     when it has none.
 
-    The first row comes from the first set pixel (argmax stops there); only the rows below it are
-    reduced. A C-contiguous mask whose width is a multiple of 8 has its columns found on 64-bit words:
-    OR-ing the rows' words keeps each pixel's byte non-zero exactly when its column has a pixel set."""
+    ``mask_extent_plain``, faster (a test holds them equal): the first row comes from the first set
+    pixel (argmax stops there); only the rows below it are reduced. A C-contiguous mask whose width is a
+    multiple of 8 has its columns found on 64-bit words: OR-ing the rows' words keeps each pixel's byte
+    non-zero exactly when its column has a pixel set."""
     height, width = mask.shape
     if mask.size == 0:
         return None
@@ -141,6 +160,14 @@ def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     else:
         cols = np.flatnonzero(band.any(axis=0))
     return r0, r1, int(cols[0]), int(cols[-1]) + 1
+
+
+def mask_extent_plain(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """``mask_extent`` from the rows and columns holding a pixel."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return None
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
 Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # v_px (N,), u_px (N,) depth pixels and z_m (N,)
@@ -311,10 +338,11 @@ def _touching_layers(label_of: np.ndarray, points: np.ndarray, kept: np.ndarray,
 
 
 def sampling_stride_px(frame: Frame, params: Params) -> int:
-    """A pixel stride that still puts several samples in every voxel at the nearest valid depth.
+    """A pixel stride that still puts several samples in every voxel at the nearest valid depth, at
+    most ``params.pixel_stride_max_px``.
 
     A pixel at depth z spans z / f metres; sampling every n-th pixel keeps >= 2 samples per voxel edge
-    while n * z_near / f <= voxel / 2."""
+    while n * z_near / f <= voxel / 2 (z_near: the 5th percentile of every 8th pixel's valid depth)."""
     sample = frame.depth_m[::8, ::8]
     valid = sample[sample >= params.depth_min_m]
     if valid.size == 0:
@@ -322,15 +350,16 @@ def sampling_stride_px(frame: Frame, params: Params) -> int:
     k = valid.size // 20
     near_m = float(np.partition(valid, k)[k])  # the 5th percentile
     focal = max(frame.intrinsics.fx, frame.intrinsics.fy)
-    return int(max(1, min(4, np.floor(params.voxel_size_m / 2 * focal / max(near_m, 1e-3)))))
+    return int(max(1, min(params.pixel_stride_max_px, np.floor(params.voxel_size_m / 2 * focal / max(near_m, 1e-3)))))
 
 
 def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: Params) -> list[VoxelDetection]:
     """Each detection's world voxels (sorted unique keys); detections with fewer than
     ``params.min_voxels_per_detection`` voxels are dropped. Order of the survivors is kept.
 
-    Each mask is cleaned with depth first: samples of what lies behind or apart from the object
-    (``front_samples``) are left out."""
+    Each mask is sampled every n-th pixel row and column (``sampling_stride_px``: 1 to
+    ``params.pixel_stride_max_px``) and cleaned with depth: samples of what lies behind or apart from
+    the object (``front_samples``) are left out."""
     stride = sampling_stride_px(frame, params)
     registered = None if frame.registered else register_samples(frame, params, stride)
     voxelized = []

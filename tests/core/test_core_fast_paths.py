@@ -1,0 +1,150 @@
+"""Each fast path of the core agrees exactly with its plain version, on many seeded random inputs."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from scipy.spatial import ConvexHull
+
+from arcloud.core.boxes import convex_hull_2d, fit_gravity_obb, footprint_outline, footprint_outline_plain
+from arcloud.core.checks import make_frame
+from arcloud.core.gravity import Gravity
+from arcloud.core.types import Detection, Params
+from arcloud.core.voxels import (
+    KEY_OFFSET,
+    coarsen_keys,
+    coarsen_keys_plain,
+    erode,
+    erode_sampled,
+    ijk_bounds,
+    ijk_centers,
+    key_centers,
+    keys_bounds,
+    mask_extent,
+    mask_extent_plain,
+    pack_keys,
+    sampling_stride_px,
+    sorted_unique,
+    unpack_keys,
+    voxelize_detections,
+)
+
+CASES = 300
+
+
+def random_ijk(rng, n):
+    """Voxel indices near the origin, far out, and at the very edge of the key range."""
+    scale = rng.choice([3, 50, 10**4, KEY_OFFSET - 1])
+    return rng.integers(-scale, scale + 1, (n, 3))
+
+
+def random_mask(rng, height, width):
+    mask = np.zeros((height, width), bool)
+    for _ in range(int(rng.integers(0, 4))):
+        r0, c0 = rng.integers(0, height), rng.integers(0, width)
+        mask[r0 : r0 + rng.integers(1, height + 1), c0 : c0 + rng.integers(1, width + 1)] = True
+    mask |= rng.random((height, width)) < rng.choice([0.0, 0.002, 0.3])
+    return mask
+
+
+def test_sorted_unique_is_np_unique():
+    rng = np.random.default_rng(0)
+    for _ in range(CASES):
+        values = rng.integers(-20, 20, int(rng.integers(0, 60))) * int(rng.choice([1, 10**12]))
+        assert np.array_equal(sorted_unique(values), np.unique(values))
+
+
+@pytest.mark.parametrize("factor", [1, 2, 3, 4, 5, 8, 16])
+def test_coarsen_keys_is_its_plain_version(factor):
+    rng = np.random.default_rng(factor)
+    for _ in range(CASES // 3):
+        keys = sorted_unique(pack_keys(random_ijk(rng, int(rng.integers(1, 200)))))
+        assert np.array_equal(coarsen_keys(keys, factor), coarsen_keys_plain(keys, factor))
+
+
+def test_voxel_centres_and_bounds_from_indices_are_those_from_keys():
+    rng = np.random.default_rng(1)
+    for _ in range(CASES):
+        keys = pack_keys(random_ijk(rng, int(rng.integers(1, 50))))
+        size = float(rng.choice([0.01, 0.05, 0.1]))
+        ijk = unpack_keys(keys)
+        assert np.array_equal(ijk_centers(ijk, size), key_centers(keys, size))
+        assert all(np.array_equal(a, b) for a, b in zip(ijk_bounds(ijk, size), keys_bounds(keys, size)))
+
+
+def test_erode_is_binary_erosion_with_background_outside():
+    rng = np.random.default_rng(2)
+    for _ in range(CASES):
+        mask = random_mask(rng, int(rng.integers(1, 40)), int(rng.integers(1, 40)))
+        radius = int(rng.integers(0, 4))
+        plain = ndimage.binary_erosion(mask, np.ones((2 * radius + 1,) * 2, bool), border_value=0) if radius else mask
+        assert np.array_equal(erode(mask, radius), plain)
+
+
+def test_erode_sampled_is_erode_then_sampled():
+    rng = np.random.default_rng(3)
+    for _ in range(CASES):
+        mask = random_mask(rng, int(rng.integers(1, 50)), int(rng.integers(1, 50)))
+        radius, stride = int(rng.integers(0, 4)), int(rng.integers(1, 5))
+        assert np.array_equal(erode_sampled(mask, radius, stride), erode(mask, radius)[::stride, ::stride])
+
+
+def test_mask_extent_is_its_plain_version():
+    rng = np.random.default_rng(4)
+    for _ in range(CASES):
+        width = int(rng.choice([8, 16, 64, 640, int(rng.integers(1, 70))]))
+        mask = random_mask(rng, int(rng.integers(1, 40)), width)
+        views = [mask, mask[:, ::2], mask.T, np.asfortranarray(mask)]  # contiguous and not
+        for view in views:
+            assert mask_extent(view) == mask_extent_plain(view)
+
+
+def test_footprint_outline_is_its_plain_version():
+    rng = np.random.default_rng(5)
+    for _ in range(CASES):
+        xy = rng.normal(0, rng.choice([0.05, 0.5, 3.0]), (int(rng.integers(1, 400)), 2)) + rng.uniform(-10, 10, 2)
+        size = float(rng.choice([0.02, 0.05, 0.1]))
+        assert np.array_equal(footprint_outline(xy, size), footprint_outline_plain(xy, size))
+
+
+def test_monotone_chain_hull_is_qhulls_polygon():
+    """Every qhull vertex, in the same counter-clockwise order; where rounding makes a point on an edge
+    look convex to the chain's cross product (qhull leaves it out), the chain keeps it on that edge."""
+    rng = np.random.default_rng(6)
+    for _ in range(CASES):
+        n = int(rng.integers(3, 65))
+        points = (rng.integers(-30, 30, (n, 2)) + 0.5) * 0.05  # cell centres, as the box fit gives them
+        if np.linalg.matrix_rank(points - points[0]) < 2:
+            continue  # qhull refuses collinear points
+        fast, plain = convex_hull_2d(points), points[ConvexHull(points).vertices]
+        on_plain = [int(np.flatnonzero((plain == p).all(axis=1))[0]) if (plain == p).all(axis=1).any() else -1 for p in fast]
+        kept = [i for i in on_plain if i >= 0]
+        assert sorted(kept) == list(range(len(plain)))  # all of qhull's vertices
+        assert np.array_equal(np.roll(kept, -kept.index(0)), np.arange(len(plain)))  # in its order
+        for at, p in zip(on_plain, fast):
+            if at < 0:  # an extra point: on the segment between its neighbours on qhull's polygon
+                a, b = plain - p, np.roll(plain, -1, axis=0) - p
+                distance = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) / np.linalg.norm(b - a, axis=1)
+                assert distance.min() < 1e-12
+
+
+def test_a_z_up_box_skips_the_rotation_by_the_identity():
+    rng = np.random.default_rng(7)
+    identity = Gravity.of((0.0, 0.0, 1.0))
+    rotating = Gravity(identity.world2gravity.copy(), False)  # the same rotation, applied
+    for _ in range(CASES // 3):
+        centers = (rng.integers(-40, 40, (int(rng.integers(1, 300)), 3)) + 0.5) * 0.05
+        a, b = fit_gravity_obb(centers, 0.05, identity), fit_gravity_obb(centers, 0.05, rotating)
+        assert np.array_equal(a.center, b.center) and np.array_equal(a.size, b.size) and a.yaw_rad == b.yaw_rad
+
+
+def test_pixel_stride_is_capped_by_params_and_one_samples_every_pixel():
+    rng = np.random.default_rng(8)
+    depth = np.full((120, 160), 0.8, np.float32)  # near: a pixel spans 4 mm, a voxel 12 pixels
+    frame = make_frame(np.zeros((120, 160, 3), np.uint8), depth, (200.0, 200.0, 80.0, 60.0), np.eye(4),
+                       timestamp_s=0.0, map_id="m", device_id="d", frame_id="f")
+    assert sampling_stride_px(frame, Params()) == 4
+    assert sampling_stride_px(frame, Params(pixel_stride_max_px=2)) == 2
+    assert sampling_stride_px(frame, Params(pixel_stride_max_px=1)) == 1
+    mask = random_mask(rng, 120, 160)
+    every, sampled = (voxelize_detections(frame, [Detection("tv", 0.9, mask)], Params(pixel_stride_max_px=n, erode_px=0)) for n in (1, 4))
+    assert np.isin(sampled[0].keys, every[0].keys).all()  # a sample of the same pixels
