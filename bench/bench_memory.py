@@ -231,7 +231,7 @@ def main() -> None:
         print(f"skipped: {reason}")
         return
 
-    from arcloud.datasets.cli import objects_json
+    from arcloud.datasets.export import objects_json
     from arcloud.datasets.sevenscenes import load_seven_scenes
     from arcloud.detectors.factory import make_detector
     from arcloud.stores.redis import RedisStore

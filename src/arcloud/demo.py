@@ -22,12 +22,13 @@ from tqdm import tqdm
 
 from arcloud import __version__
 from arcloud.accuracy.common import score_run
-from arcloud.core.types import LabelledBox, MapObject, Params
+from arcloud.core.types import MapObject, Params
 from arcloud.eval.plot import draw_top_down
 from arcloud.eval.protocol import object_boxes, table1
-from arcloud.sim.detector import DetectorFaults, SimulatedDetector
+from arcloud.sim.detector import DetectorFaults, FrameTruths, SimulatedDetector
 from arcloud.sim.room import generate_room
-from arcloud.sim.sequence import gt_boxes, simulate_sequence
+from arcloud.sim.sequence import simulate_sequence
+from arcloud.stores.memory import MemoryStore
 
 log = logging.getLogger(__name__)
 
@@ -51,9 +52,10 @@ def run_demo(
     started = time.perf_counter()
 
     room = generate_room(seed)
-    frames = simulate_sequence(room, n_frames=n_frames, seed=seed, faults=faults)
-    ground_truth = [LabelledBox(label, lo, hi) for label, lo, hi in gt_boxes(room)]
-    detector = SimulatedDetector(room, faults, seed=seed)
+    truths = FrameTruths(room)
+    frames = simulate_sequence(room, n_frames=n_frames, seed=seed, faults=faults, truths=truths)
+    ground_truth = [o.box for o in room.objects]
+    detector = SimulatedDetector(room, faults, seed=seed, truths=truths)
     rendered_s = time.perf_counter() - started
 
     maps: dict[tuple[str, int], list[MapObject]] = {}
@@ -65,7 +67,7 @@ def run_demo(
     total = n_frames * (1 + runs * len(users))
     with tqdm(total=total, unit="frame", desc="demo", disable=not show_progress, leave=False) as bar:
         results = table1(
-            frames, detector, ground_truth, params, users=users, runs=runs, seed=seed, workers=workers,
+            frames, detector, ground_truth, params, new_store=MemoryStore, users=users, runs=runs, seed=seed, workers=workers,
             scene=f"room{seed}", progress=bar.update, on_run=keep_first_map,
         )
     pictures, served = {}, {}

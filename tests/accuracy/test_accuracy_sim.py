@@ -15,9 +15,9 @@ from arcloud.accuracy.sim import FULL_CASES, QUICK_CASES, REPORT_ROOMS, TUNE_ROO
 from arcloud.core.types import AABB, MapObject, Params
 from arcloud.errors import InvalidInput
 from arcloud.sim.detector import DetectorFaults, SimulatedDetector, visible_instances
-from arcloud.sim.room import RoomObject, generate_room
+from arcloud.sim.room import RoomObject, generate_room, room_renderer, room_walk
 from arcloud.sim.sequence import DEFAULT_INTRINSICS, simulate_sequence
-from arcloud.sim.trajectory import WalkStyle, room_walk
+from arcloud.virtual_camera.walk import WalkStyle
 
 #: What the quick suite must reach (report split, mean over its rooms unless "worst"), centralized and
 #: distributed. Measured when this was written: 0.96, 0.97, 0.91 (both); without the merge pass the
@@ -74,7 +74,8 @@ def test_observable_objects_are_those_seen_well_enough_in_enough_frames() -> Non
     frames = simulate_sequence(room, n_frames=case.frames, seed=case.walk_seed, faults=faults, poses=poses, workers=1)
     detector = SimulatedDetector(room, faults, seed=case.walk_seed)
     # Visible pixels per object and frame from a second, independent render at the true poses.
-    areas = [visible_instances(room, pose, DEFAULT_INTRINSICS, 640, 480) for pose in poses]
+    renderer = room_renderer(room)
+    areas = [visible_instances(renderer, pose, DEFAULT_INTRINSICS, 640, 480) for pose in poses]
     for min_px, min_frames in ((1024, 10), (1, 1), (20000, 3)):
         expected = {o.instance_id for o in room.objects if sum(a.get(o.instance_id, 0) >= min_px for a in areas) >= min_frames}
         found = observable_objects(room, frames, detector, min_visible_px=min_px, min_frames=min_frames)

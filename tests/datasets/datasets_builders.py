@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from arcloud.sim.trajectory import look_at
+from arcloud.virtual_camera.gaze import look_at
 
 SCENE_ID = "scene0042_00"
 DEPTH_WH = (32, 24)

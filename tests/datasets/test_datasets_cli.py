@@ -14,7 +14,8 @@ import pytest
 from datasets_builders import ALIGNMENT, SCENE_ID, build_room_scene, build_seven_scenes, circle_walk
 
 from arcloud.core.types import Detection, Frame, Intrinsics
-from arcloud.datasets.cli import LazyFrames, add_eval_commands, parse_scenes
+from arcloud.accuracy.cli import add_eval_commands, parse_scenes
+from arcloud.datasets.frames import LazyFrames
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
 
@@ -108,7 +109,7 @@ def test_eval_7scenes_agreement_and_pictures(tmp_path: Path, monkeypatch: pytest
         depth = np.full((48, 64), 2500, np.uint16)
         depth[16:32, 24:40] = 1200
         cv2.imwrite(str(root / f"frame-{index:06d}.depth.png"), depth)
-    import arcloud.datasets.cli as cli
+    import arcloud.accuracy.cli as cli
 
     monkeypatch.setattr(cli, "_make_detector", lambda spec: BoxDetector())
     out = tmp_path / "out" / "seven.json"
@@ -240,7 +241,7 @@ def build_board_sequence(root: Path) -> Path:
 
 
 def test_eval_7scenes_scores_against_ground_truth_in_its_frame(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import arcloud.datasets.cli as cli
+    import arcloud.accuracy.cli as cli
 
     root = build_board_sequence(tmp_path / "board")
     write_gt_boxes(root, TINY_FILE2ALIGNED, {"board": ("tv", BOARD_MIN_FILE, BOARD_MAX_FILE)})
@@ -270,7 +271,7 @@ def test_eval_7scenes_scores_against_ground_truth_in_its_frame(tmp_path: Path, m
 
 
 def test_eval_7scenes_exports_declare_the_gravity_aligned_world_without_ground_truth(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import arcloud.datasets.cli as cli
+    import arcloud.accuracy.cli as cli
     from arcloud.datasets.sevenscenes import load_seven_scenes
 
     root = build_board_sequence(tmp_path / "board")
@@ -296,7 +297,7 @@ def test_eval_7scenes_exports_declare_the_gravity_aligned_world_without_ground_t
 def test_colour_camera_option_parses_or_says_what_it_expected() -> None:
     import argparse
 
-    from arcloud.datasets.cli import parse_colour_camera
+    from arcloud.accuracy.cli import parse_colour_camera
 
     camera = parse_colour_camera("527,527,324,239,-0.035,0,0")
     assert camera.intrinsics.fx == 527.0 and camera.depth2rgb[0, 3] == -0.035

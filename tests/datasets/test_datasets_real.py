@@ -133,7 +133,7 @@ def test_eval_7scenes_exports_rescored_independently(shared: type, tmp_path) -> 
 
     from test_datasets_cli import rescore_export
 
-    from arcloud.datasets.cli import add_eval_commands
+    from arcloud.accuracy.cli import add_eval_commands
 
     root = shared.path("data/7scenes-redkitchen/gt-boxes.json").parent
     model = shared.path("models/yolov8n-seg-fp32-640.onnx")

@@ -140,7 +140,8 @@ def test_render_of_a_v2_scene_reads_back_as_v2(tmp_path: Path) -> None:
 
 
 def test_eval_on_a_rendered_scene_finds_the_ground_truth(tmp_path: Path) -> None:
-    from arcloud.datasets.cli import LazyFrames, evaluate_scenes
+    from arcloud.accuracy.dataset_runs import evaluate_scenes
+    from arcloud.datasets.frames import LazyFrames
 
     scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
     scene_dir = render_scannet(scene, tmp_path / "render", users=2, frames_per_user=8, seed=0, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
@@ -191,7 +192,7 @@ def _rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def test_shake_moves_poses_like_a_hand_held_camera() -> None:
-    from arcloud.sim.trajectory import look_at
+    from arcloud.virtual_camera.gaze import look_at
 
     poses = [look_at(np.array([0.1 * i, 0.0, 1.5]), np.array([0.1 * i, 3.0, 1.0])) for i in range(2000)]
     assert all(np.array_equal(a, b) for a, b in zip(shake(poses, 0.0, 0.0, np.random.default_rng(0)), poses))

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from arcloud.core.types import LabelledBox, Params
+from arcloud.stores.memory import MemoryStore
 from arcloud.eval.protocol import CachedDetector, interleave, run_map, table1, user_streams
 
 from handmade_frames import two_box_frame
@@ -45,9 +46,17 @@ def test_distributed_runs_give_the_centralized_map_on_a_simple_scene():
     detector = CachedDetector(CountingDetector({f.frame_id: d for f, d in pairs}))
     # Exact extents of the two patches over the walk (see two_box_frame), one voxel thick.
     gt = [LabelledBox("chair", [-0.45, -0.3, 1.5], [-0.1, 0.0, 1.55]), LabelledBox("table", [0.15, 0.05, 2.5], [0.9, 0.6, 2.55])]
-    central = run_map(frames, detector, Params())
+    stores: list[MemoryStore] = []
+
+    def new_store(*, cell_m: float) -> MemoryStore:
+        stores.append(MemoryStore(cell_m=cell_m))
+        return stores[-1]
+
+    central = run_map(frames, detector, Params(), new_store=new_store)
     assert sorted(o.label for o in central) == ["chair", "table"]
-    results = table1(frames, detector, gt, Params(), users=(3, 12), runs=2, workers=3)
+    assert len(stores) == 1 and stores[0].cell_m == Params().index_cell_m
+    results = table1(frames, detector, gt, Params(), new_store=new_store, users=(3, 12), runs=2, workers=3)
+    assert len(stores) == 1 + 1 + 2 * 2  # a fresh store for every run
     rows = results["table1"]
     assert [(r["approach"], r["users"], r["runs"]) for r in rows] == [("centralized", 1, 1), ("distributed", 3, 2), ("distributed", 12, 2)]
     assert rows[0]["map25_mean"] == pytest.approx(1.0) and rows[0]["map50_mean"] == pytest.approx(1.0)

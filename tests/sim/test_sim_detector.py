@@ -14,15 +14,16 @@ from arcloud.ports import Detector
 from arcloud.sim.detector import (
     CONFUSIONS,
     DetectorFaults,
+    FrameTruths,
     SimulatedDetector,
     apply_depth_faults,
+    frame_truth,
     pose_noise,
     reported_pose,
     true_pose,
 )
-from arcloud.sim.room import Room, generate_room
+from arcloud.sim.room import Room, generate_room, room_renderer, room_walk
 from arcloud.sim.sequence import simulate_sequence
-from arcloud.sim.trajectory import room_walk
 
 # Half VGA keeps the tests fast; pixel thresholds are scaled by hand where it matters.
 K = Intrinsics(262.5, 262.5, 159.5, 119.5)
@@ -48,7 +49,7 @@ def test_without_faults_every_visible_instance_is_detected_exactly(room: Room, p
     frames = frames_of(room, poses[:8], perfect)
     detector = SimulatedDetector(room, perfect, seed=2)
     assert isinstance(detector, Detector)
-    renderer = room.renderer()
+    renderer = room_renderer(room)
     labels = {o.instance_id: o.label for o in room.objects}
     for frame, pose in zip(frames, poses[:8]):
         np.testing.assert_array_equal(frame.cam2world, pose)  # no pose noise
@@ -86,12 +87,13 @@ def test_same_frame_id_same_detections_for_any_device_order_or_detector(room: Ro
 
 
 @pytest.mark.parametrize("threads", [0, 1])  # 0: one ray-casting thread per core
-def test_remembered_truth_and_a_fresh_ray_cast_give_the_same_detections(room: Room, poses: list[np.ndarray], threads: int) -> None:
+def test_recorded_truth_and_a_fresh_ray_cast_give_the_same_detections(room: Room, poses: list[np.ndarray], threads: int) -> None:
     faults = DetectorFaults()
-    frames = frames_of(room, poses[:4], faults)
-    detector = SimulatedDetector(room, faults, seed=2)
-    fresh_room = generate_room(2)  # same room, nothing remembered with it
-    fresh = SimulatedDetector(fresh_room, faults, seed=2, threads=threads)
+    truths = FrameTruths(room)
+    frames = simulate_sequence(room, n_frames=4, seed=2, width=W, height=H, intrinsics=K, faults=faults, poses=poses[:4], workers=1, truths=truths)
+    assert len(truths) == 4
+    detector = SimulatedDetector(room, faults, seed=2, truths=truths)
+    fresh = SimulatedDetector(room, faults, seed=2, threads=threads)  # no truths: ray-casts every frame
     for frame in frames:
         a, b = detector.detect(frame), fresh.detect(frame)
         assert [(d.label, d.score) for d in a] == [(d.label, d.score) for d in b]
@@ -267,3 +269,16 @@ def test_detector_refuses_other_fault_objects(room: Room) -> None:
 def test_detector_refuses_bad_thread_counts(room: Room, threads: object) -> None:
     with pytest.raises(InvalidInput, match="threads"):
         SimulatedDetector(room, threads=threads)  # type: ignore[arg-type]
+
+
+def test_truths_belong_to_one_room_and_keep_the_latest_frames(room: Room) -> None:
+    other = generate_room(3)
+    with pytest.raises(InvalidInput, match="truths"):
+        SimulatedDetector(room, truths=FrameTruths(other))
+    with pytest.raises(InvalidInput, match="truths"):
+        simulate_sequence(room, n_frames=1, truths=FrameTruths(other), workers=1)
+    truths = FrameTruths(room, max_frames=2)
+    views = [np.zeros((2, 2), np.int32) for _ in range(3)]
+    for k, view in enumerate(views):
+        truths.record(("f", k), frame_truth(room, view - 1, view.astype(np.float32), np.eye(4), K))
+    assert len(truths) == 2 and truths.get(("f", 0)) is None and truths.get(("f", 2)) is not None

@@ -10,9 +10,8 @@ from arcloud.core.checks import check_pose
 from arcloud.core.types import Intrinsics
 from arcloud.errors import InvalidInput
 from arcloud.sim.detector import DetectorFaults, true_pose
-from arcloud.sim.room import Room, generate_room
+from arcloud.sim.room import Room, generate_room, room_walk
 from arcloud.sim.sequence import frame_id_of, gt_boxes, simulate_sequence
-from arcloud.sim.trajectory import room_walk
 
 K = Intrinsics(262.5, 262.5, 159.5, 119.5)
 W, H = 320, 240

@@ -16,7 +16,7 @@ and it has a fourth table v1 lacks (six objects: four tables, one a desk, a couc
 Cases with seeds in ``TUNE_SEEDS`` may be tuned on; the others are the ``report`` split. Renders are
 written once under ``out_dir/renders/<case>/`` and reused while their settings and annotation
 (``render.json``) are the same; every run's map is exported as ``out_dir/exports/<case>_<K>_<run>.json``
-(``arcloud.datasets.cli.export_payload``, the format of ``arcloud eval scannet --export``: served objects
+(``arcloud.datasets.export.export_payload``, the format of ``arcloud eval scannet --export``: served objects
 under ``objects``, the others under ``tentative``) beside ``<case>_gt.json``, so that another scorer can
 check the mAP.
 """
@@ -176,10 +176,12 @@ def evaluate_case(
 ) -> dict[str, Any]:
     """The case's record: its centralized map and ``runs`` maps of K = ``case.users`` users, scored
     against the render's ground truth (``arcloud.accuracy.common.case_record``)."""
-    from arcloud.datasets.cli import LazyFrames, export_payload, scannet_export_frame
+    from arcloud.datasets.export import export_payload, scannet_export_frame
+    from arcloud.datasets.frames import LazyFrames
     from arcloud.datasets.gt_masks import GroundTruthMaskDetector
     from arcloud.datasets.scannet import load_scannet_scene
     from arcloud.eval.protocol import CachedDetector, run_map
+    from arcloud.stores.memory import MemoryStore
 
     started = time.perf_counter()
     scene = load_scannet_scene(scene_dir)
@@ -194,7 +196,7 @@ def evaluate_case(
         (export_dir / f"{case.name}_gt.json").write_text(json.dumps(gt_payload, indent=1))
 
     def build(users: int, run: int) -> dict[str, Any]:
-        objects = run_map(frames, detector, params, users=users, seed=case.seed * 1000 + run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        objects = run_map(frames, detector, params, new_store=MemoryStore, users=users, seed=case.seed * 1000 + run, workers=workers, map_id=f"{case.name}-{users}-{run}")
         if export_dir is not None:
             payload = export_payload(objects, frame, scene=scene.scene_id, case=case.name, users=users, run=run)
             (export_dir / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))

@@ -14,7 +14,7 @@ The model runs once per frame (``CachedDetector``; the halves reuse the whole se
 frames are read from disk for every run rather than kept (1000 VGA frames are 2 GB).
 
 Written under ``out_dir``: every run's map as ``exports/<case>_<K>_<run>.json``
-(``arcloud.datasets.cli.export_payload``: ``world_from_export`` maps it to the pose frame of
+(``arcloud.datasets.export.export_payload``: ``world_from_export`` maps it to the pose frame of
 ``gt-boxes.json``, whose ``world_to_aligned`` then takes it to the boxes), and pictures of each case
 with the ground truth in green under ``pictures/``.
 """
@@ -36,7 +36,7 @@ from arcloud.core.types import MapObject, Params
 from arcloud.errors import DatasetError
 
 if TYPE_CHECKING:
-    from arcloud.datasets.cli import ExportFrame
+    from arcloud.datasets.export import ExportFrame
     from arcloud.datasets.sevenscenes import SevenScenesGroundTruth, SevenScenesSequence
     from arcloud.ports import Detector
 
@@ -99,7 +99,7 @@ def run_suite(
     "summary_amodal": ..., ...}`` (see ``arcloud.accuracy.common``). ``shared``: the folder holding
     ``data/7scenes-redkitchen`` and ``models/`` (default ``default_shared_dir()``); raises
     ``DatasetError`` when the sequence, its ground truth or the model is not there."""
-    from arcloud.datasets.cli import seven_scenes_export_frame
+    from arcloud.datasets.export import seven_scenes_export_frame
     from arcloud.datasets.sevenscenes import load_seven_scenes
     from arcloud.detectors import make_detector
     from arcloud.eval.protocol import CachedDetector
@@ -156,8 +156,11 @@ def evaluate_case(
 ) -> dict[str, Any]:
     """The case's record: its centralized map and ``runs`` maps of ``USERS`` users, scored against the
     objects visible in it (observed boxes; amodal ones under ``amodal``), exported and drawn."""
-    from arcloud.datasets.cli import LazyFrames, export_payload, write_pictures
+    from arcloud.datasets.export import export_payload
+    from arcloud.datasets.frames import LazyFrames
+    from arcloud.eval.map_pictures import write_pictures
     from arcloud.eval.protocol import run_map
+    from arcloud.stores.memory import MemoryStore
 
     started = time.perf_counter()
     ground_truth = sequence.ground_truth
@@ -173,7 +176,7 @@ def evaluate_case(
     first_maps: dict[int, list[MapObject]] = {}
 
     def build(users: int, run: int) -> dict[str, dict[str, Any]]:
-        objects = run_map(frames, detector, params, users=users, seed=run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        objects = run_map(frames, detector, params, new_store=MemoryStore, users=users, seed=run, workers=workers, map_id=f"{case.name}-{users}-{run}")
         payload = export_payload(objects, frame, scene=sequence.name, case=case.name, users=users, run=run, gt_objects=gt_ids)
         (exports / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
         first_maps.setdefault(users, objects)

@@ -38,10 +38,11 @@ from arcloud.core.types import Frame, LabelledBox, MapObject, Params
 from arcloud.errors import InvalidInput
 from arcloud.eval.metrics import iou_aabb
 from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
-from arcloud.sim.detector import DetectorFaults, SimulatedDetector
-from arcloud.sim.room import Room, RoomObject, generate_room
+from arcloud.sim.detector import DetectorFaults, FrameTruths, SimulatedDetector
+from arcloud.sim.room import Room, RoomObject, generate_room, room_walk
 from arcloud.sim.sequence import simulate_sequence
-from arcloud.sim.trajectory import WalkStyle, room_walk
+from arcloud.stores.memory import MemoryStore
+from arcloud.virtual_camera.walk import WalkStyle
 
 logger = logging.getLogger(__name__)
 
@@ -177,17 +178,18 @@ def evaluate_case(
     room = generate_room(case.room_seed, size_m=size_m, counts=counts)
     style = case.style()
     poses = room_walk(room, case.frames, case.walk_seed, style=style)
-    frames = simulate_sequence(room, n_frames=case.frames, seed=case.walk_seed, faults=faults, map_id=case.name, poses=poses)
-    detector = SimulatedDetector(room, faults, seed=case.walk_seed)
+    truths = FrameTruths(room)
+    frames = simulate_sequence(room, n_frames=case.frames, seed=case.walk_seed, faults=faults, map_id=case.name, poses=poses, truths=truths)
+    detector = SimulatedDetector(room, faults, seed=case.walk_seed, truths=truths)
     observable = observable_objects(room, frames, detector)
-    ground_truth = [LabelledBox(o.label, o.aabb_min, o.aabb_max) for o in observable]
+    ground_truth = [o.box for o in observable]
     unseen = [o for o in room.objects if o not in observable]
     simulated_s = time.perf_counter() - started
 
     cached = CachedDetector(detector)
 
     def build(users: int, run: int) -> list[MapObject]:
-        return run_map(frames, cached, params, users=users, seed=case.walk_seed * 1000 + run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        return run_map(frames, cached, params, new_store=MemoryStore, users=users, seed=case.walk_seed * 1000 + run, workers=workers, map_id=f"{case.name}-{users}-{run}")
 
     def score(objects: list[MapObject]) -> dict[str, Any]:
         scored = without_unseen(objects, unseen)

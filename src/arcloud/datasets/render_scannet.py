@@ -5,7 +5,7 @@ the extent of the ``floor`` instance, the obstacles are the floor-plan boxes of 
 instance that stands in the height band a person walks through (walls included), and the targets the
 users look at are the centres of the objects of arcloud's classes (and of the other furniture when the
 scene has fewer than three of those). Each user
-walks one ``arcloud.sim.trajectory.plan_walk`` path; the users' frames follow one another in one
+walks one ``arcloud.virtual_camera.walk.plan_walk`` path; the users' frames follow one another in one
 sequence (user u has frames ``u * N .. u * N + N - 1``), so the distributed protocol with K users cuts
 it back into the users' walks.
 
@@ -47,6 +47,8 @@ from arcloud.core.types import Intrinsics
 from arcloud.datasets.files import write_matrix, write_png
 from arcloud.datasets.scannet import LABEL_TSV_NAMES, ScanNetScene, find_label_table, v2_label_paths
 from arcloud.errors import DatasetError, InvalidInput
+from arcloud.virtual_camera.render import MeshRenderer
+from arcloud.virtual_camera.walk import plan_walk
 
 logger = logging.getLogger(__name__)
 
@@ -278,13 +280,11 @@ def render_scannet(
     User u walks with seed ``seed * 1000 + u``: at ``eye_height_m`` (``style="default"``), or as
     ``random_user_walk(seed, u)`` draws it (``style="random"``, which ignores ``eye_height_m``). A frame
     that sees less than ``min_valid_fraction`` of surface (a camera in a wall, or looking out through a
-    hole of the scan) is dropped, logged. ``walk`` replaces ``arcloud.sim.trajectory.plan_walk`` (same
+    hole of the scan) is dropped, logged. ``walk`` replaces ``arcloud.virtual_camera.walk.plan_walk`` (same
     signature; the random style passes it plan_walk's ``eye_height_jitter_m``, ``step_m``,
     ``fixation_frames`` and ``ring_inset_m`` too)."""
-    from arcloud.sim.render import MeshRenderer
-
     if walk is None:
-        from arcloud.sim.trajectory import plan_walk as walk
+        walk = plan_walk
     if users < 1 or frames_per_user < 1:
         raise InvalidInput("users, frames_per_user", "both >= 1", (users, frames_per_user))
     if style not in WALK_STYLES:

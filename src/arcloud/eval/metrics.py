@@ -366,10 +366,6 @@ def _check_classes(classes: Sequence[str]) -> tuple[str, ...]:
     return names
 
 
-#: The box type's old name, kept while ``arcloud.service.replay`` imports it from here; use
-#: ``arcloud.core.types.LabelledBox``.
-Box3D = LabelledBox
-
 __all__ = [
     "DEFAULT_IOU_THRESHOLDS",
     "EvalResult",

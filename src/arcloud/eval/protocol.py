@@ -14,6 +14,7 @@ import queue
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import Protocol
 
 import numpy as np
 
@@ -21,9 +22,15 @@ from arcloud.core.step import integrate_frame
 from arcloud.core.types import Detection, Frame, LabelledBox, MapObject, Params
 from arcloud.eval.metrics import evaluate, variance
 from arcloud.ports import Detector, ObjectStore
-from arcloud.stores.memory import MemoryStore
 
 Progress = Callable[[int], None]
+
+
+class StoreFactory(Protocol):
+    """Makes the empty store of one run (``arcloud.stores.memory.MemoryStore`` is one): the caller picks
+    the adapter, the protocol only talks to the port."""
+
+    def __call__(self, *, cell_m: float) -> ObjectStore: ...
 
 
 class CachedDetector:
@@ -72,18 +79,19 @@ def run_map(
     detector: Detector,
     params: Params,
     *,
+    new_store: StoreFactory,
     users: int = 1,
     seed: int = 0,
     workers: int = 1,
-    store: ObjectStore | None = None,
     map_id: str | None = None,
     progress: Progress | None = None,
 ) -> list[MapObject]:
-    """Build a map from ``frames`` and return its objects.
+    """Build a map from ``frames`` in a store from ``new_store(cell_m=params.index_cell_m)`` and return
+    its objects.
 
     users == 1: the centralized run, frames in order on one worker (``workers`` is ignored).
     users > 1: the distributed run described in the module docstring, on ``workers`` threads."""
-    store = store if store is not None else MemoryStore(cell_m=params.index_cell_m)
+    store = new_store(cell_m=params.index_cell_m)
     map_id = map_id or f"run-{users}-{seed}"
     rng = np.random.default_rng(seed)
     if users == 1:
@@ -131,6 +139,7 @@ def table1(
     ground_truth: Sequence[LabelledBox],
     params: Params,
     *,
+    new_store: StoreFactory,
     users: Sequence[int] = (10, 50, 100),
     runs: int = 10,
     seed: int = 0,
@@ -140,7 +149,8 @@ def table1(
     on_run: Callable[[str, int, int, list[MapObject]], None] | None = None,
 ) -> dict[str, object]:
     """The paper's Table 1 on one sequence: the centralized run (deterministic, so one run) and
-    ``runs`` distributed runs for each K in ``users``; mean and variance (ddof=0) of mAP@0.25 / 0.5.
+    ``runs`` distributed runs for each K in ``users``, each in a store from ``new_store``; mean and
+    variance (ddof=0) of mAP@0.25 / 0.5.
 
     ``on_run(approach, users, run, objects)`` sees every run's map (to export or draw it)."""
     cached = CachedDetector(detector)
@@ -150,7 +160,7 @@ def table1(
         scores25, scores50 = [], []
         for run in range(n_runs):
             objects = run_map(
-                frames, cached, params, users=k, seed=seed * 1000 + run, workers=workers,
+                frames, cached, params, new_store=new_store, users=k, seed=seed * 1000 + run, workers=workers,
                 map_id=f"{scene}-{k}-{run}", progress=progress,
             )
             if on_run is not None:

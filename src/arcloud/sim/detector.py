@@ -19,7 +19,6 @@ import dataclasses
 import logging
 import math
 import threading
-import weakref
 import zlib
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -30,7 +29,8 @@ import numpy as np
 from arcloud.core.checks import describe
 from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
 from arcloud.errors import InvalidInput
-from arcloud.sim.room import Room
+from arcloud.sim.room import Room, room_renderer
+from arcloud.virtual_camera.render import MeshRenderer
 
 log = logging.getLogger(__name__)
 
@@ -377,26 +377,43 @@ def truth_key(frame_id: str, cam2world: np.ndarray, intrinsics: Intrinsics, widt
     return (frame_id, pose, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, int(width), int(height))
 
 
-#: Truths remembered per room (``remember_truth``), so that detecting a simulated frame needs no second
-#: ray cast. A bounded LRU per room (about 30 KB a VGA frame, so at most ~150 MB), dropped with the room.
+#: Frames a ``FrameTruths`` keeps by default (about 30 KB a VGA frame, so at most ~150 MB).
 TRUTH_CACHE_FRAMES = 5000
-_TRUTHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-_TRUTHS_LOCK = threading.Lock()
 
 
-def remember_truth(room: Room, key: tuple, truth: FrameTruth) -> None:
-    with _TRUTHS_LOCK:
-        cache = _TRUTHS.setdefault(room, OrderedDict())
-        cache[key] = truth
-        cache.move_to_end(key)
-        while len(cache) > TRUTH_CACHE_FRAMES:
-            cache.popitem(last=False)
+class FrameTruths:
+    """The truths of one room's simulated frames by ``truth_key``: ``simulate_sequence(truths=...)``
+    records them as it renders and ``SimulatedDetector(truths=...)`` reads them, so that detecting a
+    simulated frame needs no second ray cast. A bounded LRU; thread-safe."""
+
+    def __init__(self, room: Room, max_frames: int = TRUTH_CACHE_FRAMES) -> None:
+        if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1:
+            raise InvalidInput("max_frames", "an int >= 1", describe(max_frames))
+        self.room = room
+        self.max_frames = max_frames
+        self._truths: OrderedDict[tuple, FrameTruth] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def record(self, key: tuple, truth: FrameTruth) -> None:
+        with self._lock:
+            self._truths[key] = truth
+            self._truths.move_to_end(key)
+            while len(self._truths) > self.max_frames:
+                self._truths.popitem(last=False)
+
+    def get(self, key: tuple) -> FrameTruth | None:
+        with self._lock:
+            return self._truths.get(key)
+
+    def __len__(self) -> int:
+        return len(self._truths)
 
 
-def recall_truth(room: Room, key: tuple) -> FrameTruth | None:
-    with _TRUTHS_LOCK:
-        cache = _TRUTHS.get(room)
-        return None if cache is None else cache.get(key)
+def check_truths(truths: object, room: Room) -> FrameTruths | None:
+    """``truths`` if it is None or a ``FrameTruths`` of ``room``; raises ``InvalidInput`` otherwise."""
+    if truths is not None and (not isinstance(truths, FrameTruths) or truths.room is not room):
+        raise InvalidInput("truths", "None or a FrameTruths of this room", describe(truths))
+    return truths
 
 
 def _surface_ids(room: Room) -> np.ndarray:
@@ -415,10 +432,14 @@ class SimulatedDetector:
     """A ``arcloud.ports.Detector`` for frames of a generated room (see the module docstring).
 
     ``seed`` and ``faults`` must be those the frames were simulated with (``simulate_sequence``), so
-    that the true pose of a frame is recovered from its reported one. ``threads``: ray-casting threads
-    (0: one per core; a worker process sharing the machine with others takes its share). Thread-safe."""
+    that the true pose of a frame is recovered from its reported one, and ``truths`` those they
+    recorded (None: every frame is ray-cast again, with the same result). ``threads``: ray-casting
+    threads (0: one per core; a worker process sharing the machine with others takes its share).
+    Thread-safe."""
 
-    def __init__(self, room: Room, faults: DetectorFaults = DetectorFaults(), *, seed: int = 0, threads: int = 0) -> None:
+    def __init__(
+        self, room: Room, faults: DetectorFaults = DetectorFaults(), *, seed: int = 0, threads: int = 0, truths: FrameTruths | None = None
+    ) -> None:
         if not isinstance(faults, DetectorFaults):
             raise InvalidInput("faults", "a DetectorFaults", type(faults).__name__)
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
@@ -427,7 +448,9 @@ class SimulatedDetector:
         self.room = room
         self.faults = faults
         self.seed = int(seed)
-        self._renderer = room.renderer()
+        self.truths = check_truths(truths, room)
+        self._renderer: MeshRenderer | None = None  # built on the first frame with no recorded truth
+        self._renderer_lock = threading.Lock()
         self._instance = room.triangle_instance
         self._clutter = room.triangle_clutter if room.triangle_clutter is not None else np.zeros_like(room.triangle_instance)
         self._objects = {o.instance_id: o for o in room.objects}
@@ -443,14 +466,22 @@ class SimulatedDetector:
         return true_pose(frame.cam2world, self.faults, self.seed, frame.frame_id)
 
     def truth(self, frame: Frame) -> FrameTruth:
-        """The frame's truth: remembered by ``simulate_sequence`` for its frames, else ray-cast now."""
+        """The frame's truth: recorded in ``truths`` by ``simulate_sequence``, else ray-cast now."""
         height, width = frame.shape
         cam2world = self.true_pose(frame)
-        truth = recall_truth(self.room, truth_key(frame.frame_id, cam2world, frame.intrinsics, width, height))
+        truth = None
+        if self.truths is not None:
+            truth = self.truths.get(truth_key(frame.frame_id, cam2world, frame.intrinsics, width, height))
         if truth is None:
-            hits = self._renderer.raycast(cam2world, frame.intrinsics, width, height, threads=self.threads)
+            hits = self._room_renderer().raycast(cam2world, frame.intrinsics, width, height, threads=self.threads)
             truth = frame_truth(self.room, hits.triangle, hits.depth_m, cam2world, frame.intrinsics)
         return truth
+
+    def _room_renderer(self) -> MeshRenderer:
+        with self._renderer_lock:
+            if self._renderer is None:
+                self._renderer = room_renderer(self.room)
+            return self._renderer
 
     def detect(self, frame: Frame) -> list[Detection]:
         """Detections of the frame's visible objects with this detector's faults, best score first."""
@@ -546,9 +577,10 @@ class SimulatedDetector:
         return out
 
 
-def visible_instances(room: Room, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> dict[int, int]:
-    """Visible pixels per object instance id from a true pose (for tests and diagnostics)."""
-    result = room.renderer().render(cam2world, intrinsics, width, height)
+def visible_instances(renderer: MeshRenderer, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> dict[int, int]:
+    """Visible pixels per object instance id from a true pose, with a room's renderer (``room_renderer``;
+    for tests and diagnostics)."""
+    result = renderer.render(cam2world, intrinsics, width, height)
     counts = np.bincount(result.instance.ravel())
     return {int(k): int(counts[k]) for k in np.flatnonzero(counts) if k != 0}
 
@@ -559,12 +591,12 @@ __all__: Sequence[str] = (
     "DetectorFaults",
     "SimulatedDetector",
     "FrameTruth",
+    "FrameTruths",
+    "check_truths",
     "apply_depth_faults",
     "frame_truth",
     "frame_rng",
     "pose_noise",
-    "recall_truth",
-    "remember_truth",
     "reported_pose",
     "true_pose",
     "truth_key",

@@ -20,16 +20,16 @@ from arcloud.sim.detector import (
     STREAM_DEPTH,
     DetectorFaults,
     FrameTruth,
+    FrameTruths,
     apply_depth_faults,
+    check_truths,
     frame_rng,
     frame_truth,
-    remember_truth,
     reported_pose,
     true_pose,
     truth_key,
 )
-from arcloud.sim.room import Room, gt_boxes
-from arcloud.sim.trajectory import room_walk
+from arcloud.sim.room import Room, gt_boxes, room_renderer, room_walk
 
 log = logging.getLogger(__name__)
 
@@ -58,14 +58,16 @@ def simulate_sequence(
     device_id: str = "user-0",
     poses: Sequence[np.ndarray] | None = None,
     workers: int | None = None,
+    truths: FrameTruths | None = None,
 ) -> list[Frame]:
     """``n_frames`` frames of one user walking through ``room`` (``room_walk(room, n_frames, seed)``,
     or the given true ``poses``), at 30 Hz from t = 0, with ids ``frame_id_of(i)``.
 
     Depth carries the sensor faults of ``faults`` and each frame's ``cam2world`` is the *reported*
     (noisy) pose; both are drawn from ``(seed, frame_id)``. Detect with
-    ``SimulatedDetector(room, faults, seed=seed)``: the same seed and faults recover the true poses,
-    and the frames' true instance images, remembered with the room, spare it a second ray cast.
+    ``SimulatedDetector(room, faults, seed=seed, truths=truths)``: the same seed and faults recover the
+    true poses, and the frames' true instance images, recorded in ``truths`` (a ``FrameTruths`` of the
+    room; None: not kept), spare it a second ray cast.
 
     workers: processes that render (None: one per two cores, up to 4, for 60 frames or more, so one
     on a 2-core machine; 1: this process only). Workers are fresh Python processes; the frames are
@@ -79,9 +81,10 @@ def simulate_sequence(
         workers = max(1, min((os.cpu_count() or 1) // 2, 4)) if n_frames >= PARALLEL_MIN_FRAMES else 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InvalidInput("workers", "an integer >= 1 or None", repr(workers))
+    check_truths(truths, room)
     started = time.perf_counter()
     jobs = [(index, np.asarray(pose, dtype=np.float64)) for index, pose in enumerate(poses)]
-    settings = (seed, width, height, intrinsics, faults, map_id, device_id)
+    settings = (seed, width, height, intrinsics, faults, map_id, device_id, truths is not None)
     if workers == 1 or len(jobs) < 2:
         rendered = _render_frames(room, jobs, settings)
     else:
@@ -89,7 +92,8 @@ def simulate_sequence(
         rendered = [item for part in _render_in_subprocesses(room, chunks, settings) for item in part]
     frames = []
     for frame, key, truth in rendered:
-        remember_truth(room, key, truth)
+        if truths is not None and truth is not None:
+            truths.record(key, truth)
         frames.append(frame)
     log.info(
         "simulated %d frames of %dx%d in %.1f s (%d worker%s)",
@@ -98,12 +102,13 @@ def simulate_sequence(
     return frames
 
 
-_Settings = tuple[int, int, int, Intrinsics, DetectorFaults, str, str]
+#: (seed, width, height, intrinsics, faults, map_id, device_id, whether to compute the frames' truths)
+_Settings = tuple[int, int, int, Intrinsics, DetectorFaults, str, str, bool]
 
 
-def _render_frames(room: Room, jobs: Sequence[tuple[int, np.ndarray]], settings: _Settings) -> list[tuple[Frame, tuple, FrameTruth]]:
-    seed, width, height, intrinsics, faults, map_id, device_id = settings
-    renderer = room.renderer()
+def _render_frames(room: Room, jobs: Sequence[tuple[int, np.ndarray]], settings: _Settings) -> list[tuple[Frame, tuple, FrameTruth | None]]:
+    seed, width, height, intrinsics, faults, map_id, device_id, with_truths = settings
+    renderer = room_renderer(room)
     out = []
     for index, cam2world in jobs:
         frame_id = frame_id_of(index)
@@ -123,14 +128,14 @@ def _render_frames(room: Room, jobs: Sequence[tuple[int, np.ndarray]], settings:
             device_id=device_id,
             frame_id=frame_id,
         )
-        truth = frame_truth(room, result.triangle, result.depth_m, pose, intrinsics, result.instance)
+        truth = frame_truth(room, result.triangle, result.depth_m, pose, intrinsics, result.instance) if with_truths else None
         out.append((frame, truth_key(frame_id, pose, intrinsics, width, height), truth))
     return out
 
 
 def _render_in_subprocesses(
     room: Room, chunks: Sequence[Sequence[tuple[int, np.ndarray]]], settings: _Settings
-) -> list[list[tuple[Frame, tuple, FrameTruth]]]:
+) -> list[list[tuple[Frame, tuple, FrameTruth | None]]]:
     """Render each chunk in a fresh Python process (``python -c``, so the caller's main module is never
     re-imported, unlike multiprocessing's spawn; no fork, which is unsafe once Open3D's threads run)."""
     import arcloud

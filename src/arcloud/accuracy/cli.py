@@ -1,0 +1,260 @@
+"""The evaluation commands of the ``arcloud`` CLI: ``eval scannet`` and ``eval 7scenes`` (with the dataset
+command ``render-scannet`` of ``arcloud.datasets.cli``).
+
+``add_eval_commands(subparsers)`` adds them to the CLI's sub-command parsers; every command sets
+``handler`` (``args.handler(args)`` runs it and returns the exit status; ``ArcloudError`` is left to
+the CLI's edge). Results are JSON::
+
+    {"table1": [{"approach": "centralized"|"distributed", "users": K, "runs": M,
+                 "map25_mean": .., "map25_var": .., "map50_mean": .., "map50_var": ..}, ...], ...}
+
+The runs and their rows are ``arcloud.accuracy.dataset_runs``'s; with ``gt-boxes.json`` in a 7-Scenes
+folder, boxes are fitted in its aligned frame and ``accuracy`` rows score every run against its observed
+and amodal boxes. Pictures are written next to ``--out``; every exported map (``--export``) declares its
+frame (``arcloud.datasets.export``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arcloud.accuracy.dataset_runs import accuracy_rows, agreement, each_run, evaluate_scenes, export_runs, score_runs
+from arcloud.core.types import Params
+from arcloud.datasets.cli import add_render_command
+from arcloud.datasets.export import objects_json, scannet_export_frame, seven_scenes_export_frame
+from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
+from arcloud.errors import DatasetError
+from arcloud.eval.map_pictures import write_pictures
+from arcloud.ports import Detector
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_SCANNET_USERS = (1, 10, 50, 100)
+DEFAULT_7SCENES_USERS = (1, 10)
+GT_MASKS = "gt-masks"
+
+
+def parse_colour_camera(text: str) -> Any:
+    """'fx,fy,cx,cy[,tx,ty,tz]' -> ``ColourCamera`` (intrinsics in pixels; depth->colour translation in m)."""
+    from arcloud.core.types import Intrinsics
+    from arcloud.datasets.sevenscenes import ColourCamera
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (4, 7) or not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f"expected fx,fy,cx,cy[,tx,ty,tz] (7 or 4 finite numbers, positive focal lengths), got {text!r}")
+    depth2rgb = np.eye(4)
+    depth2rgb[:3, 3] = values[4:7] if len(values) == 7 else (0.0, 0.0, 0.0)
+    return ColourCamera(Intrinsics(*values[:4]), depth2rgb)
+
+
+def parse_scenes(text: str) -> tuple[str, ...]:
+    """'scene0000_00,scene0011_00' or '@file' (one name a line, '#' starts a comment) -> scene names."""
+    if text.startswith("@"):
+        try:
+            lines = Path(text[1:]).read_text().splitlines()
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"expected a readable scene list {text[1:]!r} ({exc})") from exc
+        names = (line.split("#", 1)[0].strip() for line in lines)
+        return tuple(name for name in names if name)
+    return tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+def _workers(value: int | None) -> int:
+    return value if value and value > 0 else max(1, os.cpu_count() or 1)
+
+
+def _params(args: argparse.Namespace) -> Params:
+    params = Params()
+    if getattr(args, "voxel_size_m", None):
+        params = params.replace(voxel_size_m=float(args.voxel_size_m))
+    return params
+
+
+def _make_detector(spec: str) -> Detector:
+    from arcloud.detectors import make_detector
+
+    return make_detector(spec)
+
+
+def run_eval_scannet(args: argparse.Namespace) -> int:
+    """``arcloud eval scannet``: Table 1 on ScanNet-layout scenes; writes ``--out`` (and ``--export``)."""
+    from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options
+    from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
+
+    started = time.perf_counter()
+    scene_dirs = find_scene_dirs(args.root, args.scenes)
+    if args.axis_alignment and len(scene_dirs) != 1:
+        raise DatasetError(f"--axis-alignment: expected one scene, got {len(scene_dirs)}")
+    prefix, _, argument = args.detector.partition(":")
+    gt_options = gt_masks_options(argument)[0] if prefix == GT_MASKS else {}
+    shared_detector = None if prefix == GT_MASKS else _make_detector(args.detector)
+    entries, frame_counts, export_frames = [], {}, {}
+    for scene_dir in scene_dirs:
+        scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
+        names = scene.frame_names[:: args.stride]
+        frames = LazyFrames(names, scene.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+        detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector  # type: ignore[arg-type]
+        entries.append((scene.scene_id, frames, detector, scene.gt_boxes()))
+        frame_counts[scene.scene_id] = len(names)
+        export_frames[scene.scene_id] = scannet_export_frame(scene)
+        if not scene.objects:
+            logger.warning("scene %s has no ground truth of our classes", scene.scene_id)
+    export_dir = Path(args.export) if args.export else None
+    result = evaluate_scenes(
+        entries, _params(args), users=args.users, runs=args.runs, seed=args.seed,
+        workers=_workers(args.workers), on_run=export_runs(export_dir, export_frames), progress=not args.no_progress,
+    )  # fmt: skip
+    out = {
+        **result,
+        "dataset": "scannet",
+        "detector": args.detector,
+        "scenes": list(frame_counts),
+        "frames": frame_counts,
+        "stride": args.stride,
+        "seed": args.seed,
+        "wall_s": round(time.perf_counter() - started, 2),
+    }
+    _write_json(Path(args.out), out)
+    _print_table(out["table1"])  # type: ignore[arg-type]
+    return 0
+
+
+def run_eval_7scenes(args: argparse.Namespace) -> int:
+    """``arcloud eval 7scenes``: agreement of distributed maps with the centralized one, accuracy against
+    ``gt-boxes.json`` when the sequence has it, and pictures."""
+    from arcloud.datasets.sevenscenes import load_seven_scenes
+
+    started = time.perf_counter()
+    sequence = load_seven_scenes(args.root, align_gravity=True, colour=args.colour_camera)
+    ground_truth = sequence.ground_truth
+    names = sequence.frame_names[:: args.stride]
+    frames = LazyFrames(names, sequence.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+    out_path = Path(args.out)
+    export_dir = Path(args.export) if args.export else None
+    frame = seven_scenes_export_frame(sequence)
+    scores: dict[int, list[dict[str, dict[str, Any]]]] = {}
+    rows, centralized, first_runs = agreement(
+        frames, _make_detector(args.detector), frame.params(_params(args)), name=sequence.name, users=args.users,
+        runs=args.runs, seed=args.seed, workers=_workers(args.workers), progress=not args.no_progress,
+        on_run=each_run(export_runs(export_dir, {sequence.name: frame}), score_runs(ground_truth, scores)),
+        reference_min_score=args.reference_min_score,
+    )  # fmt: skip
+    stem = out_path.with_suffix("")
+    gt_boxes = ground_truth.boxes("observed") if ground_truth is not None else []
+    pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name, gt=gt_boxes, world2boxes=frame.world2export)
+    out: dict[str, object] = {"agreement": rows}
+    if ground_truth is not None:
+        out["accuracy"] = accuracy_rows(scores)
+        out["ground_truth"] = {"file": str(ground_truth.path), "objects": [o.id for o in ground_truth.objects], "primary": "observed"}
+    out |= {
+        "dataset": "7scenes",
+        "detector": args.detector,
+        "sequence": sequence.name,
+        "frames": len(names),
+        "stride": args.stride,
+        "seed": args.seed,
+        "gravity_aligned": sequence.up_file is not None,
+        "frame": frame.description,
+        "reference_min_score": args.reference_min_score,
+        "centralized_objects": [
+            {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}  # type: ignore[arg-type]
+            for o in objects_json(centralized)
+        ],
+        "pictures": pictures,
+        "wall_s": round(time.perf_counter() - started, 2),
+    }
+    _write_json(out_path, out)
+    _print_table(rows)
+    if ground_truth is not None:
+        _print_accuracy(out["accuracy"])  # type: ignore[arg-type]
+    return 0
+
+
+def _write_json(path: Path, payload: dict[str, object]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(payload, indent=2))
+    logger.info("wrote %s", path)
+
+
+def _print_table(rows: Sequence[dict[str, Any]]) -> None:
+    print(f"{'approach':<12} {'users':>5} {'runs':>4} {'mAP@0.25':>16} {'mAP@0.5':>16} {'wall_s':>8}")
+    for r in rows:
+        map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
+        map50 = f"{r['map50_mean']:.4f}±{np.sqrt(r['map50_var']):.4f}"
+        print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {map25:>16} {map50:>16} {r['wall_s']:>8}")
+
+
+def _print_accuracy(rows: Sequence[dict[str, Any]]) -> None:
+    print(f"{'approach':<12} {'users':>5} {'runs':>4} {'boxes':>8} {'mAP@0.25':>16} {'mAP@0.5':>16} {'P@0.25':>7} {'R@0.25':>7}")
+    for r in rows:
+        map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
+        map50 = f"{r['map50_mean']:.4f}±{np.sqrt(r['map50_var']):.4f}"
+        print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {r['boxes']:>8} {map25:>16} {map50:>16} "
+              f"{r['served_precision25']:>7.3f} {r['served_recall25']:>7.3f}")  # fmt: skip
+
+
+def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
+    from arcloud.argtypes import parse_users, positive_int
+
+    parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
+    parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
+    parser.add_argument("--out", required=True, help="results JSON to write")
+    parser.add_argument("--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json (with world_from_export)")
+    parser.add_argument("--stride", type=positive_int, default=1, help="use every N-th frame (default 1)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=0, help="worker threads of distributed runs (default: CPU count)")
+    parser.add_argument("--voxel-size-m", type=float, default=None, help="override Params.voxel_size_m")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def add_eval_commands(subparsers: Any) -> Any:
+    """Add ``eval scannet``, ``eval 7scenes`` and ``render-scannet`` to an argparse sub-parsers object.
+
+    Returns the sub-parsers of ``eval`` so that other evaluations can join them."""
+    evaluation = subparsers.add_parser("eval", help="evaluate on real datasets (ScanNet layout, 7-Scenes)")
+    kinds = evaluation.add_subparsers(dest="dataset", required=True, metavar="{scannet,7scenes}")
+
+    scannet = kinds.add_parser(
+        "scannet",
+        help="Table 1 (centralized vs distributed mAP) on ScanNet-layout scenes",
+        description="Table 1 on ScanNet-layout scenes. The default scene list is every scene folder under "
+        "--root (the paper does not list its 41 scenes; see docs/datasets.md).",
+    )
+    scannet.add_argument("--root", required=True, help="a scene folder, a folder of scenes, or one holding scans/")
+    scannet.add_argument("--scenes", type=parse_scenes, default=None, help="scene names, comma-separated, or @FILE")
+    scannet.add_argument("--detector", required=True,
+                         help=f"onnx:PATH (a YOLO-seg ONNX model), or {GT_MASKS}[:OPTIONS] (each scene's own masks; "
+                         "OPTIONS e.g. faults=default,seed=3: a model's mask faults, see docs/datasets.md)")
+    scannet.add_argument("--axis-alignment", default=None, help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt")
+    _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
+    scannet.set_defaults(handler=run_eval_scannet)
+
+    seven = kinds.add_parser(
+        "7scenes",
+        help="accuracy against gt-boxes.json (when the sequence has it), agreement of distributed maps with "
+        "the centralized map, and pictures, on a 7-Scenes sequence",
+    )
+    seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
+    seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
+    seven.add_argument("--colour-camera", type=parse_colour_camera, default=None, metavar="FX,FY,CX,CY[,TX,TY,TZ]",
+                       help="the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
+                       "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)")
+    seven.add_argument("--reference-min-score", type=float, default=0.0,
+                       help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)")
+    _add_common(seven, DEFAULT_7SCENES_USERS, 3)
+    seven.set_defaults(handler=run_eval_7scenes)
+
+    add_render_command(subparsers)
+    return kinds

@@ -1,0 +1,84 @@
+"""Exported maps: the served and tentative objects of a map as JSON, in a declared frame.
+
+Every exported map declares its frame: ``"world_from_export"`` (4x4, row-major) maps its coordinates to
+the dataset's pose frame, and ``"frame"`` says which frame that is in words.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from arcloud.core.types import MapObject, Params
+
+if TYPE_CHECKING:
+    from arcloud.datasets.scannet import ScanNetScene
+    from arcloud.datasets.sevenscenes import SevenScenesSequence
+
+
+def objects_json(objects: Sequence[MapObject]) -> list[dict[str, object]]:
+    """The reportable objects (label and box) as JSON-friendly dicts, highest score first."""
+    boxed = sorted((o for o in objects if o.aabb is not None and o.label), key=lambda o: -o.score)
+    return [
+        {
+            "label": o.label,
+            "score": round(float(o.score), 6),
+            "aabb_min": [round(float(v), 4) for v in o.aabb.min],  # type: ignore[union-attr]
+            "aabb_max": [round(float(v), 4) for v in o.aabb.max],  # type: ignore[union-attr]
+        }
+        for o in boxed
+    ]
+
+
+@dataclass(frozen=True, eq=False)
+class ExportFrame:
+    """The frame a dataset's maps are boxed and exported in.
+
+    description: the frame in words. world2export: (4, 4) maps the map's world to it, for
+    ``Params.world2aligned`` (None: the map's world itself). export2pose: (4, 4) maps it to the
+    dataset's pose frame (the frame of its pose files), written as ``world_from_export``."""
+
+    description: str
+    export2pose: np.ndarray
+    world2export: np.ndarray | None = None
+
+    def params(self, params: Params) -> Params:
+        """``params`` fitting boxes in this frame."""
+        if self.world2export is None:
+            return params
+        return params.replace(world2aligned=tuple(tuple(float(v) for v in row) for row in self.world2export))
+
+
+def scannet_export_frame(scene: ScanNetScene) -> ExportFrame:
+    """ScanNet maps are built in the scene's aligned frame (the reader aligns the poses)."""
+    return ExportFrame("ScanNet axis-aligned frame (axisAlignment applied to the scan frame)", np.linalg.inv(scene.scan2aligned))
+
+
+def seven_scenes_export_frame(sequence: SevenScenesSequence) -> ExportFrame:
+    """With ground truth, its aligned frame (the sequence's declared evaluation frame, as ScanNet's
+    axisAlignment is); without, the sequence's (gravity-aligned) world."""
+    if sequence.ground_truth is not None:
+        return ExportFrame(
+            f"{sequence.ground_truth.path.name} aligned frame (gravity_aligned.world_to_aligned: z up, floor at z = 0, x along the walls)",
+            np.linalg.inv(sequence.ground_truth.file2aligned),
+            sequence.world2gt,
+        )  # fmt: skip
+    if np.allclose(sequence.world2file, np.eye(4)):
+        return ExportFrame("7-Scenes pose frame", sequence.world2file)
+    return ExportFrame("gravity-aligned world (the pose frame turned by the smallest rotation that takes up to +z)", sequence.world2file)
+
+
+def export_payload(objects: Sequence[MapObject], frame: ExportFrame, **facts: object) -> dict[str, object]:
+    """An exported map: ``facts`` (scene, users, run...), the frame (``frame`` in words,
+    ``world_from_export``), the served objects (``MapObject.confirmed``) under ``objects`` and the
+    tentative ones under ``tentative`` (both as ``objects_json``)."""
+    return {
+        **facts,
+        "frame": frame.description,
+        "world_from_export": [[float(v) for v in row] for row in frame.export2pose],
+        "objects": objects_json([o for o in objects if o.confirmed]),
+        "tentative": objects_json([o for o in objects if not o.confirmed]),
+    }
