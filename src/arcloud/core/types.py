@@ -10,6 +10,8 @@ Conventions:
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass
 from typing import Literal
 
@@ -345,6 +347,7 @@ class Params:
     lock_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:
+        check_params(self)
         object.__setattr__(self, "_gravity", Gravity.of(self.up))
 
     @property
@@ -354,6 +357,93 @@ class Params:
 
     def replace(self, **changes: object) -> Params:
         return dataclasses.replace(self, **changes)
+
+
+#: What each field of ``Params`` must hold (``check_params``), by kind: the expectation said when not.
+_PARAM_EXPECTED = {
+    "positive": "a finite number > 0",
+    "non-negative": "a finite number >= 0",
+    "optional non-negative": "None or a finite number >= 0",
+    "fraction": "a number in [0, 1]",
+    "count": "an integer >= 0",
+    "stride": "an integer >= 1",
+    "flag": "True or False",
+    "classes": f"a tuple of class names from {CLASSES}",
+    "tilt": "degrees in [0, 90]",
+    "up": "a tuple of 3 finite numbers, not all 0",
+    "transform": "None or a (4, 4) tuple of tuples of finite numbers",
+}
+_PARAM_KINDS: dict[str, str] = {
+    **dict.fromkeys(
+        ("voxel_size_m", "depth_min_m", "depth_max_m", "layer_touch_m", "score_support_frames", "floor_bin_m", "index_cell_m", "lock_ttl_s"),
+        "positive",
+    ),
+    **dict.fromkeys(
+        ("layer_jump_m", "layer_jump_rel", "class_mismatch_penalty", "visibility_tolerance_m", "prune_min_seen",
+         "floor_min_below_camera_m", "floor_clearance_m", "floor_reach_max_m", "box_pad_voxels", "lock_timeout_s"),
+        "non-negative",
+    ),  # fmt: skip
+    "layer_margin_m": "optional non-negative",
+    **dict.fromkeys(
+        ("layer_min_fraction", "association_min_overlap", "class_mismatch_min_overlap", "prune_max_occupancy", "box_rel_weight",
+         "box_min_occupancy", "min_component_fraction", "merge_min_overlap", "merge_min_box_containment", "implausible_score_factor",
+         "confirm_min_detection_rate", "confirm_min_score", "miss_min_visible", "rescore_write_delta", "floor_min_share",
+         "floor_min_vote_share"),
+        "fraction",
+    ),  # fmt: skip
+    **dict.fromkeys(
+        ("erode_px", "min_voxels_per_detection", "association_tolerance_voxels", "split_min_frames", "confirm_min_frames",
+         "floor_min_samples", "floor_min_votes"),
+        "count",
+    ),  # fmt: skip
+    "pixel_stride_max_px": "stride",
+    "class_aware": "flag",
+    **dict.fromkeys(("layer_classes", "split_classes", "floor_standing"), "classes"),
+    "floor_max_tilt_deg": "tilt",
+    "up": "up",
+    "world2aligned": "transform",
+}
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _holds(kind: str, value: object) -> bool:
+    """Whether ``value`` is of ``kind`` (a key of ``_PARAM_EXPECTED``)."""
+    if kind in ("positive", "non-negative", "fraction", "tilt"):
+        if not _is_number(value):
+            return False
+        number = float(value)  # type: ignore[arg-type]
+        return {"positive": number > 0, "non-negative": number >= 0, "fraction": 0 <= number <= 1, "tilt": 0 <= number <= 90}[kind]
+    if kind == "optional non-negative":
+        return value is None or _holds("non-negative", value)
+    if kind in ("count", "stride"):
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= (0 if kind == "count" else 1)
+    if kind == "flag":
+        return isinstance(value, bool)
+    if kind == "classes":
+        return isinstance(value, tuple) and all(name in CLASS_INDEX for name in value)
+    if kind == "up":
+        return isinstance(value, tuple) and len(value) == 3 and all(map(_is_number, value)) and any(float(x) != 0 for x in value)
+    if kind == "transform":
+        return value is None or (
+            isinstance(value, tuple) and len(value) == 4
+            and all(isinstance(row, tuple) and len(row) == 4 and all(map(_is_number, row)) for row in value)
+        )  # fmt: skip
+    raise AssertionError(f"unknown kind {kind}")
+
+
+def check_params(params: Params) -> None:
+    """Raise ``InvalidInput`` for the first field of ``params`` out of its range (see ``_PARAM_KINDS``),
+    or a depth range that is empty."""
+    for field in dataclasses.fields(params):
+        kind = _PARAM_KINDS[field.name]
+        value = getattr(params, field.name)
+        if not _holds(kind, value):
+            raise InvalidInput(f"Params.{field.name}", _PARAM_EXPECTED[kind], repr(value))
+    if params.depth_max_m <= params.depth_min_m:
+        raise InvalidInput("Params.depth_max_m", f"more than depth_min_m ({params.depth_min_m})", repr(params.depth_max_m))
 
 
 def empty_object(object_id: int) -> MapObject:
