@@ -8,7 +8,8 @@
         ├── LockTimeout          per-object locks or space claims not acquired in time
         ├── StaleLease           a write whose lock expired or whose object changed since it was read
         │                        (fencing): nothing was written
-        └── StoreUnavailable     the store's server cannot be reached
+        ├── StoreUnavailable     the store's server cannot be reached
+        └── MapMismatch          a map was built with other settings (voxel size, up, ...) than ours
 
 Adapters map their library's exceptions to these at the boundary (``raise StoreUnavailable(...) from exc``).
 """
@@ -52,3 +53,14 @@ class StaleLease(StoreError):
 
 class StoreUnavailable(StoreError):
     """The store's server cannot be reached."""
+
+
+class MapMismatch(StoreError):
+    """A map's stored data means something else under our settings (``arcloud.core.header``).
+    ``differences``: (setting, the map's value, ours) for each setting that differs."""
+
+    def __init__(self, map_id: str | None, differences: list[tuple[str, object, object]]) -> None:
+        self.map_id = map_id
+        self.differences = differences
+        listed = "; ".join(f"{name}: map {theirs!r}, ours {ours!r}" for name, theirs, ours in differences)
+        super().__init__(f"map {map_id or '(unnamed)'} was built with other settings: {listed}")

@@ -434,14 +434,17 @@ def _holds(kind: str, value: object) -> bool:
     raise AssertionError(f"unknown kind {kind}")
 
 
+def check_param_value(field: str, kind: str, value: object) -> None:
+    """Raise ``InvalidInput(field, ...)`` unless ``value`` is of ``kind`` (a key of ``_PARAM_EXPECTED``)."""
+    if not _holds(kind, value):
+        raise InvalidInput(field, _PARAM_EXPECTED[kind], repr(value))
+
+
 def check_params(params: Params) -> None:
     """Raise ``InvalidInput`` for the first field of ``params`` out of its range (see ``_PARAM_KINDS``),
     or a depth range that is empty."""
     for field in dataclasses.fields(params):
-        kind = _PARAM_KINDS[field.name]
-        value = getattr(params, field.name)
-        if not _holds(kind, value):
-            raise InvalidInput(f"Params.{field.name}", _PARAM_EXPECTED[kind], repr(value))
+        check_param_value(f"Params.{field.name}", _PARAM_KINDS[field.name], getattr(params, field.name))
     if params.depth_max_m <= params.depth_min_m:
         raise InvalidInput("Params.depth_max_m", f"more than depth_min_m ({params.depth_min_m})", repr(params.depth_max_m))
 
