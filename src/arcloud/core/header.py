@@ -94,7 +94,7 @@ class MapHeader:
             index_cell_m=check_finite_number("MapHeader.index_cell_m", record["index_cell_m"], positive=True),
             floor_bin_m=check_finite_number("MapHeader.floor_bin_m", record["floor_bin_m"], positive=True),
             up=_floats(up),  # type: ignore[arg-type]
-            world2aligned=None if world2aligned is None else tuple(_floats(row) for row in world2aligned),  # type: ignore[union-attr]
+            world2aligned=None if world2aligned is None else tuple(_floats(row) for row in world2aligned),  # type: ignore[attr-defined]
             classes=tuple(classes),
             codec_version=_check_version(record["codec_version"]),
             created_at_s=check_finite_number("MapHeader.created_at_s", record["created_at_s"]),

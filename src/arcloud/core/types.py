@@ -382,7 +382,7 @@ _PARAM_KINDS: dict[str, str] = {
         ("layer_jump_m", "layer_jump_rel", "class_mismatch_penalty", "visibility_tolerance_m", "prune_min_seen",
          "floor_min_below_camera_m", "floor_clearance_m", "floor_reach_max_m", "box_pad_voxels", "lock_timeout_s"),
         "non-negative",
-    ),  # fmt: skip
+    ),
     "layer_margin_m": "optional non-negative",
     **dict.fromkeys(
         ("layer_min_fraction", "association_min_overlap", "class_mismatch_min_overlap", "prune_max_occupancy", "box_rel_weight",
@@ -390,12 +390,12 @@ _PARAM_KINDS: dict[str, str] = {
          "confirm_min_detection_rate", "confirm_min_score", "miss_min_visible", "rescore_write_delta", "floor_min_share",
          "floor_min_vote_share"),
         "fraction",
-    ),  # fmt: skip
+    ),
     **dict.fromkeys(
         ("erode_px", "min_voxels_per_detection", "association_tolerance_voxels", "split_min_frames", "confirm_min_frames",
          "floor_min_samples", "floor_min_votes"),
         "count",
-    ),  # fmt: skip
+    ),
     "pixel_stride_max_px": "stride",
     "class_aware": "flag",
     **dict.fromkeys(("layer_classes", "split_classes", "floor_standing"), "classes"),
@@ -419,7 +419,7 @@ def _holds(kind: str, value: object) -> bool:
     if kind == "optional non-negative":
         return value is None or _holds("non-negative", value)
     if kind in ("count", "stride"):
-        return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= (0 if kind == "count" else 1)
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool) and int(value) >= (0 if kind == "count" else 1)
     if kind == "flag":
         return isinstance(value, bool)
     if kind == "classes":
@@ -430,7 +430,7 @@ def _holds(kind: str, value: object) -> bool:
         return value is None or (
             isinstance(value, tuple) and len(value) == 4
             and all(isinstance(row, tuple) and len(row) == 4 and all(map(_is_number, row)) for row in value)
-        )  # fmt: skip
+        )
     raise AssertionError(f"unknown kind {kind}")
 
 
