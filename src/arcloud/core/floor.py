@@ -25,7 +25,7 @@ import numpy as np
 
 from arcloud.core.types import Frame, Params
 
-FLOOR_GRID_COLUMNS = 48  # depth samples for normals: about 48 across (a VGA frame: every 13th pixel)
+FLOOR_GRID_COLUMNS = 80  # depth samples for normals: about 80 across (a VGA frame: every 8th pixel)
 
 
 @dataclass(frozen=True, eq=False, slots=True)
