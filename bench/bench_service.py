@@ -94,7 +94,7 @@ class Service:
     def __init__(self, redis: Redis, workers: int, seed: int, threads: int) -> None:
         import uvicorn
 
-        from arcloud.service.app import create_app
+        from arcloud.tools.wiring import create_app
         from arcloud.service.settings import Settings
 
         self.redis = redis
@@ -118,7 +118,8 @@ class Service:
         self.thread.join(60)
 
     def step_stats(self) -> tuple[int, float]:
-        from arcloud.service.ingest import INGEST_STATS, parse_stats
+        from arcloud.stores.keys import INGEST_STATS
+        from arcloud.stores.redis_queue import parse_stats
 
         snap = parse_stats(self.redis.client.hgetall(INGEST_STATS))
         return snap.latency_count, snap.latency_sum_s

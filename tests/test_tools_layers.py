@@ -23,10 +23,7 @@ ALLOWED = {
     "demo": {"core", "stores", "sim", "eval", "accuracy"},
 }
 #: Known exceptions, each with the reason it is still there.
-EXCEPTIONS = {
-    # arcloud.cli imports add_eval_commands from arcloud.datasets.cli; it moves to arcloud.accuracy.cli
-    ("datasets/cli.py", "accuracy"),
-}
+EXCEPTIONS: set[tuple[str, str]] = set()
 
 
 def arcloud_imports(path: Path) -> set[str]:

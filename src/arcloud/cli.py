@@ -9,7 +9,7 @@ from pathlib import Path
 
 from arcloud.allocator import keep_freed_memory
 from arcloud.argtypes import parse_users, positive_int
-from arcloud.datasets.cli import add_eval_commands
+from arcloud.accuracy.cli import add_eval_commands
 from arcloud.tools.service_cli import add_service_commands
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from datasets_builders import DEPTH_WH, TinyScanNet, build_scannet
 
-from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options
+from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options, register_gt_masks_detector
 from arcloud.datasets.mask_faults import MaskFaults, faulty_detections, instance_rng, move_border, parse_mask_faults, split_mask
 from arcloud.datasets.scannet import load_scannet_scene
 from arcloud.errors import DatasetError, InvalidInput
@@ -95,6 +95,7 @@ def test_missing_2d_ground_truth(tmp_path: Path, caplog: pytest.LogCaptureFixtur
 def test_detector_spec(tiny_scannet: TinyScanNet) -> None:
     from arcloud.detectors import make_detector
 
+    register_gt_masks_detector()  # explicit: importing the module registers nothing
     detector = make_detector(f"gt-masks:{tiny_scannet.scene_dir}", min_mask_px=4)
     assert isinstance(detector, GroundTruthMaskDetector) and detector.min_mask_px == 4
     scene = load_scannet_scene(tiny_scannet.scene_dir)
@@ -230,6 +231,7 @@ def test_faulty_detector_does_not_depend_on_processing_order(tiny_scannet: TinyS
 def test_detector_spec_with_faults(tiny_scannet: TinyScanNet) -> None:
     from arcloud.detectors import make_detector
 
+    register_gt_masks_detector()
     assert gt_masks_options(str(tiny_scannet.scene_dir)) == ({}, str(tiny_scannet.scene_dir))
     assert gt_masks_options("faults=default") == ({"faults": MaskFaults()}, "")
     options, folder = gt_masks_options(f"faults=none,seed=3:{tiny_scannet.scene_dir}")

@@ -83,7 +83,10 @@ def _params(args: argparse.Namespace) -> Params:
 
 
 def _make_detector(spec: str) -> Detector:
+    from arcloud.datasets.gt_masks import register_gt_masks_detector
     from arcloud.detectors import make_detector
+
+    register_gt_masks_detector()  # the eval commands take gt-masks:SCENE besides the models
 
     return make_detector(spec)
 

@@ -11,7 +11,7 @@ from scipy.spatial import ConvexHull
 from arcloud.core.confirm import label_purity, with_evidence
 from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
-from arcloud.core.gravity import Gravity, up_rotation  # noqa: F401 (up_rotation: datasets import it from here)
+from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import ijk_bounds, ijk_centers, sorted_unique, unpack_keys
 

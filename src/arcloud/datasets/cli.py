@@ -44,9 +44,3 @@ def add_render_command(subparsers: Any) -> None:
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
     render.set_defaults(handler=run_render_scannet)
 
-
-def add_eval_commands(subparsers: Any) -> Any:
-    """``arcloud.accuracy.cli.add_eval_commands``, kept while ``arcloud.cli`` imports it from here."""
-    from arcloud.accuracy.cli import add_eval_commands as add
-
-    return add(subparsers)

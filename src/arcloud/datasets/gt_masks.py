@@ -180,11 +180,6 @@ def register_gt_masks_detector() -> None:
     register_detector("gt-masks", gt_masks_detector, replace=True)
 
 
-# Still a side effect of importing this module (the service's wiring and the CLI count on it): once
-# they call register_gt_masks_detector themselves, this line goes.
-register_gt_masks_detector()
-
-
 __all__ = [
     "GT_MASKS_SPEC",
     "LABEL_IDS",

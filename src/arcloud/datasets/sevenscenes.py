@@ -7,7 +7,7 @@ Kinect) and ``gravity-direction.txt`` (3 numbers: the direction gravity pulls, i
 A scene folder with ``seq-XX`` sub-folders is read as those sequences one after the other.
 
 7-Scenes worlds are not z-up: with ``align_gravity=True`` the poses are rotated (the smallest rotation,
-``arcloud.core.boxes.up_rotation``) into a world whose +z is up (opposite gravity), so that gravity-aligned boxes are simply boxes in that world.
+``arcloud.core.gravity.up_rotation``) into a world whose +z is up (opposite gravity), so that gravity-aligned boxes are simply boxes in that world.
 
 Optional 3D ground truth, ``gt-boxes.json`` (hand-checked boxes, see ``load_ground_truth``), is parsed into
 ``SevenScenesGroundTruth``: boxes in its own *aligned* frame (z up, floor at z = 0, x along the walls),
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arcloud.core.boxes import up_rotation
+from arcloud.core.gravity import up_rotation
 from arcloud.core.checks import make_frame
 from arcloud.core.types import CLASSES, Frame, Intrinsics, LabelledBox
 from arcloud.datasets.files import natural_key, read_matrix, read_png_u16, read_rgb
