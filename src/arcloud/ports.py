@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
 from arcloud.core.types import AABB, OBB, Frame, MapObject
 from arcloud.errors import ArcloudError
@@ -90,8 +91,20 @@ class ObjectStore(MapStore, Protocol):
         """How many frames were recorded as processed in this map."""
         ...
 
+    #: The blob format this store writes (``stores.codec.FORMAT_VERSION``), part of a map's header.
+    codec_version: int
+
     def ping(self) -> None:
         """Return when the store answers; raise ``StoreUnavailable`` otherwise."""
+        ...
+
+    def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
+        """The map's header: the one stored, or ``header``, written now when the map has none (atomically:
+        of two first writers, one wins and both get its header). ``delete_map`` removes it."""
+        ...
+
+    def map_header(self, map_id: str) -> MapHeader | None:
+        """The map's stored header; None when nothing opened the map yet."""
         ...
 
 

@@ -317,3 +317,34 @@ def test_real_uvicorn_server_and_shared_store() -> None:
     assert [o["id"] for o in served] == [o.id for o in store.list_objects("u") if o.confirmed]
     assert store.count_frames("u") == 6
     assert not server.thread.is_alive()
+
+
+def test_a_service_with_other_settings_refuses_the_map_and_its_workers_leave_it_alone(caplog: pytest.LogCaptureFixture) -> None:
+    from arcloud.core.types import Params
+    from arcloud.service.worker import FrameWorker
+    from arcloud.stores.memory_queue import MemoryFrameQueue
+
+    store = MemoryStore()
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), store=store, detector=BlobDetector())) as first:
+        for i in range(3):
+            assert first.post("/v1/maps/h/frames", content=proto_body(make_test_frame(i, map_id="h")), headers=PROTOBUF).status_code == 202
+        wait_until(lambda: processed(first, "h") == 3, 20, "3 frames processed")
+    before = store.list_objects("h")
+    assert before and store.map_header("h").voxel_size_m == 0.05  # the first writer stored its settings
+    other = Settings(detector="sim:0", workers=1, params={"voxel_size_m": 0.04})
+    with AppClient(create_app(other, store=store, detector=BlobDetector())) as second:
+        refused = second.post("/v1/maps/h/frames", content=proto_body(make_test_frame(3, map_id="h")), headers=PROTOBUF)
+        assert refused.status_code == 409, refused.text
+        assert refused.json() == {"detail": "map h was built with other settings: voxel_size_m: map 0.05, ours 0.04", "field": "map_id"}
+        second.post("/v1/maps/fresh/frames", content=proto_body(make_test_frame(0, map_id="fresh")), headers=PROTOBUF)
+        wait_until(lambda: processed(second, "fresh") == 1, 20, "a new map takes the second service's settings")
+        assert store.map_header("fresh").voxel_size_m == 0.04
+    # A worker started with other settings takes a frame of the map and refuses it, writing nothing.
+    queue = MemoryFrameQueue()
+    queue.put(make_test_frame(4, map_id="h"))
+    worker = FrameWorker(queue, store, BlobDetector(), Params(voxel_size_m=0.04), heartbeat_s=None)
+    item = queue.take("w", block_s=1.0)
+    assert item is not None and worker.handle(item) == "failed"
+    assert "map h was built with other settings: voxel_size_m: map 0.05, ours 0.04" in caplog.text
+    assert [(o.id, o.version) for o in store.list_objects("h")] == [(o.id, o.version) for o in before]
+    assert not store.is_frame_done("h", "d/f000004")

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from store_cases import MAP, assert_same_object, make_object, moved, run_steps_in_threads, step_frame
 
+from arcloud.core.header import MapHeader
 from arcloud.core.types import Params
 from arcloud.errors import LockTimeout, StaleLease
 
@@ -272,6 +273,29 @@ def test_delete_map_removes_only_that_map(store) -> None:
     assert [o.id for o in store.list_objects("map-b")] == [1]
     assert store.is_frame_done("map-b", "dev/f1")
     assert store.delete_map("never-made") == 0
+
+
+def test_the_first_header_of_a_map_stays_until_the_map_is_deleted(store) -> None:
+    first = MapHeader.from_params(Params(), codec_version=2, created_at_s=1.0)
+    other = MapHeader.from_params(Params(voxel_size_m=0.04), codec_version=2, created_at_s=2.0)
+    assert store.map_header(MAP) is None
+    assert store.open_map(MAP, first) == first
+    assert store.open_map(MAP, other) == first  # the map keeps the settings it was written under
+    assert store.map_header(MAP) == first and store.map_header("map-b") is None
+    store.delete_map(MAP)
+    assert store.map_header(MAP) is None
+    assert store.open_map(MAP, other) == other
+
+
+def test_concurrent_first_opens_agree_on_one_header(store) -> None:
+    headers = [MapHeader.from_params(Params(voxel_size_m=0.05 + i / 100), codec_version=2, created_at_s=float(i)) for i in range(8)]
+    got: list[MapHeader] = []
+    threads = [threading.Thread(target=lambda h=h: got.append(store.open_map(MAP, h))) for h in headers]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert len(got) == 8 and len(set(got)) == 1 and got[0] in headers
 
 
 @pytest.mark.timeout(60)

@@ -38,9 +38,10 @@ from arcloud import __version__
 from arcloud.core.checks import check_id
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
-from arcloud.errors import InvalidInput, StoreUnavailable
+from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
 from arcloud.ports import QueueFull
 from arcloud.service import frames as frames_in
+from arcloud.service.map_header import check_map_header
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
@@ -111,10 +112,14 @@ RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
 MapId = Annotated[str, Path(description="map id: printable, no whitespace, '/', braces or glob characters", examples=["office"])]
 
 
-def known_map(runtime: Runtime, map_id: str) -> str:
+def known_map(runtime: Runtime, map_id: str, *, same_settings: bool = True) -> str:
+    """The map id of a map with accepted frames (else 404) written under our settings (else 409; not
+    asked when deleting: removing a map reads none of its data)."""
     check_id("map_id", map_id)
     if not runtime.ingest.known_map(map_id):
         raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted)")
+    if same_settings:
+        check_map_header(runtime.store, map_id, runtime.params)
     return map_id
 
 
@@ -187,6 +192,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
     frame = await run_in_threadpool(frames_in.validate_message, msg, map_id, max_pixels=settings.max_frame_pixels)
+    await run_in_threadpool(check_map_header, runtime.store, map_id, runtime.params)
     accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
 
@@ -247,7 +253,7 @@ def get_object(
 
 @router.delete("/v1/maps/{map_id}", response_model=MapDeleted, responses=PROBLEM_RESPONSES, tags=["maps"], summary="Delete a map and its counts")
 def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
-    known_map(runtime, map_id)
+    known_map(runtime, map_id, same_settings=False)
     removed = runtime.store.delete_map(map_id)
     runtime.ingest.forget_map(map_id)
     log.info("map %s deleted (%d objects)", map_id, removed)
@@ -335,6 +341,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     @app.exception_handler(QueueFull)
     async def queue_full(request: Request, exc: QueueFull) -> JSONResponse:
         return problem(request, 503, f"queue full: {exc}", None, {"Retry-After": "1"})
+
+    @app.exception_handler(MapMismatch)
+    async def map_mismatch(request: Request, exc: MapMismatch) -> JSONResponse:
+        return problem(request, 409, str(exc), "map_id")
 
     @app.exception_handler(StoreUnavailable)
     async def store_down(request: Request, exc: StoreUnavailable) -> JSONResponse:

@@ -198,6 +198,7 @@ def object_out(obj: Any) -> dict[str, Any]:
 
 PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
     404: {"model": Problem, "description": "unknown map or object"},
+    409: {"model": Problem, "description": "the map was written under other settings (voxel size, up, ...) than this service's"},
     422: {"model": Problem, "description": "invalid input"},
     503: {"model": Problem, "description": "store unreachable or queue full"},
 }

@@ -9,7 +9,9 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
    settling it (it died or hangs). Beyond ``max_deliveries`` it is a poison frame: dead-lettered (or,
    when a slow delivery did commit it meanwhile, acknowledged as redelivered). Otherwise processed here.
 2. Take one new frame (blocking ``read_block_s``), process it.
-3. Processing: an undecodable frame is dead-lettered at once; ``process_frame`` is tried again in place
+3. Processing: an undecodable frame is dead-lettered at once; the map is opened (its header stored by
+   the first writer) and refused when its header says other settings than this worker's (``MapMismatch``:
+   ``fail``, logged as an error); ``process_frame`` is tried again in place
    when locks time out or a lease went stale (nothing was written); then ``ack``. Any other error is
    ``fail``: the queue delivers it again later (Redis, until ``max_deliveries``) or counts it failed
    (embedded).
@@ -29,8 +31,9 @@ import time
 from typing import Any, Literal
 
 from arcloud.core.types import Frame, Params
-from arcloud.errors import LockTimeout, StaleLease
+from arcloud.errors import LockTimeout, MapMismatch, StaleLease
 from arcloud.ports import Detector, FrameQueue, ObjectStore, QueuedFrame, UpdatePublisher
+from arcloud.service.map_header import open_map_checked
 
 log = logging.getLogger(__name__)
 
@@ -174,7 +177,12 @@ class FrameWorker:
         started = time.perf_counter()
         self._in_hand = item
         try:
+            open_map_checked(self.store, item.frame.map_id, self.params)
             result, retries = run_step(item.frame, self.detector, self.store, self.params, self.publisher, attempts=self.attempts)
+        except MapMismatch as exc:  # this worker's settings are wrong for the map: leave the frame to others
+            log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
+            self.queue.fail(item, f"{type(exc).__name__}: {exc}")
+            return "failed"
         except Exception as exc:  # noqa: BLE001 - the queue decides: delivered again later, or failed
             log.exception("worker %s: map %s frame %s (device %s) failed (delivery %d of %d)",
                           self.consumer, item.map_id, item.frame_key, item.frame.device_id, item.deliveries, self.max_deliveries)

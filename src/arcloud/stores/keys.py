@@ -37,6 +37,7 @@ IDS = "ids"
 FRAMES = "frames"
 BOUNDS = "bounds"
 META = "meta"
+HEADER = "header"
 OBJECT = "obj"
 CELL = "cell"
 LOCK = "lock"
@@ -67,6 +68,11 @@ def bounds_key(map_id: str) -> str:
 
 def meta_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:{META}"
+
+
+def header_key(map_id: str) -> str:
+    """The map's header (``core.header.MapHeader``, JSON): the settings its data was written under."""
+    return f"{map_prefix(map_id)}:{HEADER}"
 
 
 def object_key(map_id: str, object_id: int) -> str:

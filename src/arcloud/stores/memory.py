@@ -17,9 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from arcloud.core.header import MapHeader
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease
 from arcloud.ports import ObjectMeta
+from arcloud.stores import codec
 from arcloud.stores.codec import meta_of
 
 
@@ -64,11 +66,14 @@ class MemoryLease:
 class MemoryStore:
     """In-process ``ObjectStore``. ``cell_m`` is the size of the spatial index's cubic cells."""
 
+    codec_version = codec.FORMAT_VERSION  # objects are kept as they are, but a map's header names the format
+
     def __init__(self, *, cell_m: float = 1.0) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
         self.cell_m = cell_m
         self._maps: dict[str, _MapState] = {}
+        self._headers: dict[str, MapHeader] = {}
         self._maps_lock = threading.Lock()
 
     def _map(self, map_id: str) -> _MapState:
@@ -234,6 +239,7 @@ class MemoryStore:
     def delete_map(self, map_id: str) -> int:
         with self._maps_lock:
             state = self._maps.pop(map_id, None)
+            self._headers.pop(map_id, None)
         return 0 if state is None else len(state.objects)
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
@@ -249,6 +255,14 @@ class MemoryStore:
     def ping(self) -> None:
         """Always answers: the store is this process."""
         return None
+
+    def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
+        with self._maps_lock:
+            return self._headers.setdefault(map_id, header)
+
+    def map_header(self, map_id: str) -> MapHeader | None:
+        with self._maps_lock:
+            return self._headers.get(map_id)
 
     def close(self) -> None:
         """Nothing to release (the maps stay readable)."""

@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 import redis
 
+from arcloud.core.header import MapHeader
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable
 from arcloud.stores import codec, keys
@@ -104,6 +105,8 @@ class RedisStore:
     one deployment must use the same). ``client``: an existing ``redis.Redis`` (binary responses, i.e.
     ``decode_responses=False``) instead of connecting to ``url``. ``votes_f16`` stores votes as float16
     (see ``codec``)."""
+
+    codec_version = codec.FORMAT_VERSION
 
     def __init__(
         self,
@@ -378,6 +381,28 @@ class RedisStore:
     def count_frames(self, map_id: str) -> int:
         with self._boundary(f"count_frames on map {map_id}"):
             return int(self.client.scard(keys.frames_key(map_id)))
+
+    def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
+        key = keys.header_key(map_id)
+        with self._boundary(f"open_map {map_id}"):
+            pipe = self.client.pipeline(transaction=True)
+            pipe.set(key, json.dumps(header.to_record()), nx=True)
+            pipe.get(key)
+            _, stored = pipe.execute()
+        return _header_of(map_id, stored)
+
+    def map_header(self, map_id: str) -> MapHeader | None:
+        with self._boundary(f"map_header of map {map_id}"):
+            stored = self.client.get(keys.header_key(map_id))
+        return None if stored is None else _header_of(map_id, stored)
+
+
+def _header_of(map_id: str, stored: bytes | str) -> MapHeader:
+    """A stored header record; ``StoreError`` when it is not one (written by something else)."""
+    try:
+        return MapHeader.from_record(json.loads(stored))
+    except (ValueError, TypeError, InvalidInput) as exc:
+        raise StoreError(f"map {map_id}: its header is not a MapHeader record ({exc})") from exc
 
 
 def _vec3(field: str, value: object) -> np.ndarray:

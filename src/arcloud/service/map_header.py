@@ -1,0 +1,29 @@
+"""The map header at the service's edges (``arcloud.core.header``): a worker opens the map it is about
+to write, so the first writer stores the settings the map's data means something under; the API checks
+the header of a map a request reads or writes. Both refuse a map written under other settings with
+``MapMismatch`` (the API answers 409), so that processes started with different ``Params`` never
+write or read one map two ways."""
+
+from __future__ import annotations
+
+import time
+
+from arcloud.core.header import MapHeader, check_header
+from arcloud.core.types import Params
+from arcloud.ports import ObjectStore
+
+
+def open_map_checked(store: ObjectStore, map_id: str, params: Params) -> None:
+    """Store our header if the map has none; ``MapMismatch`` if its header says other settings."""
+    ours = MapHeader.from_params(params, store.codec_version, time.time())
+    check_header(store.open_map(map_id, ours), params, codec_version=store.codec_version, map_id=map_id)
+
+
+def check_map_header(store: ObjectStore, map_id: str, params: Params) -> None:
+    """``MapMismatch`` if the map's stored header says other settings than ours (none stored: fine)."""
+    header = store.map_header(map_id)
+    if header is not None:
+        check_header(header, params, codec_version=store.codec_version, map_id=map_id)
+
+
+__all__ = ["check_map_header", "open_map_checked"]
