@@ -47,6 +47,6 @@ if [[ ! -x "$VENV/bin/python" ]]; then
 fi
 say "installing pinned packages (constraints.txt) into $VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip >/dev/null 2>&1 || true
-"$VENV/bin/python" -m pip install -q -c constraints.txt -e '.[dev]' 2>&1 | grep -v "^WARNING: Location" || true
+"$VENV/bin/python" -m pip install -q -c constraints.txt -e '.[all,dev]' 2>&1 | grep -v "^WARNING: Location" || true
 "$VENV/bin/python" -c 'import arcloud, open3d, onnxruntime, zenoh' || { say "the environment does not import; see the errors above"; exit 1; }
 touch "$VENV/.installed"
