@@ -12,6 +12,8 @@ The runs and their rows are ``arcloud.accuracy.dataset_runs``'s; with ``gt-boxes
 folder, boxes are fitted in its aligned frame and ``accuracy`` rows score every run against its observed
 and amodal boxes. Pictures are written next to ``--out``; every exported map (``--export``) declares its
 frame (``arcloud.datasets.export``).
+
+Adding the commands imports nothing heavy (``arcloud --help`` stays fast); each handler imports what it runs.
 """
 
 from __future__ import annotations
@@ -23,18 +25,14 @@ import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from arcloud.accuracy.dataset_runs import accuracy_rows, agreement, each_run, evaluate_scenes, export_runs, score_runs
-from arcloud.core.types import Params
 from arcloud.datasets.cli import add_render_command
-from arcloud.datasets.export import objects_json, scannet_export_frame, seven_scenes_export_frame
-from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
 from arcloud.errors import DatasetError
-from arcloud.eval.map_pictures import write_pictures
-from arcloud.ports import Detector
+
+if TYPE_CHECKING:
+    from arcloud.core.types import Params
+    from arcloud.ports import Detector
 
 logger = logging.getLogger(__name__)
 
@@ -45,6 +43,8 @@ GT_MASKS = "gt-masks"
 
 def parse_colour_camera(text: str) -> Any:
     """'fx,fy,cx,cy[,tx,ty,tz]' -> ``ColourCamera`` (intrinsics in pixels; depth->colour translation in m)."""
+    import numpy as np
+
     from arcloud.core.types import Intrinsics
     from arcloud.datasets.sevenscenes import ColourCamera
 
@@ -76,6 +76,8 @@ def _workers(value: int | None) -> int:
 
 
 def _params(args: argparse.Namespace) -> Params:
+    from arcloud.core.types import Params
+
     params = Params()
     if getattr(args, "voxel_size_m", None):
         params = params.replace(voxel_size_m=float(args.voxel_size_m))
@@ -93,6 +95,9 @@ def _make_detector(spec: str) -> Detector:
 
 def run_eval_scannet(args: argparse.Namespace) -> int:
     """``arcloud eval scannet``: Table 1 on ScanNet-layout scenes; writes ``--out`` (and ``--export``)."""
+    from arcloud.accuracy.dataset_runs import evaluate_scenes, export_runs
+    from arcloud.datasets.export import scannet_export_frame
+    from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
     from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options
     from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
 
@@ -137,7 +142,11 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
 def run_eval_7scenes(args: argparse.Namespace) -> int:
     """``arcloud eval 7scenes``: agreement of distributed maps with the centralized one, accuracy against
     ``gt-boxes.json`` when the sequence has it, and pictures."""
+    from arcloud.accuracy.dataset_runs import accuracy_rows, agreement, each_run, export_runs, score_runs
+    from arcloud.datasets.export import objects_json, seven_scenes_export_frame
+    from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
     from arcloud.datasets.sevenscenes import load_seven_scenes
+    from arcloud.eval.map_pictures import write_pictures
 
     started = time.perf_counter()
     sequence = load_seven_scenes(args.root, align_gravity=True, colour=args.colour_camera)
@@ -192,6 +201,8 @@ def _write_json(path: Path, payload: dict[str, object]) -> None:
 
 
 def _print_table(rows: Sequence[dict[str, Any]]) -> None:
+    import numpy as np
+
     print(f"{'approach':<12} {'users':>5} {'runs':>4} {'mAP@0.25':>16} {'mAP@0.5':>16} {'wall_s':>8}")
     for r in rows:
         map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
@@ -200,6 +211,8 @@ def _print_table(rows: Sequence[dict[str, Any]]) -> None:
 
 
 def _print_accuracy(rows: Sequence[dict[str, Any]]) -> None:
+    import numpy as np
+
     print(f"{'approach':<12} {'users':>5} {'runs':>4} {'boxes':>8} {'mAP@0.25':>16} {'mAP@0.5':>16} {'P@0.25':>7} {'R@0.25':>7}")
     for r in rows:
         map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
