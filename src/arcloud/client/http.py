@@ -118,7 +118,12 @@ def subscribe(
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
     By default the served map's: confirmed objects, and an event when one leaves it (a tentative
-    state, MERGED or DELETED); ``include_tentative``: tentative objects' events too."""
+    state, MERGED or DELETED); ``include_tentative``: tentative objects' events too. Needs Zenoh:
+    ``pip install 'arcloud[events]'`` (the base install is the HTTP client only)."""
+    try:
+        import zenoh  # noqa: F401  (loaded here so that a light install fails with what to install)
+    except ImportError as exc:
+        raise ImportError("subscribe needs Zenoh (eclipse-zenoh): pip install 'arcloud[events]'", name="zenoh") from exc
     from arcloud.events.zenoh import subscribe_objects
 
     return subscribe_objects(map_id, callback, connect=endpoints, mode=mode, include_tentative=include_tentative)  # type: ignore[arg-type]
