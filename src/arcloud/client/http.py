@@ -27,8 +27,9 @@ from arcloud.core.types import Frame, Intrinsics
 from arcloud.errors import ArcloudError
 
 if TYPE_CHECKING:
-    from arcloud.events.zenoh import Subscription
+    from arcloud.events.zenoh import SessionMode, Subscription
     from arcloud.proto.arcloud.v1 import arcloud_pb2
+    from arcloud.proto.convert import RgbEncodingName
 
 PROTOBUF = "application/x-protobuf"
 DEFAULT_TIMEOUT_S = 30.0
@@ -57,17 +58,17 @@ def frame_body(
     device_id: str = "",
     frame_id: str = "",
     depth_scale: float = 1000.0,
-    rgb_encoding: str = "jpeg",
+    rgb_encoding: RgbEncodingName = "jpeg",
 ) -> tuple[str, bytes]:
     """(map id, protobuf bytes) of a frame given as a ``Frame`` or as arrays (validated here first)."""
     from arcloud.proto.convert import frame_to_proto
 
     if frame is not None:
-        msg = frame_to_proto(frame, rgb_encoding=rgb_encoding, depth_scale=depth_scale)  # type: ignore[arg-type]
+        msg = frame_to_proto(frame, rgb_encoding=rgb_encoding, depth_scale=depth_scale)
     else:
         msg = frame_to_proto(
             rgb=rgb, depth=depth, intrinsics=intrinsics, cam2world=cam2world, timestamp_s=timestamp_s, map_id=map_id or "",
-            device_id=device_id, frame_id=frame_id, depth_scale=depth_scale, rgb_encoding=rgb_encoding,  # type: ignore[arg-type]
+            device_id=device_id, frame_id=frame_id, depth_scale=depth_scale, rgb_encoding=rgb_encoding,
         )
     target = map_id or msg.map_id
     if not target:
@@ -88,10 +89,11 @@ def object_query(label: str | None, min_score: float | None, bbox: Sequence[floa
     return params
 
 
-def checked(response: httpx.Response) -> Any:
-    """The JSON of a 2xx response; ``ServiceError`` otherwise."""
+def checked(response: httpx.Response) -> dict[str, Any]:
+    """The JSON object of a 2xx response; ``ServiceError`` otherwise."""
     if response.is_success:
-        return response.json()
+        body: dict[str, Any] = response.json()
+        return body
     try:
         body = response.json()
         detail, field = str(body.get("detail")), body.get("field")
@@ -113,7 +115,7 @@ def _done(stats: Mapping[str, Any], n_frames: int) -> bool:
 
 
 def subscribe(
-    map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, mode: str = "peer", include_tentative: bool = False
+    map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, mode: SessionMode = "peer", include_tentative: bool = False
 ) -> Subscription:
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
@@ -126,7 +128,7 @@ def subscribe(
         raise ImportError("subscribe needs Zenoh (eclipse-zenoh): pip install 'arcloud[events]'", name="zenoh") from exc
     from arcloud.events.zenoh import subscribe_objects
 
-    return subscribe_objects(map_id, callback, connect=endpoints, mode=mode, include_tentative=include_tentative)  # type: ignore[arg-type]
+    return subscribe_objects(map_id, callback, connect=endpoints, mode=mode, include_tentative=include_tentative)
 
 
 class ArcloudClient:
@@ -148,7 +150,7 @@ class ArcloudClient:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+    def _request(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
         for attempt in range(self.max_retries + 1):
             response = self.http.request(method, path, **kwargs)
             if response.status_code != 503 or attempt == self.max_retries:
@@ -161,24 +163,25 @@ class ArcloudClient:
         cam2world=, timestamp_s=, device_id=, frame_id=, depth_scale=)`` (rgb (H, W, 3) uint8, depth
         (H, W) float32 metres or uint16 units). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
         map_id, body = frame_body(frame, **arrays)
-        return self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
+        return self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})
 
     def list_objects(
         self, map_id: str, *, include_tentative: bool = False, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None
     ) -> list[dict[str, Any]]:
         """The map's confirmed objects (``include_tentative``: tentative ones too), each with its ``status``."""
         params = object_query(label, min_score, bbox, include_tentative)
-        return self._request("GET", f"/v1/maps/{map_id}/objects", params=params)["objects"]  # type: ignore[no-any-return]
+        objects: list[dict[str, Any]] = self._request("GET", f"/v1/maps/{map_id}/objects", params=params)["objects"]
+        return objects
 
     def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
         """Any object of the map, confirmed or tentative (its ``status`` says)."""
-        return self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})  # type: ignore[no-any-return]
+        return self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
 
     def delete_map(self, map_id: str) -> dict[str, Any]:
-        return self._request("DELETE", f"/v1/maps/{map_id}")  # type: ignore[no-any-return]
+        return self._request("DELETE", f"/v1/maps/{map_id}")
 
     def stats(self, map_id: str) -> dict[str, Any]:
-        return self._request("GET", f"/v1/maps/{map_id}/stats")  # type: ignore[no-any-return]
+        return self._request("GET", f"/v1/maps/{map_id}/stats")
 
     def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
         """Poll the map's stats until ``n_frames`` frames are done (processed or failed); returns the
@@ -223,7 +226,7 @@ class AsyncArcloudClient:
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
-    async def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+    async def _request(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
         for attempt in range(self.max_retries + 1):
             response = await self.http.request(method, path, **kwargs)
             if response.status_code != 503 or attempt == self.max_retries:
@@ -234,26 +237,27 @@ class AsyncArcloudClient:
     async def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
         """As ``ArcloudClient.send_frame``; the encoding runs in a thread."""
         map_id, body = await asyncio.to_thread(frame_body, frame, **arrays)
-        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
+        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})
 
     async def send_encoded(self, map_id: str, body: bytes) -> dict[str, Any]:
         """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
-        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})  # type: ignore[no-any-return]
+        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})
 
     async def list_objects(
         self, map_id: str, *, include_tentative: bool = False, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None
     ) -> list[dict[str, Any]]:
         params = object_query(label, min_score, bbox, include_tentative)
-        return (await self._request("GET", f"/v1/maps/{map_id}/objects", params=params))["objects"]  # type: ignore[no-any-return]
+        objects: list[dict[str, Any]] = (await self._request("GET", f"/v1/maps/{map_id}/objects", params=params))["objects"]
+        return objects
 
     async def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
-        return await self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})  # type: ignore[no-any-return]
+        return await self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
 
     async def delete_map(self, map_id: str) -> dict[str, Any]:
-        return await self._request("DELETE", f"/v1/maps/{map_id}")  # type: ignore[no-any-return]
+        return await self._request("DELETE", f"/v1/maps/{map_id}")
 
     async def stats(self, map_id: str) -> dict[str, Any]:
-        return await self._request("GET", f"/v1/maps/{map_id}/stats")  # type: ignore[no-any-return]
+        return await self._request("GET", f"/v1/maps/{map_id}/stats")
 
     async def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
         deadline = time.monotonic() + timeout_s

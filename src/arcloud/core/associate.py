@@ -174,13 +174,13 @@ def associate(
     matched = {d for d, _ in pairs}
     established = np.ones(len(object_keys), bool) if object_frames is None else np.asarray(object_frames) >= params.split_min_frames
     labels = np.asarray(object_labels)
-    rivals = {}
+    rivals: dict[int, list[int]] = {}
     splittable = {CLASS_INDEX[name] for name in params.split_classes}
     for d, o in pairs:
         if detection_labels[d] not in splittable:
             continue
-        others = np.flatnonzero((overlap[d] >= params.association_min_overlap) & (labels == detection_labels[d]) & established)
-        others = [int(j) for j in others if j != o]
+        covered = np.flatnonzero((overlap[d] >= params.association_min_overlap) & (labels == detection_labels[d]) & established)
+        others = [int(j) for j in covered if j != o]
         if others:
             rivals[d] = others
     return Association(pairs, [d for d in range(len(detection_keys)) if d not in matched], rivals)

@@ -45,7 +45,7 @@ def check_finite_number(field: str, value: object, *, positive: bool = False) ->
 def check_intrinsics(value: Intrinsics | Mapping[str, float] | Sequence[float]) -> Intrinsics:
     """Intrinsics from an ``Intrinsics``, a mapping with fx, fy, cx, cy, or a 4-sequence."""
     if isinstance(value, Intrinsics):
-        values = (value.fx, value.fy, value.cx, value.cy)
+        values: tuple[float, ...] = (value.fx, value.fy, value.cx, value.cy)
     elif isinstance(value, Mapping):
         missing = [k for k in ("fx", "fy", "cx", "cy") if k not in value]
         if missing:

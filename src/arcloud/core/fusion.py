@@ -159,7 +159,7 @@ def find_duplicates(
     groups: dict[int, list[int]] = {}
     for i in range(len(objects)):
         groups.setdefault(root(i), []).append(i)
-    pairs = []
+    pairs: list[tuple[int, int]] = []
     for members in groups.values():
         if len(members) > 1:
             keeper = max(members, key=lambda i: (objects[i].weights.sum(), -objects[i].id))

@@ -11,7 +11,7 @@ Pure: the stores write and read the record (``MapHeader.to_record``/``from_recor
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from arcloud.core.checks import check_finite_number, describe
@@ -47,7 +47,7 @@ class MapHeader:
             voxel_size_m=float(params.voxel_size_m),
             index_cell_m=float(params.index_cell_m),
             floor_bin_m=float(params.floor_bin_m),
-            up=_floats(params.up),  # type: ignore[arg-type]
+            up=_xyz(params.up),
             world2aligned=None if params.world2aligned is None else tuple(_floats(row) for row in params.world2aligned),
             classes=CLASSES,
             codec_version=_check_version(codec_version),
@@ -93,8 +93,8 @@ class MapHeader:
             voxel_size_m=check_finite_number("MapHeader.voxel_size_m", record["voxel_size_m"], positive=True),
             index_cell_m=check_finite_number("MapHeader.index_cell_m", record["index_cell_m"], positive=True),
             floor_bin_m=check_finite_number("MapHeader.floor_bin_m", record["floor_bin_m"], positive=True),
-            up=_floats(up),  # type: ignore[arg-type]
-            world2aligned=None if world2aligned is None else tuple(_floats(row) for row in world2aligned),  # type: ignore[attr-defined]
+            up=_xyz(up),  # type: ignore[arg-type]  # `up` is object here: check_param_value above held it a 3-tuple of numbers
+            world2aligned=None if world2aligned is None else tuple(_floats(row) for row in world2aligned),  # type: ignore[attr-defined]  # checked: rows of numbers
             classes=tuple(classes),
             codec_version=_check_version(record["codec_version"]),
             created_at_s=check_finite_number("MapHeader.created_at_s", record["created_at_s"]),
@@ -109,8 +109,13 @@ def check_header(header: MapHeader, params: Params, *, codec_version: int | None
         raise MapMismatch(map_id, differences)
 
 
-def _floats(values: object) -> tuple[float, ...]:
-    return tuple(float(v) for v in values)  # type: ignore[attr-defined]
+def _floats(values: Iterable[float]) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+def _xyz(values: Sequence[float]) -> tuple[float, float, float]:
+    x, y, z = values
+    return float(x), float(y), float(z)
 
 
 def _check_version(value: object) -> int:

@@ -13,7 +13,7 @@ import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, TypeGuard
 
 import numpy as np
 
@@ -73,7 +73,7 @@ class Frame:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.depth_m.shape  # type: ignore[return-value]
+        return self.depth_m.shape
 
     @property
     def key(self) -> str:
@@ -353,9 +353,9 @@ class Params:
     @property
     def gravity(self) -> Gravity:
         """The rotation that ``up`` implies (read-only, shared by everything these parameters reach)."""
-        return self._gravity  # type: ignore[attr-defined,no-any-return]
+        return self._gravity  # type: ignore[attr-defined]  # set in __post_init__, kept out of the dataclass's fields
 
-    def replace(self, **changes: object) -> Params:
+    def replace(self, **changes: Any) -> Params:
         return dataclasses.replace(self, **changes)
 
 
@@ -405,7 +405,7 @@ _PARAM_KINDS: dict[str, str] = {
 }
 
 
-def _is_number(value: object) -> bool:
+def _is_number(value: object) -> TypeGuard[numbers.Real]:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
@@ -414,7 +414,7 @@ def _holds(kind: str, value: object) -> bool:
     if kind in ("positive", "non-negative", "fraction", "tilt"):
         if not _is_number(value):
             return False
-        number = float(value)  # type: ignore[arg-type]
+        number = float(value)
         return {"positive": number > 0, "non-negative": number >= 0, "fraction": 0 <= number <= 1, "tilt": 0 <= number <= 90}[kind]
     if kind == "optional non-negative":
         return value is None or _holds("non-negative", value)

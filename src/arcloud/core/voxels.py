@@ -261,7 +261,10 @@ def depth_jumps(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, np.ndar
     """Where neighbouring depth samples (along rows, then columns) of a grid, NaN where there is no
     sample, differ by more than ``layer_jump_m + layer_jump_rel * depth``; None when nowhere (NaN
     compares False: no jump)."""
-    threshold = lambda a, b: np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b)  # noqa: E731
+
+    def threshold(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.abs(a - b) > params.layer_jump_m + params.layer_jump_rel * np.minimum(a, b)
+
     along_rows, along_cols = threshold(z_grid[:, :-1], z_grid[:, 1:]), threshold(z_grid[:-1], z_grid[1:])
     return (along_rows, along_cols) if along_rows.any() or along_cols.any() else None
 
