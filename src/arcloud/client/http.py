@@ -121,7 +121,7 @@ def subscribe(
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
     By default the served map's: confirmed objects, and an event when one leaves it (a tentative
     state, MERGED or DELETED); ``include_tentative``: tentative objects' events too. Needs Zenoh:
-    ``pip install 'arcloud[events]'`` (the base install is the HTTP client only)."""
+    ``pip install 'arcloud[events]'`` (the base install has no Zenoh)."""
     try:
         import zenoh  # noqa: F401  (loaded here so that a light install fails with what to install)
     except ImportError as exc:
