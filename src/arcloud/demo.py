@@ -16,6 +16,7 @@ import logging
 import platform
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -44,7 +45,7 @@ def run_demo(
     params: Params | None = None,
     faults: DetectorFaults | None = None,
     show_progress: bool = True,
-) -> dict[str, object]:
+) -> dict[str, Any]:
     """Run the demo and write its results; returns what ``results.json`` holds."""
     params = params or Params()
     faults = faults or DetectorFaults()
@@ -98,12 +99,12 @@ def run_demo(
     return results
 
 
-def format_table1(results: dict[str, object]) -> str:
+def format_table1(results: dict[str, Any]) -> str:
     """The paper's Table 1 as text."""
     lines = [
         f"{'approach':<12} {'users':>5} {'runs':>4}   {'mAP@0.25':>8} {'var':>9}   {'mAP@0.5':>8} {'var':>9}",
     ]
-    for row in results["table1"]:  # type: ignore[union-attr]
+    for row in results["table1"]:
         lines.append(
             f"{row['approach']:<12} {row['users']:>5} {row['runs']:>4}   {row['map25_mean']:>8.4f} {row['map25_var']:>9.2e}"
             f"   {row['map50_mean']:>8.4f} {row['map50_var']:>9.2e}"
@@ -111,7 +112,7 @@ def format_table1(results: dict[str, object]) -> str:
     served = results.get("served") or {}
     if served:
         lines += ["", f"{'served (confirmed), first run':<32} {'served':>6} {'of':>4} {'gt':>4}   {'P@0.25':>6} {'R@0.25':>6}   {'P@0.5':>6} {'R@0.5':>6}"]
-        for name, row in served.items():  # type: ignore[union-attr]
+        for name, row in served.items():
             lines.append(
                 f"{name:<32} {row['n_served']:>6} {row['n_objects']:>4} {row['n_gt']:>4}   {row['served_precision25']:>6.3f} "
                 f"{row['served_recall25'] or 0:>6.3f}   {row['served_precision50']:>6.3f} {row['served_recall50'] or 0:>6.3f}"

@@ -113,7 +113,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
         names = scene.frame_names[:: args.stride]
         frames = LazyFrames(names, scene.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
-        detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector  # type: ignore[arg-type]
+        detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector
         entries.append((scene.scene_id, frames, detector, scene.gt_boxes()))
         frame_counts[scene.scene_id] = len(names)
         export_frames[scene.scene_id] = scannet_export_frame(scene)
@@ -135,7 +135,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         "wall_s": round(time.perf_counter() - started, 2),
     }
     _write_json(Path(args.out), out)
-    _print_table(out["table1"])  # type: ignore[arg-type]
+    _print_table(out["table1"])
     return 0
 
 
@@ -166,7 +166,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
     stem = out_path.with_suffix("")
     gt_boxes = ground_truth.boxes("observed") if ground_truth is not None else []
     pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name, gt=gt_boxes, world2boxes=frame.world2export)
-    out: dict[str, object] = {"agreement": rows}
+    out: dict[str, Any] = {"agreement": rows}
     if ground_truth is not None:
         out["accuracy"] = accuracy_rows(scores)
         out["ground_truth"] = {"file": str(ground_truth.path), "objects": [o.id for o in ground_truth.objects], "primary": "observed"}
@@ -181,7 +181,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
         "frame": frame.description,
         "reference_min_score": args.reference_min_score,
         "centralized_objects": [
-            {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}  # type: ignore[arg-type]
+            {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}
             for o in objects_json(centralized)
         ],
         "pictures": pictures,
@@ -190,7 +190,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
     _write_json(out_path, out)
     _print_table(rows)
     if ground_truth is not None:
-        _print_accuracy(out["accuracy"])  # type: ignore[arg-type]
+        _print_accuracy(out["accuracy"])
     return 0
 
 

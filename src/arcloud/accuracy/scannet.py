@@ -39,7 +39,7 @@ from arcloud.datasets.mask_faults import MaskFaults
 from arcloud.errors import DatasetError
 
 if TYPE_CHECKING:
-    from arcloud.datasets.scannet import ScanNetScene
+    from arcloud.datasets.scannet import Annotation, ScanNetScene
 
 logger = logging.getLogger(__name__)
 
@@ -48,7 +48,7 @@ SCENE_REL = "data/scannet-scene0000_00"
 ALIGNMENT_REL = "real_frames/frames.json"
 SCENE_ID = "scene0000_00"
 #: The 3D annotation scored against (``load_scannet_scene``'s ``annotation``).
-ANNOTATION = "v2"
+ANNOTATION: Annotation = "v2"
 USERS = 10
 #: Seeds of the full suite's renders; parameters may be tuned on ``TUNE_SEEDS``, figures are reported on the rest.
 SEEDS = (0, 1, 2, 3, 4, 5)

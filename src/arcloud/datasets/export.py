@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,15 +19,15 @@ if TYPE_CHECKING:
     from arcloud.datasets.sevenscenes import SevenScenesSequence
 
 
-def objects_json(objects: Sequence[MapObject]) -> list[dict[str, object]]:
+def objects_json(objects: Sequence[MapObject]) -> list[dict[str, Any]]:
     """The reportable objects (label and box) as JSON-friendly dicts, highest score first."""
     boxed = sorted((o for o in objects if o.aabb is not None and o.label), key=lambda o: -o.score)
     return [
         {
             "label": o.label,
             "score": round(float(o.score), 6),
-            "aabb_min": [round(float(v), 4) for v in o.aabb.min],  # type: ignore[union-attr]
-            "aabb_max": [round(float(v), 4) for v in o.aabb.max],  # type: ignore[union-attr]
+            "aabb_min": [round(float(v), 4) for v in o.aabb.min],  # type: ignore[union-attr]  # boxed objects have an aabb
+            "aabb_max": [round(float(v), 4) for v in o.aabb.max],  # type: ignore[union-attr]  # boxed objects have an aabb
         }
         for o in boxed
     ]

@@ -170,10 +170,10 @@ def read_ply_mesh(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray
             if any(p[0] == "list" for p in props):
                 raise DatasetError(f"{path}: element {name!r} has list properties, which this reader does not support")
             dtype = np.dtype([(p[1], "<" + _PLY_TYPES[p[0]]) for p in props])
-            block = np.frombuffer(data, dtype, count=count, offset=offset)
+            records: np.ndarray = np.frombuffer(data, dtype, count=count, offset=offset)
             offset += dtype.itemsize * count
             if name == "vertex":
-                columns = {p[1]: block[p[1]] for p in props}
+                columns = {p[1]: records[p[1]] for p in props}
     missing = [axis for axis in "xyz" if axis not in columns]
     if missing:
         raise DatasetError(f"{path}: expected vertex properties x, y, z, missing {missing}")

@@ -23,7 +23,7 @@ class LazyFrames(Sequence[Frame]):
     def __len__(self) -> int:
         return len(self.names)
 
-    def __getitem__(self, index: int) -> Frame:  # type: ignore[override]
+    def __getitem__(self, index: int) -> Frame:  # type: ignore[override]  # Sequence's slice overload: refused below
         if isinstance(index, slice):
             raise TypeError("LazyFrames does not slice; pick names and build another")
         if self._cache is None:

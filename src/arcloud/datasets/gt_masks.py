@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -128,14 +128,14 @@ def scene_label_ids(scene: ScanNetScene) -> LabelIds:
     label_ids = record.get("label_ids", "scannet") if isinstance(record, dict) else None
     if label_ids not in LABEL_IDS:
         raise DatasetError(f"{record_path}: expected label_ids 'scannet' or 'nyu40', got {label_ids!r}")
-    return label_ids  # type: ignore[no-any-return]
+    return label_ids
 
 
 #: What the ``gt-masks`` spec accepts, for messages.
 GT_MASKS_SPEC = "gt-masks[:faults=NAME[,seed=N][,FIELD=VALUE...]][:SCENE_DIR]"
 
 
-def gt_masks_options(argument: str) -> tuple[dict[str, object], str]:
+def gt_masks_options(argument: str) -> tuple[dict[str, Any], str]:
     """The text after ``gt-masks:`` -> (``GroundTruthMaskDetector`` options, scene folder or "").
 
     OPTIONS are comma-separated ``key=value`` items before the folder: ``faults=NAME`` (a preset of
@@ -170,7 +170,7 @@ def gt_masks_detector(argument: str, **options: object) -> GroundTruthMaskDetect
     spec_options, scene_dir = gt_masks_options(argument)
     if not scene_dir:
         raise InvalidInput("detector spec", f"{GT_MASKS_SPEC} with a ScanNet-layout scene folder", f"gt-masks:{argument} with no folder")
-    return GroundTruthMaskDetector(load_scannet_scene(scene_dir), **{**spec_options, **options})  # type: ignore[arg-type]
+    return GroundTruthMaskDetector(load_scannet_scene(scene_dir), **{**spec_options, **options})
 
 
 def register_gt_masks_detector() -> None:

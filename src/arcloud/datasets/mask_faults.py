@@ -17,6 +17,7 @@ import dataclasses
 import math
 import zlib
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -72,8 +73,8 @@ class MaskFaults:
         """Exact masks, every instance, score 1."""
         return cls(grow_px=0.0, shrink_px=0.0, ragged_px=0.0, drop_rate=0.0, small_drop_rate=0.0, split_rate=0.0, score_jitter=0.0)
 
-    def replace(self, **changes: object) -> MaskFaults:
-        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
+    def replace(self, **changes: Any) -> MaskFaults:
+        return dataclasses.replace(self, **changes)
 
 
 #: Named fault sets (``parse_mask_faults``).

@@ -279,7 +279,7 @@ class ScanNetScene:
         """The ground truth as ``arcloud.core.types.LabelledBox`` (score 1), one per object of our classes."""
         from arcloud.core.types import LabelledBox
 
-        return [LabelledBox(inst.label, inst.aabb_min, inst.aabb_max, 1.0) for inst in self.objects]
+        return [LabelledBox(inst.label, inst.aabb_min, inst.aabb_max, 1.0) for inst in self.objects if inst.label is not None]
 
 
 def parse_axis_alignment(text: str, source: object = "axisAlignment") -> np.ndarray:
@@ -361,7 +361,7 @@ def read_instances(
             f"{segs_paths[0]}: expected one segment index per mesh vertex ({vertices_scan.shape[0]}), got {seg_indices.shape[0]}"
         )
     vertices_aligned = _aligned(vertices_scan, scan2aligned)
-    instances = []
+    instances: list[ScanNetInstance] = []
     for group in groups:
         raw = str(group.get("label", ""))
         object_id = int(group.get("objectId", group.get("id", len(instances))))
@@ -490,7 +490,7 @@ def load_scannet_scene(
     scene_dir: str | Path,
     *,
     labels_tsv: str | Path | None = None,
-    scan2aligned: np.ndarray | None = None,
+    scan2aligned: str | Path | np.ndarray | Sequence[float] | None = None,
     mapping: ClassMapping = DEFAULT_CLASS_MAPPING,
     load_mesh: bool = True,
     annotation: Annotation = "auto",

@@ -23,6 +23,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -146,7 +147,8 @@ class SevenScenesSequence:
         if self.up_file is None:
             return (0.0, 0.0, 1.0)
         up = self.world2file[:3, :3].T @ self.up_file
-        return tuple(float(v) for v in up / np.linalg.norm(up))  # type: ignore[return-value]
+        x, y, z = up / np.linalg.norm(up)
+        return float(x), float(y), float(z)
 
     @property
     def world2gt(self) -> np.ndarray | None:
@@ -286,7 +288,7 @@ def load_ground_truth(path: str | Path) -> SevenScenesGroundTruth:
         raise DatasetError(f"{file}: expected JSON, got {exc}") from exc
     aligned = _field(file, data, "gravity_aligned", Mapping)
     file2aligned = _rigid(file, "gravity_aligned.world_to_aligned", _field(file, aligned, "world_to_aligned", list, "gravity_aligned."))
-    entries = _field(file, aligned, "objects", list, "gravity_aligned.")
+    entries = cast(list, _field(file, aligned, "objects", list, "gravity_aligned."))
     if not entries:
         raise DatasetError(f"{file}: gravity_aligned.objects: expected at least one object, got none")
     objects = tuple(_ground_truth_object(file, i, entry) for i, entry in enumerate(entries))

@@ -125,7 +125,7 @@ def nms(boxes: np.ndarray, scores: np.ndarray, class_ids: np.ndarray, iou_thresh
     x1, y1, x2, y2 = shifted.T
     areas = (x2 - x1).clip(0) * (y2 - y1).clip(0)
     order = np.argsort(-scores, kind="stable")
-    keep = []
+    keep: list[np.intp] = []
     while order.size and len(keep) < max_keep:
         i, rest = order[0], order[1:]
         keep.append(i)

@@ -15,6 +15,7 @@ import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -58,7 +59,8 @@ def color_for(label: str) -> RGB:
         return CLASS_COLORS_RGB[label]
     h = zlib.crc32(label.encode())
     channels = [(h >> shift) & 0xFF for shift in (0, 8, 16)]
-    return tuple(int(40 + c * 160 / 255) for c in channels)  # type: ignore[return-value]
+    r, g, b = (int(40 + c * 160 / 255) for c in channels)
+    return r, g, b
 
 
 def box_corners(box: LabelledBox) -> np.ndarray:
@@ -149,7 +151,8 @@ def render_top_down(
         color = color_for(label)
         polygon = view.to_px(corners)
         cv2.polylines(image, [_fixed(polygon)], True, color, BOX_THICKNESS_PX, cv2.LINE_8, _LINE_SHIFT)
-        cv2.line(image, *_fixed(view.to_px(heading)), color, 1, cv2.LINE_8, _LINE_SHIFT)
+        heading_from, heading_to = _fixed(view.to_px(heading))
+        cv2.line(image, heading_from, heading_to, color, 1, cv2.LINE_8, _LINE_SHIFT)
         top = polygon[np.argmin(polygon[:, 1])]
         _text(cv2, image, label, top + (0, -5), color)
     for b in pred_boxes:  # labels last so no box covers them
@@ -253,7 +256,7 @@ def _fixed(px: np.ndarray) -> np.ndarray:
     return np.rint(np.asarray(px) * (1 << _LINE_SHIFT)).astype(np.int32)
 
 
-def _rectangle(cv2: object, image: np.ndarray, view: TopDownView, b: LabelledBox, color: RGB, thickness: int) -> None:
+def _rectangle(cv2: ModuleType, image: np.ndarray, view: TopDownView, b: LabelledBox, color: RGB, thickness: int) -> None:
     corners = view.to_px(np.array([[b.min[0], b.max[1]], [b.max[0], b.min[1]]]))
     top_left, bottom_right = np.rint(corners).astype(int)
     cv2.rectangle(image, tuple(top_left.tolist()), tuple(bottom_right.tolist()), color, thickness, cv2.LINE_8)
@@ -273,10 +276,10 @@ def _draw_points(image: np.ndarray, uv: np.ndarray, radius_px: int) -> None:
 
 
 def _text(
-    cv2: object,
+    cv2: ModuleType,
     image: np.ndarray,
     text: str,
-    origin: object,
+    origin: np.ndarray | Sequence[float],
     color: RGB,
     scale: float = _FONT_SCALE,
     *,
@@ -308,7 +311,7 @@ def _scale_bar_m(px_per_m: float) -> float:
     return 1e5
 
 
-def _draw_scale_bar(cv2: object, image: np.ndarray, px_per_m: float, origin: tuple[int, int]) -> None:
+def _draw_scale_bar(cv2: ModuleType, image: np.ndarray, px_per_m: float, origin: tuple[int, int]) -> None:
     length_m = _scale_bar_m(px_per_m)
     x0, y = origin
     x1 = x0 + int(round(length_m * px_per_m))
@@ -342,7 +345,7 @@ def _legend_entries(
     return entries
 
 
-def _layout_legend(cv2: object, entries: list[_LegendEntry], width: int) -> list[list[tuple[int, _LegendEntry]]]:
+def _layout_legend(cv2: ModuleType, entries: list[_LegendEntry], width: int) -> list[list[tuple[int, _LegendEntry]]]:
     """Entries in rows that fit the width: (x offset, entry) per row."""
     rows: list[list[tuple[int, _LegendEntry]]] = [[]]
     x = MARGIN_PX // 2
@@ -357,7 +360,7 @@ def _layout_legend(cv2: object, entries: list[_LegendEntry], width: int) -> list
     return rows
 
 
-def _draw_legend(cv2: object, image: np.ndarray, rows: list[list[tuple[int, _LegendEntry]]], top: int) -> None:
+def _draw_legend(cv2: ModuleType, image: np.ndarray, rows: list[list[tuple[int, _LegendEntry]]], top: int) -> None:
     for r, row in enumerate(rows):
         y = top + 22 * r
         for x, entry in row:

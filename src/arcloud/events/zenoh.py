@@ -199,7 +199,7 @@ class ZenohPublisher:
             query.reply_err(f"include: expected tentative (or nothing: confirmed objects only), got {include!r}".encode())
             return
         try:
-            objects = [o for o in self.store.list_meta(map_id) if include == "tentative" or o.confirmed]  # type: ignore[union-attr]
+            objects = [o for o in self.store.list_meta(map_id) if include == "tentative" or o.confirmed]  # type: ignore[union-attr]  # declared only with a store
             from arcloud.proto.convert import objects_to_proto
 
             query.reply(key, objects_to_proto(objects, map_id).SerializeToString())
@@ -214,7 +214,7 @@ class ZenohPublisher:
         for entity in self._declared:
             try:
                 entity.undeclare()
-            except Exception:  # noqa: BLE001
+            except Exception:  # noqa: BLE001 - closing goes on: undeclaring is best effort
                 log.debug("undeclare failed", exc_info=True)
         if self._owns_session:
             self.session.close()
@@ -294,7 +294,7 @@ def query_objects(
         for reply in session.get(selector, timeout=timeout_s):
             if reply.ok is not None:
                 return arcloud_pb2.ObjectList.FromString(reply.ok.payload.to_bytes())
-            raise RuntimeError(f"objects of map {map_id}: {reply.err.payload.to_bytes().decode(errors='replace')}")
+            raise RuntimeError(f"objects of map {map_id}: {reply.err.payload.to_bytes().decode(errors='replace')}")  # type: ignore[union-attr]  # not ok: err
         raise LookupError(f"objects of map {map_id}: no answer within {timeout_s} s")
     finally:
         if owns:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterable, Mapping, Sequence
+from types import ModuleType
 from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
@@ -28,13 +29,13 @@ log = logging.getLogger(__name__)
 RgbEncodingName = Literal["jpeg", "png", "raw"]
 DepthEncodingName = Literal["png", "raw_uint16", "raw_float32"]
 
-RGB_ENCODINGS: dict[str, int] = {"jpeg": pb.RGB_ENCODING_JPEG, "png": pb.RGB_ENCODING_PNG, "raw": pb.RGB_ENCODING_RAW_RGB8}
-DEPTH_ENCODINGS: dict[str, int] = {
+RGB_ENCODINGS: dict[str, pb.RgbEncoding] = {"jpeg": pb.RGB_ENCODING_JPEG, "png": pb.RGB_ENCODING_PNG, "raw": pb.RGB_ENCODING_RAW_RGB8}
+DEPTH_ENCODINGS: dict[str, pb.DepthEncoding] = {
     "png": pb.DEPTH_ENCODING_PNG,
     "raw_uint16": pb.DEPTH_ENCODING_RAW_UINT16,
     "raw_float32": pb.DEPTH_ENCODING_RAW_FLOAT32,
 }
-EVENT_KINDS: dict[str, int] = {
+EVENT_KINDS: dict[str, pb.ObjectEvent.Kind] = {
     "created": pb.ObjectEvent.KIND_CREATED,
     "updated": pb.ObjectEvent.KIND_UPDATED,
     "merged": pb.ObjectEvent.KIND_MERGED,
@@ -45,19 +46,40 @@ UINT16_MAX = 65535
 
 
 class ObjectLike(Protocol):
-    """What an ``Object`` snapshot needs: a ``MapObject`` or a store's ``ObjectMeta``."""
+    """What an ``Object`` snapshot needs: a ``MapObject`` or a store's ``ObjectMeta`` (read-only, as both are frozen)."""
 
-    id: int
-    label: str
-    score: float
-    version: int
-    n_frames: int
-    devices: frozenset[str]
-    created_at_s: float
-    updated_at_s: float
-    aabb: AABB | None
-    obb: OBB | None
-    confirmed: bool
+    @property
+    def id(self) -> int: ...
+
+    @property
+    def label(self) -> str: ...
+
+    @property
+    def score(self) -> float: ...
+
+    @property
+    def version(self) -> int: ...
+
+    @property
+    def n_frames(self) -> int: ...
+
+    @property
+    def devices(self) -> frozenset[str]: ...
+
+    @property
+    def created_at_s(self) -> float: ...
+
+    @property
+    def updated_at_s(self) -> float: ...
+
+    @property
+    def aabb(self) -> AABB | None: ...
+
+    @property
+    def obb(self) -> OBB | None: ...
+
+    @property
+    def confirmed(self) -> bool: ...
 
     @property
     def n_voxels(self) -> int: ...
@@ -90,7 +112,7 @@ def frame_from_proto(msg: pb.Frame) -> Frame:
     )
 
 
-def _cv2():  # type: ignore[no-untyped-def]
+def _cv2() -> ModuleType:
     import cv2  # imported on first use: heavy
 
     return cv2
@@ -205,8 +227,8 @@ def frame_to_proto(
         timestamp_s=frame.timestamp_s,
         intrinsics=pb.Intrinsics(fx=frame.intrinsics.fx, fy=frame.intrinsics.fy, cx=frame.intrinsics.cx, cy=frame.intrinsics.cy),
         cam2world=frame.cam2world.reshape(16).tolist(),
-        rgb_encoding=RGB_ENCODINGS[rgb_encoding],  # type: ignore[arg-type]
-        depth_encoding=DEPTH_ENCODINGS[depth_encoding],  # type: ignore[arg-type]
+        rgb_encoding=RGB_ENCODINGS[rgb_encoding],
+        depth_encoding=DEPTH_ENCODINGS[depth_encoding],
         width=width,
         height=height,
     )
@@ -288,7 +310,7 @@ def event_to_proto(event: ObjectEvent, *, time_s: float | None = None) -> pb.Obj
     """An ``ObjectEvent``; ``time_s`` defaults to the object's ``updated_at_s``, else now."""
     if time_s is None:
         time_s = event.object.updated_at_s if event.object is not None and event.object.updated_at_s else time.time()
-    msg = pb.ObjectEvent(kind=EVENT_KINDS[event.kind], map_id=event.map_id, object_id=int(event.object_id), time_s=float(time_s))  # type: ignore[arg-type]
+    msg = pb.ObjectEvent(kind=EVENT_KINDS[event.kind], map_id=event.map_id, object_id=int(event.object_id), time_s=float(time_s))
     if event.object is not None:
         msg.object.CopyFrom(object_to_proto(event.object, event.map_id))
     if event.merged_into is not None:

@@ -23,6 +23,7 @@ import zlib
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -184,7 +185,7 @@ class DetectorFaults:
             pose_noise_deg=0.0,
         )
 
-    def replace(self, **changes: object) -> DetectorFaults:
+    def replace(self, **changes: Any) -> DetectorFaults:
         return dataclasses.replace(self, **changes)
 
 
@@ -368,7 +369,7 @@ def frame_truth(
             visibility[int(instance_id)] = _visibility(mask, depth_m, obj.aabb_min, obj.aabb_max, world2cam, intrinsics)
     dtype = np.int16 if len(room.triangles) < np.iinfo(np.int16).max else np.int32
     packed = np.ascontiguousarray(triangle, dtype=dtype)
-    return FrameTruth(packed.shape, np.dtype(dtype).str, zlib.compress(packed.tobytes(), 1), visibility)  # type: ignore[arg-type]
+    return FrameTruth(packed.shape, np.dtype(dtype).str, zlib.compress(packed.tobytes(), 1), visibility)
 
 
 def truth_key(frame_id: str, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> tuple:

@@ -5,8 +5,9 @@ pads between groups, and furniture groups keep a walkway between them so that a 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -93,10 +94,10 @@ class Layout:
                 return False
         return True
 
-    def make(self, parts_local: list[Part], yaw_rad: float, xyz: Sequence[float], *, pad: float, group: int, **kw: object) -> PlacedItem:
+    def make(self, parts_local: list[Part], yaw_rad: float, xyz: Sequence[float], *, pad: float, group: int, **kw: Any) -> PlacedItem:
         parts = transformed(parts_local, yaw_rad, xyz)
         lo, hi = bounds(parts)
-        return PlacedItem(parts, lo, hi, pad, group, yaw_rad=yaw_rad, **kw)  # type: ignore[arg-type]
+        return PlacedItem(parts, lo, hi, pad, group, yaw_rad=yaw_rad, **kw)
 
     def wall_pose(self, wall: int, along_m: float, depth_m: float, gap_m: float) -> tuple[np.ndarray, float]:
         """Centre (x, y) and yaw of something ``depth_m`` deep with its back ``gap_m`` from wall
@@ -116,7 +117,7 @@ class Layout:
 
     def place_group(
         self,
-        members: Sequence[tuple[list[Part], dict[str, object]]],
+        members: Sequence[tuple[list[Part], Mapping[str, object]]],
         *,
         pad: float,
         against_wall: bool,
@@ -356,8 +357,8 @@ def layout_room(rng: np.random.Generator, size_m: np.ndarray, counts: dict[str, 
         laptops_here = min(2, math.ceil(laptops_left / (n_tables - k))) if laptops_left else 0
         items = None
         for against_wall in (False, True) if rng.random() < 0.75 else (True, False):
-            members = _table_group_local(rng, chairs_here, laptops_here, against_wall=against_wall)
-            items = layout.place_group(members, pad=_PAD_WALKWAY, against_wall=against_wall, tries=80)
+            table_members = _table_group_local(rng, chairs_here, laptops_here, against_wall=against_wall)
+            items = layout.place_group(table_members, pad=_PAD_WALKWAY, against_wall=against_wall, tries=80)
             if items is not None:
                 break
         if items is None:
@@ -379,6 +380,7 @@ def layout_room(rng: np.random.Generator, size_m: np.ndarray, counts: dict[str, 
             raise PlacementFailed("chair")
         layout.add(item)
     # Clutter: shelves and cabinets along walls, plants, boxes, a lamp. Best effort.
+    clutter: list[tuple[str, Callable[[np.random.Generator], list[Part]], float]]
     clutter = [("bookshelf", bookshelf_parts, _PAD_WALL_ITEM)] * int(rng.integers(1, 3))
     clutter += [("cabinet", lambda r: cabinet_parts(r, r.uniform(0.6, 1.2), r.uniform(0.35, 0.5), r.uniform(0.7, 0.95)), _PAD_WALL_ITEM)] * int(rng.integers(0, 2))
     clutter += [("plant", plant_parts, _PAD_SMALL)] * int(rng.integers(1, 3))

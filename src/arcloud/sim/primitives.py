@@ -66,7 +66,7 @@ def box(
     *,
     rotation: np.ndarray | None = None,
     pivot: Sequence[float] | None = None,
-    face_colors: Mapping[str, Sequence[float]] | None = None,
+    face_colors: Mapping[str, Sequence[float] | np.ndarray] | None = None,
 ) -> Part:
     """A box spanning [lo, hi], optionally turned by ``rotation`` about ``pivot`` (default its centre).
     ``face_colors`` recolours faces by name ("-x", "+x", "-y", "+y", "-z", "+z")."""
@@ -82,7 +82,7 @@ def box(
 
 
 def cylinder(
-    center_xy: Sequence[float], z0: float, z1: float, radius: float, color: Sequence[float], *, segments: int = 12
+    center_xy: Sequence[float], z0: float, z1: float, radius: float, color: Sequence[float] | np.ndarray, *, segments: int = 12
 ) -> Part:
     """A vertical cylinder (a prism of ``segments`` sides) from z0 to z1."""
     angles = np.arange(segments) * (2 * math.pi / segments)
@@ -105,7 +105,7 @@ def cylinder(
 
 
 def ellipsoid(
-    center: Sequence[float], radii: Sequence[float], color: Sequence[float], *, stacks: int = 6, slices: int = 10
+    center: Sequence[float], radii: Sequence[float], color: Sequence[float] | np.ndarray, *, stacks: int = 6, slices: int = 10
 ) -> Part:
     """A low-poly ellipsoid (UV sphere scaled by ``radii``)."""
     theta = np.linspace(0, math.pi, stacks + 1)[1:-1]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -130,7 +131,8 @@ def generate_room(seed: int, *, size_m: Sequence[float] = DEFAULT_SIZE_M, counts
 
 def _build_room(seed: int, size: np.ndarray, layout: Layout) -> Room:
     vertices, triangles, colors, instance, clutter_ids = [], [], [], [], []
-    objects, clutter = [], []
+    objects: list[RoomObject] = []
+    clutter: list[ClutterItem] = []
     offset = 0
     rng = np.random.default_rng([seed, 1])  # colour noise only, independent of the layout draws
 
@@ -155,6 +157,7 @@ def _build_room(seed: int, size: np.ndarray, layout: Layout) -> Room:
         if item.label is None and item.solid:
             clutter.append(ClutterItem(len(clutter) + 1, item.kind or "clutter", item.lo, item.hi))
             emit(item.parts, 0, len(clutter))
+    triangle_clutter = np.concatenate(clutter_ids)
     room = Room(
         seed=seed,
         size_m=size,
@@ -164,9 +167,9 @@ def _build_room(seed: int, size: np.ndarray, layout: Layout) -> Room:
         triangle_colors=np.concatenate(colors),
         triangle_instance=np.concatenate(instance),
         clutter=tuple(clutter),
-        triangle_clutter=np.concatenate(clutter_ids),
+        triangle_clutter=triangle_clutter,
     )
-    for array in (room.size_m, room.vertices, room.triangles, room.triangle_colors, room.triangle_instance, room.triangle_clutter):
+    for array in (room.size_m, room.vertices, room.triangles, room.triangle_colors, room.triangle_instance, triangle_clutter):
         array.flags.writeable = False
     log.debug("room seed %d: %d objects, %d clutter items, %d triangles", seed, len(objects), len(clutter), len(room.triangles))
     return room
@@ -177,14 +180,14 @@ def room_renderer(room: Room) -> MeshRenderer:
     return MeshRenderer(room.vertices, room.triangles, triangle_colors=room.triangle_colors, triangle_instance=room.triangle_instance)
 
 
-def room_walk(room: Room, n_frames: int = 300, seed: int = 0, *, style: WalkStyle | None = None, **kwargs: object) -> list[np.ndarray]:
+def room_walk(room: Room, n_frames: int = 300, seed: int = 0, *, style: WalkStyle | None = None, **kwargs: Any) -> list[np.ndarray]:
     """A walk through a generated room looking at its objects, in ``style`` (None: the default walk;
     see ``plan_walk`` for ``kwargs``)."""
     targets = np.array([o.center for o in room.objects]).reshape(-1, 3)
     extents = np.array([np.linalg.norm(o.size) for o in room.objects])
     kwargs.setdefault("target_extents_m", extents)
     return plan_walk(
-        room.floor_min_xy, room.floor_max_xy, targets, n_frames, seed, obstacles_xy=room.obstacles_xy(), style=style, **kwargs  # type: ignore[arg-type]
+        room.floor_min_xy, room.floor_max_xy, targets, n_frames, seed, obstacles_xy=room.obstacles_xy(), style=style, **kwargs
     )
 
 

@@ -152,10 +152,10 @@ def gaze_angles(
         a = int(np.argmax(counts))
         if counts[a] < length / 2:
             continue
-        span = np.arange(a, a + length)
-        wanted_yaw[span] = wanted_yaw[a] + (yaw_to[span, j] - wanted_yaw[a] + math.pi) % (2 * math.pi) - math.pi
-        wanted_pitch[span] = pitch_to[span, j]
-        owner[span] = j
+        stretch = np.arange(a, a + length)
+        wanted_yaw[stretch] = wanted_yaw[a] + (yaw_to[stretch, j] - wanted_yaw[a] + math.pi) % (2 * math.pi) - math.pi
+        wanted_pitch[stretch] = pitch_to[stretch, j]
+        owner[stretch] = j
     if np.any(owner >= 0):
         yaw = _rate_limited(np.unwrap(wanted_yaw), max_turn)
         pitch = _rate_limited(wanted_pitch, max_pitch)

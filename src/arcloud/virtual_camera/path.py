@@ -136,7 +136,7 @@ def walk_path(
         if partial:  # the share of the ring, forth on even laps and back on odd ones
             ring = ring[: max(2, math.ceil(len(ring) / lap_share))]
             ring = ring[::-1] if lap % 2 else ring
-        goals = []
+        goals: list[int] = []
         for point in ring:
             cell = grid.cell_of(point)
             if not goals or goals[-1] != cell:

@@ -29,12 +29,12 @@ class RayHits:
     """Per-pixel first hits. depth_m: (H, W) float32 z-depth, 0 where no hit. triangle: (H, W) int32,
     -1 where no hit. uv: (H, W, 2) float32 barycentric (u, v) of the hit (the point is
     (1 - u - v) * a + u * b + v * c for triangle (a, b, c)). normal: (H, W, 3) float32 unit normals
-    of the hit triangles in the world frame."""
+    of the hit triangles in the world frame. uv and normal are None unless asked for (``surface``)."""
 
     depth_m: np.ndarray
     triangle: np.ndarray
-    uv: np.ndarray
-    normal: np.ndarray
+    uv: np.ndarray | None
+    normal: np.ndarray | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,7 +120,8 @@ class MeshRenderer:
         self._o3d = o3d
         self._lock = threading.Lock()
         # Cast once so that Embree commits the scene now, not inside concurrent calls.
-        self._scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))
+        ray = np.array([[0, 0, 0, 0, 0, 1]], np.float32)
+        self._scene.cast_rays(o3d.core.Tensor(ray))  # type: ignore[call-overload]  # open3d's stubs want dtype and device: the array has them
 
     def raycast(
         self, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int, *, surface: bool = False, threads: int = 0

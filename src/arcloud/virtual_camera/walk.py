@@ -101,15 +101,15 @@ class WalkStyle:
 
 
 def plan_walk(
-    floor_min_xy: Sequence[float],
-    floor_max_xy: Sequence[float],
+    floor_min_xy: np.ndarray | Sequence[float],
+    floor_max_xy: np.ndarray | Sequence[float],
     targets: np.ndarray,
     n_frames: int,
     seed: int,
     *,
     eye_height_m: float | None = None,
     eye_height_jitter_m: float | None = None,
-    obstacles_xy: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
+    obstacles_xy: Sequence[tuple[np.ndarray | Sequence[float], np.ndarray | Sequence[float]]] = (),
     step_m: float | None = None,
     floor_z_m: float = 0.0,
     clearance_m: float = 0.3,
