@@ -3,6 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import json
+import os
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from arcloud.core.types import Params
+
+#: The environment variable holding ``Params`` overrides (JSON) for every command.
+PARAMS_ENV = "ARCLOUD_PARAMS"
 
 
 def int_at_least(text: str, minimum: int) -> int:
@@ -33,3 +42,53 @@ def parse_users(text: str) -> tuple[int, ...]:
     if not users or min(users) < 1:
         raise argparse.ArgumentTypeError(f"expected user counts >= 1, got {text!r}")
     return users
+
+
+PARAMS_HELP = (
+    'algorithm settings as a JSON object, e.g. \'{"voxel_size_m": 0.04}\' (arcloud.core.types.Params; '
+    "default $ARCLOUD_PARAMS or none)"
+)
+
+
+def params_overrides(text: str) -> dict[str, Any]:
+    """``--params``: a JSON object of ``Params`` fields (checked when the command builds its ``Params``)."""
+    try:
+        value = json.loads(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a JSON object like {{"voxel_size_m": 0.04}}, got {text!r}') from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f'expected a JSON object like {{"voxel_size_m": 0.04}}, got {text!r}')
+    return value
+
+
+def params_from_environment() -> dict[str, Any]:
+    """``$ARCLOUD_PARAMS`` as ``params_overrides`` reads it (empty when unset), so that ``demo``, ``eval``,
+    ``serve`` and ``worker`` take the same settings the same way."""
+    text = os.environ.get(PARAMS_ENV, "").strip()
+    if not text:
+        return {}
+    try:
+        return params_overrides(text)
+    except argparse.ArgumentTypeError as exc:
+        from arcloud.errors import InvalidInput
+
+        raise InvalidInput(PARAMS_ENV, 'a JSON object like {"voxel_size_m": 0.04}', repr(text)) from exc
+
+
+def make_params(overrides: dict[str, Any]) -> Params:
+    """``Params`` with these fields set (JSON lists become tuples); ``InvalidInput`` naming an unknown field
+    or a bad value (``Params`` checks its fields)."""
+    import dataclasses
+
+    from arcloud.core.types import Params
+    from arcloud.errors import InvalidInput
+
+    known = {f.name for f in dataclasses.fields(Params)}
+    for name in overrides:
+        if name not in known:
+            raise InvalidInput("params", f"fields of Params ({', '.join(sorted(known))})", repr(name))
+    return Params(**{name: _tuples(value) for name, value in overrides.items()})
+
+
+def _tuples(value: Any) -> Any:
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value

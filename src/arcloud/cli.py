@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from arcloud.allocator import keep_freed_memory
-from arcloud.argtypes import parse_users, positive_int
+from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
 from arcloud.accuracy.cli import add_eval_commands
 from arcloud.tools.service_cli import add_service_commands
 
@@ -25,16 +25,19 @@ def add_demo_command(subparsers: argparse._SubParsersAction) -> None:
     demo.add_argument("--runs", type=positive_int, default=3, help="Monte-Carlo runs per K (default 3)")
     demo.add_argument("--users", type=parse_users, default=(10, 50, 100), help="K values (default 10,50,100)")
     demo.add_argument("--workers", type=positive_int, default=4, help="worker threads for distributed runs")
+    demo.add_argument("--params", metavar="JSON", type=params_overrides, help=PARAMS_HELP)
     demo.add_argument("--no-progress", action="store_true", help="no progress bar")
     demo.set_defaults(handler=run_demo_command)
 
 
 def run_demo_command(args: argparse.Namespace) -> int:
+    from arcloud.argtypes import make_params, params_from_environment
     from arcloud.demo import format_table1, run_demo
 
+    params = make_params(args.params if args.params is not None else params_from_environment())
     results = run_demo(
         args.out, seed=args.seed, n_frames=args.frames, runs=args.runs, users=args.users,
-        workers=args.workers, show_progress=not args.no_progress,
+        workers=args.workers, params=params, show_progress=not args.no_progress,
     )
     print(format_table1(results))
     print(f"\nwrote {args.out / 'results.json'} and {', '.join(results['pictures'].values())} in {args.out} "

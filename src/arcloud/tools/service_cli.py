@@ -16,7 +16,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from arcloud.argtypes import non_negative_int, positive_int
+from arcloud.argtypes import PARAMS_HELP, non_negative_int, params_overrides, positive_int
 
 
 def _store_options(parser: argparse.ArgumentParser) -> None:
@@ -25,6 +25,7 @@ def _store_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--zenoh-mode", choices=("off", "peer", "client", "router"), help="Zenoh session mode (default off; on when endpoints are given)")
     parser.add_argument("--zenoh-listen", metavar="ENDPOINT", action="append", help="e.g. tcp/0.0.0.0:7447 (repeatable)")
     parser.add_argument("--zenoh-connect", metavar="ENDPOINT", action="append", help="e.g. tcp/zenoh:7447 (repeatable)")
+    parser.add_argument("--params", metavar="JSON", type=params_overrides, help=PARAMS_HELP)
 
 
 def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -74,6 +75,8 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         overrides["detector"] = args.detector
     if getattr(args, "workers", None) is not None:
         overrides["workers"] = args.workers
+    if args.params is not None:
+        overrides["params"] = args.params
     if args.zenoh_listen:
         overrides["zenoh_listen"] = args.zenoh_listen
     if args.zenoh_connect:
