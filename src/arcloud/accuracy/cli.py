@@ -76,9 +76,10 @@ def _workers(value: int | None) -> int:
 
 
 def _params(args: argparse.Namespace) -> Params:
-    from arcloud.core.types import Params
+    """``--params`` (default ``$ARCLOUD_PARAMS``), then ``--voxel-size-m`` on top."""
+    from arcloud.argtypes import make_params, params_from_environment
 
-    params = Params()
+    params = make_params(args.params if getattr(args, "params", None) is not None else params_from_environment())
     if getattr(args, "voxel_size_m", None):
         params = params.replace(voxel_size_m=float(args.voxel_size_m))
     return params
@@ -222,7 +223,7 @@ def _print_accuracy(rows: Sequence[dict[str, Any]]) -> None:
 
 
 def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
-    from arcloud.argtypes import parse_users, positive_int
+    from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
 
     parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
     parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
@@ -231,6 +232,7 @@ def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: i
     parser.add_argument("--stride", type=positive_int, default=1, help="use every N-th frame (default 1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=0, help="worker threads of distributed runs (default: CPU count)")
+    parser.add_argument("--params", metavar="JSON", type=params_overrides, help=PARAMS_HELP)
     parser.add_argument("--voxel-size-m", type=float, default=None, help="override Params.voxel_size_m")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
