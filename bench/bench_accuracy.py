@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import environment, write_json  # noqa: E402
+from common import environment, write_json
 
-from arcloud.errors import DatasetError  # noqa: E402
+from arcloud.errors import DatasetError
 
 SUITE_MODULES = {"sim": "arcloud.accuracy.sim", "scannet": "arcloud.accuracy.scannet", "7scenes": "arcloud.accuracy.sevenscenes"}
 #: Figures of the table: (summary key, column title).
@@ -139,7 +139,7 @@ def main() -> int:
         print(f"suite {name}: running{' (quick)' if args.quick else ''}", flush=True)
         try:
             record, reason = run_suite(name, quick=args.quick, work_dir=args.work, shared=args.shared)
-        except Exception:  # one suite's crash must not cost the others' figures
+        except Exception:  # noqa: BLE001 - one suite's crash must not cost the others' figures
             failed[name] = traceback.format_exc()
             print(f"suite {name}: FAILED\n{failed[name]}", file=sys.stderr, flush=True)
         else:

@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import environment, summary_ms, write_json  # noqa: E402
+from common import environment, summary_ms, write_json
 
-from arcloud.detectors.onnx_yolo import YoloSegDetector  # noqa: E402
+from arcloud.detectors.onnx_yolo import YoloSegDetector
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED = PROJECT_ROOT.parent / "shared"

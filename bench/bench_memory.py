@@ -47,12 +47,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, write_json  # noqa: E402
+from common import Redis, environment, write_json
 
-from arcloud.argtypes import positive_int  # noqa: E402
-from arcloud.core.types import Frame, MapObject, Params  # noqa: E402
-from arcloud.ports import Detector, ObjectStore  # noqa: E402
-from arcloud.stores import codec, keys  # noqa: E402
+from arcloud.argtypes import positive_int
+from arcloud.core.types import Frame, MapObject, Params
+from arcloud.ports import Detector, ObjectStore
+from arcloud.stores import codec, keys
 
 if TYPE_CHECKING:
     import redis

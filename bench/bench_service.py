@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, free_port, summary_ms, write_json  # noqa: E402
+from common import Redis, environment, free_port, summary_ms, write_json
 
 TARGET_SPEEDUP = 1.7
 TARGET_OVERHEAD = 1.25
@@ -94,8 +94,8 @@ class Service:
     def __init__(self, redis: Redis, workers: int, seed: int, threads: int) -> None:
         import uvicorn
 
-        from arcloud.tools.wiring import create_app
         from arcloud.service.settings import Settings
+        from arcloud.tools.wiring import create_app
 
         self.redis = redis
         self.workers = workers

@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import environment, pin_to_one_core, summary_ms, time_calls, write_json  # noqa: E402
+from common import environment, pin_to_one_core, summary_ms, time_calls, write_json
 
-from arcloud.core.checks import make_frame  # noqa: E402
-from arcloud.core.step import integrate_frame  # noqa: E402
-from arcloud.core.types import CLASSES, Detection, Params  # noqa: E402
-from arcloud.stores.memory import MemoryStore  # noqa: E402
+from arcloud.core.checks import make_frame
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import CLASSES, Detection, Params
+from arcloud.stores.memory import MemoryStore
 
 HEIGHT, WIDTH = 480, 640
 INTRINSICS = (525.0, 525.0, 319.5, 239.5)
@@ -69,7 +69,7 @@ def main() -> None:
         return make_frame(rgb, noisy, INTRINSICS, pose, timestamp_s=i / 30, map_id="bench", device_id="d", frame_id=f"f{i}")
 
     for i in range(3):  # build the map: all 20 objects
-        integrate_frame(frame_at(i), [Detection(l, 0.9, m) for l, m in zip(labels, masks)], store, params)
+        integrate_frame(frame_at(i), [Detection(label, 0.9, m) for label, m in zip(labels, masks)], store, params)
     assert len(store.list_objects("bench")) == 20, len(store.list_objects("bench"))
 
     frames = [frame_at(10 + i) for i in range(args.warmup + args.repeats)]

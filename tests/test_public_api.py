@@ -60,4 +60,4 @@ def test_lazy_dataset_exports_resolve() -> None:
     assert all(getattr(datasets, name) is not None for name in datasets.__all__)
     assert set(datasets.__all__) <= set(dir(datasets))
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
-        datasets.nope  # noqa: B018
+        datasets.nope  # noqa: B018 - the attribute access is the test

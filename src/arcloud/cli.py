@@ -7,9 +7,9 @@ import logging
 import sys
 from pathlib import Path
 
+from arcloud.accuracy.cli import add_eval_commands
 from arcloud.allocator import keep_freed_memory
 from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
-from arcloud.accuracy.cli import add_eval_commands
 from arcloud.tools.service_cli import add_service_commands
 
 

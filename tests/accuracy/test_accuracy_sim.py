@@ -11,7 +11,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from arcloud.accuracy.sim import FULL_CASES, QUICK_CASES, REPORT_ROOMS, TUNE_ROOMS, SimCase, observable_objects, run_suite, without_unseen
+from arcloud.accuracy.sim import (
+    FULL_CASES,
+    QUICK_CASES,
+    REPORT_ROOMS,
+    TUNE_ROOMS,
+    SimCase,
+    observable_objects,
+    run_suite,
+    without_unseen,
+)
 from arcloud.core.types import AABB, MapObject, Params
 from arcloud.errors import InvalidInput
 from arcloud.sim.detector import DetectorFaults, SimulatedDetector, visible_instances

@@ -14,8 +14,8 @@ from svc_helpers import BlobDetector, UvicornThread, free_port, make_test_frame
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient, ServiceError
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
-from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
+from arcloud.tools.wiring import create_app
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from handmade_frames import look_down_pose, scene_frame
 
 from arcloud.core.confirm import detection_rate, is_confirmed, plausible
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import OBB, Detection, MapObject, Params, empty_object
 from arcloud.stores.memory import MemoryStore
-
-from handmade_frames import look_down_pose, scene_frame
 
 PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)
 CHAIR = ((-0.25, -0.25, 0.0), (0.25, 0.25, 0.9))

@@ -7,13 +7,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from handmade_frames import INTRINSICS, look_down_pose, plane_frame, rect_mask, scene_frame
 
-from arcloud.core.types import Detection, Intrinsics, Params
 from arcloud.core.step import integrate_frame
+from arcloud.core.types import Detection, Intrinsics, Params
 from arcloud.core.voxels import key_centers, voxelize_detections
 from arcloud.stores.memory import MemoryStore
-
-from handmade_frames import INTRINSICS, look_down_pose, plane_frame, rect_mask, scene_frame
 
 PARAMS = Params(voxel_size_m=0.05, erode_px=0, floor_min_samples=5)  # tiny frames: few floor samples
 
@@ -71,7 +70,7 @@ def test_unregistered_colour_masks_are_looked_up_where_the_colour_camera_saw():
     v0, v1 = np.round(y * rgb.fy / 1.5 + rgb.cy).astype(int)
     colour_mask = rect_mask(slice(v0 + 1, v1 - 1), slice(u0 + 1, u1 - 1))
     params = PARAMS.replace(layer_margin_m=None)  # registration alone
-    on_patch = lambda detection: np.mean(np.abs(depths_of(detection.keys) - 1.5) < 0.06)  # noqa: E731
+    on_patch = lambda detection: np.mean(np.abs(depths_of(detection.keys) - 1.5) < 0.06)  # noqa: E731 - a one-line predicate
     (registered,) = voxelize_detections(unregistered, [Detection("tv", 0.9, colour_mask)], params)
     (naive,) = voxelize_detections(frame, [Detection("tv", 0.9, colour_mask)], params)  # as if registered
     assert on_patch(registered) == 1.0  # the wall beside the patch, hidden from the colour camera, stays out

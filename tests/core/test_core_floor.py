@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from handmade_frames import look_down_pose, scene_frame
 
 from arcloud.core.floor import floor_height, frame_floor, height_bin
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import Detection, Params
 from arcloud.stores.memory import MemoryStore
-
-from handmade_frames import look_down_pose, scene_frame
 
 PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)  # tiny frames: few floor samples per cell
 

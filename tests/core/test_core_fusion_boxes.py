@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from arcloud.core.boxes import box_voxel_mask, fit_gravity_obb, refine
-from arcloud.core.gravity import Gravity, up_rotation
 from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
+from arcloud.core.gravity import Gravity, up_rotation
 from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection
 from arcloud.core.voxels import pack_keys
 

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from handmade_frames import look_down_pose, scene_frame
 
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import Detection, Params
 from arcloud.stores.memory import MemoryStore
-
-from handmade_frames import look_down_pose, scene_frame
 
 PARAMS = Params(voxel_size_m=0.05)
 # Two TVs touching side by side, 0.7 m wide each, on a wall (the wall itself is not drawn).

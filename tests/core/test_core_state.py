@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from handmade_frames import two_box_frame
 
 import arcloud.core
 from arcloud.core.fusion import fuse_detection, new_object
@@ -13,8 +14,6 @@ from arcloud.core.step import diff_with_stored, integrate_frame, merge_duplicate
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 from arcloud.core.voxels import pack_keys
 from arcloud.stores.memory import MemoryStore
-
-from handmade_frames import two_box_frame
 
 PARAMS = Params(voxel_size_m=0.05)
 

@@ -3,13 +3,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from handmade_frames import two_box_frame
 
 from arcloud.core.step import integrate_frame, process_frame
 from arcloud.core.types import Detection, Params
 from arcloud.errors import InvalidInput
 from arcloud.stores.memory import MemoryStore
-
-from handmade_frames import two_box_frame
 
 PARAMS = Params(voxel_size_m=0.05)
 

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from handmade_frames import INTRINSICS, plane_frame, rect_mask
 
 from arcloud.core.camera import boxes_in_frustum, frame_frustum, view_frustum
 from arcloud.core.types import Detection, Params
@@ -7,16 +8,14 @@ from arcloud.core.voxels import (
     coarsen_keys,
     erode,
     erode_sampled,
-    mask_extent,
     key_centers,
+    mask_extent,
     mask_points,
     pack_keys,
     sorted_unique,
     unpack_keys,
     voxelize_detections,
 )
-
-from handmade_frames import INTRINSICS, plane_frame, rect_mask
 
 
 def test_pack_unpack_round_trip_and_order():

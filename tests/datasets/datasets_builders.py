@@ -235,7 +235,7 @@ def build_room_scene(root: Path, *, v2: bool = False) -> Path:
     return scene
 
 
-def circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, *, eye_height_m, floor_z_m=0.0, obstacles_xy=()):  # noqa: ANN001, ANN201
+def circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, *, eye_height_m, floor_z_m=0.0, obstacles_xy=()):
     """A stand-in for ``plan_walk``: a circle of radius 2 m around the room centre, looking at it."""
     eye_height_m = floor_z_m + eye_height_m
     centre = (np.asarray(floor_min_xy) + np.asarray(floor_max_xy)) / 2

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from datasets_builders import ALIGNMENT, SCENE_ID, build_room_scene, build_seven_scenes, circle_walk
 
-from arcloud.core.types import Detection, Frame, Intrinsics
 from arcloud.accuracy.cli import add_eval_commands, parse_scenes
+from arcloud.core.types import Detection, Frame, Intrinsics
 from arcloud.datasets.frames import LazyFrames
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene

@@ -212,7 +212,7 @@ def test_render_with_random_walks(tmp_path: Path) -> None:
     scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
     asked: list[dict] = []
 
-    def recording_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, **options):  # noqa: ANN001, ANN003, ANN202
+    def recording_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, **options):
         asked.append({"seed": seed, **options})
         return circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, eye_height_m=options["eye_height_m"], floor_z_m=options["floor_z_m"])
 

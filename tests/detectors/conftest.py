@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from tiny_onnx_models import build_tiny_maskrcnn, build_tiny_yolo, build_wrong_input_model
 
 

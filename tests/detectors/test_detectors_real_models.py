@@ -21,13 +21,13 @@ SEVEN_SCENES = "data/7scenes-redkitchen"
 TABLE_AND_CHAIR_FRAMES = (240, 560)
 
 
-def read_rgb(path) -> np.ndarray:  # noqa: ANN001
+def read_rgb(path) -> np.ndarray:
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     assert bgr is not None, f"cannot read {path}"
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def seven_scenes_frame(shared, index: int) -> Frame:  # noqa: ANN001
+def seven_scenes_frame(shared, index: int) -> Frame:
     folder = shared.path(SEVEN_SCENES)
     stem = folder / f"frame-{index:06d}"
     return make_frame(
@@ -44,7 +44,7 @@ def seven_scenes_frame(shared, index: int) -> Frame:  # noqa: ANN001
 
 
 @pytest.fixture
-def detector_640(shared) -> YoloSegDetector:  # noqa: ANN001
+def detector_640(shared) -> YoloSegDetector:
     return YoloSegDetector(shared.path(MODEL_640))  # cheap after the first: the session is cached
 
 

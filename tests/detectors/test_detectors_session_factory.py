@@ -99,7 +99,7 @@ def test_registered_factories_get_the_argument_and_options(monkeypatch) -> None:
     calls = []
 
     class Fake:
-        def detect(self, frame):  # noqa: ANN001, ANN201
+        def detect(self, frame):
             return []
 
     def build(argument: str, **options: object) -> Fake:

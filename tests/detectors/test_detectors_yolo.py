@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tiny_onnx_models import BRIGHT_BOX_PX, FRAME_SHAPE, bright_box_image, bright_box_mask
 from scipy.ndimage import map_coordinates
+from tiny_onnx_models import BRIGHT_BOX_PX, FRAME_SHAPE, bright_box_image, bright_box_mask
 
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Detection

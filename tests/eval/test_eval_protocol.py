@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
+from handmade_frames import two_box_frame
 
 from arcloud.core.types import LabelledBox, Params
-from arcloud.stores.memory import MemoryStore
 from arcloud.eval.protocol import CachedDetector, interleave, run_map, table1, user_streams
-
-from handmade_frames import two_box_frame
+from arcloud.stores.memory import MemoryStore
 
 
 def test_user_streams_cut_contiguous_segments_and_shuffle_them():

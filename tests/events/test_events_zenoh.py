@@ -27,9 +27,9 @@ from arcloud.events.zenoh import (
 )
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
-from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
+from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
 CONFIRMED, TENTATIVE = pb.Object.STATUS_CONFIRMED, pb.Object.STATUS_TENTATIVE

@@ -15,12 +15,23 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from svc_helpers import HEIGHT, LEFT, RIGHT, WIDTH, AppClient, BlobDetector, UvicornThread, make_test_frame, multipart_parts, wait_until
+from svc_helpers import (
+    HEIGHT,
+    LEFT,
+    RIGHT,
+    WIDTH,
+    AppClient,
+    BlobDetector,
+    UvicornThread,
+    make_test_frame,
+    multipart_parts,
+    wait_until,
+)
 
 from arcloud.proto.convert import frame_to_proto
-from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
+from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
 TENTATIVE = {"include": "tentative"}

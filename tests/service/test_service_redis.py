@@ -26,14 +26,13 @@ from svc_helpers import LEFT, RIGHT, AppClient, free_port, make_blob_detector, m
 from arcloud.events.zenoh import query_objects, subscribe_objects
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
-from arcloud.tools.wiring import create_app
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
 from arcloud.stores.keys import INGEST_DEAD_LETTER_STREAM as DEAD_LETTER_STREAM
 from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_queue import RedisFrameQueue, parse_stats
-from arcloud.tools.wiring import healthy, worker_pool
+from arcloud.tools.wiring import create_app, healthy, worker_pool
 from arcloud.tools.worker import main as worker_main
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]

@@ -14,10 +14,10 @@ from arcloud.core.types import Intrinsics, Params
 from arcloud.errors import ArcloudError
 from arcloud.eval.metrics import evaluate
 from arcloud.eval.protocol import object_boxes, run_map
-from arcloud.tools.wiring import create_app
 from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
 from arcloud.tools.service_cli import add_service_commands, settings_from_args
+from arcloud.tools.wiring import create_app
 from arcloud.tools.worker import main as worker_main
 
 pytestmark = pytest.mark.slow

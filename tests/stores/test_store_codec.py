@@ -67,7 +67,7 @@ def test_format_1_blobs_read_with_seen_equal_to_weights() -> None:
     keys, weights, votes = random_voxels(5, seed=4)
     payload = b"".join((np.diff(keys, prepend=0).astype("<i8").tobytes(), weights.tobytes(), votes.tobytes()))
     blob = codec._HEADER.pack(codec.MAGIC, 1, 0, N_CLASSES, keys.size) + payload
-    got_keys, got_weights, got_votes, got_seen = codec.decode_voxels(blob)
+    got_keys, _got_weights, got_votes, got_seen = codec.decode_voxels(blob)
     np.testing.assert_array_equal(got_keys, keys)
     np.testing.assert_array_equal(got_votes, votes)
     np.testing.assert_array_equal(got_seen, weights)

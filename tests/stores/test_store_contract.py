@@ -166,9 +166,8 @@ def test_expired_holder_cannot_overwrite_newer_data(store) -> None:
     assert_same_object(store.get(MAP, [1])[0], newer)
     assert not store.is_frame_done(MAP, "dev/slow")
     # even with a fresh lock, a write based on the old version is refused
-    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as again:
-        with pytest.raises(StaleLease):
-            store.commit(MAP, [again], [moved(slow_read, (4.0, 0, 0))], [])
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as again, pytest.raises(StaleLease):
+        store.commit(MAP, [again], [moved(slow_read, (4.0, 0, 0))], [])
     assert_same_object(store.get(MAP, [1])[0], newer)
 
 

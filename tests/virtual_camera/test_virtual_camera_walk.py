@@ -8,6 +8,7 @@ import pytest
 from arcloud.core.checks import check_pose
 from arcloud.errors import InvalidInput
 from arcloud.sim.room import generate_room, room_walk
+from arcloud.virtual_camera.gaze import look_at
 from arcloud.virtual_camera.walk import (
     EYE_HEIGHT_RANGE_M,
     FIXATION_RANGE_FRAMES,
@@ -16,7 +17,6 @@ from arcloud.virtual_camera.walk import (
     WalkStyle,
     plan_walk,
 )
-from arcloud.virtual_camera.gaze import look_at
 
 FX, CX, CY, W, H = 525.0, 319.5, 239.5, 640, 480
 TARGETS = np.array([[1.5, 1.5, 0.4], [4.5, 1.2, 0.7], [3.0, 3.5, 0.5], [5.0, 3.8, 1.0]])

@@ -123,7 +123,7 @@ def subscribe(
     state, MERGED or DELETED); ``include_tentative``: tentative objects' events too. Needs Zenoh:
     ``pip install 'arcloud[events]'`` (the base install has no Zenoh)."""
     try:
-        import zenoh  # noqa: F401  (loaded here so that a light install fails with what to install)
+        import zenoh  # noqa: F401 - loaded here so that a light install fails with what to install
     except ImportError as exc:
         raise ImportError("subscribe needs Zenoh (eclipse-zenoh): pip install 'arcloud[events]'", name="zenoh") from exc
     from arcloud.events.zenoh import subscribe_objects

@@ -7,8 +7,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
 from arcloud.core.errors import InvalidInput
+from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
 
 ROTATION_TOLERANCE = 1e-3
 MAX_ID_LENGTH = 128

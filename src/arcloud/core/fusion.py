@@ -202,7 +202,7 @@ def resolve_conflicts(objects: Sequence[MapObject]) -> list[MapObject]:
         return list(objects)
     resolved = []
     start = 0
-    for i, obj in enumerate(objects):
+    for obj in objects:
         drop = loser[start : start + obj.keys.size]
         start += obj.keys.size
         resolved.append(obj if not drop.any() else keep_voxels(obj, ~drop))

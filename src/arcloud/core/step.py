@@ -27,6 +27,7 @@ from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
 from arcloud.core.confirm import evidence
+from arcloud.core.errors import LockTimeout
 from arcloud.core.floor import FrameFloor, frame_floor
 from arcloud.core.fusion import (
     current_label_index,
@@ -37,10 +38,9 @@ from arcloud.core.fusion import (
     resolve_conflicts,
     split_detection,
 )
+from arcloud.core.ports import Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import key_centers, keys_bounds, visible_voxels, voxelize_detections
-from arcloud.core.errors import LockTimeout
-from arcloud.core.ports import Detector, Lease, MapStore, UpdatePublisher
 
 log = logging.getLogger(__name__)
 

@@ -140,7 +140,7 @@ def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     pixel (argmax stops there); only the rows below it are reduced. A C-contiguous mask whose width is a
     multiple of 8 has its columns found on 64-bit words: OR-ing the rows' words keeps each pixel's byte
     non-zero exactly when its column has a pixel set."""
-    height, width = mask.shape
+    _height, width = mask.shape
     if mask.size == 0:
         return None
     if mask.flags.c_contiguous:

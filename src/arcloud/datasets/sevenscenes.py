@@ -27,8 +27,8 @@ from typing import cast
 
 import numpy as np
 
-from arcloud.core.gravity import up_rotation
 from arcloud.core.checks import make_frame
+from arcloud.core.gravity import up_rotation
 from arcloud.core.types import CLASSES, Frame, Intrinsics, LabelledBox
 from arcloud.datasets.files import natural_key, read_matrix, read_png_u16, read_rgb
 from arcloud.errors import DatasetError, InvalidInput

@@ -184,7 +184,7 @@ class ZenohPublisher:
         key = object_key(event.map_id, event.object_id) if route == "served" else tentative_key(event.map_id, event.object_id)
         try:
             self.session.put(key, event_to_proto(event).SerializeToString())
-        except Exception:  # noqa: BLE001 - publishing must not fail the step
+        except Exception:  # publishing must not fail the step
             log.warning("map %s: event %s of object %d not published", event.map_id, event.kind, event.object_id, exc_info=True)
 
     def _answer_objects(self, query: Any) -> None:
@@ -203,7 +203,7 @@ class ZenohPublisher:
             from arcloud.proto.convert import objects_to_proto
 
             query.reply(key, objects_to_proto(objects, map_id).SerializeToString())
-        except Exception as exc:  # noqa: BLE001 - answer with the error instead of leaving the query hanging
+        except Exception as exc:  # answer with the error instead of leaving the query hanging
             log.warning("map %s: objects query failed", map_id, exc_info=True)
             query.reply_err(f"{type(exc).__name__}: {exc}".encode())
 
@@ -214,7 +214,7 @@ class ZenohPublisher:
         for entity in self._declared:
             try:
                 entity.undeclare()
-            except Exception:  # noqa: BLE001 - closing goes on: undeclaring is best effort
+            except Exception:  # closing goes on: undeclaring is best effort
                 log.debug("undeclare failed", exc_info=True)
         if self._owns_session:
             self.session.close()
@@ -223,7 +223,7 @@ class ZenohPublisher:
 def _call_frame(handler: FrameHandler, sample: Any) -> None:
     try:
         handler(str(sample.key_expr).split("/")[1], sample.payload.to_bytes())
-    except Exception:  # noqa: BLE001 - a bad frame must not kill the Zenoh thread
+    except Exception:  # a bad frame must not kill the Zenoh thread
         log.warning("frame from %s dropped", sample.key_expr, exc_info=True)
 
 
@@ -264,7 +264,7 @@ def subscribe_objects(
     def on_sample(sample: Any) -> None:
         try:
             callback(arcloud_pb2.ObjectEvent.FromString(sample.payload.to_bytes()))
-        except Exception:  # noqa: BLE001 - keep the subscription alive
+        except Exception:  # keep the subscription alive
             log.warning("event on %s not handled", sample.key_expr, exc_info=True)
 
     owns = session is None

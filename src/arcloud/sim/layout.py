@@ -248,7 +248,7 @@ def _table_group_local(
     table's frame (top centred on the origin, length along x). Against a wall the table's +y side
     is the wall's and chairs stand only on its -y side; as an island chairs take both long sides,
     then the ends."""
-    table_local, length, width, height = table_parts(rng)
+    table_local, length, width, _height = table_parts(rng)
     table_lo, table_hi = bounds(table_local)
     members: list[tuple[list[Part], dict[str, object]]] = [(table_local, {"label": "table"})]
     side_x = [-length / 4, length / 4] if length >= 1.35 else [0.0]

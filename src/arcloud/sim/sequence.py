@@ -148,7 +148,7 @@ def _render_in_subprocesses(
     procs = []
     try:
         for chunk in chunks:
-            errors = tempfile.TemporaryFile()  # a file, not a pipe: a chatty worker cannot block on it
+            errors = tempfile.TemporaryFile()  # noqa: SIM115 - closed in the finally below; a file, not a pipe: a chatty worker cannot block on it
             proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, env=env)
             procs.append((proc, errors))
             assert proc.stdin is not None
