@@ -13,6 +13,15 @@ $(STAMP): pyproject.toml constraints.txt scripts/bootstrap.sh
 demo: $(STAMP)
 	$(BIN)/arcloud demo --out $(OUT)
 
+# Lint and types first: ruff (formatting, then its rules) on src, tests and bench; mypy on src (strict on core, ports,
+# stores, client: pyproject.toml); and every `type: ignore` / `noqa` says why after it (`  # why`, or `noqa: X - why`).
+lint: $(STAMP)
+	$(BIN)/ruff format --check src tests bench
+	$(BIN)/ruff check src tests bench
+	$(BIN)/mypy
+	@if grep -rnE --include='*.py' '# (type: ignore(\[[^]]*\])?|noqa(: [A-Z0-9, ]+)?) *$$' src tests bench; then \
+		echo "lint: the type: ignore / noqa above gives no reason" >&2; exit 1; fi
+
 test: $(STAMP)
 	@command -v redis-server >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)

@@ -34,7 +34,7 @@ def observed(object_id, label, keys, frames=3):
 def test_a_map_object_cannot_be_edited_in_place():
     obj = observed(1, "chair", block((0, 0, 0), (3, 3, 3)))
     with pytest.raises(dataclasses.FrozenInstanceError):
-        obj.score = 1.0  # type: ignore[misc]
+        obj.score = 1.0  # type: ignore[misc]  # on purpose: frozen
     for array in (obj.keys, obj.weights, obj.votes, obj.seen):
         assert not array.flags.writeable
         with pytest.raises(ValueError, match="read-only"):

@@ -56,9 +56,9 @@ def test_lazy_frames_load_once_when_cached() -> None:
         loads.append(name)
         return name.upper()
 
-    cached = LazyFrames(["a", "b"], load, cache=True)  # type: ignore[arg-type]
+    cached = LazyFrames(["a", "b"], load, cache=True)  # type: ignore[arg-type]  # strings stand in for frames
     assert list(cached) == ["A", "B"] and cached[1] == "B" and len(cached) == 2 and loads == ["a", "b"]
-    uncached = LazyFrames(["a"], load, cache=False)  # type: ignore[arg-type]
+    uncached = LazyFrames(["a"], load, cache=False)  # type: ignore[arg-type]  # strings stand in for frames
     assert uncached[0] == uncached[0] == "A" and loads == ["a", "b", "a", "a"]
 
 

@@ -83,7 +83,7 @@ def test_missing_2d_ground_truth(tmp_path: Path, caplog: pytest.LogCaptureFixtur
     with pytest.raises(DatasetError, match="10.png"):
         GroundTruthMaskDetector(scene, strict=True).detect(frame)
     with pytest.raises(InvalidInput, match="label_ids"):
-        GroundTruthMaskDetector(scene, label_ids="coco")  # type: ignore[arg-type]
+        GroundTruthMaskDetector(scene, label_ids="coco")  # type: ignore[arg-type]  # on purpose: a refused label set
     (tmp_path / "b").mkdir()
     bare = build_scannet(tmp_path / "b", labels_2d=False)
     for path in (bare.scene_dir / "instance-filt", bare.scene_dir / "label-filt"):
@@ -225,7 +225,7 @@ def test_faulty_detector_does_not_depend_on_processing_order(tiny_scannet: TinyS
         for d in dets:
             assert d.score < 1.0 and (d.mask & exact_masks[d.label]).sum() > 0.3 * exact_masks[d.label].sum()
     with pytest.raises(InvalidInput, match="faults"):
-        GroundTruthMaskDetector(scene, faults="default")  # type: ignore[arg-type]
+        GroundTruthMaskDetector(scene, faults="default")  # type: ignore[arg-type]  # on purpose: a name is refused
 
 
 def test_detector_spec_with_faults(tiny_scannet: TinyScanNet) -> None:

@@ -232,4 +232,4 @@ def test_v2_asked_for_without_its_files(tiny_scannet: TinyScanNet) -> None:
     with pytest.raises(DatasetError, match=r"ins_label_all\.npy: expected a numpy array"):
         load_scannet_scene(tiny_scannet.scene_dir, annotation="v2")
     with pytest.raises(InvalidInput, match="annotation"):
-        load_scannet_scene(tiny_scannet.scene_dir, annotation="v3")  # type: ignore[arg-type]
+        load_scannet_scene(tiny_scannet.scene_dir, annotation="v3")  # type: ignore[arg-type]  # on purpose: a refused annotation

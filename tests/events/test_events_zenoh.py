@@ -177,7 +177,7 @@ def test_publisher_puts_each_event_on_its_key_space() -> None:
 
     def on_sample(sample: object) -> None:
         with lock:
-            received.append((str(sample.key_expr), pb.ObjectEvent.FromString(sample.payload.to_bytes())))  # type: ignore[attr-defined]
+            received.append((str(sample.key_expr), pb.ObjectEvent.FromString(sample.payload.to_bytes())))  # type: ignore[attr-defined]  # sample: a zenoh.Sample typed as object
 
     served, everything = Collector(), Collector()
     session = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"])

@@ -142,9 +142,9 @@ def test_frame_without_intrinsics_is_rejected() -> None:
 def test_frame_to_proto_checks_its_arguments() -> None:
     frame = sample_frame()
     with pytest.raises(InvalidInput, match="rgb_encoding"):
-        frame_to_proto(frame, rgb_encoding="gif")  # type: ignore[arg-type]
+        frame_to_proto(frame, rgb_encoding="gif")  # type: ignore[arg-type]  # on purpose: a refused encoding
     with pytest.raises(InvalidInput, match="depth_encoding"):
-        frame_to_proto(frame, depth_encoding="jpeg")  # type: ignore[arg-type]
+        frame_to_proto(frame, depth_encoding="jpeg")  # type: ignore[arg-type]  # on purpose: a refused encoding
     with pytest.raises(InvalidInput, match="frame"):
         frame_to_proto(rgb=frame.rgb)
     with pytest.raises(InvalidInput, match="not both"):

@@ -38,7 +38,7 @@ TENTATIVE = {"include": "tentative"}
 
 
 def proto_body(frame: object, **changes: object) -> bytes:
-    msg = frame_to_proto(frame)  # type: ignore[arg-type]
+    msg = frame_to_proto(frame)  # type: ignore[arg-type]  # frame: a core Frame typed as object
     for name, value in changes.items():
         setattr(msg, name, value)
     return msg.SerializeToString()
@@ -194,7 +194,7 @@ def bad_uploads() -> list[tuple[str, dict[str, object], int, str]]:
 
 
 def _without_intrinsics(frame: object) -> bytes:
-    msg = frame_to_proto(frame)  # type: ignore[arg-type]
+    msg = frame_to_proto(frame)  # type: ignore[arg-type]  # frame: a core Frame typed as object
     msg.ClearField("intrinsics")
     return msg.SerializeToString()
 
@@ -212,7 +212,7 @@ def test_bad_uploads_are_refused_with_a_reason(client: AppClient, case: str, req
 
 
 def test_a_large_body_without_content_length_is_cut_off(client: AppClient) -> None:
-    async def chunks():  # type: ignore[no-untyped-def]
+    async def chunks():
         for _ in range(5):
             yield b"\0" * 60_000  # 300 kB in all, streamed (chunked): no Content-Length to refuse early
 
@@ -269,7 +269,7 @@ def test_full_queue_answers_503_with_retry_after() -> None:
     release = threading.Event()
 
     class Blocking(BlobDetector):
-        def detect(self, frame):  # type: ignore[no-untyped-def]
+        def detect(self, frame):
             release.wait(10)
             return super().detect(frame)
 

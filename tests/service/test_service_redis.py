@@ -61,7 +61,7 @@ class Deployment:
         msg.frame_id = frame_id or msg.frame_id
         response = self.api.post(f"/v1/maps/{map_id}/frames", content=msg.SerializeToString(), headers=PROTOBUF)
         assert response.status_code == 202, response.text
-        return response.json()  # type: ignore[no-any-return]
+        return response.json()  # type: ignore[no-any-return]  # httpx's JSON is Any
 
     def stats(self) -> object:
         return parse_stats(self.redis.hgetall(INGEST_STATS))

@@ -84,5 +84,5 @@ def test_latency_buckets_and_stats_parsing() -> None:
 def test_worker_processes_share_the_cores_and_the_detector_gets_its_share(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5, 6, 7})
     assert [threads_per_process(n) for n in (0, 1, 2, 3, 8, 20)] == [8, 8, 4, 2, 1, 1]
-    assert build_detector("sim:0", threads=2).threads == 2  # type: ignore[attr-defined]
+    assert build_detector("sim:0", threads=2).threads == 2  # type: ignore[attr-defined]  # a SimulatedDetector behind the Detector port
     assert build_detector("sim:0").threads == 0  # type: ignore[attr-defined]  # Open3D's default: every core

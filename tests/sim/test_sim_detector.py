@@ -262,13 +262,13 @@ def test_bad_faults_raise_invalid_input(changes: dict) -> None:
 
 def test_detector_refuses_other_fault_objects(room: Room) -> None:
     with pytest.raises(InvalidInput):
-        SimulatedDetector(room, faults={"miss_rate": 0.1})  # type: ignore[arg-type]
+        SimulatedDetector(room, faults={"miss_rate": 0.1})  # type: ignore[arg-type]  # on purpose: a dict is refused
 
 
 @pytest.mark.parametrize("threads", [-1, 1.5, True, "2"])
 def test_detector_refuses_bad_thread_counts(room: Room, threads: object) -> None:
     with pytest.raises(InvalidInput, match="threads"):
-        SimulatedDetector(room, threads=threads)  # type: ignore[arg-type]
+        SimulatedDetector(room, threads=threads)  # type: ignore[arg-type]  # on purpose: a refused thread count
 
 
 def test_truths_belong_to_one_room_and_keep_the_latest_frames(room: Room) -> None:

@@ -258,4 +258,4 @@ def test_a_style_does_not_come_with_the_figures_it_sets() -> None:
     with pytest.raises(InvalidInput, match="eye_height_m"):
         plan_walk((0, 0), (6, 5), TARGETS, 10, 0, style=WalkStyle(), eye_height_m=1.6)
     with pytest.raises(InvalidInput, match="WalkStyle or None"):
-        plan_walk((0, 0), (6, 5), TARGETS, 10, 0, style="random")  # type: ignore[arg-type]
+        plan_walk((0, 0), (6, 5), TARGETS, 10, 0, style="random")  # type: ignore[arg-type]  # on purpose: a refused style
