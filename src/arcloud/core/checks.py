@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -12,6 +13,8 @@ from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
 
 ROTATION_TOLERANCE = 1e-3
 MAX_ID_LENGTH = 128
+# Map ids name Redis keys, SCAN patterns and Zenoh key expressions: letters, digits, '.', '_', '-' only.
+MAP_ID_PATTERN = re.compile(rf"[A-Za-z0-9._-]{{1,{MAX_ID_LENGTH}}}")
 
 
 def describe(value: object) -> str:
@@ -23,11 +26,21 @@ def describe(value: object) -> str:
 
 
 def check_id(field: str, value: object) -> str:
-    """A map, device or frame id: a non-empty printable string without '/' or whitespace."""
+    """A device or frame id: a non-empty printable string without whitespace, '/', '\\', braces or glob
+    characters."""
     if not isinstance(value, str) or not value or len(value) > MAX_ID_LENGTH:
         raise InvalidInput(field, f"a non-empty string of at most {MAX_ID_LENGTH} characters", describe(value))
-    if not value.isprintable() or any(c.isspace() or c in "/{}*?[]" for c in value):
-        raise InvalidInput(field, "no whitespace, '/', braces or glob characters", describe(value))
+    if not value.isprintable() or any(c.isspace() or c in "/\\{}*?[]" for c in value):
+        raise InvalidInput(field, "no whitespace, '/', '\\', braces or glob characters", describe(value))
+    return value
+
+
+def check_map_id(field: str, value: object) -> str:
+    """A map id: 1 to ``MAX_ID_LENGTH`` letters, digits, '.', '_' or '-' (``MAP_ID_PATTERN``)."""
+    if not isinstance(value, str) or not MAP_ID_PATTERN.fullmatch(value):
+        raise InvalidInput(
+            field, f"a non-empty string of at most {MAX_ID_LENGTH} letters, digits, '.', '_' or '-'", describe(value)
+        )
     return value
 
 
@@ -139,7 +152,7 @@ def make_frame(
         intrinsics=check_intrinsics(intrinsics),
         cam2world=check_pose("cam2world", cam2world),
         timestamp_s=check_finite_number("timestamp_s", timestamp_s),
-        map_id=check_id("map_id", map_id),
+        map_id=check_map_id("map_id", map_id),
         device_id=check_id("device_id", device_id),
         frame_id=check_id("frame_id", frame_id),
         rgb_intrinsics=None if rgb_intrinsics is None else check_intrinsics(rgb_intrinsics),

@@ -1,6 +1,6 @@
 """Object events over Zenoh, and the map's current objects on request.
 
-Key expressions (``map_id`` is checked by ``check_id``; ids with Zenoh's reserved ``#`` or ``$`` cannot
+Key expressions (``map_id`` is checked by ``check_map_id``; ids with Zenoh's reserved ``#`` or ``$`` cannot
 be published and are logged):
 
     arcloud/<map_id>/objects/<object_id>             PUT    ``arcloud.v1.ObjectEvent`` (protobuf): the served map

@@ -35,7 +35,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from arcloud import __version__
-from arcloud.core.checks import check_id
+from arcloud.core.checks import check_map_id
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
@@ -109,13 +109,13 @@ def get_runtime(request: Request) -> Runtime:
 
 
 RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
-MapId = Annotated[str, Path(description="map id: printable, no whitespace, '/', braces or glob characters", examples=["office"])]
+MapId = Annotated[str, Path(description="map id: 1 to 128 letters, digits, '.', '_' or '-'", examples=["office"])]
 
 
 def known_map(runtime: Runtime, map_id: str, *, same_settings: bool = True) -> str:
     """The map id of a map with accepted frames (else 404) written under our settings (else 409; not
     asked when deleting: removing a map reads none of its data)."""
-    check_id("map_id", map_id)
+    check_map_id("map_id", map_id)
     if not runtime.ingest.known_map(map_id):
         raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted)")
     if same_settings:
@@ -177,7 +177,7 @@ router = APIRouter()
     tags=["frames"],
 )
 async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> FrameAccepted:
-    check_id("map_id", map_id)
+    check_map_id("map_id", map_id)
     settings = runtime.settings
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if media in frames_in.PROTOBUF_MEDIA_TYPES:
@@ -275,7 +275,8 @@ def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
 
 
 @router.get("/healthz", response_model=Health, tags=["operations"], summary="The process answers")
-def healthz() -> dict[str, str]:
+async def healthz() -> dict[str, str]:
+    """On the event loop, touching nothing: answers while a hung store holds every worker thread."""
     return {"status": "ok"}
 
 
@@ -289,7 +290,8 @@ def readyz(runtime: RuntimeDep) -> JSONResponse:
         checks["store"] = f"unreachable: {exc}"
     if runtime.settings.embedded:
         checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
-    checks.update(runtime.ingest.ready())
+    if checks["store"] == "ok":  # else the ingest's checks would wait on the same unreachable store
+        checks.update(runtime.ingest.ready())
     ok = all(v == "ok" for v in checks.values())
     return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
 

@@ -19,7 +19,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from arcloud.core.checks import check_id, describe
+from arcloud.core.checks import check_map_id, describe
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
@@ -131,7 +131,7 @@ def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
 def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Frame:
     """The validated ``Frame`` of a message posted to ``map_id`` (the message's map id is set to the
     path's when empty, and must equal it otherwise)."""
-    check_id("map_id", map_id)
+    check_map_id("map_id", map_id)
     if msg.map_id and msg.map_id != map_id:
         raise InvalidInput("map_id", f"the map id of the path ({map_id!r}) or none", repr(msg.map_id))
     msg.map_id = map_id

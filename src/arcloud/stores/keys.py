@@ -2,8 +2,8 @@
 
 All keys of one map share the hash tag ``{<map_id>}``, so a map lives on one Redis Cluster slot (its
 Lua scripts touch one slot) while many maps spread over a cluster. Map ids are checked by
-``arcloud.core.checks.check_id``: no braces, whitespace or glob characters, so a map's keys match the
-pattern ``map_pattern(map_id)`` and nothing else.
+``arcloud.core.checks.check_map_id`` (letters, digits, '.', '_', '-'), and ``map_pattern`` escapes glob
+characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and nothing else.
 
     arcloud:{m}:ids                 STRING  object id counter (INCRBY)
     arcloud:{m}:frames              SET     processed frame keys ("<device_id>/<frame_id>")
@@ -49,9 +49,14 @@ def map_prefix(map_id: str) -> str:
     return f"{PREFIX}:{{{map_id}}}"
 
 
+def glob_escape(text: str) -> str:
+    """``text`` as a literal in a Redis glob pattern: ``\\``, ``*``, ``?``, ``[`` and ``]`` escaped."""
+    return "".join("\\" + c if c in "\\*?[]" else c for c in text)
+
+
 def map_pattern(map_id: str) -> str:
-    """SCAN/KEYS pattern matching every key of the map and no other map's."""
-    return f"{map_prefix(map_id)}:*"
+    """SCAN/KEYS pattern matching every key of the map and no other map's (whatever the id holds)."""
+    return f"{glob_escape(map_prefix(map_id))}:*"
 
 
 def ids_key(map_id: str) -> str:
