@@ -82,3 +82,17 @@ def test_detections_checked_against_frame():
         check_detections([Detection("tv", 1.5, mask)], (4, 5))
     with pytest.raises(InvalidInput, match=r"detections\[0\].mask"):
         check_detections([Detection("tv", 0.5, np.zeros((3, 5), bool))], (4, 5))
+
+
+def test_plausible_cameras_have_a_field_of_view_of_20_to_160_degrees():
+    from arcloud.core.checks import check_plausible_camera
+    from arcloud.core.types import Intrinsics
+
+    widest, narrowest = 640 / (2 * np.tan(np.radians(80))), 640 / (2 * np.tan(np.radians(10)))  # 56.4 and 1814.8 px
+    for fx in (widest + 1e-6, 525.0, narrowest - 1e-6):
+        check_plausible_camera("intrinsics", Intrinsics(fx, 525.0, 319.5, 239.5), 640, 480)
+    for fx in (widest - 0.1, narrowest + 0.1, 5.0):
+        with pytest.raises(InvalidInput, match=r"intrinsics\.fx: expected 56\.4 to 1814\.8 px"):
+            check_plausible_camera("intrinsics", Intrinsics(fx, 525.0, 319.5, 239.5), 640, 480)
+    with pytest.raises(InvalidInput, match=r"intrinsics\.cy"):
+        check_plausible_camera("intrinsics", Intrinsics(525.0, 525.0, 319.5, 480.5), 640, 480)

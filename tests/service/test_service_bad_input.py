@@ -8,12 +8,15 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
+import cv2
 import httpx
 import numpy as np
 import pytest
 from redis_server import RedisServer
 from svc_helpers import AppClient, BlobDetector, make_test_frame, multipart_parts
 
+from arcloud.core.checks import make_frame
+from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
 from arcloud.stores import keys
@@ -38,9 +41,30 @@ def assert_problem(response: httpx.Response, status: int, field: str | None) -> 
     assert body["field"] == field, body
 
 
+MAX_PIXELS = 640 * 480
+
+
+def vga_frame(focal_px: float, depth_m: float = 4.9) -> Any:
+    """A 640 x 480 frame of one wall ``depth_m`` away (the measured case: fx = fy = 5, 4.9 m)."""
+    rgb = np.full((480, 640, 3), 90, np.uint8)
+    depth = np.full((480, 640), depth_m, np.float32)
+    intrinsics = (focal_px, focal_px, 319.5, 239.5)
+    return make_frame(rgb, depth, intrinsics, np.eye(4), timestamp_s=0.0, map_id="m", device_id="d", frame_id="vga")
+
+
+def png(image: np.ndarray) -> bytes:
+    return bytes(cv2.imencode(".png", image)[1].tobytes())
+
+
+def jpeg_with_a_stray_byte(jpeg: bytes) -> bytes:
+    """The JPEG with one byte between its first segment (APP0) and the next marker: decoders skip it."""
+    app0_end = 4 + int.from_bytes(jpeg[4:6], "big")
+    return jpeg[:app0_end] + b"\x00" + jpeg[app0_end:]
+
+
 @pytest.fixture(scope="module")
 def client() -> Iterator[AppClient]:
-    settings = Settings(detector="sim:0", workers=1, max_frame_bytes=2_000_000)
+    settings = Settings(detector="sim:0", workers=1, max_frame_bytes=2_000_000, max_frame_pixels=MAX_PIXELS)
     with AppClient(create_app(settings, detector=BlobDetector())) as test_client:
         assert test_client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(0)), headers=PROTOBUF).status_code == 202
         yield test_client
@@ -49,7 +73,162 @@ def client() -> Iterator[AppClient]:
 def bad_requests() -> list[tuple[str, str, str, dict[str, Any], int, str | None]]:
     """(case, method, path, request kwargs, status, field)."""
     frame = make_test_frame(1)
+    parts = multipart_parts(frame)
+    intrinsics = {"fx": 130.0, "fy": 130.0, "cx": 79.5, "cy": 59.5}
+    far = frame.cam2world.copy()
+    far[0, 3] = 20_000.0
+    sheared = frame.cam2world.copy()
+    sheared[0, 1] = 0.1
+    huge_png = png(np.zeros((4096, 4096, 3), np.uint8))  # about 100 kB: 16.8 M pixels once decoded
+    bbox_edge = f"{-1e308},{-1e308},{-1e308},{1e308},{1e308},{1e308}"
     return [
+        # plausible cameras: a field of view of 20 to 160 degrees, the principal point inside the image
+        (
+            "fx = fy = 5 at 640 x 480, 4.9 m away",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(vga_frame(5.0))},
+            422,
+            "intrinsics.fx",
+        ),
+        (
+            "fx = fy = 5 by protobuf",
+            "POST",
+            "/v1/maps/m/frames",
+            {"content": proto_body(vga_frame(5.0)), "headers": PROTOBUF},
+            422,
+            "intrinsics.fx",
+        ),
+        (
+            "fx of a telescope",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, intrinsics={**intrinsics, "fx": 5000.0})},
+            422,
+            "intrinsics.fx",
+        ),
+        (
+            "fy too short",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, intrinsics={**intrinsics, "fy": 5.0})},
+            422,
+            "intrinsics.fy",
+        ),
+        (
+            "cx left of the image",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, intrinsics={**intrinsics, "cx": -1.0})},
+            422,
+            "intrinsics.cx",
+        ),
+        (
+            "cy below the image",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, intrinsics={**intrinsics, "cy": 500.0})},
+            422,
+            "intrinsics.cy",
+        ),
+        # poses: at most 10 km from the origin, a rotation
+        (
+            "camera 20 km away",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, cam2world=far.reshape(16).tolist())},
+            422,
+            "cam2world",
+        ),
+        (
+            "sheared rotation",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, cam2world=sheared.reshape(16).tolist())},
+            422,
+            "cam2world",
+        ),
+        # depth units: 1 to 100000 per metre
+        (
+            "depth scale below 1",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, depth_scale=0.5)},
+            422,
+            "depth_scale",
+        ),
+        (
+            "depth scale above 1e5",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, depth_scale=1e6)},
+            422,
+            "depth_scale",
+        ),
+        (
+            "depth scale 0 by protobuf",
+            "POST",
+            "/v1/maps/m/frames",
+            {"content": proto_body(frame, depth_scale=0.0), "headers": PROTOBUF},
+            422,
+            "depth_scale",
+        ),
+        # meta JSON: small and shallow
+        (
+            "meta nested 100000 deep",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "meta": ("meta.json", b"[" * 100_000 + b"]" * 100_000, "a/json")}},
+            422,
+            "meta",
+        ),
+        (
+            "meta over 64 kB",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "meta": ("meta.json", b" " * 70_000 + b"{}", "a/json")}},
+            422,
+            "meta",
+        ),
+        # images: the size comes from the header, before decoding, or the image is refused
+        (
+            "4096 x 4096 PNG of 100 kB",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "rgb": ("rgb.png", huge_png, "image/png")}},
+            422,
+            "rgb",
+        ),
+        (
+            "JPEG with a stray byte",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "rgb": ("rgb.jpg", jpeg_with_a_stray_byte(parts["rgb"][1]), "image/jpeg")}},
+            422,
+            "rgb",
+        ),
+        (
+            "PNG without IHDR",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "depth": ("depth.png", parts["depth"][1][:16], "image/png")}},
+            422,
+            "depth",
+        ),
+        (
+            "raw depth over the pixel limit",
+            "POST",
+            "/v1/maps/m/frames",
+            {
+                "content": proto_body(frame, width=4096, height=4096, depth_encoding=pb.DEPTH_ENCODING_RAW_UINT16),
+                "headers": PROTOBUF,
+            },
+            422,
+            "depth",
+        ),
+        # query boxes: finite, within 100 km
+        ("bbox at +-1e308", "GET", "/v1/maps/m/objects", {"params": {"bbox": bbox_edge}}, 422, "bbox"),
+        ("bbox 1000 km wide", "GET", "/v1/maps/m/objects", {"params": {"bbox": "-5e5,0,0,5e5,1,1"}}, 422, "bbox"),
         # map ids: letters, digits, '.', '_', '-' only
         ("map id with a backslash", "DELETE", "/v1/maps/vic%5Ctim", {}, 422, "map_id"),
         ("map id with a glob star", "GET", "/v1/maps/m%2A/stats", {}, 422, "map_id"),

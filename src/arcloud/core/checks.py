@@ -16,6 +16,15 @@ MAX_ID_LENGTH = 128
 # Map ids name Redis keys, SCAN patterns and Zenoh key expressions: letters, digits, '.', '_', '-' only.
 MAP_ID_PATTERN = re.compile(rf"[A-Za-z0-9._-]{{1,{MAX_ID_LENGTH}}}")
 
+# What a real camera sends (checked at the service's edge by ``check_plausible_frame``; ``make_frame``
+# takes any finite values). Each bound keeps the state one frame makes small: a focal length of a few
+# pixels spreads a VGA frame's pixels over hundreds of metres, and so over millions of index cells.
+MIN_FOV_DEG = 20.0  # field of view along each image axis: fx <= width / (2 tan(10°)), about 2.84 width
+MAX_FOV_DEG = 160.0  # fx >= width / (2 tan(80°)), about 0.088 width
+MAX_TRANSLATION_M = 10_000.0  # each coordinate of a camera's position, metres from the map's origin
+MAX_COORDINATE_M = 100_000.0  # each coordinate of a query box: beyond every camera and what it sees
+MIN_DEPTH_SCALE, MAX_DEPTH_SCALE = 1.0, 100_000.0  # units per metre of 16-bit depth: 1 m to 10 µm a unit
+
 
 def describe(value: object) -> str:
     """A short description of a value for error messages: shape and dtype for arrays."""
@@ -94,6 +103,56 @@ def check_pose(field: str, value: object) -> np.ndarray:
     if np.linalg.det(rotation) < 0:
         raise InvalidInput(field, "a proper rotation (det +1)", "a reflection (det -1)")
     return pose
+
+
+def check_plausible_camera(field: str, intrinsics: Intrinsics, width: int, height: int) -> Intrinsics:
+    """Intrinsics of a real camera for a ``width`` x ``height`` image: a field of view of ``MIN_FOV_DEG``
+    to ``MAX_FOV_DEG`` along each axis, the principal point inside the image."""
+    for axis, focal_px, size in (("x", intrinsics.fx, width), ("y", intrinsics.fy, height)):
+        lo = size / (2 * math.tan(math.radians(MAX_FOV_DEG / 2)))
+        hi = size / (2 * math.tan(math.radians(MIN_FOV_DEG / 2)))
+        if not lo <= focal_px <= hi:
+            raise InvalidInput(
+                f"{field}.f{axis}",
+                f"{lo:.1f} to {hi:.1f} px for an image {size} px {'wide' if axis == 'x' else 'high'} "
+                f"(a field of view of {MIN_FOV_DEG:g} to {MAX_FOV_DEG:g} degrees)",
+                focal_px,
+            )
+    for axis, centre_px, size in (("x", intrinsics.cx, width), ("y", intrinsics.cy, height)):
+        if not 0 <= centre_px <= size:
+            raise InvalidInput(f"{field}.c{axis}", f"a principal point inside the image (0 to {size} px)", centre_px)
+    return intrinsics
+
+
+def check_plausible_position(field: str, pose: np.ndarray) -> np.ndarray:
+    """A (4, 4) pose whose translation stays within ``MAX_TRANSLATION_M`` of the origin on every axis."""
+    translation = np.asarray(pose, np.float64)[:3, 3]
+    if np.any(np.abs(translation) > MAX_TRANSLATION_M):
+        raise InvalidInput(
+            field, f"a translation of at most {MAX_TRANSLATION_M:g} m on each axis", np.array2string(translation, precision=1)
+        )
+    return pose
+
+
+def check_depth_scale(value: object) -> float:
+    """Units per metre of 16-bit depth, ``MIN_DEPTH_SCALE`` to ``MAX_DEPTH_SCALE``."""
+    scale = check_finite_number("depth_scale", value)
+    if not MIN_DEPTH_SCALE <= scale <= MAX_DEPTH_SCALE:
+        raise InvalidInput(
+            "depth_scale", f"{MIN_DEPTH_SCALE:g} to {MAX_DEPTH_SCALE:g} units per metre (1000: millimetres)", scale
+        )
+    return scale
+
+
+def check_plausible_frame(frame: Frame) -> Frame:
+    """A frame a real camera could have taken (``check_plausible_camera`` for the depth camera and, when
+    given, the colour camera; ``check_plausible_position``): what the service accepts."""
+    height, width = frame.shape
+    check_plausible_camera("intrinsics", frame.intrinsics, width, height)
+    if frame.rgb_intrinsics is not None:
+        check_plausible_camera("rgb_intrinsics", frame.rgb_intrinsics, frame.rgb.shape[1], frame.rgb.shape[0])
+    check_plausible_position("cam2world", frame.cam2world)
+    return frame
 
 
 def check_rgb(value: object) -> np.ndarray:

@@ -35,7 +35,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from arcloud import __version__
-from arcloud.core.checks import check_map_id
+from arcloud.core.checks import MAX_COORDINATE_M, check_map_id
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
@@ -131,6 +131,8 @@ def parse_bbox(text: str) -> tuple[np.ndarray, np.ndarray]:
         raise InvalidInput("bbox", "six numbers x0,y0,z0,x1,y1,z1", repr(text)) from None
     if values.shape != (6,) or not np.all(np.isfinite(values)):
         raise InvalidInput("bbox", "six finite numbers x0,y0,z0,x1,y1,z1", repr(text))
+    if np.any(np.abs(values) > MAX_COORDINATE_M):
+        raise InvalidInput("bbox", f"coordinates within {MAX_COORDINATE_M:g} m of the origin", repr(text))
     lo, hi = values[:3], values[3:]
     if np.any(lo > hi):
         raise InvalidInput("bbox", "x0 <= x1, y0 <= y1, z0 <= z1", repr(text))

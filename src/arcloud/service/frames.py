@@ -19,7 +19,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from arcloud.core.checks import check_map_id, describe
+from arcloud.core.checks import check_depth_scale, check_map_id, check_plausible_frame, describe
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
@@ -31,6 +31,7 @@ MULTIPART_MEDIA_TYPE = "multipart/form-data"
 JPEG_MAGIC = b"\xff\xd8\xff"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 DEFAULT_MAX_PIXELS = 4096 * 4096
+MAX_META_BYTES = 64 * 1024  # the multipart meta JSON: a few hundred bytes in practice
 
 
 def parse_message(body: bytes) -> pb.Frame:
@@ -46,11 +47,15 @@ def parse_message(body: bytes) -> pb.Frame:
 
 
 def parse_meta(raw: str | bytes) -> FrameMeta:
-    """The multipart ``meta`` part; errors name the first wrong field (``meta.<field>``)."""
+    """The multipart ``meta`` part (at most ``MAX_META_BYTES``); errors name the first wrong field (``meta.<field>``)."""
+    if len(raw) > MAX_META_BYTES:
+        raise InvalidInput("meta", f"a JSON object of at most {MAX_META_BYTES} bytes", f"{len(raw)} bytes")
     try:
         data = json.loads(raw)
     except (ValueError, UnicodeDecodeError) as exc:
         raise InvalidInput("meta", "a JSON object", f"invalid JSON ({exc})") from exc
+    except RecursionError:
+        raise InvalidInput("meta", "a JSON object", "JSON nested deeper than the parser goes") from None
     if not isinstance(data, dict):
         raise InvalidInput("meta", "a JSON object", describe(data))
     try:
@@ -118,13 +123,21 @@ def image_size(data: bytes) -> tuple[int, int] | None:
 
 
 def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
-    """Refuse images whose header declares more than ``max_pixels`` pixels (before decoding them)."""
+    """Refuse images whose header declares more than ``max_pixels`` pixels, or whose size cannot be read
+    from the header (never decode to find out)."""
     for field, data, encoded in (
         ("rgb", msg.rgb, msg.rgb_encoding in (pb.RGB_ENCODING_JPEG, pb.RGB_ENCODING_PNG)),
         ("depth", msg.depth, msg.depth_encoding == pb.DEPTH_ENCODING_PNG),
     ):
-        size = image_size(data) if encoded else ((msg.width, msg.height) if msg.width and msg.height else None)
-        if size is not None and size[0] * size[1] > max_pixels:
+        if encoded:
+            size = image_size(data)
+            if size is None:
+                raise InvalidInput(
+                    field, "a PNG or JPEG whose header gives its size (IHDR, or SOF before the scan)", f"{len(data)} bytes"
+                )
+        else:  # raw pixels: the declared size (``frame_from_proto`` checks the byte count against it)
+            size = (msg.width, msg.height)
+        if size[0] * size[1] > max_pixels:
             raise InvalidInput(field, f"at most {max_pixels} pixels", f"{size[0]} x {size[1]}")
 
 
@@ -136,7 +149,9 @@ def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MA
         raise InvalidInput("map_id", f"the map id of the path ({map_id!r}) or none", repr(msg.map_id))
     msg.map_id = map_id
     check_pixels(msg, max_pixels)
-    return frame_from_proto(msg)
+    if msg.depth_encoding != pb.DEPTH_ENCODING_RAW_FLOAT32:  # 16-bit depth: units per metre (float: metres)
+        check_depth_scale(msg.depth_scale)
+    return check_plausible_frame(frame_from_proto(msg))
 
 
 def form_bytes(form: Mapping[str, Any], name: str, what: str) -> bytes | None:
