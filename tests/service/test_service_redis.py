@@ -68,7 +68,10 @@ class Deployment:
 
     def idle(self) -> bool:
         """Nothing queued and nothing pending."""
-        return int(self.redis.xlen(INGEST_STREAM)) == 0 and int(self.redis.xpending(INGEST_STREAM, self.settings.consumer_group)["pending"]) == 0
+        return (
+            int(self.redis.xlen(INGEST_STREAM)) == 0
+            and int(self.redis.xpending(INGEST_STREAM, self.settings.consumer_group)["pending"]) == 0
+        )
 
     def holder_pid(self) -> int | None:
         """Pid of the worker holding a pending entry (consumer names are host-pid)."""
@@ -81,10 +84,19 @@ def deployment() -> Iterator[Deployment]:
     server = RedisServer.start()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(
-        store=server.url, detector="sim:0", workers=0, claim_min_idle_s=CLAIM_MIN_IDLE_S, claim_interval_s=0.2,
-        max_deliveries=2, read_block_s=0.2, zenoh_mode="peer", zenoh_listen=[endpoint],
+        store=server.url,
+        detector="sim:0",
+        workers=0,
+        claim_min_idle_s=CLAIM_MIN_IDLE_S,
+        claim_interval_s=0.2,
+        max_deliveries=2,
+        read_block_s=0.2,
+        zenoh_mode="peer",
+        zenoh_listen=[endpoint],
     )
-    factory = functools.partial(make_blob_detector, delay_s=SLOW_S, slow_on=[f"f{SLOW_FRAME:06d}"], crash_on=[f"f{CRASH_FRAME:06d}"], miss_left_on=MISSED)
+    factory = functools.partial(
+        make_blob_detector, delay_s=SLOW_S, slow_on=[f"f{SLOW_FRAME:06d}"], crash_on=[f"f{CRASH_FRAME:06d}"], miss_left_on=MISSED
+    )
     pool = worker_pool(settings, 2, detector_factory=factory)
     client = server.client()
     store = RedisStore(server.url)
@@ -120,12 +132,16 @@ class Events:
 
 def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deployment: Deployment) -> None:
     served, everything = Events(), Events()
-    with subscribe_objects("r1", served, connect=[deployment.zenoh_endpoint]), \
-            subscribe_objects("r1", everything, connect=[deployment.zenoh_endpoint], include_tentative=True):
+    with (
+        subscribe_objects("r1", served, connect=[deployment.zenoh_endpoint]),
+        subscribe_objects("r1", everything, connect=[deployment.zenoh_endpoint], include_tentative=True),
+    ):
         time.sleep(0.5)  # let the subscriptions propagate to the API's peer
         for i in range(10):
             deployment.post("r1", i, level=True)  # an upright chair: confirmed on the way
-        wait_until(lambda: deployment.api.get("/v1/maps/r1/stats").json()["frames"]["processed"] == 10, 60, "10 frames processed", 0.05)
+        wait_until(
+            lambda: deployment.api.get("/v1/maps/r1/stats").json()["frames"]["processed"] == 10, 60, "10 frames processed", 0.05
+        )
         wait_until(lambda: 10 in everything.states(), 10, "events from the worker processes")
         time.sleep(0.2)
         answer = query_objects("r1", connect=[deployment.zenoh_endpoint], timeout_s=5)
@@ -137,10 +153,17 @@ def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deplo
     (obj,) = deployment.api.get("/v1/maps/r1/objects").json()["objects"]
     assert obj["n_frames"] == 10 and obj["label"] == "chair" and obj["status"] == "confirmed" and obj["version"] == 10
     # Two worker processes publish: every state once to a subscriber of both key spaces, in any order between them.
-    assert sorted(everything.states()) == list(range(1, 11)) and all(e.map_id == "r1" and e.object_id == obj["id"] for e in everything.events)
+    assert sorted(everything.states()) == list(range(1, 11)) and all(
+        e.map_id == "r1" and e.object_id == obj["id"] for e in everything.events
+    )
     # The served map's subscriber: every confirmed state (and perhaps a worker's unsure removal of the then tentative chair).
-    assert sorted(served.states(pb.Object.STATUS_CONFIRMED)) == sorted(everything.states(pb.Object.STATUS_CONFIRMED)) and 10 in served.states()
-    assert [(o.id, o.status) for o in answer.objects] == [(obj["id"], pb.Object.STATUS_CONFIRMED)] and answer.objects[0].n_frames == 10
+    assert (
+        sorted(served.states(pb.Object.STATUS_CONFIRMED)) == sorted(everything.states(pb.Object.STATUS_CONFIRMED))
+        and 10 in served.states()
+    )
+    assert [(o.id, o.status) for o in answer.objects] == [(obj["id"], pb.Object.STATUS_CONFIRMED)] and answer.objects[
+        0
+    ].n_frames == 10
     assert "arcloud_frames_processed_total" in deployment.api.get("/metrics").text
 
 
@@ -149,7 +172,9 @@ def test_the_served_map_loses_an_object_that_turns_tentative(deployment: Deploym
 
     def post(index: int, **kwargs: Any) -> None:
         deployment.post("r6", index, level=True, **kwargs)
-        wait_until(lambda: api.get("/v1/maps/r6/stats").json()["frames"]["processed"] == index + 1, 30, f"frame {index} processed", 0.02)
+        wait_until(
+            lambda: api.get("/v1/maps/r6/stats").json()["frames"]["processed"] == index + 1, 30, f"frame {index} processed", 0.02
+        )
 
     def status(object_id: int) -> str:
         return str(api.get(f"/v1/maps/r6/objects/{object_id}").json()["status"])
@@ -177,7 +202,10 @@ def test_health_checks_see_the_workers_heartbeats(deployment: Deployment, monkey
     assert healthy(deployment.settings) and not healthy(deployment.settings, host="elsewhere")
     monkeypatch.setenv("ARCLOUD_STORE", deployment.settings.store)
     assert worker_main(["--healthcheck"]) == 0
-    assert deployment.api.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok", "redis": "ok", "workers": "ok"}}
+    assert deployment.api.get("/readyz").json() == {
+        "status": "ready",
+        "checks": {"store": "ok", "redis": "ok", "consumer_group": "ok", "workers": "ok"},
+    }
 
 
 def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
@@ -234,7 +262,9 @@ def test_workers_stop_gracefully_after_the_frame_in_hand(deployment: Deployment)
     assert [p.exitcode for p in processes] == [0, 0]
     assert deployment.store.count_frames("r5") == 1 and deployment.idle()
     stopped = {str(p.pid) for p in processes}
-    assert not [w for w in deployment.queue.live_consumers(10.0) if w.rsplit("-", 1)[1] in stopped]  # heartbeats removed on the way out
+    assert not [
+        w for w in deployment.queue.live_consumers(10.0) if w.rsplit("-", 1)[1] in stopped
+    ]  # heartbeats removed on the way out
 
 
 def test_workers_that_die_right_after_starting_are_restarted_later_and_later(monkeypatch: pytest.MonkeyPatch) -> None:

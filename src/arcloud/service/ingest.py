@@ -25,7 +25,7 @@ from typing import Any, Literal
 from arcloud.core.types import Frame
 from arcloud.ports import FrameQueue, ObjectStore, QueueFull, QueueStats
 from arcloud.service.pool import WorkerPool
-from arcloud.service.worker import LIVE_WORKER_S, FrameWorker
+from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,9 @@ class Ingest:
     ``pool``: worker processes to start and stop with the ingest. Every method is synchronous and
     thread-safe; the app calls them from a thread pool."""
 
-    def __init__(self, queue: FrameQueue, store: ObjectStore, *, threads: Sequence[FrameWorker] = (), pool: WorkerPool | None = None) -> None:
+    def __init__(
+        self, queue: FrameQueue, store: ObjectStore, *, threads: Sequence[FrameWorker] = (), pool: WorkerPool | None = None
+    ) -> None:
         self.queue = queue
         self.store = store
         self.workers = list(threads)
@@ -93,7 +95,9 @@ class Ingest:
                 thread.join(max(0.0, deadline - time.monotonic()))
             alive = [t.name for t in self._threads if t.is_alive()]
             if alive or left:
-                log.warning("ingest stopped with %d frames queued or in progress; %s still busy", left, ", ".join(alive) or "no worker")
+                log.warning(
+                    "ingest stopped with %d frames queued or in progress; %s still busy", left, ", ".join(alive) or "no worker"
+                )
             self._threads = []
         if self.pool is not None:
             self.pool.stop(max(0.0, deadline - time.monotonic()))
@@ -122,14 +126,29 @@ class Ingest:
         return self.queue.stats()
 
     def ready(self) -> dict[str, str]:
-        """Check name -> "ok" or what is wrong: the queue's own checks, and whether workers are alive."""
+        """Check name -> "ok" or what is wrong: the queue's own checks (Redis: it answers, the consumer
+        group exists), and whether workers process frames: threads alive; worker processes alive, each
+        with a fresh heartbeat (a worker beats only while its reads succeed); workers elsewhere: some
+        fresh heartbeat."""
         checks = self.queue.health()
         if self.workers:
             alive, total = sum(t.is_alive() for t in self._threads), len(self.workers)
             checks["workers"] = "ok" if alive == total else f"{alive} of {total} worker threads alive"
         elif self.pool is not None:
-            alive, total = self.pool.alive(), self.pool.size
-            checks["workers"] = "ok" if alive == total else f"{alive} of {total} worker processes alive"
+            pids = [p.pid for p in self.pool.processes if p.is_alive()]
+            total = self.pool.size
+            if len(pids) < total:
+                checks["workers"] = f"{len(pids)} of {total} worker processes alive"
+            elif all(v == "ok" for v in checks.values()):
+                beating = set(self.queue.live_consumers(LIVE_WORKER_S))
+                reading = sum(consumer_name(pid) in beating for pid in pids)
+                checks["workers"] = (
+                    "ok"
+                    if reading == total
+                    else f"{reading} of {total} worker processes reading (heartbeat in {LIVE_WORKER_S:.0f} s)"
+                )
+            else:
+                checks["workers"] = "unknown: the queue is not ready"
         elif all(v == "ok" for v in checks.values()):
             live = self.queue.live_consumers(LIVE_WORKER_S)
             checks["workers"] = "ok" if live else f"no worker heartbeat in {LIVE_WORKER_S:.0f} s (frames wait in the stream)"

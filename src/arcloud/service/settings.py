@@ -60,24 +60,39 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="ARCLOUD_", extra="forbid", frozen=True, hide_input_in_errors=True)
 
     store: str = Field("memory", description="`memory` (embedded, one process) or a Redis URL (redis://host:port/db)")
-    detector: str = Field("onnx", description="detector spec: `sim:SEED`, `onnx:PATH` (`onnx` alone: $ARCLOUD_MODEL), `maskrcnn:PATH`, ...")
-    detector_threads: int | None = Field(None, ge=1, description="compute threads per worker process (onnxruntime intra-op, simulator ray casting); default: the cores shared among this host's worker processes")
+    detector: str = Field(
+        "onnx", description="detector spec: `sim:SEED`, `onnx:PATH` (`onnx` alone: $ARCLOUD_MODEL), `maskrcnn:PATH`, ..."
+    )
+    detector_threads: int | None = Field(
+        None,
+        ge=1,
+        description="compute threads per worker process (onnxruntime intra-op, simulator ray casting); default: the cores shared among this host's worker processes",
+    )
     workers: int = Field(2, ge=0, description="worker threads (memory store) or worker processes (Redis); 0 with Redis: API only")
     max_frame_bytes: int = Field(32 * 2**20, ge=1024, description="largest request body accepted (413 above)")
-    max_frame_pixels: int = Field(4096 * 4096, ge=1, description="largest image accepted, in pixels (read from its header before decoding)")
+    max_frame_pixels: int = Field(
+        4096 * 4096, ge=1, description="largest image accepted, in pixels (read from its header before decoding)"
+    )
     max_queued_frames: int = Field(1000, ge=1, description="frames waiting before ingest answers 503")
     lock_ttl_s: float = Field(10.0, gt=0, description="per-object lock time to live")
     lock_timeout_s: float = Field(30.0, ge=0, description="how long a step waits for locks")
-    params: dict[str, Any] = Field(default_factory=dict, description="overrides of arcloud.core.types.Params, e.g. {\"voxel_size_m\": 0.04}")
+    params: dict[str, Any] = Field(
+        default_factory=dict, description='overrides of arcloud.core.types.Params, e.g. {"voxel_size_m": 0.04}'
+    )
     # Redis Streams ingest
     consumer_group: str = Field("arcloud-workers", min_length=1)
     claim_min_idle_s: float = Field(60.0, gt=0, description="a pending frame idle this long is claimed by another worker")
     claim_interval_s: float = Field(5.0, gt=0, description="how often a worker looks for abandoned frames")
     max_deliveries: int = Field(5, ge=1, description="deliveries before a frame goes to the dead-letter stream")
     read_block_s: float = Field(1.0, gt=0, description="how long a worker's XREADGROUP blocks")
+    api_redis_timeout_s: float = Field(
+        2.0, gt=0, description="how long the API waits on a Redis reply before answering 503 (workers wait 30 s)"
+    )
     # Zenoh
     zenoh_mode: ZenohMode = Field("off", description="`off`, or the API's Zenoh session mode (workers always run as clients)")
-    zenoh_listen: Annotated[list[str], NoDecode] = Field(default_factory=list, description="endpoints to listen on, e.g. tcp/0.0.0.0:7447")
+    zenoh_listen: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="endpoints to listen on, e.g. tcp/0.0.0.0:7447"
+    )
     zenoh_connect: Annotated[list[str], NoDecode] = Field(default_factory=list, description="endpoints to connect to (a router)")
     zenoh_frames: bool = Field(False, description="also accept frames published on arcloud/<map>/frames/<device>")
     log_level: LogLevel = "INFO"

@@ -4,7 +4,8 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
 ``FrameWorker.run``:
 
 0. A thread writes the worker's heartbeat every second (``heartbeat_s``; off for threads of the API),
-   which also keeps the frame in hand from being taken for abandoned.
+   which also keeps the frame in hand from being taken for abandoned. It beats only while the loop
+   reads (its last poll did not fail) or holds a frame: a fresh heartbeat says frames get processed.
 1. Every ``claim_interval_s``: claim one frame another consumer took ``claim_min_idle_s`` ago without
    settling it (it died or hangs). Beyond ``max_deliveries`` it is a poison frame: dead-lettered (or,
    when a slow delivery did commit it meanwhile, acknowledged as redelivered). Otherwise processed here.
@@ -69,9 +70,9 @@ def run_step(
     raise AssertionError("unreachable")
 
 
-def consumer_name() -> str:
-    """``<host>-<pid>``: unique among the queue's live consumers."""
-    return f"{socket.gethostname()}-{os.getpid()}"
+def consumer_name(pid: int | None = None) -> str:
+    """``<host>-<pid>`` (this process's, or ``pid``'s on this host): unique among the queue's live consumers."""
+    return f"{socket.gethostname()}-{os.getpid() if pid is None else pid}"
 
 
 class FrameWorker:
@@ -107,6 +108,7 @@ class FrameWorker:
         self.heartbeat_s = heartbeat_s
         self._next_claim = 0.0
         self._in_hand: QueuedFrame | None = None  # the frame being processed, kept fresh by the heartbeat
+        self._reading = True  # the last poll did not fail: the heartbeat may say so
 
     def run(self, stop: threading.Event) -> None:
         """Work until ``stop`` is set; the frame in hand is finished first."""
@@ -121,7 +123,9 @@ class FrameWorker:
             while not stop.is_set():
                 try:
                     self.poll_once()
-                except Exception:  # noqa: BLE001 - the queue away for a moment: wait and go on
+                    self._reading = True
+                except Exception:  # the queue away for a moment: wait and go on
+                    self._reading = False
                     log.exception("worker %s: polling failed; retrying in 1 s", self.consumer)
                     stop.wait(1.0)
         finally:
@@ -130,7 +134,7 @@ class FrameWorker:
                 heart.join()
                 try:
                     self.queue.leave(self.consumer)
-                except Exception:  # noqa: BLE001 - leaving anyway; the heartbeat goes stale
+                except Exception:  # leaving anyway; the heartbeat goes stale
                     log.debug("worker %s: heartbeat not removed", self.consumer, exc_info=True)
         log.info("worker %s stopped", self.consumer)
 
@@ -140,8 +144,10 @@ class FrameWorker:
         interval_s = min(self.heartbeat_s, self.claim_min_idle_s / 3)
         while True:
             try:
-                self.queue.heartbeat(self.consumer, self._in_hand)
-            except Exception:  # noqa: BLE001 - the queue away: the loop logs it; try again next beat
+                in_hand = self._in_hand
+                if self._reading or in_hand is not None:
+                    self.queue.heartbeat(self.consumer, in_hand)
+            except Exception:  # the queue away: the loop logs it; try again next beat
                 log.debug("worker %s: heartbeat failed", self.consumer, exc_info=True)
             if done.wait(interval_s):
                 return
@@ -183,9 +189,16 @@ class FrameWorker:
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
-        except Exception as exc:  # noqa: BLE001 - the queue decides: delivered again later, or failed
-            log.exception("worker %s: map %s frame %s (device %s) failed (delivery %d of %d)",
-                          self.consumer, item.map_id, item.frame_key, item.frame.device_id, item.deliveries, self.max_deliveries)
+        except Exception as exc:  # the queue decides: delivered again later, or failed
+            log.exception(
+                "worker %s: map %s frame %s (device %s) failed (delivery %d of %d)",
+                self.consumer,
+                item.map_id,
+                item.frame_key,
+                item.frame.device_id,
+                item.deliveries,
+                self.max_deliveries,
+            )
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
         finally:
@@ -197,7 +210,9 @@ class FrameWorker:
         return outcome
 
     def _dead_letter(self, item: QueuedFrame, reason: str) -> None:
-        log.error("worker %s: map %s frame %s dead-lettered: %s", self.consumer, item.map_id or "?", item.frame_key or "?", reason)
+        log.error(
+            "worker %s: map %s frame %s dead-lettered: %s", self.consumer, item.map_id or "?", item.frame_key or "?", reason
+        )
         self.queue.dead_letter(item, reason)
 
 

@@ -25,14 +25,18 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   of ``arcloud:{map}:*`` removes whatever else is left (leases still alive). Not atomic against writers
   of the same map that run at the same time.
 
-redis-py retries a command on connection errors and timeouts (its default policy). If a commit's
+How long a call may take: ``reply_timeout_s`` bounds each wait for a reply (or a connection), and
+redis-py retries a command on connection errors and timeouts (``connect_redis``: ``retries`` times,
+timeouts only with ``retry_timeouts``; the API retries a connection error once and a timeout never, so
+that a hung Redis answers ``StoreUnavailable`` within about ``reply_timeout_s``). If a commit's
 reply is lost and the retry finds the commit already applied, it returns False (with a ``frame_key``:
 the frame is recorded) or raises ``StaleLease`` (without): the data was written once either way. The
 lock script is idempotent per token, so a retried acquire does not wait for itself.
 
 redis-py exceptions become ``arcloud.errors`` at this boundary: ``StoreUnavailable`` (connection,
-timeout), ``StaleLease`` (a fence failed), ``StoreError`` (anything else). The client (a connection
-pool) is safe to share between threads; each process must build its own ``RedisStore``.
+timeout, a Redis busy with a script: ``BUSY``), ``StaleLease`` (a fence failed), ``StoreError``
+(anything else). The client (a connection pool) is safe to share between threads; each process must
+build its own ``RedisStore``.
 """
 
 from __future__ import annotations
@@ -54,20 +58,41 @@ import numpy as np
 import redis
 
 from arcloud.core.header import MapHeader
+from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.types import MapObject
-from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable
+from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable, TooManyCells
 from arcloud.stores import codec, keys
 
 log = logging.getLogger(__name__)
 
 DEFAULT_URL = "redis://127.0.0.1:6379/0"
-MAX_QUERY_CELLS = 4096  # larger query boxes read the bounds HASH instead of the cells
+MAX_QUERY_CELLS = MAX_CELLS_PER_CALL  # larger query boxes read the bounds HASH instead of the cells
 MAX_OBJECT_CELLS = 100_000  # an object whose bounds touch more index cells is refused (stray far voxels)
 SCAN_CELLS_PER_OBJECT = 2  # a box of more cells than this many per object reads the bounds HASH (cheaper)
 BACKOFF_MIN_S = 0.002
 BACKOFF_MAX_S = 0.05
 GET_BATCH = 256  # objects per pipeline when reading many
 SCAN_COUNT = 1000
+
+
+def connect_redis(url: str, *, reply_timeout_s: float = 30.0, retries: int = 10, retry_timeouts: bool = True) -> redis.Redis:
+    """A client of ``url`` (binary responses) waiting at most ``reply_timeout_s`` for a reply or a
+    connection, retrying a command ``retries`` times (jittered backoff from 10 ms to 1 s, redis-py's
+    default) on a connection error, and on a timeout when ``retry_timeouts``. ``InvalidInput`` for a bad URL."""
+    from redis.backoff import ExponentialWithJitterBackoff
+    from redis.retry import Retry
+
+    errors: tuple[type[Exception], ...] = (redis.exceptions.ConnectionError,)
+    if retry_timeouts:
+        errors += (redis.exceptions.TimeoutError, TimeoutError)
+    retry = Retry(ExponentialWithJitterBackoff(base=0.01, cap=1.0), retries, supported_errors=errors)
+    try:
+        return redis.Redis.from_url(
+            url, socket_connect_timeout=min(5.0, reply_timeout_s), socket_timeout=reply_timeout_s, retry=retry
+        )
+    except ValueError as exc:
+        scheme = url.split("://", 1)[0] if "://" in url else "none"
+        raise InvalidInput("url", "a redis://, rediss:// or unix:// URL", f"a URL with scheme {scheme!r}") from exc
 
 
 @cache
@@ -103,8 +128,8 @@ class RedisLease:
 class RedisStore:
     """``ObjectStore`` on Redis. ``cell_m``: size of the spatial index's cubic cells (every process of
     one deployment must use the same). ``client``: an existing ``redis.Redis`` (binary responses, i.e.
-    ``decode_responses=False``) instead of connecting to ``url``. ``votes_f16`` stores votes as float16
-    (see ``codec``)."""
+    ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
+    ``reply_timeout_s``, ``retries``, ``retry_timeouts``). ``votes_f16`` stores votes as float16 (see ``codec``)."""
 
     codec_version = codec.FORMAT_VERSION
 
@@ -116,20 +141,21 @@ class RedisStore:
         client: redis.Redis | None = None,
         max_query_cells: int = MAX_QUERY_CELLS,
         votes_f16: bool = False,
+        reply_timeout_s: float = 30.0,
+        retries: int = 10,
+        retry_timeouts: bool = True,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
         if client is None:
-            try:
-                client = redis.Redis.from_url(url, socket_connect_timeout=5.0, socket_timeout=30.0)
-            except ValueError as exc:
-                scheme = url.split("://", 1)[0] if "://" in url else "none"
-                raise InvalidInput("url", "a redis://, rediss:// or unix:// URL", f"a URL with scheme {scheme!r}") from exc
+            client = connect_redis(url, reply_timeout_s=reply_timeout_s, retries=retries, retry_timeouts=retry_timeouts)
             self._owns_client = True
         else:
             self._owns_client = False
         self.client = client
         self.cell_m = float(cell_m)
+        if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
+            raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
         self.votes_f16 = votes_f16
         self._scripts = {
@@ -170,6 +196,8 @@ class RedisStore:
             message = str(exc)
             if message.startswith("STALE "):
                 raise StaleLease(message.removeprefix("STALE ")) from exc
+            if message.startswith("BUSY "):
+                raise StoreUnavailable(f"{what}: redis at {self._where()} busy ({message})") from exc
             raise StoreError(f"{what}: redis at {self._where()} answered {message}") from exc
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
             raise StoreUnavailable(f"{what}: redis at {self._where()} unreachable ({exc})") from exc
@@ -193,9 +221,8 @@ class RedisStore:
         with np.errstate(invalid="ignore", over="ignore"):
             c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m)
             c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m)
-        if not np.all(np.isfinite([c_lo, c_hi])):
-            return math.inf
-        return math.prod(max(0, int(b - a + 1)) for a, b in zip(c_lo, c_hi))
+            n_cells = float(np.prod(np.maximum(0.0, c_hi - c_lo + 1)))  # floats: never an OverflowError
+        return n_cells if np.isfinite(n_cells) else math.inf
 
     def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         lo = _vec3("lo", lo)
@@ -230,6 +257,8 @@ class RedisStore:
 
     def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> RedisLease:
         ordered = sorted({tuple(int(c) for c in cell) for cell in cells})
+        if len(ordered) > MAX_CELLS_PER_CALL:  # one script call takes every key: keep it short
+            raise TooManyCells("cells", len(ordered), MAX_CELLS_PER_CALL)
         return self._acquire(map_id, [keys.claim_key(map_id, c) for c in ordered], (), ttl_s, timeout_s)  # type: ignore[arg-type]
 
     def _acquire(self, map_id: str, lease_keys: list[str], ids: tuple[int, ...], ttl_s: float, timeout_s: float) -> RedisLease:
@@ -269,12 +298,12 @@ class RedisStore:
         found = []
         for start in range(0, len(ids), GET_BATCH):
             batch = ids[start : start + GET_BATCH]
-            with self._boundary(f"get on map {map_id}"):
-                with self.client.pipeline(transaction=True) as pipe:  # one consistent snapshot
-                    pipe.hmget(keys.meta_key(map_id), batch)
-                    for object_id in batch:
-                        pipe.hmget(keys.object_key(map_id, object_id), ["voxels", "missed"])
-                    metas, *fields = pipe.execute()
+            # MULTI/EXEC: one consistent snapshot of the batch
+            with self._boundary(f"get on map {map_id}"), self.client.pipeline(transaction=True) as pipe:
+                pipe.hmget(keys.meta_key(map_id), batch)
+                for object_id in batch:
+                    pipe.hmget(keys.object_key(map_id, object_id), ["voxels", "missed"])
+                metas, *fields = pipe.execute()
             found += [
                 codec.decode_object(i, meta, blob, n_missed=int(missed or 0))
                 for i, meta, (blob, missed) in zip(batch, metas, fields)
@@ -331,8 +360,9 @@ class RedisStore:
             n_cells = self._n_cells(obj.bounds.min, obj.bounds.max)
             if n_cells > MAX_OBJECT_CELLS:
                 raise InvalidInput(
-                    f"object {obj.id}.bounds", f"at most {MAX_OBJECT_CELLS} index cells of {self.cell_m} m",
-                    f"{n_cells} cells ({obj.bounds.min} to {obj.bounds.max})",
+                    f"object {obj.id}.bounds",
+                    f"at most {MAX_OBJECT_CELLS} index cells of {self.cell_m} m",
+                    f"{n_cells:.0f} cells ({obj.bounds.min} to {obj.bounds.max})",
                 )
         header: dict[str, Any] = {
             "frame": frame_key or "",
@@ -346,7 +376,9 @@ class RedisStore:
         for obj in upserts:
             assert obj.bounds is not None
             cells = " ".join(keys.cell_name(c) for c in self.cells_of(obj.bounds.min, obj.bounds.max))
-            header["upserts"].append({"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells, "missed": str(int(obj.n_missed))})
+            header["upserts"].append(
+                {"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells, "missed": str(int(obj.n_missed))}
+            )
             payload += [
                 codec.pack_box(obj.bounds),
                 codec.encode_meta(obj),
@@ -364,10 +396,12 @@ class RedisStore:
 
     def delete_map(self, map_id: str) -> int:
         with self._boundary(f"delete_map {map_id}"):
-            removed = int(self._scripts["delete_map"](
-                keys=[keys.bounds_key(map_id), keys.frames_key(map_id), keys.ids_key(map_id), keys.meta_key(map_id)],
-                args=[keys.map_prefix(map_id)],
-            ))
+            removed = int(
+                self._scripts["delete_map"](
+                    keys=[keys.bounds_key(map_id), keys.frames_key(map_id), keys.ids_key(map_id), keys.meta_key(map_id)],
+                    args=[keys.map_prefix(map_id)],
+                )
+            )
             leftovers = list(self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT))
             for start in range(0, len(leftovers), SCAN_COUNT):
                 self.client.unlink(*leftovers[start : start + SCAN_COUNT])

@@ -17,8 +17,13 @@ dead-letter stream. Key templates are in ``keys``; entries carry ``map_id``, ``f
 ``accepted_at_s`` and ``frame`` (``stream_frames``).
 
 ``fail`` leaves an entry pending: it is delivered again once claimed, until the worker dead-letters
-it. redis-py's connection errors become ``StoreUnavailable`` at this boundary, other Redis errors
-``StoreError``.
+it. redis-py's connection errors and timeouts, and a Redis busy with a script (``BUSY``), become
+``StoreUnavailable`` at this boundary, other Redis errors ``StoreError``.
+
+Recovery: a Redis restarted without its data has no consumer group; the readers (``take``,
+``claim_abandoned``) create it again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
+the restart are lost with the data; frames queued since (XADD makes the stream) are read, as the group
+starts at the stream's beginning. ``health`` reports a missing group.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
 from arcloud.ports import LATENCY_BUCKETS_S, QueuedFrame, QueueFull, QueueStats, latency_bucket
 from arcloud.stores import keys
-from arcloud.stores.redis import lua_source
+from arcloud.stores.redis import connect_redis, lua_source
 from arcloud.stores.stream_frames import decode_frame, encode_frame
 
 log = logging.getLogger(__name__)
@@ -64,8 +69,8 @@ def _text(value: bytes | str | None) -> str:
 
 class RedisFrameQueue:
     """``FrameQueue`` on Redis Streams. ``client``: an existing ``redis.Redis`` (binary responses) instead
-    of connecting to ``url`` (then ``socket_timeout_s`` must exceed the longest blocking read).
-    ``group``: the consumer group; ``max_queued_frames``: ``put`` refuses beyond this backlog."""
+    of connecting to ``url`` (``connect_redis``: then ``socket_timeout_s`` must exceed the longest blocking
+    read). ``group``: the consumer group; ``max_queued_frames``: ``put`` refuses beyond this backlog."""
 
     def __init__(
         self,
@@ -77,11 +82,7 @@ class RedisFrameQueue:
         socket_timeout_s: float = 30.0,
     ) -> None:
         if client is None:
-            try:
-                client = redis.Redis.from_url(url, socket_connect_timeout=5.0, socket_timeout=socket_timeout_s)
-            except ValueError as exc:
-                scheme = url.split("://", 1)[0] if "://" in url else "none"
-                raise InvalidInput("url", "a redis://, rediss:// or unix:// URL", f"a URL with scheme {scheme!r}") from exc
+            client = connect_redis(url, reply_timeout_s=socket_timeout_s)
             self._owns_client = True
         else:
             self._owns_client = False
@@ -103,8 +104,22 @@ class RedisFrameQueue:
             yield
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
             raise StoreUnavailable(f"cannot {doing}: Redis unreachable ({exc})") from exc
+        except redis.exceptions.ResponseError as exc:
+            if str(exc).startswith("BUSY "):
+                raise StoreUnavailable(f"cannot {doing}: Redis busy ({exc})") from exc
+            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
         except redis.exceptions.RedisError as exc:
             raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
+
+    def _recreate_group(self, exc: redis.exceptions.ResponseError) -> None:
+        """Re-raise ``exc`` unless it says the consumer group is gone (``NOGROUP``: Redis restarted
+        without its data); then create the group again."""
+        if not str(exc).startswith("NOGROUP"):
+            raise exc
+        log.warning(
+            "consumer group %s of %s missing (Redis restarted without its data?); creating it", self.group, keys.INGEST_STREAM
+        )
+        self.prepare()
 
     # --- producer ----------------------------------------------------------------------------------
     def put(self, frame: Frame, message: Any = None) -> bool:
@@ -117,7 +132,12 @@ class RedisFrameQueue:
                 self.client.hincrby(keys.INGEST_STATS, "duplicates", 1)
                 return False
             try:
-                fields = {"map_id": frame.map_id, "frame_key": frame.key, "accepted_at_s": repr(time.time()), "frame": encode_frame(frame, message)}
+                fields = {
+                    "map_id": frame.map_id,
+                    "frame_key": frame.key,
+                    "accepted_at_s": repr(time.time()),
+                    "frame": encode_frame(frame, message),
+                }
                 pipe = self.client.pipeline(transaction=False)
                 pipe.xadd(keys.INGEST_STREAM, fields)  # type: ignore[arg-type]
                 pipe.hincrby(keys.INGEST_STATS, "accepted", 1)
@@ -154,11 +174,20 @@ class RedisFrameQueue:
         return stats
 
     def health(self) -> dict[str, str]:
+        """``redis``: it answers; ``consumer_group``: the workers' group exists (it does not after Redis
+        restarted without its data, until a worker reads again)."""
         try:
             self.client.ping()
-            return {"redis": "ok"}
         except Exception as exc:  # noqa: BLE001 - readiness reports, never raises
             return {"redis": f"unreachable: {type(exc).__name__}"}
+        try:
+            groups = self.client.xinfo_groups(keys.INGEST_STREAM)
+            found = any(_text(g.get("name")) == self.group for g in groups)
+        except redis.exceptions.ResponseError:  # "no such key": no stream, so no group
+            found = False
+        except Exception as exc:  # noqa: BLE001 - readiness reports, never raises
+            return {"redis": f"unreachable: {type(exc).__name__}"}
+        return {"redis": "ok", "consumer_group": "ok" if found else f"missing: no group {self.group} on {keys.INGEST_STREAM}"}
 
     def prepare(self) -> None:
         """Create the consumer group on the stream (and the stream) unless it exists. It starts at the
@@ -174,7 +203,11 @@ class RedisFrameQueue:
     def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
         block_ms = max(1, int(block_s * 1000))
         with self._boundary("read the ingest stream"):
-            reply = self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
+            try:
+                reply = self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
+            except redis.exceptions.ResponseError as exc:
+                self._recreate_group(exc)
+                reply = self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
         for _stream, entries in reply or []:
             for entry_id, fields in entries:
                 return self._delivery(consumer, entry_id, fields, deliveries=1)
@@ -183,9 +216,19 @@ class RedisFrameQueue:
     def claim_abandoned(self, consumer: str, *, min_idle_s: float) -> QueuedFrame | None:
         min_idle_ms = max(1, int(min_idle_s * 1000))
         with self._boundary("claim an abandoned entry"):
-            next_cursor, entries, *_deleted = self.client.xautoclaim(
-                keys.INGEST_STREAM, self.group, consumer, min_idle_ms, start_id=self._claim_cursors.get(consumer, "0-0"), count=1
-            )
+            try:
+                next_cursor, entries, *_deleted = self.client.xautoclaim(
+                    keys.INGEST_STREAM,
+                    self.group,
+                    consumer,
+                    min_idle_ms,
+                    start_id=self._claim_cursors.get(consumer, "0-0"),
+                    count=1,
+                )
+            except redis.exceptions.ResponseError as exc:
+                self._recreate_group(exc)
+                self._claim_cursors.pop(consumer, None)
+                return None  # a new group has nothing pending
             self._claim_cursors[consumer] = _text(next_cursor) or "0-0"
             for entry_id, fields in entries:
                 if not fields:
@@ -206,8 +249,15 @@ class RedisFrameQueue:
             frame = decode_frame(fields.get(b"frame", b""))
         except InvalidInput as exc:
             undecodable = str(exc)
-        return QueuedFrame(_text(fields.get(b"map_id")), _text(fields.get(b"frame_key")), consumer, deliveries, frame, undecodable,
-                           receipt=(entry_id, fields))
+        return QueuedFrame(
+            _text(fields.get(b"map_id")),
+            _text(fields.get(b"frame_key")),
+            consumer,
+            deliveries,
+            frame,
+            undecodable,
+            receipt=(entry_id, fields),
+        )
 
     def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
         entry_id, _fields = item.receipt
@@ -232,8 +282,15 @@ class RedisFrameQueue:
         """Move the entry to the dead-letter stream (with the reason), record its frame as failed."""
         entry_id, fields = item.receipt
         dead = dict(fields)
-        dead.update({b"reason": reason.encode(), b"entry_id": _text(entry_id).encode(), b"deliveries": str(item.deliveries).encode(),
-                     b"consumer": item.consumer.encode(), b"failed_at_s": repr(time.time()).encode()})
+        dead.update(
+            {
+                b"reason": reason.encode(),
+                b"entry_id": _text(entry_id).encode(),
+                b"deliveries": str(item.deliveries).encode(),
+                b"consumer": item.consumer.encode(),
+                b"failed_at_s": repr(time.time()).encode(),
+            }
+        )
         with self._boundary("dead-letter the entry"):
             pipe = self.client.pipeline(transaction=False)
             pipe.xadd(keys.INGEST_DEAD_LETTER_STREAM, dead)  # type: ignore[arg-type]
@@ -242,7 +299,9 @@ class RedisFrameQueue:
             pipe.hincrby(keys.INGEST_STATS, "failed", 1)
             pipe.execute()
             if item.map_id and item.frame_key and self.client.sismember(keys.ingest_accepted_key(item.map_id), item.frame_key):
-                self.client.sadd(keys.ingest_failed_key(item.map_id), item.frame_key)  # failed frames are a subset of the accepted ones
+                self.client.sadd(
+                    keys.ingest_failed_key(item.map_id), item.frame_key
+                )  # failed frames are a subset of the accepted ones
 
     def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
         """Write the heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to its own
@@ -251,7 +310,12 @@ class RedisFrameQueue:
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
             if in_hand is not None:
                 entry_id, _fields = in_hand.receipt
-                self.client.xclaim(keys.INGEST_STREAM, self.group, consumer, 0, [entry_id], justid=True)
+                try:
+                    self.client.xclaim(keys.INGEST_STREAM, self.group, consumer, 0, [entry_id], justid=True)
+                except redis.exceptions.ResponseError as exc:
+                    if not str(exc).startswith("NOGROUP"):
+                        raise
+                    # The group went with Redis's data, and the entry with it: nothing left to keep fresh.
 
     def leave(self, consumer: str) -> None:
         with self._boundary("remove the heartbeat"):

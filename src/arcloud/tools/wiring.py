@@ -116,15 +116,20 @@ def build_detector(spec: str, *, threads: int | None = None) -> Detector:
 
 
 # --- store, queue, publisher -------------------------------------------------------------------------
-def build_store(url: str, *, cell_m: float) -> ObjectStore:
-    """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore``."""
+def build_store(url: str, *, cell_m: float, reply_timeout_s: float | None = None) -> ObjectStore:
+    """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore``: a worker's (None: patient, redis-py's
+    retries), or the API's, waiting ``reply_timeout_s`` at most (a connection error retried once, a
+    timeout never: a hung Redis answers 503 within about that)."""
     if url == "memory":
         from arcloud.stores.memory import MemoryStore
 
         return MemoryStore(cell_m=cell_m)
     from arcloud.stores.redis import RedisStore
 
-    return RedisStore(url, cell_m=cell_m)
+    bounded: dict[str, Any] = (
+        {} if reply_timeout_s is None else {"reply_timeout_s": reply_timeout_s, "retries": 1, "retry_timeouts": False}
+    )
+    return RedisStore(url, cell_m=cell_m, **bounded)
 
 
 def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_block_s: float = 0.0) -> FrameQueue:
@@ -138,8 +143,13 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
     from arcloud.stores.redis_queue import RedisFrameQueue
 
     client = store.client if isinstance(store, RedisStore) else None
-    return RedisFrameQueue(settings.store, client=client, group=settings.consumer_group, max_queued_frames=settings.max_queued_frames,
-                           socket_timeout_s=max(30.0, 2 * read_block_s + 5))
+    return RedisFrameQueue(
+        settings.store,
+        client=client,
+        group=settings.consumer_group,
+        max_queued_frames=settings.max_queued_frames,
+        socket_timeout_s=max(30.0, 2 * read_block_s + 5),
+    )
 
 
 def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandler | None) -> UpdatePublisher | None:
@@ -149,8 +159,13 @@ def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandl
         return None
     from arcloud.events.zenoh import ZenohPublisher
 
-    return ZenohPublisher(mode=settings.zenoh_mode, listen=settings.zenoh_listen, connect=settings.zenoh_connect, store=store,
-                          on_frame=on_frame if settings.zenoh_frames else None)
+    return ZenohPublisher(
+        mode=settings.zenoh_mode,
+        listen=settings.zenoh_listen,
+        connect=settings.zenoh_connect,
+        store=store,
+        on_frame=on_frame if settings.zenoh_frames else None,
+    )
 
 
 def worker_publisher(settings: Settings) -> UpdatePublisher | None:
@@ -183,10 +198,14 @@ def connect(
     owned: list[Closeable] = []
     try:
         if not settings.embedded and detector is not None:
-            raise InvalidInput("detector", "none with a Redis store (worker processes build theirs from settings.detector)", type(detector).__name__)
+            raise InvalidInput(
+                "detector",
+                "none with a Redis store (worker processes build theirs from settings.detector)",
+                type(detector).__name__,
+            )
         params = settings.make_params()
         if store is None:
-            store = build_store(settings.store, cell_m=params.index_cell_m)
+            store = build_store(settings.store, cell_m=params.index_cell_m, reply_timeout_s=settings.api_redis_timeout_s)
             _own(owned, store)
         if publisher is None:
             publisher = build_publisher(settings, store, on_frame)
@@ -231,7 +250,11 @@ def create_app(
 
 # --- workers -----------------------------------------------------------------------------------------
 def run_worker(
-    settings: Settings, *, detector_factory: DetectorFactory | None = None, stop: threading.Event | None = None, processes: int = 1
+    settings: Settings,
+    *,
+    detector_factory: DetectorFactory | None = None,
+    stop: threading.Event | None = None,
+    processes: int = 1,
 ) -> None:
     """One worker in this process until SIGTERM/SIGINT (or ``stop``). ``processes``: how many worker
     processes share this machine's cores (the detector's threads default to this one's share)."""
@@ -258,7 +281,11 @@ def run_worker(
         queue = build_queue(settings, read_block_s=settings.read_block_s)
         _own(owned, queue)
         FrameWorker(
-            queue, store, detector, params, publisher,
+            queue,
+            store,
+            detector,
+            params,
+            publisher,
             claim_min_idle_s=settings.claim_min_idle_s,
             claim_interval_s=settings.claim_interval_s,
             max_deliveries=settings.max_deliveries,
@@ -278,10 +305,14 @@ def worker_process(settings: Settings, detector_factory: DetectorFactory | None,
     run_worker(settings, detector_factory=detector_factory, processes=processes)
 
 
-def worker_pool(settings: Settings, size: int, *, detector_factory: DetectorFactory | None = None, restart: bool = True) -> WorkerPool:
+def worker_pool(
+    settings: Settings, size: int, *, detector_factory: DetectorFactory | None = None, restart: bool = True
+) -> WorkerPool:
     """``size`` worker processes on the settings' queue. ``detector_factory``: a picklable callable
     building each worker's detector (default: the settings' spec)."""
-    return WorkerPool(size, worker_process, (settings, detector_factory, size), claim_after_s=settings.claim_min_idle_s, restart=restart)
+    return WorkerPool(
+        size, worker_process, (settings, detector_factory, size), claim_after_s=settings.claim_min_idle_s, restart=restart
+    )
 
 
 def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0) -> bool:
