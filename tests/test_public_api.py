@@ -22,6 +22,7 @@ PUBLIC = {
         "StaleLease",
         "StoreError",
         "StoreUnavailable",
+        "TooManyCells",
     ],
 }
 

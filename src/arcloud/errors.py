@@ -10,6 +10,7 @@ from arcloud.core.errors import (
     StaleLease,
     StoreError,
     StoreUnavailable,
+    TooManyCells,
 )
 
 __all__ = [
@@ -22,4 +23,5 @@ __all__ = [
     "StaleLease",
     "StoreError",
     "StoreUnavailable",
+    "TooManyCells",
 ]

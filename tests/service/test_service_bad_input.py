@@ -5,6 +5,7 @@ naming the field at fault, never a 5xx, and queues nothing (issue 10, "plausible
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -13,14 +14,16 @@ import httpx
 import numpy as np
 import pytest
 from redis_server import RedisServer
-from svc_helpers import AppClient, BlobDetector, make_test_frame, multipart_parts
+from svc_helpers import AppClient, BlobDetector, make_test_frame, multipart_parts, wait_until
 
 from arcloud.core.checks import make_frame
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
+from arcloud.service.worker import FrameWorker
 from arcloud.stores import keys
 from arcloud.stores.redis import RedisStore
+from arcloud.stores.redis_queue import RedisFrameQueue
 from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
@@ -330,6 +333,57 @@ def test_deleting_a_map_id_with_glob_escapes_never_touches_another_map(redis_app
         assert sorted(redis.scan_iter(match=keys.map_pattern("victim"))) == before
         assert api.get("/v1/maps/victim/stats").status_code == 200
     finally:
+        redis.close()
+
+
+def wide_tilted_frame(map_id: str) -> Any:
+    """A plausible frame whose one detection spans more index cells than a claim takes: a 640 x 480 wall
+    2.45 m away filling a 159 x 139 degree view (fx 57, fy 45: the widest accepted), the camera tilted
+    45 degrees, so the wall's box is about 28 x 20 x 20 m (11 000 cells of 1 m)."""
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    tilted = np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 1.0], [0, 0, 0, 1]])
+    rgb = np.full((480, 640, 3), 90, np.uint8)
+    depth = np.full((480, 640), 2.45, np.float32)
+    return make_frame(
+        rgb, depth, (57.0, 45.0, 319.5, 239.5), tilted, timestamp_s=0.0, map_id=map_id, device_id="d", frame_id="wide"
+    )
+
+
+def test_a_frame_over_the_claim_cap_fails_at_once_embedded() -> None:
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as api:
+        assert (
+            api.post("/v1/maps/wide/frames", content=proto_body(wide_tilted_frame("wide")), headers=PROTOBUF).status_code == 202
+        )
+        wait_until(lambda: api.get("/v1/maps/wide/stats").json()["frames"]["failed"] == 1, 60, "the frame failed")
+        assert api.get("/v1/maps/wide/objects", params={"include": "tentative"}).json() == {"objects": []}
+
+
+@pytest.mark.redis
+def test_a_frame_over_the_claim_cap_is_dead_lettered_at_its_first_delivery(redis_app: tuple[AppClient, RedisServer]) -> None:
+    api, server = redis_app
+    assert api.post("/v1/maps/wide/frames", content=proto_body(wide_tilted_frame("wide")), headers=PROTOBUF).status_code == 202
+    redis = server.client()
+    queue, store = RedisFrameQueue(server.url), RedisStore(server.url)
+    worker = FrameWorker(
+        queue, store, BlobDetector(), Settings().make_params(), heartbeat_s=None, read_block_s=0.2, max_deliveries=5
+    )
+    try:
+        started = time.perf_counter()
+        deadline = started + 60
+        while not redis.xlen(keys.INGEST_DEAD_LETTER_STREAM) and time.perf_counter() < deadline:
+            worker.poll_once()
+        elapsed_s = time.perf_counter() - started
+        [(_, dead)] = redis.xrange(keys.INGEST_DEAD_LETTER_STREAM)
+        assert dead[b"deliveries"] == b"1" and dead[b"reason"].startswith(
+            b"TooManyCells: detections: expected at most 4096 index cells"
+        ), dead
+        assert elapsed_s < 30, elapsed_s  # one delivery, no claim on Redis (9.4 M cells once blocked it 72 s)
+        assert not list(redis.scan_iter(match=keys.map_pattern("wide").replace(":*", ":claim:*")))
+        stats = api.get("/v1/maps/wide/stats").json()["frames"]
+        assert stats["failed"] == 1 and stats["pending"] == 0, stats
+    finally:
+        queue.close()
+        store.close()
         redis.close()
 
 

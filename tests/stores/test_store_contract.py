@@ -11,8 +11,9 @@ import pytest
 from store_cases import MAP, assert_same_object, make_object, moved, run_steps_in_threads, step_frame
 
 from arcloud.core.header import MapHeader
+from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.types import Params
-from arcloud.errors import LockTimeout, StaleLease
+from arcloud.errors import LockTimeout, StaleLease, TooManyCells
 
 
 # --- spatial index -----------------------------------------------------------------------------------
@@ -117,6 +118,15 @@ def test_claims_behave_like_locks(store) -> None:
     with pytest.raises(LockTimeout):
         store.claim(MAP, [(1, 1, 1)], ttl_s=10, timeout_s=0)
     taken.release()
+
+
+def test_a_claim_takes_at_most_max_cells_per_call(store) -> None:
+    cells = [(i, j, k) for i in range(17) for j in range(16) for k in range(16)]  # 4352 > MAX_CELLS_PER_CALL
+    started = time.perf_counter()
+    with pytest.raises(TooManyCells, match=f"cells: expected at most {MAX_CELLS_PER_CALL} index cells"):
+        store.claim(MAP, cells, ttl_s=10, timeout_s=0)
+    assert time.perf_counter() - started < 1.0
+    store.claim(MAP, cells[:MAX_CELLS_PER_CALL], ttl_s=10, timeout_s=0).release()  # nothing was held
 
 
 # --- objects and commits -----------------------------------------------------------------------------
@@ -287,7 +297,9 @@ def test_the_first_header_of_a_map_stays_until_the_map_is_deleted(store) -> None
 
 
 def test_concurrent_first_opens_agree_on_one_header(store) -> None:
-    headers = [MapHeader.from_params(Params(voxel_size_m=0.05 + i / 100), codec_version=2, created_at_s=float(i)) for i in range(8)]
+    headers = [
+        MapHeader.from_params(Params(voxel_size_m=0.05 + i / 100), codec_version=2, created_at_s=float(i)) for i in range(8)
+    ]
     got: list[MapHeader] = []
     threads = [threading.Thread(target=lambda h=h: got.append(store.open_map(MAP, h))) for h in headers]
     for thread in threads:
@@ -332,7 +344,14 @@ def test_metadata_listing_matches_the_objects(store) -> None:
     assert [m.id for m in metas] == [2, 4]
     for meta, obj in zip(metas, objects[::-1]):
         assert (meta.label, meta.score, meta.version, meta.n_voxels, meta.n_frames, meta.devices, meta.confirmed) == (
-            obj.label, obj.score, obj.version, obj.n_voxels, obj.n_frames, obj.devices, obj.confirmed)
+            obj.label,
+            obj.score,
+            obj.version,
+            obj.n_voxels,
+            obj.n_frames,
+            obj.devices,
+            obj.confirmed,
+        )
         np.testing.assert_array_equal(meta.aabb.min, obj.aabb.min)
     assert [m.id for m in store.object_meta(MAP, [4, 99])] == [4]
     assert store.list_meta("empty-map") == [] and store.object_meta(MAP, []) == []

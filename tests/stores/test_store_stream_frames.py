@@ -25,9 +25,15 @@ def upload(rng: np.random.Generator, *, depth_scale: float, rgb_png: bool) -> pb
     ok, rgb_bytes = cv2.imencode(".png" if rgb_png else ".jpg", rgb[..., ::-1])
     assert ok
     return pb.Frame(
-        device_id="d", frame_id="f", intrinsics=pb.Intrinsics(fx=50, fy=50, cx=31.5, cy=23.5), cam2world=np.eye(4).ravel().tolist(),
-        rgb=rgb_bytes.tobytes(), rgb_encoding=pb.RGB_ENCODING_PNG if rgb_png else pb.RGB_ENCODING_JPEG,
-        depth=depth_png.tobytes(), depth_encoding=pb.DEPTH_ENCODING_PNG, depth_scale=depth_scale,
+        device_id="d",
+        frame_id="f",
+        intrinsics=pb.Intrinsics(fx=50, fy=50, cx=31.5, cy=23.5),
+        cam2world=np.eye(4).ravel().tolist(),
+        rgb=rgb_bytes.tobytes(),
+        rgb_encoding=pb.RGB_ENCODING_PNG if rgb_png else pb.RGB_ENCODING_JPEG,
+        depth=depth_png.tobytes(),
+        depth_encoding=pb.DEPTH_ENCODING_PNG,
+        depth_scale=depth_scale,
     )
 
 
@@ -39,7 +45,7 @@ def assert_same_frame(a: Frame, b: Frame) -> None:
     assert (a.intrinsics, a.map_id, a.key, a.timestamp_s) == (b.intrinsics, b.map_id, b.key, b.timestamp_s)
 
 
-@pytest.mark.parametrize("depth_scale", [1000.0, 5000.0, 4000.0, 10_000 / 3, 1.0, 0.37])
+@pytest.mark.parametrize("depth_scale", [1000.0, 5000.0, 4000.0, 10_000 / 3, 1.0, 100_000.0])
 @pytest.mark.parametrize("rgb_png", [True, False])
 def test_a_worker_decodes_the_frame_the_api_validated(depth_scale: float, rgb_png: bool) -> None:
     msg = upload(np.random.default_rng(7), depth_scale=depth_scale, rgb_png=rgb_png)
@@ -56,9 +62,16 @@ def test_a_worker_decodes_the_frame_the_api_validated(depth_scale: float, rgb_pn
 def test_raw_uploads_are_carried_as_they_are() -> None:
     rng = np.random.default_rng(3)
     msg = pb.Frame(
-        device_id="d", frame_id="f", intrinsics=pb.Intrinsics(fx=50, fy=50, cx=31.5, cy=23.5), cam2world=np.eye(4).ravel().tolist(),
-        width=WIDTH, height=HEIGHT, rgb=rng.integers(0, 256, HEIGHT * WIDTH * 3, dtype=np.uint8).tobytes(), rgb_encoding=pb.RGB_ENCODING_RAW_RGB8,
-        depth=rng.random((HEIGHT, WIDTH), dtype=np.float32).astype("<f4").tobytes(), depth_encoding=pb.DEPTH_ENCODING_RAW_FLOAT32,
+        device_id="d",
+        frame_id="f",
+        intrinsics=pb.Intrinsics(fx=50, fy=50, cx=31.5, cy=23.5),
+        cam2world=np.eye(4).ravel().tolist(),
+        width=WIDTH,
+        height=HEIGHT,
+        rgb=rng.integers(0, 256, HEIGHT * WIDTH * 3, dtype=np.uint8).tobytes(),
+        rgb_encoding=pb.RGB_ENCODING_RAW_RGB8,
+        depth=rng.random((HEIGHT, WIDTH), dtype=np.float32).astype("<f4").tobytes(),
+        depth_encoding=pb.DEPTH_ENCODING_RAW_FLOAT32,
     )
     validated = validate_message(msg, "room")
     carried = stream_message(msg, validated)

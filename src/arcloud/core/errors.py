@@ -2,6 +2,7 @@
 
     ArcloudError                 base of everything below
     ├── InvalidInput (ValueError) a value at an edge is wrong; names the field, what was expected, what came
+    │   └── TooManyCells         a frame would make one store call take more index cells than ``MAX_CELLS_PER_CALL``
     ├── ModelError               a detector model cannot be loaded or does not fit its adapter
     ├── DatasetError             a dataset folder is missing files or holds malformed ones
     └── StoreError               the object store failed
@@ -29,6 +30,16 @@ class InvalidInput(ArcloudError, ValueError):
         self.expected = expected
         self.got = got
         super().__init__(f"{field}: expected {expected}, got {got}")
+
+
+class TooManyCells(InvalidInput):
+    """A frame would make one store call take more index cells than a call may (``core.ports.MAX_CELLS_PER_CALL``):
+    its detections span too much space. Permanent: the same frame always would."""
+
+    def __init__(self, field: str, n_cells: int, limit: int) -> None:
+        self.n_cells = n_cells
+        self.limit = limit
+        super().__init__(field, f"at most {limit} index cells in one store call", f"{n_cells} cells")
 
 
 class ModelError(ArcloudError):

@@ -10,12 +10,15 @@ cells they cover: while holding it, the step looks again for objects that appear
 frustum query, tries their locks without waiting (waiting could deadlock with a worker that holds them
 and waits for our cells) and fuses into them. Whatever still slips through (a lock that could not be
 taken) is caught by the *merge pass*: every frame merges the same-label objects it holds whose voxels
-overlap, so a duplicate lives only until some frame sees both copies.
+overlap, so a duplicate lives only until some frame sees both copies. A claim takes at most
+``MAX_CELLS_PER_CALL`` index cells: a frame whose new objects would span more is refused
+(``TooManyCells``, before anything is claimed), as it always would be.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -27,7 +30,7 @@ from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
 from arcloud.core.confirm import evidence
-from arcloud.core.errors import LockTimeout
+from arcloud.core.errors import LockTimeout, TooManyCells
 from arcloud.core.floor import FrameFloor, frame_floor
 from arcloud.core.fusion import (
     current_label_index,
@@ -38,7 +41,7 @@ from arcloud.core.fusion import (
     resolve_conflicts,
     split_detection,
 )
-from arcloud.core.ports import Detector, Lease, MapStore, UpdatePublisher
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import key_centers, keys_bounds, visible_voxels, voxelize_detections
 
@@ -119,7 +122,9 @@ def integrate_frame(
         leases: list[Lease] = [lease]
         try:
             if unmatched:
-                claims, late, late_and_new, late_changed = create_under_claim(store, frame, unmatched, visible_ids, params, now_s, floor)
+                claims, late, late_and_new, late_changed = create_under_claim(
+                    store, frame, unmatched, visible_ids, params, now_s, floor
+                )
                 leases += claims
                 stored.update({o.id: o for o in late})
                 objects += late_and_new
@@ -148,7 +153,13 @@ def integrate_frame(
     clock.lap("publish")
     log.debug(
         "frame %s/%s: %d detections, %d visible, %d matched, %d created, %d removed",
-        frame.map_id, frame.key, result.n_detections, result.n_visible, result.matched, len(result.created), len(result.removed),
+        frame.map_id,
+        frame.key,
+        result.n_detections,
+        result.n_visible,
+        result.matched,
+        len(result.created),
+        len(result.removed),
     )
     return result
 
@@ -169,7 +180,11 @@ def find_visible(store: MapStore, frame: Frame, params: Params) -> list[int]:
 
 
 def fuse_matches(
-    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, frame: Frame, floor: FrameFloor | None = None
+    objects: list[MapObject],
+    observations: Sequence[VoxelDetection],
+    params: Params,
+    frame: Frame,
+    floor: FrameFloor | None = None,
 ) -> tuple[list[MapObject], list[VoxelDetection], set[int]]:
     """Associate observations with objects (Hungarian) and fuse the pairs, counting which voxels of a
     matched object the frame saw; returns the objects (fused ones replaced), the observations left
@@ -244,8 +259,11 @@ def floor_vote(floor: FrameFloor | None, observation: VoxelDetection, params: Pa
     return None if floor is None else floor.vote_for(key_centers(observation.keys, params.voxel_size_m), params)
 
 
-def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
-    """Index cells covered by the observations' bounds, and the overall (lo, hi)."""
+def claim_cells(
+    observations: Sequence[VoxelDetection], params: Params
+) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
+    """Index cells covered by the observations' bounds, and the overall (lo, hi). ``TooManyCells`` when
+    they are more than one claim takes (``MAX_CELLS_PER_CALL``; a box is counted before its cells are listed)."""
     bounds = [keys_bounds(o.keys, params.voxel_size_m) for o in observations]
     lo = np.min([b[0] for b in bounds], axis=0)
     hi = np.max([b[1] for b in bounds], axis=0)
@@ -253,10 +271,15 @@ def claim_cells(observations: Sequence[VoxelDetection], params: Params) -> tuple
     for b_lo, b_hi in bounds:
         c_lo = np.floor(b_lo / params.index_cell_m).astype(int)
         c_hi = np.floor(b_hi / params.index_cell_m).astype(int)
+        n_box = math.prod(int(b) - int(a) + 1 for a, b in zip(c_lo, c_hi))
+        if n_box > MAX_CELLS_PER_CALL:
+            raise TooManyCells("detections", n_box, MAX_CELLS_PER_CALL)
         for i in range(c_lo[0], c_hi[0] + 1):
             for j in range(c_lo[1], c_hi[1] + 1):
                 for k in range(c_lo[2], c_hi[2] + 1):
                     cells.add((i, j, k))
+        if len(cells) > MAX_CELLS_PER_CALL:  # at least this many: the boxes left are not counted
+            raise TooManyCells("detections", len(cells), MAX_CELLS_PER_CALL)
     return sorted(cells), lo, hi
 
 
@@ -282,7 +305,9 @@ def create_under_claim(
         late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
         fused_late, still_unmatched, fused_ids = fuse_matches(late, unmatched, params, frame, floor)
         new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
-        created = [new_object(i, o, frame.device_id, now_s, floor_vote(floor, o, params)) for i, o in zip(new_ids, still_unmatched)]
+        created = [
+            new_object(i, o, frame.device_id, now_s, floor_vote(floor, o, params)) for i, o in zip(new_ids, still_unmatched)
+        ]
     except BaseException:
         for lease in [claim, *late_leases]:
             lease.release()
@@ -345,11 +370,17 @@ def diff_with_stored(
         version = (old.version if old is not None else 0) + 1
         final = obj.replace(version=version, updated_at_s=now_s, created_at_s=obj.created_at_s or now_s)
         upserts.append(final)
-        events.append(ObjectEvent("created" if old is None else "updated", map_id, obj.id, final, was_confirmed=old is not None and old.confirmed))
+        events.append(
+            ObjectEvent(
+                "created" if old is None else "updated", map_id, obj.id, final, was_confirmed=old is not None and old.confirmed
+            )
+        )
     for absorbed_id, keeper_id in absorbed_into.items():
         if absorbed_id in stored:
             removed.append(stored[absorbed_id])
-            events.append(ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id, was_confirmed=stored[absorbed_id].confirmed))
+            events.append(
+                ObjectEvent("merged", map_id, absorbed_id, merged_into=keeper_id, was_confirmed=stored[absorbed_id].confirmed)
+            )
     return upserts, removed, events
 
 

@@ -13,7 +13,10 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
 3. Processing: an undecodable frame is dead-lettered at once; the map is opened (its header stored by
    the first writer) and refused when its header says other settings than this worker's (``MapMismatch``:
    ``fail``, logged as an error); ``process_frame`` is tried again in place
-   when locks time out or a lease went stale (nothing was written); then ``ack``. Any other error is
+   when locks time out or a lease went stale (nothing was written); then ``ack``. ``InvalidInput`` from
+   the step (the frame's own content is at fault, e.g. ``TooManyCells``: its detections span more index
+   cells than a store call takes) is dead-lettered at once with its reason: every delivery would fail
+   the same way. Any other error is
    ``fail``: the queue delivers it again later (Redis, until ``max_deliveries``) or counts it failed
    (embedded).
 
@@ -32,7 +35,7 @@ import time
 from typing import Any, Literal
 
 from arcloud.core.types import Frame, Params
-from arcloud.errors import LockTimeout, MapMismatch, StaleLease
+from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease
 from arcloud.ports import Detector, FrameQueue, ObjectStore, QueuedFrame, UpdatePublisher
 from arcloud.service.map_header import open_map_checked
 
@@ -189,6 +192,9 @@ class FrameWorker:
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
+        except InvalidInput as exc:  # the frame itself is at fault: every delivery would fail the same way
+            self._dead_letter(item, f"{type(exc).__name__}: {exc}")
+            return "dead"
         except Exception as exc:  # the queue decides: delivered again later, or failed
             log.exception(
                 "worker %s: map %s frame %s (device %s) failed (delivery %d of %d)",

@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arcloud.core.header import MapHeader
+from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.types import MapObject
-from arcloud.errors import InvalidInput, LockTimeout, StaleLease
+from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
 from arcloud.ports import ObjectMeta
 from arcloud.stores import codec
 from arcloud.stores.codec import meta_of
@@ -39,7 +40,7 @@ class _MapState:
     cells_of: dict[int, list[tuple[int, int, int]]] = field(default_factory=dict)
     held: dict[object, _Holder] = field(default_factory=dict)  # ("object", id) or ("cell", (i, j, k))
     frames: set[str] = field(default_factory=set)
-    ids: itertools.count = field(default_factory=lambda: itertools.count(1))
+    ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
     changed: threading.Condition = field(default_factory=threading.Condition)
 
 
@@ -113,7 +114,10 @@ class MemoryStore:
         return self._acquire(map_id, [("object", int(i)) for i in sorted(set(ids))], ttl_s, timeout_s)
 
     def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> MemoryLease:
-        return self._acquire(map_id, [("cell", tuple(int(c) for c in cell)) for cell in sorted(set(cells))], ttl_s, timeout_s)
+        names: list[object] = [("cell", tuple(int(c) for c in cell)) for cell in sorted(set(cells))]
+        if len(names) > MAX_CELLS_PER_CALL:
+            raise TooManyCells("cells", len(names), MAX_CELLS_PER_CALL)
+        return self._acquire(map_id, names, ttl_s, timeout_s)
 
     def _acquire(self, map_id: str, names: list[object], ttl_s: float, timeout_s: float) -> MemoryLease:
         state = self._map(map_id)
@@ -129,7 +133,9 @@ class MemoryStore:
                     return MemoryLease(self, map_id, names, token)
                 remaining = deadline - now
                 if remaining <= 0:
-                    raise LockTimeout(f"map {map_id}: {len(busy)} of {len(names)} locks busy after {timeout_s:.3g} s (first: {busy[0]})")
+                    raise LockTimeout(
+                        f"map {map_id}: {len(busy)} of {len(names)} locks busy after {timeout_s:.3g} s (first: {busy[0]})"
+                    )
                 soonest = min(state.held[n].expires_at for n in busy) - now
                 state.changed.wait(max(1e-3, min(remaining, soonest)))
 
@@ -183,7 +189,9 @@ class MemoryStore:
                     if obj.id not in held:
                         raise StaleLease(f"map {map_id}: object {obj.id} written without its lock")
                     if current.version != obj.version - 1:
-                        raise StaleLease(f"map {map_id}: object {obj.id} is at version {current.version}, write expected {obj.version - 1}")
+                        raise StaleLease(
+                            f"map {map_id}: object {obj.id} is at version {current.version}, write expected {obj.version - 1}"
+                        )
                 if obj.bounds is None:
                     raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
             for obj in deletes:
