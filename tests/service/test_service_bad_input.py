@@ -336,6 +336,25 @@ def test_deleting_a_map_id_with_glob_escapes_never_touches_another_map(redis_app
         redis.close()
 
 
+@pytest.mark.redis
+def test_query_boxes_at_the_edge_of_floats_answer_422_on_redis_too(redis_app: tuple[AppClient, RedisServer]) -> None:
+    api, server = redis_app
+    assert api.post("/v1/maps/q/frames", content=proto_body(make_test_frame(0, map_id="q")), headers=PROTOBUF).status_code == 202
+    assert_problem(api.get("/v1/maps/q/objects", params={"bbox": "-1e308,-1e308,-1e308,1e308,1e308,1e308"}), 422, "bbox")
+    assert api.get("/v1/maps/q/objects", params={"bbox": "-1e5,-1e5,-1e5,1e5,1e5,1e5"}).status_code == 200
+    with RedisStore(server.url) as store:  # below the API: an unbounded box reads the bounds, never overflows
+        assert store.query_region("q", np.full(3, -1e308), np.full(3, 1e308)) == {}
+
+
+def test_the_default_pixel_limit_bounds_a_queued_frame() -> None:
+    huge_png = png(np.zeros((4096, 4096, 3), np.uint8))
+    parts = multipart_parts(make_test_frame(0))
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as api:
+        response = api.post("/v1/maps/m/frames", files={**parts, "rgb": ("rgb.png", huge_png, "image/png")})
+    assert_problem(response, 422, "rgb")
+    assert f"at most {1920 * 1440} pixels" in response.json()["detail"]
+
+
 def wide_tilted_frame(map_id: str) -> Any:
     """A plausible frame whose one detection spans more index cells than a claim takes: a 640 x 480 wall
     2.45 m away filling a 159 x 139 degree view (fx 57, fy 45: the widest accepted), the camera tilted

@@ -30,7 +30,7 @@ PROTOBUF_MEDIA_TYPES = ("application/x-protobuf", "application/protobuf", "appli
 MULTIPART_MEDIA_TYPE = "multipart/form-data"
 JPEG_MAGIC = b"\xff\xd8\xff"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-DEFAULT_MAX_PIXELS = 4096 * 4096
+DEFAULT_MAX_PIXELS = 1920 * 1440  # Settings.max_frame_pixels
 MAX_META_BYTES = 64 * 1024  # the multipart meta JSON: a few hundred bytes in practice
 
 

@@ -71,7 +71,10 @@ class Settings(BaseSettings):
     workers: int = Field(2, ge=0, description="worker threads (memory store) or worker processes (Redis); 0 with Redis: API only")
     max_frame_bytes: int = Field(32 * 2**20, ge=1024, description="largest request body accepted (413 above)")
     max_frame_pixels: int = Field(
-        4096 * 4096, ge=1, description="largest image accepted, in pixels (read from its header before decoding)"
+        1920 * 1440,
+        ge=1,
+        description="largest image accepted, in pixels (read from its header before decoding): a queued frame "
+        "holds at most 5 bytes a pixel (14 MB at the default)",
     )
     max_queued_frames: int = Field(1000, ge=1, description="frames waiting before ingest answers 503")
     lock_ttl_s: float = Field(10.0, gt=0, description="per-object lock time to live")
