@@ -39,19 +39,35 @@ class RedisServer:
         self.url = f"redis://127.0.0.1:{port}/0"
 
     @classmethod
-    def start(cls, binary: str = "redis-server") -> RedisServer:
-        """Start a server and wait until it answers PING; skip the calling test when there is no binary."""
+    def start(cls, binary: str = "redis-server", *, port: int | None = None) -> RedisServer:
+        """Start a server (on ``port``, else a free one) and wait until it answers PING; skip the calling
+        test when there is no binary."""
         path = shutil.which(binary)
         if path is None:
             pytest.skip(f"{binary} not found on PATH (`make test` installs it; or apt-get install redis-server)")
+        chosen = port
         for _attempt in range(3):  # the free port may be taken between choosing and binding it
-            port = free_port()
+            port = chosen or free_port()
             workdir = tempfile.TemporaryDirectory(prefix="arcloud-redis-")
             process = subprocess.Popen(
                 [
-                    path, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
-                    "--dir", workdir.name, "--daemonize", "no", "--loglevel", "warning",
-                    "--logfile", str(Path(workdir.name) / "redis.log"),
+                    path,
+                    "--port",
+                    str(port),
+                    "--bind",
+                    "127.0.0.1",
+                    "--save",
+                    "",
+                    "--appendonly",
+                    "no",
+                    "--dir",
+                    workdir.name,
+                    "--daemonize",
+                    "no",
+                    "--loglevel",
+                    "warning",
+                    "--logfile",
+                    str(Path(workdir.name) / "redis.log"),
                 ],
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,

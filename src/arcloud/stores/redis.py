@@ -95,6 +95,12 @@ def connect_redis(url: str, *, reply_timeout_s: float = 30.0, retries: int = 10,
         raise InvalidInput("url", "a redis://, rediss:// or unix:// URL", f"a URL with scheme {scheme!r}") from exc
 
 
+def is_busy(exc: redis.exceptions.ResponseError) -> bool:
+    """Whether Redis answered ``BUSY`` (a script runs past busy-reply-threshold), alone or in a pipeline."""
+    message = str(exc)
+    return message.startswith("BUSY ") or "caused error: BUSY " in message
+
+
 @cache
 def lua_source(name: str) -> str:
     """The text of ``stores/lua/<name>.lua``."""
@@ -196,7 +202,7 @@ class RedisStore:
             message = str(exc)
             if message.startswith("STALE "):
                 raise StaleLease(message.removeprefix("STALE ")) from exc
-            if message.startswith("BUSY "):
+            if is_busy(exc):
                 raise StoreUnavailable(f"{what}: redis at {self._where()} busy ({message})") from exc
             raise StoreError(f"{what}: redis at {self._where()} answered {message}") from exc
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:

@@ -40,7 +40,7 @@ from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
 from arcloud.ports import LATENCY_BUCKETS_S, QueuedFrame, QueueFull, QueueStats, latency_bucket
 from arcloud.stores import keys
-from arcloud.stores.redis import connect_redis, lua_source
+from arcloud.stores.redis import connect_redis, is_busy, lua_source
 from arcloud.stores.stream_frames import decode_frame, encode_frame
 
 log = logging.getLogger(__name__)
@@ -105,7 +105,7 @@ class RedisFrameQueue:
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
             raise StoreUnavailable(f"cannot {doing}: Redis unreachable ({exc})") from exc
         except redis.exceptions.ResponseError as exc:
-            if str(exc).startswith("BUSY "):
+            if is_busy(exc):
                 raise StoreUnavailable(f"cannot {doing}: Redis busy ({exc})") from exc
             raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
         except redis.exceptions.RedisError as exc:

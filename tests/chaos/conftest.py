@@ -1,0 +1,7 @@
+"""The chaos suite reuses the service tests' helpers (frames, detector, servers): tests/service on sys.path."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "service"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
