@@ -36,14 +36,37 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
 
     out = tmp_path / "deep" / "results.json"
     with UvicornThread(create_app(Settings(detector="sim:0", workers=2))) as server:
-        args = parser().parse_args(["replay", "--url", server.url, "--map", "room", "--users", "3", "--seed", "0", "--frames", "24",
-                                    "--width", "160", "--out", str(out), "--no-progress"])
+        args = parser().parse_args(
+            [
+                "replay",
+                "--url",
+                server.url,
+                "--map",
+                "room",
+                "--users",
+                "3",
+                "--seed",
+                "0",
+                "--frames",
+                "24",
+                "--width",
+                "160",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
         assert args.handler(args) == 0
     results = json.loads(out.read_text())
     (row,) = results["table1"]
     assert {k: row[k] for k in ("approach", "users", "runs", "map25_var", "map50_var")} == {
-        "approach": "distributed", "users": 3, "runs": 1, "map25_var": 0.0, "map50_var": 0.0}
-    assert results["frames"] == {"sent": 24, "accepted": 24, "duplicate": 0, "processed": 24, "failed": 0}
+        "approach": "distributed",
+        "users": 3,
+        "runs": 1,
+        "map25_var": 0.0,
+        "map50_var": 0.0,
+    }
+    assert results["frames"] == {"sent": 24, "accepted": 24, "duplicate": 0, "processed": 24, "failed": 0, "lost": 0}
     assert 0.0 < row["map50_mean"] <= row["map25_mean"] <= 1.0
     printed = capsys.readouterr().out
     assert "mAP@0.25" in printed and "precision/recall@0.25" in printed
@@ -51,7 +74,9 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
     # The room's boxes, in the map's frame, and what a plain GET served, scored against them.
     room = generate_room(0)
     truth = [o.box for o in room.objects]
-    assert [(g["label"], g["aabb_min"], g["aabb_max"]) for g in results["ground_truth"]] == [(b.label, b.min.tolist(), b.max.tolist()) for b in truth]
+    assert [(g["label"], g["aabb_min"], g["aabb_max"]) for g in results["ground_truth"]] == [
+        (b.label, b.min.tolist(), b.max.tolist()) for b in truth
+    ]
     served, counts = results["served"], results["objects"]
     assert served["objects"] == counts["confirmed"] and counts["confirmed"] + counts["tentative"] >= served["objects"]
     for iou, key in ((0.25, "25"), (0.5, "50")):
@@ -63,7 +88,9 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
     assert served["map25"] is None or 0.0 <= served["map25"] <= 1.0
 
     # The same frames in order, in process (the centralized run): the service's map scores the same.
-    frames = simulate_sequence(room, n_frames=24, seed=0, width=160, height=120, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5))
+    frames = simulate_sequence(
+        room, n_frames=24, seed=0, width=160, height=120, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5)
+    )
     objects = run_map(frames, SimulatedDetector(room, seed=0), Params(), new_store=MemoryStore, users=1)
     centralized = evaluate({"s": object_boxes(objects)}, {"s": truth})
     assert row["map25_mean"] == pytest.approx(centralized.map_at(0.25), abs=0.1)
@@ -73,24 +100,52 @@ def test_replay_streams_users_and_scores_like_the_in_process_run(tmp_path: Path,
 
 def test_cli_options_become_settings(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ARCLOUD_LOCK_TTL_S", "4.5")
-    args = parser().parse_args(["serve", "--redis", "redis://127.0.0.1:6390/2", "--workers", "3", "--detector", "sim:7",
-                                "--zenoh-listen", "tcp/127.0.0.1:7447", "--zenoh-listen", "tcp/127.0.0.1:7448"])
+    args = parser().parse_args(
+        [
+            "serve",
+            "--redis",
+            "redis://127.0.0.1:6390/2",
+            "--workers",
+            "3",
+            "--detector",
+            "sim:7",
+            "--zenoh-listen",
+            "tcp/127.0.0.1:7447",
+            "--zenoh-listen",
+            "tcp/127.0.0.1:7448",
+        ]
+    )
     settings = settings_from_args(args)
-    assert (settings.store, settings.workers, settings.detector, settings.lock_ttl_s) == ("redis://127.0.0.1:6390/2", 3, "sim:7", 4.5)
+    assert (settings.store, settings.workers, settings.detector, settings.lock_ttl_s) == (
+        "redis://127.0.0.1:6390/2",
+        3,
+        "sim:7",
+        4.5,
+    )
     assert settings.zenoh_mode == "peer" and settings.zenoh_listen == ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:7448"]
     assert (args.host, args.port) == ("127.0.0.1", 8000)
-    worker = parser().parse_args(["worker", "--redis", "redis://r:6379/0", "--zenoh-connect", "tcp/zenoh:7447", "--zenoh-mode", "client"])
+    worker = parser().parse_args(
+        ["worker", "--redis", "redis://r:6379/0", "--zenoh-connect", "tcp/zenoh:7447", "--zenoh-mode", "client"]
+    )
     assert settings_from_args(worker).zenoh_connect == ["tcp/zenoh:7447"]
     with pytest.raises(SystemExit):
         parser().parse_args(["replay", "--users", "0"])
-    with pytest.raises(ArcloudError, match=r"store: expected `memory` or a URL.*'mysql://u:\*\*\*@db'; detector: expected PREFIX"):
+    with pytest.raises(
+        ArcloudError, match=r"store: expected `memory` or a URL.*'mysql://u:\*\*\*@db'; detector: expected PREFIX"
+    ):
         settings_from_args(parser().parse_args(["serve", "--redis", "mysql://u:pw@db", "--detector", "foo"]))
 
 
-def test_serve_and_worker_without_a_model_stop_at_once_with_one_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_serve_and_worker_without_a_model_stop_at_once_with_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     monkeypatch.delenv("ARCLOUD_MODEL", raising=False)
     monkeypatch.delenv("ARCLOUD_DETECTOR", raising=False)
-    for argv in (["serve"], ["serve", "--redis", "redis://127.0.0.1:1/0", "--workers", "2"], ["worker", "--redis", "redis://127.0.0.1:1/0"]):
+    for argv in (
+        ["serve"],
+        ["serve", "--redis", "redis://127.0.0.1:1/0", "--workers", "2"],
+        ["worker", "--redis", "redis://127.0.0.1:1/0"],
+    ):
         assert cli_main(argv) == 2  # before any server, worker process or Redis connection starts
         err = capsys.readouterr().err
         assert err.startswith("arcloud: error: detector spec: expected onnx:PATH to a model file") and "sim:SEED" in err

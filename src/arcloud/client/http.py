@@ -8,14 +8,23 @@
             print(obj["id"], obj["aabb"])     # confirmed objects; include_tentative=True for every object
 
 Frames travel as protobuf (``arcloud.v1.Frame``: JPEG colour, 16-bit PNG depth in millimetres by
-default). A 503 (queue full, store away) is retried after the server's Retry-After, ``max_retries``
-times. Other refusals raise ``ServiceError`` with the status and the server's message; transport
-failures are httpx's exceptions.
+default).
+
+Retries (``RetryPolicy``): a request that could not be sent or answered (connect or read error, a
+dropped connection, a timeout) and a 429, 502, 503 or 504 answer are tried again, ``max_retries``
+times, after an exponential backoff with jitter (``backoff_s`` doubling up to ``max_backoff_s``, times
+0.5 to 1.5; ``seed`` makes it repeatable), and at least the server's Retry-After. Only requests safe to
+send twice are: GET and DELETE, and frame uploads (the API answers ``duplicate`` for a frame (device,
+frame id) it accepted before, and queues nothing). Other refusals raise ``ServiceError`` with the status
+and the server's message; a transport failure after the last try is httpx's exception, with a note
+saying how many attempts were made over how long.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
+import random
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -31,8 +40,17 @@ if TYPE_CHECKING:
     from arcloud.proto.arcloud.v1 import arcloud_pb2
     from arcloud.proto.convert import RgbEncodingName
 
+log = logging.getLogger(__name__)
+
 PROTOBUF = "application/x-protobuf"
 DEFAULT_TIMEOUT_S = 30.0
+
+#: Answers worth trying again: rate limited, or the service (or a proxy before it) unavailable for now.
+RETRY_STATUSES = frozenset({429, 502, 503, 504})
+#: Transport failures worth trying again: no connection, a dropped or reset one, a timeout.
+RETRY_ERRORS = (httpx.TimeoutException, httpx.NetworkError, httpx.RemoteProtocolError)
+#: Methods safe to send twice (a frame upload is too: ``idempotent=True``).
+IDEMPOTENT_METHODS = frozenset({"GET", "HEAD", "OPTIONS", "DELETE"})
 
 
 class ServiceError(ArcloudError):
@@ -67,8 +85,16 @@ def frame_body(
         msg = frame_to_proto(frame, rgb_encoding=rgb_encoding, depth_scale=depth_scale)
     else:
         msg = frame_to_proto(
-            rgb=rgb, depth=depth, intrinsics=intrinsics, cam2world=cam2world, timestamp_s=timestamp_s, map_id=map_id or "",
-            device_id=device_id, frame_id=frame_id, depth_scale=depth_scale, rgb_encoding=rgb_encoding,
+            rgb=rgb,
+            depth=depth,
+            intrinsics=intrinsics,
+            cam2world=cam2world,
+            timestamp_s=timestamp_s,
+            map_id=map_id or "",
+            device_id=device_id,
+            frame_id=frame_id,
+            depth_scale=depth_scale,
+            rgb_encoding=rgb_encoding,
         )
     target = map_id or msg.map_id
     if not target:
@@ -76,7 +102,9 @@ def frame_body(
     return target, msg.SerializeToString()
 
 
-def object_query(label: str | None, min_score: float | None, bbox: Sequence[float] | None, include_tentative: bool = False) -> dict[str, str]:
+def object_query(
+    label: str | None, min_score: float | None, bbox: Sequence[float] | None, include_tentative: bool = False
+) -> dict[str, str]:
     params: dict[str, str] = {"include": "tentative"} if include_tentative else {}
     if label is not None:
         params["label"] = label
@@ -109,13 +137,56 @@ def retry_after_s(response: httpx.Response, default_s: float = 1.0) -> float:
         return default_s
 
 
+def backoff_s(attempt: int, *, base_s: float, max_s: float, jitter: float) -> float:
+    """The wait before retry ``attempt`` (0: the first): ``base_s * 2**attempt`` capped at ``max_s``,
+    times ``0.5 + jitter`` (``jitter`` in [0, 1))."""
+    return min(max_s, base_s * 2.0**attempt) * (0.5 + jitter)
+
+
+class RetryPolicy:
+    """When and how long the clients wait to try a request again (see the module's docstring).
+    ``seed``: the jitter's generator, for repeatable waits (None: seeded from the OS)."""
+
+    def __init__(
+        self, max_retries: int = 5, *, backoff_s: float = 0.25, max_backoff_s: float = 10.0, seed: int | None = None
+    ) -> None:
+        if max_retries < 0 or backoff_s < 0 or max_backoff_s < 0:
+            raise ArcloudError(
+                f"retries: expected max_retries, backoff_s, max_backoff_s >= 0, got {max_retries}, {backoff_s}, {max_backoff_s}"
+            )
+        self.max_retries = max_retries
+        self.backoff_s = backoff_s
+        self.max_backoff_s = max_backoff_s
+        self._rng = random.Random(seed)
+
+    def wait_s(self, attempt: int, response: httpx.Response | None = None) -> float:
+        """How long to wait before retry ``attempt`` (0: the first): the backoff, or the answer's
+        Retry-After when longer."""
+        wait = backoff_s(attempt, base_s=self.backoff_s, max_s=self.max_backoff_s, jitter=self._rng.random())
+        if response is not None and "retry-after" in response.headers:
+            wait = max(wait, retry_after_s(response))
+        return wait
+
+    def retryable(self, method: str, idempotent: bool) -> bool:
+        return self.max_retries > 0 and (idempotent or method.upper() in IDEMPOTENT_METHODS)
+
+
+def _gave_up(exc: Exception, method: str, path: str, attempts: int, started: float) -> None:
+    exc.add_note(f"arcloud: {method} {path}: no answer after {attempts} attempts over {time.monotonic() - started:.1f} s")
+
+
 def _done(stats: Mapping[str, Any], n_frames: int) -> bool:
     frames = stats["frames"]
     return bool(frames["processed"] + frames["failed"] >= n_frames)
 
 
 def subscribe(
-    map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, mode: SessionMode = "peer", include_tentative: bool = False
+    map_id: str,
+    callback: Callable[[arcloud_pb2.ObjectEvent], None],
+    endpoints: Sequence[str],
+    *,
+    mode: SessionMode = "peer",
+    include_tentative: bool = False,
 ) -> Subscription:
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
@@ -134,9 +205,19 @@ def subscribe(
 class ArcloudClient:
     """Blocking client of one service at ``url``."""
 
-    def __init__(self, url: str, *, timeout_s: float = DEFAULT_TIMEOUT_S, max_retries: int = 5, http: httpx.Client | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        *,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        max_retries: int = 5,
+        backoff_s: float = 0.25,
+        max_backoff_s: float = 10.0,
+        seed: int | None = None,
+        http: httpx.Client | None = None,
+    ) -> None:
         self.url = url.rstrip("/")
-        self.max_retries = max_retries
+        self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
         self._owns = http is None
         self.http = http if http is not None else httpx.Client(base_url=self.url, timeout=timeout_s)
 
@@ -150,12 +231,34 @@ class ArcloudClient:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _request(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
-        for attempt in range(self.max_retries + 1):
-            response = self.http.request(method, path, **kwargs)
-            if response.status_code != 503 or attempt == self.max_retries:
-                return checked(response)
-            time.sleep(retry_after_s(response))
+    def _request(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> dict[str, Any]:
+        retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
+        started = time.monotonic()
+        for attempt in range(retries + 1):
+            try:
+                response = self.http.request(method, path, **kwargs)
+            except RETRY_ERRORS as exc:
+                if attempt == retries:
+                    _gave_up(exc, method, path, attempt + 1, started)
+                    raise
+                wait_s = self.retry.wait_s(attempt)
+                log.info(
+                    "%s %s: %s; trying again in %.2f s (%d/%d)", method, path, type(exc).__name__, wait_s, attempt + 1, retries
+                )
+            else:
+                if response.status_code not in RETRY_STATUSES or attempt == retries:
+                    return checked(response)
+                wait_s = self.retry.wait_s(attempt, response)
+                log.info(
+                    "%s %s: HTTP %d; trying again in %.2f s (%d/%d)",
+                    method,
+                    path,
+                    response.status_code,
+                    wait_s,
+                    attempt + 1,
+                    retries,
+                )
+            time.sleep(wait_s)
         raise AssertionError("unreachable")
 
     def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
@@ -163,10 +266,18 @@ class ArcloudClient:
         cam2world=, timestamp_s=, device_id=, frame_id=, depth_scale=)`` (rgb (H, W, 3) uint8, depth
         (H, W) float32 metres or uint16 units). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
         map_id, body = frame_body(frame, **arrays)
-        return self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})
+        return self._request(
+            "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
+        )
 
     def list_objects(
-        self, map_id: str, *, include_tentative: bool = False, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None
+        self,
+        map_id: str,
+        *,
+        include_tentative: bool = False,
+        label: str | None = None,
+        min_score: float | None = None,
+        bbox: Sequence[float] | None = None,
     ) -> list[dict[str, Any]]:
         """The map's confirmed objects (``include_tentative``: tentative ones too), each with its ``status``."""
         params = object_query(label, min_score, bbox, include_tentative)
@@ -197,11 +308,18 @@ class ArcloudClient:
                 if exc.status != 404:  # 404: no frame of the map accepted yet
                     raise
             if time.monotonic() >= deadline:
-                raise TimeoutError(f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})")
+                raise TimeoutError(
+                    f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
+                )
             time.sleep(poll_s)
 
     def subscribe(
-        self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, include_tentative: bool = False
+        self,
+        map_id: str,
+        callback: Callable[[arcloud_pb2.ObjectEvent], None],
+        endpoints: Sequence[str],
+        *,
+        include_tentative: bool = False,
     ) -> Subscription:
         """As the module's ``subscribe``."""
         return subscribe(map_id, callback, endpoints, include_tentative=include_tentative)
@@ -210,9 +328,19 @@ class ArcloudClient:
 class AsyncArcloudClient:
     """asyncio client of one service at ``url`` (same methods as ``ArcloudClient``, awaitable)."""
 
-    def __init__(self, url: str, *, timeout_s: float = DEFAULT_TIMEOUT_S, max_retries: int = 5, http: httpx.AsyncClient | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        *,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        max_retries: int = 5,
+        backoff_s: float = 0.25,
+        max_backoff_s: float = 10.0,
+        seed: int | None = None,
+        http: httpx.AsyncClient | None = None,
+    ) -> None:
         self.url = url.rstrip("/")
-        self.max_retries = max_retries
+        self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
         self._owns = http is None
         self.http = http if http is not None else httpx.AsyncClient(base_url=self.url, timeout=timeout_s)
 
@@ -226,32 +354,66 @@ class AsyncArcloudClient:
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
-    async def _request(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
-        for attempt in range(self.max_retries + 1):
-            response = await self.http.request(method, path, **kwargs)
-            if response.status_code != 503 or attempt == self.max_retries:
-                return checked(response)
-            await asyncio.sleep(retry_after_s(response))
+    async def _request(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> dict[str, Any]:
+        retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
+        started = time.monotonic()
+        for attempt in range(retries + 1):
+            try:
+                response = await self.http.request(method, path, **kwargs)
+            except RETRY_ERRORS as exc:
+                if attempt == retries:
+                    _gave_up(exc, method, path, attempt + 1, started)
+                    raise
+                wait_s = self.retry.wait_s(attempt)
+                log.info(
+                    "%s %s: %s; trying again in %.2f s (%d/%d)", method, path, type(exc).__name__, wait_s, attempt + 1, retries
+                )
+            else:
+                if response.status_code not in RETRY_STATUSES or attempt == retries:
+                    return checked(response)
+                wait_s = self.retry.wait_s(attempt, response)
+                log.info(
+                    "%s %s: HTTP %d; trying again in %.2f s (%d/%d)",
+                    method,
+                    path,
+                    response.status_code,
+                    wait_s,
+                    attempt + 1,
+                    retries,
+                )
+            await asyncio.sleep(wait_s)
         raise AssertionError("unreachable")
 
     async def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
         """As ``ArcloudClient.send_frame``; the encoding runs in a thread."""
         map_id, body = await asyncio.to_thread(frame_body, frame, **arrays)
-        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})
+        return await self._request(
+            "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
+        )
 
     async def send_encoded(self, map_id: str, body: bytes) -> dict[str, Any]:
         """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
-        return await self._request("POST", f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": PROTOBUF})
+        return await self._request(
+            "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
+        )
 
     async def list_objects(
-        self, map_id: str, *, include_tentative: bool = False, label: str | None = None, min_score: float | None = None, bbox: Sequence[float] | None = None
+        self,
+        map_id: str,
+        *,
+        include_tentative: bool = False,
+        label: str | None = None,
+        min_score: float | None = None,
+        bbox: Sequence[float] | None = None,
     ) -> list[dict[str, Any]]:
         params = object_query(label, min_score, bbox, include_tentative)
         objects: list[dict[str, Any]] = (await self._request("GET", f"/v1/maps/{map_id}/objects", params=params))["objects"]
         return objects
 
     async def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
-        return await self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
+        return await self._request(
+            "GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {}
+        )
 
     async def delete_map(self, map_id: str) -> dict[str, Any]:
         return await self._request("DELETE", f"/v1/maps/{map_id}")
@@ -259,7 +421,9 @@ class AsyncArcloudClient:
     async def stats(self, map_id: str) -> dict[str, Any]:
         return await self._request("GET", f"/v1/maps/{map_id}/stats")
 
-    async def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
+    async def wait_until_processed(
+        self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1
+    ) -> dict[str, Any]:
         deadline = time.monotonic() + timeout_s
         stats: dict[str, Any] = {}
         while True:
@@ -271,11 +435,18 @@ class AsyncArcloudClient:
                 if exc.status != 404:
                     raise
             if time.monotonic() >= deadline:
-                raise TimeoutError(f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})")
+                raise TimeoutError(
+                    f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
+                )
             await asyncio.sleep(poll_s)
 
     def subscribe(
-        self, map_id: str, callback: Callable[[arcloud_pb2.ObjectEvent], None], endpoints: Sequence[str], *, include_tentative: bool = False
+        self,
+        map_id: str,
+        callback: Callable[[arcloud_pb2.ObjectEvent], None],
+        endpoints: Sequence[str],
+        *,
+        include_tentative: bool = False,
     ) -> Subscription:
         """As ``ArcloudClient.subscribe`` (the callback runs on a Zenoh thread)."""
         return subscribe(map_id, callback, endpoints, include_tentative=include_tentative)

@@ -20,7 +20,12 @@ Results JSON::
                 "matches": {"0.25": {"true_positives", "n_predictions", "n_gt", ...}, "0.5": {...}}},
      "objects": {"confirmed", "tentative"},
      "ground_truth": [{"label", "aabb_min", "aabb_max"}],
-     "frames": {"sent", "accepted", "processed"}, ...}
+     "frames": {"sent", "accepted", "duplicate", "processed", "failed", "lost"}, ...}
+
+The client tries every request again through an outage of the service or its store (``RetryPolicy``:
+``REPLAY_RETRIES`` times, up to 10 s apart): a frame sent twice is answered ``duplicate``. Frames the
+store lost (Redis restarted without its data) are counted ``lost``: the wait ends when every frame the
+map still has is done.
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ from arcloud import __version__
 from arcloud.client.http import AsyncArcloudClient, ServiceError, frame_body
 
 log = logging.getLogger(__name__)
+
+REPLAY_RETRIES = 20  # per request, 0.25 s doubling up to 10 s apart: rides out about 3 minutes of outage
 
 
 def replay(
@@ -68,7 +75,9 @@ def replay(
     room = generate_room(seed)
     scale = width / 640
     intrinsics = Intrinsics(525.0 * scale, 525.0 * scale, (width - 1) / 2, (height - 1) / 2)
-    frames = simulate_sequence(room, n_frames=n_frames, seed=seed, width=width, height=height, intrinsics=intrinsics, map_id=map_id)
+    frames = simulate_sequence(
+        room, n_frames=n_frames, seed=seed, width=width, height=height, intrinsics=intrinsics, map_id=map_id
+    )
     streams = user_streams(len(frames), users, np.random.default_rng(seed))
     rendered_s = time.perf_counter() - started
 
@@ -83,32 +92,50 @@ def replay(
     served_scores = evaluate(served_boxes, gt)
     matches = {f"{iou:g}": precision_recall(served_boxes, gt, iou_threshold=iou) for iou in (0.25, 0.5)}
     results: dict[str, Any] = {
-        "table1": [{
-            "approach": "distributed", "users": users, "runs": 1,
-            "map25_mean": _finite(scores.map_at(0.25)), "map25_var": 0.0,
-            "map50_mean": _finite(scores.map_at(0.5)), "map50_var": 0.0,
-        }],
+        "table1": [
+            {
+                "approach": "distributed",
+                "users": users,
+                "runs": 1,
+                "map25_mean": _finite(scores.map_at(0.25)),
+                "map25_var": 0.0,
+                "map50_mean": _finite(scores.map_at(0.5)),
+                "map50_var": 0.0,
+            }
+        ],
         "served": {
             "objects": len(served),
-            "precision25": matches["0.25"].precision, "recall25": _finite(matches["0.25"].recall),
-            "precision50": matches["0.5"].precision, "recall50": _finite(matches["0.5"].recall),
-            "map25": _finite(served_scores.map_at(0.25)), "map50": _finite(served_scores.map_at(0.5)),
+            "precision25": matches["0.25"].precision,
+            "recall25": _finite(matches["0.25"].recall),
+            "precision50": matches["0.5"].precision,
+            "recall50": _finite(matches["0.5"].recall),
+            "map25": _finite(served_scores.map_at(0.25)),
+            "map50": _finite(served_scores.map_at(0.5)),
             "matches": {iou: pr.to_dict() for iou, pr in matches.items()},
         },
-        "objects": {"confirmed": sum(1 for o in every if o["status"] == "confirmed"), "tentative": sum(1 for o in every if o["status"] == "tentative")},
-        "ground_truth": [{"label": box.label, "aabb_min": box.min.tolist(), "aabb_max": box.max.tolist()} for box in ground_truth],
+        "objects": {
+            "confirmed": sum(1 for o in every if o["status"] == "confirmed"),
+            "tentative": sum(1 for o in every if o["status"] == "tentative"),
+        },
+        "ground_truth": [
+            {"label": box.label, "aabb_min": box.min.tolist(), "aabb_max": box.max.tolist()} for box in ground_truth
+        ],
         "frames": {
             "sent": sent,
             "accepted": sum(1 for a in answers if a == "queued"),
             "duplicate": sum(1 for a in answers if a == "duplicate"),
             "processed": stats["frames"]["processed"],
             "failed": stats["frames"]["failed"],
+            "lost": max(0, sent - stats["frames"]["accepted"]),
         },
         "evaluation": scores.to_dict(),
         "scene": {"seed": seed, "frames": n_frames, "width": width, "height": height, "objects": len(ground_truth)},
         "service": {"url": url, "map_id": map_id},
-        "seconds": {"render": round(rendered_s, 2), "stream_and_process": round(processed_s, 2),
-                    "frames_per_s": round(n_frames / processed_s, 2) if processed_s > 0 else None},
+        "seconds": {
+            "render": round(rendered_s, 2),
+            "stream_and_process": round(processed_s, 2),
+            "frames_per_s": round(n_frames / processed_s, 2) if processed_s > 0 else None,
+        },
         "versions": {"arcloud": __version__, "python": platform.python_version(), "numpy": np.__version__},
     }
     if out is not None:
@@ -127,7 +154,11 @@ def _boxes(objects: list[dict[str, Any]]) -> list[Any]:
     """The listed objects that have a box, as scored boxes."""
     from arcloud.core.types import LabelledBox
 
-    return [LabelledBox(o["label"], o["aabb"]["min"], o["aabb"]["max"], o["score"]) for o in objects if o["aabb"] is not None and o["label"]]
+    return [
+        LabelledBox(o["label"], o["aabb"]["min"], o["aabb"]["max"], o["score"])
+        for o in objects
+        if o["aabb"] is not None and o["label"]
+    ]
 
 
 async def _stream(
@@ -138,14 +169,16 @@ async def _stream(
     from tqdm import tqdm
 
     answers: list[str] = []
-    async with AsyncArcloudClient(url, max_retries=50) as client:
+    async with AsyncArcloudClient(url, max_retries=REPLAY_RETRIES) as client:
         if not keep_map:
             try:
                 await client.delete_map(map_id)
             except ServiceError as exc:
                 if exc.status != 404:
                     raise
-        with tqdm(total=len(frames), unit="frame", desc=f"replay {len(streams)} users", disable=not show_progress, leave=False) as bar:
+        with tqdm(
+            total=len(frames), unit="frame", desc=f"replay {len(streams)} users", disable=not show_progress, leave=False
+        ) as bar:
 
             async def user(k: int, indices: list[int]) -> None:
                 for index in indices:
@@ -156,7 +189,39 @@ async def _stream(
                     bar.update(1)
 
             await asyncio.gather(*(user(k, indices) for k, indices in enumerate(streams)))
-        stats = await client.wait_until_processed(map_id, len(frames), timeout_s, poll_s=0.25)
+        stats = await _wait_until_settled(client, map_id, len(frames), timeout_s)
         served = await client.list_objects(map_id)
         every = await client.list_objects(map_id, include_tentative=True)
     return len(frames), answers, stats, served, every
+
+
+async def _wait_until_settled(
+    client: AsyncArcloudClient, map_id: str, n_frames: int, timeout_s: float, poll_s: float = 0.25
+) -> dict[str, Any]:
+    """The map's stats once ``n_frames`` frames are processed or failed, or once every frame the map
+    still has is (fewer than ``n_frames`` accepted: the store lost some; logged). ``TimeoutError`` after
+    ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    stats: dict[str, Any] = {}
+    while True:
+        try:
+            stats = await client.stats(map_id)
+            frames = stats["frames"]
+            if frames["processed"] + frames["failed"] >= n_frames:
+                return stats
+            if frames["accepted"] < n_frames and frames["pending"] == 0:
+                log.warning(
+                    "map %s: %d of %d frames sent are lost (the store lost its data?)",
+                    map_id,
+                    n_frames - frames["accepted"],
+                    n_frames,
+                )
+                return stats
+        except ServiceError as exc:
+            if exc.status != 404:  # 404: no frame of the map accepted (yet, or the store lost them)
+                raise
+        if time.monotonic() >= deadline:
+            raise TimeoutError(
+                f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
+            )
+        await asyncio.sleep(poll_s)

@@ -21,8 +21,14 @@ from arcloud.argtypes import PARAMS_HELP, non_negative_int, params_overrides, po
 
 def _store_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--redis", metavar="URL", help="Redis URL (default: $ARCLOUD_STORE, else the embedded in-memory store)")
-    parser.add_argument("--detector", metavar="SPEC", help="sim:SEED, onnx:PATH, maskrcnn:PATH, ... (default: $ARCLOUD_DETECTOR or onnx)")
-    parser.add_argument("--zenoh-mode", choices=("off", "peer", "client", "router"), help="Zenoh session mode (default off; on when endpoints are given)")
+    parser.add_argument(
+        "--detector", metavar="SPEC", help="sim:SEED, onnx:PATH, maskrcnn:PATH, ... (default: $ARCLOUD_DETECTOR or onnx)"
+    )
+    parser.add_argument(
+        "--zenoh-mode",
+        choices=("off", "peer", "client", "router"),
+        help="Zenoh session mode (default off; on when endpoints are given)",
+    )
     parser.add_argument("--zenoh-listen", metavar="ENDPOINT", action="append", help="e.g. tcp/0.0.0.0:7447 (repeatable)")
     parser.add_argument("--zenoh-connect", metavar="ENDPOINT", action="append", help="e.g. tcp/zenoh:7447 (repeatable)")
     parser.add_argument("--params", metavar="JSON", type=params_overrides, help=PARAMS_HELP)
@@ -30,25 +36,30 @@ def _store_options(parser: argparse.ArgumentParser) -> None:
 
 def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     serve = subparsers.add_parser(
-        "serve", help="run the HTTP service (embedded, or on Redis with worker processes)",
+        "serve",
+        help="run the HTTP service (embedded, or on Redis with worker processes)",
         description="The FastAPI service on uvicorn. Embedded by default (one process, worker threads); with --redis, "
         "frames go through a Redis Stream to --workers worker processes started here (0: run them elsewhere).",
     )
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     serve.add_argument("--port", type=int, default=8000, help="port (default 8000)")
-    serve.add_argument("--workers", type=non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2")
+    serve.add_argument(
+        "--workers", type=non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2"
+    )
     _store_options(serve)
     serve.set_defaults(handler=run_serve)
 
     worker = subparsers.add_parser(
-        "worker", help="run one ingest worker process on Redis (more with more processes or containers)",
+        "worker",
+        help="run one ingest worker process on Redis (more with more processes or containers)",
         description="Reads frames from the Redis ingest stream through the consumer group until SIGTERM.",
     )
     _store_options(worker)
     worker.set_defaults(handler=run_worker_command)
 
     replay = subparsers.add_parser(
-        "replay", help="stream a simulated room through a running service as K users and score the map",
+        "replay",
+        help="stream a simulated room through a running service as K users and score the map",
         description="The service must run `--detector sim:SEED` with the same seed. Writes mAP of every object (Table 1), "
         "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes.",
     )
@@ -59,7 +70,9 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # typ
     replay.add_argument("--frames", type=positive_int, default=300, help="frames in the walk (default 300)")
     replay.add_argument("--width", type=positive_int, default=640, help="image width (default 640; height 3/4 of it)")
     replay.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for processing (default 1800)")
-    replay.add_argument("--out", type=Path, default=Path("results.json"), help="results JSON (default results.json): scores, counts, ground truth")
+    replay.add_argument(
+        "--out", type=Path, default=Path("results.json"), help="results JSON (default results.json): scores, counts, ground truth"
+    )
     replay.add_argument("--no-progress", action="store_true", help="no progress bar")
     replay.set_defaults(handler=run_replay_command)
 
@@ -146,16 +159,29 @@ def run_replay_command(args: argparse.Namespace) -> int:
 
     map_id = args.map_id or f"room{args.seed}"
     height = args.width * 3 // 4
-    results = replay(args.url, map_id, args.users, args.seed, args.out, n_frames=args.frames, width=args.width, height=height,
-                     timeout_s=args.timeout, show_progress=not args.no_progress)
+    results = replay(
+        args.url,
+        map_id,
+        args.users,
+        args.seed,
+        args.out,
+        n_frames=args.frames,
+        width=args.width,
+        height=height,
+        timeout_s=args.timeout,
+        show_progress=not args.no_progress,
+    )
     row = results["table1"][0]
     frames = results["frames"]
     served = results["served"]
-    print(f"{row['users']} users, {frames['sent']} frames sent, {frames['accepted']} accepted, {frames['processed']} processed "
-          f"in {results['seconds']['stream_and_process']:.1f} s: mAP@0.25 {_fmt(row['map25_mean'])}, mAP@0.5 {_fmt(row['map50_mean'])} "
-          f"(every object); served {served['objects']} of {served['objects'] + results['objects']['tentative']} objects: "
-          f"precision/recall@0.25 {_fmt(served['precision25'])}/{_fmt(served['recall25'])}, "
-          f"@0.5 {_fmt(served['precision50'])}/{_fmt(served['recall50'])} -> {args.out}")
+    lost = f", {frames['lost']} lost" if frames["lost"] else ""
+    print(
+        f"{row['users']} users, {frames['sent']} frames sent, {frames['accepted']} accepted, {frames['processed']} processed{lost} "
+        f"in {results['seconds']['stream_and_process']:.1f} s: mAP@0.25 {_fmt(row['map25_mean'])}, mAP@0.5 {_fmt(row['map50_mean'])} "
+        f"(every object); served {served['objects']} of {served['objects'] + results['objects']['tentative']} objects: "
+        f"precision/recall@0.25 {_fmt(served['precision25'])}/{_fmt(served['recall25'])}, "
+        f"@0.5 {_fmt(served['precision50'])}/{_fmt(served['recall50'])} -> {args.out}"
+    )
     return 0
 
 
