@@ -22,6 +22,7 @@ from arcloud.client import ArcloudClient
 from arcloud.service import app as service_app
 from arcloud.service.runtime import Adapters, FrameHandler
 from arcloud.service.settings import Settings
+from arcloud.stores.keys import ingest_accepted_key
 from arcloud.tools import wiring
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
@@ -150,3 +151,25 @@ def test_a_hung_redis_gives_503_quickly_and_healthz_answers(serving: Serving) ->
     with serving.client() as client:
         client.send_frame(make_test_frame(3, map_id="b"))
         client.wait_until_processed("b", 2, 30)
+
+
+def test_replay_survives_a_redis_restart_mid_run(serving: Serving) -> None:
+    from arcloud.tools.replay import replay
+
+    def accepted() -> int:
+        with serving.redis.client() as client:
+            return int(client.scard(ingest_accepted_key("walk")))
+
+    started = time.monotonic()
+    with ThreadPoolExecutor(1) as pool:
+        running = pool.submit(
+            replay, serving.url, "walk", 2, 0, None, n_frames=40, width=160, height=120, timeout_s=60, show_progress=False
+        )
+        wait_until(lambda: accepted() >= 5, 60, "replay's first frames accepted", 0.01)
+        serving.redis = restart_empty(serving.redis)
+        results = running.result(timeout=120)
+    elapsed_s = time.monotonic() - started
+    frames = results["frames"]
+    print(f"\nreplay through a Redis restart: {frames} in {elapsed_s:.1f} s")
+    assert frames["sent"] == 40 and frames["accepted"] + frames["duplicate"] == 40 and frames["lost"] >= 5
+    assert frames["processed"] + frames["failed"] <= 40 - frames["lost"] + 2  # + the frames in workers' hands at the restart

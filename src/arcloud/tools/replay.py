@@ -190,6 +190,8 @@ async def _stream(
 
             await asyncio.gather(*(user(k, indices) for k, indices in enumerate(streams)))
         stats = await _wait_until_settled(client, map_id, len(frames), timeout_s)
+        if stats["frames"]["accepted"] == 0:  # the store lost the whole map
+            return len(frames), answers, stats, [], []
         served = await client.list_objects(map_id)
         every = await client.list_objects(map_id, include_tentative=True)
     return len(frames), answers, stats, served, every
@@ -199,7 +201,8 @@ async def _wait_until_settled(
     client: AsyncArcloudClient, map_id: str, n_frames: int, timeout_s: float, poll_s: float = 0.25
 ) -> dict[str, Any]:
     """The map's stats once ``n_frames`` frames are processed or failed, or once every frame the map
-    still has is (fewer than ``n_frames`` accepted: the store lost some; logged). ``TimeoutError`` after
+    still has is (fewer than ``n_frames`` accepted: the store lost some; logged). Called once every frame
+    was answered 202, so a map unknown (404) lost every frame: zero counts. ``TimeoutError`` after
     ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     stats: dict[str, Any] = {}
@@ -218,8 +221,14 @@ async def _wait_until_settled(
                 )
                 return stats
         except ServiceError as exc:
-            if exc.status != 404:  # 404: no frame of the map accepted (yet, or the store lost them)
+            if exc.status != 404:
                 raise
+            log.warning("map %s: all %d frames sent are lost (the store lost its data?)", map_id, n_frames)
+            return {
+                "map_id": map_id,
+                "frames": dict.fromkeys(("accepted", "processed", "failed", "pending"), 0),
+                "objects": {"confirmed": 0, "tentative": 0},
+            }
         if time.monotonic() >= deadline:
             raise TimeoutError(
                 f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
