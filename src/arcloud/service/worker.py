@@ -35,7 +35,7 @@ import time
 from typing import Any, Literal
 
 from arcloud.core.types import Frame, Params
-from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease
+from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
 from arcloud.ports import Detector, FrameQueue, ObjectStore, QueuedFrame, UpdatePublisher
 from arcloud.service.map_header import open_map_checked
 
@@ -115,7 +115,10 @@ class FrameWorker:
 
     def run(self, stop: threading.Event) -> None:
         """Work until ``stop`` is set; the frame in hand is finished first."""
-        self.queue.prepare()
+        try:
+            self.queue.prepare()
+        except StoreUnavailable as exc:  # the loop waits for the queue; its readers create what is missing
+            log.warning("worker %s: cannot prepare the queue yet: %s", self.consumer, exc)
         log.info("worker %s taking frames", self.consumer)
         beating = threading.Event()
         heart = None
@@ -126,10 +129,15 @@ class FrameWorker:
             while not stop.is_set():
                 try:
                     self.poll_once()
+                    if not self._reading:
+                        log.info("worker %s: polling works again", self.consumer)
                     self._reading = True
-                except Exception:  # the queue away for a moment: wait and go on
+                except Exception as exc:  # the queue away for a moment: wait and go on
+                    if self._reading:  # the traceback once per outage, then a line a second
+                        log.exception("worker %s: polling failed; retrying every second", self.consumer)
+                    else:
+                        log.warning("worker %s: polling still fails: %s", self.consumer, exc)
                     self._reading = False
-                    log.exception("worker %s: polling failed; retrying in 1 s", self.consumer)
                     stop.wait(1.0)
         finally:
             if heart is not None:
