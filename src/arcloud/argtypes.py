@@ -45,7 +45,7 @@ def parse_users(text: str) -> tuple[int, ...]:
 
 
 PARAMS_HELP = (
-    'algorithm settings as a JSON object, e.g. \'{"voxel_size_m": 0.04}\' (arcloud.core.types.Params; '
+    "algorithm settings as a JSON object, e.g. '{\"voxel_size_m\": 0.04}' (arcloud.core.types.Params; "
     "default $ARCLOUD_PARAMS or none)"
 )
 
@@ -70,7 +70,7 @@ def params_from_environment() -> dict[str, Any]:
     try:
         return params_overrides(text)
     except argparse.ArgumentTypeError as exc:
-        from arcloud.errors import InvalidInput
+        from arcloud.core.errors import InvalidInput
 
         raise InvalidInput(PARAMS_ENV, 'a JSON object like {"voxel_size_m": 0.04}', repr(text)) from exc
 
@@ -80,8 +80,8 @@ def make_params(overrides: dict[str, Any]) -> Params:
     or a bad value (``Params`` checks its fields)."""
     import dataclasses
 
+    from arcloud.core.errors import InvalidInput
     from arcloud.core.types import Params
-    from arcloud.errors import InvalidInput
 
     known = {f.name for f in dataclasses.fields(Params)}
     for name in overrides:

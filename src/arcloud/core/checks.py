@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -14,7 +13,7 @@ from arcloud.core.types import CLASSES, Detection, Frame, Intrinsics
 ROTATION_TOLERANCE = 1e-3
 MAX_ID_LENGTH = 128
 # Map ids name Redis keys, SCAN patterns and Zenoh key expressions: letters, digits, '.', '_', '-' only.
-MAP_ID_PATTERN = re.compile(rf"[A-Za-z0-9._-]{{1,{MAX_ID_LENGTH}}}")
+MAP_ID_CHARACTERS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-")
 
 # What a real camera sends (checked at the service's edge by ``check_plausible_frame``; ``make_frame``
 # takes any finite values). Each bound keeps the state one frame makes small: a focal length of a few
@@ -45,8 +44,8 @@ def check_id(field: str, value: object) -> str:
 
 
 def check_map_id(field: str, value: object) -> str:
-    """A map id: 1 to ``MAX_ID_LENGTH`` letters, digits, '.', '_' or '-' (``MAP_ID_PATTERN``)."""
-    if not isinstance(value, str) or not MAP_ID_PATTERN.fullmatch(value):
+    """A map id: 1 to ``MAX_ID_LENGTH`` letters, digits, '.', '_' or '-' (``MAP_ID_CHARACTERS``, ASCII only)."""
+    if not isinstance(value, str) or not 0 < len(value) <= MAX_ID_LENGTH or not MAP_ID_CHARACTERS.issuperset(value):
         raise InvalidInput(
             field, f"a non-empty string of at most {MAX_ID_LENGTH} letters, digits, '.', '_' or '-'", describe(value)
         )
