@@ -283,6 +283,33 @@ def bad_requests() -> list[tuple[str, str, str, dict[str, Any], int, str | None]
             400,
             "content-length",
         ),
+        ("object id of 40 digits", "GET", "/v1/maps/m/objects/" + "9" * 40, {}, 404, None),
+        ("min_score NaN", "GET", "/v1/maps/m/objects", {"params": {"min_score": "nan"}}, 422, "min_score"),
+        ("map id not ASCII", "GET", "/v1/maps/%C3%A9/stats", {}, 422, "map_id"),
+        (
+            "timestamp NaN",
+            "POST",
+            "/v1/maps/m/frames",
+            {"content": proto_body(frame, timestamp_s=float("nan")), "headers": PROTOBUF},
+            422,
+            "timestamp_s",
+        ),
+        (
+            "unknown rgb encoding",
+            "POST",
+            "/v1/maps/m/frames",
+            {"content": proto_body(frame, rgb_encoding=99), "headers": PROTOBUF},
+            422,
+            "rgb_encoding",
+        ),
+        (
+            "frame id of 10000 characters",
+            "POST",
+            "/v1/maps/m/frames",
+            {"content": proto_body(frame, frame_id="x" * 10_000), "headers": PROTOBUF},
+            422,
+            "frame_id",
+        ),
     ]
 
 
