@@ -99,7 +99,7 @@ def _table1_runs(
             table1(
                 frames, detector, gt, params, new_store=MemoryStore, users=distributed, runs=runs, seed=seed, workers=workers,
                 scene=name, progress=bar.update,
-                on_run=lambda approach, k, run, objects, name=name: collector(name, approach, k, run, objects),
+                on_run=lambda approach, k, run, objects, name=name: collector(name, approach, k, run, objects),  # type: ignore[misc]  # name=name: the loop's scene
             )  # fmt: skip
 
 

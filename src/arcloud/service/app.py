@@ -60,7 +60,7 @@ from arcloud.service.settings import Settings
 
 log = logging.getLogger(__name__)
 
-Label = Literal[CLASSES]  # type: ignore[valid-type]
+Label = Literal[CLASSES]  # type: ignore[valid-type]  # the class names as a Literal, unpacked from the tuple at run time
 
 
 class BodyTooLarge(Exception):
@@ -77,17 +77,30 @@ class BodyLimit:
         self.app = app
         self.max_bytes = max_bytes
 
-    async def __call__(self, scope: MutableMapping[str, Any], receive: Callable[[], Awaitable[dict[str, Any]]], send: Callable[..., Awaitable[None]]) -> None:
+    async def __call__(
+        self,
+        scope: MutableMapping[str, Any],
+        receive: Callable[[], Awaitable[dict[str, Any]]],
+        send: Callable[..., Awaitable[None]],
+    ) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         declared = dict(scope.get("headers") or []).get(b"content-length")
         if declared is not None:
             if not declared.isdigit():
-                await JSONResponse({"detail": f"content-length: expected a number of bytes, got {declared.decode(errors='replace')!r}", "field": "content-length"}, 400)(scope, receive, send)
+                await JSONResponse(
+                    {
+                        "detail": f"content-length: expected a number of bytes, got {declared.decode(errors='replace')!r}",
+                        "field": "content-length",
+                    },
+                    400,
+                )(scope, receive, send)
                 return
             if int(declared) > self.max_bytes:
-                await JSONResponse({"detail": str(BodyTooLarge(self.max_bytes, f"{int(declared)} bytes")), "field": "body"}, 413)(scope, receive, send)
+                await JSONResponse({"detail": str(BodyTooLarge(self.max_bytes, f"{int(declared)} bytes")), "field": "body"}, 413)(
+                    scope, receive, send
+                )
                 return
         received = 0
 
@@ -105,7 +118,7 @@ class BodyLimit:
 
 # --- dependencies ------------------------------------------------------------------------------------
 def get_runtime(request: Request) -> Runtime:
-    return request.app.state.runtime  # type: ignore[no-any-return]
+    return request.app.state.runtime
 
 
 RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
@@ -140,23 +153,35 @@ def parse_bbox(text: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --- routes ------------------------------------------------------------------------------------------
-_META_EXAMPLE = FrameMeta.model_config["json_schema_extra"]["examples"][0]  # type: ignore[index]
+_META_EXAMPLE = FrameMeta.model_config["json_schema_extra"]["examples"][0]  # type: ignore[index]  # FrameMeta sets a dict of examples
 FRAME_BODY_DOC: dict[str, Any] = {
     "requestBody": {
         "required": True,
         "content": {
             "application/x-protobuf": {
-                "schema": {"type": "string", "format": "binary", "description": "arcloud.v1.Frame (proto/arcloud/v1/arcloud.proto)"},
+                "schema": {
+                    "type": "string",
+                    "format": "binary",
+                    "description": "arcloud.v1.Frame (proto/arcloud/v1/arcloud.proto)",
+                },
             },
             "multipart/form-data": {
                 "schema": {
                     "type": "object",
                     "required": ["meta", "rgb", "depth"],
                     "properties": {
-                        "meta": {"type": "string", "description": "JSON: device_id, frame_id, timestamp (s), intrinsics {fx, fy, cx, cy}, "
-                                 "cam2world (4x4 row-major), depth_scale (units per metre)", "example": json.dumps(_META_EXAMPLE)},
+                        "meta": {
+                            "type": "string",
+                            "description": "JSON: device_id, frame_id, timestamp (s), intrinsics {fx, fy, cx, cy}, "
+                            "cam2world (4x4 row-major), depth_scale (units per metre)",
+                            "example": json.dumps(_META_EXAMPLE),
+                        },
                         "rgb": {"type": "string", "format": "binary", "description": "JPEG or PNG, same size as the depth"},
-                        "depth": {"type": "string", "format": "binary", "description": "single-channel 16-bit PNG of depth units"},
+                        "depth": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "single-channel 16-bit PNG of depth units",
+                        },
                     },
                 }
             },
@@ -174,7 +199,11 @@ router = APIRouter()
     summary="Upload one posed RGB-D frame",
     description="Validated in full, then queued; processing is asynchronous (see the map's stats). Posting a frame "
     "(device_id, frame_id) again answers `duplicate` and queues nothing, unless it failed before.",
-    responses={**PROBLEM_RESPONSES, 413: {"model": Problem, "description": "body too large"}, 415: {"model": Problem, "description": "wrong content type"}},
+    responses={
+        **PROBLEM_RESPONSES,
+        413: {"model": Problem, "description": "body too large"},
+        415: {"model": Problem, "description": "wrong content type"},
+    },
     openapi_extra=FRAME_BODY_DOC,
     tags=["frames"],
 )
@@ -189,7 +218,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
             parts: dict[str, bytes] = {}
             for name, what in (("meta", "JSON"), ("rgb", "a JPEG or PNG image"), ("depth", "a 16-bit PNG image")):
                 data = frames_in.form_bytes(form, name, what)
-                parts[name] = data if data is not None else await form[name].read()  # type: ignore[union-attr]
+                parts[name] = data if data is not None else await form[name].read()  # type: ignore[union-attr]  # form_bytes gave None: an upload, not a str
         msg = frames_in.message_from_parts(frames_in.parse_meta(parts["meta"]), parts["rgb"], parts["depth"], map_id)
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
@@ -211,10 +240,15 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
 def list_objects(
     map_id: MapId,
     runtime: RuntimeDep,
-    include: Annotated[Literal["tentative"] | None, Query(description="tentative: tentative objects too", examples=["tentative"])] = None,
-    label: Annotated[Label | None, Query(description="only this class")] = None,  # type: ignore[valid-type]
+    include: Annotated[
+        Literal["tentative"] | None, Query(description="tentative: tentative objects too", examples=["tentative"])
+    ] = None,
+    label: Annotated[Label | None, Query(description="only this class")] = None,
     min_score: Annotated[float, Query(ge=0.0, le=1.0, description="only objects scoring at least this")] = 0.0,
-    bbox: Annotated[str | None, Query(description="only objects whose voxels' bounds meet this box: x0,y0,z0,x1,y1,z1 (m)", examples=["0,0,0,2,2,2"])] = None,
+    bbox: Annotated[
+        str | None,
+        Query(description="only objects whose voxels' bounds meet this box: x0,y0,z0,x1,y1,z1 (m)", examples=["0,0,0,2,2,2"]),
+    ] = None,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
     if bbox is not None:
@@ -222,7 +256,11 @@ def list_objects(
         objects = runtime.store.object_meta(map_id, sorted(runtime.store.query_region(map_id, lo, hi)))
     else:
         objects = runtime.store.list_meta(map_id)
-    chosen = [o for o in objects if (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score]
+    chosen = [
+        o
+        for o in objects
+        if (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score
+    ]
     return {"objects": [object_out(o) for o in sorted(chosen, key=lambda o: o.id)]}
 
 
@@ -249,11 +287,21 @@ def get_object(
     out = object_out(obj)
     if voxels:
         size = runtime.params.voxel_size_m
-        out["voxels"] = {"voxel_size_m": size, "centers": key_centers(obj.keys, size).tolist(), "weights": obj.weights.astype(float).tolist()}
+        out["voxels"] = {
+            "voxel_size_m": size,
+            "centers": key_centers(obj.keys, size).tolist(),
+            "weights": obj.weights.astype(float).tolist(),
+        }
     return out
 
 
-@router.delete("/v1/maps/{map_id}", response_model=MapDeleted, responses=PROBLEM_RESPONSES, tags=["maps"], summary="Delete a map and its counts")
+@router.delete(
+    "/v1/maps/{map_id}",
+    response_model=MapDeleted,
+    responses=PROBLEM_RESPONSES,
+    tags=["maps"],
+    summary="Delete a map and its counts",
+)
 def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
     known_map(runtime, map_id, same_settings=False)
     removed = runtime.store.delete_map(map_id)
@@ -262,8 +310,13 @@ def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
     return MapDeleted(map_id=map_id, deleted_objects=removed)
 
 
-@router.get("/v1/maps/{map_id}/stats", response_model=MapStats, responses=PROBLEM_RESPONSES, tags=["maps"],
-            summary="Frames and objects (confirmed and tentative) of a map")
+@router.get(
+    "/v1/maps/{map_id}/stats",
+    response_model=MapStats,
+    responses=PROBLEM_RESPONSES,
+    tags=["maps"],
+    summary="Frames and objects (confirmed and tentative) of a map",
+)
 def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     known_map(runtime, map_id)
     counts = runtime.ingest.counts(map_id)
@@ -271,7 +324,12 @@ def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     confirmed = sum(1 for o in objects if o.confirmed)
     return {
         "map_id": map_id,
-        "frames": {"accepted": counts.accepted, "processed": counts.processed, "failed": counts.failed, "pending": counts.pending},
+        "frames": {
+            "accepted": counts.accepted,
+            "processed": counts.processed,
+            "failed": counts.failed,
+            "pending": counts.pending,
+        },
         "objects": {"confirmed": confirmed, "tentative": len(objects) - confirmed},
     }
 
@@ -282,7 +340,13 @@ async def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", response_model=Ready, responses={503: {"model": Ready}}, tags=["operations"], summary="Store reachable, detector loaded, workers alive")
+@router.get(
+    "/readyz",
+    response_model=Ready,
+    responses={503: {"model": Ready}},
+    tags=["operations"],
+    summary="Store reachable, detector loaded, workers alive",
+)
 def readyz(runtime: RuntimeDep) -> JSONResponse:
     checks: dict[str, str] = {}
     try:
@@ -329,7 +393,9 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     registry, rejected = make_registry(lambda: app.state.runtime.ingest if app.state.runtime is not None else None)
     app.state.metrics_registry = registry
 
-    def problem(request: Request, status: int, detail: str, field_name: str | None = None, headers: dict[str, str] | None = None) -> JSONResponse:
+    def problem(
+        request: Request, status: int, detail: str, field_name: str | None = None, headers: dict[str, str] | None = None
+    ) -> JSONResponse:
         if request.method == "POST" and request.url.path.endswith("/frames"):
             rejected.labels(status=str(status)).inc()
         return JSONResponse({"detail": detail, "field": field_name}, status_code=status, headers=headers)

@@ -118,7 +118,7 @@ def close_quietly(thing: Closeable | None) -> None:
         return
     try:
         thing.close()
-    except Exception:  # noqa: BLE001 - shutdown must go on
+    except Exception:  # shutdown must go on
         log.warning("closing %s failed", type(thing).__name__, exc_info=True)
 
 

@@ -62,8 +62,8 @@ class FrameMeta(BaseModel):
     def flat_pose(self) -> list[float]:
         pose = self.cam2world
         if pose and isinstance(pose[0], list):
-            return [float(v) for row in pose for v in row]  # type: ignore[union-attr]
-        return [float(v) for v in pose]  # type: ignore[arg-type]
+            return [float(v) for row in pose for v in row]
+        return [float(v) for v in pose]  # type: ignore[arg-type]  # not nested: a flat list of numbers
 
 
 class Box(BaseModel):

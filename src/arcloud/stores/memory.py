@@ -14,16 +14,19 @@ import time
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
 from arcloud.core.header import MapHeader
-from arcloud.core.ports import MAX_CELLS_PER_CALL
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
 from arcloud.ports import ObjectMeta
 from arcloud.stores import codec
 from arcloud.stores.codec import meta_of
+
+_Name = tuple[str, Any]  # what a lease holds: ("object", id) or ("cell", (i, j, k))
 
 
 @dataclass(slots=True)
@@ -38,7 +41,7 @@ class _MapState:
     bounds: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     index: dict[tuple[int, int, int], set[int]] = field(default_factory=dict)
     cells_of: dict[int, list[tuple[int, int, int]]] = field(default_factory=dict)
-    held: dict[object, _Holder] = field(default_factory=dict)  # ("object", id) or ("cell", (i, j, k))
+    held: dict[_Name, _Holder] = field(default_factory=dict)
     frames: set[str] = field(default_factory=set)
     ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
     changed: threading.Condition = field(default_factory=threading.Condition)
@@ -47,12 +50,12 @@ class _MapState:
 class MemoryLease:
     """Locks or claims held in a ``MemoryStore``; releases on exit."""
 
-    def __init__(self, store: MemoryStore, map_id: str, names: list[object], token: str) -> None:
+    def __init__(self, store: MemoryStore, map_id: str, names: list[_Name], token: str) -> None:
         self.store = store
         self.map_id = map_id
         self.names = names
         self.token = token
-        self.ids = tuple(name[1] for name in names if name[0] == "object")  # type: ignore[index]
+        self.ids = tuple(name[1] for name in names if name[0] == "object")
 
     def release(self) -> None:
         self.store._release(self)
@@ -88,7 +91,7 @@ class MemoryStore:
     def _cells(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[int, int, int]]:
         c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m).astype(np.int64)
         c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m).astype(np.int64)
-        return [tuple(c) for c in itertools.product(*(range(a, b + 1) for a, b in zip(c_lo, c_hi)))]  # type: ignore[misc]
+        return [(i, j, k) for i, j, k in itertools.product(*(range(a, b + 1) for a, b in zip(c_lo, c_hi)))]
 
     def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
@@ -114,12 +117,12 @@ class MemoryStore:
         return self._acquire(map_id, [("object", int(i)) for i in sorted(set(ids))], ttl_s, timeout_s)
 
     def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> MemoryLease:
-        names: list[object] = [("cell", tuple(int(c) for c in cell)) for cell in sorted(set(cells))]
+        names: list[_Name] = [("cell", tuple(int(c) for c in cell)) for cell in sorted(set(cells))]
         if len(names) > MAX_CELLS_PER_CALL:
             raise TooManyCells("cells", len(names), MAX_CELLS_PER_CALL)
         return self._acquire(map_id, names, ttl_s, timeout_s)
 
-    def _acquire(self, map_id: str, names: list[object], ttl_s: float, timeout_s: float) -> MemoryLease:
+    def _acquire(self, map_id: str, names: list[_Name], ttl_s: float, timeout_s: float) -> MemoryLease:
         state = self._map(map_id)
         token = uuid.uuid4().hex
         deadline = time.monotonic() + timeout_s
@@ -162,20 +165,21 @@ class MemoryStore:
     def commit(
         self,
         map_id: str,
-        leases: Sequence[MemoryLease],
+        leases: Sequence[Lease],
         upserts: Sequence[MapObject],
         deletes: Sequence[MapObject],
         *,
         frame_key: str | None = None,
         misses: Mapping[int, int] | None = None,
     ) -> bool:
+        own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
         state = self._map(map_id)
         with state.changed:
             if frame_key is not None and frame_key in state.frames:
                 return False
             now = time.monotonic()
             held: set[int] = set()
-            for lease in leases:
+            for lease in own:
                 for name in lease.names:
                     holder = state.held.get(name)
                     if holder is None or holder.token != lease.token or holder.expires_at <= now:

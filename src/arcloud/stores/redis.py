@@ -25,10 +25,10 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   of ``arcloud:{map}:*`` removes whatever else is left (leases still alive). Not atomic against writers
   of the same map that run at the same time.
 
-How long a call may take: ``reply_timeout_s`` bounds each wait for a reply (or a connection), and
-redis-py retries a command on connection errors and timeouts (``connect_redis``: ``retries`` times,
-timeouts only with ``retry_timeouts``; the API retries a connection error once and a timeout never, so
-that a hung Redis answers ``StoreUnavailable`` within about ``reply_timeout_s``). If a commit's
+How long a call may take: ``reply_timeout_s`` bounds each wait for a reply or a connection (workers
+30 s; the API ``api_redis_timeout_s``, 2 s, so that a hung Redis answers ``StoreUnavailable`` within
+about that). A command that meets a connection error (a restarted Redis: its pooled connection is dead)
+is sent again once on a new connection; a timeout is not (``connect_redis``). If a commit's
 reply is lost and the retry finds the commit already applied, it returns False (with a ``frame_key``:
 the frame is recorded) or raises ``StaleLease`` (without): the data was written once either way. The
 lock script is idempotent per token, so a retried acquire does not wait for itself.
@@ -48,19 +48,20 @@ import math
 import random
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from functools import cache
 from importlib import resources
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import redis
 
 from arcloud.core.header import MapHeader
-from arcloud.core.ports import MAX_CELLS_PER_CALL
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable, TooManyCells
+from arcloud.ports import ObjectMeta
 from arcloud.stores import codec, keys
 
 log = logging.getLogger(__name__)
@@ -75,17 +76,15 @@ GET_BATCH = 256  # objects per pipeline when reading many
 SCAN_COUNT = 1000
 
 
-def connect_redis(url: str, *, reply_timeout_s: float = 30.0, retries: int = 10, retry_timeouts: bool = True) -> redis.Redis:
+def connect_redis(url: str, *, reply_timeout_s: float = 30.0, retries: int = 1) -> redis.Redis:
     """A client of ``url`` (binary responses) waiting at most ``reply_timeout_s`` for a reply or a
-    connection, retrying a command ``retries`` times (jittered backoff from 10 ms to 1 s, redis-py's
-    default) on a connection error, and on a timeout when ``retry_timeouts``. ``InvalidInput`` for a bad URL."""
+    connection. A command that meets a connection error is sent again ``retries`` times on a new
+    connection (jittered backoff from 10 ms, doubling up to 1 s); a timeout is not retried, so a hung
+    Redis costs one ``reply_timeout_s`` per command. ``InvalidInput`` for a bad URL."""
     from redis.backoff import ExponentialWithJitterBackoff
     from redis.retry import Retry
 
-    errors: tuple[type[Exception], ...] = (redis.exceptions.ConnectionError,)
-    if retry_timeouts:
-        errors += (redis.exceptions.TimeoutError, TimeoutError)
-    retry = Retry(ExponentialWithJitterBackoff(base=0.01, cap=1.0), retries, supported_errors=errors)
+    retry = Retry(ExponentialWithJitterBackoff(base=0.01, cap=1.0), retries, supported_errors=(redis.exceptions.ConnectionError,))
     try:
         return redis.Redis.from_url(
             url, socket_connect_timeout=min(5.0, reply_timeout_s), socket_timeout=reply_timeout_s, retry=retry
@@ -135,7 +134,7 @@ class RedisStore:
     """``ObjectStore`` on Redis. ``cell_m``: size of the spatial index's cubic cells (every process of
     one deployment must use the same). ``client``: an existing ``redis.Redis`` (binary responses, i.e.
     ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
-    ``reply_timeout_s``, ``retries``, ``retry_timeouts``). ``votes_f16`` stores votes as float16 (see ``codec``)."""
+    ``reply_timeout_s``, ``retries``). ``votes_f16`` stores votes as float16 (see ``codec``)."""
 
     codec_version = codec.FORMAT_VERSION
 
@@ -148,13 +147,12 @@ class RedisStore:
         max_query_cells: int = MAX_QUERY_CELLS,
         votes_f16: bool = False,
         reply_timeout_s: float = 30.0,
-        retries: int = 10,
-        retry_timeouts: bool = True,
+        retries: int = 1,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
         if client is None:
-            client = connect_redis(url, reply_timeout_s=reply_timeout_s, retries=retries, retry_timeouts=retry_timeouts)
+            client = connect_redis(url, reply_timeout_s=reply_timeout_s, retries=retries)
             self._owns_client = True
         else:
             self._owns_client = False
@@ -220,7 +218,7 @@ class RedisStore:
         """Index cells touched by the box [lo, hi] (each (3,), metres)."""
         c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m).astype(np.int64)
         c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m).astype(np.int64)
-        return list(itertools.product(*(range(int(a), int(b) + 1) for a, b in zip(c_lo, c_hi))))  # type: ignore[arg-type]
+        return [(i, j, k) for i, j, k in itertools.product(*(range(int(a), int(b) + 1) for a, b in zip(c_lo, c_hi)))]
 
     def _n_cells(self, lo: np.ndarray, hi: np.ndarray) -> float:
         """How many index cells the box [lo, hi] touches (inf when unbounded)."""
@@ -236,6 +234,7 @@ class RedisStore:
         if np.any(lo > hi):
             return {}
         n_cells = self._n_cells(lo, hi)
+        pairs: Iterable[tuple[Any, Any]]
         with self._boundary(f"query_region on map {map_id}"):
             if n_cells <= self.max_query_cells:
                 c_lo, c_hi = np.floor(lo / self.cell_m), np.floor(hi / self.cell_m)
@@ -245,7 +244,9 @@ class RedisStore:
                 )
                 pairs = zip(flat[::2], flat[1::2])
             else:
-                pairs = self.client.hgetall(keys.bounds_key(map_id)).items()
+                pairs = cast(
+                    "dict[bytes, bytes]", self.client.hgetall(keys.bounds_key(map_id))
+                ).items()  # bytes: no decode_responses
         ids, blobs = [], []
         for raw_id, blob in pairs:
             ids.append(int(raw_id))
@@ -265,7 +266,7 @@ class RedisStore:
         ordered = sorted({tuple(int(c) for c in cell) for cell in cells})
         if len(ordered) > MAX_CELLS_PER_CALL:  # one script call takes every key: keep it short
             raise TooManyCells("cells", len(ordered), MAX_CELLS_PER_CALL)
-        return self._acquire(map_id, [keys.claim_key(map_id, c) for c in ordered], (), ttl_s, timeout_s)  # type: ignore[arg-type]
+        return self._acquire(map_id, [keys.claim_key(map_id, c) for c in ordered], (), ttl_s, timeout_s)  # type: ignore[arg-type]  # cells are (i, j, k)
 
     def _acquire(self, map_id: str, lease_keys: list[str], ids: tuple[int, ...], ttl_s: float, timeout_s: float) -> RedisLease:
         token = uuid.uuid4().hex
@@ -317,20 +318,20 @@ class RedisStore:
             ]
         return found
 
-    def object_meta(self, map_id: str, ids: Sequence[int]) -> list[codec.ObjectMeta]:
+    def object_meta(self, map_id: str, ids: Sequence[int]) -> list[ObjectMeta]:
         """The objects' metadata without their voxels (one read), in the order given; missing ids skipped."""
         ids = [int(i) for i in ids]
         if not ids:
             return []
         with self._boundary(f"object_meta on map {map_id}"):
-            metas = self.client.hmget(keys.meta_key(map_id), ids)
+            metas = cast("list[bytes | None]", self.client.hmget(keys.meta_key(map_id), ids))  # bytes: no decode_responses
         present = [(i, meta) for i, meta in zip(ids, metas) if meta is not None]
         return codec.decode_metas([i for i, _ in present], [meta for _, meta in present])
 
-    def list_meta(self, map_id: str) -> list[codec.ObjectMeta]:
+    def list_meta(self, map_id: str) -> list[ObjectMeta]:
         """Metadata of every object of the map (one read), by id."""
         with self._boundary(f"list_meta on map {map_id}"):
-            metas = self.client.hgetall(keys.meta_key(map_id))
+            metas = cast("dict[bytes, bytes]", self.client.hgetall(keys.meta_key(map_id)))  # bytes: no decode_responses
         ordered = sorted((int(i), meta) for i, meta in metas.items())
         return codec.decode_metas([i for i, _ in ordered], [meta for _, meta in ordered])
 
@@ -350,14 +351,15 @@ class RedisStore:
     def commit(
         self,
         map_id: str,
-        leases: Sequence[RedisLease],
+        leases: Sequence[Lease],
         upserts: Sequence[MapObject],
         deletes: Sequence[MapObject],
         *,
         frame_key: str | None = None,
         misses: Mapping[int, int] | None = None,
     ) -> bool:
-        for lease in leases:
+        own = cast("Sequence[RedisLease]", leases)  # the port's Lease: here always one this store handed out
+        for lease in own:
             if lease.map_id != map_id:
                 raise InvalidInput("leases", f"leases of map {map_id}", f"a lease of map {lease.map_id}")
         for obj in upserts:
@@ -372,8 +374,8 @@ class RedisStore:
                 )
         header: dict[str, Any] = {
             "frame": frame_key or "",
-            "leases": [[key, lease.token] for lease in leases for key in lease.keys],
-            "held": [str(i) for lease in leases for i in lease.ids],
+            "leases": [[key, lease.token] for lease in own for key in lease.keys],
+            "held": [str(i) for lease in own for i in lease.ids],
             "upserts": [],
             "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
             "misses": [{"id": str(int(i)), "count": str(int(n))} for i, n in (misses or {}).items()],

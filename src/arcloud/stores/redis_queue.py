@@ -32,7 +32,7 @@ import logging
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import redis
 
@@ -43,7 +43,13 @@ from arcloud.stores import keys
 from arcloud.stores.redis import connect_redis, is_busy, lua_source
 from arcloud.stores.stream_frames import decode_frame, encode_frame
 
+if TYPE_CHECKING:
+    from redis.typing import EncodableT, FieldT
+
 log = logging.getLogger(__name__)
+
+#: XREADGROUP's reply (bytes: no decode_responses): [(stream, [(entry id, fields), ...])], None when nothing came.
+_ReadReply = list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]] | None
 
 #: The stats HASH's counters (``QueueStats`` fields), beside ``latency_le_<bound>`` and ``latency_sum_s``.
 STAT_FIELDS = ("accepted", "duplicates", "processed", "redelivered", "failed", "claimed", "retried")
@@ -57,7 +63,8 @@ def latency_field(bucket: int) -> str:
 def parse_stats(raw: Mapping[bytes | str, bytes | str]) -> QueueStats:
     """The stats HASH as ``QueueStats`` (missing fields are 0)."""
     values = {_text(k): _text(v) for k, v in raw.items()}
-    stats = QueueStats(**{name: int(values.get(name, 0)) for name in STAT_FIELDS})
+    counts: dict[str, Any] = {name: int(values.get(name, 0)) for name in STAT_FIELDS}
+    stats = QueueStats(**counts)
     stats.latency_counts = [int(values.get(latency_field(b), 0)) for b in range(len(LATENCY_BUCKETS_S) + 1)]
     stats.latency_sum_s = float(values.get("latency_sum_s", 0.0))
     return stats
@@ -132,14 +139,14 @@ class RedisFrameQueue:
                 self.client.hincrby(keys.INGEST_STATS, "duplicates", 1)
                 return False
             try:
-                fields = {
+                fields: dict[FieldT, EncodableT] = {
                     "map_id": frame.map_id,
                     "frame_key": frame.key,
                     "accepted_at_s": repr(time.time()),
                     "frame": encode_frame(frame, message),
                 }
                 pipe = self.client.pipeline(transaction=False)
-                pipe.xadd(keys.INGEST_STREAM, fields)  # type: ignore[arg-type]
+                pipe.xadd(keys.INGEST_STREAM, fields)
                 pipe.hincrby(keys.INGEST_STATS, "accepted", 1)
                 pipe.execute()
             except BaseException:
@@ -204,10 +211,10 @@ class RedisFrameQueue:
         block_ms = max(1, int(block_s * 1000))
         with self._boundary("read the ingest stream"):
             try:
-                reply = self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
+                reply = cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms))
             except redis.exceptions.ResponseError as exc:
                 self._recreate_group(exc)
-                reply = self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
+                reply = cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms))
         for _stream, entries in reply or []:
             for entry_id, fields in entries:
                 return self._delivery(consumer, entry_id, fields, deliveries=1)
@@ -293,7 +300,7 @@ class RedisFrameQueue:
         )
         with self._boundary("dead-letter the entry"):
             pipe = self.client.pipeline(transaction=False)
-            pipe.xadd(keys.INGEST_DEAD_LETTER_STREAM, dead)  # type: ignore[arg-type]
+            pipe.xadd(keys.INGEST_DEAD_LETTER_STREAM, dead)
             pipe.xack(keys.INGEST_STREAM, self.group, entry_id)
             pipe.xdel(keys.INGEST_STREAM, entry_id)
             pipe.hincrby(keys.INGEST_STATS, "failed", 1)

@@ -34,7 +34,7 @@ def _store_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--params", metavar="JSON", type=params_overrides, help=PARAMS_HELP)
 
 
-def add_service_commands(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
     serve = subparsers.add_parser(
         "serve",
         help="run the HTTP service (embedded, or on Redis with worker processes)",
