@@ -68,7 +68,9 @@ def frames_key(map_id: str = "*", device_id: str = "*") -> str:
     return f"{KEY_ROOT}/{map_id}/frames/{device_id}"
 
 
-def zenoh_config(mode: SessionMode = "peer", *, listen: Sequence[str] = (), connect: Sequence[str] = (), multicast: bool = False) -> zenoh.Config:
+def zenoh_config(
+    mode: SessionMode = "peer", *, listen: Sequence[str] = (), connect: Sequence[str] = (), multicast: bool = False
+) -> zenoh.Config:
     """A Zenoh session config: ``mode``, endpoints, multicast scouting off unless asked."""
     import zenoh
 
