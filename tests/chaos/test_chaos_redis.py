@@ -136,15 +136,19 @@ def test_a_hung_redis_gives_503_quickly_and_healthz_answers(serving: Serving) ->
         started = time.monotonic()
         not_ready = http.get(f"{serving.url}/readyz")
         readyz_s = time.monotonic() - started
+        started = time.monotonic()
+        worker_healthy = wiring.healthy(Settings(store=serving.redis.url))  # the containers' healthcheck
+        healthcheck_s = time.monotonic() - started
     print(
         f"\nRedis hung: objects 503 in {refused_s:.2f} s, /healthz 200 in {healthz_s:.3f} s under 60 waiting requests, "
-        f"/readyz 503 in {readyz_s:.2f} s"
+        f"/readyz 503 in {readyz_s:.2f} s, worker healthcheck false in {healthcheck_s:.2f} s"
     )
     assert refused.status_code == 503 and refused.headers["retry-after"] == "5", refused.text
     assert refused_s <= UNAVAILABLE_BOUND_S
     assert health.status_code == 200 and healthz_s <= HEALTHZ_BOUND_S
     assert {r.status_code for r in flooded} == {503}
     assert not_ready.status_code == 503 and not_ready.json()["checks"]["store"].startswith("unreachable")
+    assert not worker_healthy and healthcheck_s <= UNAVAILABLE_BOUND_S
     # Redis answers again: all is well, without a restart.
     wait_until(lambda: httpx.get(objects, timeout=10).status_code == 200, 10, "objects served again", 0.1)
     wait_until(serving.ready, 30, "/readyz ready again", 0.1)

@@ -25,7 +25,7 @@ from typing import Any
 
 from fastapi import FastAPI
 
-from arcloud.errors import InvalidInput
+from arcloud.errors import InvalidInput, StoreUnavailable
 from arcloud.ports import Detector, FrameQueue, ObjectStore, UpdatePublisher
 from arcloud.service import app as service_app
 from arcloud.service.pool import WorkerPool
@@ -116,20 +116,16 @@ def build_detector(spec: str, *, threads: int | None = None) -> Detector:
 
 
 # --- store, queue, publisher -------------------------------------------------------------------------
-def build_store(url: str, *, cell_m: float, reply_timeout_s: float | None = None) -> ObjectStore:
-    """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore``: a worker's (None: patient, redis-py's
-    retries), or the API's, waiting ``reply_timeout_s`` at most (a connection error retried once, a
-    timeout never: a hung Redis answers 503 within about that)."""
+def build_store(url: str, *, cell_m: float, reply_timeout_s: float = 30.0) -> ObjectStore:
+    """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore`` waiting ``reply_timeout_s`` at most for
+    a reply (workers: 30 s; the API: ``api_redis_timeout_s``, so that a hung Redis answers 503 within about that)."""
     if url == "memory":
         from arcloud.stores.memory import MemoryStore
 
         return MemoryStore(cell_m=cell_m)
     from arcloud.stores.redis import RedisStore
 
-    bounded: dict[str, Any] = (
-        {} if reply_timeout_s is None else {"reply_timeout_s": reply_timeout_s, "retries": 1, "retry_timeouts": False}
-    )
-    return RedisStore(url, cell_m=cell_m, **bounded)
+    return RedisStore(url, cell_m=cell_m, reply_timeout_s=reply_timeout_s)
 
 
 def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_block_s: float = 0.0) -> FrameQueue:
@@ -316,17 +312,22 @@ def worker_pool(
 
 
 def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0) -> bool:
-    """Whether a worker on ``host`` (default: this one) wrote a heartbeat in the last ``max_age_s``."""
+    """Whether a worker on ``host`` (default: this one) wrote a heartbeat in the last ``max_age_s`` (False
+    when Redis does not answer within 3 s)."""
     import socket
 
+    from arcloud.stores.redis import connect_redis
     from arcloud.stores.redis_queue import RedisFrameQueue
 
     prefix = f"{host or socket.gethostname()}-"
-    queue = RedisFrameQueue(settings.store, group=settings.consumer_group, socket_timeout_s=3.0)
+    client = connect_redis(settings.store, reply_timeout_s=3.0)  # a hung Redis: unhealthy in 3 s
     try:
+        queue = RedisFrameQueue(client=client, group=settings.consumer_group)
         return any(name.startswith(prefix) for name in queue.live_consumers(max_age_s))
+    except StoreUnavailable:
+        return False
     finally:
-        queue.close()
+        client.close()
 
 
 __all__ = [
