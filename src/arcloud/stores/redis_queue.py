@@ -209,12 +209,18 @@ class RedisFrameQueue:
     # --- consumer ----------------------------------------------------------------------------------
     def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
         block_ms = max(1, int(block_s * 1000))
+
+        def read() -> _ReadReply:
+            return cast(
+                _ReadReply, self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
+            )
+
         with self._boundary("read the ingest stream"):
             try:
-                reply = cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms))
+                reply = read()
             except redis.exceptions.ResponseError as exc:
                 self._recreate_group(exc)
-                reply = cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms))
+                reply = read()
         for _stream, entries in reply or []:
             for entry_id, fields in entries:
                 return self._delivery(consumer, entry_id, fields, deliveries=1)
