@@ -59,7 +59,11 @@ def run_suite(name: str, *, quick: bool, work_dir: Path, shared: Path | None) ->
 
 def format_table(records: Mapping[str, Mapping[str, Any]]) -> str:
     """One row per suite, split and approach: ``mean (worst)`` of each of ``COLUMNS``."""
-    header = f"{'suite':8} {'split':7} {'cases':>5} {'approach':12}" + "".join(f" {title:>15}" for _, title in COLUMNS) + f" {'gap mAP@.25':>15}"
+    header = (
+        f"{'suite':8} {'split':7} {'cases':>5} {'approach':12}"
+        + "".join(f" {title:>15}" for _, title in COLUMNS)
+        + f" {'gap mAP@.25':>15}"
+    )
     lines = [header, "-" * len(header)]
     for suite, record in records.items():
         for split, entry in record["summary"].items():
@@ -83,7 +87,14 @@ def sim_targets(record: Mapping[str, Any]) -> list[dict[str, Any]]:
     for approach in ("centralized", "distributed"):
         for key, (statistic, bound) in SIM_TARGETS.items():
             value = report.get(approach, {}).get(key, {}).get(statistic)
-            rows.append({"figure": f"{approach} {key} ({statistic})", "value": value, "bound": f">= {bound}", "met": value is not None and value >= bound})
+            rows.append(
+                {
+                    "figure": f"{approach} {key} ({statistic})",
+                    "value": value,
+                    "bound": f">= {bound}",
+                    "met": value is not None and value >= bound,
+                }
+            )
     gap = report.get("gap_map25", {}).get("mean")
     rows.append({"figure": "map25 gap, centralized - distributed (mean)", "value": gap, "bound": f"<= {SIM_MAX_GAP_MAP25}",
                  "met": gap is not None and gap <= SIM_MAX_GAP_MAP25})  # fmt: skip
@@ -115,9 +126,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the suites' quick versions (a few minutes in all)")
     parser.add_argument("--suites", default=",".join(SUITE_MODULES), help=f"comma-separated, from {','.join(SUITE_MODULES)}")
-    parser.add_argument("--out", type=Path, default=None, help="JSON file (default bench/results/accuracy.json, accuracy_quick.json with --quick)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON file (default bench/results/accuracy.json, accuracy_quick.json with --quick)"
+    )
     parser.add_argument("--work", type=Path, default=Path("out/accuracy"), help="folder for renders, exports and pictures")
-    parser.add_argument("--shared", type=Path, default=None, help="folder with the real data (default: the suites' own, ../shared)")
+    parser.add_argument(
+        "--shared", type=Path, default=None, help="folder with the real data (default: the suites' own, ../shared)"
+    )
     args = parser.parse_args()
     suites = [s.strip() for s in args.suites.split(",") if s.strip()]
     unknown = [s for s in suites if s not in SUITE_MODULES]
@@ -156,8 +171,12 @@ def main() -> int:
     print(format_table(records))
     for row in payload.get("sim_targets", []):
         value = "-" if row["value"] is None else f"{row['value']:.3f}"
-        print(f"target sim/report {row['figure']}: {value} {row['bound']}: {'met' if row['met'] else 'NOT MET'}{' (quick run: indicative)' if args.quick else ''}")
-    print(f"accuracy suites: {len(records)} run, {len(skipped)} skipped, {len(failed)} failed ({', '.join(failed) or 'none'}), {payload['wall_s']:.0f} s")
+        print(
+            f"target sim/report {row['figure']}: {value} {row['bound']}: {'met' if row['met'] else 'NOT MET'}{' (quick run: indicative)' if args.quick else ''}"
+        )
+    print(
+        f"accuracy suites: {len(records)} run, {len(skipped)} skipped, {len(failed)} failed ({', '.join(failed) or 'none'}), {payload['wall_s']:.0f} s"
+    )
     return 1 if failed else 0
 
 

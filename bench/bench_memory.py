@@ -153,7 +153,12 @@ def codec_figures(objects: list[MapObject], *, votes_f16: bool) -> dict[str, int
     voxels = [len(codec.encode_voxels(o.keys, o.weights, o.votes, seen=o.seen, votes_f16=votes_f16)) for o in objects]
     meta = [len(codec.encode_meta(o)) for o in objects]
     bounds = [len(codec.pack_box(o.bounds)) for o in objects if o.bounds is not None]
-    return {"voxels_bytes": sum(voxels), "meta_bytes": sum(meta), "payload_bytes": sum(voxels) + sum(meta), "bounds_bytes": sum(bounds)}
+    return {
+        "voxels_bytes": sum(voxels),
+        "meta_bytes": sum(meta),
+        "payload_bytes": sum(voxels) + sum(meta),
+        "bounds_bytes": sum(bounds),
+    }
 
 
 def redis_figures(client: redis.Redis, map_id: str, object_ids: list[int]) -> dict[str, Any]:
@@ -194,7 +199,11 @@ def redis_figures(client: redis.Redis, map_id: str, object_ids: list[int]) -> di
 
 
 def run_frames(
-    sequence: SevenScenesSequence, names: tuple[str, ...], detector: Detector, store: ObjectStore, params: Params,
+    sequence: SevenScenesSequence,
+    names: tuple[str, ...],
+    detector: Detector,
+    store: ObjectStore,
+    params: Params,
     dense: list[DenseReconstruction],
 ) -> dict[str, float]:
     """Each frame, in order: ``process_frame`` into the store, then into every dense reconstruction.
@@ -217,10 +226,17 @@ def run_frames(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=positive_int, default=None, help="at most this many frames (after the stride; default all)")
+    parser.add_argument(
+        "--frames", type=positive_int, default=None, help="at most this many frames (after the stride; default all)"
+    )
     parser.add_argument("--stride", type=positive_int, default=1, help="every S-th frame (default 1)")
-    parser.add_argument("--dense-voxel-sizes", type=float, nargs="+", default=None,
-                        help=f"TSDF voxel sizes in metres (default: the pipeline's and {DENSE_VOXEL_SIZE_M})")
+    parser.add_argument(
+        "--dense-voxel-sizes",
+        type=float,
+        nargs="+",
+        default=None,
+        help=f"TSDF voxel sizes in metres (default: the pipeline's and {DENSE_VOXEL_SIZE_M})",
+    )
     parser.add_argument("--out", type=Path, default=Path("bench/results/memory.json"))
     args = parser.parse_args()
     from arcloud.allocator import keep_freed_memory
@@ -259,7 +275,9 @@ def main() -> None:
     finally:
         server.stop()
     if in_redis["stored_payload_bytes"] != payload["payload_bytes"]:
-        print(f"warning: Redis holds {in_redis['stored_payload_bytes']} payload bytes, the codec gives {payload['payload_bytes']}")
+        print(
+            f"warning: Redis holds {in_redis['stored_payload_bytes']} payload bytes, the codec gives {payload['payload_bytes']}"
+        )
 
     with tempfile.TemporaryDirectory(prefix="arcloud-bench-mesh-") as folder:
         meshes = [reconstruction.mesh_figures(Path(folder)) for reconstruction in dense]
@@ -267,7 +285,9 @@ def main() -> None:
     map_bytes = {"codec_payload": payload["payload_bytes"], "redis_memory_usage": in_redis["object_map_bytes"]}
     ratios = {
         f"{mesh['voxel_size_m'] * 100:g}cm": {
-            f"{mesh_kind}_over_{map_kind}": round(mesh[f"{mesh_kind}_bytes"] / size, 2) if size and mesh[f"{mesh_kind}_bytes"] else None
+            f"{mesh_kind}_over_{map_kind}": round(mesh[f"{mesh_kind}_bytes"] / size, 2)
+            if size and mesh[f"{mesh_kind}_bytes"]
+            else None
             for mesh_kind in ("ply", "array")
             for map_kind, size in map_bytes.items()
         }
@@ -311,13 +331,17 @@ def main() -> None:
         **environment(("arcloud", "numpy", "open3d", "onnxruntime", "redis")),
     }
     write_json(args.out, out)
-    print(f"{len(names)} frames: {len(objects)} objects, {n_voxels} voxels; object map {payload['payload_bytes']} B codec payload "
-          f"({out['object_map']['codec_payload_bytes_per_voxel']} B/voxel), {in_redis['object_map_bytes']} B in Redis "
-          f"({out['object_map']['redis_bytes_per_voxel']} B/voxel)")
+    print(
+        f"{len(names)} frames: {len(objects)} objects, {n_voxels} voxels; object map {payload['payload_bytes']} B codec payload "
+        f"({out['object_map']['codec_payload_bytes_per_voxel']} B/voxel), {in_redis['object_map_bytes']} B in Redis "
+        f"({out['object_map']['redis_bytes_per_voxel']} B/voxel)"
+    )
     for mesh in meshes:
         label = f"{mesh['voxel_size_m'] * 100:g}cm"
-        print(f"TSDF {label}: {mesh['vertices']} vertices, {mesh['triangles']} triangles, PLY {mesh['ply_bytes']} B, "
-              f"arrays {mesh['array_bytes']} B; mesh/map {ratios[label]}")
+        print(
+            f"TSDF {label}: {mesh['vertices']} vertices, {mesh['triangles']} triangles, PLY {mesh['ply_bytes']} B, "
+            f"arrays {mesh['array_bytes']} B; mesh/map {ratios[label]}"
+        )
     print(f"wall {out['wall_s']}")
 
 

@@ -99,12 +99,20 @@ class Service:
 
         self.redis = redis
         self.workers = workers
-        settings = Settings(store=redis.url, detector=f"sim:{seed}", detector_threads=threads or None, workers=workers, max_queued_frames=10_000,
-                            log_level="WARNING")
+        settings = Settings(
+            store=redis.url,
+            detector=f"sim:{seed}",
+            detector_threads=threads or None,
+            workers=workers,
+            max_queued_frames=10_000,
+            log_level="WARNING",
+        )
         port = free_port()
         self.url = f"http://127.0.0.1:{port}"
         self.app = create_app(settings)
-        self.server = uvicorn.Server(uvicorn.Config(self.app, host="127.0.0.1", port=port, log_level="warning", ws="none", access_log=False))
+        self.server = uvicorn.Server(
+            uvicorn.Config(self.app, host="127.0.0.1", port=port, log_level="warning", ws="none", access_log=False)
+        )
         self.thread = threading.Thread(target=self.server.run, daemon=True)
 
     def __enter__(self) -> Service:
@@ -127,9 +135,22 @@ class Service:
     def cpu_s(self) -> dict[str, float]:
         """CPU seconds used so far by this process (the API, and the load generator), the workers and Redis."""
         workers = self.app.state.runtime.ingest.pool.processes
-        return {"api_and_load": cpu_s(os.getpid()), "workers": sum(cpu_s(p.pid) for p in workers), "redis": cpu_s(self.redis.process.pid)}
+        return {
+            "api_and_load": cpu_s(os.getpid()),
+            "workers": sum(cpu_s(p.pid) for p in workers),
+            "redis": cpu_s(self.redis.process.pid),
+        }
 
-    def run(self, map_id: str, bodies: list[bytes], keys: list[str], *, concurrency: int, interval_s: float = 0.0, poll_s: float = POLL_S) -> dict[str, Any]:
+    def run(
+        self,
+        map_id: str,
+        bodies: list[bytes],
+        keys: list[str],
+        *,
+        concurrency: int,
+        interval_s: float = 0.0,
+        poll_s: float = POLL_S,
+    ) -> dict[str, Any]:
         """Post every body (all at once, or one every ``interval_s``); per-frame post and completion times,
         and the CPU time each part used per frame."""
         import httpx
@@ -168,7 +189,9 @@ class Service:
                 if interval_s:
                     time.sleep(max(0.0, start + i * interval_s - time.perf_counter()))
                 posted[i] = time.perf_counter()
-                response = http.post(f"/v1/maps/{map_id}/frames", content=bodies[i], headers={"content-type": "application/x-protobuf"})
+                response = http.post(
+                    f"/v1/maps/{map_id}/frames", content=bodies[i], headers={"content-type": "application/x-protobuf"}
+                )
                 assert response.status_code == 202, response.text
 
             start = time.perf_counter()
@@ -189,9 +212,14 @@ class Service:
             "wall_s": round(wall_s, 3),
             "frames_per_s": round(n / wall_s, 3),
             "s_per_frame": round(wall_s / n, 4),
-            "latency": {"p50_ms": round(float(np.percentile(latency_s, 50)) * 1000, 1), "p99_ms": round(float(np.percentile(latency_s, 99)) * 1000, 1),
-                        **summary_ms(latency_s)},
-            "worker_step_mean_ms": round((sum_after - sum_before) / (count_after - count_before) * 1000, 2) if count_after > count_before else None,
+            "latency": {
+                "p50_ms": round(float(np.percentile(latency_s, 50)) * 1000, 1),
+                "p99_ms": round(float(np.percentile(latency_s, 99)) * 1000, 1),
+                **summary_ms(latency_s),
+            },
+            "worker_step_mean_ms": round((sum_after - sum_before) / (count_after - count_before) * 1000, 2)
+            if count_after > count_before
+            else None,
             "cpu_ms_per_frame": {**cpu_ms, "total": round(sum(cpu_ms.values()), 1)},
         }
 
@@ -203,8 +231,17 @@ def encode(frames: list[Any], map_id: str) -> tuple[list[bytes], list[str]]:
     return [frame_to_proto(dataclasses.replace(f, map_id=map_id)).SerializeToString() for f in frames], [f.key for f in frames]
 
 
-def bench_service(redis: Redis, workers: int, seed: int, threads: int, timed: list[Any], warmup: list[Any], *, concurrency: int,
-                  paced_rate: float | None = None) -> dict[str, Any]:
+def bench_service(
+    redis: Redis,
+    workers: int,
+    seed: int,
+    threads: int,
+    timed: list[Any],
+    warmup: list[Any],
+    *,
+    concurrency: int,
+    paced_rate: float | None = None,
+) -> dict[str, Any]:
     """One service start with ``workers`` worker processes: warm-up, then every frame posted at once
     (throughput), or, with ``paced_rate``, one frame every 1 / ``paced_rate`` s (latency)."""
     redis.client.flushdb()
@@ -221,7 +258,9 @@ def bench_service(redis: Redis, workers: int, seed: int, threads: int, timed: li
     return {**row, "startup_and_warmup_s": round(ready_s, 2)}
 
 
-def run_in_process(frames: list[Any], seed: int, threads: int, store: Any, map_id: str, redis: Redis | None = None) -> dict[str, Any]:
+def run_in_process(
+    frames: list[Any], seed: int, threads: int, store: Any, map_id: str, redis: Redis | None = None
+) -> dict[str, Any]:
     """``process_frame`` on each frame, timed; CPU per frame of this process and of ``redis`` (its store's)."""
     from arcloud.core.step import process_frame
     from arcloud.core.types import Params
@@ -237,10 +276,16 @@ def run_in_process(frames: list[Any], seed: int, threads: int, store: Any, map_i
         started = time.perf_counter()
         process_frame(dataclasses.replace(frame, map_id=map_id), detector, store, params)
         times.append(time.perf_counter() - started)
-    cpu_ms = {"step": (time.process_time() - cpu_before[0]) / len(frames) * 1000,
-              "redis": ((cpu_s(redis.process.pid) if redis else 0.0) - cpu_before[1]) / len(frames) * 1000}
-    return {"s_per_frame": round(statistics.fmean(times), 4), "frames_per_s": round(len(times) / sum(times), 3), **summary_ms(times),
-            "cpu_ms_per_frame": {**{k: round(v, 1) for k, v in cpu_ms.items()}, "total": round(sum(cpu_ms.values()), 1)}}
+    cpu_ms = {
+        "step": (time.process_time() - cpu_before[0]) / len(frames) * 1000,
+        "redis": ((cpu_s(redis.process.pid) if redis else 0.0) - cpu_before[1]) / len(frames) * 1000,
+    }
+    return {
+        "s_per_frame": round(statistics.fmean(times), 4),
+        "frames_per_s": round(len(times) / sum(times), 3),
+        **summary_ms(times),
+        "cpu_ms_per_frame": {**{k: round(v, 1) for k, v in cpu_ms.items()}, "total": round(sum(cpu_ms.values()), 1)},
+    }
 
 
 def main() -> None:
@@ -250,9 +295,13 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", default="1,2", help="worker process counts (default 1,2)")
-    parser.add_argument("--detector-threads", type=int, default=1,
-                        help="ray-casting threads per worker and in process (default 1: each worker on one core, as replicas on "
-                             "their own machines; 0: the service's default, the cores shared among the worker processes)")
+    parser.add_argument(
+        "--detector-threads",
+        type=int,
+        default=1,
+        help="ray-casting threads per worker and in process (default 1: each worker on one core, as replicas on "
+        "their own machines; 0: the service's default, the cores shared among the worker processes)",
+    )
     parser.add_argument("--concurrency", type=int, default=4, help="concurrent uploads")
     parser.add_argument("--rounds", type=int, default=3, help="rounds of (in process, each worker count), medians taken")
     parser.add_argument("--paced", type=float, default=0.7, help="latency run's rate, as a fraction of the measured throughput")
@@ -272,8 +321,15 @@ def main() -> None:
     height = args.width * 3 // 4
     scale = args.width / 640
     intrinsics = Intrinsics(525 * scale, 525 * scale, (args.width - 1) / 2, (height - 1) / 2)
-    frames = simulate_sequence(generate_room(args.seed), n_frames=args.frames + args.warmup, seed=args.seed, width=args.width, height=height,
-                               intrinsics=intrinsics, map_id="bench")
+    frames = simulate_sequence(
+        generate_room(args.seed),
+        n_frames=args.frames + args.warmup,
+        seed=args.seed,
+        width=args.width,
+        height=height,
+        intrinsics=intrinsics,
+        map_id="bench",
+    )
     warmup, timed = frames[: args.warmup], frames[args.warmup :]
 
     probes = [parallel_probe()]
@@ -289,46 +345,71 @@ def main() -> None:
             redis.client.flushdb()
             with contextlib.closing(RedisStore(redis.url)) as redis_store:
                 row = run_in_process(timed, args.seed, args.detector_threads, redis_store, "inproc", redis)
-            print(f"round {r + 1}: in process (redis store) {row['s_per_frame'] * 1000:.1f} ms per frame, CPU ms per frame {row['cpu_ms_per_frame']}",
-                  flush=True)
+            print(
+                f"round {r + 1}: in process (redis store) {row['s_per_frame'] * 1000:.1f} ms per frame, CPU ms per frame {row['cpu_ms_per_frame']}",
+                flush=True,
+            )
             return row
 
         for r in range(args.rounds):
             in_process_redis.append([])
             for w in worker_counts:
                 in_process_redis[r].append(in_process_now(r))
-                bursts[w].append(bench_service(redis, w, args.seed, args.detector_threads, timed, warmup, concurrency=args.concurrency))
-                print(f"round {r + 1}: service, {w} worker(s): {bursts[w][-1]['frames_per_s']:.2f} frames/s, "
-                      f"worker step {bursts[w][-1]['worker_step_mean_ms']} ms, CPU ms per frame {bursts[w][-1]['cpu_ms_per_frame']}", flush=True)
+                bursts[w].append(
+                    bench_service(redis, w, args.seed, args.detector_threads, timed, warmup, concurrency=args.concurrency)
+                )
+                print(
+                    f"round {r + 1}: service, {w} worker(s): {bursts[w][-1]['frames_per_s']:.2f} frames/s, "
+                    f"worker step {bursts[w][-1]['worker_step_mean_ms']} ms, CPU ms per frame {bursts[w][-1]['cpu_ms_per_frame']}",
+                    flush=True,
+                )
             in_process_redis[r].append(in_process_now(r))
         service = []
         for w in worker_counts:
             throughput = statistics.median(b["frames_per_s"] for b in bursts[w])
-            paced = bench_service(redis, w, args.seed, args.detector_threads, timed, warmup, concurrency=args.concurrency,
-                                  paced_rate=args.paced * throughput)
-            service.append({
-                "workers": w,
-                "frames_per_s": round(throughput, 3),
-                "s_per_frame": round(1.0 / throughput, 4),
-                "latency_paced": {"rate_frames_per_s": round(args.paced * throughput, 3), **paced["latency"]},
-                "worker_step_mean_ms": statistics.median(b["worker_step_mean_ms"] for b in bursts[w]),
-                "bursts": bursts[w],
-            })
+            paced = bench_service(
+                redis,
+                w,
+                args.seed,
+                args.detector_threads,
+                timed,
+                warmup,
+                concurrency=args.concurrency,
+                paced_rate=args.paced * throughput,
+            )
+            service.append(
+                {
+                    "workers": w,
+                    "frames_per_s": round(throughput, 3),
+                    "s_per_frame": round(1.0 / throughput, 4),
+                    "latency_paced": {"rate_frames_per_s": round(args.paced * throughput, 3), **paced["latency"]},
+                    "worker_step_mean_ms": statistics.median(b["worker_step_mean_ms"] for b in bursts[w]),
+                    "bursts": bursts[w],
+                }
+            )
             row = service[-1]
-            print(f"service, {w} worker(s): {row['frames_per_s']:.2f} frames/s (bursts {[b['frames_per_s'] for b in row['bursts']]}), "
-                  f"latency at {row['latency_paced']['rate_frames_per_s']:.2f} frames/s: p50 {row['latency_paced']['p50_ms']:.0f} ms, "
-                  f"p99 {row['latency_paced']['p99_ms']:.0f} ms; worker step {row['worker_step_mean_ms']} ms")
+            print(
+                f"service, {w} worker(s): {row['frames_per_s']:.2f} frames/s (bursts {[b['frames_per_s'] for b in row['bursts']]}), "
+                f"latency at {row['latency_paced']['rate_frames_per_s']:.2f} frames/s: p50 {row['latency_paced']['p50_ms']:.0f} ms, "
+                f"p99 {row['latency_paced']['p99_ms']:.0f} ms; worker step {row['worker_step_mean_ms']} ms"
+            )
         s_per_frame = statistics.median(row["s_per_frame"] for rnd in in_process_redis for row in rnd)
         in_process = {
             "memory": run_in_process(timed, args.seed, args.detector_threads, MemoryStore(), "inproc"),
-            "redis": {"s_per_frame": round(s_per_frame, 4), "frames_per_s": round(1.0 / s_per_frame, 3), "rounds": in_process_redis},
+            "redis": {
+                "s_per_frame": round(s_per_frame, 4),
+                "frames_per_s": round(1.0 / s_per_frame, 3),
+                "rounds": in_process_redis,
+            },
         }
         for name, row in in_process.items():
             print(f"in process ({name} store): {row['frames_per_s']:.2f} frames/s, {row['s_per_frame'] * 1000:.1f} ms per frame")
     finally:
         redis.stop()
     probes.append(parallel_probe())
-    print(f"the machine's parallel speedup for two CPU-bound processes (before, after): {probes[0]:.2f}, {probes[1]:.2f} (2.0 on idle cores)")
+    print(
+        f"the machine's parallel speedup for two CPU-bound processes (before, after): {probes[0]:.2f}, {probes[1]:.2f} (2.0 on idle cores)"
+    )
 
     # Per round: 2 workers' throughput over 1 worker's; 1 worker's time per frame over the mean of the
     # in-process runs just before and after it. Medians over rounds.
@@ -350,10 +431,24 @@ def main() -> None:
         "benchmark": "service",
         **environment(("arcloud", "numpy", "scipy", "open3d", "fastapi", "uvicorn", "redis", "protobuf")),
         "redis_server": redis.version,
-        "setup": {"frames": len(timed), "warmup": args.warmup, "width": args.width, "height": height, "seed": args.seed,
-                  "concurrency": args.concurrency, "rounds": args.rounds, "paced_fraction": args.paced, "poll_s": {"latency": POLL_S, "throughput": POLL_BURST_S},
-                  "detector": f"sim:{args.seed}", "detector_threads": args.detector_threads or "default", "upload": "protobuf, JPEG rgb, 16-bit PNG depth",
-                  "load_average_1_5_15_min": {"start": [round(v, 2) for v in load_start], "end": [round(v, 2) for v in os.getloadavg()]}},
+        "setup": {
+            "frames": len(timed),
+            "warmup": args.warmup,
+            "width": args.width,
+            "height": height,
+            "seed": args.seed,
+            "concurrency": args.concurrency,
+            "rounds": args.rounds,
+            "paced_fraction": args.paced,
+            "poll_s": {"latency": POLL_S, "throughput": POLL_BURST_S},
+            "detector": f"sim:{args.seed}",
+            "detector_threads": args.detector_threads or "default",
+            "upload": "protobuf, JPEG rgb, 16-bit PNG depth",
+            "load_average_1_5_15_min": {
+                "start": [round(v, 2) for v in load_start],
+                "end": [round(v, 2) for v in os.getloadavg()],
+            },
+        },
         "service": service,
         "in_process": in_process,
         "machine_parallel_speedup_before_after": [round(p, 3) for p in probes],
@@ -363,12 +458,16 @@ def main() -> None:
         "service_over_in_process_redis": round(overhead, 3) if overhead else None,
         "service_over_in_process_cpu_per_round": [round(v, 3) for v in cpu_overheads],
         "service_over_in_process_cpu": round(statistics.median(cpu_overheads), 3) if cpu_overheads else None,
-        "service_over_in_process_memory": round(by_workers[1]["s_per_frame"] / in_process["memory"]["s_per_frame"], 3) if 1 in by_workers else None,
+        "service_over_in_process_memory": round(by_workers[1]["s_per_frame"] / in_process["memory"]["s_per_frame"], 3)
+        if 1 in by_workers
+        else None,
         "targets": {"speedup_2_over_1": TARGET_SPEEDUP, "service_over_in_process": TARGET_OVERHEAD},
     }
-    print(f"2 workers / 1 worker: {results['speedup_2_over_1']}x (target >= {TARGET_SPEEDUP}); "
-          f"service / in-process: {results['service_over_in_process_redis']}x in time per frame, "
-          f"{results['service_over_in_process_cpu']}x in CPU per frame (target <= {TARGET_OVERHEAD})")
+    print(
+        f"2 workers / 1 worker: {results['speedup_2_over_1']}x (target >= {TARGET_SPEEDUP}); "
+        f"service / in-process: {results['service_over_in_process_redis']}x in time per frame, "
+        f"{results['service_over_in_process_cpu']}x in CPU per frame (target <= {TARGET_OVERHEAD})"
+    )
     write_json(args.out, results)
 
 

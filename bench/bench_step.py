@@ -98,8 +98,10 @@ def main() -> None:
         **environment(),
     }
     write_json(args.out, payload)
-    print(f"step median {payload['step']['median_ms']:.2f} ms (p10 {payload['step']['p10_ms']:.2f}, "
-          f"p90 {payload['step']['p90_ms']:.2f}); stages {stage_ms}")
+    print(
+        f"step median {payload['step']['median_ms']:.2f} ms (p10 {payload['step']['p10_ms']:.2f}, "
+        f"p90 {payload['step']['p90_ms']:.2f}); stages {stage_ms}"
+    )
 
 
 if __name__ == "__main__":

@@ -11,16 +11,28 @@ INTRINSICS = Intrinsics(fx=100.0, fy=100.0, cx=40.0, cy=30.0)
 HEIGHT, WIDTH = 60, 80
 
 
-def plane_frame(depth_m: float = 2.0, *, cam2world: np.ndarray | None = None, frame_id: str = "f0",
-                device_id: str = "dev", map_id: str = "m", patches: tuple = ()) -> Frame:
+def plane_frame(
+    depth_m: float = 2.0,
+    *,
+    cam2world: np.ndarray | None = None,
+    frame_id: str = "f0",
+    device_id: str = "dev",
+    map_id: str = "m",
+    patches: tuple = (),
+) -> Frame:
     """A frame looking at a wall at ``depth_m``; ``patches`` are (rows, cols, depth) rectangles in front."""
     depth = np.full((HEIGHT, WIDTH), depth_m, np.float32)
     for rows, cols, patch_depth in patches:
         depth[rows, cols] = patch_depth
     return make_frame(
-        np.zeros((HEIGHT, WIDTH, 3), np.uint8), depth, INTRINSICS,
+        np.zeros((HEIGHT, WIDTH, 3), np.uint8),
+        depth,
+        INTRINSICS,
         np.eye(4) if cam2world is None else cam2world,
-        timestamp_s=0.0, map_id=map_id, device_id=device_id, frame_id=frame_id,
+        timestamp_s=0.0,
+        map_id=map_id,
+        device_id=device_id,
+        frame_id=frame_id,
     )
 
 
@@ -55,8 +67,13 @@ def look_down_pose(eye: tuple[float, float, float], target: tuple[float, float, 
     return pose
 
 
-def cast_boxes(cam2world: np.ndarray, boxes: list[tuple[tuple[float, ...], tuple[float, ...]]], *, floor_z: float | None = 0.0,
-               intrinsics: Intrinsics = INTRINSICS) -> tuple[np.ndarray, np.ndarray]:
+def cast_boxes(
+    cam2world: np.ndarray,
+    boxes: list[tuple[tuple[float, ...], tuple[float, ...]]],
+    *,
+    floor_z: float | None = 0.0,
+    intrinsics: Intrinsics = INTRINSICS,
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth (H, W) float32 and instance (H, W) int (-1: floor or nothing, i: ``boxes[i]``) of a world
     of axis-aligned boxes (min, max) standing on a floor plane z = ``floor_z`` (None: no floor), seen by
     a pinhole camera: exact ray casting, slab method."""
@@ -83,10 +100,25 @@ def cast_boxes(cam2world: np.ndarray, boxes: list[tuple[tuple[float, ...], tuple
     return depth, instance
 
 
-def scene_frame(cam2world: np.ndarray, boxes: list, *, floor_z: float | None = 0.0, frame_id: str = "f0", device_id: str = "dev",
-                map_id: str = "m") -> tuple[Frame, np.ndarray]:
+def scene_frame(
+    cam2world: np.ndarray,
+    boxes: list,
+    *,
+    floor_z: float | None = 0.0,
+    frame_id: str = "f0",
+    device_id: str = "dev",
+    map_id: str = "m",
+) -> tuple[Frame, np.ndarray]:
     """``cast_boxes`` as a frame, and its instance image."""
     depth, instance = cast_boxes(cam2world, boxes, floor_z=floor_z)
-    frame = make_frame(np.zeros((HEIGHT, WIDTH, 3), np.uint8), depth, INTRINSICS, cam2world,
-                       timestamp_s=0.0, map_id=map_id, device_id=device_id, frame_id=frame_id)
+    frame = make_frame(
+        np.zeros((HEIGHT, WIDTH, 3), np.uint8),
+        depth,
+        INTRINSICS,
+        cam2world,
+        timestamp_s=0.0,
+        map_id=map_id,
+        device_id=device_id,
+        frame_id=frame_id,
+    )
     return frame, instance

@@ -13,7 +13,11 @@ def test_demo_writes_table1_results_and_pictures(tmp_path, capsys):
     assert main(["demo", "--out", str(out), "--frames", "40", "--runs", "2", "--users", "4,10", "--no-progress"]) == 0
     results = json.loads((out / "results.json").read_text())
     rows = results["table1"]
-    assert [(r["approach"], r["users"], r["runs"]) for r in rows] == [("centralized", 1, 1), ("distributed", 4, 2), ("distributed", 10, 2)]
+    assert [(r["approach"], r["users"], r["runs"]) for r in rows] == [
+        ("centralized", 1, 1),
+        ("distributed", 4, 2),
+        ("distributed", 10, 2),
+    ]
     for row in rows:
         assert set(row) >= {"map25_mean", "map25_var", "map50_mean", "map50_var"}
         assert 0.0 <= row["map50_mean"] <= row["map25_mean"] <= 1.0 and row["map25_var"] >= 0.0

@@ -85,8 +85,16 @@ def test_imports_point_down_the_layers() -> None:
             continue
         for name in imports(ast.parse(path.read_text())):
             parts = name.split(".")
-            if parts[0] == "arcloud" and len(parts) > 1 and parts[1] in LAYER and parts[1] != unit and LAYER[parts[1]] >= LAYER[unit]:
-                wrong.append(f"{path.relative_to(PACKAGE)} ({unit}, layer {LAYER[unit]}) imports {name} (layer {LAYER[parts[1]]})")
+            if (
+                parts[0] == "arcloud"
+                and len(parts) > 1
+                and parts[1] in LAYER
+                and parts[1] != unit
+                and LAYER[parts[1]] >= LAYER[unit]
+            ):
+                wrong.append(
+                    f"{path.relative_to(PACKAGE)} ({unit}, layer {LAYER[unit]}) imports {name} (layer {LAYER[parts[1]]})"
+                )
     assert not wrong, "\n".join(wrong)
 
 
@@ -133,7 +141,9 @@ def find_cycle(edges: dict[str, set[str]]) -> list[str] | None:
 
 
 def test_the_checks_see_wrong_arrows_and_cycles(tmp_path: Path) -> None:
-    tree = ast.parse("import os\nif TYPE_CHECKING:\n    import arcloud.x\ndef f():\n    from arcloud.eval.metrics import evaluate\n")
+    tree = ast.parse(
+        "import os\nif TYPE_CHECKING:\n    import arcloud.x\ndef f():\n    from arcloud.eval.metrics import evaluate\n"
+    )
     assert set(imports(tree)) == {"os", "arcloud.x", "arcloud.eval.metrics", "arcloud.eval.metrics.evaluate"}
     assert set(imports(tree, top_level_only=True)) == {"os"}
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]

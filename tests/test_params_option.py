@@ -43,14 +43,44 @@ def test_demo_and_serve_take_params(capsys: pytest.CaptureFixture[str]) -> None:
 
     args = build_parser().parse_args(["serve", "--detector", "sim:0", "--params", '{"voxel_size_m": 0.04}'])
     assert settings_from_args(args).make_params().voxel_size_m == 0.04
-    args = build_parser().parse_args(["worker", "--redis", "redis://127.0.0.1:1/0", "--detector", "sim:0", "--params", '{"up": [0, 1, 0]}'])
+    args = build_parser().parse_args(
+        ["worker", "--redis", "redis://127.0.0.1:1/0", "--detector", "sim:0", "--params", '{"up": [0, 1, 0]}']
+    )
     assert settings_from_args(args).make_params().up == (0.0, 1.0, 0.0)
 
 
 def test_eval_takes_params(capsys: pytest.CaptureFixture[str], tmp_path) -> None:
     from arcloud.accuracy.cli import _params
 
-    args = build_parser().parse_args(["eval", "7scenes", "--root", str(tmp_path), "--detector", "sim:0", "--out", "o.json", "--params", '{"voxel_size_m": 0.04}'])
+    args = build_parser().parse_args(
+        [
+            "eval",
+            "7scenes",
+            "--root",
+            str(tmp_path),
+            "--detector",
+            "sim:0",
+            "--out",
+            "o.json",
+            "--params",
+            '{"voxel_size_m": 0.04}',
+        ]
+    )
     assert _params(args).voxel_size_m == 0.04
-    args = build_parser().parse_args(["eval", "scannet", "--root", str(tmp_path), "--detector", "sim:0", "--out", "o.json", "--params", '{"up": [0, 1, 0]}', "--voxel-size-m", "0.03"])
+    args = build_parser().parse_args(
+        [
+            "eval",
+            "scannet",
+            "--root",
+            str(tmp_path),
+            "--detector",
+            "sim:0",
+            "--out",
+            "o.json",
+            "--params",
+            '{"up": [0, 1, 0]}',
+            "--voxel-size-m",
+            "0.03",
+        ]
+    )
     assert _params(args) == Params(up=(0.0, 1.0, 0.0), voxel_size_m=0.03)

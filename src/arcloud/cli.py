@@ -15,7 +15,8 @@ from arcloud.tools.service_cli import add_service_commands
 
 def add_demo_command(subparsers: argparse._SubParsersAction) -> None:
     demo = subparsers.add_parser(
-        "demo", help="reproduce the paper's Table 1 on a simulated room (one process, no server)",
+        "demo",
+        help="reproduce the paper's Table 1 on a simulated room (one process, no server)",
         description="Centralized and distributed (K users) runs on one simulated room; prints Table 1 and "
         "writes results.json and top-down pictures.",
     )
@@ -36,12 +37,20 @@ def run_demo_command(args: argparse.Namespace) -> int:
 
     params = make_params(args.params if args.params is not None else params_from_environment())
     results = run_demo(
-        args.out, seed=args.seed, n_frames=args.frames, runs=args.runs, users=args.users,
-        workers=args.workers, params=params, show_progress=not args.no_progress,
+        args.out,
+        seed=args.seed,
+        n_frames=args.frames,
+        runs=args.runs,
+        users=args.users,
+        workers=args.workers,
+        params=params,
+        show_progress=not args.no_progress,
     )
     print(format_table1(results))
-    print(f"\nwrote {args.out / 'results.json'} and {', '.join(results['pictures'].values())} in {args.out} "
-          f"({results['seconds']['total']:.0f} s)")
+    print(
+        f"\nwrote {args.out / 'results.json'} and {', '.join(results['pictures'].values())} in {args.out} "
+        f"({results['seconds']['total']:.0f} s)"
+    )
     return 0
 
 

@@ -68,33 +68,60 @@ def run_demo(
     total = n_frames * (1 + runs * len(users))
     with tqdm(total=total, unit="frame", desc="demo", disable=not show_progress, leave=False) as bar:
         results = table1(
-            frames, detector, ground_truth, params, new_store=MemoryStore, users=users, runs=runs, seed=seed, workers=workers,
-            scene=f"room{seed}", progress=bar.update, on_run=keep_first_map,
+            frames,
+            detector,
+            ground_truth,
+            params,
+            new_store=MemoryStore,
+            users=users,
+            runs=runs,
+            seed=seed,
+            workers=workers,
+            scene=f"room{seed}",
+            progress=bar.update,
+            on_run=keep_first_map,
         )
     pictures, served = {}, {}
     for (approach, k), objects in maps.items():
         name = f"topdown_{approach}_{k}.png"
         draw_top_down(
-            out_dir / name, gt=ground_truth, predictions=object_boxes([o for o in objects if o.confirmed]),
+            out_dir / name,
+            gt=ground_truth,
+            predictions=object_boxes([o for o in objects if o.confirmed]),
             title=f"{approach}, {k} user{'s' if k > 1 else ''}: ground truth (green) and the served (confirmed) boxes",
         )
         pictures[f"{approach}_{k}"] = name
         figures = score_run(objects, ground_truth)
-        served[f"{approach}_{k}"] = {key: figures[key] for key in ("n_served", "n_objects", "n_gt", "served_precision25", "served_recall25", "served_precision50", "served_recall50")}
-    results.update({
-        "scene": {
-            "seed": seed, "frames": n_frames, "objects": len(ground_truth),
-            "classes": sorted({b.label for b in ground_truth}),
-        },
-        "workers": workers,
-        "params": dataclasses.asdict(params),
-        "faults": dataclasses.asdict(faults),
-        "served": served,
-        "pictures": pictures,
-        "seconds": {"render": round(rendered_s, 2), "total": round(time.perf_counter() - started, 2)},
-        "versions": {"arcloud": __version__, "python": platform.python_version(), "numpy": np.__version__},
-        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine()},
-    })
+        served[f"{approach}_{k}"] = {
+            key: figures[key]
+            for key in (
+                "n_served",
+                "n_objects",
+                "n_gt",
+                "served_precision25",
+                "served_recall25",
+                "served_precision50",
+                "served_recall50",
+            )
+        }
+    results.update(
+        {
+            "scene": {
+                "seed": seed,
+                "frames": n_frames,
+                "objects": len(ground_truth),
+                "classes": sorted({b.label for b in ground_truth}),
+            },
+            "workers": workers,
+            "params": dataclasses.asdict(params),
+            "faults": dataclasses.asdict(faults),
+            "served": served,
+            "pictures": pictures,
+            "seconds": {"render": round(rendered_s, 2), "total": round(time.perf_counter() - started, 2)},
+            "versions": {"arcloud": __version__, "python": platform.python_version(), "numpy": np.__version__},
+            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine()},
+        }
+    )
     (out_dir / "results.json").write_text(json.dumps(results, indent=2))
     return results
 
@@ -111,7 +138,10 @@ def format_table1(results: dict[str, Any]) -> str:
         )
     served = results.get("served") or {}
     if served:
-        lines += ["", f"{'served (confirmed), first run':<32} {'served':>6} {'of':>4} {'gt':>4}   {'P@0.25':>6} {'R@0.25':>6}   {'P@0.5':>6} {'R@0.5':>6}"]
+        lines += [
+            "",
+            f"{'served (confirmed), first run':<32} {'served':>6} {'of':>4} {'gt':>4}   {'P@0.25':>6} {'R@0.25':>6}   {'P@0.5':>6} {'R@0.5':>6}",
+        ]
         for name, row in served.items():
             lines.append(
                 f"{name:<32} {row['n_served']:>6} {row['n_objects']:>4} {row['n_gt']:>4}   {row['served_precision25']:>6.3f} "

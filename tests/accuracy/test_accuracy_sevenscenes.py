@@ -77,7 +77,9 @@ def _check_exports_rescored_independently(result: dict[str, Any], out_dir: Path,
             predictions = []
             for o in export["objects"] + export["tentative"]:
                 corners = np.where(bits == 1, o["aabb_max"], o["aabb_min"]) @ to_aligned[:3, :3].T + to_aligned[:3, 3]
-                predictions.append({"label": o["label"], "score": o["score"], "aabb_min": corners.min(0), "aabb_max": corners.max(0)})
+                predictions.append(
+                    {"label": o["label"], "score": o["score"], "aabb_min": corners.min(0), "aabb_max": corners.max(0)}
+                )
             chosen = [o for o in gt_file["gravity_aligned"]["objects"] if o["id"] in case["gt_objects"]]
             for prefix, expected in (("aabb_observed_", figures), ("aabb_", amodal)):
                 truths = [{"label": o["label"], "aabb_min": o[f"{prefix}min"], "aabb_max": o[f"{prefix}max"]} for o in chosen]

@@ -46,7 +46,11 @@ def missed_thresholds(record: Mapping[str, Any]) -> list[str]:
             "served_precision25": figures["served_precision25"]["mean"],
             "served_recall25": figures["served_recall25"]["mean"],
         }
-        missed += [f"{approach} {name} {measured[name]} < {bound}" for name, bound in QUICK_THRESHOLDS.items() if not measured[name] >= bound]
+        missed += [
+            f"{approach} {name} {measured[name]} < {bound}"
+            for name, bound in QUICK_THRESHOLDS.items()
+            if not measured[name] >= bound
+        ]
     if not report["gap_map25"]["worst"] <= QUICK_MAX_GAP_MAP25:
         missed.append(f"distributed map25 gap {report['gap_map25']['worst']} > {QUICK_MAX_GAP_MAP25}")
     return missed
@@ -99,7 +103,14 @@ def test_map_objects_matching_an_unseen_object_are_left_out_of_the_scoring() -> 
 
     def map_object(object_id: int, label: str, lo: list[float], hi: list[float]) -> MapObject:
         empty = np.zeros(0, np.int64)
-        return MapObject(object_id, empty, empty.astype(np.float32), np.zeros((0, 5), np.float32), label=label, aabb=AABB(np.array(lo), np.array(hi)))
+        return MapObject(
+            object_id,
+            empty,
+            empty.astype(np.float32),
+            np.zeros((0, 5), np.float32),
+            label=label,
+            aabb=AABB(np.array(lo), np.array(hi)),
+        )
 
     objects = [
         map_object(1, "couch", [0.2, 0.0, 0.0], [1.6, 0.9, 0.7]),  # the unseen couch, found: IoU 0.55
@@ -125,7 +136,9 @@ def test_quick_suite_writes_the_shared_record_and_meets_its_thresholds(quick_run
     assert [c["case"] for c in record["cases"]] == [c.name for c in QUICK_CASES]
     for case in record["cases"]:
         assert case["split"] == "report" and case["frames"] == QUICK_CASES[0].frames
-        assert case["n_unseen"] == len(case["unseen"]) and case["centralized"]["n_gt"] + case["n_unseen"] == case["n_room_objects"]
+        assert (
+            case["n_unseen"] == len(case["unseen"]) and case["centralized"]["n_gt"] + case["n_unseen"] == case["n_room_objects"]
+        )
         assert WalkStyle(**case["style"]) == next(c.style() for c in QUICK_CASES if c.name == case["case"])
         assert case["distributed"]["users"] == 10 and len(case["distributed"]["runs"]) == 1
         assert (out_dir / "pictures" / f"{case['case']}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -141,7 +154,6 @@ def test_quick_suite_fails_its_thresholds_when_every_object_is_served(quick_run:
     assert any("served_precision25" in line for line in missed), missed
     reference = quick_run[0]["cases"][0]["centralized"]
     assert broken["cases"][0]["centralized"]["n_served"] > 2 * reference["n_served"]
-
 
 
 def test_runs_are_checked_before_any_work() -> None:

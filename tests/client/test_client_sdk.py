@@ -45,15 +45,27 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
     served, everything = Events(), Events()
 
     with ArcloudClient(url) as client:
-        subscriptions = [client.subscribe("c1", served, [endpoint]), client.subscribe("c1", everything, [endpoint], include_tentative=True)]
+        subscriptions = [
+            client.subscribe("c1", served, [endpoint]),
+            client.subscribe("c1", everything, [endpoint], include_tentative=True),
+        ]
         try:
             time.sleep(0.5)
             first = client.send_frame(make_test_frame(0, map_id="c1", level=True))
             assert first == {"map_id": "c1", "device_id": "d", "frame_id": "f000000", "status": "queued"}
             frame = make_test_frame(1, map_id="c1", level=True)
             depth_mm = np.rint(frame.depth_m * 1000).astype(np.uint16)
-            sent = client.send_frame(map_id="c1", rgb=frame.rgb, depth=depth_mm, intrinsics=(130.0, 130.0, 79.5, 59.5),
-                                     cam2world=frame.cam2world, timestamp_s=1.0, device_id="d2", frame_id="x1", depth_scale=1000.0)
+            sent = client.send_frame(
+                map_id="c1",
+                rgb=frame.rgb,
+                depth=depth_mm,
+                intrinsics=(130.0, 130.0, 79.5, 59.5),
+                cam2world=frame.cam2world,
+                timestamp_s=1.0,
+                device_id="d2",
+                frame_id="x1",
+                depth_scale=1000.0,
+            )
             assert sent["status"] == "queued" and sent["device_id"] == "d2"
             stats = client.wait_until_processed("c1", 2, timeout_s=20)
             assert stats["frames"] == {"accepted": 2, "processed": 2, "failed": 0, "pending": 0}
@@ -78,7 +90,10 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
         versions = [v for v, _ in everything.states()]  # two workers: a state routed after a newer one is dropped
         assert versions == sorted(set(versions)) and everything.states()[-1] == (5, pb.Object.STATUS_CONFIRMED)
         confirmed = [(v, s) for v, s in everything.states() if s == pb.Object.STATUS_CONFIRMED]
-        assert [(v, s) for v, s in served.states() if s == pb.Object.STATUS_CONFIRMED] == confirmed and served.states()[-1] == (5, pb.Object.STATUS_CONFIRMED)
+        assert [(v, s) for v, s in served.states() if s == pb.Object.STATUS_CONFIRMED] == confirmed and served.states()[-1] == (
+            5,
+            pb.Object.STATUS_CONFIRMED,
+        )
         assert all(e.map_id == "c1" and e.object_id == obj["id"] for e in everything.events)
         assert client.list_objects("c1", label="tv") == []
         assert client.list_objects("c1", bbox=(*obj["aabb"]["min"], *obj["aabb"]["max"]))[0]["id"] == obj["id"]
@@ -104,8 +119,12 @@ def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
 
     async def run() -> tuple[list[dict], dict, list[dict]]:
         async with AsyncArcloudClient(url) as client:
+
             async def user(k: int) -> list[dict]:
-                return [await client.send_frame(make_test_frame(i, map_id="c2", device_id=f"user-{k}")) for i in range(k * 3, k * 3 + 3)]
+                return [
+                    await client.send_frame(make_test_frame(i, map_id="c2", device_id=f"user-{k}"))
+                    for i in range(k * 3, k * 3 + 3)
+                ]
 
             answers = [a for batch in await asyncio.gather(*(user(k) for k in range(3))) for a in batch]
             stats = await client.wait_until_processed("c2", 9, timeout_s=30)

@@ -45,7 +45,9 @@ def test_a_mask_bleeding_onto_the_floor_boxes_the_object_above_it():
     store = MemoryStore()
     for i, angle in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False)):
         eye = (2.0 * np.cos(angle), 2.0 * np.sin(angle), 1.5)
-        frame, instance = scene_frame(look_down_pose(eye, (0.0, 0.0, 0.3)), [((-0.25, -0.25, 0.0), (0.25, 0.25, 0.5))], frame_id=f"f{i}")
+        frame, instance = scene_frame(
+            look_down_pose(eye, (0.0, 0.0, 0.3)), [((-0.25, -0.25, 0.0), (0.25, 0.25, 0.5))], frame_id=f"f{i}"
+        )
         rows, cols = np.nonzero(instance == 0)
         mask = rect_mask(slice(rows.min(), rows.max() + 6), slice(cols.min() - 3, cols.max() + 4))  # and the floor around
         integrate_frame(frame, [Detection("tv", 0.9, mask)], store, PARAMS)  # a TV: no reaching for the floor

@@ -140,11 +140,21 @@ def test_a_z_up_box_skips_the_rotation_by_the_identity():
 def test_pixel_stride_is_capped_by_params_and_one_samples_every_pixel():
     rng = np.random.default_rng(8)
     depth = np.full((120, 160), 0.8, np.float32)  # near: a pixel spans 4 mm, a voxel 12 pixels
-    frame = make_frame(np.zeros((120, 160, 3), np.uint8), depth, (200.0, 200.0, 80.0, 60.0), np.eye(4),
-                       timestamp_s=0.0, map_id="m", device_id="d", frame_id="f")
+    frame = make_frame(
+        np.zeros((120, 160, 3), np.uint8),
+        depth,
+        (200.0, 200.0, 80.0, 60.0),
+        np.eye(4),
+        timestamp_s=0.0,
+        map_id="m",
+        device_id="d",
+        frame_id="f",
+    )
     assert sampling_stride_px(frame, Params()) == 4
     assert sampling_stride_px(frame, Params(pixel_stride_max_px=2)) == 2
     assert sampling_stride_px(frame, Params(pixel_stride_max_px=1)) == 1
     mask = random_mask(rng, 120, 160)
-    every, sampled = (voxelize_detections(frame, [Detection("tv", 0.9, mask)], Params(pixel_stride_max_px=n, erode_px=0)) for n in (1, 4))
+    every, sampled = (
+        voxelize_detections(frame, [Detection("tv", 0.9, mask)], Params(pixel_stride_max_px=n, erode_px=0)) for n in (1, 4)
+    )
     assert np.isin(sampled[0].keys, every[0].keys).all()  # a sample of the same pixels

@@ -48,19 +48,28 @@ def test_replace_agrees_with_dataclasses_replace():
     for _ in range(200):
         n = int(rng.integers(4, 12))
         values = {
-            "id": int(rng.integers(1, 100)), "n_frames": int(rng.integers(0, 9)), "score": float(rng.random()),
-            "label": str(rng.choice(["chair", "tv", ""])), "confirmed": bool(rng.integers(2)), "version": int(rng.integers(9)),
-            "keys": np.sort(rng.choice(10**6, n, replace=False)).astype(np.int64), "weights": rng.random(n, np.float32),
-            "votes": rng.random((n, N_CLASSES), np.float32), "seen": rng.random(n, np.float32) if rng.integers(2) else None,
-            "floor_votes": {int(rng.integers(-3, 3)): 1}, "devices": frozenset({"a", str(rng.integers(3))}),
+            "id": int(rng.integers(1, 100)),
+            "n_frames": int(rng.integers(0, 9)),
+            "score": float(rng.random()),
+            "label": str(rng.choice(["chair", "tv", ""])),
+            "confirmed": bool(rng.integers(2)),
+            "version": int(rng.integers(9)),
+            "keys": np.sort(rng.choice(10**6, n, replace=False)).astype(np.int64),
+            "weights": rng.random(n, np.float32),
+            "votes": rng.random((n, N_CLASSES), np.float32),
+            "seen": rng.random(n, np.float32) if rng.integers(2) else None,
+            "floor_votes": {int(rng.integers(-3, 3)): 1},
+            "devices": frozenset({"a", str(rng.integers(3))}),
         }
         chosen = rng.choice(list(values), int(rng.integers(0, len(values))), replace=False)
         changes = {name: values[name] for name in chosen}
         fast, plain = base.replace(**changes), dataclasses.replace(base, **changes)
         for name in names:
             a, b = getattr(fast, name), getattr(plain, name)
-            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), name
-        assert all(not a.flags.writeable for a in (fast.keys, fast.weights, fast.votes) + ((fast.seen,) if fast.seen is not None else ()))
+            assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, name
+        assert all(
+            not a.flags.writeable for a in (fast.keys, fast.weights, fast.votes) + ((fast.seen,) if fast.seen is not None else ())
+        )
         base = fast
 
 
@@ -109,13 +118,21 @@ def test_the_diff_bumps_versions_and_names_what_was_deleted_or_merged():
         3: observed(3, "tv", block((20, 0, 0), (23, 3, 3))).replace(version=7),
     }
     updated = stored[1].replace(score=0.5)
-    emptied = stored[2].replace(keys=np.empty(0, np.int64), weights=np.empty(0, np.float32), votes=np.empty((0, N_CLASSES), np.float32), seen=np.empty(0, np.float32))
+    emptied = stored[2].replace(
+        keys=np.empty(0, np.int64),
+        weights=np.empty(0, np.float32),
+        votes=np.empty((0, N_CLASSES), np.float32),
+        seen=np.empty(0, np.float32),
+    )
     created = observed(9, "chair", block((30, 0, 0), (33, 3, 3)))
     upserts, removed, events = diff_with_stored([updated, emptied, created], stored, {3: 9}, "m", 5.0)
     assert [(o.id, o.version, o.updated_at_s) for o in upserts] == [(1, 5, 5.0), (9, 1, 5.0)]
     assert [o.id for o in removed] == [2, 3] and removed[1] is stored[3]
     assert [(e.kind, e.object_id, e.merged_into, e.was_confirmed) for e in events] == [
-        ("updated", 1, None, True), ("deleted", 2, None, False), ("created", 9, None, False), ("merged", 3, 9, False)
+        ("updated", 1, None, True),
+        ("deleted", 2, None, False),
+        ("created", 9, None, False),
+        ("merged", 3, 9, False),
     ]
 
 

@@ -104,9 +104,7 @@ def build_scannet(
     colors = np.tile(np.array([[200, 100, 50]], np.uint8), (len(vertices_all), 1))
     write_ply(scene / f"{SCENE_ID}_vh_clean_2.ply", vertices_all, colors, np.concatenate(triangles), binary=binary_ply)
     (scene / f"{SCENE_ID}_vh_clean_2.0.010000.segs.json").write_text(json.dumps({"sceneId": SCENE_ID, "segIndices": seg_indices}))
-    groups = [
-        {"id": i, "objectId": i, "segments": [100 + i], "label": raw} for i, raw in enumerate(parts)
-    ]
+    groups = [{"id": i, "objectId": i, "segments": [100 + i], "label": raw} for i, raw in enumerate(parts)]
     (scene / f"{SCENE_ID}.aggregation.json").write_text(json.dumps({"sceneId": SCENE_ID, "segGroups": groups}))
 
     meta = ["colorHeight = 48", "colorWidth = 64", "depthHeight = 24", "depthWidth = 32"]
@@ -231,7 +229,11 @@ def build_room_scene(root: Path, *, v2: bool = False) -> Path:
     (scene / f"{SCENE_ID}.txt").write_text("axisAlignment = " + " ".join(f"{v:g}" for v in ALIGNMENT.ravel()) + "\n")
     if v2:
         per_box = [ROOM_V2[raw] for raw in ROOM_PARTS] + [(0, 0)] * len(ROOM_WALLS)
-        write_v2_labels(scene, np.repeat(np.array([i for i, _ in per_box], np.uint32), 8), np.repeat(np.array([n for _, n in per_box], np.uint32), 8))
+        write_v2_labels(
+            scene,
+            np.repeat(np.array([i for i, _ in per_box], np.uint32), 8),
+            np.repeat(np.array([n for _, n in per_box], np.uint32), 8),
+        )
     return scene
 
 

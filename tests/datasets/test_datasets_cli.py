@@ -33,7 +33,9 @@ def test_parsing() -> None:
     assert args.users == (1, 10, 50, 100) and args.runs == 10 and args.scenes == ("a", "b") and args.stride == 1
     args = parser().parse_args(["eval", "7scenes", "--root", "r", "--detector", "onnx:m.onnx", "--out", "o.json"])
     assert args.users == (1, 10) and callable(args.handler)
-    args = parser().parse_args(["render-scannet", "--mesh-dir", "m", "--out", "o", "--users", "3", "--frames", "5", "--seed", "2"])
+    args = parser().parse_args(
+        ["render-scannet", "--mesh-dir", "m", "--out", "o", "--users", "3", "--frames", "5", "--seed", "2"]
+    )
     assert (args.users, args.frames, args.seed, args.width, args.height) == (3, 5, 2, 640, 480)
     args = parser().parse_args(["eval", "scannet", "--root", "r", "--detector", "gt-masks", "--out", "o", "--users", "1, 10"])
     assert args.users == (1, 10)
@@ -270,7 +272,9 @@ def test_eval_7scenes_scores_against_ground_truth_in_its_frame(tmp_path: Path, m
         assert np.mean([r["recall"] for r in rescored]) == pytest.approx(row["served_recall25"], abs=0.01)
 
 
-def test_eval_7scenes_exports_declare_the_gravity_aligned_world_without_ground_truth(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_eval_7scenes_exports_declare_the_gravity_aligned_world_without_ground_truth(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import arcloud.accuracy.cli as cli
     from arcloud.datasets.sevenscenes import load_seven_scenes
 

@@ -107,7 +107,9 @@ def test_detector_spec(tiny_scannet: TinyScanNet) -> None:
 # Faults: what a model's masks look like, on hand-made masks
 
 
-def _rectangle(shape: tuple[int, int] = (120, 160), top_left: tuple[int, int] = (30, 40), size: tuple[int, int] = (50, 70)) -> np.ndarray:
+def _rectangle(
+    shape: tuple[int, int] = (120, 160), top_left: tuple[int, int] = (30, 40), size: tuple[int, int] = (50, 70)
+) -> np.ndarray:
     mask = np.zeros(shape, bool)
     mask[top_left[0] : top_left[0] + size[0], top_left[1] : top_left[1] + size[1]] = True
     return mask
@@ -203,21 +205,30 @@ def test_mask_faults_are_checked() -> None:
         parse_mask_faults("harsh")
     with pytest.raises(InvalidInput, match="MaskFaults.drop_rate"):
         parse_mask_faults("default", {"drop_rate": "often"})
-    assert parse_mask_faults("default", {"drop_rate": "0.3", "small_area_px": "100"}) == MaskFaults(drop_rate=0.3, small_area_px=100)
+    assert parse_mask_faults("default", {"drop_rate": "0.3", "small_area_px": "100"}) == MaskFaults(
+        drop_rate=0.3, small_area_px=100
+    )
 
 
 def test_faulty_detector_does_not_depend_on_processing_order(tiny_scannet: TinyScanNet) -> None:
     scene = load_scannet_scene(tiny_scannet.scene_dir)
-    faults = MaskFaults(grow_px=2.0, shrink_px=2.0, ragged_px=0.5, ragged_period_px=4.0, drop_rate=0.3, small_area_px=0, score_jitter=0.2)
+    faults = MaskFaults(
+        grow_px=2.0, shrink_px=2.0, ragged_px=0.5, ragged_period_px=4.0, drop_rate=0.3, small_area_px=0, score_jitter=0.2
+    )
     names = list(scene.frame_names) * 4
-    forward = [GroundTruthMaskDetector(scene, faults=faults, fault_seed=5, min_mask_px=4).detect(scene.load_frame(n)) for n in names]
+    forward = [
+        GroundTruthMaskDetector(scene, faults=faults, fault_seed=5, min_mask_px=4).detect(scene.load_frame(n)) for n in names
+    ]
     backward_detector = GroundTruthMaskDetector(scene, faults=faults, fault_seed=5, min_mask_px=4)
     backward = [backward_detector.detect(scene.load_frame(n)) for n in reversed(names)][::-1]
     for a, b in zip(forward, backward):
         assert [(d.label, d.score) for d in a] == [(d.label, d.score) for d in b]
         assert all(np.array_equal(x.mask, y.mask) for x, y in zip(a, b))
     exact = GroundTruthMaskDetector(scene, min_mask_px=4)
-    outputs = {seed: GroundTruthMaskDetector(scene, faults=faults, fault_seed=seed, min_mask_px=4).detect(scene.load_frame("2")) for seed in range(8)}
+    outputs = {
+        seed: GroundTruthMaskDetector(scene, faults=faults, fault_seed=seed, min_mask_px=4).detect(scene.load_frame("2"))
+        for seed in range(8)
+    }
     # the faults change from seed to seed, and each faulty mask stays near its exact one
     assert len({tuple((d.label, d.score) for d in dets) for dets in outputs.values()}) > 1
     exact_masks = {d.label: d.mask for d in exact.detect(scene.load_frame("2"))}

@@ -45,7 +45,14 @@ def test_scannet_scene0000_v2_annotation(shared: type) -> None:
     v2 = load_scannet_scene(root, scan2aligned=alignment)
     v1 = load_scannet_scene(root, scan2aligned=alignment, annotation="v1")
     assert v2.annotation == "v2" and len(v2.instances) == 67
-    assert sorted((o.label, o.nyu40_id) for o in v2.objects) == [("couch", 6), ("table", 7), ("table", 7), ("table", 7), ("table", 14), ("tv", 25)]
+    assert sorted((o.label, o.nyu40_id) for o in v2.objects) == [
+        ("couch", 6),
+        ("table", 7),
+        ("table", 7),
+        ("table", 7),
+        ("table", 14),
+        ("tv", 25),
+    ]
 
     def v1_majority(obj: ScanNetInstance) -> ScanNetInstance:
         """The v1 instance holding most of ``obj``'s vertices."""
@@ -115,7 +122,9 @@ def test_seven_scenes_ground_truth_frame(shared: type) -> None:
     assert truth is not None and len(truth.objects) == 9
     assert sorted(o.label for o in truth.objects) == ["chair"] * 6 + ["table"] + ["tv"] * 2
     world2gt = sequence.world2gt
-    assert (world2gt[:3, :3] @ [0, 0, 1])[2] > np.cos(np.radians(2.0))  # gravity-direction.txt and the file agree within 2 degrees
+    assert (world2gt[:3, :3] @ [0, 0, 1])[2] > np.cos(
+        np.radians(2.0)
+    )  # gravity-direction.txt and the file agree within 2 degrees
     (table,) = (o for o in truth.objects if o.label == "table")
     assert table.observed.min[2] < 0.05 and 0.7 < table.observed.max[2] < 0.8
     heights = np.concatenate([_backproject(sequence.load_frame(n), step=8) for n in sequence.frame_names[::100]])
@@ -149,9 +158,13 @@ def test_eval_7scenes_exports_rescored_independently(shared: type, tmp_path) -> 
     assert [(r["users"], r["runs"], r["n_gt"]) for r in rows] == [(1, 1, 9), (10, 1, 9)]
     for row in rows:
         export = json.loads((tmp_path / "exp" / f"{results['sequence']}_{row['users']}_0.json").read_text())
-        np.testing.assert_allclose(np.asarray(export["world_from_export"]) @ gt_file["gravity_aligned"]["world_to_aligned"], np.eye(4), atol=1e-9)
+        np.testing.assert_allclose(
+            np.asarray(export["world_from_export"]) @ gt_file["gravity_aligned"]["world_to_aligned"], np.eye(4), atol=1e-9
+        )
         at25, at50 = rescore_export(export, gt_file, 0.25), rescore_export(export, gt_file, 0.5)
-        assert at25["map"] == pytest.approx(row["map25_mean"], abs=0.01) and at50["map"] == pytest.approx(row["map50_mean"], abs=0.01)
+        assert at25["map"] == pytest.approx(row["map25_mean"], abs=0.01) and at50["map"] == pytest.approx(
+            row["map50_mean"], abs=0.01
+        )
         assert at25["precision"] == pytest.approx(row["served_precision25"], abs=0.01)
         assert at25["recall"] == pytest.approx(row["served_recall25"], abs=0.01)
     assert rows[0]["map25_mean"] > 0.0  # something matched: the agreement is not of two zeros

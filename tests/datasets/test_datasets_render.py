@@ -57,7 +57,9 @@ def test_scaled_intrinsics() -> None:
 def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
     scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
     out = tmp_path / "render"
-    scene_dir = render_scannet(scene, out, users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
+    scene_dir = render_scannet(
+        scene, out, users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk
+    )
     record = json.loads((scene_dir / "render.json").read_text())
     assert record["frames"] == 12 and record["user_frames"] == [[0, 6], [6, 12]] and record["dropped"] == 0
     assert record["annotation"] == "v1" and record["label_ids"] == "scannet"
@@ -69,7 +71,9 @@ def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
     assert rendered.n_frames == 12 and rendered.depth_intrinsics == pytest.approx(SMALL)
     # poses on disk are in the scan frame; the reader brings them back to the walk (aligned frame)
     layout = room_layout(scene)
-    walk1 = circle_walk(layout.floor_min_xy, layout.floor_max_xy, layout.targets, 6, 3 * 1000 + 1, eye_height_m=1.5, floor_z_m=layout.floor_z_m)
+    walk1 = circle_walk(
+        layout.floor_min_xy, layout.floor_max_xy, layout.targets, 6, 3 * 1000 + 1, eye_height_m=1.5, floor_z_m=layout.floor_z_m
+    )
     np.testing.assert_allclose(rendered.pose("7"), walk1[1], atol=1e-6)
     frame = rendered.load_frame("7")
     assert frame.rgb.shape == (120, 160, 3) and frame.depth_m.dtype == np.float32
@@ -106,10 +110,15 @@ def test_v2_scene_labels(tmp_path: Path) -> None:
 
 def test_render_of_a_v2_scene_reads_back_as_v2(tmp_path: Path) -> None:
     scene = load_scannet_scene(build_room_scene(tmp_path / "mesh", v2=True))
-    scene_dir = render_scannet(scene, tmp_path / "render", users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
+    scene_dir = render_scannet(
+        scene, tmp_path / "render", users=2, frames_per_user=6, seed=3, width=160, height=120, intrinsics=SMALL, walk=circle_walk
+    )
     record = json.loads((scene_dir / "render.json").read_text())
     assert record["annotation"] == "v2" and record["label_ids"] == "nyu40"
-    assert sorted(p.name for p in (scene_dir / "labels_v2").iterdir()) == [f"{SCENE_ID}_ins_label_all.npy", f"{SCENE_ID}_sem_label_all.npy"]
+    assert sorted(p.name for p in (scene_dir / "labels_v2").iterdir()) == [
+        f"{SCENE_ID}_ins_label_all.npy",
+        f"{SCENE_ID}_sem_label_all.npy",
+    ]
     assert not (scene_dir / f"{SCENE_ID}.aggregation.json").exists()  # its objectIds are not what the images hold
 
     rendered = load_scannet_scene(scene_dir)
@@ -119,8 +128,12 @@ def test_render_of_a_v2_scene_reads_back_as_v2(tmp_path: Path) -> None:
         np.testing.assert_allclose(a.aabb_min, b.aabb_min, atol=1e-6)
         np.testing.assert_allclose(a.aabb_max, b.aabb_max, atol=1e-6)
     # the images hold v2 instance ids + 1 (16-bit: beyond 255) and nyu40 ids
-    instance_ids = np.unique(np.concatenate([read_label_png(scene_dir / "instance-filt" / f"{n}.png").ravel() for n in rendered.frame_names]))
-    label_ids = np.unique(np.concatenate([read_label_png(scene_dir / "label-filt" / f"{n}.png").ravel() for n in rendered.frame_names]))
+    instance_ids = np.unique(
+        np.concatenate([read_label_png(scene_dir / "instance-filt" / f"{n}.png").ravel() for n in rendered.frame_names])
+    )
+    label_ids = np.unique(
+        np.concatenate([read_label_png(scene_dir / "label-filt" / f"{n}.png").ravel() for n in rendered.frame_names])
+    )
     assert set(instance_ids.tolist()) <= {0, 4, 10, 301} and 301 in instance_ids
     assert set(label_ids.tolist()) <= {0, 2, 5, 14} and 14 in label_ids
 
@@ -144,7 +157,9 @@ def test_eval_on_a_rendered_scene_finds_the_ground_truth(tmp_path: Path) -> None
     from arcloud.datasets.frames import LazyFrames
 
     scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
-    scene_dir = render_scannet(scene, tmp_path / "render", users=2, frames_per_user=8, seed=0, width=160, height=120, intrinsics=SMALL, walk=circle_walk)
+    scene_dir = render_scannet(
+        scene, tmp_path / "render", users=2, frames_per_user=8, seed=0, width=160, height=120, intrinsics=SMALL, walk=circle_walk
+    )
     rendered = load_scannet_scene(scene_dir)
     frames = LazyFrames(rendered.frame_names, rendered.load_frame, cache=True)
     exported: list[tuple[str, int, int]] = []
@@ -214,9 +229,19 @@ def test_render_with_random_walks(tmp_path: Path) -> None:
 
     def recording_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, **options):
         asked.append({"seed": seed, **options})
-        return circle_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, eye_height_m=options["eye_height_m"], floor_z_m=options["floor_z_m"])
+        return circle_walk(
+            floor_min_xy,
+            floor_max_xy,
+            targets,
+            n_frames,
+            seed,
+            eye_height_m=options["eye_height_m"],
+            floor_z_m=options["floor_z_m"],
+        )
 
-    scene_dir = render_scannet(scene, tmp_path / "render", users=3, frames_per_user=4, seed=2, width=80, height=60, walk=recording_walk, style="random")
+    scene_dir = render_scannet(
+        scene, tmp_path / "render", users=3, frames_per_user=4, seed=2, width=80, height=60, walk=recording_walk, style="random"
+    )
     record = json.loads((scene_dir / "render.json").read_text())
     drawn = [random_user_walk(2, user) for user in range(3)]
     assert record["style"] == "random" and record["walk_styles"] == [dataclasses.asdict(w) for w in drawn]
@@ -226,7 +251,15 @@ def test_render_with_random_walks(tmp_path: Path) -> None:
     # the poses on disk are the planned walk shaken by a few degrees at most
     rendered = load_scannet_scene(scene_dir)
     layout = room_layout(scene)
-    planned = circle_walk(layout.floor_min_xy, layout.floor_max_xy, layout.targets, 4, 2001, eye_height_m=drawn[1].eye_height_m, floor_z_m=layout.floor_z_m)
+    planned = circle_walk(
+        layout.floor_min_xy,
+        layout.floor_max_xy,
+        layout.targets,
+        4,
+        2001,
+        eye_height_m=drawn[1].eye_height_m,
+        floor_z_m=layout.floor_z_m,
+    )
     for i, pose in enumerate(planned):
         shaken = rendered.pose(str(4 + i))
         assert 0.0 < _rotation_deg(pose, shaken) < 6.0 and np.linalg.norm(shaken[:3, 3] - pose[:3, 3]) < 0.05

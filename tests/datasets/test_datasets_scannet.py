@@ -93,7 +93,12 @@ def test_label_mapping_and_gt_boxes(tmp_path: Path, tsv_version: int) -> None:
     tiny = build_scannet(tmp_path, tsv_version=tsv_version, binary_ply=tsv_version == 2)
     scene = load_scannet_scene(tiny.scene_dir)
     by_raw = {inst.raw_category: inst for inst in scene.instances}
-    assert {raw: inst.label for raw, inst in by_raw.items()} == {"chair": "chair", "table": "table", "desk": "table", "floor": None}
+    assert {raw: inst.label for raw, inst in by_raw.items()} == {
+        "chair": "chair",
+        "table": "table",
+        "desk": "table",
+        "floor": None,
+    }
     assert {raw: inst.nyu40_id for raw, inst in by_raw.items()} == {"chair": 5, "table": 7, "desk": 14, "floor": 2}
     assert [inst.object_id for inst in scene.objects] == [0, 1, 2]
     for raw, (lo, hi) in tiny.boxes_scan.items():
@@ -209,20 +214,29 @@ def test_auto_takes_v2_when_both_files_are_there(tiny_scannet: TinyScanNet, capl
     ("instance_ids", "nyu40_ids", "message"),
     [
         (TINY_V2_INSTANCES[:-1], TINY_V2_NYU40, r"ins_label_all\.npy: expected one label per mesh vertex \(32\), got 31"),
-        (TINY_V2_INSTANCES, np.append(TINY_V2_NYU40, 0), r"sem_label_all\.npy: expected one label per mesh vertex \(32\), got 33"),
+        (
+            TINY_V2_INSTANCES,
+            np.append(TINY_V2_NYU40, 0),
+            r"sem_label_all\.npy: expected one label per mesh vertex \(32\), got 33",
+        ),
         (TINY_V2_INSTANCES.astype(np.float32), TINY_V2_NYU40, r"ins_label_all\.npy: expected integer labels .*got dtype float32"),
         (TINY_V2_INSTANCES.reshape(4, 8), TINY_V2_NYU40, r"ins_label_all\.npy: expected shape \(32,\).*got \(4, 8\)"),
         (TINY_V2_INSTANCES.astype(np.int32) - 2, TINY_V2_NYU40, r"ins_label_all\.npy: expected labels >= 0, got -1"),
     ],
 )
-def test_malformed_v2_files_are_named(tiny_scannet: TinyScanNet, instance_ids: np.ndarray, nyu40_ids: np.ndarray, message: str) -> None:
+def test_malformed_v2_files_are_named(
+    tiny_scannet: TinyScanNet, instance_ids: np.ndarray, nyu40_ids: np.ndarray, message: str
+) -> None:
     write_v2_labels(tiny_scannet.scene_dir, instance_ids, nyu40_ids)
     with pytest.raises(DatasetError, match=message):
         load_scannet_scene(tiny_scannet.scene_dir)
 
 
 def test_v2_asked_for_without_its_files(tiny_scannet: TinyScanNet) -> None:
-    with pytest.raises(DatasetError, match=rf"labels_v2: expected the v2 annotation files \['{SCENE_ID}_ins_label_all.npy', '{SCENE_ID}_sem_label_all.npy'\]"):
+    with pytest.raises(
+        DatasetError,
+        match=rf"labels_v2: expected the v2 annotation files \['{SCENE_ID}_ins_label_all.npy', '{SCENE_ID}_sem_label_all.npy'\]",
+    ):
         load_scannet_scene(tiny_scannet.scene_dir, annotation="v2")
     (tiny_scannet.scene_dir / "labels_v2").mkdir()
     (tiny_scannet.scene_dir / "labels_v2" / f"{SCENE_ID}_ins_label_all.npy").write_bytes(b"not numpy")

@@ -82,7 +82,10 @@ def test_ground_truth_boxes_in_its_aligned_frame(tmp_path: Path) -> None:
     truth = sequence.ground_truth
     assert truth is not None and truth.path == root / "gt-boxes.json" and truth.method == "by hand"
     np.testing.assert_array_equal(truth.file2aligned, FILE2ALIGNED)
-    assert [(o.id, o.label, o.visible_frames) for o in truth.objects] == [("table_1", "table", (0, 2)), ("chair_A", "chair", (2, 2))]
+    assert [(o.id, o.label, o.visible_frames) for o in truth.objects] == [
+        ("table_1", "table", (0, 2)),
+        ("chair_A", "chair", (2, 2)),
+    ]
     table, chair = truth.objects
     assert table.confidence == "high" and table.uncertainty_m == 0.04 and chair.uncertainty_m is None
     np.testing.assert_array_equal(chair.observed.min, [-1.5, -1.9, 0.4])
@@ -121,7 +124,10 @@ def test_the_colour_camera_comes_with_the_ground_truth_or_is_given(tmp_path: Pat
     [
         ({"objects": []}, "expected a field gravity_aligned, got none"),
         ({"gravity_aligned": {"objects": []}}, "expected a field gravity_aligned.world_to_aligned"),
-        ({"gravity_aligned": {"world_to_aligned": np.eye(3).tolist(), "objects": []}}, r"world_to_aligned: expected finite numbers of shape \(4, 4\)"),
+        (
+            {"gravity_aligned": {"world_to_aligned": np.eye(3).tolist(), "objects": []}},
+            r"world_to_aligned: expected finite numbers of shape \(4, 4\)",
+        ),
         ({"gravity_aligned": {"world_to_aligned": (2 * np.eye(4)).tolist(), "objects": []}}, "expected a rigid transform"),
         ({"gravity_aligned": {"world_to_aligned": np.eye(4).tolist(), "objects": []}}, "expected at least one object"),
         (gt_file(label="sofa"), r"chair_A\)\.label: expected one of .*got 'sofa'"),

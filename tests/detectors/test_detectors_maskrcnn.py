@@ -59,6 +59,8 @@ def test_a_fixed_size_export_runs_on_a_resized_frame_and_scales_back(tiny_models
 
 
 def test_a_yolo_model_does_not_fit_the_maskrcnn_adapter(tiny_models) -> None:
-    expected_got = "expected one input float32 \\[3, H, W\\].*got inputs: images tensor\\(float\\)\\[1,3,64,64\\]; outputs: output0"
+    expected_got = (
+        "expected one input float32 \\[3, H, W\\].*got inputs: images tensor\\(float\\)\\[1,3,64,64\\]; outputs: output0"
+    )
     with pytest.raises(ModelError, match=expected_got):
         MaskRCNNDetector(tiny_models["yolo"])

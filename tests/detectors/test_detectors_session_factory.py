@@ -67,7 +67,9 @@ def test_bare_onnx_spec_reads_the_model_from_the_environment(tiny_models, monkey
     monkeypatch.setenv(MODEL_ENV_VAR, str(tiny_models["maskrcnn"]))
     assert isinstance(make_detector("onnx"), MaskRCNNDetector)
     monkeypatch.delenv(MODEL_ENV_VAR)
-    with pytest.raises(InvalidInput, match="expected onnx:PATH to a model file, or ARCLOUD_MODEL set to one .*got 'onnx' with no path"):
+    with pytest.raises(
+        InvalidInput, match="expected onnx:PATH to a model file, or ARCLOUD_MODEL set to one .*got 'onnx' with no path"
+    ):
         make_detector("onnx")
 
 

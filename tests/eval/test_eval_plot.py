@@ -148,9 +148,7 @@ def test_box_corners_are_the_eight_extremes():
 def test_box_in_front_projects_where_the_pinhole_model_says():
     box = LabelledBox("tv", (-0.2, -0.1, 2.0), (0.3, 0.2, 3.0))
     black = np.zeros((H, W, 3), np.uint8)
-    image = draw_boxes_in_image(
-        black, [box], np.eye(4), (FX, FY, CX, CY), color_rgb=RED, thickness_px=1, show_labels=False
-    )
+    image = draw_boxes_in_image(black, [box], np.eye(4), (FX, FY, CX, CY), color_rgb=RED, thickness_px=1, show_labels=False)
     assert not black.any()  # input untouched
     drawn = pixels_of(image, RED)
     for x, y, z in box_corners(box):

@@ -57,7 +57,11 @@ def test_distributed_runs_give_the_centralized_map_on_a_simple_scene():
     results = table1(frames, detector, gt, Params(), new_store=new_store, users=(3, 12), runs=2, workers=3)
     assert len(stores) == 1 + 1 + 2 * 2  # a fresh store for every run
     rows = results["table1"]
-    assert [(r["approach"], r["users"], r["runs"]) for r in rows] == [("centralized", 1, 1), ("distributed", 3, 2), ("distributed", 12, 2)]
+    assert [(r["approach"], r["users"], r["runs"]) for r in rows] == [
+        ("centralized", 1, 1),
+        ("distributed", 3, 2),
+        ("distributed", 12, 2),
+    ]
     assert rows[0]["map25_mean"] == pytest.approx(1.0) and rows[0]["map50_mean"] == pytest.approx(1.0)
     for row in rows[1:]:
         assert row["map25_mean"] == pytest.approx(rows[0]["map25_mean"], abs=1e-9)

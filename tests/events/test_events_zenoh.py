@@ -75,7 +75,10 @@ def test_default_subscribers_see_the_served_map_and_are_told_when_an_object_leav
         wait_until(lambda: store.count_frames("z") == index + 1, 20, f"frame {index} processed")
 
     served, everything = Collector(), Collector()
-    with subscribe_objects("z", served, connect=[endpoint]), subscribe_objects("z", everything, connect=[endpoint], include_tentative=True):
+    with (
+        subscribe_objects("z", served, connect=[endpoint]),
+        subscribe_objects("z", everything, connect=[endpoint], include_tentative=True),
+    ):
         time.sleep(0.5)  # the subscriptions reach the service's peer
         for i in range(6):  # an upright chair seen in six frames: confirmed on the way
             send(i)
@@ -125,7 +128,9 @@ def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str,
         for i in range(2):
             session.put(frames_key("zf", "d"), frame_to_proto(make_test_frame(i, map_id="zf")).SerializeToString())
         session.put(frames_key("zf", "d"), b"not a frame")  # logged and dropped
-        session.put(frames_key("zf", "d"), frame_to_proto(make_test_frame(5, map_id="other")).SerializeToString())  # map ids disagree: dropped
+        session.put(
+            frames_key("zf", "d"), frame_to_proto(make_test_frame(5, map_id="other")).SerializeToString()
+        )  # map ids disagree: dropped
         unnamed = frame_to_proto(make_test_frame(6, map_id="zf"))
         unnamed.map_id = ""  # the key names the map
         session.put(frames_key("zf", "d"), unnamed.SerializeToString())
@@ -138,8 +143,18 @@ def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str,
 
 def state(object_id: int, version: int, confirmed: bool) -> MapObject:
     """An object's state as the step's events carry it (three voxels; what matters is version and status)."""
-    return MapObject(id=object_id, keys=np.arange(3, dtype=np.int64), weights=np.ones(3, np.float32), votes=np.zeros((3, N_CLASSES), np.float32),
-                     version=version, label="chair", score=0.5, n_frames=version, updated_at_s=1000.0 + version, confirmed=confirmed)
+    return MapObject(
+        id=object_id,
+        keys=np.arange(3, dtype=np.int64),
+        weights=np.ones(3, np.float32),
+        votes=np.zeros((3, N_CLASSES), np.float32),
+        version=version,
+        label="chair",
+        score=0.5,
+        n_frames=version,
+        updated_at_s=1000.0 + version,
+        confirmed=confirmed,
+    )
 
 
 def test_router_sends_each_event_to_one_key_space() -> None:
@@ -150,8 +165,14 @@ def test_router_sends_each_event_to_one_key_space() -> None:
         (ObjectEvent("updated", "m", 1, state(1, 2, False)), "tentative"),
         (ObjectEvent("updated", "m", 1, state(1, 3, True)), "served"),  # confirmed: enters the served map
         (ObjectEvent("updated", "m", 1, state(1, 4, True), was_confirmed=True), "served"),
-        (ObjectEvent("updated", "m", 1, state(1, 3, True), was_confirmed=True), None),  # older than one published (two workers): dropped
-        (ObjectEvent("updated", "m", 1, state(1, 5, False), was_confirmed=True), "served"),  # turned tentative: the served map's subscribers are told
+        (
+            ObjectEvent("updated", "m", 1, state(1, 3, True), was_confirmed=True),
+            None,
+        ),  # older than one published (two workers): dropped
+        (
+            ObjectEvent("updated", "m", 1, state(1, 5, False), was_confirmed=True),
+            "served",
+        ),  # turned tentative: the served map's subscribers are told
         (ObjectEvent("updated", "m", 1, state(1, 6, False)), "tentative"),  # and hear no more of it
         (ObjectEvent("updated", "m", 1, state(1, 7, True)), "served"),  # confirmed again
         (ObjectEvent("merged", "m", 1, merged_into=2, was_confirmed=True), "served"),  # merged away: whoever had it is told
@@ -165,7 +186,9 @@ def test_router_sends_each_event_to_one_key_space() -> None:
     small = ServedRouter(max_objects=2)
     for object_id in (1, 2, 3):
         small.route(ObjectEvent("updated", "m", object_id, state(object_id, 5, True)))
-    assert small.route(ObjectEvent("updated", "m", 1, state(1, 4, True))) == "served"  # forgotten (the oldest of 3): not stale any more
+    assert (
+        small.route(ObjectEvent("updated", "m", 1, state(1, 4, True))) == "served"
+    )  # forgotten (the oldest of 3): not stale any more
     assert small.route(ObjectEvent("updated", "m", 3, state(3, 4, True))) is None
 
 
@@ -183,13 +206,21 @@ def test_publisher_puts_each_event_on_its_key_space() -> None:
     session = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"])
     try:
         raw = session.declare_subscriber("arcloud/p/**", on_sample)
-        with subscribe_objects("p", served, session=session), subscribe_objects("p", everything, session=session, include_tentative=True):
+        with (
+            subscribe_objects("p", served, session=session),
+            subscribe_objects("p", everything, session=session, include_tentative=True),
+        ):
             time.sleep(0.5)
-            publisher.publish([
-                ObjectEvent("created", "p", 1, state(1, 1, False)), ObjectEvent("updated", "p", 1, state(1, 2, True)),
-                ObjectEvent("updated", "p", 1, state(1, 3, False), was_confirmed=True), ObjectEvent("updated", "p", 1, state(1, 4, False)),
-                ObjectEvent("merged", "p", 5, merged_into=2, was_confirmed=True), ObjectEvent("deleted", "other", 1),
-            ])
+            publisher.publish(
+                [
+                    ObjectEvent("created", "p", 1, state(1, 1, False)),
+                    ObjectEvent("updated", "p", 1, state(1, 2, True)),
+                    ObjectEvent("updated", "p", 1, state(1, 3, False), was_confirmed=True),
+                    ObjectEvent("updated", "p", 1, state(1, 4, False)),
+                    ObjectEvent("merged", "p", 5, merged_into=2, was_confirmed=True),
+                    ObjectEvent("deleted", "other", 1),
+                ]
+            )
             wait_until(lambda: len(everything.events) >= 5, 10, "5 events")
             time.sleep(0.2)
         raw.undeclare()
@@ -199,8 +230,15 @@ def test_publisher_puts_each_event_on_its_key_space() -> None:
         session.close()
         publisher.close()
     assert [(key, e.object.version) for key, e in received if e.HasField("object")] == [
-        (tentative_key("p", 1), 1), (object_key("p", 1), 2), (object_key("p", 1), 3), (tentative_key("p", 1), 4)]
-    assert [(e.object.version, e.object.status) for e in served.events if e.HasField("object")] == [(2, CONFIRMED), (3, TENTATIVE)]
+        (tentative_key("p", 1), 1),
+        (object_key("p", 1), 2),
+        (object_key("p", 1), 3),
+        (tentative_key("p", 1), 4),
+    ]
+    assert [(e.object.version, e.object.status) for e in served.events if e.HasField("object")] == [
+        (2, CONFIRMED),
+        (3, TENTATIVE),
+    ]
     assert served.kinds()[-1] == pb.ObjectEvent.KIND_MERGED and served.events[-1].merged_into == 2
     assert [e.object.version for e in everything.events if e.HasField("object")] == [1, 2, 3, 4] and len(everything.events) == 5
     publisher.publish([ObjectEvent("deleted", "p", 4)])  # after close: dropped quietly

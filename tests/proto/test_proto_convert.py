@@ -23,8 +23,9 @@ def sample_frame(seed: int = 0):
     depth[0, :5] = 0.0  # no depth there
     yaw = 0.3
     cam2world = np.array([[np.cos(yaw), -np.sin(yaw), 0, 1.5], [np.sin(yaw), np.cos(yaw), 0, -2.0], [0, 0, 1, 0.7], [0, 0, 0, 1]])
-    return make_frame(rgb, depth, (30.0, 31.0, 15.5, 11.5), cam2world, timestamp_s=12.25, map_id="lab",
-                      device_id="phone-1", frame_id="000042")
+    return make_frame(
+        rgb, depth, (30.0, 31.0, 15.5, 11.5), cam2world, timestamp_s=12.25, map_id="lab", device_id="phone-1", frame_id="000042"
+    )
 
 
 def through_the_wire(msg: pb.Frame) -> pb.Frame:
@@ -34,7 +35,12 @@ def through_the_wire(msg: pb.Frame) -> pb.Frame:
 def assert_same_pose_and_ids(got, want) -> None:
     np.testing.assert_array_equal(got.cam2world, want.cam2world)
     assert got.intrinsics == want.intrinsics
-    assert (got.map_id, got.device_id, got.frame_id, got.timestamp_s) == (want.map_id, want.device_id, want.frame_id, want.timestamp_s)
+    assert (got.map_id, got.device_id, got.frame_id, got.timestamp_s) == (
+        want.map_id,
+        want.device_id,
+        want.frame_id,
+        want.timestamp_s,
+    )
 
 
 @pytest.mark.parametrize(
@@ -55,8 +61,17 @@ def test_jpeg_round_trip_is_close() -> None:
     yy, xx = np.mgrid[0:H, 0:W]
     smooth = np.stack([xx * 8, yy * 10, (xx + yy) * 4], axis=-1).astype(np.uint8)
     frame = sample_frame()
-    msg = frame_to_proto(rgb=smooth, depth=frame.depth_m, intrinsics=frame.intrinsics, cam2world=frame.cam2world,
-                         timestamp_s=1.0, map_id="lab", device_id="d", frame_id="f", jpeg_quality=95)
+    msg = frame_to_proto(
+        rgb=smooth,
+        depth=frame.depth_m,
+        intrinsics=frame.intrinsics,
+        cam2world=frame.cam2world,
+        timestamp_s=1.0,
+        map_id="lab",
+        device_id="d",
+        frame_id="f",
+        jpeg_quality=95,
+    )
     assert msg.rgb[:2] == b"\xff\xd8" and msg.rgb_encoding == pb.RGB_ENCODING_JPEG
     got = frame_from_proto(through_the_wire(msg))
     assert np.abs(got.rgb.astype(int) - smooth).mean() < 4  # lossy, but the channels are in RGB order
@@ -66,8 +81,17 @@ def test_jpeg_round_trip_is_close() -> None:
 def test_arrays_with_uint16_depth_keep_their_units() -> None:
     rng = np.random.default_rng(1)
     units = rng.integers(0, 65535, (H, W)).astype(np.uint16)
-    msg = frame_to_proto(rgb=np.zeros((H, W, 3), np.uint8), depth=units, intrinsics=(30, 30, 16, 12), cam2world=np.eye(4),
-                         timestamp_s=0.5, map_id="m", device_id="d", frame_id="f", depth_scale=5000.0)
+    msg = frame_to_proto(
+        rgb=np.zeros((H, W, 3), np.uint8),
+        depth=units,
+        intrinsics=(30, 30, 16, 12),
+        cam2world=np.eye(4),
+        timestamp_s=0.5,
+        map_id="m",
+        device_id="d",
+        frame_id="f",
+        depth_scale=5000.0,
+    )
     assert msg.depth_scale == 5000.0 and msg.depth_encoding == pb.DEPTH_ENCODING_PNG
     decoded = cv2.imdecode(np.frombuffer(msg.depth, np.uint8), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(decoded, units)
@@ -76,8 +100,16 @@ def test_arrays_with_uint16_depth_keep_their_units() -> None:
 
 def test_depths_beyond_the_uint16_range_become_no_depth() -> None:
     frame = sample_frame()
-    far = make_frame(frame.rgb, np.full((H, W), 70.0, np.float32), frame.intrinsics, frame.cam2world,
-                     timestamp_s=0, map_id="m", device_id="d", frame_id="f")
+    far = make_frame(
+        frame.rgb,
+        np.full((H, W), 70.0, np.float32),
+        frame.intrinsics,
+        frame.cam2world,
+        timestamp_s=0,
+        map_id="m",
+        device_id="d",
+        frame_id="f",
+    )
     assert not frame_from_proto(frame_to_proto(far, rgb_encoding="png")).depth_m.any()
     assert np.all(frame_from_proto(frame_to_proto(far, depth_encoding="raw_float32")).depth_m == 70.0)
 
@@ -150,16 +182,33 @@ def test_frame_to_proto_checks_its_arguments() -> None:
     with pytest.raises(InvalidInput, match="not both"):
         frame_to_proto(frame, rgb=frame.rgb)
     with pytest.raises(InvalidInput, match="depth"):
-        frame_to_proto(rgb=frame.rgb, depth=frame.depth_m[:, :-1], intrinsics=frame.intrinsics, cam2world=frame.cam2world,
-                       map_id="m", device_id="d", frame_id="f")
+        frame_to_proto(
+            rgb=frame.rgb,
+            depth=frame.depth_m[:, :-1],
+            intrinsics=frame.intrinsics,
+            cam2world=frame.cam2world,
+            map_id="m",
+            device_id="d",
+            frame_id="f",
+        )
 
 
 def refined_object() -> MapObject:
     rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     return MapObject(
-        id=7, keys=np.arange(5, dtype=np.int64), weights=np.ones(5, np.float32), votes=np.zeros((5, N_CLASSES), np.float32),
-        n_frames=9, devices=frozenset({"a", "b"}), score_sum=4.0, version=3, created_at_s=100.0, updated_at_s=250.5,
-        label="couch", score=0.75, aabb=AABB(np.array([0.0, 1.0, 2.0]), np.array([1.0, 2.0, 3.5])),
+        id=7,
+        keys=np.arange(5, dtype=np.int64),
+        weights=np.ones(5, np.float32),
+        votes=np.zeros((5, N_CLASSES), np.float32),
+        n_frames=9,
+        devices=frozenset({"a", "b"}),
+        score_sum=4.0,
+        version=3,
+        created_at_s=100.0,
+        updated_at_s=250.5,
+        label="couch",
+        score=0.75,
+        aabb=AABB(np.array([0.0, 1.0, 2.0]), np.array([1.0, 2.0, 3.5])),
         obb=OBB(center=np.array([0.5, 1.5, 2.75]), size=np.array([1.0, 0.8, 1.5]), rotation=rotation, yaw_rad=np.pi / 2),
         bounds=AABB(np.zeros(3), np.ones(3)),
     )
@@ -188,7 +237,9 @@ def test_events() -> None:
     created = event_to_proto(ObjectEvent("created", "lab", 7, obj))
     assert created.kind == pb.ObjectEvent.KIND_CREATED and created.object.id == 7 and created.time_s == 250.5
     assert not created.HasField("merged_into")
-    merged = pb.ObjectEvent.FromString(event_to_proto(ObjectEvent("merged", "lab", 9, merged_into=7), time_s=300.0).SerializeToString())
+    merged = pb.ObjectEvent.FromString(
+        event_to_proto(ObjectEvent("merged", "lab", 9, merged_into=7), time_s=300.0).SerializeToString()
+    )
     assert (merged.kind, merged.object_id, merged.merged_into, merged.time_s) == (pb.ObjectEvent.KIND_MERGED, 9, 7, 300.0)
     assert not merged.HasField("object")
     deleted = event_to_proto(ObjectEvent("deleted", "lab", 9))

@@ -50,7 +50,9 @@ def make_test_frame(
         rgb[r0:r1, c0:c1] = (200, 60, 40)
     pose = LEVEL_CAM2WORLD.copy() if level else np.eye(4)
     pose[0, 3] = 0.01 * index
-    return make_frame(rgb, depth, INTRINSICS, pose, timestamp_s=index / 30, map_id=map_id, device_id=device_id, frame_id=f"f{index:06d}")
+    return make_frame(
+        rgb, depth, INTRINSICS, pose, timestamp_s=index / 30, map_id=map_id, device_id=device_id, frame_id=f"f{index:06d}"
+    )
 
 
 def multipart_parts(frame: Frame, **meta_changes: Any) -> dict[str, tuple[str, bytes, str]]:
@@ -61,7 +63,12 @@ def multipart_parts(frame: Frame, **meta_changes: Any) -> dict[str, tuple[str, b
         "device_id": frame.device_id,
         "frame_id": frame.frame_id,
         "timestamp": frame.timestamp_s,
-        "intrinsics": {"fx": frame.intrinsics.fx, "fy": frame.intrinsics.fy, "cx": frame.intrinsics.cx, "cy": frame.intrinsics.cy},
+        "intrinsics": {
+            "fx": frame.intrinsics.fx,
+            "fy": frame.intrinsics.fy,
+            "cx": frame.intrinsics.cx,
+            "cy": frame.intrinsics.cy,
+        },
         "cam2world": frame.cam2world.reshape(16).tolist(),
         "depth_scale": 1000,
     }

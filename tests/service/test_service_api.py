@@ -66,7 +66,11 @@ def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -
     wait_until(lambda: processed(client, "m") == 8, 20, "8 frames processed")
 
     stats = client.get("/v1/maps/m/stats").json()
-    assert stats == {"map_id": "m", "frames": {"accepted": 8, "processed": 8, "failed": 0, "pending": 0}, "objects": {"confirmed": 0, "tentative": 1}}
+    assert stats == {
+        "map_id": "m",
+        "frames": {"accepted": 8, "processed": 8, "failed": 0, "pending": 0},
+        "objects": {"confirmed": 0, "tentative": 1},
+    }
     assert client.get("/v1/maps/m/objects").json()["objects"] == []  # lying flat: no chair has that box
     (obj,) = client.get("/v1/maps/m/objects", params=TENTATIVE).json()["objects"]
     assert obj["label"] == "chair" and obj["n_frames"] == 8 and obj["version"] >= 1 and obj["status"] == "tentative"
@@ -80,14 +84,21 @@ def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -
     centers = np.array(detail["voxels"]["centers"])
     assert centers.shape == (obj["n_voxels"], 3) and len(detail["voxels"]["weights"]) == obj["n_voxels"]
     assert np.all(centers >= np.array(obj["aabb"]["min"]) - 0.05) and np.all(centers <= np.array(obj["aabb"]["max"]) + 0.05)
-    assert "voxels" not in client.get(f"/v1/maps/m/objects/{obj['id']}").json() or client.get(f"/v1/maps/m/objects/{obj['id']}").json()["voxels"] is None
+    assert (
+        "voxels" not in client.get(f"/v1/maps/m/objects/{obj['id']}").json()
+        or client.get(f"/v1/maps/m/objects/{obj['id']}").json()["voxels"] is None
+    )
 
 
 def test_meta_may_be_a_text_field(client: AppClient) -> None:
     parts = multipart_parts(make_test_frame(0))
     response = client.post("/v1/maps/t/frames", data={"meta": parts.pop("meta")[1].decode()}, files=parts)
     assert response.status_code == 202, response.text
-    as_text_rgb = client.post("/v1/maps/t/frames", data={"rgb": "not a file"}, files={k: v for k, v in multipart_parts(make_test_frame(1)).items() if k != "rgb"})
+    as_text_rgb = client.post(
+        "/v1/maps/t/frames",
+        data={"rgb": "not a file"},
+        files={k: v for k, v in multipart_parts(make_test_frame(1)).items() if k != "rgb"},
+    )
     assert as_text_rgb.status_code == 422 and "rgb: expected a file part" in as_text_rgb.json()["detail"]
 
 
@@ -116,7 +127,11 @@ def test_the_served_map_holds_confirmed_objects_and_loses_those_that_turn_tentat
     with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=detector)) as client:
 
         def send(index: int, boxes: tuple = (LEFT,)) -> None:
-            response = client.post("/v1/maps/s/frames", content=proto_body(make_test_frame(index, map_id="s", boxes=boxes, level=True)), headers=PROTOBUF)
+            response = client.post(
+                "/v1/maps/s/frames",
+                content=proto_body(make_test_frame(index, map_id="s", boxes=boxes, level=True)),
+                headers=PROTOBUF,
+            )
             assert response.status_code == 202, response.text
             wait_until(lambda: processed(client, "s") == index + 1, 20, f"frame {index} processed")
 
@@ -147,7 +162,10 @@ def test_the_served_map_holds_confirmed_objects_and_loses_those_that_turn_tentat
         assert detail.status_code == 200 and detail.json()["status"] == "tentative" and detail.json()["voxels"]["centers"]
         everything = listed(**TENTATIVE)
         counts = client.get("/v1/maps/s/stats").json()["objects"]
-        assert counts == {"confirmed": sum(s == "confirmed" for s in everything.values()), "tentative": sum(s == "tentative" for s in everything.values())}
+        assert counts == {
+            "confirmed": sum(s == "confirmed" for s in everything.values()),
+            "tentative": sum(s == "tentative" for s in everything.values()),
+        }
         assert listed() == {i: s for i, s in everything.items() if s == "confirmed"}
 
 
@@ -189,7 +207,17 @@ def bad_uploads() -> list[tuple[str, dict[str, object], int, str]]:
         ("map id mismatch (protobuf)", {"content": proto_body(frame, map_id="other"), "headers": PROTOBUF}, 422, "map_id"),
         ("no intrinsics (protobuf)", {"content": _without_intrinsics(frame), "headers": PROTOBUF}, 422, "intrinsics"),
         ("too large", {"content": b"\0" * 200_001, "headers": PROTOBUF}, 413, "200000 bytes"),
-        ("too large multipart", {"files": {**parts, "rgb": ("rgb.jpg", _jpeg(np.random.default_rng(0).integers(0, 255, (600, 600, 3), np.uint8)), "image/jpeg")}}, 413, "bytes"),
+        (
+            "too large multipart",
+            {
+                "files": {
+                    **parts,
+                    "rgb": ("rgb.jpg", _jpeg(np.random.default_rng(0).integers(0, 255, (600, 600, 3), np.uint8)), "image/jpeg"),
+                }
+            },
+            413,
+            "bytes",
+        ),
     ]
 
 
@@ -203,7 +231,9 @@ BAD_UPLOADS = bad_uploads()
 
 
 @pytest.mark.parametrize(("case", "request_kwargs", "status", "says"), BAD_UPLOADS, ids=[c[0] for c in BAD_UPLOADS])
-def test_bad_uploads_are_refused_with_a_reason(client: AppClient, case: str, request_kwargs: dict, status: int, says: str) -> None:
+def test_bad_uploads_are_refused_with_a_reason(
+    client: AppClient, case: str, request_kwargs: dict, status: int, says: str
+) -> None:
     response = client.post("/v1/maps/m/frames", **request_kwargs)
     assert response.status_code == status, (case, response.text)
     body = response.json()
@@ -229,10 +259,18 @@ def test_unknown_maps_objects_and_bad_queries(client: AppClient) -> None:
     wait_until(lambda: processed(client, "m") == 1, 20, "frame processed")
     missing = client.get("/v1/maps/m/objects/999")
     assert missing.status_code == 404 and "999" in missing.json()["detail"]
-    for params, field in (({"label": "dog"}, "label"), ({"min_score": "2"}, "min_score"), ({"bbox": "1,2,3"}, "bbox"), ({"bbox": "1,1,1,0,0,0"}, "bbox"),
-                          ({"include": "all"}, "include"), ({"include": "confirmed"}, "include")):
+    for params, field in (
+        ({"label": "dog"}, "label"),
+        ({"min_score": "2"}, "min_score"),
+        ({"bbox": "1,2,3"}, "bbox"),
+        ({"bbox": "1,1,1,0,0,0"}, "bbox"),
+        ({"include": "all"}, "include"),
+        ({"include": "confirmed"}, "include"),
+    ):
         response = client.get("/v1/maps/m/objects", params=params)
-        assert response.status_code == 422 and field in response.json()["detail"] and response.json()["field"] == field, response.text
+        assert response.status_code == 422 and field in response.json()["detail"] and response.json()["field"] == field, (
+            response.text
+        )
     assert "tentative" in client.get("/v1/maps/m/objects", params={"include": "all"}).json()["detail"]  # says what it takes
     assert client.get("/v1/maps/m/objects/-1").status_code == 422
 
@@ -275,7 +313,10 @@ def test_full_queue_answers_503_with_retry_after() -> None:
 
     settings = Settings(detector="sim:0", workers=1, max_queued_frames=1)
     with AppClient(create_app(settings, detector=Blocking())) as client:
-        codes = [client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(i)), headers=PROTOBUF).status_code for i in range(4)]
+        codes = [
+            client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(i)), headers=PROTOBUF).status_code
+            for i in range(4)
+        ]
         release.set()
         assert 503 in codes and codes[0] == 202 and codes.count(202) <= 2, codes
         refused = client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(9)), headers=PROTOBUF)
@@ -293,22 +334,39 @@ def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
     metrics = client.get("/metrics")
     assert metrics.headers["content-type"].startswith("text/plain")
     text = metrics.text
-    for line in ("arcloud_frames_accepted_total 1.0", "arcloud_frames_processed_total 1.0", "arcloud_queue_depth 0.0",
-                 'arcloud_frames_rejected_total{status="415"} 1.0', "arcloud_step_latency_seconds_count 1.0",
-                 'arcloud_step_latency_seconds_bucket{le="+Inf"} 1.0'):
+    for line in (
+        "arcloud_frames_accepted_total 1.0",
+        "arcloud_frames_processed_total 1.0",
+        "arcloud_queue_depth 0.0",
+        'arcloud_frames_rejected_total{status="415"} 1.0',
+        "arcloud_step_latency_seconds_count 1.0",
+        'arcloud_step_latency_seconds_bucket{le="+Inf"} 1.0',
+    ):
         assert line in text, line
     spec = client.get("/openapi.json").json()
     upload = spec["paths"]["/v1/maps/{map_id}/frames"]["post"]
     assert set(upload["requestBody"]["content"]) == {"application/x-protobuf", "multipart/form-data"}
-    assert json.loads(upload["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]["meta"]["example"])["frame_id"]
+    assert json.loads(upload["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]["meta"]["example"])[
+        "frame_id"
+    ]
     assert {"202", "413", "415", "422"} <= set(upload["responses"])
-    for path in ("/v1/maps/{map_id}/objects", "/v1/maps/{map_id}/objects/{object_id}", "/v1/maps/{map_id}", "/v1/maps/{map_id}/stats",
-                 "/healthz", "/readyz", "/metrics"):
+    for path in (
+        "/v1/maps/{map_id}/objects",
+        "/v1/maps/{map_id}/objects/{object_id}",
+        "/v1/maps/{map_id}",
+        "/v1/maps/{map_id}/stats",
+        "/healthz",
+        "/readyz",
+        "/metrics",
+    ):
         assert path in spec["paths"], path
     listing = {p["name"]: p for p in spec["paths"]["/v1/maps/{map_id}/objects"]["get"]["parameters"]}
     assert listing["include"]["schema"]["anyOf"][0]["const"] == "tentative" and "tentative" in listing["include"]["description"]
     schemas = spec["components"]["schemas"]
-    assert schemas["ObjectOut"]["properties"]["status"]["enum"] == ["confirmed", "tentative"] and "status" in schemas["ObjectOut"]["required"]
+    assert (
+        schemas["ObjectOut"]["properties"]["status"]["enum"] == ["confirmed", "tentative"]
+        and "status" in schemas["ObjectOut"]["required"]
+    )
     assert schemas["ObjectOut"]["examples"][0]["status"] == "confirmed"
     assert schemas["MapStats"]["examples"][0]["objects"] == {"confirmed": 14, "tentative": 31}
 
@@ -338,7 +396,10 @@ def test_a_service_with_other_settings_refuses_the_map_and_its_workers_leave_it_
     store = MemoryStore()
     with AppClient(create_app(Settings(detector="sim:0", workers=1), store=store, detector=BlobDetector())) as first:
         for i in range(3):
-            assert first.post("/v1/maps/h/frames", content=proto_body(make_test_frame(i, map_id="h")), headers=PROTOBUF).status_code == 202
+            assert (
+                first.post("/v1/maps/h/frames", content=proto_body(make_test_frame(i, map_id="h")), headers=PROTOBUF).status_code
+                == 202
+            )
         wait_until(lambda: processed(first, "h") == 3, 20, "3 frames processed")
     before = store.list_objects("h")
     assert before and store.map_header("h").voxel_size_m == 0.05  # the first writer stored its settings
@@ -346,7 +407,10 @@ def test_a_service_with_other_settings_refuses_the_map_and_its_workers_leave_it_
     with AppClient(create_app(other, store=store, detector=BlobDetector())) as second:
         refused = second.post("/v1/maps/h/frames", content=proto_body(make_test_frame(3, map_id="h")), headers=PROTOBUF)
         assert refused.status_code == 409, refused.text
-        assert refused.json() == {"detail": "map h was built with other settings: voxel_size_m: map 0.05, ours 0.04", "field": "map_id"}
+        assert refused.json() == {
+            "detail": "map h was built with other settings: voxel_size_m: map 0.05, ours 0.04",
+            "field": "map_id",
+        }
         second.post("/v1/maps/fresh/frames", content=proto_body(make_test_frame(0, map_id="fresh")), headers=PROTOBUF)
         wait_until(lambda: processed(second, "fresh") == 1, 20, "a new map takes the second service's settings")
         assert store.map_header("fresh").voxel_size_m == 0.04

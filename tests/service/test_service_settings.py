@@ -75,9 +75,22 @@ def test_secrets_are_masked() -> None:
 def test_latency_buckets_and_stats_parsing() -> None:
     assert latency_bucket(0.0) == 0 and latency_bucket(LATENCY_BUCKETS_S[0]) == 0  # upper bounds are inclusive
     assert latency_bucket(0.0051) == 1 and latency_bucket(1e9) == len(LATENCY_BUCKETS_S)
-    raw = {b"processed": b"3", b"failed": b"1", latency_field(1): b"2", latency_field(len(LATENCY_BUCKETS_S)): b"1", b"latency_sum_s": b"99.5"}
+    raw = {
+        b"processed": b"3",
+        b"failed": b"1",
+        latency_field(1): b"2",
+        latency_field(len(LATENCY_BUCKETS_S)): b"1",
+        b"latency_sum_s": b"99.5",
+    }
     snap = parse_stats(raw)
-    assert (snap.processed, snap.failed, snap.accepted, snap.redelivered, snap.latency_count, snap.latency_sum_s) == (3, 1, 0, 0, 3, 99.5)
+    assert (snap.processed, snap.failed, snap.accepted, snap.redelivered, snap.latency_count, snap.latency_sum_s) == (
+        3,
+        1,
+        0,
+        0,
+        3,
+        99.5,
+    )
     assert snap.latency_counts[1] == 2 and snap.latency_counts[-1] == 1
 
 

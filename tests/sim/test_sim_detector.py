@@ -41,7 +41,9 @@ def poses(room: Room) -> list[np.ndarray]:
 
 
 def frames_of(room: Room, poses: list[np.ndarray], faults: DetectorFaults, seed: int = 2) -> list:
-    return simulate_sequence(room, n_frames=len(poses), seed=seed, width=W, height=H, intrinsics=K, faults=faults, poses=poses, workers=1)
+    return simulate_sequence(
+        room, n_frames=len(poses), seed=seed, width=W, height=H, intrinsics=K, faults=faults, poses=poses, workers=1
+    )
 
 
 def test_without_faults_every_visible_instance_is_detected_exactly(room: Room, poses: list[np.ndarray]) -> None:
@@ -90,7 +92,9 @@ def test_same_frame_id_same_detections_for_any_device_order_or_detector(room: Ro
 def test_recorded_truth_and_a_fresh_ray_cast_give_the_same_detections(room: Room, poses: list[np.ndarray], threads: int) -> None:
     faults = DetectorFaults()
     truths = FrameTruths(room)
-    frames = simulate_sequence(room, n_frames=4, seed=2, width=W, height=H, intrinsics=K, faults=faults, poses=poses[:4], workers=1, truths=truths)
+    frames = simulate_sequence(
+        room, n_frames=4, seed=2, width=W, height=H, intrinsics=K, faults=faults, poses=poses[:4], workers=1, truths=truths
+    )
     assert len(truths) == 4
     detector = SimulatedDetector(room, faults, seed=2, truths=truths)
     fresh = SimulatedDetector(room, faults, seed=2, threads=threads)  # no truths: ray-casts every frame

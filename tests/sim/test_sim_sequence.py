@@ -35,7 +35,9 @@ def backproject(depth_m: np.ndarray, intrinsics: Intrinsics, cam2world: np.ndarr
 
 
 def test_noiseless_depth_back_projects_onto_the_mesh(room: Room, poses: list[np.ndarray]) -> None:
-    frames = simulate_sequence(room, n_frames=len(poses), seed=4, width=W, height=H, intrinsics=K, faults=DetectorFaults.none(), poses=poses, workers=1)
+    frames = simulate_sequence(
+        room, n_frames=len(poses), seed=4, width=W, height=H, intrinsics=K, faults=DetectorFaults.none(), poses=poses, workers=1
+    )
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(room.vertices), o3d.core.Tensor(room.triangles.astype(np.uint32)))
     for frame, pose in zip(frames, poses):
@@ -53,8 +55,24 @@ def test_noiseless_depth_back_projects_onto_the_mesh(room: Room, poses: list[np.
 
 def test_frames_have_ids_timestamps_and_reported_noisy_poses(room: Room, poses: list[np.ndarray]) -> None:
     faults = DetectorFaults()
-    frames = simulate_sequence(room, n_frames=len(poses), seed=4, width=W, height=H, intrinsics=K, faults=faults, poses=poses, map_id="m1", device_id="dev-2", workers=1)
-    assert [f.frame_id for f in frames] == [frame_id_of(i) for i in range(len(poses))] == ["f000000", "f000001", "f000002", "f000003", "f000004", "f000005"]
+    frames = simulate_sequence(
+        room,
+        n_frames=len(poses),
+        seed=4,
+        width=W,
+        height=H,
+        intrinsics=K,
+        faults=faults,
+        poses=poses,
+        map_id="m1",
+        device_id="dev-2",
+        workers=1,
+    )
+    assert (
+        [f.frame_id for f in frames]
+        == [frame_id_of(i) for i in range(len(poses))]
+        == ["f000000", "f000001", "f000002", "f000003", "f000004", "f000005"]
+    )
     np.testing.assert_allclose([f.timestamp_s for f in frames], np.arange(len(poses)) / 30.0)
     assert {(f.map_id, f.device_id) for f in frames} == {("m1", "dev-2")}
     for frame, pose in zip(frames, poses):
@@ -68,7 +86,9 @@ def test_frames_have_ids_timestamps_and_reported_noisy_poses(room: Room, poses: 
 
 
 def test_same_arguments_same_frames_and_workers_do_not_matter(room: Room, poses: list[np.ndarray]) -> None:
-    kwargs = dict(n_frames=4, seed=4, width=W // 2, height=H // 2, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5), poses=poses[:4])
+    kwargs = dict(
+        n_frames=4, seed=4, width=W // 2, height=H // 2, intrinsics=Intrinsics(131.25, 131.25, 79.5, 59.5), poses=poses[:4]
+    )
     a = simulate_sequence(room, workers=1, **kwargs)
     b = simulate_sequence(room, workers=2, **kwargs)
     for fa, fb in zip(a, b):

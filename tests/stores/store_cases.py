@@ -15,7 +15,9 @@ VOXEL_M = 0.05
 MAP = "map-a"
 
 
-def make_object(object_id: int, lo_m: tuple[float, float, float], size_m: float = 0.3, *, version: int = 1, seed: int = 0) -> MapObject:
+def make_object(
+    object_id: int, lo_m: tuple[float, float, float], size_m: float = 0.3, *, version: int = 1, seed: int = 0
+) -> MapObject:
     """An object filling a cube of voxels from ``lo_m``, with random weights and votes and every derived field set."""
     rng = np.random.default_rng(seed)
     n = max(1, round(size_m / VOXEL_M))
@@ -85,8 +87,14 @@ def step_frame(device: int, index: int) -> tuple:
     cam2world = np.eye(4)
     cam2world[0, 3] = 0.004 * index + 0.001 * device
     frame = make_frame(
-        np.zeros((H, W, 3), np.uint8), depth, INTRINSICS, cam2world,
-        timestamp_s=float(index), map_id=MAP, device_id=f"dev-{device}", frame_id=f"f{index}",
+        np.zeros((H, W, 3), np.uint8),
+        depth,
+        INTRINSICS,
+        cam2world,
+        timestamp_s=float(index),
+        map_id=MAP,
+        device_id=f"dev-{device}",
+        frame_id=f"f{index}",
     )
     return frame, [Detection("chair", 0.9, chair), Detection("table", 0.8, table)]
 

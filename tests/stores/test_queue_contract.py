@@ -24,7 +24,16 @@ def frame(index: int, *, map_id: str = MAP) -> Frame:
     rng = np.random.default_rng(index)
     rgb = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
     depth = rng.uniform(0.5, 4.0, (12, 16)).astype(np.float32)
-    return make_frame(rgb, depth, (20.0, 20.0, 7.5, 5.5), np.eye(4), timestamp_s=index / 30, map_id=map_id, device_id="d", frame_id=f"f{index:03d}")
+    return make_frame(
+        rgb,
+        depth,
+        (20.0, 20.0, 7.5, 5.5),
+        np.eye(4),
+        timestamp_s=index / 30,
+        map_id=map_id,
+        device_id="d",
+        frame_id=f"f{index:03d}",
+    )
 
 
 @pytest.fixture(params=["memory", pytest.param("redis", marks=pytest.mark.redis)])
@@ -55,7 +64,15 @@ def test_a_frame_goes_through_once_and_is_counted(queue: FrameQueue) -> None:
     assert queue.take("c1", block_s=0.05) is None
     queue.ack(item, redelivered=False, retries=2, elapsed_s=0.02)
     stats = queue.stats()
-    assert (stats.accepted, stats.duplicates, stats.processed, stats.redelivered, stats.retried, stats.failed, stats.queue_depth) == (1, 1, 1, 0, 2, 0, 0)
+    assert (
+        stats.accepted,
+        stats.duplicates,
+        stats.processed,
+        stats.redelivered,
+        stats.retried,
+        stats.failed,
+        stats.queue_depth,
+    ) == (1, 1, 1, 0, 2, 0, 0)
     assert stats.latency_count == 1 and stats.latency_sum_s == pytest.approx(0.02)
 
 

@@ -103,9 +103,18 @@ def test_object_round_trips_through_metadata_and_voxels() -> None:
     keys, weights, votes = random_voxels(50, seed=4)
     rotation = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
     obj = MapObject(
-        id=17, keys=keys, weights=weights, votes=votes, n_frames=12, devices=frozenset({"b", "a", "ü-device"}),
-        score_sum=3.141592653589793, version=5, created_at_s=1_700_000_000.000001, updated_at_s=1_700_000_001.5,
-        label="tv", score=0.1 + 0.2,
+        id=17,
+        keys=keys,
+        weights=weights,
+        votes=votes,
+        n_frames=12,
+        devices=frozenset({"b", "a", "ü-device"}),
+        score_sum=3.141592653589793,
+        version=5,
+        created_at_s=1_700_000_000.000001,
+        updated_at_s=1_700_000_001.5,
+        label="tv",
+        score=0.1 + 0.2,
         aabb=AABB(np.array([-1.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0000000001])),
         obb=OBB(center=np.array([0.1, 0.2, 0.3]), size=np.array([1.0, 2.0, 0.5]), rotation=rotation, yaw_rad=0.9272952180016122),
         bounds=AABB(np.array([-2.0, 0.0, 0.0]), np.array([2.0, 3.0, 4.0])),

@@ -37,8 +37,16 @@ def test_every_key_of_a_map_shares_its_hash_tag(redis_store: RedisStore) -> None
     lease = store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0)
     claim = store.claim(MAP, [(0, 0, 0)], ttl_s=10, timeout_s=0)
     found = all_keys(store)
-    assert found >= {keys.ids_key(MAP), keys.frames_key(MAP), keys.bounds_key(MAP), keys.meta_key(MAP), keys.object_key(MAP, 1),
-                     keys.lock_key(MAP, 2), keys.claim_key(MAP, (0, 0, 0)), keys.cell_key(MAP, (1, -2, 0))}
+    assert found >= {
+        keys.ids_key(MAP),
+        keys.frames_key(MAP),
+        keys.bounds_key(MAP),
+        keys.meta_key(MAP),
+        keys.object_key(MAP, 1),
+        keys.lock_key(MAP, 2),
+        keys.claim_key(MAP, (0, 0, 0)),
+        keys.cell_key(MAP, (1, -2, 0)),
+    }
     assert {keys.hash_tag(k) for k in found} == {MAP}
     assert {key_slot(k.encode()) for k in found} == {key_slot(keys.map_prefix(MAP).encode())}
     lease.release()
@@ -175,14 +183,20 @@ print(json.dumps(ids))
 def test_two_processes_share_one_map(redis_store: RedisStore, redis_server) -> None:
     cases_dir = str(Path(__file__).parent)
     children = [
-        subprocess.Popen([sys.executable, "-c", CHILD, cases_dir, redis_server.url, str(device)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        subprocess.Popen(
+            [sys.executable, "-c", CHILD, cases_dir, redis_server.url, str(device)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         for device in range(2)
     ]
     try:
         deadline = time.monotonic() + 60
         while int(redis_store.client.get("test:ready") or 0) < 2 and time.monotonic() < deadline:
-            assert all(c.poll() is None for c in children), children[0].stderr.read() if children[0].poll() else children[1].stderr.read()
+            assert all(c.poll() is None for c in children), (
+                children[0].stderr.read() if children[0].poll() else children[1].stderr.read()
+            )
             time.sleep(0.02)
         redis_store.client.set("test:go", b"1")
         outputs = [c.communicate(timeout=60) for c in children]

@@ -53,7 +53,9 @@ def parse_colour_camera(text: str) -> Any:
     except ValueError:
         values = []
     if len(values) not in (4, 7) or not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
-        raise argparse.ArgumentTypeError(f"expected fx,fy,cx,cy[,tx,ty,tz] (7 or 4 finite numbers, positive focal lengths), got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected fx,fy,cx,cy[,tx,ty,tz] (7 or 4 finite numbers, positive focal lengths), got {text!r}"
+        )
     depth2rgb = np.eye(4)
     depth2rgb[:3, 3] = values[4:7] if len(values) == 7 else (0.0, 0.0, 0.0)
     return ColourCamera(Intrinsics(*values[:4]), depth2rgb)
@@ -166,11 +168,17 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
     )  # fmt: skip
     stem = out_path.with_suffix("")
     gt_boxes = ground_truth.boxes("observed") if ground_truth is not None else []
-    pictures = write_pictures(stem, frames, centralized, first_runs, title=sequence.name, gt=gt_boxes, world2boxes=frame.world2export)
+    pictures = write_pictures(
+        stem, frames, centralized, first_runs, title=sequence.name, gt=gt_boxes, world2boxes=frame.world2export
+    )
     out: dict[str, Any] = {"agreement": rows}
     if ground_truth is not None:
         out["accuracy"] = accuracy_rows(scores)
-        out["ground_truth"] = {"file": str(ground_truth.path), "objects": [o.id for o in ground_truth.objects], "primary": "observed"}
+        out["ground_truth"] = {
+            "file": str(ground_truth.path),
+            "objects": [o.id for o in ground_truth.objects],
+            "primary": "observed",
+        }
     out |= {
         "dataset": "7scenes",
         "detector": args.detector,
@@ -182,8 +190,7 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
         "frame": frame.description,
         "reference_min_score": args.reference_min_score,
         "centralized_objects": [
-            {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]}
-            for o in objects_json(centralized)
+            {**o, "size": [round(b - a, 3) for a, b in zip(o["aabb_min"], o["aabb_max"])]} for o in objects_json(centralized)
         ],
         "pictures": pictures,
         "wall_s": round(time.perf_counter() - started, 2),
@@ -225,10 +232,17 @@ def _print_accuracy(rows: Sequence[dict[str, Any]]) -> None:
 def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
     from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
 
-    parser.add_argument("--users", type=parse_users, default=users, help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})")
+    parser.add_argument(
+        "--users",
+        type=parse_users,
+        default=users,
+        help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})",
+    )
     parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
     parser.add_argument("--out", required=True, help="results JSON to write")
-    parser.add_argument("--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json (with world_from_export)")
+    parser.add_argument(
+        "--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json (with world_from_export)"
+    )
     parser.add_argument("--stride", type=positive_int, default=1, help="use every N-th frame (default 1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=0, help="worker threads of distributed runs (default: CPU count)")
@@ -252,10 +266,17 @@ def add_eval_commands(subparsers: Any) -> Any:
     )
     scannet.add_argument("--root", required=True, help="a scene folder, a folder of scenes, or one holding scans/")
     scannet.add_argument("--scenes", type=parse_scenes, default=None, help="scene names, comma-separated, or @FILE")
-    scannet.add_argument("--detector", required=True,
-                         help=f"onnx:PATH (a YOLO-seg ONNX model), or {GT_MASKS}[:OPTIONS] (each scene's own masks; "
-                         "OPTIONS e.g. faults=default,seed=3: a model's mask faults, see docs/datasets.md)")
-    scannet.add_argument("--axis-alignment", default=None, help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt")
+    scannet.add_argument(
+        "--detector",
+        required=True,
+        help=f"onnx:PATH (a YOLO-seg ONNX model), or {GT_MASKS}[:OPTIONS] (each scene's own masks; "
+        "OPTIONS e.g. faults=default,seed=3: a model's mask faults, see docs/datasets.md)",
+    )
+    scannet.add_argument(
+        "--axis-alignment",
+        default=None,
+        help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt",
+    )
     _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
     scannet.set_defaults(handler=run_eval_scannet)
 
@@ -266,11 +287,20 @@ def add_eval_commands(subparsers: Any) -> Any:
     )
     seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
     seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
-    seven.add_argument("--colour-camera", type=parse_colour_camera, default=None, metavar="FX,FY,CX,CY[,TX,TY,TZ]",
-                       help="the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
-                       "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)")
-    seven.add_argument("--reference-min-score", type=float, default=0.0,
-                       help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)")
+    seven.add_argument(
+        "--colour-camera",
+        type=parse_colour_camera,
+        default=None,
+        metavar="FX,FY,CX,CY[,TX,TY,TZ]",
+        help="the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
+        "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)",
+    )
+    seven.add_argument(
+        "--reference-min-score",
+        type=float,
+        default=0.0,
+        help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)",
+    )
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)
     seven.set_defaults(handler=run_eval_7scenes)
 

@@ -57,7 +57,13 @@ def score_run(objects: Sequence[MapObject], ground_truth: Sequence[LabelledBox],
 
 
 def case_record(
-    case: str, split: str, centralized: Mapping[str, Any], distributed: Sequence[Mapping[str, Any]] = (), *, users: int = 10, **extra: Any
+    case: str,
+    split: str,
+    centralized: Mapping[str, Any],
+    distributed: Sequence[Mapping[str, Any]] = (),
+    *,
+    users: int = 10,
+    **extra: Any,
 ) -> dict[str, Any]:
     """One case: its centralized run's figures, its distributed runs' (K = ``users``), their mean, and
     ``extra`` facts (frames, seeds, walk style...)."""
@@ -80,7 +86,10 @@ def summarise(cases: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
             continue
         entry: dict[str, Any] = {"cases": len(chosen)}
         for approach in ("centralized", "distributed"):
-            rows = [(c["case"], c["centralized"] if approach == "centralized" else c.get("distributed", {}).get("mean")) for c in chosen]
+            rows = [
+                (c["case"], c["centralized"] if approach == "centralized" else c.get("distributed", {}).get("mean"))
+                for c in chosen
+            ]
             rows = [(name, r) for name, r in rows if r]
             if not rows:
                 continue

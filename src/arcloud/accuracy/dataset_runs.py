@@ -183,7 +183,9 @@ def agreement(
     from arcloud.eval.metrics import evaluate
 
     collector = _RunCollector(on_run)
-    _table1_runs([(name, frames, detector, [])], params, collector, users=users, runs=runs, seed=seed, workers=workers, progress=progress)
+    _table1_runs(
+        [(name, frames, detector, [])], params, collector, users=users, runs=runs, seed=seed, workers=workers, progress=progress
+    )
     centralized = collector.first.pop(1)
     # scores are ignored on the ground-truth side, beyond the threshold
     reference = {name: [b for b in collector.boxes[(1, 0)][name] if b.score >= reference_min_score]}
@@ -210,7 +212,10 @@ def accuracy_rows(scores: Mapping[int, Sequence[Mapping[str, Mapping[str, Any]]]
     for k, runs in sorted(scores.items()):
         for kind in runs[0]:
             figures = [run[kind] for run in runs]
-            values = {key: [float("nan") if f[key] is None else float(f[key]) for f in figures] for key in ("map25", "map50", *_SERVED_FIGURES)}
+            values = {
+                key: [float("nan") if f[key] is None else float(f[key]) for f in figures]
+                for key in ("map25", "map50", *_SERVED_FIGURES)
+            }
             rows.append({
                 "approach": "centralized" if k == 1 else "distributed",
                 "users": k,

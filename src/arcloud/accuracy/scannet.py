@@ -121,7 +121,11 @@ def run_suite(
     records = []
     for case in chosen:
         scene_dir, render_s = render_case(source, case, out_dir / "renders", progress=progress)
-        records.append(evaluate_case(case, scene_dir, faults, params, runs=n_runs, workers=workers, export_dir=out_dir / "exports", render_s=render_s))
+        records.append(
+            evaluate_case(
+                case, scene_dir, faults, params, runs=n_runs, workers=workers, export_dir=out_dir / "exports", render_s=render_s
+            )
+        )
     return {
         "suite": "scannet",
         "quick": quick,
@@ -191,12 +195,29 @@ def evaluate_case(
     frame = scannet_export_frame(scene)
     if export_dir is not None:
         export_dir.mkdir(parents=True, exist_ok=True)
-        gt_json = [{"label": b.label, "aabb_min": [float(v) for v in b.min], "aabb_max": [float(v) for v in b.max]} for b in ground_truth]
-        gt_payload = {"scene": scene.scene_id, "case": case.name, "annotation": scene.annotation, "frame": frame.description, "objects": gt_json}
+        gt_json = [
+            {"label": b.label, "aabb_min": [float(v) for v in b.min], "aabb_max": [float(v) for v in b.max]} for b in ground_truth
+        ]
+        gt_payload = {
+            "scene": scene.scene_id,
+            "case": case.name,
+            "annotation": scene.annotation,
+            "frame": frame.description,
+            "objects": gt_json,
+        }
         (export_dir / f"{case.name}_gt.json").write_text(json.dumps(gt_payload, indent=1))
 
     def build(users: int, run: int) -> dict[str, Any]:
-        objects = run_map(frames, detector, params, new_store=MemoryStore, users=users, seed=case.seed * 1000 + run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        objects = run_map(
+            frames,
+            detector,
+            params,
+            new_store=MemoryStore,
+            users=users,
+            seed=case.seed * 1000 + run,
+            workers=workers,
+            map_id=f"{case.name}-{users}-{run}",
+        )
         if export_dir is not None:
             payload = export_payload(objects, frame, scene=scene.scene_id, case=case.name, users=users, run=run)
             (export_dir / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))

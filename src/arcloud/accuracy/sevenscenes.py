@@ -73,7 +73,11 @@ CASES = (SequenceCase(0, 999, "report"), SequenceCase(0, 499, "tune"), SequenceC
 
 
 def score_against(
-    objects: Sequence[MapObject], ground_truth: SevenScenesGroundTruth, *, frames: tuple[int, int] | None = None, scene: str = "scene"
+    objects: Sequence[MapObject],
+    ground_truth: SevenScenesGroundTruth,
+    *,
+    frames: tuple[int, int] | None = None,
+    scene: str = "scene",
 ) -> dict[str, dict[str, Any]]:
     """``score_run`` of a map (boxed in the ground truth's aligned frame) against the observed and the
     amodal boxes of the objects visible within ``frames`` (first, last frame numbers; None: all)."""
@@ -176,7 +180,16 @@ def evaluate_case(
     first_maps: dict[int, list[MapObject]] = {}
 
     def build(users: int, run: int) -> dict[str, dict[str, Any]]:
-        objects = run_map(frames, detector, params, new_store=MemoryStore, users=users, seed=run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        objects = run_map(
+            frames,
+            detector,
+            params,
+            new_store=MemoryStore,
+            users=users,
+            seed=run,
+            workers=workers,
+            map_id=f"{case.name}-{users}-{run}",
+        )
         payload = export_payload(objects, frame, scene=sequence.name, case=case.name, users=users, run=run, gt_objects=gt_ids)
         (exports / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
         first_maps.setdefault(users, objects)

@@ -78,16 +78,24 @@ class SimCase:
     def room_spec(self) -> tuple[tuple[float, float, float], dict[str, int]]:
         """The room's (x, y, height) in metres and its objects per class, drawn from the room seed."""
         rng = np.random.default_rng([self.room_seed, _ROOM_WORD])
-        size = (round(float(rng.uniform(5.5, 9.0)), 2), round(float(rng.uniform(4.5, 7.0)), 2), round(float(rng.uniform(2.4, 3.0)), 2))
+        size = (
+            round(float(rng.uniform(5.5, 9.0)), 2),
+            round(float(rng.uniform(4.5, 7.0)), 2),
+            round(float(rng.uniform(2.4, 3.0)), 2),
+        )
         tables = int(rng.integers(2, 4)) if size[0] * size[1] >= 40.0 else 2
-        chairs, laptops, couches, tvs = (int(rng.integers(low, high + 1)) for low, high in ((2 * tables, 4 * tables), (1, 4), (1, 2), (1, 2)))
+        chairs, laptops, couches, tvs = (
+            int(rng.integers(low, high + 1)) for low, high in ((2 * tables, 4 * tables), (1, 4), (1, 2), (1, 2))
+        )
         return size, {"chair": chairs, "table": tables, "laptop": laptops, "couch": couches, "tv": tvs}
 
     def style(self) -> WalkStyle:
         return WalkStyle.sample(np.random.default_rng([self.room_seed, _STYLE_WORD]))
 
 
-FULL_CASES = tuple(SimCase(seed, "tune" if seed in TUNE_ROOMS else "report", walk_seed=seed) for seed in TUNE_ROOMS + REPORT_ROOMS)
+FULL_CASES = tuple(
+    SimCase(seed, "tune" if seed in TUNE_ROOMS else "report", walk_seed=seed) for seed in TUNE_ROOMS + REPORT_ROOMS
+)
 QUICK_CASES = tuple(SimCase(seed, "report", walk_seed=seed, frames=QUICK_FRAMES) for seed in (100, 101))
 
 
@@ -179,7 +187,9 @@ def evaluate_case(
     style = case.style()
     poses = room_walk(room, case.frames, case.walk_seed, style=style)
     truths = FrameTruths(room)
-    frames = simulate_sequence(room, n_frames=case.frames, seed=case.walk_seed, faults=faults, map_id=case.name, poses=poses, truths=truths)
+    frames = simulate_sequence(
+        room, n_frames=case.frames, seed=case.walk_seed, faults=faults, map_id=case.name, poses=poses, truths=truths
+    )
     detector = SimulatedDetector(room, faults, seed=case.walk_seed, truths=truths)
     observable = observable_objects(room, frames, detector)
     ground_truth = [o.box for o in observable]
@@ -189,7 +199,16 @@ def evaluate_case(
     cached = CachedDetector(detector)
 
     def build(users: int, run: int) -> list[MapObject]:
-        return run_map(frames, cached, params, new_store=MemoryStore, users=users, seed=case.walk_seed * 1000 + run, workers=workers, map_id=f"{case.name}-{users}-{run}")
+        return run_map(
+            frames,
+            cached,
+            params,
+            new_store=MemoryStore,
+            users=users,
+            seed=case.walk_seed * 1000 + run,
+            workers=workers,
+            map_id=f"{case.name}-{users}-{run}",
+        )
 
     def score(objects: list[MapObject]) -> dict[str, Any]:
         scored = without_unseen(objects, unseen)
@@ -216,7 +235,9 @@ def evaluate_case(
     return record
 
 
-def _draw_case(path: Path, case: SimCase, ground_truth: list[LabelledBox], objects: list[MapObject], poses: Sequence[np.ndarray]) -> None:
+def _draw_case(
+    path: Path, case: SimCase, ground_truth: list[LabelledBox], objects: list[MapObject], poses: Sequence[np.ndarray]
+) -> None:
     from arcloud.eval.plot import draw_top_down
 
     walk_xyz = np.array([pose[:3, 3] for pose in poses])

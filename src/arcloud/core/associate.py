@@ -103,7 +103,8 @@ def overlap_matrix(
     bounds_b_arr = known_or_computed_bounds(sets_b, live_b, bounds_b)
     reach = tolerance_voxels + 1
     touching = np.all(
-        (bounds_a_arr[:, None, 0] <= bounds_b_arr[None, :, 1] + reach) & (bounds_b_arr[None, :, 0] <= bounds_a_arr[:, None, 1] + reach),
+        (bounds_a_arr[:, None, 0] <= bounds_b_arr[None, :, 1] + reach)
+        & (bounds_b_arr[None, :, 0] <= bounds_a_arr[:, None, 1] + reach),
         axis=2,
     )
     if pairs_wanted is not None:
@@ -123,9 +124,7 @@ def overlap_matrix(
     return overlap
 
 
-def association_cost(
-    overlap: np.ndarray, labels_a: Sequence[int], labels_b: Sequence[int], params: Params
-) -> np.ndarray:
+def association_cost(overlap: np.ndarray, labels_a: Sequence[int], labels_b: Sequence[int], params: Params) -> np.ndarray:
     """(A, B) finite cost: 1 - overlap, plus the class term; gated pairs get ``GATED_COST``."""
     mismatch = np.asarray(labels_a)[:, None] != np.asarray(labels_b)[None, :]
     cost = 1.0 - overlap + params.class_mismatch_penalty * mismatch
@@ -172,7 +171,9 @@ def associate(
     overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels, bounds_b=object_bounds)
     pairs = hungarian_match(association_cost(overlap, detection_labels, object_labels, params))
     matched = {d for d, _ in pairs}
-    established = np.ones(len(object_keys), bool) if object_frames is None else np.asarray(object_frames) >= params.split_min_frames
+    established = (
+        np.ones(len(object_keys), bool) if object_frames is None else np.asarray(object_frames) >= params.split_min_frames
+    )
     labels = np.asarray(object_labels)
     rivals: dict[int, list[int]] = {}
     splittable = {CLASS_INDEX[name] for name in params.split_classes}

@@ -24,9 +24,7 @@ class Frustum:
         return self.corners.min(axis=0), self.corners.max(axis=0)
 
 
-def view_frustum(
-    intrinsics: Intrinsics, width: int, height: int, cam2world: np.ndarray, near_m: float, far_m: float
-) -> Frustum:
+def view_frustum(intrinsics: Intrinsics, width: int, height: int, cam2world: np.ndarray, near_m: float, far_m: float) -> Frustum:
     """The frustum of a pinhole camera between the planes z = near_m and z = far_m (camera frame)."""
     x0, x1 = -intrinsics.cx / intrinsics.fx, (width - intrinsics.cx) / intrinsics.fx
     y0, y1 = -intrinsics.cy / intrinsics.fy, (height - intrinsics.cy) / intrinsics.fy

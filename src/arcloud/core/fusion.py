@@ -123,9 +123,7 @@ def current_label_index(obj: MapObject, changed: bool = True) -> int:
     return object_label_index(obj)
 
 
-def find_duplicates(
-    objects: Sequence[MapObject], params: Params, changed: Sequence[bool] | None = None
-) -> list[tuple[int, int]]:
+def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Sequence[bool] | None = None) -> list[tuple[int, int]]:
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
     overlap >= ``merge_min_overlap``. Chains resolve to one keeper per group (the most observed).
     With ``changed``, only pairs with at least one changed object are considered (the others were
@@ -143,7 +141,9 @@ def find_duplicates(
     # here, rather than once for each side of the matrix).
     bounds = [stored_index_bounds(o, params.voxel_size_m) if not c else None for o, c in zip(objects, flags)]
     bounds = [index_bounds(o.keys) if b is None and o.keys.size else b for o, b in zip(objects, bounds)]
-    overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
+    overlap = overlap_matrix(
+        keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted
+    )
     same = wanted & ((overlap >= params.merge_min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
     np.fill_diagonal(same, False)
     parent = list(range(len(objects)))

@@ -375,25 +375,65 @@ _PARAM_EXPECTED = {
 }
 _PARAM_KINDS: dict[str, str] = {
     **dict.fromkeys(
-        ("voxel_size_m", "depth_min_m", "depth_max_m", "layer_touch_m", "score_support_frames", "floor_bin_m", "index_cell_m", "lock_ttl_s"),
+        (
+            "voxel_size_m",
+            "depth_min_m",
+            "depth_max_m",
+            "layer_touch_m",
+            "score_support_frames",
+            "floor_bin_m",
+            "index_cell_m",
+            "lock_ttl_s",
+        ),
         "positive",
     ),
     **dict.fromkeys(
-        ("layer_jump_m", "layer_jump_rel", "class_mismatch_penalty", "visibility_tolerance_m", "prune_min_seen",
-         "floor_min_below_camera_m", "floor_clearance_m", "floor_reach_max_m", "box_pad_voxels", "lock_timeout_s"),
+        (
+            "layer_jump_m",
+            "layer_jump_rel",
+            "class_mismatch_penalty",
+            "visibility_tolerance_m",
+            "prune_min_seen",
+            "floor_min_below_camera_m",
+            "floor_clearance_m",
+            "floor_reach_max_m",
+            "box_pad_voxels",
+            "lock_timeout_s",
+        ),
         "non-negative",
     ),
     "layer_margin_m": "optional non-negative",
     **dict.fromkeys(
-        ("layer_min_fraction", "association_min_overlap", "class_mismatch_min_overlap", "prune_max_occupancy", "box_rel_weight",
-         "box_min_occupancy", "min_component_fraction", "merge_min_overlap", "merge_min_box_containment", "implausible_score_factor",
-         "confirm_min_detection_rate", "confirm_min_score", "miss_min_visible", "rescore_write_delta", "floor_min_share",
-         "floor_min_vote_share"),
+        (
+            "layer_min_fraction",
+            "association_min_overlap",
+            "class_mismatch_min_overlap",
+            "prune_max_occupancy",
+            "box_rel_weight",
+            "box_min_occupancy",
+            "min_component_fraction",
+            "merge_min_overlap",
+            "merge_min_box_containment",
+            "implausible_score_factor",
+            "confirm_min_detection_rate",
+            "confirm_min_score",
+            "miss_min_visible",
+            "rescore_write_delta",
+            "floor_min_share",
+            "floor_min_vote_share",
+        ),
         "fraction",
     ),
     **dict.fromkeys(
-        ("erode_px", "min_voxels_per_detection", "association_tolerance_voxels", "split_min_frames", "confirm_min_frames",
-         "floor_min_samples", "floor_min_votes"),
+        (
+            "erode_px",
+            "min_voxels_per_detection",
+            "association_tolerance_voxels",
+            "split_min_frames",
+            "confirm_min_frames",
+            "floor_min_samples",
+            "floor_min_votes",
+        ),
         "count",
     ),
     "pixel_stride_max_px": "stride",
@@ -415,7 +455,9 @@ def _holds(kind: str, value: object) -> bool:
         if not _is_number(value):
             return False
         number = float(value)
-        return {"positive": number > 0, "non-negative": number >= 0, "fraction": 0 <= number <= 1, "tilt": 0 <= number <= 90}[kind]
+        return {"positive": number > 0, "non-negative": number >= 0, "fraction": 0 <= number <= 1, "tilt": 0 <= number <= 90}[
+            kind
+        ]
     if kind == "optional non-negative":
         return value is None or _holds("non-negative", value)
     if kind in ("count", "stride"):
@@ -428,7 +470,8 @@ def _holds(kind: str, value: object) -> bool:
         return isinstance(value, tuple) and len(value) == 3 and all(map(_is_number, value)) and any(float(x) != 0 for x in value)
     if kind == "transform":
         return value is None or (
-            isinstance(value, tuple) and len(value) == 4
+            isinstance(value, tuple)
+            and len(value) == 4
             and all(isinstance(row, tuple) and len(row) == 4 and all(map(_is_number, row)) for row in value)
         )
     raise AssertionError(f"unknown kind {kind}")

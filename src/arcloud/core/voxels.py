@@ -284,7 +284,9 @@ def depth_layers(z_grid: np.ndarray, jumps: tuple[np.ndarray, np.ndarray]) -> tu
     return labels, int(n)
 
 
-def front_samples(v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px: int, params: Params, points: np.ndarray) -> np.ndarray:
+def front_samples(
+    v_px: np.ndarray, u_px: np.ndarray, z_m: np.ndarray, stride_px: int, params: Params, points: np.ndarray
+) -> np.ndarray:
     """(N,) bool: the samples of one mask that belong to the object, not to what lies behind it.
 
     A mask covers the object and whatever shows through its gaps (the wall between a chair's slats)

@@ -30,8 +30,18 @@ if TYPE_CHECKING:
 _MODULE_OF = {
     "GroundTruthMaskDetector": "gt_masks",
     **dict.fromkeys(
-        ("DEFAULT_CLASS_MAPPING", "ClassMapping", "LabelTable", "ScanNetInstance", "ScanNetMesh", "ScanNetScene",
-         "find_scene_dirs", "load_axis_alignment", "load_scannet_scene", "read_label_table"),
+        (
+            "DEFAULT_CLASS_MAPPING",
+            "ClassMapping",
+            "LabelTable",
+            "ScanNetInstance",
+            "ScanNetMesh",
+            "ScanNetScene",
+            "find_scene_dirs",
+            "load_axis_alignment",
+            "load_scannet_scene",
+            "read_label_table",
+        ),
         "scannet",
     ),
     "SevenScenesSequence": "sevenscenes",

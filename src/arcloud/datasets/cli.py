@@ -35,12 +35,17 @@ def add_render_command(subparsers: Any) -> None:
     render.add_argument("--users", type=positive_int, default=10, help="users walking the room, one after the other (default 10)")
     render.add_argument("--frames", type=positive_int, default=60, help="frames per user (default 60)")
     render.add_argument("--seed", type=int, default=0)
-    render.add_argument("--style", choices=("default", "random"), default="default",
-                        help="walks: default (every user at 1.5 m, plan_walk's defaults) or random (each user's eye height, "
-                        "speed, coverage, glances and hand-held shake drawn from --seed; recorded in render.json)")
+    render.add_argument(
+        "--style",
+        choices=("default", "random"),
+        default="default",
+        help="walks: default (every user at 1.5 m, plan_walk's defaults) or random (each user's eye height, "
+        "speed, coverage, glances and hand-held shake drawn from --seed; recorded in render.json)",
+    )
     render.add_argument("--width", type=int, default=640)
     render.add_argument("--height", type=int, default=480)
-    render.add_argument("--axis-alignment", default=None, help="scan2aligned when the scene's .txt has none (as for eval scannet)")
+    render.add_argument(
+        "--axis-alignment", default=None, help="scan2aligned when the scene's .txt has none (as for eval scannet)"
+    )
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
     render.set_defaults(handler=run_render_scannet)
-

@@ -68,7 +68,9 @@ def seven_scenes_export_frame(sequence: SevenScenesSequence) -> ExportFrame:
         )  # fmt: skip
     if np.allclose(sequence.world2file, np.eye(4)):
         return ExportFrame("7-Scenes pose frame", sequence.world2file)
-    return ExportFrame("gravity-aligned world (the pose frame turned by the smallest rotation that takes up to +z)", sequence.world2file)
+    return ExportFrame(
+        "gravity-aligned world (the pose frame turned by the smallest rotation that takes up to +z)", sequence.world2file
+    )
 
 
 def export_payload(objects: Sequence[MapObject], frame: ExportFrame, **facts: object) -> dict[str, object]:

@@ -169,7 +169,9 @@ def gt_masks_detector(argument: str, **options: object) -> GroundTruthMaskDetect
 
     spec_options, scene_dir = gt_masks_options(argument)
     if not scene_dir:
-        raise InvalidInput("detector spec", f"{GT_MASKS_SPEC} with a ScanNet-layout scene folder", f"gt-masks:{argument} with no folder")
+        raise InvalidInput(
+            "detector spec", f"{GT_MASKS_SPEC} with a ScanNet-layout scene folder", f"gt-masks:{argument} with no folder"
+        )
     return GroundTruthMaskDetector(load_scannet_scene(scene_dir), **{**spec_options, **options})
 
 

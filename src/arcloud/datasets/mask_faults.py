@@ -71,7 +71,9 @@ class MaskFaults:
     @classmethod
     def none(cls) -> MaskFaults:
         """Exact masks, every instance, score 1."""
-        return cls(grow_px=0.0, shrink_px=0.0, ragged_px=0.0, drop_rate=0.0, small_drop_rate=0.0, split_rate=0.0, score_jitter=0.0)
+        return cls(
+            grow_px=0.0, shrink_px=0.0, ragged_px=0.0, drop_rate=0.0, small_drop_rate=0.0, split_rate=0.0, score_jitter=0.0
+        )
 
     def replace(self, **changes: Any) -> MaskFaults:
         return dataclasses.replace(self, **changes)

@@ -116,7 +116,9 @@ def room_layout(
     lo = np.percentile(floor_points[:, :2], 2, axis=0) + margin_m
     hi = np.percentile(floor_points[:, :2], 98, axis=0) - margin_m
     if np.any(hi <= lo):
-        raise DatasetError(f"scene {scene.scene_id}: expected a floor wider than {2 * margin_m} m, got extent {hi - lo + 2 * margin_m}")
+        raise DatasetError(
+            f"scene {scene.scene_id}: expected a floor wider than {2 * margin_m} m, got extent {hi - lo + 2 * margin_m}"
+        )
     band_lo, band_hi = floor_z + band_m[0], floor_z + band_m[1]
     obstacles, targets, other_targets = [], [], []
     for inst in scene.instances:
@@ -218,12 +220,12 @@ def label_lookup(scene: ScanNetScene) -> np.ndarray:
 def scaled_intrinsics(intrinsics: Intrinsics, from_wh: tuple[int, int], to_wh: tuple[int, int]) -> Intrinsics:
     """Intrinsics of an image resized from ``from_wh`` to ``to_wh`` (pixel-centre convention)."""
     sx, sy = to_wh[0] / from_wh[0], to_wh[1] / from_wh[1]
-    return Intrinsics(
-        intrinsics.fx * sx, intrinsics.fy * sy, (intrinsics.cx + 0.5) * sx - 0.5, (intrinsics.cy + 0.5) * sy - 0.5
-    )
+    return Intrinsics(intrinsics.fx * sx, intrinsics.fy * sy, (intrinsics.cx + 0.5) * sx - 0.5, (intrinsics.cy + 0.5) * sy - 0.5)
 
 
-def _write_scene_files(scene: ScanNetScene, scene_dir: Path, out_root: Path, k: Intrinsics, size_wh: tuple[int, int], n: int) -> None:
+def _write_scene_files(
+    scene: ScanNetScene, scene_dir: Path, out_root: Path, k: Intrinsics, size_wh: tuple[int, int], n: int
+) -> None:
     for sub in ("color", "depth", "pose", "intrinsic", "instance-filt", "label-filt"):
         (scene_dir / sub).mkdir(parents=True, exist_ok=True)
     matrix = np.eye(4)
@@ -298,7 +300,10 @@ def render_scannet(
     )  # fmt: skip
     layout = room_layout(scene)
     renderer = MeshRenderer(
-        aligned_vertices(scene), scene.mesh.triangles, vertex_colors=scene.mesh.colors, triangle_instance=triangle_instances(scene)
+        aligned_vertices(scene),
+        scene.mesh.triangles,
+        vertex_colors=scene.mesh.colors,
+        triangle_instance=triangle_instances(scene),
     )
     lookup = label_lookup(scene)
     instance_dtype = np.uint8 if len(lookup) <= 256 else np.uint16
@@ -312,7 +317,10 @@ def render_scannet(
     dropped, index = 0, 0
     user_walks = [random_user_walk(seed, u) if style == "random" else None for u in range(users)]
     pending: list[Future[None]] = []
-    with ThreadPoolExecutor(max_workers=2) as writer, tqdm(total=users * frames_per_user, disable=not progress, desc="render", unit="frame") as bar:
+    with (
+        ThreadPoolExecutor(max_workers=2) as writer,
+        tqdm(total=users * frames_per_user, disable=not progress, desc="render", unit="frame") as bar,
+    ):
         for user, user_walk in enumerate(user_walks):
             options = user_walk.walk_options(layout, frames_per_user) if user_walk else {"eye_height_m": eye_height_m}
             poses = walk(
@@ -338,7 +346,9 @@ def render_scannet(
                 future.result()
             pending.clear()
     if dropped:
-        logger.warning("scene %s: dropped %d of %d frames that saw too little surface", scene.scene_id, dropped, users * frames_per_user)
+        logger.warning(
+            "scene %s: dropped %d of %d frames that saw too little surface", scene.scene_id, dropped, users * frames_per_user
+        )
     record = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "style": style, "width": width, "height": height,
               "walk_seeds": [seed * 1000 + u for u in range(users)],
               "walk_styles": [asdict(w) if w else {"eye_height_m": eye_height_m} for w in user_walks],
@@ -350,7 +360,13 @@ def render_scannet(
 
 
 def _write_frame(
-    scene_dir: Path, name: str, rgb: np.ndarray, depth_m: np.ndarray, instance: np.ndarray, label: np.ndarray, cam2scan: np.ndarray
+    scene_dir: Path,
+    name: str,
+    rgb: np.ndarray,
+    depth_m: np.ndarray,
+    instance: np.ndarray,
+    label: np.ndarray,
+    cam2scan: np.ndarray,
 ) -> None:
     import cv2
 

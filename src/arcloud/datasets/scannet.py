@@ -355,7 +355,9 @@ def read_instances(
         seg_indices = np.asarray(json.loads(segs_paths[0].read_text())["segIndices"], dtype=np.int64)
         groups = aggregation["segGroups"]
     except (OSError, ValueError, KeyError) as exc:
-        raise DatasetError(f"{scene_dir}: expected aggregation.json with segGroups and segs.json with segIndices ({exc})") from exc
+        raise DatasetError(
+            f"{scene_dir}: expected aggregation.json with segGroups and segs.json with segIndices ({exc})"
+        ) from exc
     if seg_indices.shape[0] != vertices_scan.shape[0]:
         raise DatasetError(
             f"{segs_paths[0]}: expected one segment index per mesh vertex ({vertices_scan.shape[0]}), got {seg_indices.shape[0]}"
@@ -520,7 +522,9 @@ def load_scannet_scene(
 
     names, poses_scan, skipped = _read_poses(root)
     if skipped:
-        logger.warning("scene %s: skipped %d of %d frames with invalid (inf/NaN) poses", scene_id, len(skipped), len(names) + len(skipped))
+        logger.warning(
+            "scene %s: skipped %d of %d frames with invalid (inf/NaN) poses", scene_id, len(skipped), len(names) + len(skipped)
+        )
     cam2world = np.einsum("ij,njk->nik", alignment, np.asarray(poses_scan).reshape(-1, 4, 4))
 
     mesh = None

@@ -287,7 +287,9 @@ def load_ground_truth(path: str | Path) -> SevenScenesGroundTruth:
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{file}: expected JSON, got {exc}") from exc
     aligned = _field(file, data, "gravity_aligned", Mapping)
-    file2aligned = _rigid(file, "gravity_aligned.world_to_aligned", _field(file, aligned, "world_to_aligned", list, "gravity_aligned."))
+    file2aligned = _rigid(
+        file, "gravity_aligned.world_to_aligned", _field(file, aligned, "world_to_aligned", list, "gravity_aligned.")
+    )
     entries = cast(list, _field(file, aligned, "objects", list, "gravity_aligned."))
     if not entries:
         raise DatasetError(f"{file}: gravity_aligned.objects: expected at least one object, got none")
@@ -312,7 +314,9 @@ def _colour_camera(file: Path, entry: object) -> ColourCamera:
     if values[0] <= 0 or values[1] <= 0:
         raise DatasetError(f"{file}: {where}: expected positive focal lengths, got fx {values[0]}, fy {values[1]}")
     depth2rgb = np.eye(4)
-    depth2rgb[:3, 3] = _numbers(file, f"{where}.depth_to_colour_translation_m", entry.get("depth_to_colour_translation_m", [0, 0, 0]), (3,))
+    depth2rgb[:3, 3] = _numbers(
+        file, f"{where}.depth_to_colour_translation_m", entry.get("depth_to_colour_translation_m", [0, 0, 0]), (3,)
+    )
     return ColourCamera(Intrinsics(*(float(v) for v in values)), depth2rgb)
 
 

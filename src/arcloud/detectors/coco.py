@@ -38,9 +38,7 @@ _COCO91_UNUSED_IDS = frozenset({12, 26, 29, 30, 45, 66, 68, 69, 71, 83})
 
 def _coco91_names() -> tuple[str, ...]:
     names = iter(COCO80)
-    return tuple(
-        "__background__" if i == 0 else "N/A" if i in _COCO91_UNUSED_IDS else next(names) for i in range(91)
-    )
+    return tuple("__background__" if i == 0 else "N/A" if i in _COCO91_UNUSED_IDS else next(names) for i in range(91))
 
 
 #: torchvision's 91 category names (id = index; 0 = background, "N/A" = unused id).
@@ -115,8 +113,4 @@ class RawDetection:
 
 def to_detections(raw: list[RawDetection], class_map: Mapping[int, str]) -> list[Detection]:
     """The raw detections whose class is mapped, as arcloud ``Detection``s (mask required)."""
-    return [
-        Detection(class_map[r.class_id], r.score, r.mask)
-        for r in raw
-        if r.class_id in class_map and r.mask is not None
-    ]
+    return [Detection(class_map[r.class_id], r.score, r.mask) for r in raw if r.class_id in class_map and r.mask is not None]

@@ -32,8 +32,7 @@ log = logging.getLogger(__name__)
 MASKRCNN_OUTPUTS: tuple[str, ...] = ("boxes", "labels", "scores", "masks")
 _ADAPTER = "Mask R-CNN"
 _EXPECTED_SIGNATURE = (
-    "one input float32 [3, H, W] (or [1, 3, H, W]) and outputs boxes [N, 4], labels [N], scores [N], "
-    "masks [N, 1, H, W]"
+    "one input float32 [3, H, W] (or [1, 3, H, W]) and outputs boxes [N, 4], labels [N], scores [N], masks [N, 1, H, W]"
 )
 
 
@@ -69,9 +68,7 @@ class MaskRCNNDetector:
         self._session = load_session(model_path, intra_op_threads=intra_op_threads)
         self.input_name, self._batched, self.input_size_px = self._check_signature()
         self.class_names = COCO91
-        self.class_map = (
-            class_map_for(COCO91) if class_map is None else check_class_map(class_map, None)
-        )
+        self.class_map = class_map_for(COCO91) if class_map is None else check_class_map(class_map, None)
         self.last_timing: dict[str, float] = {}
 
     def __repr__(self) -> str:

@@ -223,9 +223,7 @@ class YoloSegDetector:
         self.input_name, self.input_size_px, self._output_names, n_classes = self._check_signature()
         self.class_names = self._class_names(n_classes)
         self.class_map = (
-            class_map_for(self.class_names)
-            if class_map is None
-            else check_class_map(class_map, len(self.class_names))
+            class_map_for(self.class_names) if class_map is None else check_class_map(class_map, len(self.class_names))
         )
         self._mapped_ids = np.array(sorted(self.class_map), dtype=np.intp)
         self.last_timing: dict[str, float] = {}

@@ -102,15 +102,13 @@ def metadata(session: onnxruntime.InferenceSession) -> dict[str, str]:
 
 
 def describe_signature(session: onnxruntime.InferenceSession) -> str:
-    """"inputs: images tensor(float)[1,3,640,640]; outputs: output0 ..., output1 ..." for messages."""
+    """ "inputs: images tensor(float)[1,3,640,640]; outputs: output0 ..., output1 ..." for messages."""
     inputs = ", ".join(str(s) for s in input_specs(session)) or "none"
     outputs = ", ".join(str(s) for s in output_specs(session)) or "none"
     return f"inputs: {inputs}; outputs: {outputs}"
 
 
-def signature_error(
-    model_path: object, adapter: str, expected: str, session: onnxruntime.InferenceSession
-) -> ModelError:
+def signature_error(model_path: object, adapter: str, expected: str, session: onnxruntime.InferenceSession) -> ModelError:
     """A ``ModelError`` for a model that does not fit an adapter: what it expected, what the model has."""
     got = describe_signature(session)
     return ModelError(f"model {model_path} does not fit the {adapter} adapter: expected {expected}, got {got}")

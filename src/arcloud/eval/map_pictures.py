@@ -17,8 +17,7 @@ def fused_points(frames: Sequence[Frame], *, every: int = 20, stride_px: int = 8
 
     params = Params(depth_max_m=max_depth_m, erode_px=0)
     chunks = [
-        mask_points(frames[i], np.ones(frames[i].shape, bool), params, stride_px)
-        for i in range(0, len(frames), max(1, every))
+        mask_points(frames[i], np.ones(frames[i].shape, bool), params, stride_px) for i in range(0, len(frames), max(1, every))
     ]
     return np.concatenate(chunks) if chunks else np.zeros((0, 3))
 

@@ -160,21 +160,30 @@ def table1(
         scores25, scores50 = [], []
         for run in range(n_runs):
             objects = run_map(
-                frames, cached, params, new_store=new_store, users=k, seed=seed * 1000 + run, workers=workers,
-                map_id=f"{scene}-{k}-{run}", progress=progress,
+                frames,
+                cached,
+                params,
+                new_store=new_store,
+                users=k,
+                seed=seed * 1000 + run,
+                workers=workers,
+                map_id=f"{scene}-{k}-{run}",
+                progress=progress,
             )
             if on_run is not None:
                 on_run(approach, k, run, objects)
             result = evaluate({scene: object_boxes(objects)}, {scene: list(ground_truth)})
             scores25.append(result.map_at(0.25))
             scores50.append(result.map_at(0.5))
-        rows.append({
-            "approach": approach,
-            "users": k,
-            "runs": n_runs,
-            "map25_mean": float(np.mean(scores25)),
-            "map25_var": variance(scores25),
-            "map50_mean": float(np.mean(scores50)),
-            "map50_var": variance(scores50),
-        })
+        rows.append(
+            {
+                "approach": approach,
+                "users": k,
+                "runs": n_runs,
+                "map25_mean": float(np.mean(scores25)),
+                "map25_var": variance(scores25),
+                "map50_mean": float(np.mean(scores50)),
+                "map50_var": variance(scores50),
+            }
+        )
     return {"table1": rows}

@@ -29,7 +29,11 @@ log = logging.getLogger(__name__)
 RgbEncodingName = Literal["jpeg", "png", "raw"]
 DepthEncodingName = Literal["png", "raw_uint16", "raw_float32"]
 
-RGB_ENCODINGS: dict[str, pb.RgbEncoding] = {"jpeg": pb.RGB_ENCODING_JPEG, "png": pb.RGB_ENCODING_PNG, "raw": pb.RGB_ENCODING_RAW_RGB8}
+RGB_ENCODINGS: dict[str, pb.RgbEncoding] = {
+    "jpeg": pb.RGB_ENCODING_JPEG,
+    "png": pb.RGB_ENCODING_PNG,
+    "raw": pb.RGB_ENCODING_RAW_RGB8,
+}
 DEPTH_ENCODINGS: dict[str, pb.DepthEncoding] = {
     "png": pb.DEPTH_ENCODING_PNG,
     "raw_uint16": pb.DEPTH_ENCODING_RAW_UINT16,
@@ -151,7 +155,11 @@ def _decode_rgb(msg: pb.Frame) -> np.ndarray:
     if encoding == pb.RGB_ENCODING_RAW_RGB8:
         return _raw("rgb", msg.rgb, "u1", msg, 3)
     if encoding not in (pb.RGB_ENCODING_JPEG, pb.RGB_ENCODING_PNG):
-        raise InvalidInput("rgb_encoding", "JPEG, PNG or RAW_RGB8", pb.RgbEncoding.Name(encoding) if encoding in pb.RgbEncoding.values() else encoding)
+        raise InvalidInput(
+            "rgb_encoding",
+            "JPEG, PNG or RAW_RGB8",
+            pb.RgbEncoding.Name(encoding) if encoding in pb.RgbEncoding.values() else encoding,
+        )
     what = "a JPEG image" if encoding == pb.RGB_ENCODING_JPEG else "a PNG image"
     cv2 = _cv2()
     if hasattr(cv2, "IMREAD_COLOR_RGB"):  # OpenCV >= 4.10
@@ -170,7 +178,8 @@ def _decode_depth(msg: pb.Frame) -> np.ndarray:
         return _raw("depth", msg.depth, "<f4", msg, 1)
     if encoding != pb.DEPTH_ENCODING_PNG:
         raise InvalidInput(
-            "depth_encoding", "PNG, RAW_UINT16 or RAW_FLOAT32",
+            "depth_encoding",
+            "PNG, RAW_UINT16 or RAW_FLOAT32",
             pb.DepthEncoding.Name(encoding) if encoding in pb.DepthEncoding.values() else encoding,
         )
     depth = _imdecode("depth", msg.depth, _cv2().IMREAD_UNCHANGED, "a single-channel 16-bit PNG")
@@ -214,8 +223,15 @@ def frame_to_proto(
             raise InvalidInput("frame", "a Frame, or rgb, depth, intrinsics and cam2world", "neither")
         depth_array = np.asarray(depth)
         frame = make_frame(
-            rgb, depth_array, intrinsics, cam2world, timestamp_s=timestamp_s, map_id=map_id, device_id=device_id,
-            frame_id=frame_id, depth_scale=depth_scale if depth_array.dtype == np.uint16 else None,
+            rgb,
+            depth_array,
+            intrinsics,
+            cam2world,
+            timestamp_s=timestamp_s,
+            map_id=map_id,
+            device_id=device_id,
+            frame_id=frame_id,
+            depth_scale=depth_scale if depth_array.dtype == np.uint16 else None,
         )
     elif any(v is not None for v in (rgb, depth, intrinsics, cam2world)):
         raise InvalidInput("frame", "a Frame or arrays, not both", "both")
@@ -253,7 +269,9 @@ def frame_to_proto(
 def _imencode(ext: str, image: np.ndarray, params: list[int]) -> bytes:
     ok, buffer = _cv2().imencode(ext, image, params)
     if not ok:
-        raise InvalidInput("image", f"an image OpenCV can encode as {ext}", f"array of shape {image.shape} and dtype {image.dtype}")
+        raise InvalidInput(
+            "image", f"an image OpenCV can encode as {ext}", f"array of shape {image.shape} and dtype {image.dtype}"
+        )
     return buffer.tobytes()
 
 

@@ -32,7 +32,11 @@ class IngestCollector(Collector):
             ("arcloud_frames_accepted", snap.accepted, "Frames validated and queued"),
             ("arcloud_frames_duplicate", snap.duplicates, "Frames posted again after being accepted (not queued)"),
             ("arcloud_frames_processed", snap.processed, "Frames whose step committed"),
-            ("arcloud_frames_redelivered", snap.redelivered, "Frames delivered again after their commit (not processed again: idempotent)"),
+            (
+                "arcloud_frames_redelivered",
+                snap.redelivered,
+                "Frames delivered again after their commit (not processed again: idempotent)",
+            ),
             ("arcloud_frames_failed", snap.failed, "Frames given up on (dead-lettered)"),
             ("arcloud_frames_claimed", snap.claimed, "Frames taken over from a worker that stopped"),
             ("arcloud_step_retries", snap.retried, "Steps tried again after a lock timeout or a stale lease"),
@@ -44,7 +48,10 @@ class IngestCollector(Collector):
             cumulative += count
             buckets.append(("+Inf" if bound == float("inf") else repr(bound), cumulative))
         yield HistogramMetricFamily(
-            "arcloud_step_latency_seconds", "Time of the per-frame step (detect to publish)", buckets=buckets, sum_value=snap.latency_sum_s
+            "arcloud_step_latency_seconds",
+            "Time of the per-frame step (detect to publish)",
+            buckets=buckets,
+            sum_value=snap.latency_sum_s,
         )
 
 

@@ -29,7 +29,13 @@ class WorkerPool:
     how long the frames of a dead worker wait before another claims them (for the log)."""
 
     def __init__(
-        self, size: int, target: Callable[..., None], args: tuple[Any, ...] = (), *, claim_after_s: float = 60.0, restart: bool = True
+        self,
+        size: int,
+        target: Callable[..., None],
+        args: tuple[Any, ...] = (),
+        *,
+        claim_after_s: float = 60.0,
+        restart: bool = True,
     ) -> None:
         self.size = size
         self.target = target
@@ -72,8 +78,14 @@ class WorkerPool:
                 self._quick_exits[i] = self._quick_exits.get(i, 0) + 1 if quick else 0
                 delay_s = min(RESTART_MAX_DELAY_S, 2.0 ** self._quick_exits[i]) if quick else 0.0
                 self._restart_at[i] = now + delay_s
-                log.error("worker process %s exited with %s%s; starting another in %.0f s (its frames are claimed after %.0f s)",
-                          process.pid, process.exitcode, " right after starting" if quick else "", delay_s, self.claim_after_s)
+                log.error(
+                    "worker process %s exited with %s%s; starting another in %.0f s (its frames are claimed after %.0f s)",
+                    process.pid,
+                    process.exitcode,
+                    " right after starting" if quick else "",
+                    delay_s,
+                    self.claim_after_s,
+                )
             if now >= self._restart_at[i]:
                 del self._restart_at[i]
                 self.processes[i] = self._spawn(i)

@@ -75,10 +75,18 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
     if adapters.detector is not None:
         threads = [
             FrameWorker(
-                adapters.queue, adapters.store, adapters.detector, params, adapters.publisher,
-                consumer=f"{consumer_name()}-{i}", read_block_s=IN_PROCESS_READ_BLOCK_S, attempts=settings.max_deliveries,
-                claim_min_idle_s=settings.claim_min_idle_s, claim_interval_s=settings.claim_interval_s,
-                max_deliveries=settings.max_deliveries, heartbeat_s=None,
+                adapters.queue,
+                adapters.store,
+                adapters.detector,
+                params,
+                adapters.publisher,
+                consumer=f"{consumer_name()}-{i}",
+                read_block_s=IN_PROCESS_READ_BLOCK_S,
+                attempts=settings.max_deliveries,
+                claim_min_idle_s=settings.claim_min_idle_s,
+                claim_interval_s=settings.claim_interval_s,
+                max_deliveries=settings.max_deliveries,
+                heartbeat_s=None,
             )
             for i in range(settings.workers)
         ]

@@ -20,7 +20,9 @@ ObjectStatus = Literal["confirmed", "tentative"]
 class FrameAccepted(BaseModel):
     """A frame was validated and queued (or had been before: ``duplicate``); processing is asynchronous."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [{"map_id": "office", "device_id": "phone-1", "frame_id": "f000042", "status": "queued"}]})
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"map_id": "office", "device_id": "phone-1", "frame_id": "f000042", "status": "queued"}]}
+    )
 
     map_id: str
     device_id: str
@@ -43,11 +45,16 @@ class FrameMeta(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
         json_schema_extra={
-            "examples": [{
-                "device_id": "phone-1", "frame_id": "f000042", "timestamp": 1.4,
-                "intrinsics": {"fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5},
-                "cam2world": [1, 0, 0, 0.5, 0, 1, 0, 0.2, 0, 0, 1, 1.5, 0, 0, 0, 1], "depth_scale": 1000,
-            }]
+            "examples": [
+                {
+                    "device_id": "phone-1",
+                    "frame_id": "f000042",
+                    "timestamp": 1.4,
+                    "intrinsics": {"fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5},
+                    "cam2world": [1, 0, 0, 0.5, 0, 1, 0, 0.2, 0, 0, 1, 1.5, 0, 0, 0, 1],
+                    "depth_scale": 1000,
+                }
+            ]
         },
     )
 
@@ -86,13 +93,21 @@ class Voxels(BaseModel):
 class ObjectOut(BaseModel):
     model_config = ConfigDict(
         json_schema_extra={
-            "examples": [{
-                "id": 7, "label": "chair", "score": 0.83,
-                "aabb": {"min": [1.2, 0.4, 0.0], "max": [1.7, 0.95, 0.92]},
-                "obb": {"center": [1.45, 0.67, 0.46], "size": [0.5, 0.52, 0.92], "yaw_rad": 0.31},
-                "version": 12, "updated_at": "2025-01-01T12:00:00.250000Z", "n_voxels": 1380, "n_frames": 11, "n_devices": 2,
-                "status": "confirmed",
-            }]
+            "examples": [
+                {
+                    "id": 7,
+                    "label": "chair",
+                    "score": 0.83,
+                    "aabb": {"min": [1.2, 0.4, 0.0], "max": [1.7, 0.95, 0.92]},
+                    "obb": {"center": [1.45, 0.67, 0.46], "size": [0.5, 0.52, 0.92], "yaw_rad": 0.31},
+                    "version": 12,
+                    "updated_at": "2025-01-01T12:00:00.250000Z",
+                    "n_voxels": 1380,
+                    "n_frames": 11,
+                    "n_devices": 2,
+                    "status": "confirmed",
+                }
+            ]
         }
     )
 
@@ -106,8 +121,10 @@ class ObjectOut(BaseModel):
     n_voxels: int
     n_frames: int
     n_devices: int
-    status: ObjectStatus = Field(description="confirmed: served by default; tentative: kept, shown only with ?include=tentative "
-                                 "(a confirmed object may become tentative again)")
+    status: ObjectStatus = Field(
+        description="confirmed: served by default; tentative: kept, shown only with ?include=tentative "
+        "(a confirmed object may become tentative again)"
+    )
 
 
 class ObjectDetail(ObjectOut):
@@ -131,9 +148,17 @@ class ObjectCounts(BaseModel):
 
 
 class MapStats(BaseModel):
-    model_config = ConfigDict(json_schema_extra={"examples": [{
-        "map_id": "office", "frames": {"accepted": 120, "processed": 118, "failed": 0, "pending": 2}, "objects": {"confirmed": 14, "tentative": 31},
-    }]})
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "map_id": "office",
+                    "frames": {"accepted": 120, "processed": 118, "failed": 0, "pending": 2},
+                    "objects": {"confirmed": 14, "tentative": 31},
+                }
+            ]
+        }
+    )
 
     map_id: str
     frames: FrameCounts
@@ -148,7 +173,13 @@ class MapDeleted(BaseModel):
 class Problem(BaseModel):
     """Every 4xx/5xx body: what was wrong (``field`` names the input at fault, when one is)."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [{"detail": "cam2world: expected a proper rotation (det +1), got a reflection (det -1)", "field": "cam2world"}]})
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"detail": "cam2world: expected a proper rotation (det +1), got a reflection (det -1)", "field": "cam2world"}
+            ]
+        }
+    )
 
     detail: str
     field: str | None = None
@@ -186,7 +217,9 @@ def object_out(obj: Any) -> dict[str, Any]:
         "label": obj.label,
         "score": float(obj.score),
         "aabb": None if obj.aabb is None else {"min": _vec(obj.aabb.min), "max": _vec(obj.aabb.max)},
-        "obb": None if obj.obb is None else {"center": _vec(obj.obb.center), "size": _vec(obj.obb.size), "yaw_rad": float(obj.obb.yaw_rad)},
+        "obb": None
+        if obj.obb is None
+        else {"center": _vec(obj.obb.center), "size": _vec(obj.obb.size), "yaw_rad": float(obj.obb.yaw_rad)},
         "version": int(obj.version),
         "updated_at": _iso(obj.updated_at_s),
         "n_voxels": int(obj.n_voxels),

@@ -141,7 +141,9 @@ class DetectorFaults:
     def __post_init__(self) -> None:
         for label, rate in self.class_miss_rates:
             if label not in CLASSES or isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 <= rate <= 1:
-                raise InvalidInput("DetectorFaults.class_miss_rates", f"(label in {CLASSES}, probability) pairs", repr((label, rate)))
+                raise InvalidInput(
+                    "DetectorFaults.class_miss_rates", f"(label in {CLASSES}, probability) pairs", repr((label, rate))
+                )
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if (value is None and f.name in ("depth_min_m", "depth_max_m")) or f.name == "class_miss_rates":
@@ -247,7 +249,10 @@ def apply_depth_faults(depth_m: np.ndarray, faults: DetectorFaults, rng: np.rand
         flat[flying] = nearer + rng.random(flying.size, dtype=np.float32) * (flat[flying] - nearer)
         flat[drop] = 0.0
     if faults.depth_sigma_a_m > 0 or faults.depth_sigma_b > 0:
-        sigma = np.float32(faults.depth_sigma_a_m) + np.float32(faults.depth_sigma_b) * (depth - np.float32(faults.depth_sigma_z0_m)) ** 2
+        sigma = (
+            np.float32(faults.depth_sigma_a_m)
+            + np.float32(faults.depth_sigma_b) * (depth - np.float32(faults.depth_sigma_z0_m)) ** 2
+        )
         depth += rng.standard_normal(depth.shape, dtype=np.float32) * sigma
     if faults.depth_dropout > 0:
         flat[rng.integers(0, flat.size, rng.binomial(flat.size, faults.depth_dropout))] = 0.0
@@ -439,7 +444,13 @@ class SimulatedDetector:
     Thread-safe."""
 
     def __init__(
-        self, room: Room, faults: DetectorFaults = DetectorFaults(), *, seed: int = 0, threads: int = 0, truths: FrameTruths | None = None
+        self,
+        room: Room,
+        faults: DetectorFaults = DetectorFaults(),
+        *,
+        seed: int = 0,
+        threads: int = 0,
+        truths: FrameTruths | None = None,
     ) -> None:
         if not isinstance(faults, DetectorFaults):
             raise InvalidInput("faults", "a DetectorFaults", type(faults).__name__)
@@ -458,7 +469,9 @@ class SimulatedDetector:
         self._clutter_kinds = {c.clutter_id: c.kind for c in room.clutter}
         self._surface = _surface_ids(room)
         self._hard = {
-            o.instance_id: bool(np.random.default_rng([self.seed, STREAM_OBJECT, o.instance_id]).random() < faults.hard_instance_rate)
+            o.instance_id: bool(
+                np.random.default_rng([self.seed, STREAM_OBJECT, o.instance_id]).random() < faults.hard_instance_rate
+            )
             for o in room.objects
         }
         self._class_miss = dict(faults.class_miss_rates)
@@ -546,7 +559,9 @@ class SimulatedDetector:
             return []
         return [Detection(label, score, mask)]
 
-    def _spurious(self, instance: np.ndarray, clutter: np.ndarray, surface: np.ndarray, rng: np.random.Generator) -> list[Detection]:
+    def _spurious(
+        self, instance: np.ndarray, clutter: np.ndarray, surface: np.ndarray, rng: np.random.Generator
+    ) -> list[Detection]:
         f = self.faults
         n = int(rng.poisson(f.spurious_rate))
         out: list[Detection] = []
@@ -578,7 +593,9 @@ class SimulatedDetector:
         return out
 
 
-def visible_instances(renderer: MeshRenderer, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int) -> dict[int, int]:
+def visible_instances(
+    renderer: MeshRenderer, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int
+) -> dict[int, int]:
     """Visible pixels per object instance id from a true pose, with a room's renderer (``room_renderer``;
     for tests and diagnostics)."""
     result = renderer.render(cam2world, intrinsics, width, height)

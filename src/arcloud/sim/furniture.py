@@ -55,7 +55,9 @@ def chair_parts(rng: np.random.Generator) -> list[Part]:
                 parts.append(box((cx - r, cy - r, 0.0), (cx + r, cy + r, seat_h - seat_t), leg_color))
     tilt = rot_x(-math.radians(rng.uniform(2.0, 10.0)))  # lean the backrest back (towards +y)
     pivot = (0.0, d / 2 - back_t, seat_h)
-    parts.append(box((-w / 2, d / 2 - back_t, seat_h), (w / 2, d / 2, seat_h + back_h), seat_color * 0.95, rotation=tilt, pivot=pivot))
+    parts.append(
+        box((-w / 2, d / 2 - back_t, seat_h), (w / 2, d / 2, seat_h + back_h), seat_color * 0.95, rotation=tilt, pivot=pivot)
+    )
     return parts
 
 
@@ -99,7 +101,13 @@ def couch_parts(rng: np.random.Generator) -> list[Part]:
     n_cushions = int(rng.integers(2, 4))
     edges = np.linspace(-inner, inner, n_cushions + 1)
     for a, b in zip(edges[:-1], edges[1:]):
-        parts.append(box((a + 0.005, -d / 2 + 0.01, seat_h - cushion_t), (b - 0.005, d / 2 - back_t, seat_h), fabric * rng.uniform(0.95, 1.05)))
+        parts.append(
+            box(
+                (a + 0.005, -d / 2 + 0.01, seat_h - cushion_t),
+                (b - 0.005, d / 2 - back_t, seat_h),
+                fabric * rng.uniform(0.95, 1.05),
+            )
+        )
     parts.append(box((-w / 2, d / 2 - back_t, foot), (w / 2, d / 2, back_h), fabric * 0.97))
     for sx in (-1, 1):
         x0, x1 = sorted((sx * w / 2, sx * inner))
@@ -186,7 +194,9 @@ def bookshelf_parts(rng: np.random.Generator) -> list[Part]:
             if x + bw > w / 2 - t - 0.005:
                 break
             if rng.random() < 0.85:
-                parts.append(box((x, -d / 2 + rng.uniform(0.02, 0.06), z0), (x + bw, d / 2 - 0.02, z0 + bh), pick_color(rng, BOOKS, 20)))
+                parts.append(
+                    box((x, -d / 2 + rng.uniform(0.02, 0.06), z0), (x + bw, d / 2 - 0.02, z0 + bh), pick_color(rng, BOOKS, 20))
+                )
             x += bw + 0.002
     return parts
 
@@ -200,7 +210,13 @@ def plant_parts(rng: np.random.Generator) -> list[Part]:
     leaves = pick_color(rng, ((50, 110, 50), (70, 130, 60), (40, 90, 45)), 10)
     parts = [cylinder((0.0, 0.0), 0.0, pot_h, r, pot, segments=12)]
     parts.append(cylinder((0.0, 0.0), pot_h, pot_h + stem_h, 0.015, (90, 70, 40), segments=6))
-    parts.append(ellipsoid((0.0, 0.0, pot_h + stem_h + crown * 0.8), (crown, crown * rng.uniform(0.8, 1.0), crown * rng.uniform(0.9, 1.3)), leaves))
+    parts.append(
+        ellipsoid(
+            (0.0, 0.0, pot_h + stem_h + crown * 0.8),
+            (crown, crown * rng.uniform(0.8, 1.0), crown * rng.uniform(0.9, 1.3)),
+            leaves,
+        )
+    )
     return parts
 
 

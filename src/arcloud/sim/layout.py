@@ -45,9 +45,6 @@ class PlacementFailed(Exception):
     """A layout attempt could not place an object; the caller retries with the next draw."""
 
 
-
-
-
 @dataclass
 class PlacedItem:
     """Something placed: world parts, AABB, whether it is an object of a class or clutter."""
@@ -94,7 +91,9 @@ class Layout:
                 return False
         return True
 
-    def make(self, parts_local: list[Part], yaw_rad: float, xyz: Sequence[float], *, pad: float, group: int, **kw: Any) -> PlacedItem:
+    def make(
+        self, parts_local: list[Part], yaw_rad: float, xyz: Sequence[float], *, pad: float, group: int, **kw: Any
+    ) -> PlacedItem:
         parts = transformed(parts_local, yaw_rad, xyz)
         lo, hi = bounds(parts)
         return PlacedItem(parts, lo, hi, pad, group, yaw_rad=yaw_rad, **kw)
@@ -154,7 +153,9 @@ class Layout:
                 return items
         return None
 
-    def place_against_wall(self, parts_local: list[Part], *, pad: float, tries: int = 60, z: float = 0.0, **kw: object) -> PlacedItem | None:
+    def place_against_wall(
+        self, parts_local: list[Part], *, pad: float, tries: int = 60, z: float = 0.0, **kw: object
+    ) -> PlacedItem | None:
         """Place one thing with its back (local +y side) against a wall; None when no try fits."""
         items = self.place_group([(parts_local, kw)], pad=pad, against_wall=True, tries=tries, z=z)
         return None if items is None else items[0]
@@ -174,13 +175,21 @@ def _structure(layout: Layout) -> None:
             x = -rng.uniform(0.0, 1.2)
             while x < x_size:
                 x1 = min(x + rng.uniform(0.9, 2.0), x_size)
-                parts.append(box((max(x, 0.0), y0, -0.01), (x1, min(y0 + plank, y_size), 0.0), floor_base * rng.uniform(0.9, 1.1)))
+                parts.append(
+                    box((max(x, 0.0), y0, -0.01), (x1, min(y0 + plank, y_size), 0.0), floor_base * rng.uniform(0.9, 1.1))
+                )
                 x = x1
     else:  # square tiles
         tile = rng.uniform(0.4, 0.6)
         for x0 in np.arange(0.0, x_size, tile):
             for y0 in np.arange(0.0, y_size, tile):
-                parts.append(box((x0, y0, -0.01), (min(x0 + tile, x_size), min(y0 + tile, y_size), 0.0), floor_base * rng.uniform(0.95, 1.05)))
+                parts.append(
+                    box(
+                        (x0, y0, -0.01),
+                        (min(x0 + tile, x_size), min(y0 + tile, y_size), 0.0),
+                        floor_base * rng.uniform(0.95, 1.05),
+                    )
+                )
     paint = pick_color(rng, PAINT, 6)
     t = 0.05
     parts += [
@@ -203,10 +212,18 @@ def _structure(layout: Layout) -> None:
     door_w = 0.9
     along = rng.uniform(0.3 + door_w / 2, layout.wall_length(wall) - 0.3 - door_w / 2)
     centre, yaw = layout.wall_pose(wall, along, 0.03, 0.0)
-    door = [box((-door_w / 2, -0.015, 0.0), (door_w / 2, 0.015, 2.05), pick_color(rng, ((210, 190, 160), (240, 240, 236), (120, 80, 50)), 6))]
+    door = [
+        box(
+            (-door_w / 2, -0.015, 0.0),
+            (door_w / 2, 0.015, 2.05),
+            pick_color(rng, ((210, 190, 160), (240, 240, 236), (120, 80, 50)), 6),
+        )
+    ]
     door.append(box((door_w / 2 - 0.1, -0.06, 0.95), (door_w / 2 - 0.05, -0.015, 1.0), pick_color(rng, METAL, 4)))
     door_item = layout.make(door, yaw, (centre[0], centre[1], 0.0), pad=0.0, group=layout.new_group(), kind="door")
-    swing = layout.make([box((-0.6, -1.0, 0.0), (0.6, 0.0, 2.05), (0, 0, 0))], yaw, (centre[0], centre[1], 0.0), pad=0.0, group=layout.new_group())
+    swing = layout.make(
+        [box((-0.6, -1.0, 0.0), (0.6, 0.0, 2.05), (0, 0, 0))], yaw, (centre[0], centre[1], 0.0), pad=0.0, group=layout.new_group()
+    )
     swing.solid = False
     swing.pad = 0.3
     layout.add(door_item, swing)
@@ -219,7 +236,10 @@ def _structure(layout: Layout) -> None:
     z0, z1 = rng.uniform(0.85, 1.0), rng.uniform(2.0, min(2.3, z_size - 0.2))
     frame = (240, 240, 238)
     window = [box((-win_w / 2, -0.01, z0), (win_w / 2, 0.01, z1), pick_color(rng, ((170, 200, 232), (190, 215, 240)), 8))]
-    for a, b in (((-win_w / 2 - 0.05, z0 - 0.05), (win_w / 2 + 0.05, z0)), ((-win_w / 2 - 0.05, z1), (win_w / 2 + 0.05, z1 + 0.05))):
+    for a, b in (
+        ((-win_w / 2 - 0.05, z0 - 0.05), (win_w / 2 + 0.05, z0)),
+        ((-win_w / 2 - 0.05, z1), (win_w / 2 + 0.05, z1 + 0.05)),
+    ):
         window.append(box((a[0], -0.03, a[1]), (b[0], 0.01, b[1]), frame))
     for sx in (-1, 1):
         window.append(box((sx * win_w / 2 - 0.05 * (sx < 0), -0.03, z0), (sx * win_w / 2 + 0.05 * (sx > 0), 0.01, z1), frame))
@@ -235,7 +255,9 @@ def _structure(layout: Layout) -> None:
             if pw + 0.4 > layout.wall_length(w):
                 continue
             centre, yaw = layout.wall_pose(w, rng.uniform(pw / 2 + 0.2, layout.wall_length(w) - pw / 2 - 0.2), 0.025, 0.0)
-            item = layout.make(picture, yaw, (centre[0], centre[1], rng.uniform(1.3, 1.7)), pad=0.05, group=layout.new_group(), kind="picture")
+            item = layout.make(
+                picture, yaw, (centre[0], centre[1], rng.uniform(1.3, 1.7)), pad=0.05, group=layout.new_group(), kind="picture"
+            )
             if layout.fits(item):
                 layout.add(item)
                 break
@@ -282,7 +304,9 @@ def _table_group_local(
             centre = rng.uniform((-length / 2 + 0.2, -width / 2 + 0.2), (length / 2 - 0.2, width / 2 - 0.2))
             # Keyboard towards the nearer long side, where its user sits; a desk's user sits at -y.
             toward = 0.0 if centre[1] < 0 or against_wall else math.pi
-            parts = transformed(laptop_local, toward + math.radians(rng.normal(0.0, 15.0)), (centre[0], centre[1], float(table_hi[2])))
+            parts = transformed(
+                laptop_local, toward + math.radians(rng.normal(0.0, 15.0)), (centre[0], centre[1], float(table_hi[2]))
+            )
             lo, hi = bounds(parts)
             inside = np.all(lo[:2] >= table_lo[:2] + 0.01) and np.all(hi[:2] <= table_hi[:2] - 0.01)
             if inside and all(_boxes_apart((lo, hi), other) for other in laptops):
@@ -335,7 +359,9 @@ def layout_room(rng: np.random.Generator, size_m: np.ndarray, counts: dict[str, 
         layout.add(item)
     for _ in range(counts["tv"]):
         if rng.random() < 0.35:  # on the wall, 0.9-1.3 m up
-            item = layout.place_against_wall(tv_parts(rng, wall_mounted=True), pad=_PAD_WALL_ITEM, z=rng.uniform(0.9, 1.3), label="tv")
+            item = layout.place_against_wall(
+                tv_parts(rng, wall_mounted=True), pad=_PAD_WALL_ITEM, z=rng.uniform(0.9, 1.3), label="tv"
+            )
             if item is None:
                 raise PlacementFailed("tv")
             layout.add(item)
@@ -382,7 +408,9 @@ def layout_room(rng: np.random.Generator, size_m: np.ndarray, counts: dict[str, 
     # Clutter: shelves and cabinets along walls, plants, boxes, a lamp. Best effort.
     clutter: list[tuple[str, Callable[[np.random.Generator], list[Part]], float]]
     clutter = [("bookshelf", bookshelf_parts, _PAD_WALL_ITEM)] * int(rng.integers(1, 3))
-    clutter += [("cabinet", lambda r: cabinet_parts(r, r.uniform(0.6, 1.2), r.uniform(0.35, 0.5), r.uniform(0.7, 0.95)), _PAD_WALL_ITEM)] * int(rng.integers(0, 2))
+    clutter += [
+        ("cabinet", lambda r: cabinet_parts(r, r.uniform(0.6, 1.2), r.uniform(0.35, 0.5), r.uniform(0.7, 0.95)), _PAD_WALL_ITEM)
+    ] * int(rng.integers(0, 2))
     clutter += [("plant", plant_parts, _PAD_SMALL)] * int(rng.integers(1, 3))
     clutter += [("boxes", boxes_parts, _PAD_SMALL)] * int(rng.integers(1, 3))
     clutter += [("lamp", lamp_parts, _PAD_SMALL)] * int(rng.integers(0, 2))

@@ -98,7 +98,10 @@ def cylinder(
     j = (i + 1) % segments
     sides = np.concatenate([np.column_stack([i, j, j + segments]), np.column_stack([i, j + segments, i + segments])])
     caps = np.concatenate(
-        [np.column_stack([np.full(segments, 2 * segments), j, i]), np.column_stack([np.full(segments, 2 * segments + 1), i + segments, j + segments])]
+        [
+            np.column_stack([np.full(segments, 2 * segments), j, i]),
+            np.column_stack([np.full(segments, 2 * segments + 1), i + segments, j + segments]),
+        ]
     )
     triangles = _orient_outward(vertices, np.concatenate([sides, caps]).astype(np.int64))
     return Part(vertices, triangles, _colors(color, len(triangles)))

@@ -29,6 +29,7 @@ DEFAULT_SIZE_M = (8.0, 6.0, 2.7)
 #: Anything whose bottom is below this height blocks a walking user (metres).
 HEAD_CLEARANCE_M = 2.0
 
+
 @dataclass(frozen=True)
 class RoomObject:
     """One object of a class in ``CLASSES`` with its exact axis-aligned GT box in the world (z-up)."""
@@ -177,10 +178,14 @@ def _build_room(seed: int, size: np.ndarray, layout: Layout) -> Room:
 
 def room_renderer(room: Room) -> MeshRenderer:
     """A renderer of the room's mesh. Building one costs an Embree scene: keep it while rendering."""
-    return MeshRenderer(room.vertices, room.triangles, triangle_colors=room.triangle_colors, triangle_instance=room.triangle_instance)
+    return MeshRenderer(
+        room.vertices, room.triangles, triangle_colors=room.triangle_colors, triangle_instance=room.triangle_instance
+    )
 
 
-def room_walk(room: Room, n_frames: int = 300, seed: int = 0, *, style: WalkStyle | None = None, **kwargs: Any) -> list[np.ndarray]:
+def room_walk(
+    room: Room, n_frames: int = 300, seed: int = 0, *, style: WalkStyle | None = None, **kwargs: Any
+) -> list[np.ndarray]:
     """A walk through a generated room looking at its objects, in ``style`` (None: the default walk;
     see ``plan_walk`` for ``kwargs``)."""
     targets = np.array([o.center for o in room.objects]).reshape(-1, 3)

@@ -97,7 +97,12 @@ def simulate_sequence(
         frames.append(frame)
     log.info(
         "simulated %d frames of %dx%d in %.1f s (%d worker%s)",
-        len(frames), width, height, time.perf_counter() - started, workers, "s" if workers > 1 else "",
+        len(frames),
+        width,
+        height,
+        time.perf_counter() - started,
+        workers,
+        "s" if workers > 1 else "",
     )
     return frames
 
@@ -106,7 +111,9 @@ def simulate_sequence(
 _Settings = tuple[int, int, int, Intrinsics, DetectorFaults, str, str, bool]
 
 
-def _render_frames(room: Room, jobs: Sequence[tuple[int, np.ndarray]], settings: _Settings) -> list[tuple[Frame, tuple, FrameTruth | None]]:
+def _render_frames(
+    room: Room, jobs: Sequence[tuple[int, np.ndarray]], settings: _Settings
+) -> list[tuple[Frame, tuple, FrameTruth | None]]:
     seed, width, height, intrinsics, faults, map_id, device_id, with_truths = settings
     renderer = room_renderer(room)
     out = []

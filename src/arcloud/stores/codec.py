@@ -42,6 +42,7 @@ ZLIB_LEVEL = 1
 _HEADER = struct.Struct("<4sBBHI")
 _BOX = struct.Struct("<6d")  # min xyz, max xyz
 
+
 def encode_voxels(
     keys: np.ndarray, weights: np.ndarray, votes: np.ndarray, *, seen: np.ndarray | None = None, votes_f16: bool = False
 ) -> bytes:
@@ -68,12 +69,14 @@ def encode_voxels(
             raise InvalidInput("keys", "sorted unique voxel keys", "keys out of order or repeated")
     flags = FLAG_VOTES_F16 if votes_f16 else 0
     votes_dtype = np.dtype("<f2") if votes_f16 else np.dtype("<f4")
-    payload = b"".join((
-        deltas.astype("<i8", copy=False).tobytes(),
-        weights.astype("<f4", copy=False).tobytes(),
-        seen.astype("<f4", copy=False).tobytes(),
-        np.ascontiguousarray(votes, dtype=votes_dtype).tobytes(),
-    ))
+    payload = b"".join(
+        (
+            deltas.astype("<i8", copy=False).tobytes(),
+            weights.astype("<f4", copy=False).tobytes(),
+            seen.astype("<f4", copy=False).tobytes(),
+            np.ascontiguousarray(votes, dtype=votes_dtype).tobytes(),
+        )
+    )
     if len(payload) >= ZLIB_MIN_BYTES:
         payload = zlib.compress(payload, ZLIB_LEVEL)
         flags |= FLAG_ZLIB
@@ -121,9 +124,21 @@ def unpack_boxes(blobs: Sequence[bytes]) -> np.ndarray:
 def meta_of(obj: MapObject) -> ObjectMeta:
     """The metadata of an object (what ``object_meta`` returns for it)."""
     return ObjectMeta(
-        id=obj.id, label=obj.label, score=obj.score, version=obj.version, n_voxels=obj.n_voxels,
-        n_frames=obj.n_frames, devices=obj.devices, score_sum=obj.score_sum, created_at_s=obj.created_at_s,
-        updated_at_s=obj.updated_at_s, aabb=obj.aabb, obb=obj.obb, bounds=obj.bounds, confirmed=obj.confirmed, floor_votes=obj.floor_votes,
+        id=obj.id,
+        label=obj.label,
+        score=obj.score,
+        version=obj.version,
+        n_voxels=obj.n_voxels,
+        n_frames=obj.n_frames,
+        devices=obj.devices,
+        score_sum=obj.score_sum,
+        created_at_s=obj.created_at_s,
+        updated_at_s=obj.updated_at_s,
+        aabb=obj.aabb,
+        obb=obj.obb,
+        bounds=obj.bounds,
+        confirmed=obj.confirmed,
+        floor_votes=obj.floor_votes,
         label_purity=obj.label_purity,
     )
 
@@ -218,9 +233,24 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_mis
     if keys.size != meta.n_voxels:
         raise StoreError(f"object {object_id}: metadata says {meta.n_voxels} voxels, the voxels hold {keys.size}")
     return MapObject(
-        id=meta.id, keys=keys, weights=weights, votes=votes, seen=seen, n_frames=meta.n_frames, devices=meta.devices,
-        score_sum=meta.score_sum, version=meta.version, created_at_s=meta.created_at_s,
-        updated_at_s=meta.updated_at_s, label=meta.label, score=meta.score, aabb=meta.aabb, obb=meta.obb,
-        bounds=meta.bounds, confirmed=meta.confirmed, floor_votes=meta.floor_votes, n_missed=n_missed,
+        id=meta.id,
+        keys=keys,
+        weights=weights,
+        votes=votes,
+        seen=seen,
+        n_frames=meta.n_frames,
+        devices=meta.devices,
+        score_sum=meta.score_sum,
+        version=meta.version,
+        created_at_s=meta.created_at_s,
+        updated_at_s=meta.updated_at_s,
+        label=meta.label,
+        score=meta.score,
+        aabb=meta.aabb,
+        obb=meta.obb,
+        bounds=meta.bounds,
+        confirmed=meta.confirmed,
+        floor_votes=meta.floor_votes,
+        n_missed=n_missed,
         label_purity=meta.label_purity,
     )

@@ -41,7 +41,9 @@ class FreeGrid:
             blocked |= np.all((self.xy >= lo) & (self.xy <= hi), axis=-1)
         self.blocked = blocked
         # Distance from each free cell centre to the nearest obstacle, then the walls.
-        obstacle_m = ndimage.distance_transform_edt(~blocked) * cell_m - cell_m / 2 if blocked.any() else np.full(blocked.shape, np.inf)
+        obstacle_m = (
+            ndimage.distance_transform_edt(~blocked) * cell_m - cell_m / 2 if blocked.any() else np.full(blocked.shape, np.inf)
+        )
         wall_m = np.minimum(self.xy - floor_min_xy, floor_max_xy - self.xy).min(axis=-1)
         self.clearance = np.minimum(obstacle_m, wall_m + clearance_m - wall_margin_m)
         free = (obstacle_m >= clearance_m) & (wall_m >= wall_margin_m)
@@ -76,7 +78,9 @@ class FreeGrid:
                 cols += [b, a]
                 weights += [w, w]
             n = self.nx * self.ny
-            self._graph = coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
+            self._graph = coo_matrix(
+                (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+            ).tocsr()
         return self._graph
 
     def path(self, start: int, goal: int) -> np.ndarray:

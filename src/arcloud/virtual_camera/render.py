@@ -107,7 +107,11 @@ class MeshRenderer:
         self._light = triangle_light(self.vertices, self.triangles)
         if self.vertex_colors is not None:
             self._vertex_colors_f = self.vertex_colors.astype(np.float32)
-        albedo = self.triangle_colors.astype(np.float32) if self.triangle_colors is not None else np.full((n_tri, 3), 180.0, np.float32)
+        albedo = (
+            self.triangle_colors.astype(np.float32)
+            if self.triangle_colors is not None
+            else np.full((n_tri, 3), 180.0, np.float32)
+        )
         # Lookup tables with a last row for pixels that hit nothing (triangle -1).
         self._color_table = np.zeros((n_tri + 1, 3), np.uint8)
         self._color_table[:n_tri] = np.clip(albedo * self._light[:, None], 0, 255).astype(np.uint8)
@@ -179,4 +183,3 @@ def triangle_light(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     normals = np.divide(normals, norms, out=np.zeros_like(normals), where=norms > 0)
     light = AMBIENT + sum(w * np.abs(normals @ d) for w, d in LIGHTS)
     return light.astype(np.float32)
-

@@ -149,7 +149,9 @@ def plan_walk(
         raise InvalidInput("style", "a WalkStyle or None", type(style).__name__)
     elif any(value is not None for value in overridden.values()):
         given = sorted(name for name, value in overridden.items() if value is not None)
-        raise InvalidInput("style", "no eye height, jitter, step, ring inset or fixation beside a WalkStyle (it sets them)", f"also {given}")
+        raise InvalidInput(
+            "style", "no eye height, jitter, step, ring inset or fixation beside a WalkStyle (it sets them)", f"also {given}"
+        )
     else:
         eye_height_m, eye_height_jitter_m, step_m = style.eye_height_m, 0.0, style.step_m
         fixation_frames, lap_share = style.fixation_frames, 1.0 / style.laps
