@@ -22,7 +22,7 @@ lint: $(STAMP)
 	@if grep -rnE --include='*.py' '# (type: ignore(\[[^]]*\])?|noqa(: [A-Z0-9, ]+)?) *$$' src tests bench; then \
 		echo "lint: the type: ignore / noqa above gives no reason" >&2; exit 1; fi
 
-test: $(STAMP)
+test: $(STAMP) lint
 	@command -v redis-server >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 

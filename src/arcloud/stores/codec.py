@@ -25,6 +25,7 @@ import json
 import struct
 import zlib
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -203,7 +204,7 @@ def decode_metas(object_ids: Sequence[int], blobs: Sequence[bytes]) -> list[Obje
         raise StoreError(f"objects {list(object_ids)[:5]}: corrupt metadata ({type(exc).__name__}: {exc})") from exc
 
 
-def _meta(object_id: int, fields: dict) -> ObjectMeta:  # type: ignore[type-arg]
+def _meta(object_id: int, fields: dict[str, Any]) -> ObjectMeta:
     return ObjectMeta(
         id=object_id,
         label=str(fields["label"]),
