@@ -15,7 +15,7 @@ from __future__ import annotations
 import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
@@ -143,6 +143,19 @@ class QueueStats:
         return sum(self.latency_counts)
 
 
+#: Where an accepted frame is: in the queue, in a consumer's hands (Redis: pending, also between failed
+#: deliveries), done, given up on, or none of these (lost, or accepted before statuses were kept).
+FrameStatusName = Literal["queued", "processing", "processed", "failed", "unknown"]
+
+
+@dataclass(frozen=True, slots=True)
+class FrameStatus:
+    """An accepted frame's status; ``reason``: why it failed (empty otherwise)."""
+
+    status: FrameStatusName
+    reason: str = ""
+
+
 @dataclass(frozen=True, eq=False, slots=True)
 class QueuedFrame:
     """One delivery of a queued frame to one consumer, until it is acknowledged, failed or dead-lettered.
@@ -163,7 +176,7 @@ class FrameQueue(Protocol):
     """Validated frames from the API to the consumers that run the step, at least once.
 
     Producer side (the API): ``put`` (deduplicated per map: a frame accepted before is not queued again
-    unless it failed), per-map counts, service-wide ``stats``. Consumer side (workers): ``take`` a new
+    while it is queued, in hand or processed; one that failed or was lost is), per-map counts, service-wide ``stats``. Consumer side (workers): ``take`` a new
     frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
     (the step ran, or the frame had been processed before), ``fail`` (the step raised) or
     ``dead_letter`` (given up on: counted as failed). A queue that redelivers (Redis) leaves a failed
@@ -173,7 +186,8 @@ class FrameQueue(Protocol):
 
     # producer
     def put(self, frame: Frame, message: Any = None) -> bool:
-        """Queue a validated frame; False (nothing queued) when it was accepted before and did not fail.
+        """Queue a validated frame; False (nothing queued) when it was accepted before and is queued, in hand
+        or processed (a frame that failed, or was accepted but has none of these outcomes, is queued again).
         ``message``: the protobuf ``arcloud.v1.Frame`` it was validated from, which a queue that
         serialises may carry instead of encoding the frame again. Raises ``QueueFull``."""
         ...
@@ -184,6 +198,10 @@ class FrameQueue(Protocol):
 
     def known_map(self, map_id: str) -> bool:
         """Whether any frame of the map was accepted (creates nothing)."""
+        ...
+
+    def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
+        """The status of an accepted frame; None when the frame was never accepted."""
         ...
 
     def forget_map(self, map_id: str) -> None:

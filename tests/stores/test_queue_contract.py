@@ -13,7 +13,8 @@ from redis_server import RedisServer
 
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame
-from arcloud.ports import FrameQueue, QueueFull
+from arcloud.ports import FrameQueue, FrameStatus, QueueFull
+from arcloud.stores import keys
 from arcloud.stores.memory_queue import MemoryFrameQueue
 from arcloud.stores.redis_queue import RedisFrameQueue
 
@@ -119,6 +120,64 @@ def test_a_failed_frame_is_counted_failed_in_process_and_delivered_again_on_redi
     again = queue.claim_abandoned("c2", min_idle_s=0.01)
     assert again is not None and again.deliveries == 2 and again.consumer == "c2" and again.frame_key == item.frame_key
     assert queue.stats().claimed == 1
+
+
+def lose_entry(queue: FrameQueue) -> None:
+    """Drop the queued entry as a crash would leave it: recorded as accepted, no longer in the queue."""
+    if isinstance(queue, RedisFrameQueue):
+        ((entry_id, _fields),) = queue.client.xrange(keys.INGEST_STREAM)
+        queue.client.xdel(keys.INGEST_STREAM, entry_id)
+    else:  # in process a frame is lost only with its records: drop both, keeping the accepted mark
+        assert isinstance(queue, MemoryFrameQueue)
+        lost = queue._queue.get_nowait()
+        del queue._status[lost.map_id][lost.key]
+
+
+def test_a_frame_in_the_queue_in_hand_or_processed_is_a_duplicate(queue: FrameQueue) -> None:
+    sent = frame(5)
+    assert queue.put(sent) is True
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None
+    assert queue.put(sent) is False  # in hand (pending)
+    queue.ack(item, redelivered=False)
+    assert queue.put(sent) is False  # processed
+    assert queue.stats().duplicates == 2 and queue.stats().queue_depth == 0
+
+
+def test_a_frame_accepted_but_lost_is_queued_again_on_retry_and_processed_once(queue: FrameQueue) -> None:
+    sent = frame(6)
+    assert queue.put(sent) is True
+    lose_entry(queue)
+    assert queue.take("c1", block_s=0.05) is None
+    assert queue.put(sent) is True  # neither queued nor processed nor failed: queued again, not a duplicate
+    assert queue.map_counts(MAP) == (1, 0)
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None and item.frame_key == sent.key
+    queue.ack(item, redelivered=False)
+    assert queue.put(sent) is False and queue.take("c1", block_s=0.05) is None
+    stats = queue.stats()
+    assert (stats.accepted, stats.processed, stats.duplicates, stats.queue_depth) == (2, 1, 1, 0)
+
+
+def test_a_frame_status_follows_it_from_accepted_to_processed_or_failed(queue: FrameQueue) -> None:
+    ok, bad = frame(7), frame(8)
+    assert queue.frame_status(MAP, ok.key) is None  # never accepted
+    queue.put(ok)
+    assert queue.frame_status(MAP, ok.key) == FrameStatus("queued")
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None and queue.frame_status(MAP, ok.key) == FrameStatus("processing")
+    queue.ack(item, redelivered=False)
+    assert queue.frame_status(MAP, ok.key) == FrameStatus("processed")
+    queue.put(bad)
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None
+    queue.dead_letter(item, "InvalidInput: detections[0].label: expected a class")
+    assert queue.frame_status(MAP, bad.key) == FrameStatus("failed", "InvalidInput: detections[0].label: expected a class")
+    queue.put(bad)  # failed before: queued again
+    lose_entry(queue)
+    assert queue.frame_status(MAP, bad.key) == FrameStatus("unknown")  # accepted, then lost: a retry queues it again
+    queue.forget_map(MAP)
+    assert queue.frame_status(MAP, ok.key) is None
 
 
 def test_heartbeats_tell_live_consumers(queue: FrameQueue) -> None:

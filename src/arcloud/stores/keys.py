@@ -17,6 +17,7 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
 
     arcloud:{m}:ingest:accepted     SET     frame keys the ingest accepted for the map (``redis_queue``)
     arcloud:{m}:ingest:failed       SET     frame keys of the map that were dead-lettered
+    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed" | "failed <reason>"
 
 Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queue``):
 
@@ -119,6 +120,10 @@ def ingest_accepted_key(map_id: str) -> str:
 
 def ingest_failed_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:ingest:failed"
+
+
+def ingest_status_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:status"
 
 
 # Service-wide keys (no map tag).

@@ -10,8 +10,11 @@ pending list to claim from, and first-come-first-served across maps. Frames of o
 parallel by several workers (the per-object locks and space claims of the step make that safe). The
 scale-out path beyond one Redis primary is N shard streams (map -> shard by hash), each with its group.
 
-Per map: the SET of accepted frame keys (a frame posted twice is queued once, unless it failed before:
-``lua/accept_frame.lua``) and the SET of failed (dead-lettered) ones. Service-wide: the counters and the
+Per map: the SET of accepted frame keys, the SET of failed (dead-lettered) ones, and each frame's status
+(its entry id while in the stream, then processed or failed with the reason). ``lua/accept_frame.lua``
+records and queues a frame in one step, so no frame is recorded as accepted without its entry; a frame
+posted again is a duplicate while its entry is in the stream or it was processed, and is queued again when
+it failed or its entry is gone without an outcome (lost, e.g. in the last second before a crash). Service-wide: the counters and the
 step latency histogram in one HASH shared by every worker, consumers' heartbeats in another, and the
 dead-letter stream. Key templates are in ``keys``; entries carry ``map_id``, ``frame_key``,
 ``accepted_at_s`` and ``frame`` (``stream_frames``).
@@ -32,19 +35,16 @@ import logging
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import redis
 
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
-from arcloud.ports import LATENCY_BUCKETS_S, QueuedFrame, QueueFull, QueueStats, latency_bucket
+from arcloud.ports import LATENCY_BUCKETS_S, FrameStatus, QueuedFrame, QueueFull, QueueStats, latency_bucket
 from arcloud.stores import keys
 from arcloud.stores.redis import connect_redis, is_busy, lua_source
 from arcloud.stores.stream_frames import decode_frame, encode_frame
-
-if TYPE_CHECKING:
-    from redis.typing import EncodableT, FieldT
 
 log = logging.getLogger(__name__)
 
@@ -130,29 +130,21 @@ class RedisFrameQueue:
 
     # --- producer ----------------------------------------------------------------------------------
     def put(self, frame: Frame, message: Any = None) -> bool:
+        map_id = frame.map_id
         with self._boundary("queue the frame"):
-            depth = int(self.client.xlen(keys.INGEST_STREAM))
-            if depth >= self.max_queued_frames:
-                raise QueueFull(f"{depth} frames are queued; try again later")
-            accepted_key, failed_key = keys.ingest_accepted_key(frame.map_id), keys.ingest_failed_key(frame.map_id)
-            if not self._accept(keys=[accepted_key, failed_key], args=[frame.key]):
-                self.client.hincrby(keys.INGEST_STATS, "duplicates", 1)
-                return False
-            try:
-                fields: dict[FieldT, EncodableT] = {
-                    "map_id": frame.map_id,
-                    "frame_key": frame.key,
-                    "accepted_at_s": repr(time.time()),
-                    "frame": encode_frame(frame, message),
-                }
-                pipe = self.client.pipeline(transaction=False)
-                pipe.xadd(keys.INGEST_STREAM, fields)
-                pipe.hincrby(keys.INGEST_STATS, "accepted", 1)
-                pipe.execute()
-            except BaseException:
-                self.client.srem(accepted_key, frame.key)  # not queued: let a retry through
-                raise
-        return True
+            entry_id = self._accept(
+                keys=[
+                    keys.ingest_accepted_key(map_id),
+                    keys.ingest_failed_key(map_id),
+                    keys.ingest_status_key(map_id),
+                    keys.INGEST_STREAM,
+                    keys.INGEST_STATS,
+                ],
+                args=[frame.key, self.max_queued_frames, map_id, repr(time.time()), encode_frame(frame, message)],
+            )
+        if entry_id == -1:
+            raise QueueFull(f"{self.max_queued_frames} frames are queued; try again later")
+        return bool(entry_id != 0)  # the new entry id, or 0 for a duplicate
 
     def map_counts(self, map_id: str) -> tuple[int, int]:
         with self._boundary("read the map's counts"):
@@ -166,9 +158,34 @@ class RedisFrameQueue:
         with self._boundary("look the map up"):
             return bool(self.client.exists(keys.ingest_accepted_key(map_id)))
 
+    def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
+        """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
+        (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown"."""
+        with self._boundary("read the frame's status"):
+            pipe = self.client.pipeline(transaction=False)
+            pipe.sismember(keys.ingest_accepted_key(map_id), frame_key)
+            pipe.hget(keys.ingest_status_key(map_id), frame_key)
+            accepted, raw = pipe.execute()
+            if not accepted:
+                return None
+            status, _, detail = _text(raw).partition(" ")
+            if status == "processed":
+                return FrameStatus("processed")
+            if status == "failed":
+                return FrameStatus("failed", detail)
+            if status != "queued" or not self.client.xrange(keys.INGEST_STREAM, detail, detail):
+                return FrameStatus("unknown")  # lost (a retry queues it again), or accepted before statuses were kept
+            try:
+                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=detail, max=detail, count=1)
+            except redis.exceptions.ResponseError as exc:
+                if not str(exc).startswith("NOGROUP"):
+                    raise
+                pending = []  # no group yet: nothing delivered
+        return FrameStatus("processing" if pending else "queued")
+
     def forget_map(self, map_id: str) -> None:
         with self._boundary("forget the map"):
-            self.client.delete(keys.ingest_accepted_key(map_id), keys.ingest_failed_key(map_id))
+            self.client.delete(keys.ingest_accepted_key(map_id), keys.ingest_failed_key(map_id), keys.ingest_status_key(map_id))
 
     def stats(self) -> QueueStats:
         with self._boundary("read the ingest counters"):
@@ -275,9 +292,11 @@ class RedisFrameQueue:
     def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
         entry_id, _fields = item.receipt
         with self._boundary("acknowledge the entry"):
-            pipe = self.client.pipeline(transaction=False)
+            pipe = self.client.pipeline(transaction=True)  # the entry goes and the outcome is written together
             pipe.xack(keys.INGEST_STREAM, self.group, entry_id)
             pipe.xdel(keys.INGEST_STREAM, entry_id)
+            if item.map_id and item.frame_key:
+                pipe.hset(keys.ingest_status_key(item.map_id), item.frame_key, "processed")
             if retries:
                 pipe.hincrby(keys.INGEST_STATS, "retried", retries)
             if redelivered:
@@ -305,11 +324,13 @@ class RedisFrameQueue:
             }
         )
         with self._boundary("dead-letter the entry"):
-            pipe = self.client.pipeline(transaction=False)
+            pipe = self.client.pipeline(transaction=True)  # the entry goes and the outcome is written together
             pipe.xadd(keys.INGEST_DEAD_LETTER_STREAM, dead)
             pipe.xack(keys.INGEST_STREAM, self.group, entry_id)
             pipe.xdel(keys.INGEST_STREAM, entry_id)
             pipe.hincrby(keys.INGEST_STATS, "failed", 1)
+            if item.map_id and item.frame_key:
+                pipe.hset(keys.ingest_status_key(item.map_id), item.frame_key, f"failed {reason}")
             pipe.execute()
             if item.map_id and item.frame_key and self.client.sismember(keys.ingest_accepted_key(item.map_id), item.frame_key):
                 self.client.sadd(
