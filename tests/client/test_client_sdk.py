@@ -7,6 +7,7 @@ import asyncio
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from arcloud.tools.wiring import create_app
 def server() -> Iterator[tuple[str, str]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(detector="sim:0", workers=2, zenoh_mode="peer", zenoh_listen=[endpoint])
-    with UvicornThread(create_app(settings, detector=BlobDetector())) as running:
+    with UvicornThread(create_app(settings, detector=BlobDetector(refuse_on=["refused"]))) as running:
         yield running.url, endpoint
 
 
@@ -108,6 +109,18 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
         assert missing.value.status == 404
         with pytest.raises(TimeoutError, match="not processed"):
             client.wait_until_processed("c1", 6, timeout_s=0.3)
+        assert client.frame_status("c1", "d2", "x1") == {
+            "map_id": "c1",
+            "device_id": "d2",
+            "frame_id": "x1",
+            "status": "processed",
+        }
+        with pytest.raises(ServiceError) as never:
+            client.frame_status("c1", "d", "never-sent")
+        assert never.value.status == 404
+        with pytest.raises(ServiceError) as bad_id:
+            client.frame_status("c1", "d", "f*")
+        assert bad_id.value.status == 422 and bad_id.value.field == "frame_id"
         assert client.delete_map("c1") == {"map_id": "c1", "deleted_objects": 1}
         with pytest.raises(ServiceError) as gone:
             client.stats("c1")
@@ -127,7 +140,10 @@ def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
                 ]
 
             answers = [a for batch in await asyncio.gather(*(user(k) for k in range(3))) for a in batch]
-            stats = await client.wait_until_processed("c2", 9, timeout_s=30)
+            await client.send_frame(replace(make_test_frame(9, map_id="c2", device_id="user-0"), frame_id="refused"))
+            stats = await client.wait_until_processed("c2", 10, timeout_s=30)
+            refused = await client.frame_status("c2", "user-0", "refused")  # InvalidInput from the step: failed at once
+            assert refused["status"] == "failed" and refused["reason"].startswith("InvalidInput: detections[0].label")
             assert await client.list_objects("c2", min_score=0.0) == []  # lying flat: never confirmed
             objects = await client.list_objects("c2", min_score=0.0, include_tentative=True)
             with pytest.raises(ServiceError):
@@ -140,5 +156,9 @@ def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
 
     answers, stats, objects = asyncio.run(run())
     assert [a["status"] for a in answers] == ["queued"] * 9
-    assert stats["frames"]["processed"] == 9 and stats["objects"] == {"confirmed": 0, "tentative": 1}
+    assert (
+        stats["frames"]["processed"] == 9
+        and stats["frames"]["failed"] == 1
+        and stats["objects"] == {"confirmed": 0, "tentative": 1}
+    )
     assert len(objects) == 1 and objects[0]["n_devices"] == 3 and objects[0]["status"] == "tentative"

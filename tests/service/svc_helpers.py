@@ -87,7 +87,8 @@ class BlobDetector:
     """Detects each connected region nearer than ``threshold_m`` as one ``label`` instance.
     ``delay_s`` slows every frame down (only those in ``slow_on`` when given); frames whose id is in
     ``crash_on`` raise; in frames whose id is in ``miss_left_on`` the regions left of the image's
-    centre go undetected (as a detector misses what it sees)."""
+    centre go undetected (as a detector misses what it sees); in frames whose id is in ``refuse_on`` it
+    reports a class that does not exist (the step refuses it: ``InvalidInput``)."""
 
     def __init__(
         self,
@@ -98,8 +99,10 @@ class BlobDetector:
         crash_on: Sequence[str] = (),
         slow_on: Sequence[str] | None = None,
         miss_left_on: Sequence[str] = (),
+        refuse_on: Sequence[str] = (),
     ) -> None:
         self.label = label
+        self.refuse_on = set(refuse_on)
         self.threshold_m = threshold_m
         self.delay_s = delay_s
         self.crash_on = set(crash_on)
@@ -117,7 +120,8 @@ class BlobDetector:
         if frame.frame_id in self.miss_left_on:
             near[:, : frame.shape[1] // 2] = 0
         n, labels = cv2.connectedComponents(near)
-        return [Detection(self.label, 0.9, labels == i) for i in range(1, n) if (labels == i).sum() >= 20]
+        label = "unicorn" if frame.frame_id in self.refuse_on else self.label
+        return [Detection(label, 0.9, labels == i) for i in range(1, n) if (labels == i).sum() >= 20]
 
 
 def make_blob_detector(

@@ -423,3 +423,26 @@ def test_a_service_with_other_settings_refuses_the_map_and_its_workers_leave_it_
     assert "map h was built with other settings: voxel_size_m: map 0.05, ours 0.04" in caplog.text
     assert [(o.id, o.version) for o in store.list_objects("h")] == [(o.id, o.version) for o in before]
     assert not store.is_frame_done("h", "d/f000004")
+
+
+def test_a_frame_status_says_where_it_is_and_why_it_failed() -> None:
+    settings = Settings(detector="sim:0", workers=1)
+    with AppClient(create_app(settings, detector=BlobDetector(refuse_on=["f000001"]))) as client:
+        for i in (0, 1):
+            assert (
+                client.post(
+                    "/v1/maps/fs/frames", content=proto_body(make_test_frame(i, map_id="fs")), headers=PROTOBUF
+                ).status_code
+                == 202
+            )
+        wait_until(lambda: client.get("/v1/maps/fs/stats").json()["frames"]["pending"] == 0, 20, "both frames done")
+        done = client.get("/v1/maps/fs/frames/d/f000000").json()
+        assert done == {"map_id": "fs", "device_id": "d", "frame_id": "f000000", "status": "processed"}
+        refused = client.get("/v1/maps/fs/frames/d/f000001").json()  # InvalidInput from the step: failed at once
+        assert refused["status"] == "failed" and refused["reason"].startswith("InvalidInput: detections[0].label")
+        missing = client.get("/v1/maps/fs/frames/d/f000099")
+        assert missing.status_code == 404 and "never accepted" in missing.json()["detail"]
+        assert client.get("/v1/maps/nomap/frames/d/f000000").status_code == 404
+        bad_id = client.get("/v1/maps/fs/frames/d/f%2A")
+        assert bad_id.status_code == 422 and bad_id.json()["field"] == "frame_id"
+        assert client.get("/v1/maps/f%20s/frames/d/f000000").json()["field"] == "map_id"

@@ -29,7 +29,7 @@ from arcloud.proto.convert import frame_to_proto
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
 from arcloud.stores.keys import INGEST_DEAD_LETTER_STREAM as DEAD_LETTER_STREAM
-from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM
+from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM, ingest_accepted_key
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_queue import RedisFrameQueue, parse_stats
 from arcloud.tools.wiring import create_app, healthy, worker_pool
@@ -221,6 +221,22 @@ def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
     assert obj.n_frames == 1 and obj.version == 1
 
 
+def test_a_frame_recorded_as_accepted_but_never_queued_is_queued_again_on_retry(deployment: Deployment) -> None:
+    # What a crash used to leave between recording a frame and queueing it: the mark without the entry.
+    deployment.redis.sadd(ingest_accepted_key("r7"), "d/f000000")
+    before = deployment.stats()
+    assert deployment.post("r7", 0)["status"] == "queued"  # not "duplicate"
+    wait_until(
+        lambda: deployment.api.get("/v1/maps/r7/stats").json()["frames"]["processed"] == 1, 30, "the frame processed", 0.05
+    )
+    assert deployment.api.get("/v1/maps/r7/frames/d/f000000").json()["status"] == "processed"
+    assert deployment.post("r7", 0)["status"] == "duplicate"
+    wait_until(deployment.idle, 10, "nothing pending")
+    assert deployment.api.get("/v1/maps/r7/stats").json()["frames"] == {"accepted": 1, "processed": 1, "failed": 0, "pending": 0}
+    after = deployment.stats()
+    assert after.processed - before.processed == 1 and after.redelivered == before.redelivered
+
+
 def test_poison_frames_go_to_the_dead_letter_stream(deployment: Deployment) -> None:
     deployment.redis.xadd(INGEST_STREAM, {"map_id": "r3", "frame_key": "d/garbage", "frame": b"\x0f\xff garbage"})
     deployment.post("r3", 1)
@@ -232,6 +248,9 @@ def test_poison_frames_go_to_the_dead_letter_stream(deployment: Deployment) -> N
     assert dead[f"d/f{CRASH_FRAME:06d}"][b"reason"].startswith(b"delivered 3 times")
     stats = deployment.api.get("/v1/maps/r3/stats").json()["frames"]
     assert stats == {"accepted": 2, "processed": 1, "failed": 1, "pending": 0}
+    failed = deployment.api.get(f"/v1/maps/r3/frames/d/f{CRASH_FRAME:06d}").json()
+    assert failed["status"] == "failed" and failed["reason"].startswith("delivered 3 times")
+    assert deployment.api.get("/v1/maps/r3/frames/d/f000001").json()["status"] == "processed"
 
 
 def test_a_killed_workers_frame_is_claimed_by_another(deployment: Deployment) -> None:

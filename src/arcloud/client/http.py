@@ -28,6 +28,7 @@ import random
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
+from urllib.parse import quote
 
 import httpx
 import numpy as np
@@ -51,6 +52,11 @@ RETRY_STATUSES = frozenset({429, 502, 503, 504})
 RETRY_ERRORS = (httpx.TimeoutException, httpx.NetworkError, httpx.RemoteProtocolError)
 #: Methods safe to send twice (a frame upload is too: ``idempotent=True``).
 IDEMPOTENT_METHODS = frozenset({"GET", "HEAD", "OPTIONS", "DELETE"})
+
+
+def frame_status_path(map_id: str, device_id: str, frame_id: str) -> str:
+    """The frame status route, each id percent-encoded (device and frame ids may hold '%', '#', ...)."""
+    return "/v1/maps/" + "/".join(quote(part, safe="") for part in (map_id, "frames", device_id, frame_id))
 
 
 class ServiceError(ArcloudError):
@@ -291,6 +297,11 @@ class ArcloudClient:
     def delete_map(self, map_id: str) -> dict[str, Any]:
         return self._request("DELETE", f"/v1/maps/{map_id}")
 
+    def frame_status(self, map_id: str, device_id: str, frame_id: str) -> dict[str, Any]:
+        """Where an accepted frame is: ``status`` queued, processing, processed, failed (with ``reason``) or
+        unknown (posting it again queues it); ``ServiceError`` 404 for a frame never accepted."""
+        return self._request("GET", frame_status_path(map_id, device_id, frame_id))
+
     def stats(self, map_id: str) -> dict[str, Any]:
         return self._request("GET", f"/v1/maps/{map_id}/stats")
 
@@ -417,6 +428,9 @@ class AsyncArcloudClient:
 
     async def delete_map(self, map_id: str) -> dict[str, Any]:
         return await self._request("DELETE", f"/v1/maps/{map_id}")
+
+    async def frame_status(self, map_id: str, device_id: str, frame_id: str) -> dict[str, Any]:
+        return await self._request("GET", frame_status_path(map_id, device_id, frame_id))
 
     async def stats(self, map_id: str) -> dict[str, Any]:
         return await self._request("GET", f"/v1/maps/{map_id}/stats")

@@ -35,7 +35,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from arcloud import __version__
-from arcloud.core.checks import MAX_COORDINATE_M, check_map_id
+from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
@@ -47,6 +47,7 @@ from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
     FrameAccepted,
     FrameMeta,
+    FrameState,
     Health,
     MapDeleted,
     MapStats,
@@ -198,7 +199,8 @@ router = APIRouter()
     response_model=FrameAccepted,
     summary="Upload one posed RGB-D frame",
     description="Validated in full, then queued; processing is asynchronous (see the map's stats). Posting a frame "
-    "(device_id, frame_id) again answers `duplicate` and queues nothing, unless it failed before.",
+    "(device_id, frame_id) again answers `duplicate` and queues nothing while it is queued, in progress or processed; "
+    "one that failed or was lost is queued again (see its status).",
     responses={
         **PROBLEM_RESPONSES,
         413: {"model": Problem, "description": "body too large"},
@@ -226,6 +228,33 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
     await run_in_threadpool(check_map_header, runtime.store, map_id, runtime.params)
     accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
+
+
+@router.get(
+    "/v1/maps/{map_id}/frames/{device_id}/{frame_id}",
+    response_model=FrameState,
+    response_model_exclude_none=True,
+    responses=PROBLEM_RESPONSES,
+    tags=["frames"],
+    summary="Where an accepted frame is",
+    description="`queued`, `processing`, `processed`, `failed` (with the `reason`: a frame failing for a reason that "
+    "will not change is failed at once) or `unknown` (accepted, but none of these: posting it again queues it). "
+    "404 for a frame never accepted.",
+)
+def frame_status(map_id: MapId, device_id: str, frame_id: str, runtime: RuntimeDep) -> FrameState:
+    check_map_id("map_id", map_id)
+    check_id("device_id", device_id)
+    check_id("frame_id", frame_id)
+    found = runtime.ingest.frame_status(map_id, device_id, frame_id)
+    if found is None:
+        raise HTTPException(404, f"frame {device_id}/{frame_id} not found in map {map_id!r} (it was never accepted)")
+    return FrameState(
+        map_id=map_id,
+        device_id=device_id,
+        frame_id=frame_id,
+        status=found.status,
+        reason=found.reason if found.status == "failed" else None,
+    )
 
 
 @router.get(

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from arcloud.core.types import Frame
-from arcloud.ports import FrameQueue, ObjectStore, QueueFull, QueueStats
+from arcloud.ports import FrameQueue, FrameStatus, ObjectStore, QueueFull, QueueStats
 from arcloud.service.pool import WorkerPool
 from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name
 
@@ -113,6 +113,10 @@ class Ingest:
         accepted, failed = self.queue.map_counts(map_id)
         processed = self.store.count_frames(map_id) if accepted else 0
         return MapCounts(accepted, processed, failed)
+
+    def frame_status(self, map_id: str, device_id: str, frame_id: str) -> FrameStatus | None:
+        """The status of the frame (device_id, frame_id) of the map; None when it was never accepted."""
+        return self.queue.frame_status(map_id, f"{device_id}/{frame_id}")
 
     def known_map(self, map_id: str) -> bool:
         """Whether any frame of the map was accepted (without creating anything)."""

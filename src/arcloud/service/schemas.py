@@ -147,6 +147,32 @@ class ObjectCounts(BaseModel):
     tentative: int = Field(description="objects shown only with ?include=tentative")
 
 
+class FrameState(BaseModel):
+    """Where an accepted frame is: ``queued``, ``processing`` (in a worker's hands; on Redis also between
+    failed deliveries), ``processed``, ``failed`` (given up on: ``reason`` says why) or ``unknown`` (accepted,
+    but none of these: lost, and queued again when posted again)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "map_id": "office",
+                    "device_id": "phone-1",
+                    "frame_id": "f000042",
+                    "status": "failed",
+                    "reason": "InvalidInput: ...",
+                }
+            ]
+        }
+    )
+
+    map_id: str
+    device_id: str
+    frame_id: str
+    status: Literal["queued", "processing", "processed", "failed", "unknown"]
+    reason: str | None = None
+
+
 class MapStats(BaseModel):
     model_config = ConfigDict(
         json_schema_extra={
