@@ -177,8 +177,27 @@ class RetryPolicy:
         return self.max_retries > 0 and (idempotent or method.upper() in IDEMPOTENT_METHODS)
 
 
-def _gave_up(exc: Exception, method: str, path: str, attempts: int, started: float) -> None:
-    exc.add_note(f"arcloud: {method} {path}: no answer after {attempts} attempts over {time.monotonic() - started:.1f} s")
+def _next_wait_s(
+    retry: RetryPolicy, method: str, path: str, outcome: httpx.Response | Exception, attempt: int, retries: int, started: float
+) -> float | None:
+    """After attempt ``attempt`` (0-based) of ``retries + 1``: the seconds to wait before the next one, or None
+    when ``outcome`` (a response) is final. A transport error on the last attempt is raised, with a note
+    saying how many attempts over how long. Shared by the blocking and the async client."""
+    if isinstance(outcome, Exception):
+        if attempt == retries:
+            outcome.add_note(
+                f"arcloud: {method} {path}: no answer after {attempt + 1} attempts over {time.monotonic() - started:.1f} s"
+            )
+            raise outcome
+        wait_s = retry.wait_s(attempt)
+        what = type(outcome).__name__
+    else:
+        if outcome.status_code not in RETRY_STATUSES or attempt == retries:
+            return None
+        wait_s = retry.wait_s(attempt, outcome)
+        what = f"HTTP {outcome.status_code}"
+    log.info("%s %s: %s; trying again in %.2f s (%d/%d)", method, path, what, wait_s, attempt + 1, retries)
+    return wait_s
 
 
 def _done(stats: Mapping[str, Any], n_frames: int) -> bool:
@@ -241,29 +260,15 @@ class ArcloudClient:
         retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
         started = time.monotonic()
         for attempt in range(retries + 1):
+            outcome: httpx.Response | Exception
             try:
-                response = self.http.request(method, path, **kwargs)
+                outcome = self.http.request(method, path, **kwargs)
             except RETRY_ERRORS as exc:
-                if attempt == retries:
-                    _gave_up(exc, method, path, attempt + 1, started)
-                    raise
-                wait_s = self.retry.wait_s(attempt)
-                log.info(
-                    "%s %s: %s; trying again in %.2f s (%d/%d)", method, path, type(exc).__name__, wait_s, attempt + 1, retries
-                )
-            else:
-                if response.status_code not in RETRY_STATUSES or attempt == retries:
-                    return checked(response)
-                wait_s = self.retry.wait_s(attempt, response)
-                log.info(
-                    "%s %s: HTTP %d; trying again in %.2f s (%d/%d)",
-                    method,
-                    path,
-                    response.status_code,
-                    wait_s,
-                    attempt + 1,
-                    retries,
-                )
+                outcome = exc
+            wait_s = _next_wait_s(self.retry, method, path, outcome, attempt, retries, started)
+            if wait_s is None:
+                assert isinstance(outcome, httpx.Response)  # only a response is final
+                return checked(outcome)
             time.sleep(wait_s)
         raise AssertionError("unreachable")
 
@@ -369,29 +374,15 @@ class AsyncArcloudClient:
         retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
         started = time.monotonic()
         for attempt in range(retries + 1):
+            outcome: httpx.Response | Exception
             try:
-                response = await self.http.request(method, path, **kwargs)
+                outcome = await self.http.request(method, path, **kwargs)
             except RETRY_ERRORS as exc:
-                if attempt == retries:
-                    _gave_up(exc, method, path, attempt + 1, started)
-                    raise
-                wait_s = self.retry.wait_s(attempt)
-                log.info(
-                    "%s %s: %s; trying again in %.2f s (%d/%d)", method, path, type(exc).__name__, wait_s, attempt + 1, retries
-                )
-            else:
-                if response.status_code not in RETRY_STATUSES or attempt == retries:
-                    return checked(response)
-                wait_s = self.retry.wait_s(attempt, response)
-                log.info(
-                    "%s %s: HTTP %d; trying again in %.2f s (%d/%d)",
-                    method,
-                    path,
-                    response.status_code,
-                    wait_s,
-                    attempt + 1,
-                    retries,
-                )
+                outcome = exc
+            wait_s = _next_wait_s(self.retry, method, path, outcome, attempt, retries, started)
+            if wait_s is None:
+                assert isinstance(outcome, httpx.Response)  # only a response is final
+                return checked(outcome)
             await asyncio.sleep(wait_s)
         raise AssertionError("unreachable")
 
