@@ -101,6 +101,9 @@ class Service:
         self.workers = workers
         settings = Settings(
             store=redis.url,
+            auth="none",  # the bench measures ingest; a key lookup and rate limit cost one cached read and one script a request
+            key_rate_per_s=0,
+            map_frame_rate_per_s=0,
             detector=f"sim:{seed}",
             detector_threads=threads or None,
             workers=workers,

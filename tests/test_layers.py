@@ -1,6 +1,6 @@
 """The layers of the whole package point one way, as the README draws them:
 
-    core  <-  errors, argtypes, allocator  <-  ports, proto  <-  stores, detectors, events  <-  service, client
+    core  <-  errors, argtypes, allocator, access  <-  ports, proto  <-  stores, detectors, events  <-  service, client
           <-  virtual_camera  <-  sim, datasets, eval  <-  accuracy, tools  <-  demo  <-  cli
 
 A package may import only packages of lower layers (and itself); every import counts, also those inside
@@ -20,7 +20,7 @@ PACKAGE = Path(arcloud.__file__).parent
 #: Each package's (or top-level module's) layer: imports go to lower layers only.
 LAYER = {
     "core": 0,
-    "errors": 1, "argtypes": 1, "allocator": 1,
+    "errors": 1, "argtypes": 1, "allocator": 1, "access": 1,
     "ports": 2, "proto": 2,
     "stores": 3, "detectors": 3, "events": 3,
     "service": 4, "client": 4,

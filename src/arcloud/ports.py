@@ -5,6 +5,9 @@
   health check (embedded ``stores.memory``, ``stores.redis``).
 - ``FrameQueue``: validated frames from the API to the workers that run the step, with per-map frame
   counts and service-wide counters (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``).
+- ``KeyStore``: the API keys (``arcloud.access.ApiKey``), hashed (a JSON file ``stores.file_api_keys``,
+  Redis ``stores.redis_api_keys``).
+- ``RateLimiter``: token buckets shared by every API process (``stores.memory_rate``, ``stores.redis_rate``).
 
 The service (``arcloud.service``) talks to these and never to an adapter; ``arcloud.tools.wiring``
 chooses the adapters.
@@ -17,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
+from arcloud.access import ApiKey
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
 from arcloud.core.types import AABB, OBB, Frame, MapObject
@@ -26,6 +30,7 @@ __all__ = [
     "LATENCY_BUCKETS_S",
     "Detector",
     "FrameQueue",
+    "KeyStore",
     "Lease",
     "MapStore",
     "NullPublisher",
@@ -34,6 +39,7 @@ __all__ = [
     "QueueFull",
     "QueueStats",
     "QueuedFrame",
+    "RateLimiter",
     "UpdatePublisher",
     "latency_bucket",
 ]
@@ -250,3 +256,37 @@ class FrameQueue(Protocol):
     def live_consumers(self, max_age_s: float) -> list[str]:
         """Consumers whose heartbeat is at most ``max_age_s`` old, sorted."""
         ...
+
+
+# --- access ------------------------------------------------------------------------------------------
+class KeyStore(Protocol):
+    """The API keys. Safe to call from many threads (and, for a shared store, many processes)."""
+
+    def add(self, key: ApiKey) -> None:
+        """Store a new key (its id is new: ``access.new_key`` draws 48 random bits)."""
+        ...
+
+    def find(self, key_id: str) -> ApiKey | None:
+        """The key with this id; None when there is none (never created, or revoked)."""
+        ...
+
+    def list_keys(self) -> list[ApiKey]:
+        """Every key, oldest first."""
+        ...
+
+    def revoke(self, key_id: str) -> bool:
+        """Remove the key; False when there was none."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class RateLimiter(Protocol):
+    """Token buckets (GCRA): ``rate_per_s`` on average with bursts of up to ``burst``. Shared by every
+    process using the same store, so N API replicas enforce one limit."""
+
+    def take(self, bucket: str, *, rate_per_s: float, burst: int) -> float:
+        """Spend one token of ``bucket``: 0.0 when allowed, else the seconds until one is (nothing spent)."""
+        ...
+
+    def close(self) -> None: ...

@@ -54,7 +54,7 @@ class Serving:
 @pytest.fixture(scope="module")
 def serving() -> Iterator[Serving]:
     server = RedisServer.start()
-    settings = Settings(store=server.url, workers=2, read_block_s=0.2, claim_interval_s=0.5)
+    settings = Settings(store=server.url, auth="none", workers=2, read_block_s=0.2, claim_interval_s=0.5)
     deployment = Serving(server, "")
     try:
         with UvicornThread(service_app.create_app(settings, connect_blob_workers)) as api:

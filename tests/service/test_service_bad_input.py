@@ -333,7 +333,7 @@ def test_bad_input_answers_4xx_naming_the_field(
 def redis_app() -> Iterator[tuple[AppClient, RedisServer]]:
     server = RedisServer.start()
     try:
-        with AppClient(create_app(Settings(store=server.url, detector="sim:0", workers=0))) as api:
+        with AppClient(create_app(Settings(store=server.url, auth="none", detector="sim:0", workers=0))) as api:
             yield api, server
     finally:
         server.stop()

@@ -85,6 +85,7 @@ def deployment() -> Iterator[Deployment]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(
         store=server.url,
+        auth="none",
         detector="sim:0",
         workers=0,
         claim_min_idle_s=CLAIM_MIN_IDLE_S,

@@ -7,6 +7,9 @@
         for obj in client.list_objects("office", label="chair", min_score=0.5):
             print(obj["id"], obj["aabb"])     # confirmed objects; include_tentative=True for every object
 
+With API keys (``arcloud keys create``), give ``token=`` or set ``$ARCLOUD_TOKEN``: every request then
+carries ``Authorization: Bearer TOKEN``.
+
 Frames travel as protobuf (``arcloud.v1.Frame``: JPEG colour, 16-bit PNG depth in millimetres by
 default).
 
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import random
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -44,6 +48,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 PROTOBUF = "application/x-protobuf"
+TOKEN_ENV = "ARCLOUD_TOKEN"  # the API key token when none is given
 DEFAULT_TIMEOUT_S = 30.0
 
 #: Answers worth trying again: rate limited, or the service (or a proxy before it) unavailable for now.
@@ -52,6 +57,12 @@ RETRY_STATUSES = frozenset({429, 502, 503, 504})
 RETRY_ERRORS = (httpx.TimeoutException, httpx.NetworkError, httpx.RemoteProtocolError)
 #: Methods safe to send twice (a frame upload is too: ``idempotent=True``).
 IDEMPOTENT_METHODS = frozenset({"GET", "HEAD", "OPTIONS", "DELETE"})
+
+
+def auth_headers(token: str | None) -> dict[str, str]:
+    """``Authorization: Bearer`` with ``token``, else ``$ARCLOUD_TOKEN``; none when neither is set."""
+    token = token if token is not None else os.environ.get(TOKEN_ENV) or None
+    return {"Authorization": f"Bearer {token}"} if token else {}
 
 
 def frame_status_path(map_id: str, device_id: str, frame_id: str) -> str:
@@ -239,10 +250,12 @@ class ArcloudClient:
         backoff_s: float = 0.25,
         max_backoff_s: float = 10.0,
         seed: int | None = None,
+        token: str | None = None,
         http: httpx.Client | None = None,
     ) -> None:
         self.url = url.rstrip("/")
         self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
+        self.headers = auth_headers(token)
         self._owns = http is None
         self.http = http if http is not None else httpx.Client(base_url=self.url, timeout=timeout_s)
 
@@ -258,11 +271,12 @@ class ArcloudClient:
 
     def _request(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> dict[str, Any]:
         retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
+        headers = {**self.headers, **kwargs.pop("headers", {})}
         started = time.monotonic()
         for attempt in range(retries + 1):
             outcome: httpx.Response | Exception
             try:
-                outcome = self.http.request(method, path, **kwargs)
+                outcome = self.http.request(method, path, headers=headers, **kwargs)
             except RETRY_ERRORS as exc:
                 outcome = exc
             wait_s = _next_wait_s(self.retry, method, path, outcome, attempt, retries, started)
@@ -353,10 +367,12 @@ class AsyncArcloudClient:
         backoff_s: float = 0.25,
         max_backoff_s: float = 10.0,
         seed: int | None = None,
+        token: str | None = None,
         http: httpx.AsyncClient | None = None,
     ) -> None:
         self.url = url.rstrip("/")
         self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
+        self.headers = auth_headers(token)
         self._owns = http is None
         self.http = http if http is not None else httpx.AsyncClient(base_url=self.url, timeout=timeout_s)
 
@@ -372,11 +388,12 @@ class AsyncArcloudClient:
 
     async def _request(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> dict[str, Any]:
         retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
+        headers = {**self.headers, **kwargs.pop("headers", {})}
         started = time.monotonic()
         for attempt in range(retries + 1):
             outcome: httpx.Response | Exception
             try:
-                outcome = await self.http.request(method, path, **kwargs)
+                outcome = await self.http.request(method, path, headers=headers, **kwargs)
             except RETRY_ERRORS as exc:
                 outcome = exc
             wait_s = _next_wait_s(self.retry, method, path, outcome, attempt, retries, started)

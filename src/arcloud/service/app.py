@@ -10,12 +10,16 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/objects/{id}     any object, with its status; ?voxels=true
     DELETE /v1/maps/{map_id}
     GET    /v1/maps/{map_id}/stats
-    GET    /healthz  /readyz  /metrics
+    GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
+
+Map routes need a key (``service.access``, with auth keys): reading needs a reader, device or admin key
+of the map, uploading a device or admin key, deleting an admin key; 401 without a valid token, 403 for a
+key of another role or map, 429 (with Retry-After) over the key's or the map's rate.
 
 A map exists once a frame of it was accepted; unknown maps and objects answer 404. Listings serve
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
-``{"detail": ..., "field": ...}``: 413 body too large, 415 wrong content type, 422 invalid input,
+``{"detail": ..., "field": ...}``: 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
 503 store unreachable or queue full (with Retry-After).
 """
 
@@ -41,6 +45,7 @@ from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
 from arcloud.ports import QueueFull
 from arcloud.service import frames as frames_in
+from arcloud.service.access import Refused, require
 from arcloud.service.map_header import check_map_header
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
@@ -196,6 +201,7 @@ router = APIRouter()
 @router.post(
     "/v1/maps/{map_id}/frames",
     status_code=202,
+    dependencies=[Depends(require("write"))],
     response_model=FrameAccepted,
     summary="Upload one posed RGB-D frame",
     description="Validated in full, then queued; processing is asynchronous (see the map's stats). Posting a frame "
@@ -232,6 +238,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
 
 @router.get(
     "/v1/maps/{map_id}/frames/{device_id}/{frame_id}",
+    dependencies=[Depends(require("read"))],
     response_model=FrameState,
     response_model_exclude_none=True,
     responses=PROBLEM_RESPONSES,
@@ -259,6 +266,7 @@ def frame_status(map_id: MapId, device_id: str, frame_id: str, runtime: RuntimeD
 
 @router.get(
     "/v1/maps/{map_id}/objects",
+    dependencies=[Depends(require("read"))],
     response_model=ObjectList,
     responses=PROBLEM_RESPONSES,
     tags=["objects"],
@@ -295,6 +303,7 @@ def list_objects(
 
 @router.get(
     "/v1/maps/{map_id}/objects/{object_id}",
+    dependencies=[Depends(require("read"))],
     response_model=ObjectDetail,
     responses=PROBLEM_RESPONSES,
     tags=["objects"],
@@ -327,6 +336,7 @@ def get_object(
 @router.delete(
     "/v1/maps/{map_id}",
     response_model=MapDeleted,
+    dependencies=[Depends(require("admin"))],
     responses=PROBLEM_RESPONSES,
     tags=["maps"],
     summary="Delete a map and its counts",
@@ -341,6 +351,7 @@ def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
 
 @router.get(
     "/v1/maps/{map_id}/stats",
+    dependencies=[Depends(require("read"))],
     response_model=MapStats,
     responses=PROBLEM_RESPONSES,
     tags=["maps"],
@@ -432,6 +443,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     @app.exception_handler(InvalidInput)
     async def invalid_input(request: Request, exc: InvalidInput) -> JSONResponse:
         return problem(request, 422, str(exc), exc.field)
+
+    @app.exception_handler(Refused)
+    async def refused(request: Request, exc: Refused) -> JSONResponse:
+        return problem(request, exc.status, exc.detail, exc.field, exc.headers)
 
     @app.exception_handler(BodyTooLarge)
     async def too_large(request: Request, exc: BodyTooLarge) -> JSONResponse:

@@ -15,8 +15,10 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from arcloud.core.types import Params
-from arcloud.ports import Detector, FrameQueue, ObjectStore, UpdatePublisher
+from arcloud.errors import InvalidInput
+from arcloud.ports import Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
 from arcloud.service import frames as frames_in
+from arcloud.service.access import Access, KeyCache
 from arcloud.service.ingest import Ingest
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
@@ -40,13 +42,16 @@ class Closeable(Protocol):
 class Adapters:
     """What the composition root connected for one app. ``detector``: run the step in ``settings.workers``
     threads of this process (None: workers run elsewhere); ``pool``: worker processes to start and stop
-    with the app; ``owned``: closed on shutdown, last first."""
+    with the app; ``keys``: the API keys (None: auth none); ``limiter``: the rate limits (None: none);
+    ``owned``: closed on shutdown, last first."""
 
     store: ObjectStore
     queue: FrameQueue
     detector: Detector | None = None
     publisher: UpdatePublisher | None = None
     pool: WorkerPool | None = None
+    keys: KeyStore | None = None
+    limiter: RateLimiter | None = None
     owned: list[Closeable] = field(default_factory=list)
 
 
@@ -61,6 +66,7 @@ class Runtime:
     params: Params
     store: ObjectStore
     ingest: Ingest
+    access: Access
     detector: Detector | None = None
     publisher: UpdatePublisher | None = None
     owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
@@ -71,6 +77,16 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
     params = settings.make_params()
     holder: dict[str, Ingest] = {}
     adapters = connect(settings, lambda map_id, payload: ingest_published_frame(holder["ingest"], map_id, payload, settings))
+    if settings.auth_mode == "keys" and adapters.keys is None:
+        close_all(adapters.owned)
+        raise InvalidInput("auth", "a key store with auth keys (a Redis store or keys_file)", "none connected")
+    access = Access(
+        settings,
+        KeyCache(adapters.keys, settings.key_cache_s) if settings.auth_mode == "keys" and adapters.keys else None,
+        adapters.limiter,
+    )
+    if access.keys is None:
+        log.warning("auth none: anyone who reaches this service may read, write and delete every map")
     threads = []
     if adapters.detector is not None:
         threads = [
@@ -97,7 +113,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         close_all(adapters.owned)
         raise
     log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
-    return Runtime(settings, params, adapters.store, ingest, adapters.detector, adapters.publisher, adapters.owned)
+    return Runtime(settings, params, adapters.store, ingest, access, adapters.detector, adapters.publisher, adapters.owned)
 
 
 def stop_runtime(runtime: Runtime) -> None:

@@ -256,6 +256,9 @@ def object_out(obj: Any) -> dict[str, Any]:
 
 
 PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
+    401: {"model": Problem, "description": "no token, or not a valid key's (auth keys)"},
+    403: {"model": Problem, "description": "the key's role or maps do not allow this"},
+    429: {"model": Problem, "description": "over the key's or the map's rate limit (see Retry-After)"},
     404: {"model": Problem, "description": "unknown map or object"},
     409: {"model": Problem, "description": "the map was written under other settings (voxel size, up, ...) than this service's"},
     422: {"model": Problem, "description": "invalid input"},

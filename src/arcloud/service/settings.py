@@ -23,6 +23,7 @@ from arcloud.core.types import Params
 
 STORE_SCHEMES = ("redis", "rediss", "unix")
 ZenohMode = Literal["off", "peer", "client", "router"]
+AuthMode = Literal["keys", "none"]
 LogLevel = Literal["DEBUG", "INFO", "WARNING", "ERROR"]
 
 # Params fields that the settings set themselves (or that are not plain numbers/flags).
@@ -82,6 +83,27 @@ class Settings(BaseSettings):
     params: dict[str, Any] = Field(
         default_factory=dict, description='overrides of arcloud.core.types.Params, e.g. {"voxel_size_m": 0.04}'
     )
+    # access (arcloud.access): keys, roles and rate limits
+    auth: AuthMode | None = Field(
+        None,
+        description="`keys`: every route but /healthz, /readyz and /metrics needs `Authorization: Bearer TOKEN` "
+        "(`arcloud keys create`); `none`: open to anyone who reaches it. Default: keys with a Redis store or a keys "
+        "file, none for the embedded store (which `serve` binds to loopback only)",
+    )
+    keys_file: str | None = Field(
+        None, description="a JSON file of API keys (`arcloud keys create --file`); default with Redis: the keys in Redis"
+    )
+    key_cache_s: float = Field(
+        5.0, ge=0, description="how long the API reuses a key lookup: a created or revoked key takes effect within this"
+    )
+    key_rate_per_s: float = Field(
+        50.0, ge=0, description="requests a second per key (per client address with auth none), any route; 0: no limit"
+    )
+    key_burst: int = Field(100, ge=1, description="requests a key may send at once above its rate")
+    map_frame_rate_per_s: float = Field(
+        60.0, ge=0, description="frame uploads a second per map, from all its devices together; 0: no limit"
+    )
+    map_frame_burst: int = Field(120, ge=1, description="frame uploads a map may take at once above its rate")
     # Redis Streams ingest
     consumer_group: str = Field("arcloud-workers", min_length=1)
     claim_min_idle_s: float = Field(60.0, gt=0, description="a pending frame idle this long is claimed by another worker")
@@ -153,6 +175,8 @@ class Settings(BaseSettings):
             raise ValueError("workers: expected >= 1 with the memory store (nothing would process frames), got 0")
         if self.zenoh_mode == "off" and self.zenoh_frames:
             raise ValueError("zenoh_frames: needs zenoh_mode peer, client or router, got zenoh_mode off")
+        if self.auth == "keys" and self.embedded and not self.keys_file:
+            raise ValueError("auth: keys with the memory store needs keys_file (the embedded service keeps keys in a file)")
         if self.zenoh_mode == "client" and not self.zenoh_connect:
             raise ValueError("zenoh_connect: a Zenoh client needs at least one endpoint to connect to, got none")
         return self
@@ -162,6 +186,13 @@ class Settings(BaseSettings):
     def embedded(self) -> bool:
         """One process, the in-memory store, worker threads."""
         return self.store == "memory"
+
+    @property
+    def auth_mode(self) -> AuthMode:
+        """``auth``, or its default: keys with Redis or a keys file, none embedded."""
+        if self.auth is not None:
+            return self.auth
+        return "keys" if self.keys_file or not self.embedded else "none"
 
     def make_params(self) -> Params:
         """The frozen algorithm parameters these settings describe."""
@@ -206,4 +237,4 @@ def _coerce_param(name: str, value: object) -> object:
     raise ValueError(f"parameter {name}: cannot be set from settings")
 
 
-__all__ = ["Settings", "redact_url"]
+__all__ = ["AuthMode", "Settings", "redact_url"]

@@ -26,6 +26,9 @@ Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queu
     arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
 
+    arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
+    arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
+
 ``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too.
 """
 
@@ -131,3 +134,10 @@ INGEST_STREAM = f"{PREFIX}:ingest"
 INGEST_DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"
 INGEST_STATS = f"{INGEST_STREAM}:stats"
 INGEST_WORKERS = f"{INGEST_STREAM}:workers"
+
+API_KEYS = f"{PREFIX}:keys"
+
+
+def rate_key(bucket: str) -> str:
+    """A rate limit bucket (``key:<key id>``, ``ip:<address>``, ``map:<map id>:frames``)."""
+    return f"{PREFIX}:rate:{bucket}"

@@ -62,6 +62,7 @@ def replay(
     timeout_s: float = 1800.0,
     show_progress: bool = True,
     keep_map: bool = False,
+    token: str | None = None,
 ) -> dict[str, Any]:
     """Replay and score; writes the results JSON to ``out`` (unless None) and returns it. The map is
     deleted first (unless ``keep_map``) so that earlier frames do not count."""
@@ -82,7 +83,9 @@ def replay(
     rendered_s = time.perf_counter() - started
 
     sent_at = time.perf_counter()
-    sent, answers, stats, served, every = asyncio.run(_stream(url, map_id, frames, streams, timeout_s, show_progress, keep_map))
+    sent, answers, stats, served, every = asyncio.run(
+        _stream(url, map_id, frames, streams, timeout_s, show_progress, keep_map, token)
+    )
     processed_s = time.perf_counter() - sent_at
 
     ground_truth = [o.box for o in room.objects]
@@ -162,14 +165,21 @@ def _boxes(objects: list[dict[str, Any]]) -> list[Any]:
 
 
 async def _stream(
-    url: str, map_id: str, frames: list[Any], streams: list[list[int]], timeout_s: float, show_progress: bool, keep_map: bool
+    url: str,
+    map_id: str,
+    frames: list[Any],
+    streams: list[list[int]],
+    timeout_s: float,
+    show_progress: bool,
+    keep_map: bool,
+    token: str | None = None,
 ) -> tuple[int, list[str], dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
     """Upload every user's frames, wait until they are processed; returns (frames sent, answers, the
     map's stats, the served objects (a plain GET), every object)."""
     from tqdm import tqdm
 
     answers: list[str] = []
-    async with AsyncArcloudClient(url, max_retries=REPLAY_RETRIES) as client:
+    async with AsyncArcloudClient(url, max_retries=REPLAY_RETRIES, token=token) as client:
         if not keep_map:
             try:
                 await client.delete_map(map_id)

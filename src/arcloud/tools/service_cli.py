@@ -1,10 +1,10 @@
 """CLI commands of the service: ``serve``, ``worker`` and ``replay`` (``arcloud.cli`` adds them with
 ``add_service_commands(subparsers)``; each sets ``handler``). Adapters come from ``tools.wiring``.
 
-    arcloud serve                                        # embedded: one process, in-memory store
-    arcloud serve --redis redis://127.0.0.1:6379/0 --workers 4 --detector sim:0
+    arcloud serve                                        # embedded: one process, in-memory store, loopback only
+    arcloud serve --redis redis://127.0.0.1:6379/0 --workers 4 --detector sim:0   # API keys required
     arcloud worker --redis redis://redis:6379/0          # one more worker process (e.g. in a container)
-    arcloud replay --url http://127.0.0.1:8000 --map room0 --users 10 --seed 0 --out results.json
+    arcloud replay --url http://127.0.0.1:8000 --map room0 --users 10 --seed 0 --out results.json --token TOKEN
 
 Options left out come from ``ARCLOUD_*`` environment variables (``service.settings``).
 """
@@ -44,6 +44,13 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     serve.add_argument("--port", type=int, default=8000, help="port (default 8000)")
     serve.add_argument(
+        "--auth",
+        choices=("keys", "none"),
+        help="keys: map routes need a token (`arcloud keys create`); none: open. Default: keys with --redis or "
+        "--keys-file, none embedded (then only on a loopback --host)",
+    )
+    serve.add_argument("--keys-file", metavar="PATH", help="API keys in this file (`arcloud keys create --file`)")
+    serve.add_argument(
         "--workers", type=non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2"
     )
     _store_options(serve)
@@ -73,6 +80,11 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
     replay.add_argument(
         "--out", type=Path, default=Path("results.json"), help="results JSON (default results.json): scores, counts, ground truth"
     )
+    replay.add_argument(
+        "--token",
+        default=None,
+        help="API key token (default $ARCLOUD_TOKEN): an admin key of the map (replay deletes the map first)",
+    )
     replay.add_argument("--no-progress", action="store_true", help="no progress bar")
     replay.set_defaults(handler=run_replay_command)
 
@@ -90,6 +102,10 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         overrides["workers"] = args.workers
     if args.params is not None:
         overrides["params"] = args.params
+    if getattr(args, "auth", None):
+        overrides["auth"] = args.auth
+    if getattr(args, "keys_file", None):
+        overrides["keys_file"] = args.keys_file
     if args.zenoh_listen:
         overrides["zenoh_listen"] = args.zenoh_listen
     if args.zenoh_connect:
@@ -136,12 +152,35 @@ def run_serve(args: argparse.Namespace) -> int:
     from arcloud.tools.wiring import check_model_file, create_app
 
     settings = settings_from_args(args)
+    check_exposure(settings, args.host)
     if settings.embedded or settings.workers > 0:
         check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
     logging.getLogger("arcloud").setLevel(settings.log_level)
     app = create_app(settings)
     uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(), ws="none", lifespan="on")
     return 0
+
+
+def check_exposure(settings: Any, host: str) -> None:
+    """Refuse to serve without keys beyond loopback unless ``--auth none`` was asked for (then warn)."""
+    import ipaddress
+
+    from arcloud.errors import ArcloudError
+
+    if settings.auth_mode != "none":
+        return
+    try:
+        loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = False
+    if loopback:
+        return
+    if settings.auth is None:
+        raise ArcloudError(
+            f"--host {host} exposes the service beyond this machine without API keys: give --keys-file FILE "
+            "(`arcloud keys create --file FILE ...`) or --redis URL, or --auth none to serve it open on purpose"
+        )
+    logging.getLogger("arcloud").warning("--auth none on %s: anyone who reaches it may read, write and delete every map", host)
 
 
 def run_worker_command(args: argparse.Namespace) -> int:
@@ -170,6 +209,7 @@ def run_replay_command(args: argparse.Namespace) -> int:
         height=height,
         timeout_s=args.timeout,
         show_progress=not args.no_progress,
+        token=args.token,
     )
     row = results["table1"][0]
     frames = results["frames"]

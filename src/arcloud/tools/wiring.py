@@ -26,7 +26,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from arcloud.errors import InvalidInput, StoreUnavailable
-from arcloud.ports import Detector, FrameQueue, ObjectStore, UpdatePublisher
+from arcloud.ports import Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
 from arcloud.service import app as service_app
 from arcloud.service.pool import WorkerPool
 from arcloud.service.runtime import Adapters, Closeable, FrameHandler, close_all
@@ -148,6 +148,39 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
     )
 
 
+def build_key_store(settings: Settings, store: ObjectStore | None = None) -> KeyStore | None:
+    """The API keys: ``keys_file``, else Redis's (on ``store``'s connections when it is a ``RedisStore``);
+    None with auth none."""
+    if settings.auth_mode == "none":
+        return None
+    if settings.keys_file:
+        from arcloud.stores.file_api_keys import FileKeyStore
+
+        return FileKeyStore(settings.keys_file)
+    from arcloud.stores.redis import RedisStore
+    from arcloud.stores.redis_api_keys import RedisKeyStore
+
+    if isinstance(store, RedisStore):
+        return RedisKeyStore(client=store.client)
+    return RedisKeyStore(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+
+
+def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> RateLimiter | None:
+    """In memory (embedded) or on Redis (shared by every API process); None when both limits are off."""
+    if settings.key_rate_per_s <= 0 and settings.map_frame_rate_per_s <= 0:
+        return None
+    if settings.embedded:
+        from arcloud.stores.memory_rate import MemoryRateLimiter
+
+        return MemoryRateLimiter()
+    from arcloud.stores.redis import RedisStore
+    from arcloud.stores.redis_rate import RedisRateLimiter
+
+    if isinstance(store, RedisStore):
+        return RedisRateLimiter(client=store.client)
+    return RedisRateLimiter(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+
+
 def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandler | None) -> UpdatePublisher | None:
     """The API's Zenoh session (answering map queries from ``store``; taking published frames when
     ``zenoh_frames``), or None when Zenoh is off."""
@@ -209,6 +242,10 @@ def connect(
         if queue is None:
             queue = build_queue(settings, store=store)
             _own(owned, queue)
+        keys = build_key_store(settings, store)
+        _own(owned, keys)
+        limiter = build_rate_limiter(settings, store)
+        _own(owned, limiter)
         pool = None
         if settings.embedded:
             if detector is None:
@@ -218,7 +255,7 @@ def connect(
     except BaseException:
         close_all(owned)
         raise
-    return Adapters(store, queue, detector, publisher, pool, owned)
+    return Adapters(store, queue, detector, publisher, pool, keys, limiter, owned)
 
 
 def _own(owned: list[Closeable], thing: Any) -> None:
@@ -332,8 +369,10 @@ def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0
 
 __all__ = [
     "build_detector",
+    "build_key_store",
     "build_publisher",
     "build_queue",
+    "build_rate_limiter",
     "build_store",
     "check_detector_spec",
     "check_model_file",

@@ -1,0 +1,140 @@
+"""API keys and what each role may do: pure functions, no I/O (the stores keep keys, the service checks them).
+
+A token is ``arc_<id>_<secret>``: ``id`` (12 hex digits) names the key and is shown by ``arcloud keys
+list``; ``secret`` (43 URL-safe characters, 256 random bits) is printed once at creation and stored only as
+its SHA-256. A salted slow hash protects guessable passwords; a 256-bit random secret cannot be guessed,
+so one SHA-256 is enough, and comparing digests in constant time leaks nothing.
+
+Roles, each on its maps (a list of map ids, or ``*`` for every map):
+
+    reader   read: objects, stats, frame status
+    device   read, and write: upload frames
+    admin    read, write, and admin: delete maps
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import re
+import secrets
+from dataclasses import dataclass
+from typing import Literal, cast
+
+from arcloud.core.checks import check_map_id
+from arcloud.core.errors import InvalidInput
+
+Role = Literal["device", "reader", "admin"]
+Action = Literal["read", "write", "admin"]
+ROLES: tuple[Role, ...] = ("device", "reader", "admin")
+ALL_MAPS = "*"
+
+#: What each role may do.
+ROLE_ACTIONS: dict[str, frozenset[str]] = {
+    "reader": frozenset({"read"}),
+    "device": frozenset({"read", "write"}),
+    "admin": frozenset({"read", "write", "admin"}),
+}
+
+TOKEN_PREFIX = "arc"
+_TOKEN = re.compile(r"arc_([0-9a-f]{12})_([A-Za-z0-9_-]{43})")
+
+
+@dataclass(frozen=True, slots=True)
+class ApiKey:
+    """A key as stored: never its secret, only the secret's SHA-256 (hex)."""
+
+    id: str
+    role: Role
+    maps: tuple[str, ...]  # map ids, or (ALL_MAPS,)
+    created_at_s: float
+    secret_sha256: str
+    name: str = ""
+
+    def allows(self, action: Action, map_id: str | None) -> bool:
+        """Whether this key may do ``action`` on ``map_id`` (None: a route of no map, allowed for ``*`` keys)."""
+        if action not in ROLE_ACTIONS[self.role]:
+            return False
+        return ALL_MAPS in self.maps or (map_id is not None and map_id in self.maps)
+
+    def to_record(self) -> dict[str, object]:
+        """The key as a JSON-able dict (what the stores write)."""
+        return {
+            "id": self.id,
+            "role": self.role,
+            "maps": list(self.maps),
+            "created_at_s": self.created_at_s,
+            "secret_sha256": self.secret_sha256,
+            "name": self.name,
+        }
+
+    @staticmethod
+    def from_record(record: dict[str, object]) -> ApiKey:
+        role = str(record["role"])
+        if role not in ROLES:
+            raise InvalidInput("role", f"one of {', '.join(ROLES)}", repr(role))
+        maps = record["maps"]
+        return ApiKey(
+            id=str(record["id"]),
+            role=role,
+            maps=tuple(str(m) for m in maps) if isinstance(maps, list) else (),
+            created_at_s=float(cast(float, record["created_at_s"])),
+            secret_sha256=str(record["secret_sha256"]),
+            name=str(record.get("name", "")),
+        )
+
+
+def parse_maps(text: str) -> tuple[str, ...]:
+    """``M1,M2`` or ``*`` -> the key's maps, each a valid map id (``InvalidInput`` otherwise)."""
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    if not names:
+        raise InvalidInput("maps", "a comma-separated list of map ids, or '*'", repr(text))
+    if ALL_MAPS in names:
+        if len(names) > 1:
+            raise InvalidInput("maps", "'*' alone, or map ids", repr(text))
+        return (ALL_MAPS,)
+    for name in names:
+        check_map_id("maps", name)
+    return tuple(dict.fromkeys(names))
+
+
+def new_key(role: str, maps: tuple[str, ...], *, now_s: float, name: str = "") -> tuple[ApiKey, str]:
+    """A new key and its token (the only time the token exists in clear)."""
+    if role not in ROLES:
+        raise InvalidInput("role", f"one of {', '.join(ROLES)}", repr(role))
+    if not maps:
+        raise InvalidInput("maps", "at least one map id, or '*'", "none")
+    key_id = secrets.token_hex(6)
+    secret = secrets.token_urlsafe(32)
+    key = ApiKey(key_id, role, maps, now_s, secret_digest(secret), name)
+    return key, f"{TOKEN_PREFIX}_{key_id}_{secret}"
+
+
+def secret_digest(secret: str) -> str:
+    return hashlib.sha256(secret.encode()).hexdigest()
+
+
+def split_token(token: str) -> tuple[str, str] | None:
+    """``arc_<id>_<secret>`` -> (id, secret); None for anything else."""
+    found = _TOKEN.fullmatch(token)
+    return (found.group(1), found.group(2)) if found else None
+
+
+def verify(key: ApiKey, secret: str) -> bool:
+    """Whether ``secret`` is the key's (constant time)."""
+    return hmac.compare_digest(secret_digest(secret), key.secret_sha256)
+
+
+__all__ = [
+    "ALL_MAPS",
+    "ROLES",
+    "ROLE_ACTIONS",
+    "Action",
+    "ApiKey",
+    "Role",
+    "new_key",
+    "parse_maps",
+    "secret_digest",
+    "split_token",
+    "verify",
+]

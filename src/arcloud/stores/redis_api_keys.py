@@ -1,0 +1,49 @@
+"""API keys in Redis, shared by every API process: one HASH ``arcloud:keys``, key id -> the key's JSON
+record (``ApiKey.to_record``: the secret's SHA-256, never the secret). ``revoke`` deletes the field, so
+a revoked key fails at the next lookup of every process."""
+
+from __future__ import annotations
+
+import json
+
+import redis
+
+from arcloud.access import ApiKey
+from arcloud.errors import StoreError, StoreUnavailable
+from arcloud.stores.keys import API_KEYS
+from arcloud.stores.redis import connect_redis
+
+
+class RedisKeyStore:
+    """``KeyStore`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
+
+    def __init__(self, url: str = "", *, client: redis.Redis | None = None, reply_timeout_s: float = 5.0) -> None:
+        self._owns_client = client is None
+        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
+
+    def close(self) -> None:
+        if self._owns_client:
+            self.client.close()
+
+    def _call(self, doing: str, method: str, *args: object) -> object:
+        try:
+            return getattr(self.client, method)(*args)
+        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
+            raise StoreUnavailable(f"cannot {doing}: Redis unreachable ({exc})") from exc
+        except redis.exceptions.RedisError as exc:
+            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
+
+    def add(self, key: ApiKey) -> None:
+        self._call("store the key", "hset", API_KEYS, key.id, json.dumps(key.to_record()))
+
+    def find(self, key_id: str) -> ApiKey | None:
+        raw = self._call("look the key up", "hget", API_KEYS, key_id)
+        return ApiKey.from_record(json.loads(raw)) if isinstance(raw, (bytes, str)) else None
+
+    def list_keys(self) -> list[ApiKey]:
+        raw = self._call("list the keys", "hgetall", API_KEYS)
+        keys = [ApiKey.from_record(json.loads(v)) for v in raw.values()]  # type: ignore[attr-defined]  # HGETALL answers a dict
+        return sorted(keys, key=lambda k: (k.created_at_s, k.id))
+
+    def revoke(self, key_id: str) -> bool:
+        return bool(self._call("revoke the key", "hdel", API_KEYS, key_id))

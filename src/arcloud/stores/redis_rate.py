@@ -1,0 +1,32 @@
+"""Rate limits on Redis, shared by every API process: one GCRA step per request in ``lua/rate_limit.lua``
+(one key per bucket, ``keys.rate_key``, expiring once the bucket is full again)."""
+
+from __future__ import annotations
+
+import redis
+
+from arcloud.errors import StoreError, StoreUnavailable
+from arcloud.stores.keys import rate_key
+from arcloud.stores.redis import connect_redis, lua_source
+
+
+class RedisRateLimiter:
+    """``RateLimiter`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
+
+    def __init__(self, url: str = "", *, client: redis.Redis | None = None, reply_timeout_s: float = 2.0) -> None:
+        self._owns_client = client is None
+        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
+        self._script = self.client.register_script(lua_source("rate_limit"))
+
+    def close(self) -> None:
+        if self._owns_client:
+            self.client.close()
+
+    def take(self, bucket: str, *, rate_per_s: float, burst: int) -> float:
+        try:
+            wait = self._script(keys=[rate_key(bucket)], args=[repr(float(rate_per_s)), int(burst)])
+        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
+            raise StoreUnavailable(f"cannot check the rate limit: Redis unreachable ({exc})") from exc
+        except redis.exceptions.RedisError as exc:
+            raise StoreError(f"cannot check the rate limit: Redis failed ({exc})") from exc
+        return float(wait)

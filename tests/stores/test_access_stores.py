@@ -1,0 +1,115 @@
+"""The key stores (a JSON file, Redis) and the rate limiters (memory, Redis), each against the same
+expectations; the Redis ones on a real redis-server."""
+
+from __future__ import annotations
+
+import json
+import stat
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from redis_server import RedisServer
+
+from arcloud.access import new_key
+from arcloud.errors import StoreError
+from arcloud.ports import KeyStore, RateLimiter
+from arcloud.stores.file_api_keys import FileKeyStore
+from arcloud.stores.memory_rate import MemoryRateLimiter
+from arcloud.stores.redis_api_keys import RedisKeyStore
+from arcloud.stores.redis_rate import RedisRateLimiter
+
+
+@pytest.fixture(params=["file", pytest.param("redis", marks=pytest.mark.redis)])
+def key_store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[KeyStore]:
+    if request.param == "file":
+        yield FileKeyStore(tmp_path / "keys.json")
+        return
+    server: RedisServer = request.getfixturevalue("redis_server")
+    store = RedisKeyStore(server.url)
+    store.client.flushdb()
+    yield store
+    store.close()
+
+
+def test_keys_are_added_found_listed_and_revoked(key_store: KeyStore) -> None:
+    first, _ = new_key("device", ("a", "b"), now_s=1.0, name="tablet")
+    second, _ = new_key("admin", ("*",), now_s=2.0)
+    assert key_store.find(first.id) is None and key_store.list_keys() == []
+    key_store.add(first)
+    key_store.add(second)
+    assert key_store.find(first.id) == first
+    assert [k.id for k in key_store.list_keys()] == [first.id, second.id]
+    assert key_store.revoke(first.id) is True
+    assert key_store.revoke(first.id) is False
+    assert key_store.find(first.id) is None and key_store.list_keys() == [second]
+
+
+def test_the_keys_file_holds_digests_only_is_private_and_survives_concurrent_writers(tmp_path: Path) -> None:
+    path = tmp_path / "keys.json"
+    created: list[tuple[str, str]] = []
+
+    def create(index: int) -> None:
+        key, token = new_key("reader", (f"m{index}",), now_s=float(index))
+        FileKeyStore(path).add(key)  # each writer its own instance, as separate `keys create` runs are
+        created.append((key.id, token))
+
+    threads = [threading.Thread(target=create, args=(i,)) for i in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    reader = FileKeyStore(path)
+    assert sorted(k.id for k in reader.list_keys()) == sorted(key_id for key_id, _ in created)  # no write lost
+    text = path.read_text()
+    assert all(token.split("_", 2)[2] not in text for _, token in created)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    # A key revoked by another writer (the CLI) is gone at the reader's next lookup.
+    FileKeyStore(path).revoke(created[0][0])
+    assert reader.find(created[0][0]) is None
+
+
+def test_a_corrupt_keys_file_is_an_error_not_an_open_door(tmp_path: Path) -> None:
+    path = tmp_path / "keys.json"
+    path.write_text(json.dumps({"keys": [{"id": "x"}]}))
+    with pytest.raises(StoreError, match="keys file"):
+        FileKeyStore(path).find("x")
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_memory_limiter_allows_a_burst_then_the_rate() -> None:
+    clock = Clock()
+    limiter = MemoryRateLimiter(clock)
+    assert [limiter.take("k", rate_per_s=2.0, burst=3) for _ in range(3)] == [0.0, 0.0, 0.0]
+    assert limiter.take("k", rate_per_s=2.0, burst=3) == pytest.approx(0.5)
+    assert limiter.take("other", rate_per_s=2.0, burst=3) == 0.0  # buckets are independent
+    clock.now += 0.5
+    assert limiter.take("k", rate_per_s=2.0, burst=3) == 0.0
+    assert limiter.take("k", rate_per_s=2.0, burst=3) == pytest.approx(0.5)
+    clock.now += 10  # a long pause refills the burst, no more
+    assert [limiter.take("k", rate_per_s=2.0, burst=3) for _ in range(4)][-1] == pytest.approx(0.5)
+
+
+@pytest.mark.redis
+def test_redis_limiter_is_shared_by_every_client(redis_server: RedisServer) -> None:
+    first, second = RedisRateLimiter(redis_server.url), RedisRateLimiter(redis_server.url)
+    first.client.flushdb()
+    try:
+        limiters: list[RateLimiter] = [first, second]
+        answers = [limiters[i % 2].take("key:shared", rate_per_s=1.0, burst=4) for i in range(6)]
+        assert answers[:4] == [0.0] * 4  # the burst, spent by both processes together
+        assert 0.0 < answers[4] <= 1.0 and 0.0 < answers[5] <= 1.0  # refused: nothing spent
+        assert first.take("key:other", rate_per_s=1.0, burst=4) == 0.0
+        ttl_ms = first.client.pttl("arcloud:rate:key:shared")
+        assert 0 < ttl_ms <= 4001  # the key goes once the bucket is full again
+    finally:
+        first.close()
+        second.close()
