@@ -21,7 +21,6 @@ import secrets
 from dataclasses import dataclass
 from typing import Literal, cast
 
-from arcloud.core.checks import check_map_id
 from arcloud.core.errors import InvalidInput
 
 Role = Literal["device", "reader", "admin"]
@@ -89,6 +88,8 @@ def parse_maps(text: str) -> tuple[str, ...]:
     names = tuple(part.strip() for part in text.split(",") if part.strip())
     if not names:
         raise InvalidInput("maps", "a comma-separated list of map ids, or '*'", repr(text))
+    from arcloud.core.checks import check_map_id  # here: the CLI imports this module and must not load numpy
+
     if ALL_MAPS in names:
         if len(names) > 1:
             raise InvalidInput("maps", "'*' alone, or map ids", repr(text))

@@ -16,10 +16,13 @@ import argparse
 import os
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from arcloud.access import ROLES, new_key, parse_maps
 from arcloud.errors import ArcloudError, InvalidInput
-from arcloud.ports import KeyStore
+
+if TYPE_CHECKING:
+    from arcloud.ports import KeyStore
 
 
 def add_keys_commands(subparsers: argparse._SubParsersAction) -> None:
