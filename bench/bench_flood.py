@@ -1,0 +1,220 @@
+"""A flood on one map against another map's uploads: does the per-map rate limit keep them apart?
+
+`arcloud serve --redis` runs in its own process (uvicorn, API keys on, one worker process with the
+simulator's detector) with a per-map upload limit of ``--map-rate`` frames a second. Map ``calm`` posts
+``--calm-rate`` frames a second (under its limit) from one device key; in the flood phases map ``flooded``
+also posts at ``--flood-factor`` times its limit from another key. Phases alternate (calm alone, calm
+with the flood, ...) so that the machine's drift hits both alike. Reported: the calm map's POST latency
+(p50, p99) in each kind of phase and their ratio (target: flood p99 <= 2x calm p99), and what the flood got
+(429s, 202s). Writes ``bench/results/flood.json``.
+
+    .venv/bin/python bench/bench_flood.py [--rounds 2] [--phase-s 15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import Redis, environment, free_port, write_json
+
+OUT = Path(__file__).parent / "results" / "flood.json"
+
+
+def frame_bodies(map_id: str, n: int, device_id: str) -> list[bytes]:
+    """``n`` small posed frames (160 x 120: a far wall and a near box) as protobuf bodies."""
+    from arcloud.core.checks import make_frame
+    from arcloud.proto.convert import frame_to_proto
+
+    depth = np.full((120, 160), 3.0, np.float32)
+    depth[30:80, 20:70] = 2.0
+    rgb = np.full((120, 160, 3), 90, np.uint8)
+    bodies = []
+    for i in range(n):
+        pose = np.eye(4)
+        pose[0, 3] = 0.01 * (i % 100)
+        frame = make_frame(
+            rgb,
+            depth,
+            (130.0, 130.0, 79.5, 59.5),
+            pose,
+            timestamp_s=i / 30,
+            map_id=map_id,
+            device_id=device_id,
+            frame_id=f"f{i:06d}",
+        )
+        bodies.append(frame_to_proto(frame).SerializeToString())
+    return bodies
+
+
+def post_at_rate(
+    url: str, token: str, map_id: str, bodies: list[bytes], rate_per_s: float, seconds: float, out: list[tuple[float, int]]
+) -> None:
+    """Post ``bodies`` in turn at ``rate_per_s`` (open loop: a slow answer does not slow the schedule down,
+    up to 32 requests in flight) for ``seconds``; appends (latency s, status) per request."""
+    headers = {"content-type": "application/x-protobuf", "authorization": f"Bearer {token}"}
+    lock = threading.Lock()
+    with httpx.Client(base_url=url, timeout=30, limits=httpx.Limits(max_connections=32)) as http:
+        started = time.perf_counter()
+        threads: list[threading.Thread] = []
+
+        def post(body: bytes) -> None:
+            sent = time.perf_counter()
+            status = http.post(f"/v1/maps/{map_id}/frames", content=body, headers=headers).status_code
+            with lock:
+                out.append((time.perf_counter() - sent, status))
+
+        for i in range(int(seconds * rate_per_s)):
+            time.sleep(max(0.0, started + i / rate_per_s - time.perf_counter()))
+            threads = [t for t in threads if t.is_alive()]
+            while len(threads) >= 32:
+                time.sleep(0.001)
+                threads = [t for t in threads if t.is_alive()]
+            thread = threading.Thread(target=post, args=(bodies[i % len(bodies)],), daemon=True)
+            thread.start()
+            threads.append(thread)
+        for thread in threads:
+            thread.join(30)
+
+
+def percentiles_ms(latencies_s: list[float]) -> dict[str, float]:
+    values = np.asarray(latencies_s) * 1000
+    return {
+        "p50_ms": round(float(np.percentile(values, 50)), 1),
+        "p99_ms": round(float(np.percentile(values, 99)), 1),
+        "n": int(values.size),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=2, help="calm/flood phase pairs (default 2)")
+    parser.add_argument("--phase-s", type=float, default=15.0, help="seconds per phase (default 15)")
+    parser.add_argument("--map-rate", type=float, default=5.0, help="per-map upload limit, frames/s (default 5)")
+    parser.add_argument("--calm-rate", type=float, default=4.0, help="the calm map's uploads, frames/s (default 4)")
+    parser.add_argument("--flood-factor", type=float, default=10.0, help="the flood, in multiples of the limit (default 10)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args()
+
+    from arcloud.access import new_key
+    from arcloud.stores.redis_api_keys import RedisKeyStore
+
+    redis = Redis()
+    try:
+        keys = RedisKeyStore(redis.url)
+        calm_key, calm_token = new_key("device", ("calm",), now_s=time.time())
+        flood_key, flood_token = new_key("device", ("flooded",), now_s=time.time())
+        keys.add(calm_key)
+        keys.add(flood_key)
+        keys.close()
+        port = free_port()
+        url = f"http://127.0.0.1:{port}"
+        env = {
+            **os.environ,
+            "ARCLOUD_MAP_FRAME_RATE_PER_S": str(args.map_rate),
+            "ARCLOUD_MAP_FRAME_BURST": str(int(2 * args.map_rate)),
+            "ARCLOUD_KEY_RATE_PER_S": str(4 * args.map_rate * args.flood_factor),  # the map's limit acts, not the key's
+            "ARCLOUD_MAX_QUEUED_FRAMES": "100000",
+            "ARCLOUD_LOG_LEVEL": "WARNING",
+        }
+        server = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "arcloud.cli",
+                "serve",
+                "--redis",
+                redis.url,
+                "--workers",
+                "1",
+                "--detector",
+                "sim:0",
+                "--port",
+                str(port),
+            ],
+            env=env,
+        )
+        try:
+            deadline = time.time() + 120
+            while time.time() < deadline:
+                try:
+                    if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                time.sleep(0.2)
+            else:
+                raise SystemExit("the service did not become ready in 120 s")
+            calm_bodies = frame_bodies("calm", 200, "calm-device")
+            flood_bodies = frame_bodies("flooded", 200, "flood-device")
+            calm: dict[str, list[float]] = {"calm": [], "flood": []}
+            flood_answers: list[tuple[float, int]] = []
+            calm_refused = 0
+            for _round in range(args.rounds):
+                for phase in ("calm", "flood"):
+                    answers: list[tuple[float, int]] = []
+                    flooder = None
+                    if phase == "flood":
+                        flooder = threading.Thread(
+                            target=post_at_rate,
+                            args=(
+                                url,
+                                flood_token,
+                                "flooded",
+                                flood_bodies,
+                                args.map_rate * args.flood_factor,
+                                args.phase_s,
+                                flood_answers,
+                            ),
+                        )
+                        flooder.start()
+                    post_at_rate(url, calm_token, "calm", calm_bodies, args.calm_rate, args.phase_s, answers)
+                    if flooder is not None:
+                        flooder.join()
+                    calm[phase] += [latency for latency, status in answers if status == 202]
+                    calm_refused += sum(1 for _, status in answers if status != 202)
+                    time.sleep(2.0)  # the flood's bucket refills; the queue drains a little
+        finally:
+            server.terminate()
+            server.wait(60)
+    finally:
+        redis.stop()
+    normal, flooded = percentiles_ms(calm["calm"]), percentiles_ms(calm["flood"])
+    statuses = [status for _, status in flood_answers]
+    result: dict[str, Any] = {
+        **environment(("arcloud", "numpy", "fastapi", "uvicorn", "redis")),
+        "settings": vars(args) | {"out": str(args.out)},
+        "calm_map_post_latency": {"alone": normal, "during_flood": flooded},
+        "p99_ratio": round(flooded["p99_ms"] / normal["p99_ms"], 3),
+        "p50_ratio": round(flooded["p50_ms"] / normal["p50_ms"], 3),
+        "calm_map_refused": calm_refused,
+        "flood": {
+            "sent": len(statuses),
+            "accepted_202": statuses.count(202),
+            "refused_429": statuses.count(429),
+            "other": len(statuses) - statuses.count(202) - statuses.count(429),
+            "refusal_p50_ms": percentiles_ms([latency for latency, status in flood_answers if status == 429])["p50_ms"]
+            if 429 in statuses
+            else None,
+        },
+    }
+    write_json(args.out, result)
+    print(
+        f"calm map POST p50/p99: {normal['p50_ms']}/{normal['p99_ms']} ms alone, {flooded['p50_ms']}/{flooded['p99_ms']} ms during "
+        f"the flood (p99 x{result['p99_ratio']}); flood: {result['flood']['accepted_202']} accepted, {result['flood']['refused_429']} refused (429) "
+        f"of {len(statuses)}; calm refused {calm_refused}"
+    )
+
+
+if __name__ == "__main__":
+    main()
