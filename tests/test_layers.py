@@ -21,6 +21,7 @@ PACKAGE = Path(arcloud.__file__).parent
 LAYER = {
     "core": 0,
     "errors": 1, "argtypes": 1, "allocator": 1, "access": 1,
+    "formats": 2,
     "ports": 2, "proto": 2,
     "stores": 3, "detectors": 3, "events": 3,
     "service": 4, "client": 4,

@@ -1,4 +1,4 @@
-"""The `arcloud` command line: demo, eval, serve, worker, replay, keys."""
+"""The `arcloud` command line: demo, eval, serve, worker, replay, keys, export."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 from arcloud.accuracy.cli import add_eval_commands
 from arcloud.allocator import keep_freed_memory
 from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
+from arcloud.tools.export_cli import add_export_command
 from arcloud.tools.keys_cli import add_keys_commands
 from arcloud.tools.service_cli import add_service_commands
 
@@ -63,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_eval_commands(subparsers)
     add_service_commands(subparsers)
     add_keys_commands(subparsers)
+    add_export_command(subparsers)
     return parser
 
 

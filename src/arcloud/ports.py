@@ -113,6 +113,15 @@ class ObjectStore(MapStore, Protocol):
         """The map's stored header; None when nothing opened the map yet."""
         ...
 
+    def list_maps(self) -> dict[str, float]:
+        """Every map opened (and not deleted): map id -> when its objects last changed (Unix seconds; when it
+        was opened, before any)."""
+        ...
+
+    def count_objects(self, map_id: str) -> int:
+        """How many objects the map holds (0 for an unknown map)."""
+        ...
+
 
 # --- the frame queue ---------------------------------------------------------------------------------
 #: Upper bounds (seconds) of the step latency histogram's buckets (+Inf implied).

@@ -50,6 +50,7 @@ log = logging.getLogger(__name__)
 PROTOBUF = "application/x-protobuf"
 TOKEN_ENV = "ARCLOUD_TOKEN"  # the API key token when none is given
 DEFAULT_TIMEOUT_S = 30.0
+MAPS_PAGE = 500  # maps a page of list_maps asks for
 
 #: Answers worth trying again: rate limited, or the service (or a proxy before it) unavailable for now.
 RETRY_STATUSES = frozenset({429, 502, 503, 504})
@@ -134,17 +135,30 @@ def object_query(
     return params
 
 
+def export_query(fmt: str, options: Mapping[str, str | bool]) -> dict[str, str]:
+    return {"format": fmt, **{k: (str(v).lower() if isinstance(v, bool) else v) for k, v in options.items()}}
+
+
+def maps_query(page_size: int, cursor: str | None) -> dict[str, str]:
+    return {"limit": str(page_size), **({"cursor": cursor} if cursor is not None else {})}
+
+
 def checked(response: httpx.Response) -> dict[str, Any]:
     """The JSON object of a 2xx response; ``ServiceError`` otherwise."""
     if response.is_success:
         body: dict[str, Any] = response.json()
         return body
+    raise service_error(response)
+
+
+def service_error(response: httpx.Response) -> ServiceError:
+    """The ``ServiceError`` of a refusal (its JSON problem, or the start of its text)."""
     try:
         body = response.json()
         detail, field = str(body.get("detail")), body.get("field")
     except ValueError:
         detail, field = response.text[:500], None
-    raise ServiceError(response.status_code, detail, field)
+    return ServiceError(response.status_code, detail, field)
 
 
 def retry_after_s(response: httpx.Response, default_s: float = 1.0) -> float:
@@ -270,6 +284,10 @@ class ArcloudClient:
         self.close()
 
     def _request(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> dict[str, Any]:
+        return checked(self._send(method, path, idempotent=idempotent, **kwargs))
+
+    def _send(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> httpx.Response:
+        """The final response (after retries), whatever its status."""
         retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
         headers = {**self.headers, **kwargs.pop("headers", {})}
         started = time.monotonic()
@@ -282,7 +300,7 @@ class ArcloudClient:
             wait_s = _next_wait_s(self.retry, method, path, outcome, attempt, retries, started)
             if wait_s is None:
                 assert isinstance(outcome, httpx.Response)  # only a response is final
-                return checked(outcome)
+                return outcome
             time.sleep(wait_s)
         raise AssertionError("unreachable")
 
@@ -323,6 +341,25 @@ class ArcloudClient:
 
     def stats(self, map_id: str) -> dict[str, Any]:
         return self._request("GET", f"/v1/maps/{map_id}/stats")
+
+    def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
+        """The map as a file's bytes (``GET /v1/maps/{map}/export``): ``fmt`` json, ply, glb or scannet (a zip);
+        ``options``: include="tentative", color="class", voxels=True."""
+        response = self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options))
+        if not response.is_success:
+            raise service_error(response)
+        return response.content
+
+    def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[dict[str, Any]]:
+        """Every map the token may read, by id (``GET /v1/maps``, page after page)."""
+        maps: list[dict[str, Any]] = []
+        cursor: str | None = None
+        while True:
+            page = self._request("GET", "/v1/maps", params=maps_query(page_size, cursor))
+            maps += page["maps"]
+            cursor = page["next_cursor"]
+            if cursor is None:
+                return maps
 
     def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
         """Poll the map's stats until ``n_frames`` frames are done (processed or failed); returns the
@@ -387,6 +424,9 @@ class AsyncArcloudClient:
         await self.aclose()
 
     async def _request(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> dict[str, Any]:
+        return checked(await self._send(method, path, idempotent=idempotent, **kwargs))
+
+    async def _send(self, method: str, path: str, *, idempotent: bool = False, **kwargs: Any) -> httpx.Response:
         retries = self.retry.max_retries if self.retry.retryable(method, idempotent) else 0
         headers = {**self.headers, **kwargs.pop("headers", {})}
         started = time.monotonic()
@@ -399,7 +439,7 @@ class AsyncArcloudClient:
             wait_s = _next_wait_s(self.retry, method, path, outcome, attempt, retries, started)
             if wait_s is None:
                 assert isinstance(outcome, httpx.Response)  # only a response is final
-                return checked(outcome)
+                return outcome
             await asyncio.sleep(wait_s)
         raise AssertionError("unreachable")
 
@@ -442,6 +482,22 @@ class AsyncArcloudClient:
 
     async def stats(self, map_id: str) -> dict[str, Any]:
         return await self._request("GET", f"/v1/maps/{map_id}/stats")
+
+    async def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
+        response = await self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options))
+        if not response.is_success:
+            raise service_error(response)
+        return response.content
+
+    async def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[dict[str, Any]]:
+        maps: list[dict[str, Any]] = []
+        cursor: str | None = None
+        while True:
+            page = await self._request("GET", "/v1/maps", params=maps_query(page_size, cursor))
+            maps += page["maps"]
+            cursor = page["next_cursor"]
+            if cursor is None:
+                return maps
 
     async def wait_until_processed(
         self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1

@@ -53,6 +53,10 @@ class Caller:
     key: ApiKey | None
     address: str
 
+    def may(self, action: Action, map_id: str) -> bool:
+        """Whether the caller may do ``action`` on ``map_id`` (anyone may, with auth none)."""
+        return self.key is None or self.key.allows(action, map_id)
+
     @property
     def bucket(self) -> str:
         """The rate limit bucket of the caller."""
@@ -102,9 +106,11 @@ class Access:
             raise _unauthorized("authorization: the token is not a valid key (unknown, revoked, or mistyped)")
         return Caller(key, address)
 
-    def authorize(self, caller: Caller, action: Action, map_id: str | None) -> None:
+    def authorize(self, caller: Caller, action: Action, map_id: str | None, *, listing: bool = False) -> None:
+        """403 unless the caller may do ``action`` on ``map_id``; ``listing``: a route of no map that
+        answers only what the key's maps allow (the role alone is checked here)."""
         key = caller.key
-        if key is None or key.allows(action, map_id):
+        if key is None or key.allows(action, map_id) or (listing and action in ROLE_ACTIONS[key.role]):
             return
         if action not in ROLE_ACTIONS[key.role]:
             raise Refused(403, f"authorization: a {key.role} key may not {action} (key {key.id})", "authorization")
@@ -137,8 +143,9 @@ def _too_many(detail: str, wait_s: float) -> Refused:
     return Refused(429, f"{detail}; retry in {wait_s:.2f} s", None, {"Retry-After": str(max(1, math.ceil(wait_s)))})
 
 
-def require(action: Action) -> Callable[..., Caller]:
-    """The dependency of a route doing ``action`` (on the path's ``map_id``, when it has one)."""
+def require(action: Action, *, listing: bool = False) -> Callable[..., Caller]:
+    """The dependency of a route doing ``action`` (on the path's ``map_id``, when it has one; ``listing``:
+    on the maps of the caller's key, which the route filters by ``Caller.may``)."""
 
     def check(request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)]) -> Caller:
         access: Access = request.app.state.runtime.access
@@ -147,7 +154,7 @@ def require(action: Action) -> Callable[..., Caller]:
         map_id = request.path_params.get("map_id")
         if map_id is not None:
             check_map_id("map_id", map_id)
-        access.authorize(caller, action, map_id)
+        access.authorize(caller, action, map_id, listing=listing)
         access.limit(caller, action, map_id)
         return caller
 

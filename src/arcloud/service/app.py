@@ -6,10 +6,12 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
 (``ObjectStore``) and to the ingest, never to an adapter.
 
     POST   /v1/maps/{map_id}/frames           protobuf Frame or multipart (meta, rgb, depth) -> 202 queued
-    GET    /v1/maps/{map_id}/objects          confirmed objects; ?include=tentative &label= &min_score= &bbox=x0,y0,z0,x1,y1,z1
+    GET    /v1/maps                           the maps the key may read, with counts; ?limit= &cursor=
+    GET    /v1/maps/{map_id}/objects          confirmed objects; ?include=tentative &label= &min_score= &bbox=x0,y0,z0,x1,y1,z1 &limit= &cursor=
     GET    /v1/maps/{map_id}/objects/{id}     any object, with its status; ?voxels=true
     DELETE /v1/maps/{map_id}
     GET    /v1/maps/{map_id}/stats
+    GET    /v1/maps/{map_id}/export           ?format=json|ply|glb|scannet &include=tentative &color= &voxels=
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
 
 Map routes need a key (``service.access``, with auth keys): reading needs a reader, device or admin key
@@ -45,8 +47,9 @@ from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
 from arcloud.ports import QueueFull
 from arcloud.service import frames as frames_in
-from arcloud.service.access import Refused, require
-from arcloud.service.map_header import check_map_header
+from arcloud.service.access import Caller, Refused, require
+from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels
+from arcloud.service.map_header import check_map_header, open_map_checked
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
@@ -55,11 +58,13 @@ from arcloud.service.schemas import (
     FrameState,
     Health,
     MapDeleted,
+    MapList,
     MapStats,
     ObjectDetail,
     ObjectList,
     Problem,
     Ready,
+    iso_time,
     object_out,
 )
 from arcloud.service.settings import Settings
@@ -231,7 +236,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
     frame = await run_in_threadpool(frames_in.validate_message, msg, map_id, max_pixels=settings.max_frame_pixels)
-    await run_in_threadpool(check_map_header, runtime.store, map_id, runtime.params)
+    await run_in_threadpool(open_map_checked, runtime.store, map_id, runtime.params)  # 409 for other settings; lists the map
     accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
 
@@ -286,6 +291,8 @@ def list_objects(
         str | None,
         Query(description="only objects whose voxels' bounds meet this box: x0,y0,z0,x1,y1,z1 (m)", examples=["0,0,0,2,2,2"]),
     ] = None,
+    limit: Annotated[int | None, Query(ge=1, le=10_000, description="at most this many objects (then `next_cursor`)")] = None,
+    cursor: Annotated[str | None, Query(description="the `next_cursor` of the page before", examples=["17"])] = None,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
     if bbox is not None:
@@ -298,7 +305,14 @@ def list_objects(
         for o in objects
         if (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score
     ]
-    return {"objects": [object_out(o) for o in sorted(chosen, key=lambda o: o.id)]}
+    chosen.sort(key=lambda o: o.id)
+    if cursor is not None:
+        if not cursor.isdigit() or len(cursor) > 19:
+            raise InvalidInput("cursor", "the next_cursor of a page before (an object id)", repr(cursor[:40]))
+        chosen = [o for o in chosen if o.id > int(cursor)]
+    page = chosen if limit is None else chosen[:limit]
+    more = limit is not None and len(chosen) > limit
+    return {"objects": [object_out(o) for o in page], "next_cursor": str(page[-1].id) if more else None}
 
 
 @router.get(
@@ -331,6 +345,75 @@ def get_object(
             "weights": obj.weights.astype(float).tolist(),
         }
     return out
+
+
+@router.get(
+    "/v1/maps/{map_id}/export",
+    dependencies=[Depends(require("read"))],
+    response_class=Response,
+    responses={**PROBLEM_RESPONSES, 200: {"content": {m: {} for m, _ in MEDIA.values()}, "description": "the file"}},
+    tags=["maps"],
+    summary="The map as a file: JSON, PLY (voxels), GLB (boxes) or ScanNet prediction files (zip)",
+    description="The served (confirmed) objects, or every object with `include=tentative`, in the map's world frame "
+    "(metres, z up). `json`: the objects list (`voxels=true` adds voxel centres); `ply`: one point per voxel coloured "
+    "by object or class (`color`), with an `object` property; `glb`: one glTF node per object (its oriented box; id, "
+    "label, score in `extras`); `scannet`: a zip of ScanNet benchmark prediction files for the map as one scene.",
+)
+def export(
+    map_id: MapId,
+    runtime: RuntimeDep,
+    fmt: Annotated[ExportFormat, Query(alias="format", description="json, ply, glb or scannet")] = "json",
+    include: Annotated[Literal["tentative"] | None, Query(description="tentative: tentative objects too")] = None,
+    color: Annotated[ColorBy, Query(description="ply: colour points by object or by class")] = "object",
+    voxels: Annotated[bool, Query(description="json: add each object's voxel centres and weights")] = False,
+) -> Response:
+    known_map(runtime, map_id)
+    store = runtime.store
+    objects: list[Any] = store.list_objects(map_id) if needs_voxels(fmt, voxels) else store.list_meta(map_id)
+    chosen = [o for o in objects if include == "tentative" or o.confirmed]
+    body = export_map(map_id, chosen, runtime.params, fmt, color=color, voxels=voxels)
+    media, extension = MEDIA[fmt]
+    return Response(body, media_type=media, headers={"Content-Disposition": f'attachment; filename="{map_id}.{extension}"'})
+
+
+@router.get(
+    "/v1/maps",
+    response_model=MapList,
+    responses=PROBLEM_RESPONSES,
+    tags=["maps"],
+    summary="The maps, by id",
+    description="Every map the key may read (all maps with auth none), by map id, `limit` a page; each with its "
+    "number of objects, frame counts and when an object of it last changed.",
+)
+def list_maps(
+    runtime: RuntimeDep,
+    caller: Annotated[Caller, Depends(require("read", listing=True))],
+    limit: Annotated[int, Query(ge=1, le=1000, description="at most this many maps (then `next_cursor`)")] = 100,
+    cursor: Annotated[str | None, Query(description="the `next_cursor` of the page before")] = None,
+) -> dict[str, Any]:
+    updated = runtime.store.list_maps()
+    readable = sorted(m for m in updated if caller.may("read", m))
+    if cursor is not None:
+        check_map_id("cursor", cursor)
+        readable = [m for m in readable if m > cursor]
+    page = readable[:limit]
+    summaries = []
+    for map_id in page:
+        counts = runtime.ingest.counts(map_id)
+        summaries.append(
+            {
+                "map_id": map_id,
+                "objects": runtime.store.count_objects(map_id),
+                "frames": {
+                    "accepted": counts.accepted,
+                    "processed": counts.processed,
+                    "failed": counts.failed,
+                    "pending": counts.pending,
+                },
+                "updated_at": iso_time(updated[map_id]),
+            }
+        )
+    return {"maps": summaries, "next_cursor": page[-1] if len(readable) > limit else None}
 
 
 @router.delete(

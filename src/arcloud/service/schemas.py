@@ -133,6 +133,9 @@ class ObjectDetail(ObjectOut):
 
 class ObjectList(BaseModel):
     objects: list[ObjectOut]
+    next_cursor: str | None = Field(
+        None, description="with `limit`: pass as `cursor` for the next page; null on the last page (or without `limit`)"
+    )
 
 
 class FrameCounts(BaseModel):
@@ -140,6 +143,20 @@ class FrameCounts(BaseModel):
     processed: int
     failed: int
     pending: int
+
+
+class MapSummary(BaseModel):
+    map_id: str
+    objects: int = Field(description="objects of the map, confirmed and tentative")
+    frames: FrameCounts
+    updated_at: str | None = Field(
+        description="when an object of the map last changed (ISO 8601 UTC; when it was opened, before)"
+    )
+
+
+class MapList(BaseModel):
+    maps: list[MapSummary]
+    next_cursor: str | None = Field(None, description="pass as `cursor` for the next page; null on the last page")
 
 
 class ObjectCounts(BaseModel):
@@ -220,7 +237,8 @@ class Ready(BaseModel):
     checks: dict[str, str]
 
 
-def _iso(seconds: float) -> str | None:
+def iso_time(seconds: float) -> str | None:
+    """Unix seconds as ISO 8601 UTC (``...Z``); None for 0 (never)."""
     if not seconds:
         return None
     return dt.datetime.fromtimestamp(seconds, tz=dt.UTC).isoformat().replace("+00:00", "Z")
@@ -247,7 +265,7 @@ def object_out(obj: Any) -> dict[str, Any]:
         if obj.obb is None
         else {"center": _vec(obj.obb.center), "size": _vec(obj.obb.size), "yaw_rad": float(obj.obb.yaw_rad)},
         "version": int(obj.version),
-        "updated_at": _iso(obj.updated_at_s),
+        "updated_at": iso_time(obj.updated_at_s),
         "n_voxels": int(obj.n_voxels),
         "n_frames": int(obj.n_frames),
         "n_devices": len(obj.devices),

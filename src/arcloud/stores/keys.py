@@ -26,6 +26,7 @@ Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queu
     arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
 
+    arcloud:maps                    HASH    map id -> when its objects last changed (Unix s); written by open_map, commit
     arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
@@ -136,6 +137,7 @@ INGEST_STATS = f"{INGEST_STREAM}:stats"
 INGEST_WORKERS = f"{INGEST_STREAM}:workers"
 
 API_KEYS = f"{PREFIX}:keys"
+MAPS = f"{PREFIX}:maps"
 
 
 def rate_key(bucket: str) -> str:

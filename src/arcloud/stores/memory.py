@@ -78,6 +78,7 @@ class MemoryStore:
         self.cell_m = cell_m
         self._maps: dict[str, _MapState] = {}
         self._headers: dict[str, MapHeader] = {}
+        self._updated: dict[str, float] = {}  # map id -> when its objects last changed (Unix s)
         self._maps_lock = threading.Lock()
 
     def _map(self, map_id: str) -> _MapState:
@@ -226,6 +227,9 @@ class MemoryStore:
                     state.index.setdefault(cell, set()).add(obj.id)
             if frame_key is not None:
                 state.frames.add(frame_key)
+            if upserts or deletes:
+                with self._maps_lock:
+                    self._updated[map_id] = time.time()
             return True
 
     def _unindex(self, state: _MapState, object_id: int) -> None:
@@ -252,6 +256,7 @@ class MemoryStore:
         with self._maps_lock:
             state = self._maps.pop(map_id, None)
             self._headers.pop(map_id, None)
+            self._updated.pop(map_id, None)
         return 0 if state is None else len(state.objects)
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
@@ -270,7 +275,20 @@ class MemoryStore:
 
     def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
         with self._maps_lock:
+            self._updated.setdefault(map_id, header.created_at_s)
             return self._headers.setdefault(map_id, header)
+
+    def list_maps(self) -> dict[str, float]:
+        with self._maps_lock:
+            return {m: self._updated.get(m, 0.0) for m in self._headers}
+
+    def count_objects(self, map_id: str) -> int:
+        with self._maps_lock:
+            state = self._maps.get(map_id)
+        if state is None:
+            return 0
+        with state.changed:
+            return len(state.objects)
 
     def map_header(self, map_id: str) -> MapHeader | None:
         with self._maps_lock:

@@ -397,6 +397,8 @@ class RedisStore:
                 keys=[keys.frames_key(map_id), keys.bounds_key(map_id), keys.meta_key(map_id)],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
+            if int(written) == 1 and (upserts or deletes):
+                self.client.hset(keys.MAPS, map_id, repr(time.time()))  # the maps list's last update
         return int(written) == 1
 
     def list_objects(self, map_id: str) -> list[MapObject]:
@@ -410,6 +412,7 @@ class RedisStore:
                     args=[keys.map_prefix(map_id)],
                 )
             )
+            self.client.hdel(keys.MAPS, map_id)
             leftovers = list(self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT))
             for start in range(0, len(leftovers), SCAN_COUNT):
                 self.client.unlink(*leftovers[start : start + SCAN_COUNT])
@@ -431,7 +434,17 @@ class RedisStore:
             pipe.set(key, json.dumps(header.to_record()), nx=True)
             pipe.get(key)
             _, stored = pipe.execute()
+            self.client.hsetnx(keys.MAPS, map_id, repr(header.created_at_s))  # service-wide: its own slot
         return _header_of(map_id, stored)
+
+    def list_maps(self) -> dict[str, float]:
+        with self._boundary("list the maps"):
+            raw = self.client.hgetall(keys.MAPS)
+        return {(m.decode() if isinstance(m, bytes) else m): float(t) for m, t in raw.items()}
+
+    def count_objects(self, map_id: str) -> int:
+        with self._boundary(f"count the objects of map {map_id}"):
+            return int(self.client.hlen(keys.meta_key(map_id)))
 
     def map_header(self, map_id: str) -> MapHeader | None:
         with self._boundary(f"map_header of map {map_id}"):
