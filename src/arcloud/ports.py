@@ -8,6 +8,7 @@
 - ``KeyStore``: the API keys (``arcloud.access.ApiKey``), hashed (a JSON file ``stores.file_api_keys``,
   Redis ``stores.redis_api_keys``).
 - ``RateLimiter``: token buckets shared by every API process (``stores.memory_rate``, ``stores.redis_rate``).
+- ``MapArchive``: a map as one file and back, on any ``ObjectStore`` (``stores.snapshot``).
 
 The service (``arcloud.service``) talks to these and never to an adapter; ``arcloud.tools.wiring``
 chooses the adapters.
@@ -23,7 +24,7 @@ from typing import Any, Literal, Protocol
 from arcloud.access import ApiKey
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
-from arcloud.core.types import AABB, OBB, Frame, MapObject
+from arcloud.core.types import AABB, OBB, Frame, MapObject, Params
 from arcloud.errors import ArcloudError
 
 __all__ = [
@@ -31,6 +32,7 @@ __all__ = [
     "Detector",
     "FrameQueue",
     "KeyStore",
+    "MapArchive",
     "Lease",
     "MapStore",
     "NullPublisher",
@@ -299,3 +301,20 @@ class RateLimiter(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+# --- archives ----------------------------------------------------------------------------------------
+class MapArchive(Protocol):
+    """A map as one file (header and every object, exactly) and back, on any ``ObjectStore``."""
+
+    def snapshot(self, store: ObjectStore, map_id: str) -> bytes:
+        """The map as a file's bytes; ``InvalidInput`` for a map never opened."""
+        ...
+
+    def restore(
+        self, store: ObjectStore, map_id: str, data: bytes, *, replace: bool = False, params: Params | None = None
+    ) -> int:
+        """Write a snapshot into ``map_id`` (empty, or deleted first with ``replace``); how many objects.
+        ``InvalidInput`` for a file that is not a snapshot or a map with objects; ``MapMismatch`` for a
+        snapshot written under other settings than ``params`` (when given)."""
+        ...

@@ -11,6 +11,7 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/objects/{id}     any object, with its status; ?voxels=true
     DELETE /v1/maps/{map_id}
     GET    /v1/maps/{map_id}/stats
+    GET    /v1/maps/{map_id}/snapshot         the map as one file (admin); PUT it back (?replace=true)
     GET    /v1/maps/{map_id}/export           ?format=json|ply|glb|scannet &include=tentative &color= &voxels=
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
 
@@ -45,7 +46,7 @@ from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
-from arcloud.ports import QueueFull
+from arcloud.ports import MapArchive, QueueFull
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
 from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels
@@ -59,6 +60,7 @@ from arcloud.service.schemas import (
     Health,
     MapDeleted,
     MapList,
+    MapRestored,
     MapStats,
     ObjectDetail,
     ObjectList,
@@ -137,11 +139,11 @@ MapId = Annotated[str, Path(description="map id: 1 to 128 letters, digits, '.', 
 
 
 def known_map(runtime: Runtime, map_id: str, *, same_settings: bool = True) -> str:
-    """The map id of a map with accepted frames (else 404) written under our settings (else 409; not
-    asked when deleting: removing a map reads none of its data)."""
+    """The map id of a map with accepted frames or restored objects (else 404) written under our settings
+    (else 409; not asked when deleting: removing a map reads none of its data)."""
     check_map_id("map_id", map_id)
-    if not runtime.ingest.known_map(map_id):
-        raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted)")
+    if not runtime.ingest.known_map(map_id) and runtime.store.map_header(map_id) is None:
+        raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted, nothing restored into it)")
     if same_settings:
         check_map_header(runtime.store, map_id, runtime.params)
     return map_id
@@ -374,6 +376,61 @@ def export(
     body = export_map(map_id, chosen, runtime.params, fmt, color=color, voxels=voxels)
     media, extension = MEDIA[fmt]
     return Response(body, media_type=media, headers={"Content-Disposition": f'attachment; filename="{map_id}.{extension}"'})
+
+
+@router.get(
+    "/v1/maps/{map_id}/snapshot",
+    dependencies=[Depends(require("admin"))],
+    response_class=Response,
+    responses={**PROBLEM_RESPONSES, 200: {"content": {"application/zip": {}}, "description": "the snapshot file"}},
+    tags=["maps"],
+    summary="The whole map as one file (admin), to restore here or into another service",
+    description="Header and every object, voxels included (`arcloud.stores.snapshot`); `PUT` it back, here or "
+    "into another deployment (embedded or Redis). Objects keep their ids; their versions start again at 1.",
+)
+def get_snapshot(map_id: MapId, runtime: RuntimeDep) -> Response:
+    known_map(runtime, map_id, same_settings=False)
+    archive = _archive(runtime)
+    return Response(
+        archive.snapshot(runtime.store, map_id),
+        media_type="application/zip",
+        headers={"Content-Disposition": f'attachment; filename="{map_id}.snapshot.zip"'},
+    )
+
+
+@router.put(
+    "/v1/maps/{map_id}/snapshot",
+    dependencies=[Depends(require("admin"))],
+    response_model=MapRestored,
+    responses=PROBLEM_RESPONSES,
+    tags=["maps"],
+    summary="Restore a map from a snapshot file (admin)",
+    description="Into an empty map, or `replace=true` to delete the map first. The body is the file "
+    "(`application/zip`), at most the service's body limit.",
+    openapi_extra={
+        "requestBody": {"required": True, "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}}}
+    },
+)
+async def put_snapshot(
+    map_id: MapId,
+    request: Request,
+    runtime: RuntimeDep,
+    replace: Annotated[bool, Query(description="delete the map first")] = False,
+) -> MapRestored:
+    check_map_id("map_id", map_id)
+    archive = _archive(runtime)
+    data = await request.body()
+    restored = await run_in_threadpool(
+        lambda: archive.restore(runtime.store, map_id, data, replace=replace, params=runtime.params)
+    )
+    log.info("map %s restored from a snapshot: %d objects", map_id, restored)
+    return MapRestored(map_id=map_id, restored_objects=restored)
+
+
+def _archive(runtime: Runtime) -> MapArchive:
+    if runtime.archive is None:
+        raise HTTPException(501, "this service was started without map snapshots")
+    return runtime.archive
 
 
 @router.get(

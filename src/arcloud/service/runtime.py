@@ -16,7 +16,7 @@ from typing import Protocol
 
 from arcloud.core.types import Params
 from arcloud.errors import InvalidInput
-from arcloud.ports import Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
+from arcloud.ports import Detector, FrameQueue, KeyStore, MapArchive, ObjectStore, RateLimiter, UpdatePublisher
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Access, KeyCache
 from arcloud.service.ingest import Ingest
@@ -43,7 +43,7 @@ class Adapters:
     """What the composition root connected for one app. ``detector``: run the step in ``settings.workers``
     threads of this process (None: workers run elsewhere); ``pool``: worker processes to start and stop
     with the app; ``keys``: the API keys (None: auth none); ``limiter``: the rate limits (None: none);
-    ``owned``: closed on shutdown, last first."""
+    ``archive``: map snapshots (None: no snapshot routes); ``owned``: closed on shutdown, last first."""
 
     store: ObjectStore
     queue: FrameQueue
@@ -52,6 +52,7 @@ class Adapters:
     pool: WorkerPool | None = None
     keys: KeyStore | None = None
     limiter: RateLimiter | None = None
+    archive: MapArchive | None = None
     owned: list[Closeable] = field(default_factory=list)
 
 
@@ -69,6 +70,7 @@ class Runtime:
     access: Access
     detector: Detector | None = None
     publisher: UpdatePublisher | None = None
+    archive: MapArchive | None = None
     owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
 
 
@@ -113,7 +115,9 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         close_all(adapters.owned)
         raise
     log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
-    return Runtime(settings, params, adapters.store, ingest, access, adapters.detector, adapters.publisher, adapters.owned)
+    return Runtime(
+        settings, params, adapters.store, ingest, access, adapters.detector, adapters.publisher, adapters.archive, adapters.owned
+    )
 
 
 def stop_runtime(runtime: Runtime) -> None:

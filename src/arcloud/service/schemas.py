@@ -208,6 +208,11 @@ class MapStats(BaseModel):
     objects: ObjectCounts
 
 
+class MapRestored(BaseModel):
+    map_id: str
+    restored_objects: int
+
+
 class MapDeleted(BaseModel):
     map_id: str
     deleted_objects: int

@@ -255,7 +255,9 @@ def connect(
     except BaseException:
         close_all(owned)
         raise
-    return Adapters(store, queue, detector, publisher, pool, keys, limiter, owned)
+    from arcloud.stores.snapshot import ZipMapArchive
+
+    return Adapters(store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned)
 
 
 def _own(owned: list[Closeable], thing: Any) -> None:
