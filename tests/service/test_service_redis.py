@@ -29,7 +29,7 @@ from arcloud.proto.convert import frame_to_proto
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
 from arcloud.stores.keys import INGEST_DEAD_LETTER_STREAM as DEAD_LETTER_STREAM
-from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM, ingest_accepted_key
+from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM, ingest_counts_key, ingest_status_key
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_queue import RedisFrameQueue, parse_stats
 from arcloud.tools.wiring import create_app, healthy, worker_pool
@@ -222,8 +222,9 @@ def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
 
 
 def test_a_frame_recorded_as_accepted_but_never_queued_is_queued_again_on_retry(deployment: Deployment) -> None:
-    # What a crash used to leave between recording a frame and queueing it: the mark without the entry.
-    deployment.redis.sadd(ingest_accepted_key("r7"), "d/f000000")
+    # What a crash used to leave between recording a frame and queueing it: the record without the entry.
+    deployment.redis.hset(ingest_status_key("r7"), "d/f000000", "queued 1-0")
+    deployment.redis.hset(ingest_counts_key("r7"), "accepted", 1)
     before = deployment.stats()
     assert deployment.post("r7", 0)["status"] == "queued"  # not "duplicate"
     wait_until(

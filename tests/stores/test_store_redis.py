@@ -77,8 +77,16 @@ def test_key_templates() -> None:
     assert keys.hash_tag("arcloud:{m}:lock:1") == "m"
     assert keys.hash_tag("arcloud:{}:x") == "arcloud:{}:x"  # an empty tag does not count
     assert keys.hash_tag(keys.INGEST_STREAM) == keys.INGEST_STREAM
-    assert keys.hash_tag(keys.ingest_accepted_key("m")) == keys.hash_tag(keys.ingest_failed_key("m")) == "m"
-    assert len({keys.INGEST_STREAM, keys.INGEST_DEAD_LETTER_STREAM, keys.INGEST_STATS, keys.INGEST_WORKERS}) == 4
+    assert {keys.hash_tag(k("m")) for k in (keys.ingest_status_key, keys.ingest_settled_key, keys.ingest_counts_key)} == {"m"}
+    service_wide = (
+        keys.INGEST_STREAM,
+        keys.INGEST_DEAD_LETTER_STREAM,
+        keys.INGEST_DEAD_LETTER_BYTES,
+        keys.INGEST_BACKLOG,
+        keys.INGEST_STATS,
+        keys.INGEST_WORKERS,
+    )
+    assert len(set(service_wide)) == 6 and not any(k.startswith(keys.map_prefix("")) for k in service_wide)
 
 
 def test_a_server_that_is_down_raises_store_unavailable() -> None:

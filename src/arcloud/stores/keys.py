@@ -15,14 +15,21 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
 
-    arcloud:{m}:ingest:accepted     SET     frame keys the ingest accepted for the map (``redis_queue``)
-    arcloud:{m}:ingest:failed       SET     frame keys of the map that were dead-lettered
-    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed" | "failed <reason>"
+    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed" |
+                                            "failed <dead-letter id> <deliveries> <reason>": the frames the ingest
+                                            accepted for the map and keeps a record of (``redis_queue``)
+    arcloud:{m}:ingest:settled      ZSET    frame key -> when it was processed or failed (Unix s): the records
+                                            to drop past ``frame_record_retention_s``
+    arcloud:{m}:ingest:counts       HASH    ``accepted``, ``failed``: the map's frame counts (records expiring
+                                            do not lower them)
 
 Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queue``):
 
     arcloud:ingest                  STREAM  frames to process (protobuf ``Frame`` bytes), one consumer group of workers
-    arcloud:ingest:dead             STREAM  frames given up on, with the reason
+    arcloud:ingest:dead             STREAM  frames given up on, with the reason (``max_dead_letters``)
+    arcloud:ingest:dead:bytes       STRING  the dead letters' frame bytes together (``max_dead_letter_bytes``)
+    arcloud:ingest:backlog          HASH    ``frames``, ``bytes``, ``frames:<map>``, ``bytes:<map>``: what the stream
+                                            holds of frames accepted and not settled, against ``QueueLimits``
     arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
 
@@ -114,16 +121,16 @@ def hash_tag(key: str) -> str:
     return key
 
 
-def ingest_accepted_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:accepted"
-
-
-def ingest_failed_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:failed"
-
-
 def ingest_status_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:ingest:status"
+
+
+def ingest_settled_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:settled"
+
+
+def ingest_counts_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:counts"
 
 
 # Service-wide keys (no map tag).
@@ -131,3 +138,5 @@ INGEST_STREAM = f"{PREFIX}:ingest"
 INGEST_DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"
 INGEST_STATS = f"{INGEST_STREAM}:stats"
 INGEST_WORKERS = f"{INGEST_STREAM}:workers"
+INGEST_DEAD_LETTER_BYTES = f"{INGEST_DEAD_LETTER_STREAM}:bytes"
+INGEST_BACKLOG = f"{INGEST_STREAM}:backlog"

@@ -134,7 +134,7 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
     if settings.embedded:
         from arcloud.stores.memory_queue import MemoryFrameQueue
 
-        return MemoryFrameQueue(max_queued_frames=settings.max_queued_frames)
+        return MemoryFrameQueue(limits=settings.queue_limits())
     from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_queue import RedisFrameQueue
 
@@ -143,7 +143,7 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
         settings.store,
         client=client,
         group=settings.consumer_group,
-        max_queued_frames=settings.max_queued_frames,
+        limits=settings.queue_limits(),
         socket_timeout_s=max(30.0, 2 * read_block_s + 5),
     )
 
