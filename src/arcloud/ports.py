@@ -91,7 +91,7 @@ class ObjectStore(MapStore, Protocol):
         ...
 
     def count_frames(self, map_id: str) -> int:
-        """How many frames were recorded as processed in this map."""
+        """How many frames were recorded as processed in this map (a counter: records expiring do not lower it)."""
         ...
 
     #: The blob format this store writes (``stores.codec.FORMAT_VERSION``), part of a map's header.
@@ -130,9 +130,12 @@ class QueueFull(ArcloudError):
         self.limit = limit
 
 
-#: Settled frames' records (and the stores' processed-frame records) dropped at most per call: the
-#: trimming rides on the calls of the map (accept, acknowledge, commit), so its work per call is bounded.
-RECORDS_TRIMMED_PER_CALL = 100
+#: Records of settled frames (and the stores' processed-frame marks) looked at per call for expired ones:
+#: the sweep rides on the calls of the map (accept, acknowledge, commit), so its work per call is bounded.
+RECORDS_SWEPT_PER_CALL = 100
+#: How long a settled frame is remembered by default (``QueueLimits.frame_record_retention_s``, and the
+#: stores' processed-frame marks): a day, far beyond any redelivery (``max_deliveries`` x ``claim_min_idle_s``).
+DEFAULT_FRAME_RECORD_RETENTION_S = 86400.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,8 +150,9 @@ class QueueLimits:
     every other.
 
     A settled (processed or failed) frame's record, its status and its part in the duplicate rule, is
-    kept ``frame_record_retention_s`` and then dropped (at most ``RECORDS_TRIMMED_PER_CALL`` by each
-    later call on the map): the frame is then unknown (``frame_status`` None) and posting it again queues
+    kept ``frame_record_retention_s`` and then dropped (each later call on the map looks at
+    ``RECORDS_SWEPT_PER_CALL`` records for expired ones; past the retention a record counts as gone
+    already): the frame is then unknown (``frame_status`` None) and posting it again queues
     it as a new frame. The map's counts are counters and do not shrink. Failed frames keep their payload
     (for ``retry_failed``) in at most ``max_dead_letters`` dead letters of at most
     ``max_dead_letter_bytes`` together, the oldest dropped first."""
@@ -157,7 +161,7 @@ class QueueLimits:
     max_queued_bytes: int = 2**30
     max_queued_frames_per_map: int = 250
     max_queued_bytes_per_map: int = 2**28
-    frame_record_retention_s: float = 86400.0
+    frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S
     max_dead_letters: int = 10_000
     max_dead_letter_bytes: int = 2**28
 

@@ -20,7 +20,7 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from arcloud.core.types import Params
-from arcloud.ports import QueueLimits
+from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
 
 STORE_SCHEMES = ("redis", "rediss", "unix")
 ZenohMode = Literal["off", "peer", "client", "router"]
@@ -99,7 +99,7 @@ class Settings(BaseSettings):
         None, ge=1, description="the same in bytes; default a quarter of max_queued_bytes"
     )
     frame_record_retention_s: float = Field(
-        86400.0,
+        DEFAULT_FRAME_RECORD_RETENTION_S,
         gt=0,
         description="how long a processed or failed frame is remembered (its status, the duplicate check, the store's "
         "processed mark); after it the frame's status answers 404 and posting it again queues it as new",

@@ -6,7 +6,10 @@ Lua scripts touch one slot) while many maps spread over a cluster. Map ids are c
 characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and nothing else.
 
     arcloud:{m}:ids                 STRING  object id counter (INCRBY)
-    arcloud:{m}:frames              SET     processed frame keys ("<device_id>/<frame_id>")
+    arcloud:{m}:processed           HASH    processed frame key ("<device_id>/<frame_id>") -> when its commit was
+                                            written (Unix s); kept ``frame_record_retention_s`` (``RedisStore``)
+    arcloud:{m}:processed:count     STRING  frames of the map processed (INCR in the commit; never lowered)
+    arcloud:{m}:processed:sweep     STRING  where the commits' sweep of expired marks goes on (HSCAN cursor)
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
     arcloud:{m}:meta                HASH    object id -> metadata JSON (``codec.encode_meta``): listing needs one read
     arcloud:{m}:obj:<id>            HASH    one object: ``version`` (the fence), ``cells`` (where it is indexed,
@@ -15,11 +18,11 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
 
-    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed" |
-                                            "failed <dead-letter id> <deliveries> <reason>": the frames the ingest
-                                            accepted for the map and keeps a record of (``redis_queue``)
-    arcloud:{m}:ingest:settled      ZSET    frame key -> when it was processed or failed (Unix s): the records
-                                            to drop past ``frame_record_retention_s``
+    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed <settled_at_s>" |
+                                            "failed <settled_at_s> <dead-letter id> <deliveries> <reason>": the
+                                            frames the ingest accepted for the map and keeps a record of
+                                            (``redis_queue``; settled ones for ``frame_record_retention_s``)
+    arcloud:{m}:ingest:sweep        STRING  where the sweep of expired records goes on (HSCAN cursor)
     arcloud:{m}:ingest:counts       HASH    ``accepted``, ``failed``: the map's frame counts (records expiring
                                             do not lower them)
 
@@ -33,7 +36,10 @@ Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queu
     arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
 
-``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too.
+``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too (not
+its part of ``arcloud:ingest:backlog``: frames still queued leave it when they settle). Written before the
+frame records were bounded, and no longer read: ``arcloud:{m}:frames`` (SET), ``arcloud:{m}:ingest:accepted``
+and ``:failed`` (SETs); ``delete_map`` removes them with the map.
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ PREFIX = "arcloud"
 
 # Suffixes after the map prefix; the Lua scripts build per-object and per-cell keys from these.
 IDS = "ids"
-FRAMES = "frames"
+PROCESSED = "processed"
 BOUNDS = "bounds"
 META = "meta"
 HEADER = "header"
@@ -71,8 +77,16 @@ def ids_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:{IDS}"
 
 
-def frames_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:{FRAMES}"
+def processed_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{PROCESSED}"
+
+
+def processed_count_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{PROCESSED}:count"
+
+
+def processed_sweep_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{PROCESSED}:sweep"
 
 
 def bounds_key(map_id: str) -> str:
@@ -125,8 +139,8 @@ def ingest_status_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:ingest:status"
 
 
-def ingest_settled_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:settled"
+def ingest_sweep_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:sweep"
 
 
 def ingest_counts_key(map_id: str) -> str:

@@ -7,7 +7,7 @@ accepted again after failing is queued again (as is one accepted but neither que
 nor failed: the Redis queue's rule).
 
 Records, as on Redis: a settled (processed or failed) frame's record is dropped
-``frame_record_retention_s`` after it settled, oldest first, at most ``RECORDS_TRIMMED_PER_CALL`` by each
+``frame_record_retention_s`` after it settled, oldest first, at most ``RECORDS_SWEPT_PER_CALL`` by each
 ``put``, ``ack`` or ``dead_letter`` of its map; the map's counts are counters. A failed frame keeps its
 ``Frame`` as its dead letter, for ``retry_failed``, within ``max_dead_letters`` and
 ``max_dead_letter_bytes`` (oldest dropped first), and until its record goes or it is queued again.
@@ -28,7 +28,7 @@ from typing import Any
 
 from arcloud.core.types import Frame
 from arcloud.ports import (
-    RECORDS_TRIMMED_PER_CALL,
+    RECORDS_SWEPT_PER_CALL,
     FailedFrame,
     FrameStatus,
     QueuedFrame,
@@ -279,12 +279,12 @@ class MemoryFrameQueue:
         return settled_at_s is not None and settled_at_s < now - self.limits.frame_record_retention_s
 
     def _trim(self, map_id: str, records: _MapRecords, now: float, frame_key: str | None) -> None:
-        """Under the lock: drop the oldest expired records of the map (``RECORDS_TRIMMED_PER_CALL`` at most),
+        """Under the lock: drop the oldest expired records of the map (``RECORDS_SWEPT_PER_CALL`` at most),
         and ``frame_key``'s when it expired."""
         cutoff = now - self.limits.frame_record_retention_s
         expired = list(
             itertools.islice(
-                itertools.takewhile(lambda k: records.settled_at_s[k] < cutoff, records.settled_at_s), RECORDS_TRIMMED_PER_CALL
+                itertools.takewhile(lambda k: records.settled_at_s[k] < cutoff, records.settled_at_s), RECORDS_SWEPT_PER_CALL
             )
         )
         if frame_key is not None and self._expired(records, frame_key, now):

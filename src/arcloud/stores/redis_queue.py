@@ -11,8 +11,8 @@ parallel by several workers (the per-object locks and space claims of the step m
 scale-out path beyond one Redis primary is N shard streams (map -> shard by hash), each with its group.
 
 Per map: each accepted frame's record (its status: its entry id while in the stream, then processed or
-failed with the dead letter, the deliveries and the reason), when its settled frames settled, and its
-counts (accepted, failed: counters). ``lua/accept_frame.lua`` records, counts and queues a frame in one
+failed, when, and for a failed frame its dead letter, deliveries and reason), and the map's counts
+(accepted, failed: counters). ``lua/accept_frame.lua`` records, counts and queues a frame in one
 step, so no frame is recorded as accepted without its entry; a frame posted again is a duplicate while
 its entry is in the stream or it was processed, and is queued again when it failed or its entry is gone
 without an outcome (lost, e.g. in the last second before a crash). Service-wide: the counters and the
@@ -30,9 +30,10 @@ under a map's hash tag: deleting a map while frames of it are queued leaves it r
 trimmed by length (MAXLEN would drop frames not yet processed): entries leave it only settled, so it
 holds the backlog and nothing else.
 
-Retention: a settled frame's record is dropped ``frame_record_retention_s`` after it settled, at most
-``RECORDS_TRIMMED_PER_CALL`` by each accept or settle of its map (the oldest first); a record past the
-retention counts as gone even before it is dropped. Dead letters keep the frame's payload for
+Retention: a settled frame's record carries when it settled (``FrameRecord``), and is dropped
+``frame_record_retention_s`` after: each accept or settle of its map sweeps about
+``RECORDS_SWEPT_PER_CALL`` records on from where the last sweep stopped (HSCAN, ``lua/records.lua``), and
+a record past the retention counts as gone even before it is dropped. Dead letters keep the frame's payload for
 ``retry_failed``; the dead-letter stream is capped at ``max_dead_letters`` entries and
 ``max_dead_letter_bytes`` of payload (the oldest go first), the reason staying in the frame's record.
 Times are the callers' clocks (Unix seconds), as the heartbeats': the hosts' clocks must agree (NTP).
@@ -55,6 +56,7 @@ import re
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any, cast
 
 import redis
@@ -63,7 +65,7 @@ from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
 from arcloud.ports import (
     LATENCY_BUCKETS_S,
-    RECORDS_TRIMMED_PER_CALL,
+    RECORDS_SWEPT_PER_CALL,
     FailedFrame,
     FrameStatus,
     QueuedFrame,
@@ -105,16 +107,37 @@ def _text(value: bytes | str | None) -> str:
 
 
 _ENTRY_ID = re.compile(r"\d+-\d+")
+_SECONDS = re.compile(r"\d[\d.]*")
 
 
-def parse_failed(detail: str) -> tuple[str, int, str]:
-    """(dead-letter entry id, deliveries, reason) of a failed frame's record after ``failed ``; a record
-    written before dead letters were linked (``failed <reason>``) has no entry id ("") and 0 deliveries."""
-    dead_id, _, rest = detail.partition(" ")
-    deliveries, _, reason = rest.partition(" ")
-    if _ENTRY_ID.fullmatch(dead_id) and deliveries.isdigit():
-        return dead_id, int(deliveries), reason
-    return "", 0, detail
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """A map's record of one frame, as ``lua/records.lua`` writes it: ``status`` queued (``entry_id``),
+    processed or failed (``settled_at_s``; 0 for a record written before records carried their time, so
+    expired), and for a failed frame its ``dead_letter_id`` ("" when not linked), ``deliveries``, ``reason``."""
+
+    status: str
+    entry_id: str = ""
+    settled_at_s: float | None = None
+    dead_letter_id: str = ""
+    deliveries: int = 0
+    reason: str = ""
+
+    @classmethod
+    def parse(cls, text: str) -> FrameRecord:
+        status, _, rest = text.partition(" ")
+        if status == "queued":
+            return cls(status, entry_id=rest)
+        at, _, after = rest.partition(" ")
+        if not _SECONDS.fullmatch(at):
+            return cls(status, settled_at_s=0.0, reason=rest)  # written before records carried their time
+        if status != "failed":
+            return cls(status, settled_at_s=float(at))
+        dead_letter_id, _, after = after.partition(" ")
+        deliveries, _, reason = after.partition(" ")
+        if not (_ENTRY_ID.fullmatch(dead_letter_id) and deliveries.isdigit()):
+            return cls(status, settled_at_s=float(at), reason=rest)
+        return cls(status, settled_at_s=float(at), dead_letter_id=dead_letter_id, deliveries=int(deliveries), reason=reason)
 
 
 class RedisFrameQueue:
@@ -142,8 +165,8 @@ class RedisFrameQueue:
         self.group = group
         self.limits = limits or QueueLimits()
         self._clock = clock
-        self._accept = client.register_script(lua_source("accept_frame"))
-        self._settle = client.register_script(lua_source("settle_frame"))
+        self._accept = client.register_script(lua_source("records") + lua_source("accept_frame"))
+        self._settle = client.register_script(lua_source("records") + lua_source("settle_frame"))
         self._dead_letters_kept = client.register_script(lua_source("dead_letters_kept"))
         self._claim_cursors: dict[str, str] = {}  # consumer -> where its XAUTOCLAIM scan goes on
 
@@ -187,7 +210,7 @@ class RedisFrameQueue:
             reply = self._accept(
                 keys=[
                     keys.ingest_status_key(map_id),
-                    keys.ingest_settled_key(map_id),
+                    keys.ingest_sweep_key(map_id),
                     keys.ingest_counts_key(map_id),
                     keys.INGEST_STREAM,
                     keys.INGEST_STATS,
@@ -199,7 +222,7 @@ class RedisFrameQueue:
                     repr(self._clock()),
                     payload,
                     repr(limits.frame_record_retention_s),
-                    RECORDS_TRIMMED_PER_CALL,
+                    RECORDS_SWEPT_PER_CALL,
                     limits.max_queued_frames,
                     limits.max_queued_bytes,
                     limits.max_queued_frames_per_map,
@@ -220,15 +243,15 @@ class RedisFrameQueue:
         with self._boundary("look the map up"):
             return bool(self.client.exists(keys.ingest_counts_key(map_id)))
 
-    def _record(self, map_id: str, frame_key: str) -> str | None:
-        """The frame's record (its status text), None when there is none or it is past the retention."""
-        pipe = self.client.pipeline(transaction=False)
-        pipe.hget(keys.ingest_status_key(map_id), frame_key)
-        pipe.zscore(keys.ingest_settled_key(map_id), frame_key)
-        raw, settled_at_s = pipe.execute()
-        if raw is None or (settled_at_s is not None and settled_at_s < self._clock() - self.limits.frame_record_retention_s):
-            return None
-        return _text(raw)
+    def _record(self, map_id: str, frame_key: str) -> FrameRecord | None:
+        """The frame's record; None when there is none or it is past the retention."""
+        raw = self.client.hget(keys.ingest_status_key(map_id), frame_key)
+        record = None if raw is None else FrameRecord.parse(_text(raw))
+        return None if record is None or self._expired(record) else record
+
+    def _expired(self, record: FrameRecord) -> bool:
+        at = record.settled_at_s
+        return at is not None and at < self._clock() - self.limits.frame_record_retention_s
 
     def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
         """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
@@ -237,15 +260,15 @@ class RedisFrameQueue:
             record = self._record(map_id, frame_key)
             if record is None:
                 return None
-            status, _, detail = record.partition(" ")
-            if status == "processed":
+            if record.status == "processed":
                 return FrameStatus("processed")
-            if status == "failed":
-                return FrameStatus("failed", parse_failed(detail)[2])
-            if status != "queued" or not self.client.xrange(keys.INGEST_STREAM, detail, detail):
+            if record.status == "failed":
+                return FrameStatus("failed", record.reason)
+            entry_id = record.entry_id
+            if record.status != "queued" or not self.client.xrange(keys.INGEST_STREAM, entry_id, entry_id):
                 return FrameStatus("unknown")  # lost: a retry queues it again
             try:
-                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=detail, max=detail, count=1)
+                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=entry_id, max=entry_id, count=1)
             except redis.exceptions.ResponseError as exc:
                 if not str(exc).startswith("NOGROUP"):
                     raise
@@ -254,29 +277,20 @@ class RedisFrameQueue:
 
     def failed_frames(self, map_id: str, limit: int) -> list[FailedFrame]:
         """Reads the map's whole status HASH (an operator's command: O(the map's kept records))."""
-        cutoff = self._clock() - self.limits.frame_record_retention_s
         with self._boundary("list the map's failed frames"):
-            failed = {
-                _text(key): parse_failed(_text(value).removeprefix("failed "))
+            records = [
+                (_text(key), FrameRecord.parse(_text(value)))
                 for key, value in self.client.hscan_iter(keys.ingest_status_key(map_id), count=1000)
                 if value.startswith(b"failed ")
-            }
-            if not failed:
-                return []
-            names = sorted(failed)
-            settled = self.client.zmscore(keys.ingest_settled_key(map_id), names)
-            when = {name: at for name, at in zip(names, settled) if at is None or at >= cutoff}
-            latest = sorted(when, key=lambda name: when[name] or 0.0, reverse=True)[:limit]
-            dead_ids = [failed[name][0] for name in latest]
-            kept = (
-                self._dead_letters_kept(keys=[keys.INGEST_DEAD_LETTER_STREAM], args=[i for i in dead_ids if i])
-                if any(dead_ids)
-                else []
-            )
-        kept_of = dict(zip([i for i in dead_ids if i], kept))
+            ]
+            latest = sorted(
+                ((key, r) for key, r in records if not self._expired(r)), key=lambda kr: kr[1].settled_at_s or 0.0, reverse=True
+            )[:limit]
+            linked = [r.dead_letter_id for _, r in latest if r.dead_letter_id]
+            kept = self._dead_letters_kept(keys=[keys.INGEST_DEAD_LETTER_STREAM], args=linked) if linked else []
+        kept_ids = {dead_id for dead_id, is_kept in zip(linked, kept) if is_kept}
         return [
-            FailedFrame(name, failed[name][2], failed[name][1], when[name] or 0.0, bool(kept_of.get(failed[name][0], 0)))
-            for name in latest
+            FailedFrame(key, r.reason, r.deliveries, r.settled_at_s or 0.0, r.dead_letter_id in kept_ids) for key, r in latest
         ]
 
     def retry_failed(self, map_id: str, frame_key: str) -> bool:
@@ -284,9 +298,9 @@ class RedisFrameQueue:
         posted again since is a duplicate, False)."""
         with self._boundary("read the frame's dead letter"):
             record = self._record(map_id, frame_key)
-            if record is None or not record.startswith("failed "):
-                raise not_retriable(map_id, frame_key, record.partition(" ")[0] if record else None)
-            dead_id = parse_failed(record.removeprefix("failed "))[0]
+            if record is None or record.status != "failed":
+                raise not_retriable(map_id, frame_key, None if record is None else record.status)
+            dead_id = record.dead_letter_id
             found = self.client.xrange(keys.INGEST_DEAD_LETTER_STREAM, dead_id, dead_id) if dead_id else []
         if not found:
             raise not_retriable(map_id, frame_key, "failed")
@@ -297,7 +311,7 @@ class RedisFrameQueue:
 
     def forget_map(self, map_id: str) -> None:
         with self._boundary("forget the map"):
-            self.client.delete(keys.ingest_status_key(map_id), keys.ingest_settled_key(map_id), keys.ingest_counts_key(map_id))
+            self.client.delete(keys.ingest_status_key(map_id), keys.ingest_sweep_key(map_id), keys.ingest_counts_key(map_id))
 
     def stats(self) -> QueueStats:
         with self._boundary("read the ingest counters"):
@@ -438,7 +452,7 @@ class RedisFrameQueue:
                 keys.INGEST_STATS,
                 keys.INGEST_BACKLOG,
                 keys.ingest_status_key(map_id),
-                keys.ingest_settled_key(map_id),
+                keys.ingest_sweep_key(map_id),
                 keys.ingest_counts_key(map_id),
                 keys.INGEST_DEAD_LETTER_STREAM,
                 keys.INGEST_DEAD_LETTER_BYTES,
@@ -451,7 +465,7 @@ class RedisFrameQueue:
                 fields.get(b"bytes", b""),
                 repr(self._clock()),
                 repr(self.limits.frame_record_retention_s),
-                RECORDS_TRIMMED_PER_CALL,
+                RECORDS_SWEPT_PER_CALL,
                 json.dumps(counters),
                 *outcome,
             ],

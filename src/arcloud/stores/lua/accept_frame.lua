@@ -1,35 +1,36 @@
 -- Accept a frame: record it, count it and queue it in one step, so that no frame is recorded as accepted
 -- without being queued (a crash between two writes once left frames "pending" for ever) and the backlog
 -- counters are always the sum of what the stream holds (settle_frame.lua takes frames off).
--- KEYS[1] the map's status HASH, KEYS[2] its settled ZSET, KEYS[3] its counts HASH,
+-- Needs records.lua before it.
+-- KEYS[1] the map's status HASH, KEYS[2] its sweep cursor, KEYS[3] its counts HASH,
 -- KEYS[4] the ingest STREAM, KEYS[5] the stats HASH, KEYS[6] the backlog HASH.
 -- ARGV[1] the frame key, ARGV[2] the map id, ARGV[3] now (Unix s), ARGV[4] the encoded frame,
--- ARGV[5] frame_record_retention_s, ARGV[6] the most expired records dropped,
+-- ARGV[5] frame_record_retention_s, ARGV[6] records looked at by the sweep,
 -- ARGV[7..10] max_queued_frames, max_queued_bytes, max_queued_frames_per_map, max_queued_bytes_per_map.
 -- Returns the new entry id when queued, 0 for a duplicate, or {limit, held, frame bytes} when the
 -- limit (a QueueLimits field) refuses the frame (QueueLimits.refusal checks the same, in the same order).
 -- A frame accepted before is a duplicate while its entry is in the stream (queued or pending) or it was
--- processed; one that failed, or whose entry is gone without an outcome (lost), is queued again. Records
--- of frames settled longer than the retention ago are dropped first (this frame's too): a frame whose
--- record is gone is a new frame.
-local status_key, settled_key, counts_key = KEYS[1], KEYS[2], KEYS[3]
+-- processed; one that failed, or whose entry is gone without an outcome (lost), is queued again. A
+-- record of a frame settled longer than the retention ago counts as gone (the sweep drops such records):
+-- the frame is a new one.
+local status_key, sweep_key, counts_key = KEYS[1], KEYS[2], KEYS[3]
 local stream, stats, backlog = KEYS[4], KEYS[5], KEYS[6]
 local frame_key, map_id, payload = ARGV[1], ARGV[2], ARGV[4]
 local cutoff = tonumber(ARGV[3]) - tonumber(ARGV[5])
 
-local expired = redis.call('ZRANGEBYSCORE', settled_key, '-inf', '(' .. cutoff, 'LIMIT', 0, tonumber(ARGV[6]))
-local settled_at = redis.call('ZSCORE', settled_key, frame_key)
-if settled_at and tonumber(settled_at) < cutoff then
-  table.insert(expired, frame_key)
-end
-for _, key in ipairs(expired) do
-  redis.call('HDEL', status_key, key)
-  redis.call('ZREM', settled_key, key)
-end
-
+sweep(status_key, sweep_key, cutoff, tonumber(ARGV[6]), settled_at)
 local status = redis.call('HGET', status_key, frame_key)
-local duplicate = status == 'processed'
-if status and string.sub(status, 1, 7) == 'queued ' then
+if status then
+  local at = settled_at(status)
+  if at and at < cutoff then
+    redis.call('HDEL', status_key, frame_key)
+    status = false
+  end
+end
+local duplicate = false
+if status and string.sub(status, 1, 10) == 'processed ' then
+  duplicate = true
+elseif status and string.sub(status, 1, 7) == 'queued ' then
   local entry_id = string.sub(status, 8)
   duplicate = #redis.call('XRANGE', stream, entry_id, entry_id) > 0
 end
@@ -60,7 +61,6 @@ if not status then
 elseif string.sub(status, 1, 7) == 'failed ' and tonumber(redis.call('HGET', counts_key, 'failed') or 0) > 0 then
   redis.call('HINCRBY', counts_key, 'failed', -1)
 end
-redis.call('ZREM', settled_key, frame_key)
 redis.call('HSET', status_key, frame_key, 'queued ' .. entry_id)
 redis.call('HINCRBY', stats, 'accepted', 1)
 return entry_id

@@ -1,20 +1,20 @@
 -- Settle one delivery in one step: acknowledge and delete its entry, take its frame off the backlog,
 -- count it, and (the first time the entry settles) write the frame's outcome: processed, or failed with a
 -- dead letter. Only the call that deletes the entry takes it off the backlog, so two workers settling
--- one entry (a claimed frame whose slow worker finished too) count it once.
+-- one entry (a claimed frame whose slow worker finished too) count it once. Needs records.lua before it.
 -- KEYS[1] the ingest STREAM, KEYS[2] the stats HASH, KEYS[3] the backlog HASH,
--- KEYS[4] the map's status HASH, KEYS[5] its settled ZSET, KEYS[6] its counts HASH,
+-- KEYS[4] the map's status HASH, KEYS[5] its sweep cursor, KEYS[6] its counts HASH,
 -- KEYS[7] the dead-letter STREAM, KEYS[8] the dead letters' bytes STRING.
 -- ARGV[1] the consumer group, ARGV[2] the entry id, ARGV[3] the map id, ARGV[4] the frame key (both
 -- as the entry carries them), ARGV[5] the entry's 'bytes' ('' when it has none: accepted before the
--- backlog was counted), ARGV[6] now (Unix s), ARGV[7] frame_record_retention_s, ARGV[8] the most
--- expired records dropped, ARGV[9] JSON {"add": {stats field: integer}, "latency_sum_s": seconds or
+-- backlog was counted), ARGV[6] now (Unix s), ARGV[7] frame_record_retention_s, ARGV[8] records
+-- looked at by the sweep, ARGV[9] JSON {"add": {stats field: integer}, "latency_sum_s": seconds or
 -- absent}, ARGV[10] 'processed', or 'failed' followed by ARGV[11] the reason, ARGV[12] deliveries,
 -- ARGV[13] the consumer, ARGV[14] max_dead_letters, ARGV[15] max_dead_letter_bytes.
 -- A frame's record is written only where it is still kept (not when its map was forgotten meanwhile).
 -- Returns 1 when this call settled the entry, 0 when it was settled before.
 local stream, stats, backlog = KEYS[1], KEYS[2], KEYS[3]
-local status_key, settled_key, counts_key = KEYS[4], KEYS[5], KEYS[6]
+local status_key, sweep_key, counts_key = KEYS[4], KEYS[5], KEYS[6]
 local dead_stream, dead_bytes = KEYS[7], KEYS[8]
 local entry_id, map_id, frame_key, now = ARGV[2], ARGV[3], ARGV[4], ARGV[6]
 local outcome = ARGV[10]
@@ -52,7 +52,7 @@ if ARGV[5] ~= '' then
   take_off('bytes:' .. map_id, n_bytes)
 end
 
-local record = 'processed'
+local record = 'processed ' .. now
 if outcome == 'failed' then
   local payload = ''
   for i = 1, #dead, 2 do
@@ -87,7 +87,7 @@ if outcome == 'failed' then
     end
     redis.call('XDEL', dead_stream, oldest[1])
   end
-  record = 'failed ' .. dead_id .. ' ' .. ARGV[12] .. ' ' .. ARGV[11]
+  record = 'failed ' .. now .. ' ' .. dead_id .. ' ' .. ARGV[12] .. ' ' .. ARGV[11]
 end
 
 if map_id ~= '' and frame_key ~= '' and redis.call('HEXISTS', status_key, frame_key) == 1 then
@@ -96,12 +96,6 @@ if map_id ~= '' and frame_key ~= '' and redis.call('HEXISTS', status_key, frame_
     redis.call('HINCRBY', counts_key, 'failed', 1)
   end
   redis.call('HSET', status_key, frame_key, record)
-  redis.call('ZADD', settled_key, now, frame_key)
-  local cutoff = tonumber(now) - tonumber(ARGV[7])
-  local expired = redis.call('ZRANGEBYSCORE', settled_key, '-inf', '(' .. cutoff, 'LIMIT', 0, tonumber(ARGV[8]))
-  for _, key in ipairs(expired) do
-    redis.call('HDEL', status_key, key)
-    redis.call('ZREM', settled_key, key)
-  end
+  sweep(status_key, sweep_key, tonumber(now) - tonumber(ARGV[7]), tonumber(ARGV[8]), settled_at)
 end
 return 1
