@@ -1,4 +1,4 @@
-"""The `arcloud` command line: demo, eval, serve, replay."""
+"""The `arcloud` command line: demo, eval, serve, worker, replay, frames."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 from arcloud.accuracy.cli import add_eval_commands
 from arcloud.allocator import keep_freed_memory
 from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
+from arcloud.tools.frames_cli import add_frames_commands
 from arcloud.tools.service_cli import add_service_commands
 
 
@@ -61,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_demo_command(subparsers)
     add_eval_commands(subparsers)
     add_service_commands(subparsers)
+    add_frames_commands(subparsers)
     return parser
 
 
