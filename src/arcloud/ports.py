@@ -142,9 +142,9 @@ DEFAULT_FRAME_RECORD_RETENTION_S = 86400.0
 class QueueLimits:
     """How much a ``FrameQueue`` holds, and how long it remembers; the same on every adapter.
 
-    A frame counts (one frame, ``queued_bytes``: what the queue holds of it, on Redis the stream entry's
-    frame bytes, embedded its arrays) from its acceptance until it is acknowledged or dead-lettered; a
-    frame whose step failed and waits for another delivery still counts. ``put`` refuses a frame that
+    A frame counts as one frame and as the bytes the queue holds of it (Redis: the stream entry's frame
+    bytes; embedded: its arrays) from its acceptance until it is acknowledged or dead-lettered; a frame
+    whose step failed and waits for another delivery still counts. ``put`` refuses a frame that
     would take the queue past ``max_queued_frames`` or ``max_queued_bytes``, or its map past
     ``max_queued_frames_per_map`` or ``max_queued_bytes_per_map``, so one map cannot fill the queue for
     every other.
@@ -284,8 +284,8 @@ class FrameQueue(Protocol):
 
     Producer side (the API): ``put`` (deduplicated per map: a frame accepted before is not queued again
     while it is queued, in hand or processed; one that failed or was lost is), per-map counts, service-wide
-    ``stats``; bounded by ``QueueLimits``. Operators: ``failed_frames``, ``retry_failed``. Consumer side (workers): ``take`` a new
-    frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
+    ``stats``; bounded by ``QueueLimits``. Operators: ``failed_frames``, ``retry_failed``. Consumer side
+    (workers): ``take`` a new frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
     (the step ran, or the frame had been processed before), ``fail`` (the step raised) or
     ``dead_letter`` (given up on: counted as failed). A queue that redelivers (Redis) leaves a failed
     frame for a later delivery; one that does not (embedded) counts it failed at once.

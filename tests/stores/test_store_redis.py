@@ -24,7 +24,7 @@ from arcloud.ports import QueueLimits
 from arcloud.stores import keys
 from arcloud.stores.memory import MemoryStore
 from arcloud.stores.redis import RedisStore
-from arcloud.stores.redis_queue import RedisFrameQueue
+from arcloud.stores.redis_queue import FrameRecord, RedisFrameQueue
 
 pytestmark = pytest.mark.redis
 
@@ -290,3 +290,28 @@ def test_a_maps_frame_records_stay_bounded_in_redis_memory(redis_store: RedisSto
     assert after_2000 <= 1.1 * after_200
     assert queue.map_counts(MAP) == (2000, 0) and store.count_frames(MAP) == 2000
     assert queue.stats().queued_bytes == 0 and queue.stats().processed == 2000
+
+
+def test_frame_records_parse_and_those_from_before_the_retention_expire_at_once(redis_store: RedisStore) -> None:
+    assert FrameRecord.parse("queued 1700000000000-0") == FrameRecord("queued", entry_id="1700000000000-0")
+    assert FrameRecord.parse("processed 1700000000.25") == FrameRecord("processed", settled_at_s=1700000000.25)
+    assert FrameRecord.parse("failed 1700000000.25 1700000000000-3 5 delivered 6 times (max 5)") == FrameRecord(
+        "failed", settled_at_s=1700000000.25, dead_letter_id="1700000000000-3", deliveries=5, reason="delivered 6 times (max 5)"
+    )
+    # Written before records carried their time (upgrading): expired, so forgotten, and swept away.
+    assert FrameRecord.parse("processed") == FrameRecord("processed", settled_at_s=0.0)
+    assert FrameRecord.parse("failed RuntimeError: boom") == FrameRecord("failed", settled_at_s=0.0, reason="RuntimeError: boom")
+    client = redis_store.client
+    queue = RedisFrameQueue(client=client, group="legacy")
+    queue.prepare()
+    client.hset(
+        keys.ingest_status_key(MAP), mapping={"d/old-processed": "processed", "d/old-failed": "failed RuntimeError: boom"}
+    )
+    client.hset(keys.ingest_counts_key(MAP), mapping={"accepted": 2, "failed": 1})
+    assert queue.frame_status(MAP, "d/old-processed") is None and queue.failed_frames(MAP, 10) == []
+    rgb, depth = np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32)
+    assert queue.put(
+        make_frame(rgb, depth, (4.0, 4.0, 1.5, 1.5), np.eye(4), timestamp_s=0, map_id=MAP, device_id="d", frame_id="new")
+    )
+    assert client.hkeys(keys.ingest_status_key(MAP)) == [b"d/new"]  # the sweep dropped both
+    assert queue.map_counts(MAP) == (3, 1)
