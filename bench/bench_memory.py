@@ -176,7 +176,8 @@ def redis_figures(client: redis.Redis, map_id: str, object_ids: list[int]) -> di
             return "objects"
         if rest.startswith(keys.CELL + ":"):
             return "index_cells"
-        return {keys.META: "meta", keys.BOUNDS: "bounds", keys.IDS: "bookkeeping", keys.FRAMES: "bookkeeping"}.get(rest, "other")
+        bookkeeping = (keys.IDS, keys.PROCESSED, f"{keys.PROCESSED}:count")
+        return {keys.META: "meta", keys.BOUNDS: "bounds", **dict.fromkeys(bookkeeping, "bookkeeping")}.get(rest, "other")
 
     by_kind: Counter[str] = Counter()
     key_counts: Counter[str] = Counter()

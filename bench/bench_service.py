@@ -169,18 +169,18 @@ class Service:
         def poll() -> None:
             """Completion times: the processed-frames set's size every ``poll_s``; which frames, only when it
             grew (the load generator's CPU, counted with the API's, stays small)."""
-            frames_key = store_keys.frames_key(map_id)
+            processed_key = store_keys.processed_key(map_id)
             seen = -1
             while True:
                 pending = np.flatnonzero(np.isnan(done))
                 if pending.size == 0:
                     return
-                count = int(self.redis.client.scard(frames_key))
+                count = int(self.redis.client.hlen(processed_key))
                 now = time.perf_counter()
                 if count != seen:
                     seen = count
-                    flags = self.redis.client.smismember(frames_key, [keys[i] for i in pending])
-                    done[pending[np.asarray(flags, bool)]] = now
+                    marks = self.redis.client.hmget(processed_key, [keys[i] for i in pending])
+                    done[pending[np.asarray([mark is not None for mark in marks], bool)]] = now
                 if now - posted.max() > 600:
                     return
                 time.sleep(poll_s)

@@ -23,6 +23,9 @@ COMMANDS = (
     ["serve"],
     ["worker"],
     ["replay"],
+    ["frames"],
+    ["frames", "failed"],
+    ["frames", "retry"],
 )
 
 

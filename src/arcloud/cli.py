@@ -1,4 +1,4 @@
-"""The `arcloud` command line: demo, eval, serve, worker, replay, keys, export."""
+"""The `arcloud` command line: demo, eval, serve, worker, replay, frames, keys, export."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from arcloud.accuracy.cli import add_eval_commands
 from arcloud.allocator import keep_freed_memory
 from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positive_int
 from arcloud.tools.export_cli import add_export_command
+from arcloud.tools.frames_cli import add_frames_commands
 from arcloud.tools.keys_cli import add_keys_commands
 from arcloud.tools.service_cli import add_service_commands
 
@@ -63,8 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_demo_command(subparsers)
     add_eval_commands(subparsers)
     add_service_commands(subparsers)
-    add_keys_commands(subparsers)
     add_export_command(subparsers)
+    add_frames_commands(subparsers)
+    add_keys_commands(subparsers)
     return parser
 
 

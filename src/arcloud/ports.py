@@ -4,7 +4,8 @@
 - ``ObjectStore``: a ``MapStore`` that also lists (with or without voxels), counts, deletes and answers a
   health check (embedded ``stores.memory``, ``stores.redis``).
 - ``FrameQueue``: validated frames from the API to the workers that run the step, with per-map frame
-  counts and service-wide counters (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``).
+  counts and service-wide counters (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``),
+  bounded by ``QueueLimits`` (frames and bytes, overall and per map; how long settled frames are remembered).
 - ``KeyStore``: the API keys (``arcloud.access.ApiKey``), hashed (a JSON file ``stores.file_api_keys``,
   Redis ``stores.redis_api_keys``).
 - ``RateLimiter``: token buckets shared by every API process (``stores.memory_rate``, ``stores.redis_rate``).
@@ -25,11 +26,12 @@ from arcloud.access import ApiKey
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
 from arcloud.core.types import AABB, OBB, Frame, MapObject, Params
-from arcloud.errors import ArcloudError
+from arcloud.errors import ArcloudError, InvalidInput
 
 __all__ = [
     "LATENCY_BUCKETS_S",
     "Detector",
+    "FailedFrame",
     "FrameQueue",
     "KeyStore",
     "MapArchive",
@@ -39,6 +41,7 @@ __all__ = [
     "ObjectMeta",
     "ObjectStore",
     "QueueFull",
+    "QueueLimits",
     "QueueStats",
     "QueuedFrame",
     "RateLimiter",
@@ -96,7 +99,7 @@ class ObjectStore(MapStore, Protocol):
         ...
 
     def count_frames(self, map_id: str) -> int:
-        """How many frames were recorded as processed in this map."""
+        """How many frames were recorded as processed in this map (a counter: records expiring do not lower it)."""
         ...
 
     #: The blob format this store writes (``stores.codec.FORMAT_VERSION``), part of a map's header.
@@ -136,7 +139,98 @@ def latency_bucket(seconds: float) -> int:
 
 
 class QueueFull(ArcloudError):
-    """The queue holds its maximum of frames (or the service is stopping); retry later (HTTP 503)."""
+    """The frame would take the queue (or its map's share of it) past a limit, or the service is stopping;
+    retry later (HTTP 503). ``limit``: the ``QueueLimits`` field that refused it (None: stopping)."""
+
+    def __init__(self, message: str, limit: str | None = None) -> None:
+        super().__init__(message)
+        self.limit = limit
+
+
+#: Records of settled frames (and the stores' processed-frame marks) looked at per call for expired ones:
+#: the sweep rides on the calls of the map (accept, acknowledge, commit), so its work per call is bounded.
+RECORDS_SWEPT_PER_CALL = 100
+#: How long a settled frame is remembered by default (``QueueLimits.frame_record_retention_s``, and the
+#: stores' processed-frame marks): a day, far beyond any redelivery (``max_deliveries`` x ``claim_min_idle_s``).
+DEFAULT_FRAME_RECORD_RETENTION_S = 86400.0
+
+
+@dataclass(frozen=True, slots=True)
+class QueueLimits:
+    """How much a ``FrameQueue`` holds, and how long it remembers; the same on every adapter.
+
+    A frame counts as one frame and as the bytes the queue holds of it (Redis: the stream entry's frame
+    bytes; embedded: its arrays) from its acceptance until it is acknowledged or dead-lettered; a frame
+    whose step failed and waits for another delivery still counts. ``put`` refuses a frame that
+    would take the queue past ``max_queued_frames`` or ``max_queued_bytes``, or its map past
+    ``max_queued_frames_per_map`` or ``max_queued_bytes_per_map``, so one map cannot fill the queue for
+    every other.
+
+    A settled (processed or failed) frame's record, its status and its part in the duplicate rule, is
+    kept ``frame_record_retention_s`` and then dropped (each later call on the map looks at
+    ``RECORDS_SWEPT_PER_CALL`` records for expired ones; past the retention a record counts as gone
+    already): the frame is then unknown (``frame_status`` None) and posting it again queues
+    it as a new frame. The map's counts are counters and do not shrink. Failed frames keep their payload
+    (for ``retry_failed``) in at most ``max_dead_letters`` dead letters of at most
+    ``max_dead_letter_bytes`` together, the oldest dropped first."""
+
+    max_queued_frames: int = 1000
+    max_queued_bytes: int = 2**30
+    max_queued_frames_per_map: int = 250
+    max_queued_bytes_per_map: int = 2**28
+    frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S
+    max_dead_letters: int = 10_000
+    max_dead_letter_bytes: int = 2**28
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if not value > 0:
+                raise InvalidInput(f"QueueLimits.{name}", "> 0", value)
+
+    def refusal(
+        self, map_id: str, frame_bytes: int, *, frames: int, queued_bytes: int, map_frames: int, map_bytes: int
+    ) -> QueueFull | None:
+        """Whether a frame of ``frame_bytes`` fits beside what is queued (``frames``, ``queued_bytes``
+        overall, ``map_frames``, ``map_bytes`` of its map): None, or the ``QueueFull`` that refuses it.
+        The overall limits are checked first (when they refuse, every map is refused). The Redis queue
+        checks the same in ``lua/accept_frame.lua``."""
+        for name, held, adding in (
+            ("max_queued_frames", frames, 1),
+            ("max_queued_bytes", queued_bytes, frame_bytes),
+            ("max_queued_frames_per_map", map_frames, 1),
+            ("max_queued_bytes_per_map", map_bytes, frame_bytes),
+        ):
+            if held + adding > getattr(self, name):
+                return self.full(name, map_id, held, frame_bytes)
+        return None
+
+    def full(self, limit: str, map_id: str, held: int, frame_bytes: int) -> QueueFull:
+        """The ``QueueFull`` of ``limit`` (a field name) holding ``held`` (frames or bytes)."""
+        bound = getattr(self, limit)
+        if limit.startswith("max_queued_bytes") and frame_bytes > bound:  # the service's settings rule this out
+            return QueueFull(f"this frame's {_mb(frame_bytes)} is more than {limit} ({_mb(bound)}): it never fits", limit)
+        if limit == "max_queued_frames":
+            text = f"the queue holds {held} frames ({limit} {bound})"
+        elif limit == "max_queued_frames_per_map":
+            text = f"map {map_id} has {held} frames queued ({limit} {bound})"
+        else:
+            whose = "the queue holds" if limit == "max_queued_bytes" else f"map {map_id} has"
+            text = f"{whose} {_mb(held)} queued; this frame's {_mb(frame_bytes)} would pass {limit} ({_mb(bound)})"
+        return QueueFull(f"{text}; try again later", limit)
+
+
+def not_retriable(map_id: str, frame_key: str, status: str | None) -> InvalidInput:
+    """Why ``FrameQueue.retry_failed`` cannot queue the frame again: it is ``status`` (None: the map has no
+    record of it), or it failed but its dead letter was dropped."""
+    if status == "failed":
+        return InvalidInput("frame", "a failed frame whose dead letter is kept", f"{frame_key}: dropped (max_dead_letters)")
+    what = status or "no record (never accepted, or settled longer ago than frame_record_retention_s)"
+    return InvalidInput("frame", f"a failed frame of map {map_id}", f"{frame_key}: {what}")
+
+
+def _mb(n_bytes: int) -> str:
+    return f"{n_bytes / 1e6:.1f} MB"
 
 
 @dataclass(slots=True)
@@ -152,6 +246,7 @@ class QueueStats:
     claimed: int = 0  # frames taken over from a consumer that stopped answering
     retried: int = 0  # steps tried again after a lock timeout or a stale lease
     queue_depth: int = 0  # frames queued or in progress
+    queued_bytes: int = 0  # what the queue holds of them (``QueueLimits``)
     latency_counts: list[int] = field(default_factory=lambda: [0] * (len(LATENCY_BUCKETS_S) + 1))
     latency_sum_s: float = 0.0
 
@@ -171,6 +266,18 @@ class FrameStatus:
 
     status: FrameStatusName
     reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class FailedFrame:
+    """A frame given up on: why, after how many deliveries, when (Unix seconds); ``retriable``: its
+    dead letter (the payload) is still kept (``QueueLimits.max_dead_letters``)."""
+
+    frame_key: str
+    reason: str
+    deliveries: int
+    failed_at_s: float
+    retriable: bool
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -193,8 +300,9 @@ class FrameQueue(Protocol):
     """Validated frames from the API to the consumers that run the step, at least once.
 
     Producer side (the API): ``put`` (deduplicated per map: a frame accepted before is not queued again
-    while it is queued, in hand or processed; one that failed or was lost is), per-map counts, service-wide ``stats``. Consumer side (workers): ``take`` a new
-    frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
+    while it is queued, in hand or processed; one that failed or was lost is), per-map counts, service-wide
+    ``stats``; bounded by ``QueueLimits``. Operators: ``failed_frames``, ``retry_failed``. Consumer side
+    (workers): ``take`` a new frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
     (the step ran, or the frame had been processed before), ``fail`` (the step raised) or
     ``dead_letter`` (given up on: counted as failed). A queue that redelivers (Redis) leaves a failed
     frame for a later delivery; one that does not (embedded) counts it failed at once.
@@ -206,11 +314,14 @@ class FrameQueue(Protocol):
         """Queue a validated frame; False (nothing queued) when it was accepted before and is queued, in hand
         or processed (a frame that failed, or was accepted but has none of these outcomes, is queued again).
         ``message``: the protobuf ``arcloud.v1.Frame`` it was validated from, which a queue that
-        serialises may carry instead of encoding the frame again. Raises ``QueueFull``."""
+        serialises may carry instead of encoding the frame again. Raises ``QueueFull`` (``QueueLimits``).
+        A frame whose record expired (``QueueLimits.frame_record_retention_s``) is queued as a new one."""
         ...
 
     def map_counts(self, map_id: str) -> tuple[int, int]:
-        """(accepted, failed) frames of the map."""
+        """(accepted, failed) frames of the map: counters, which records expiring do not lower. A frame
+        posted again after failing is no longer counted failed; one posted again after its record expired
+        is counted accepted again."""
         ...
 
     def known_map(self, map_id: str) -> bool:
@@ -218,7 +329,18 @@ class FrameQueue(Protocol):
         ...
 
     def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
-        """The status of an accepted frame; None when the frame was never accepted."""
+        """The status of an accepted frame; None when the frame was never accepted or its record expired
+        (``QueueLimits.frame_record_retention_s`` after it settled)."""
+        ...
+
+    def failed_frames(self, map_id: str, limit: int) -> list[FailedFrame]:
+        """The map's failed frames (those whose record is kept), latest first, at most ``limit``."""
+        ...
+
+    def retry_failed(self, map_id: str, frame_key: str) -> bool:
+        """Queue a failed frame again from its dead letter, as a device posting it again would (the limits
+        apply: ``QueueFull``). False when it was queued again since (posted again). ``InvalidInput`` when
+        the map has no such failed frame, or its dead letter was dropped."""
         ...
 
     def forget_map(self, map_id: str) -> None:

@@ -325,6 +325,50 @@ def test_full_queue_answers_503_with_retry_after() -> None:
         wait_until(lambda: client.get("/v1/maps/m/stats").json()["frames"]["pending"] == 0, 20, "queue drained")
 
 
+@pytest.mark.parametrize("store", ["memory", pytest.param("redis", marks=pytest.mark.redis)])
+def test_a_map_at_its_queue_limit_gets_503_while_another_map_still_gets_202(store: str) -> None:
+    """Embedded: one worker thread holds a's first frame (in hand: still counted). Redis: no worker."""
+    from redis_server import RedisServer
+
+    release = threading.Event()
+
+    class Blocking(BlobDetector):
+        def detect(self, frame):
+            release.wait(10)
+            return super().detect(frame)
+
+    def post(map_id: str, index: int) -> httpx.Response:
+        body = proto_body(make_test_frame(index, map_id=map_id))
+        return client.post(f"/v1/maps/{map_id}/frames", content=body, headers=PROTOBUF)  # type: ignore[no-any-return]  # AppClient's portal call is Any
+
+    server = RedisServer.start() if store == "redis" else None
+    limits = {"max_queued_frames": 8, "max_queued_frames_per_map": 2}
+    if server is None:
+        app = create_app(Settings(detector="sim:0", workers=1, **limits), detector=Blocking())
+    else:
+        app = create_app(Settings(store=server.url, detector="sim:0", workers=0, **limits))
+    try:
+        with AppClient(app) as client:
+            assert [post("a", i).status_code for i in range(2)] == [202, 202]
+            refused = post("a", 2)
+            assert refused.status_code == 503 and refused.headers["retry-after"] == "1", refused.text
+            assert "queue full: map a has 2 frames queued (max_queued_frames_per_map 2)" in refused.json()["detail"]
+            assert post("b", 0).status_code == 202  # another map still gets in
+            assert client.get("/v1/maps/a/stats").json()["frames"]["accepted"] == 2
+            gauges = dict(line.split() for line in client.get("/metrics").text.splitlines() if line.startswith("arcloud_queue_"))
+            assert float(gauges["arcloud_queue_depth"]) == 3
+            assert float(gauges["arcloud_queue_bytes"]) >= 3 * HEIGHT * WIDTH * 2  # depth alone: 2 or 4 bytes a pixel
+            if server is None:
+                release.set()
+                wait_until(lambda: processed(client, "a") + processed(client, "b") == 3, 20, "the three frames processed")
+                assert "arcloud_queue_bytes 0.0" in client.get("/metrics").text
+                assert post("a", 2).status_code == 202  # room again
+    finally:
+        release.set()
+        if server is not None:
+            server.stop()
+
+
 def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
     assert client.get("/healthz").json() == {"status": "ok"}
     assert client.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok", "detector": "ok", "workers": "ok"}}

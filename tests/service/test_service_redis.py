@@ -28,8 +28,8 @@ from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
+from arcloud.stores.keys import INGEST_BACKLOG, INGEST_STATS, INGEST_STREAM, ingest_counts_key, ingest_status_key
 from arcloud.stores.keys import INGEST_DEAD_LETTER_STREAM as DEAD_LETTER_STREAM
-from arcloud.stores.keys import INGEST_STATS, INGEST_STREAM, ingest_accepted_key
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_queue import RedisFrameQueue, parse_stats
 from arcloud.tools.wiring import create_app, healthy, worker_pool
@@ -223,8 +223,9 @@ def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
 
 
 def test_a_frame_recorded_as_accepted_but_never_queued_is_queued_again_on_retry(deployment: Deployment) -> None:
-    # What a crash used to leave between recording a frame and queueing it: the mark without the entry.
-    deployment.redis.sadd(ingest_accepted_key("r7"), "d/f000000")
+    # What a crash used to leave between recording a frame and queueing it: the record without the entry.
+    deployment.redis.hset(ingest_status_key("r7"), "d/f000000", "queued 1-0")
+    deployment.redis.hset(ingest_counts_key("r7"), "accepted", 1)
     before = deployment.stats()
     assert deployment.post("r7", 0)["status"] == "queued"  # not "duplicate"
     wait_until(
@@ -264,6 +265,8 @@ def test_a_killed_workers_frame_is_claimed_by_another(deployment: Deployment) ->
     wait_until(lambda: deployment.store.count_frames("r4") == 1, 30, "the frame processed by another worker", 0.05)
     wait_until(deployment.idle, 10, "nothing pending")
     assert deployment.stats().claimed - claimed_before >= 1
+    backlog = deployment.redis.hgetall(INGEST_BACKLOG)  # counted once, taken off once: nothing drifted
+    assert all(int(v) == 0 for v in backlog.values()) and deployment.queue.stats().queued_bytes == 0, backlog
     assert deployment.api.get("/v1/maps/r4/stats").json()["frames"] == {"accepted": 1, "processed": 1, "failed": 0, "pending": 0}
     wait_until(lambda: deployment.pool.alive() == 2, 30, "the pool to replace the killed worker")
 

@@ -43,12 +43,30 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
         ({"zenoh_mode": "client"}, "needs at least one endpoint"),
         ({"zenoh_frames": True}, "needs zenoh_mode"),
         ({"max_frame_bytes": 10}, "max_frame_bytes"),
+        ({"max_queued_bytes_per_map": 10**6}, "max_queued_bytes_per_map: expected at least the largest frame"),
+        ({"max_queued_bytes": 4 * 10**7}, "max_queued_bytes_per_map: expected at least the largest frame"),  # its quarter
+        ({"frame_record_retention_s": 0}, "frame_record_retention_s"),
         ({"colour": "red"}, "colour"),
     ],
 )
 def test_wrong_settings_fail_at_once_naming_the_field(changes: dict, says: str) -> None:
     with pytest.raises(ValidationError, match=says):
         Settings(**changes)
+
+
+def test_queue_limits_default_a_map_to_a_quarter_of_the_queue(monkeypatch: pytest.MonkeyPatch) -> None:
+    limits = Settings().queue_limits()
+    assert (limits.max_queued_frames, limits.max_queued_frames_per_map) == (1000, 250)
+    assert (limits.max_queued_bytes, limits.max_queued_bytes_per_map) == (2**30, 2**28)
+    monkeypatch.setenv("ARCLOUD_MAX_QUEUED_FRAMES", "100")
+    monkeypatch.setenv("ARCLOUD_MAX_QUEUED_BYTES_PER_MAP", str(2**29))
+    monkeypatch.setenv("ARCLOUD_FRAME_RECORD_RETENTION_S", "3600")
+    limits = Settings().queue_limits()
+    assert (limits.max_queued_frames_per_map, limits.max_queued_bytes_per_map, limits.frame_record_retention_s) == (
+        25,
+        2**29,
+        3600.0,
+    )
 
 
 @pytest.mark.parametrize(("spec", "says"), [("yolo:x", "PREFIX one of"), ("sim:-1", "sim:SEED"), ("sim:x", "sim:SEED")])

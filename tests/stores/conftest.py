@@ -1,12 +1,14 @@
 """Store fixtures: ``store`` runs every contract test on the embedded store and on Redis.
 
 ``redis_server`` / ``redis_url``: one real redis-server for the whole session (skips when the binary is
-absent). ``store`` gives a fresh store per test (Redis: FLUSHDB first, so every test starts empty).
+absent). ``store`` gives a fresh store per test (Redis: FLUSHDB first, so every test starts empty);
+``make_store(**options)`` builds one with options of both stores' constructors (``clock``, ...).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 from redis_server import RedisServer
@@ -40,3 +42,21 @@ def store(request: pytest.FixtureRequest) -> MemoryStore | RedisStore:
     if request.param == "memory":
         return MemoryStore()
     return request.getfixturevalue("redis_store")
+
+
+@pytest.fixture(params=["memory", pytest.param("redis", marks=pytest.mark.redis)])
+def make_store(request: pytest.FixtureRequest) -> Iterator[Callable[..., MemoryStore | RedisStore]]:
+    made: list[RedisStore] = []
+
+    def make(**options: Any) -> MemoryStore | RedisStore:
+        if request.param == "memory":
+            return MemoryStore(**options)
+        server: RedisServer = request.getfixturevalue("redis_server")
+        store = RedisStore(server.url, **options)
+        store.client.flushdb()
+        made.append(store)
+        return store
+
+    yield make
+    for store in made:
+        store.close()

@@ -15,6 +15,16 @@ VOXEL_M = 0.05
 MAP = "map-a"
 
 
+class Clock:
+    """Unix seconds that tests move on by hand (the stores' and queues' ``clock``)."""
+
+    def __init__(self, now_s: float = 1_700_000_000.0) -> None:
+        self.now_s = now_s
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
 def make_object(
     object_id: int, lo_m: tuple[float, float, float], size_m: float = 0.3, *, version: int = 1, seed: int = 0
 ) -> MapObject:

@@ -5,18 +5,22 @@ once in process, delivered again on Redis) each case says so."""
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
 from redis_server import RedisServer
+from store_cases import Clock
 
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame
-from arcloud.ports import FrameQueue, FrameStatus, QueueFull
+from arcloud.errors import InvalidInput
+from arcloud.ports import FrameQueue, FrameStatus, QueueFull, QueueLimits
 from arcloud.stores import keys
-from arcloud.stores.memory_queue import MemoryFrameQueue
+from arcloud.stores.memory_queue import MemoryFrameQueue, queued_bytes
 from arcloud.stores.redis_queue import RedisFrameQueue
+from arcloud.stores.stream_frames import encode_frame
 
 MAP = "qmap"
 
@@ -37,17 +41,32 @@ def frame(index: int, *, map_id: str = MAP) -> Frame:
     )
 
 
+MakeQueue = Callable[..., FrameQueue]
+
+
 @pytest.fixture(params=["memory", pytest.param("redis", marks=pytest.mark.redis)])
-def queue(request: pytest.FixtureRequest) -> Iterator[FrameQueue]:
-    if request.param == "memory":
-        yield MemoryFrameQueue(max_queued_frames=3)
-        return
-    server: RedisServer = request.getfixturevalue("redis_server")
-    made = RedisFrameQueue(server.url, max_queued_frames=3, group="contract")
-    made.client.flushdb()
-    made.prepare()
-    yield made
-    made.close()
+def make_queue(request: pytest.FixtureRequest) -> Iterator[MakeQueue]:
+    """Builds the adapter under test: ``make_queue(clock=..., **QueueLimits fields)`` (an empty Redis)."""
+    made: list[RedisFrameQueue] = []
+
+    def make(clock: Callable[[], float] = time.time, **limits: Any) -> FrameQueue:
+        if request.param == "memory":
+            return MemoryFrameQueue(limits=QueueLimits(**limits), clock=clock)
+        server: RedisServer = request.getfixturevalue("redis_server")
+        queue = RedisFrameQueue(server.url, limits=QueueLimits(**limits), group="contract", clock=clock)
+        queue.client.flushdb()
+        queue.prepare()
+        made.append(queue)
+        return queue
+
+    yield make
+    for queue in made:
+        queue.close()
+
+
+@pytest.fixture
+def queue(make_queue: MakeQueue) -> FrameQueue:
+    return make_queue(max_queued_frames=3)
 
 
 def test_a_frame_goes_through_once_and_is_counted(queue: FrameQueue) -> None:
@@ -124,13 +143,17 @@ def test_a_failed_frame_is_counted_failed_in_process_and_delivered_again_on_redi
 
 def lose_entry(queue: FrameQueue) -> None:
     """Drop the queued entry as a crash would leave it: recorded as accepted, no longer in the queue."""
-    if isinstance(queue, RedisFrameQueue):
-        ((entry_id, _fields),) = queue.client.xrange(keys.INGEST_STREAM)
+    if isinstance(queue, RedisFrameQueue):  # the entry, and its part of the backlog, gone
+        ((entry_id, fields),) = queue.client.xrange(keys.INGEST_STREAM)
         queue.client.xdel(keys.INGEST_STREAM, entry_id)
-    else:  # in process a frame is lost only with its records: drop both, keeping the accepted mark
+        n_bytes, map_id = int(fields[b"bytes"]), fields[b"map_id"].decode()
+        for field, delta in (("frames", 1), ("bytes", n_bytes), (f"frames:{map_id}", 1), (f"bytes:{map_id}", n_bytes)):
+            queue.client.hincrby(keys.INGEST_BACKLOG, field, -delta)
+    else:  # in process a frame is lost only with the process: as if it were, keeping its record
         assert isinstance(queue, MemoryFrameQueue)
-        lost = queue._queue.get_nowait()
-        del queue._status[lost.map_id][lost.key]
+        lost, n_bytes = queue._ready.popleft()
+        queue._count(lost.map_id, -1, -n_bytes)
+        queue._maps[lost.map_id].status[lost.key] = FrameStatus("unknown")
 
 
 def test_a_frame_in_the_queue_in_hand_or_processed_is_a_duplicate(queue: FrameQueue) -> None:
@@ -187,3 +210,208 @@ def test_heartbeats_tell_live_consumers(queue: FrameQueue) -> None:
     queue.leave("c1")
     assert queue.live_consumers(5.0) == []
     assert all(v == "ok" for v in queue.health().values())
+
+
+# --- limits: frames and bytes, overall and per map ---------------------------------------------------
+def sized_frame(index: int, *, map_id: str = MAP, height: int = 12, width: int = 16) -> Frame:
+    """``frame(index)`` at another size (the intrinsics scaled along)."""
+    rng = np.random.default_rng(index)
+    rgb = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    depth = rng.uniform(0.5, 4.0, (height, width)).astype(np.float32)
+    intrinsics = (20.0 * width / 16, 20.0 * width / 16, (width - 1) / 2, (height - 1) / 2)
+    return make_frame(
+        rgb, depth, intrinsics, np.eye(4), timestamp_s=index / 30, map_id=map_id, device_id="d", frame_id=f"f{index:03d}"
+    )
+
+
+def held_bytes(queue: FrameQueue, sent: Frame) -> int:
+    """What ``queue`` counts of ``sent``: the stream entry's frame bytes on Redis, the arrays in process."""
+    return len(encode_frame(sent)) if isinstance(queue, RedisFrameQueue) else queued_bytes(sent)
+
+
+def backlog_is_empty(queue: FrameQueue) -> bool:
+    stats = queue.stats()
+    if isinstance(queue, RedisFrameQueue):
+        per_map_empty = all(int(v) == 0 for v in queue.client.hgetall(keys.INGEST_BACKLOG).values())
+    else:
+        assert isinstance(queue, MemoryFrameQueue)
+        per_map_empty = not queue._map_frames and not queue._map_bytes
+    return stats.queue_depth == 0 and stats.queued_bytes == 0 and per_map_empty
+
+
+def test_a_map_at_its_frame_limit_is_refused_while_another_map_is_accepted(make_queue: MakeQueue) -> None:
+    queue = make_queue(max_queued_frames=5, max_queued_frames_per_map=2)
+    assert queue.put(frame(0, map_id="a")) and queue.put(frame(1, map_id="a"))
+    with pytest.raises(
+        QueueFull, match="map a has 2 frames queued \\(max_queued_frames_per_map 2\\); try again later"
+    ) as refused:
+        queue.put(frame(2, map_id="a"))
+    assert refused.value.limit == "max_queued_frames_per_map"
+    assert queue.put(frame(0, map_id="b")) and queue.put(frame(1, map_id="b"))  # another map still gets in
+    assert queue.map_counts("a") == (2, 0)  # the refused frame was not accepted
+    item = queue.take("c1", block_s=0.5)  # a's first frame: settled, it makes room for one more of a
+    assert item is not None and item.map_id == "a"
+    queue.ack(item, redelivered=False)
+    assert queue.put(frame(2, map_id="a"))
+    assert queue.put(frame(0, map_id="c"))
+    with pytest.raises(QueueFull, match="the queue holds 5 frames \\(max_queued_frames 5\\)") as refused:
+        queue.put(frame(0, map_id="d"))  # the overall limit refuses every map
+    assert refused.value.limit == "max_queued_frames"
+
+
+def test_a_map_at_its_byte_limit_is_refused_while_another_map_is_accepted(make_queue: MakeQueue) -> None:
+    probe = make_queue()
+    size = held_bytes(probe, frame(0))
+    queue = make_queue(max_queued_bytes_per_map=2 * size + size // 2)
+    assert queue.put(frame(0, map_id="a")) and queue.put(frame(1, map_id="a"))
+    with pytest.raises(QueueFull, match=f"map a has {2 * size / 1e6:.1f} MB queued; this frame's") as refused:
+        queue.put(frame(2, map_id="a"))
+    assert refused.value.limit == "max_queued_bytes_per_map"
+    assert queue.put(frame(0, map_id="b"))
+    assert queue.stats().queued_bytes == 3 * size
+
+
+def test_the_byte_limit_refuses_a_large_frame_that_small_ones_pass(make_queue: MakeQueue) -> None:
+    small, large = frame(0), sized_frame(1, height=48, width=64)
+    probe = make_queue()
+    small_bytes, large_bytes = held_bytes(probe, small), held_bytes(probe, large)
+    assert large_bytes > 10 * small_bytes
+    queue = make_queue(max_queued_bytes=large_bytes + small_bytes - 1)
+    assert queue.put(small)
+    with pytest.raises(QueueFull, match="the queue holds .* MB queued; this frame's .* would pass max_queued_bytes") as refused:
+        queue.put(large)
+    assert refused.value.limit == "max_queued_bytes"
+    assert queue.put(frame(2)) and queue.put(frame(3))  # small frames still fit beside
+    for _ in range(3):
+        item = queue.take("c1", block_s=0.5)
+        assert item is not None
+        queue.ack(item, redelivered=False)
+    assert queue.put(large)  # alone it fits
+    assert queue.stats().queued_bytes == large_bytes
+
+
+def test_the_backlog_returns_to_zero_once_every_frame_is_acknowledged_or_dead_lettered(make_queue: MakeQueue) -> None:
+    queue = make_queue()
+    sent = [frame(i, map_id="ab"[i % 2]) for i in range(6)]
+    for each in sent:
+        queue.put(each)
+    assert queue.stats().queue_depth == 6 and queue.stats().queued_bytes == sum(held_bytes(queue, f) for f in sent)
+    taken = [queue.take("c1", block_s=0.5) for _ in range(6)]
+    assert all(item is not None for item in taken)
+    first, second, third, fourth, fifth, sixth = taken
+    assert first is not None and second is not None and third is not None
+    assert fourth is not None and fifth is not None and sixth is not None
+    queue.ack(first, redelivered=False)
+    queue.ack(first, redelivered=True)  # settled twice (a claimed frame's slow worker): counted off once
+    queue.fail(second, "RuntimeError: boom")  # Redis: still pending, still counted
+    if isinstance(queue, RedisFrameQueue):
+        assert queue.stats().queue_depth == 5 and not backlog_is_empty(queue)
+        time.sleep(0.02)
+        second = queue.claim_abandoned("c2", min_idle_s=0.01)
+        assert second is not None
+        queue.dead_letter(second, "poison")
+    queue.dead_letter(third, "poison")
+    queue.dead_letter(third, "poison")
+    queue.forget_map("b")  # the map deleted while its frames are in hand: they still leave the backlog
+    for item in (fourth, fifth, sixth):
+        queue.ack(item, redelivered=False)
+    assert backlog_is_empty(queue)
+    assert not queue.known_map("b") and queue.map_counts("a") == (3, 1)  # nothing of b written back
+
+
+# --- records: retention, counts, dead letters --------------------------------------------------------
+def kept_records(queue: FrameQueue, map_id: str) -> int:
+    """How many frame records of the map the queue holds."""
+    if isinstance(queue, RedisFrameQueue):
+        return int(queue.client.hlen(keys.ingest_status_key(map_id)))
+    assert isinstance(queue, MemoryFrameQueue)
+    records = queue._maps.get(map_id)
+    return 0 if records is None else len(records.status)
+
+
+def test_settled_records_are_dropped_after_the_retention_and_the_counts_stay(make_queue: MakeQueue) -> None:
+    clock = Clock()
+    queue = make_queue(clock=clock, frame_record_retention_s=10.0)
+    n_frames = 300
+    for i in range(n_frames):
+        sent = frame(i)
+        assert queue.put(sent)
+        item = queue.take("c1", block_s=0.5)
+        assert item is not None
+        if i % 10 == 9:
+            queue.dead_letter(item, f"poison {i}")
+        else:
+            queue.ack(item, redelivered=False)
+        clock.now_s += 1.0
+    assert kept_records(queue, MAP) <= 11  # the frames of the last 10 s, not 300
+    assert queue.map_counts(MAP) == (n_frames, n_frames // 10)  # counters: records expiring do not lower them
+    assert queue.frame_status(MAP, frame(0).key) is None  # gone: as never accepted (404)
+    assert queue.frame_status(MAP, frame(n_frames - 2).key) == FrameStatus("processed")
+    assert queue.put(frame(n_frames - 2)) is False  # within the retention: a duplicate
+    assert queue.put(frame(0)) is True  # past it: a new frame
+    assert queue.map_counts(MAP) == (n_frames + 1, n_frames // 10)
+    assert [f.frame_key for f in queue.failed_frames(MAP, 10)] == [frame(n_frames - 1).key]
+    clock.now_s += 10.5  # past the retention of every settled frame, nothing trimmed yet: gone all the same
+    assert queue.frame_status(MAP, frame(n_frames - 2).key) is None and queue.failed_frames(MAP, 10) == []
+    assert queue.put(frame(n_frames - 2)) is True
+
+
+def test_a_failed_frame_is_listed_with_its_reason_and_queued_again_from_its_dead_letter(make_queue: MakeQueue) -> None:
+    clock = Clock()
+    queue = make_queue(clock=clock, max_queued_frames_per_map=1)
+    sent = frame(1)
+    queue.put(sent)
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None
+    queue.dead_letter(item, "InvalidInput: detections[0].label: expected a class")
+    (failed,) = queue.failed_frames(MAP, 10)
+    assert (failed.frame_key, failed.reason, failed.deliveries, failed.failed_at_s, failed.retriable) == (
+        sent.key,
+        "InvalidInput: detections[0].label: expected a class",
+        1,
+        clock.now_s,
+        True,
+    )
+    with pytest.raises(InvalidInput, match="a failed frame of map qmap, got d/f009: no record"):
+        queue.retry_failed(MAP, frame(9).key)
+    queue.put(frame(2))  # the map's one place taken: the retry is refused by the limit
+    with pytest.raises(QueueFull, match="max_queued_frames_per_map"):
+        queue.retry_failed(MAP, sent.key)
+    other = queue.take("c1", block_s=0.5)
+    assert other is not None
+    queue.ack(other, redelivered=False)
+    assert queue.retry_failed(MAP, sent.key) is True
+    assert queue.frame_status(MAP, sent.key) == FrameStatus("queued") and queue.map_counts(MAP) == (2, 0)
+    assert queue.failed_frames(MAP, 10) == []
+    again = queue.take("c1", block_s=0.5)
+    assert again is not None and again.frame is not None and again.frame_key == sent.key
+    np.testing.assert_array_equal(again.frame.depth_m, sent.depth_m)  # the dead letter carried it whole
+    queue.ack(again, redelivered=False)
+    assert queue.frame_status(MAP, sent.key) == FrameStatus("processed")
+    with pytest.raises(InvalidInput, match="got d/f001: processed"):
+        queue.retry_failed(MAP, sent.key)
+
+
+def test_dead_letters_are_capped_and_the_oldest_go_first(make_queue: MakeQueue) -> None:
+    clock = Clock()
+    queue = make_queue(clock=clock, max_dead_letters=2)
+    for i in range(3):
+        queue.put(frame(i))
+        item = queue.take("c1", block_s=0.5)
+        assert item is not None
+        queue.dead_letter(item, f"poison {i}")
+        clock.now_s += 1.0
+    listed = queue.failed_frames(MAP, 10)
+    assert [(f.frame_key, f.reason, f.retriable) for f in listed] == [
+        ("d/f002", "poison 2", True),
+        ("d/f001", "poison 1", True),
+        ("d/f000", "poison 0", False),  # its reason kept, its payload dropped
+    ]
+    assert [f.frame_key for f in queue.failed_frames(MAP, 1)] == ["d/f002"]
+    with pytest.raises(InvalidInput, match="dead letter is kept, got d/f000: dropped"):
+        queue.retry_failed(MAP, "d/f000")
+    assert queue.put(frame(0)) is True  # a device may still post it again
+    if isinstance(queue, RedisFrameQueue):
+        assert queue.client.xlen(keys.INGEST_DEAD_LETTER_STREAM) == 2
+        kept = sum(len(fields[b"frame"]) for _, fields in queue.client.xrange(keys.INGEST_DEAD_LETTER_STREAM))
+        assert int(queue.client.get(keys.INGEST_DEAD_LETTER_BYTES)) == kept

@@ -8,12 +8,14 @@ import time
 
 import numpy as np
 import pytest
-from store_cases import MAP, assert_same_object, make_object, moved, run_steps_in_threads, step_frame
+from store_cases import MAP, Clock, assert_same_object, make_object, moved, run_steps_in_threads, step_frame
 
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.types import Params
 from arcloud.errors import LockTimeout, StaleLease, TooManyCells
+from arcloud.stores import keys
+from arcloud.stores.redis import RedisStore
 
 
 # --- spatial index -----------------------------------------------------------------------------------
@@ -213,6 +215,27 @@ def test_frame_is_recorded_once(store) -> None:
     assert store.commit(MAP, [], [], [])  # no frame: always writes
     assert store.count_frames(MAP) == 2
     assert store.count_frames("map-b") == 0
+
+
+def test_processed_frames_are_remembered_for_the_retention_and_counted_for_ever(make_store) -> None:
+    clock = Clock()
+    store = make_store(frame_record_retention_s=10.0, clock=clock)
+    for i in range(300):
+        assert store.commit(MAP, [], [], [], frame_key=f"dev/f{i}")
+        clock.now_s += 1.0
+    assert store.count_frames(MAP) == 300
+    if isinstance(store, RedisStore):
+        marks = store.client.hlen(keys.processed_key(MAP))
+    else:
+        marks = len(store._map(MAP).frames)
+    assert marks <= 11  # the frames of the last 10 s, not 300
+    assert store.is_frame_done(MAP, "dev/f299") and not store.is_frame_done(MAP, "dev/f0")
+    assert store.commit(MAP, [], [], [], frame_key="dev/f299") is False  # redelivered within the retention: once
+    assert store.commit(MAP, [], [], [], frame_key="dev/f0")  # past it: as a new frame
+    assert store.count_frames(MAP) == 301
+    clock.now_s += 10.5  # every mark past the retention, none dropped yet: none counts
+    assert not store.is_frame_done(MAP, "dev/f299")
+    assert store.commit(MAP, [], [], [], frame_key="dev/f299")
 
 
 def test_misses_are_counted_under_the_lock_once_per_frame_without_a_new_version(store) -> None:

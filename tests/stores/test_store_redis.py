@@ -14,14 +14,17 @@ import pytest
 import redis
 from redis.crc import key_slot
 from redis_server import free_port
-from store_cases import MAP, make_object, step_frame
+from store_cases import MAP, Clock, make_object, step_frame
 
+from arcloud.core.checks import make_frame
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import AABB, Params
 from arcloud.errors import InvalidInput, StaleLease, StoreUnavailable
+from arcloud.ports import QueueLimits
 from arcloud.stores import keys
 from arcloud.stores.memory import MemoryStore
 from arcloud.stores.redis import RedisStore
+from arcloud.stores.redis_queue import FrameRecord, RedisFrameQueue
 
 pytestmark = pytest.mark.redis
 
@@ -39,7 +42,8 @@ def test_every_key_of_a_map_shares_its_hash_tag(redis_store: RedisStore) -> None
     found = all_keys(store) - {keys.MAPS}  # the list of maps is service-wide (its own slot)
     assert found >= {
         keys.ids_key(MAP),
-        keys.frames_key(MAP),
+        keys.processed_key(MAP),
+        keys.processed_count_key(MAP),
         keys.bounds_key(MAP),
         keys.meta_key(MAP),
         keys.object_key(MAP, 1),
@@ -77,8 +81,16 @@ def test_key_templates() -> None:
     assert keys.hash_tag("arcloud:{m}:lock:1") == "m"
     assert keys.hash_tag("arcloud:{}:x") == "arcloud:{}:x"  # an empty tag does not count
     assert keys.hash_tag(keys.INGEST_STREAM) == keys.INGEST_STREAM
-    assert keys.hash_tag(keys.ingest_accepted_key("m")) == keys.hash_tag(keys.ingest_failed_key("m")) == "m"
-    assert len({keys.INGEST_STREAM, keys.INGEST_DEAD_LETTER_STREAM, keys.INGEST_STATS, keys.INGEST_WORKERS}) == 4
+    assert {keys.hash_tag(k("m")) for k in (keys.ingest_status_key, keys.ingest_sweep_key, keys.ingest_counts_key)} == {"m"}
+    service_wide = (
+        keys.INGEST_STREAM,
+        keys.INGEST_DEAD_LETTER_STREAM,
+        keys.INGEST_DEAD_LETTER_BYTES,
+        keys.INGEST_BACKLOG,
+        keys.INGEST_STATS,
+        keys.INGEST_WORKERS,
+    )
+    assert len(set(service_wide)) == 6 and not any(k.startswith(keys.map_prefix("")) for k in service_wide)
 
 
 def test_a_server_that_is_down_raises_store_unavailable() -> None:
@@ -158,6 +170,7 @@ CHILD = """
 import json, sys, time
 sys.path.insert(0, sys.argv[1])
 from store_cases import step_frame
+from arcloud.core.checks import make_frame
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import AABB, Params
 from arcloud.stores.redis import RedisStore
@@ -233,3 +246,72 @@ def test_index_cells_hold_exactly_the_current_objects(redis_store: RedisStore) -
         store.commit(MAP, [lease], [make_object(1, (-0.2, 0.1, 0.1), version=2)], [b])  # now spans x = -0.2..0.1
     assert index() == {"-1:0:0": {1}, "0:0:0": {1}}
     assert store.client.hkeys(keys.bounds_key(MAP)) == [b"1"] and store.client.hkeys(keys.meta_key(MAP)) == [b"1"]
+
+
+def test_a_maps_frame_records_stay_bounded_in_redis_memory(redis_store: RedisStore) -> None:
+    """Queue records and processed marks of 2000 frames take what 200 took: a retention's worth (50 s at a
+    frame a second). They once grew 240 bytes a frame for ever (16-character frame keys); now they take
+    about 200 bytes a frame settled within the retention."""
+    clock = Clock()
+    client = redis_store.client
+    store = RedisStore(client=client, frame_record_retention_s=50.0, clock=clock)
+    queue = RedisFrameQueue(client=client, limits=QueueLimits(frame_record_retention_s=50.0), clock=clock, group="bounded")
+    queue.prepare()
+    rgb, depth = np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32)
+
+    def process(frame_ids: range) -> None:
+        for i in frame_ids:
+            queue.put(
+                make_frame(
+                    rgb,
+                    depth,
+                    (4.0, 4.0, 1.5, 1.5),
+                    np.eye(4),
+                    timestamp_s=i,
+                    map_id=MAP,
+                    device_id="phone-1",
+                    frame_id=f"{i:08d}",
+                )
+            )
+            item = queue.take("c1", block_s=1.0)
+            assert item is not None
+            assert store.commit(MAP, [], [], [], frame_key=item.frame_key)
+            queue.ack(item, redelivered=False)
+            clock.now_s += 1.0
+
+    def used_bytes() -> int:
+        return sum(int(client.memory_usage(k, samples=0) or 0) for k in client.scan_iter(match=keys.map_pattern(MAP)))
+
+    process(range(200))
+    after_200 = used_bytes()
+    process(range(200, 2000))
+    after_2000 = used_bytes()
+    print(f"\nmap keys after 200 frames: {after_200} B, after 2000: {after_2000} B (retention 50 frames)")
+    assert after_2000 <= 1.1 * after_200
+    assert queue.map_counts(MAP) == (2000, 0) and store.count_frames(MAP) == 2000
+    assert queue.stats().queued_bytes == 0 and queue.stats().processed == 2000
+
+
+def test_frame_records_parse_and_those_from_before_the_retention_expire_at_once(redis_store: RedisStore) -> None:
+    assert FrameRecord.parse("queued 1700000000000-0") == FrameRecord("queued", entry_id="1700000000000-0")
+    assert FrameRecord.parse("processed 1700000000.25") == FrameRecord("processed", settled_at_s=1700000000.25)
+    assert FrameRecord.parse("failed 1700000000.25 1700000000000-3 5 delivered 6 times (max 5)") == FrameRecord(
+        "failed", settled_at_s=1700000000.25, dead_letter_id="1700000000000-3", deliveries=5, reason="delivered 6 times (max 5)"
+    )
+    # Written before records carried their time (upgrading): expired, so forgotten, and swept away.
+    assert FrameRecord.parse("processed") == FrameRecord("processed", settled_at_s=0.0)
+    assert FrameRecord.parse("failed RuntimeError: boom") == FrameRecord("failed", settled_at_s=0.0, reason="RuntimeError: boom")
+    client = redis_store.client
+    queue = RedisFrameQueue(client=client, group="legacy")
+    queue.prepare()
+    client.hset(
+        keys.ingest_status_key(MAP), mapping={"d/old-processed": "processed", "d/old-failed": "failed RuntimeError: boom"}
+    )
+    client.hset(keys.ingest_counts_key(MAP), mapping={"accepted": 2, "failed": 1})
+    assert queue.frame_status(MAP, "d/old-processed") is None and queue.failed_frames(MAP, 10) == []
+    rgb, depth = np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32)
+    assert queue.put(
+        make_frame(rgb, depth, (4.0, 4.0, 1.5, 1.5), np.eye(4), timestamp_s=0, map_id=MAP, device_id="d", frame_id="new")
+    )
+    assert client.hkeys(keys.ingest_status_key(MAP)) == [b"d/new"]  # the sweep dropped both
+    assert queue.map_counts(MAP) == (3, 1)

@@ -90,7 +90,9 @@ class MapStore(Protocol):
         Every existing object written or deleted must be held by one of ``leases`` (new objects need
         none) and be at version ``obj.version - 1`` in the store (for deletes: at ``obj.version``);
         otherwise nothing is written and ``StaleLease`` is raised (fencing). Returns False, writing
-        nothing, when ``frame_key`` was already recorded (the frame was processed before).
+        nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
+        forget a record after a retention far longer than any redelivery (a day by default); the frame
+        then counts as not processed.
 
         ``misses``: object id -> its new ``n_missed``, for held objects that are not rewritten (the
         frame saw them and detected nothing there): a counter, so no new version. Written objects
@@ -98,7 +100,7 @@ class MapStore(Protocol):
         ...
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
-        """Whether a commit recorded this frame as processed."""
+        """Whether a commit recorded this frame as processed (and the record is kept)."""
         ...
 
 

@@ -18,7 +18,7 @@ from arcloud.service.ingest import Ingest
 
 
 class IngestCollector(Collector):
-    """Frames accepted/processed/failed, queue depth and the step latency histogram."""
+    """Frames accepted/processed/failed, queue depth (frames and bytes) and the step latency histogram."""
 
     def __init__(self, ingest: Callable[[], Ingest | None]) -> None:
         self._ingest = ingest
@@ -43,6 +43,9 @@ class IngestCollector(Collector):
         ):
             yield CounterMetricFamily(name, text, value=value)
         yield GaugeMetricFamily("arcloud_queue_depth", "Frames queued or in progress", value=snap.queue_depth)
+        yield GaugeMetricFamily(
+            "arcloud_queue_bytes", "Bytes the queue holds of the frames queued or in progress", value=snap.queued_bytes
+        )
         cumulative, buckets = 0, []
         for bound, count in zip((*LATENCY_BUCKETS_S, float("inf")), snap.latency_counts):
             cumulative += count

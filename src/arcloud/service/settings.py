@@ -20,11 +20,14 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from arcloud.core.types import Params
+from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
 
 STORE_SCHEMES = ("redis", "rediss", "unix")
 ZenohMode = Literal["off", "peer", "client", "router"]
 AuthMode = Literal["keys", "none"]
 LogLevel = Literal["DEBUG", "INFO", "WARNING", "ERROR"]
+#: The most a queued frame holds a pixel: RGB8 and float32 depth (embedded); an upload on Redis at most 3 + 2.
+QUEUED_BYTES_PER_PIXEL = 7
 
 # Params fields that the settings set themselves (or that are not plain numbers/flags).
 _PARAMS_OWN = {"lock_ttl_s", "lock_timeout_s"}
@@ -77,7 +80,35 @@ class Settings(BaseSettings):
         description="largest image accepted, in pixels (read from its header before decoding): a queued frame "
         "holds at most 5 bytes a pixel (14 MB at the default)",
     )
-    max_queued_frames: int = Field(1000, ge=1, description="frames waiting before ingest answers 503")
+    max_queued_frames: int = Field(
+        1000, ge=1, description="frames queued or in progress, all maps together, before ingest answers 503"
+    )
+    # The rest of the queue's limits (arcloud.ports.QueueLimits; queue_limits() resolves the defaults)
+    max_queued_bytes: int = Field(
+        2**30,
+        ge=1,
+        description="bytes of the frames queued or in progress (Redis: stream entries, up to 5 bytes a pixel; embedded: "
+        "their arrays, 7 bytes a pixel) before ingest answers 503",
+    )
+    max_queued_frames_per_map: int | None = Field(
+        None,
+        ge=1,
+        description="frames of one map queued or in progress before that map's uploads answer 503; default a quarter of "
+        "max_queued_frames, so one map cannot take the queue from the others (four busy maps fill it)",
+    )
+    max_queued_bytes_per_map: int | None = Field(
+        None, ge=1, description="the same in bytes; default a quarter of max_queued_bytes"
+    )
+    frame_record_retention_s: float = Field(
+        DEFAULT_FRAME_RECORD_RETENTION_S,
+        gt=0,
+        description="how long a processed or failed frame is remembered (its status, the duplicate check, the store's "
+        "processed mark); after it the frame's status answers 404 and posting it again queues it as new",
+    )
+    max_dead_letters: int = Field(10_000, ge=1, description="failed frames kept with their payload for `arcloud frames retry`")
+    max_dead_letter_bytes: int = Field(
+        2**28, ge=1, description="bytes of those payloads together (the oldest dead letters go first)"
+    )
     lock_ttl_s: float = Field(10.0, gt=0, description="per-object lock time to live")
     lock_timeout_s: float = Field(30.0, ge=0, description="how long a step waits for locks")
     params: dict[str, Any] = Field(
@@ -179,6 +210,14 @@ class Settings(BaseSettings):
             raise ValueError("auth: keys with the memory store needs keys_file (the embedded service keeps keys in a file)")
         if self.zenoh_mode == "client" and not self.zenoh_connect:
             raise ValueError("zenoh_connect: a Zenoh client needs at least one endpoint to connect to, got none")
+        limits = self.queue_limits()
+        largest = QUEUED_BYTES_PER_PIXEL * self.max_frame_pixels
+        for name in ("max_queued_bytes", "max_queued_bytes_per_map"):
+            if getattr(limits, name) < largest:
+                raise ValueError(
+                    f"{name}: expected at least the largest frame ({QUEUED_BYTES_PER_PIXEL} bytes a pixel of "
+                    f"max_frame_pixels: {largest}), got {getattr(limits, name)}"
+                )
         return self
 
     # --- derived -----------------------------------------------------------------------------------
@@ -193,6 +232,18 @@ class Settings(BaseSettings):
         if self.auth is not None:
             return self.auth
         return "keys" if self.keys_file or not self.embedded else "none"
+
+    def queue_limits(self) -> QueueLimits:
+        """The frame queue's limits; a per-map limit left out is a quarter of the overall one."""
+        return QueueLimits(
+            max_queued_frames=self.max_queued_frames,
+            max_queued_bytes=self.max_queued_bytes,
+            max_queued_frames_per_map=self.max_queued_frames_per_map or max(1, self.max_queued_frames // 4),
+            max_queued_bytes_per_map=self.max_queued_bytes_per_map or max(1, self.max_queued_bytes // 4),
+            frame_record_retention_s=self.frame_record_retention_s,
+            max_dead_letters=self.max_dead_letters,
+            max_dead_letter_bytes=self.max_dead_letter_bytes,
+        )
 
     def make_params(self) -> Params:
         """The frozen algorithm parameters these settings describe."""

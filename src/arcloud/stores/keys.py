@@ -6,7 +6,10 @@ Lua scripts touch one slot) while many maps spread over a cluster. Map ids are c
 characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and nothing else.
 
     arcloud:{m}:ids                 STRING  object id counter (INCRBY)
-    arcloud:{m}:frames              SET     processed frame keys ("<device_id>/<frame_id>")
+    arcloud:{m}:processed           HASH    processed frame key ("<device_id>/<frame_id>") -> when its commit was
+                                            written (Unix s); kept ``frame_record_retention_s`` (``RedisStore``)
+    arcloud:{m}:processed:count     STRING  frames of the map processed (INCR in the commit; never lowered)
+    arcloud:{m}:processed:sweep     STRING  where the commits' sweep of expired marks goes on (HSCAN cursor)
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
     arcloud:{m}:meta                HASH    object id -> metadata JSON (``codec.encode_meta``): listing needs one read
     arcloud:{m}:obj:<id>            HASH    one object: ``version`` (the fence), ``cells`` (where it is indexed,
@@ -15,14 +18,21 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
 
-    arcloud:{m}:ingest:accepted     SET     frame keys the ingest accepted for the map (``redis_queue``)
-    arcloud:{m}:ingest:failed       SET     frame keys of the map that were dead-lettered
-    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed" | "failed <reason>"
+    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed <settled_at_s>" |
+                                            "failed <settled_at_s> <dead-letter id> <deliveries> <reason>": the
+                                            frames the ingest accepted for the map and keeps a record of
+                                            (``redis_queue``; settled ones for ``frame_record_retention_s``)
+    arcloud:{m}:ingest:sweep        STRING  where the sweep of expired records goes on (HSCAN cursor)
+    arcloud:{m}:ingest:counts       HASH    ``accepted``, ``failed``: the map's frame counts (records expiring
+                                            do not lower them)
 
 Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queue``):
 
     arcloud:ingest                  STREAM  frames to process (protobuf ``Frame`` bytes), one consumer group of workers
-    arcloud:ingest:dead             STREAM  frames given up on, with the reason
+    arcloud:ingest:dead             STREAM  frames given up on, with the reason (``max_dead_letters``)
+    arcloud:ingest:dead:bytes       STRING  the dead letters' frame bytes together (``max_dead_letter_bytes``)
+    arcloud:ingest:backlog          HASH    ``frames``, ``bytes``, ``frames:<map>``, ``bytes:<map>``: what the stream
+                                            holds of frames accepted and not settled, against ``QueueLimits``
     arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
 
@@ -30,7 +40,10 @@ Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queu
     arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
-``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too.
+``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too (not
+its part of ``arcloud:ingest:backlog``: frames still queued leave it when they settle). Written before the
+frame records were bounded, and no longer read: ``arcloud:{m}:frames`` (SET), ``arcloud:{m}:ingest:accepted``
+and ``:failed`` (SETs); ``delete_map`` removes them with the map.
 """
 
 from __future__ import annotations
@@ -39,7 +52,7 @@ PREFIX = "arcloud"
 
 # Suffixes after the map prefix; the Lua scripts build per-object and per-cell keys from these.
 IDS = "ids"
-FRAMES = "frames"
+PROCESSED = "processed"
 BOUNDS = "bounds"
 META = "meta"
 HEADER = "header"
@@ -68,8 +81,16 @@ def ids_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:{IDS}"
 
 
-def frames_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:{FRAMES}"
+def processed_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{PROCESSED}"
+
+
+def processed_count_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{PROCESSED}:count"
+
+
+def processed_sweep_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:{PROCESSED}:sweep"
 
 
 def bounds_key(map_id: str) -> str:
@@ -118,16 +139,16 @@ def hash_tag(key: str) -> str:
     return key
 
 
-def ingest_accepted_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:accepted"
-
-
-def ingest_failed_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:failed"
-
-
 def ingest_status_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:ingest:status"
+
+
+def ingest_sweep_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:sweep"
+
+
+def ingest_counts_key(map_id: str) -> str:
+    return f"{map_prefix(map_id)}:ingest:counts"
 
 
 # Service-wide keys (no map tag).
@@ -135,6 +156,8 @@ INGEST_STREAM = f"{PREFIX}:ingest"
 INGEST_DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"
 INGEST_STATS = f"{INGEST_STREAM}:stats"
 INGEST_WORKERS = f"{INGEST_STREAM}:workers"
+INGEST_DEAD_LETTER_BYTES = f"{INGEST_DEAD_LETTER_STREAM}:bytes"
+INGEST_BACKLOG = f"{INGEST_STREAM}:backlog"
 
 API_KEYS = f"{PREFIX}:keys"
 MAPS = f"{PREFIX}:maps"

@@ -2,8 +2,9 @@
 
 It keeps the semantics of the Redis store so that one contract suite tests both: locks and claims
 carry a token and a TTL (an expired lease's write is refused), writes are compare-and-set on the
-object version (fencing), frames are recorded once. Locks are taken all-or-nothing under one
-condition variable per map, so a thread never holds some locks while waiting for others.
+object version (fencing), frames are recorded once (a processed frame's mark kept
+``frame_record_retention_s``, as on Redis). Locks are taken all-or-nothing under one condition variable
+per map, so a thread never holds some locks while waiting for others.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import itertools
 import threading
 import time
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -22,7 +23,7 @@ from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
-from arcloud.ports import ObjectMeta
+from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, RECORDS_SWEPT_PER_CALL, ObjectMeta
 from arcloud.stores import codec
 from arcloud.stores.codec import meta_of
 
@@ -42,7 +43,8 @@ class _MapState:
     index: dict[tuple[int, int, int], set[int]] = field(default_factory=dict)
     cells_of: dict[int, list[tuple[int, int, int]]] = field(default_factory=dict)
     held: dict[_Name, _Holder] = field(default_factory=dict)
-    frames: set[str] = field(default_factory=set)
+    frames: dict[str, float] = field(default_factory=dict)  # processed frame key -> when (Unix s), oldest first
+    n_frames: int = 0  # frames processed (marks expiring do not lower it)
     ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
     changed: threading.Condition = field(default_factory=threading.Condition)
 
@@ -68,14 +70,25 @@ class MemoryLease:
 
 
 class MemoryStore:
-    """In-process ``ObjectStore``. ``cell_m`` is the size of the spatial index's cubic cells."""
+    """In-process ``ObjectStore``. ``cell_m`` is the size of the spatial index's cubic cells;
+    ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION  # objects are kept as they are, but a map's header names the format
 
-    def __init__(self, *, cell_m: float = 1.0) -> None:
+    def __init__(
+        self,
+        *,
+        cell_m: float = 1.0,
+        frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
+        if not frame_record_retention_s > 0:
+            raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
         self.cell_m = cell_m
+        self.frame_record_retention_s = float(frame_record_retention_s)
+        self._clock = clock
         self._maps: dict[str, _MapState] = {}
         self._headers: dict[str, MapHeader] = {}
         self._updated: dict[str, float] = {}  # map id -> when its objects last changed (Unix s)
@@ -176,7 +189,7 @@ class MemoryStore:
         own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
         state = self._map(map_id)
         with state.changed:
-            if frame_key is not None and frame_key in state.frames:
+            if frame_key is not None and self._recorded(state, frame_key):
                 return False
             now = time.monotonic()
             held: set[int] = set()
@@ -226,11 +239,23 @@ class MemoryStore:
                 for cell in cells:
                     state.index.setdefault(cell, set()).add(obj.id)
             if frame_key is not None:
-                state.frames.add(frame_key)
+                state.frames.pop(frame_key, None)
+                state.frames[frame_key] = self._clock()
+                state.n_frames += 1
+            cutoff = self._clock() - self.frame_record_retention_s
+            for expired in list(
+                itertools.islice(itertools.takewhile(lambda k: state.frames[k] < cutoff, state.frames), RECORDS_SWEPT_PER_CALL)
+            ):
+                del state.frames[expired]
             if upserts or deletes:
                 with self._maps_lock:
                     self._updated[map_id] = time.time()
             return True
+
+    def _recorded(self, state: _MapState, frame_key: str) -> bool:
+        """Under the map's lock: whether a commit recorded the frame within the retention."""
+        recorded_at_s = state.frames.get(frame_key)
+        return recorded_at_s is not None and recorded_at_s >= self._clock() - self.frame_record_retention_s
 
     def _unindex(self, state: _MapState, object_id: int) -> None:
         for cell in state.cells_of.pop(object_id, []):
@@ -262,12 +287,12 @@ class MemoryStore:
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         state = self._map(map_id)
         with state.changed:
-            return frame_key in state.frames
+            return self._recorded(state, frame_key)
 
     def count_frames(self, map_id: str) -> int:
         state = self._map(map_id)
         with state.changed:
-            return len(state.frames)
+            return state.n_frames
 
     def ping(self) -> None:
         """Always answers: the store is this process."""

@@ -20,6 +20,12 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
 - ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
   expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
   mark, or writes nothing. A worker whose lock expired cannot overwrite newer data.
+- Processed frames: a HASH frame key -> when its commit was written, and a counter (``count_frames``).
+  A mark is kept ``frame_record_retention_s`` (the frame queue's records are kept as long, and a frame
+  settles after its commit, so a frame posted again after its queue record went finds no mark either):
+  long enough for any redelivery; after it the frame counts as not processed. Each commit sweeps about
+  ``RECORDS_SWEPT_PER_CALL`` marks on from where the last one stopped (HSCAN, ``lua/records.lua``) and
+  drops the expired ones, so the HASH holds about a retention's frames.
 - ``new_ids``: INCRBY on the map's counter, unique across processes.
 - ``delete_map``: a Lua script removes the objects, index, frames and counter atomically, then a SCAN
   of ``arcloud:{map}:*`` removes whatever else is left (leases still alive). Not atomic against writers
@@ -48,7 +54,7 @@ import math
 import random
 import time
 import uuid
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from functools import cache
 from importlib import resources
@@ -61,7 +67,7 @@ from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable, TooManyCells
-from arcloud.ports import ObjectMeta
+from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, RECORDS_SWEPT_PER_CALL, ObjectMeta
 from arcloud.stores import codec, keys
 
 log = logging.getLogger(__name__)
@@ -134,7 +140,8 @@ class RedisStore:
     """``ObjectStore`` on Redis. ``cell_m``: size of the spatial index's cubic cells (every process of
     one deployment must use the same). ``client``: an existing ``redis.Redis`` (binary responses, i.e.
     ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
-    ``reply_timeout_s``, ``retries``). ``votes_f16`` stores votes as float16 (see ``codec``)."""
+    ``reply_timeout_s``, ``retries``). ``votes_f16`` stores votes as float16 (see ``codec``).
+    ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION
 
@@ -148,9 +155,15 @@ class RedisStore:
         votes_f16: bool = False,
         reply_timeout_s: float = 30.0,
         retries: int = 1,
+        frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
+        if not frame_record_retention_s > 0:
+            raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
+        self.frame_record_retention_s = float(frame_record_retention_s)
+        self._clock = clock
         if client is None:
             client = connect_redis(url, reply_timeout_s=reply_timeout_s, retries=retries)
             self._owns_client = True
@@ -162,9 +175,8 @@ class RedisStore:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
         self.votes_f16 = votes_f16
-        self._scripts = {
-            name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "commit", "delete_map")
-        }
+        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "delete_map")}
+        self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("commit"))
 
     @classmethod
     def from_url(cls, url: str = DEFAULT_URL, **options: Any) -> RedisStore:
@@ -374,6 +386,9 @@ class RedisStore:
                 )
         header: dict[str, Any] = {
             "frame": frame_key or "",
+            "now": self._clock(),
+            "retention_s": self.frame_record_retention_s,
+            "sweep": RECORDS_SWEPT_PER_CALL,
             "leases": [[key, lease.token] for lease in own for key in lease.keys],
             "held": [str(i) for lease in own for i in lease.ids],
             "upserts": [],
@@ -394,7 +409,13 @@ class RedisStore:
             ]
         with self._boundary(f"commit on map {map_id}"):
             written = self._scripts["commit"](
-                keys=[keys.frames_key(map_id), keys.bounds_key(map_id), keys.meta_key(map_id)],
+                keys=[
+                    keys.processed_key(map_id),
+                    keys.bounds_key(map_id),
+                    keys.meta_key(map_id),
+                    keys.processed_count_key(map_id),
+                    keys.processed_sweep_key(map_id),
+                ],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
             if int(written) == 1 and (upserts or deletes):
@@ -408,7 +429,13 @@ class RedisStore:
         with self._boundary(f"delete_map {map_id}"):
             removed = int(
                 self._scripts["delete_map"](
-                    keys=[keys.bounds_key(map_id), keys.frames_key(map_id), keys.ids_key(map_id), keys.meta_key(map_id)],
+                    keys=[
+                        keys.bounds_key(map_id),
+                        keys.processed_key(map_id),
+                        keys.ids_key(map_id),
+                        keys.meta_key(map_id),
+                        keys.processed_count_key(map_id),
+                    ],
                     args=[keys.map_prefix(map_id)],
                 )
             )
@@ -421,11 +448,12 @@ class RedisStore:
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         with self._boundary(f"is_frame_done on map {map_id}"):
-            return bool(self.client.sismember(keys.frames_key(map_id), frame_key))
+            recorded_at_s = self.client.hget(keys.processed_key(map_id), frame_key)
+        return recorded_at_s is not None and float(recorded_at_s) >= self._clock() - self.frame_record_retention_s
 
     def count_frames(self, map_id: str) -> int:
         with self._boundary(f"count_frames on map {map_id}"):
-            return int(self.client.scard(keys.frames_key(map_id)))
+            return int(self.client.get(keys.processed_count_key(map_id)) or 0)
 
     def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
         key = keys.header_key(map_id)

@@ -10,17 +10,36 @@ pending list to claim from, and first-come-first-served across maps. Frames of o
 parallel by several workers (the per-object locks and space claims of the step make that safe). The
 scale-out path beyond one Redis primary is N shard streams (map -> shard by hash), each with its group.
 
-Per map: the SET of accepted frame keys, the SET of failed (dead-lettered) ones, and each frame's status
-(its entry id while in the stream, then processed or failed with the reason). ``lua/accept_frame.lua``
-records and queues a frame in one step, so no frame is recorded as accepted without its entry; a frame
-posted again is a duplicate while its entry is in the stream or it was processed, and is queued again when
-it failed or its entry is gone without an outcome (lost, e.g. in the last second before a crash). Service-wide: the counters and the
-step latency histogram in one HASH shared by every worker, consumers' heartbeats in another, and the
-dead-letter stream. Key templates are in ``keys``; entries carry ``map_id``, ``frame_key``,
-``accepted_at_s`` and ``frame`` (``stream_frames``).
+Per map: each accepted frame's record (its status: its entry id while in the stream, then processed or
+failed, when, and for a failed frame its dead letter, deliveries and reason), and the map's counts
+(accepted, failed: counters). ``lua/accept_frame.lua`` records, counts and queues a frame in one
+step, so no frame is recorded as accepted without its entry; a frame posted again is a duplicate while
+its entry is in the stream or it was processed, and is queued again when it failed or its entry is gone
+without an outcome (lost, e.g. in the last second before a crash). Service-wide: the counters and the
+step latency histogram in one HASH shared by every worker, consumers' heartbeats in another, the
+dead-letter stream, and the backlog (frames and bytes in the stream, overall and per map). Key templates
+are in ``keys``; entries carry ``map_id``, ``frame_key``, ``accepted_at_s``, ``bytes`` and ``frame``
+(``stream_frames``).
 
-``fail`` leaves an entry pending: it is delivered again once claimed, until the worker dead-letters
-it. redis-py's connection errors and timeouts, and a Redis busy with a script (``BUSY``), become
+Limits (``QueueLimits``): ``accept_frame.lua`` checks the backlog against the four limits and adds the
+frame to it in the step that queues it; ``lua/settle_frame.lua`` acknowledges and deletes an entry, takes
+it off the backlog and writes the frame's outcome in one step, and only the call that deletes the entry
+takes it off. So the backlog is always the sum over the entries in the stream, whatever crashes when (a
+Redis restarted without its data loses the counters with the entries). The backlog is service-wide, not
+under a map's hash tag: deleting a map while frames of it are queued leaves it right. The stream is never
+trimmed by length (MAXLEN would drop frames not yet processed): entries leave it only settled, so it
+holds the backlog and nothing else.
+
+Retention: a settled frame's record carries when it settled (``FrameRecord``), and is dropped
+``frame_record_retention_s`` after: each accept or settle of its map sweeps about
+``RECORDS_SWEPT_PER_CALL`` records on from where the last sweep stopped (HSCAN, ``lua/records.lua``), and
+a record past the retention counts as gone even before it is dropped. Dead letters keep the frame's payload for
+``retry_failed``; the dead-letter stream is capped at ``max_dead_letters`` entries and
+``max_dead_letter_bytes`` of payload (the oldest go first), the reason staying in the frame's record.
+Times are the callers' clocks (Unix seconds), as the heartbeats': the hosts' clocks must agree (NTP).
+
+``fail`` leaves an entry pending (still counted): it is delivered again once claimed, until the worker
+dead-letters it. redis-py's connection errors and timeouts, and a Redis busy with a script (``BUSY``), become
 ``StoreUnavailable`` at this boundary, other Redis errors ``StoreError``.
 
 Recovery: a Redis restarted without its data has no consumer group; the readers (``take``,
@@ -31,17 +50,30 @@ starts at the stream's beginning. ``health`` reports a missing group.
 
 from __future__ import annotations
 
+import json
 import logging
+import re
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any, cast
 
 import redis
 
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
-from arcloud.ports import LATENCY_BUCKETS_S, FrameStatus, QueuedFrame, QueueFull, QueueStats, latency_bucket
+from arcloud.ports import (
+    LATENCY_BUCKETS_S,
+    RECORDS_SWEPT_PER_CALL,
+    FailedFrame,
+    FrameStatus,
+    QueuedFrame,
+    QueueLimits,
+    QueueStats,
+    latency_bucket,
+    not_retriable,
+)
 from arcloud.stores import keys
 from arcloud.stores.redis import connect_redis, is_busy, lua_source
 from arcloud.stores.stream_frames import decode_frame, encode_frame
@@ -74,10 +106,45 @@ def _text(value: bytes | str | None) -> str:
     return value.decode(errors="replace") if isinstance(value, bytes) else (value or "")
 
 
+_ENTRY_ID = re.compile(r"\d+-\d+")
+_SECONDS = re.compile(r"\d[\d.]*")
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """A map's record of one frame, as ``lua/records.lua`` writes it: ``status`` queued (``entry_id``),
+    processed or failed (``settled_at_s``; 0 for a record written before records carried their time, so
+    expired), and for a failed frame its ``dead_letter_id`` ("" when not linked), ``deliveries``, ``reason``."""
+
+    status: str
+    entry_id: str = ""
+    settled_at_s: float | None = None
+    dead_letter_id: str = ""
+    deliveries: int = 0
+    reason: str = ""
+
+    @classmethod
+    def parse(cls, text: str) -> FrameRecord:
+        status, _, rest = text.partition(" ")
+        if status == "queued":
+            return cls(status, entry_id=rest)
+        at, _, after = rest.partition(" ")
+        if not _SECONDS.fullmatch(at):
+            return cls(status, settled_at_s=0.0, reason=rest)  # written before records carried their time
+        if status != "failed":
+            return cls(status, settled_at_s=float(at))
+        dead_letter_id, _, after = after.partition(" ")
+        deliveries, _, reason = after.partition(" ")
+        if not (_ENTRY_ID.fullmatch(dead_letter_id) and deliveries.isdigit()):
+            return cls(status, settled_at_s=float(at), reason=rest)
+        return cls(status, settled_at_s=float(at), dead_letter_id=dead_letter_id, deliveries=int(deliveries), reason=reason)
+
+
 class RedisFrameQueue:
     """``FrameQueue`` on Redis Streams. ``client``: an existing ``redis.Redis`` (binary responses) instead
     of connecting to ``url`` (``connect_redis``: then ``socket_timeout_s`` must exceed the longest blocking
-    read). ``group``: the consumer group; ``max_queued_frames``: ``put`` refuses beyond this backlog."""
+    read). ``group``: the consumer group; ``limits``: what ``put`` allows (default ``QueueLimits()``);
+    ``clock``: Unix seconds (records' ages)."""
 
     def __init__(
         self,
@@ -85,8 +152,9 @@ class RedisFrameQueue:
         *,
         client: redis.Redis | None = None,
         group: str = "arcloud-workers",
-        max_queued_frames: int = 1000,
+        limits: QueueLimits | None = None,
         socket_timeout_s: float = 30.0,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         if client is None:
             client = connect_redis(url, reply_timeout_s=socket_timeout_s)
@@ -95,8 +163,11 @@ class RedisFrameQueue:
             self._owns_client = False
         self.client = client
         self.group = group
-        self.max_queued_frames = max_queued_frames
-        self._accept = client.register_script(lua_source("accept_frame"))
+        self.limits = limits or QueueLimits()
+        self._clock = clock
+        self._accept = client.register_script(lua_source("records") + lua_source("accept_frame"))
+        self._settle = client.register_script(lua_source("records") + lua_source("settle_frame"))
+        self._dead_letters_kept = client.register_script(lua_source("dead_letters_kept"))
         self._claim_cursors: dict[str, str] = {}  # consumer -> where its XAUTOCLAIM scan goes on
 
     def close(self) -> None:
@@ -130,71 +201,128 @@ class RedisFrameQueue:
 
     # --- producer ----------------------------------------------------------------------------------
     def put(self, frame: Frame, message: Any = None) -> bool:
-        map_id = frame.map_id
+        return self._queue(frame.map_id, frame.key, encode_frame(frame, message))
+
+    def _queue(self, map_id: str, frame_key: str, payload: bytes) -> bool:
+        """``lua/accept_frame.lua``: True when queued, False for a duplicate; ``QueueFull`` over a limit."""
+        limits = self.limits
         with self._boundary("queue the frame"):
-            entry_id = self._accept(
+            reply = self._accept(
                 keys=[
-                    keys.ingest_accepted_key(map_id),
-                    keys.ingest_failed_key(map_id),
                     keys.ingest_status_key(map_id),
+                    keys.ingest_sweep_key(map_id),
+                    keys.ingest_counts_key(map_id),
                     keys.INGEST_STREAM,
                     keys.INGEST_STATS,
+                    keys.INGEST_BACKLOG,
                 ],
-                args=[frame.key, self.max_queued_frames, map_id, repr(time.time()), encode_frame(frame, message)],
+                args=[
+                    frame_key,
+                    map_id,
+                    repr(self._clock()),
+                    payload,
+                    repr(limits.frame_record_retention_s),
+                    RECORDS_SWEPT_PER_CALL,
+                    limits.max_queued_frames,
+                    limits.max_queued_bytes,
+                    limits.max_queued_frames_per_map,
+                    limits.max_queued_bytes_per_map,
+                ],
             )
-        if entry_id == -1:
-            raise QueueFull(f"{self.max_queued_frames} frames are queued; try again later")
-        return bool(entry_id != 0)  # the new entry id, or 0 for a duplicate
+        if isinstance(reply, list):
+            limit, held, frame_bytes = reply
+            raise limits.full(_text(limit), map_id, int(held), int(frame_bytes))
+        return bool(reply != 0)  # the new entry id, or 0 for a duplicate
 
     def map_counts(self, map_id: str) -> tuple[int, int]:
         with self._boundary("read the map's counts"):
-            pipe = self.client.pipeline(transaction=False)
-            pipe.scard(keys.ingest_accepted_key(map_id))
-            pipe.scard(keys.ingest_failed_key(map_id))
-            accepted, failed = (int(v) for v in pipe.execute())
-        return accepted, failed
+            accepted, failed = self.client.hmget(keys.ingest_counts_key(map_id), ["accepted", "failed"])
+        return int(accepted or 0), int(failed or 0)
 
     def known_map(self, map_id: str) -> bool:
         with self._boundary("look the map up"):
-            return bool(self.client.exists(keys.ingest_accepted_key(map_id)))
+            return bool(self.client.exists(keys.ingest_counts_key(map_id)))
+
+    def _record(self, map_id: str, frame_key: str) -> FrameRecord | None:
+        """The frame's record; None when there is none or it is past the retention."""
+        raw = self.client.hget(keys.ingest_status_key(map_id), frame_key)
+        record = None if raw is None else FrameRecord.parse(_text(raw))
+        return None if record is None or self._expired(record) else record
+
+    def _expired(self, record: FrameRecord) -> bool:
+        at = record.settled_at_s
+        return at is not None and at < self._clock() - self.limits.frame_record_retention_s
 
     def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
         """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
         (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown"."""
         with self._boundary("read the frame's status"):
-            pipe = self.client.pipeline(transaction=False)
-            pipe.sismember(keys.ingest_accepted_key(map_id), frame_key)
-            pipe.hget(keys.ingest_status_key(map_id), frame_key)
-            accepted, raw = pipe.execute()
-            if not accepted:
+            record = self._record(map_id, frame_key)
+            if record is None:
                 return None
-            status, _, detail = _text(raw).partition(" ")
-            if status == "processed":
+            if record.status == "processed":
                 return FrameStatus("processed")
-            if status == "failed":
-                return FrameStatus("failed", detail)
-            if status != "queued" or not self.client.xrange(keys.INGEST_STREAM, detail, detail):
-                return FrameStatus("unknown")  # lost (a retry queues it again), or accepted before statuses were kept
+            if record.status == "failed":
+                return FrameStatus("failed", record.reason)
+            entry_id = record.entry_id
+            if record.status != "queued" or not self.client.xrange(keys.INGEST_STREAM, entry_id, entry_id):
+                return FrameStatus("unknown")  # lost: a retry queues it again
             try:
-                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=detail, max=detail, count=1)
+                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=entry_id, max=entry_id, count=1)
             except redis.exceptions.ResponseError as exc:
                 if not str(exc).startswith("NOGROUP"):
                     raise
                 pending = []  # no group yet: nothing delivered
         return FrameStatus("processing" if pending else "queued")
 
+    def failed_frames(self, map_id: str, limit: int) -> list[FailedFrame]:
+        """Reads the map's whole status HASH (an operator's command: O(the map's kept records))."""
+        with self._boundary("list the map's failed frames"):
+            records = [
+                (_text(key), FrameRecord.parse(_text(value)))
+                for key, value in self.client.hscan_iter(keys.ingest_status_key(map_id), count=1000)
+                if value.startswith(b"failed ")
+            ]
+            latest = sorted(
+                ((key, r) for key, r in records if not self._expired(r)), key=lambda kr: kr[1].settled_at_s or 0.0, reverse=True
+            )[:limit]
+            linked = [r.dead_letter_id for _, r in latest if r.dead_letter_id]
+            kept = self._dead_letters_kept(keys=[keys.INGEST_DEAD_LETTER_STREAM], args=linked) if linked else []
+        kept_ids = {dead_id for dead_id, is_kept in zip(linked, kept) if is_kept}
+        return [
+            FailedFrame(key, r.reason, r.deliveries, r.settled_at_s or 0.0, r.dead_letter_id in kept_ids) for key, r in latest
+        ]
+
+    def retry_failed(self, map_id: str, frame_key: str) -> bool:
+        """Reads the frame's dead letter and accepts its payload again (``lua/accept_frame.lua``: a frame
+        posted again since is a duplicate, False)."""
+        with self._boundary("read the frame's dead letter"):
+            record = self._record(map_id, frame_key)
+            if record is None or record.status != "failed":
+                raise not_retriable(map_id, frame_key, None if record is None else record.status)
+            dead_id = record.dead_letter_id
+            found = self.client.xrange(keys.INGEST_DEAD_LETTER_STREAM, dead_id, dead_id) if dead_id else []
+        if not found:
+            raise not_retriable(map_id, frame_key, "failed")
+        fields = cast("dict[bytes, bytes]", found[0][1])  # bytes: no decode_responses
+        if _text(fields.get(b"map_id")) != map_id or _text(fields.get(b"frame_key")) != frame_key:
+            raise StoreError(f"dead letter {dead_id} is not frame {frame_key} of map {map_id}")
+        return self._queue(map_id, frame_key, fields.get(b"frame", b""))
+
     def forget_map(self, map_id: str) -> None:
         with self._boundary("forget the map"):
-            self.client.delete(keys.ingest_accepted_key(map_id), keys.ingest_failed_key(map_id), keys.ingest_status_key(map_id))
+            self.client.delete(keys.ingest_status_key(map_id), keys.ingest_sweep_key(map_id), keys.ingest_counts_key(map_id))
 
     def stats(self) -> QueueStats:
         with self._boundary("read the ingest counters"):
             pipe = self.client.pipeline(transaction=False)
             pipe.hgetall(keys.INGEST_STATS)
             pipe.xlen(keys.INGEST_STREAM)
-            raw, depth = pipe.execute()
+            pipe.hget(keys.INGEST_BACKLOG, "bytes")
+            raw, depth, queued_bytes = pipe.execute()
         stats = parse_stats(raw)
         stats.queue_depth = int(depth)
+        stats.queued_bytes = int(queued_bytes or 0)
         return stats
 
     def health(self) -> dict[str, str]:
@@ -290,52 +418,58 @@ class RedisFrameQueue:
         )
 
     def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
-        entry_id, _fields = item.receipt
+        add = {"retried": retries} if retries else {}
+        counters: dict[str, Any] = {"add": add}
+        if redelivered:
+            add["redelivered"] = 1
+        else:
+            add["processed"] = 1
+            add[latency_field(latency_bucket(elapsed_s))] = 1
+            counters["latency_sum_s"] = elapsed_s
         with self._boundary("acknowledge the entry"):
-            pipe = self.client.pipeline(transaction=True)  # the entry goes and the outcome is written together
-            pipe.xack(keys.INGEST_STREAM, self.group, entry_id)
-            pipe.xdel(keys.INGEST_STREAM, entry_id)
-            if item.map_id and item.frame_key:
-                pipe.hset(keys.ingest_status_key(item.map_id), item.frame_key, "processed")
-            if retries:
-                pipe.hincrby(keys.INGEST_STATS, "retried", retries)
-            if redelivered:
-                pipe.hincrby(keys.INGEST_STATS, "redelivered", 1)
-            else:
-                pipe.hincrby(keys.INGEST_STATS, "processed", 1)
-                pipe.hincrby(keys.INGEST_STATS, latency_field(latency_bucket(elapsed_s)), 1)
-                pipe.hincrbyfloat(keys.INGEST_STATS, "latency_sum_s", elapsed_s)
-            pipe.execute()
+            self._settle_entry(item, counters, ["processed"])
 
     def fail(self, item: QueuedFrame, reason: str) -> None:
         return None  # left pending: claimed again after min_idle_s, dead-lettered by the worker in the end
 
     def dead_letter(self, item: QueuedFrame, reason: str) -> None:
         """Move the entry to the dead-letter stream (with the reason), record its frame as failed."""
-        entry_id, fields = item.receipt
-        dead = dict(fields)
-        dead.update(
-            {
-                b"reason": reason.encode(),
-                b"entry_id": _text(entry_id).encode(),
-                b"deliveries": str(item.deliveries).encode(),
-                b"consumer": item.consumer.encode(),
-                b"failed_at_s": repr(time.time()).encode(),
-            }
-        )
+        limits = self.limits
         with self._boundary("dead-letter the entry"):
-            pipe = self.client.pipeline(transaction=True)  # the entry goes and the outcome is written together
-            pipe.xadd(keys.INGEST_DEAD_LETTER_STREAM, dead)
-            pipe.xack(keys.INGEST_STREAM, self.group, entry_id)
-            pipe.xdel(keys.INGEST_STREAM, entry_id)
-            pipe.hincrby(keys.INGEST_STATS, "failed", 1)
-            if item.map_id and item.frame_key:
-                pipe.hset(keys.ingest_status_key(item.map_id), item.frame_key, f"failed {reason}")
-            pipe.execute()
-            if item.map_id and item.frame_key and self.client.sismember(keys.ingest_accepted_key(item.map_id), item.frame_key):
-                self.client.sadd(
-                    keys.ingest_failed_key(item.map_id), item.frame_key
-                )  # failed frames are a subset of the accepted ones
+            self._settle_entry(
+                item,
+                {"add": {"failed": 1}},
+                ["failed", reason, item.deliveries, item.consumer, limits.max_dead_letters, limits.max_dead_letter_bytes],
+            )
+
+    def _settle_entry(self, item: QueuedFrame, counters: dict[str, Any], outcome: list[Any]) -> None:
+        """``lua/settle_frame.lua`` on the delivery's entry."""
+        entry_id, fields = item.receipt
+        map_id, frame_key = item.map_id, item.frame_key
+        self._settle(
+            keys=[
+                keys.INGEST_STREAM,
+                keys.INGEST_STATS,
+                keys.INGEST_BACKLOG,
+                keys.ingest_status_key(map_id),
+                keys.ingest_sweep_key(map_id),
+                keys.ingest_counts_key(map_id),
+                keys.INGEST_DEAD_LETTER_STREAM,
+                keys.INGEST_DEAD_LETTER_BYTES,
+            ],
+            args=[
+                self.group,
+                entry_id,
+                map_id,
+                frame_key,
+                fields.get(b"bytes", b""),
+                repr(self._clock()),
+                repr(self.limits.frame_record_retention_s),
+                RECORDS_SWEPT_PER_CALL,
+                json.dumps(counters),
+                *outcome,
+            ],
+        )
 
     def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
         """Write the heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to its own

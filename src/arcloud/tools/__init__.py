@@ -5,6 +5,7 @@
   worker runner and worker processes.
 - ``worker``: ``python -m arcloud.tools.worker``, one ingest worker (the containers' entry point).
 - ``service_cli``: the ``arcloud serve | worker | replay`` commands.
+- ``frames_cli``: the ``arcloud frames failed | retry`` commands (operators, on the Redis queue).
 - ``replay``: stream a simulated room through a running service and score the map.
 
 Layers point one way: core <- ports <- adapters (stores, detectors, events) <- service <- tools.

@@ -124,9 +124,7 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     try:
         settings = Settings(**overrides)
     except ValidationError as exc:  # the CLI's edge: one line per wrong setting, no traceback
-        for error in exc.errors():
-            where = ".".join(str(p) for p in error["loc"]) or "settings"
-            problems.append(f"{where}: {error['msg'].removeprefix('Value error, ').removeprefix(f'{where}: ')}")
+        problems += validation_problems(exc)
     if not any(p.startswith("detector:") for p in problems):  # its form is right: is it a detector we have?
         try:
             check_detector_spec(settings.detector if settings is not None else overrides.get("detector") or _detector_from_env())
@@ -135,6 +133,15 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     if problems:
         raise ArcloudError(f"invalid settings (options or ARCLOUD_* variables): {'; '.join(problems)}")
     return settings
+
+
+def validation_problems(exc: Any) -> list[str]:
+    """A pydantic ``ValidationError`` of the settings as one line per wrong setting."""
+    problems = []
+    for error in exc.errors():
+        where = ".".join(str(p) for p in error["loc"]) or "settings"
+        problems.append(f"{where}: {error['msg'].removeprefix('Value error, ').removeprefix(f'{where}: ')}")
+    return problems
 
 
 def _detector_from_env() -> str:

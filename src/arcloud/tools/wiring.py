@@ -116,16 +116,17 @@ def build_detector(spec: str, *, threads: int | None = None) -> Detector:
 
 
 # --- store, queue, publisher -------------------------------------------------------------------------
-def build_store(url: str, *, cell_m: float, reply_timeout_s: float = 30.0) -> ObjectStore:
+def build_store(url: str, *, cell_m: float, frame_record_retention_s: float, reply_timeout_s: float = 30.0) -> ObjectStore:
     """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore`` waiting ``reply_timeout_s`` at most for
-    a reply (workers: 30 s; the API: ``api_redis_timeout_s``, so that a hung Redis answers 503 within about that)."""
+    a reply (workers: 30 s; the API: ``api_redis_timeout_s``, so that a hung Redis answers 503 within about that).
+    Processed frames' marks are kept ``frame_record_retention_s`` (the settings')."""
     if url == "memory":
         from arcloud.stores.memory import MemoryStore
 
-        return MemoryStore(cell_m=cell_m)
+        return MemoryStore(cell_m=cell_m, frame_record_retention_s=frame_record_retention_s)
     from arcloud.stores.redis import RedisStore
 
-    return RedisStore(url, cell_m=cell_m, reply_timeout_s=reply_timeout_s)
+    return RedisStore(url, cell_m=cell_m, reply_timeout_s=reply_timeout_s, frame_record_retention_s=frame_record_retention_s)
 
 
 def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_block_s: float = 0.0) -> FrameQueue:
@@ -134,7 +135,7 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
     if settings.embedded:
         from arcloud.stores.memory_queue import MemoryFrameQueue
 
-        return MemoryFrameQueue(max_queued_frames=settings.max_queued_frames)
+        return MemoryFrameQueue(limits=settings.queue_limits())
     from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_queue import RedisFrameQueue
 
@@ -143,7 +144,7 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
         settings.store,
         client=client,
         group=settings.consumer_group,
-        max_queued_frames=settings.max_queued_frames,
+        limits=settings.queue_limits(),
         socket_timeout_s=max(30.0, 2 * read_block_s + 5),
     )
 
@@ -234,7 +235,12 @@ def connect(
             )
         params = settings.make_params()
         if store is None:
-            store = build_store(settings.store, cell_m=params.index_cell_m, reply_timeout_s=settings.api_redis_timeout_s)
+            store = build_store(
+                settings.store,
+                cell_m=params.index_cell_m,
+                reply_timeout_s=settings.api_redis_timeout_s,
+                frame_record_retention_s=settings.frame_record_retention_s,
+            )
             _own(owned, store)
         if publisher is None:
             publisher = build_publisher(settings, store, on_frame)
@@ -305,7 +311,9 @@ def run_worker(
     params = settings.make_params()
     owned: list[Closeable] = []
     try:
-        store = build_store(settings.store, cell_m=params.index_cell_m)
+        store = build_store(
+            settings.store, cell_m=params.index_cell_m, frame_record_retention_s=settings.frame_record_retention_s
+        )
         _own(owned, store)
         if detector_factory is not None:
             detector = detector_factory()

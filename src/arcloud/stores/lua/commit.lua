@@ -1,19 +1,27 @@
 -- Atomic commit of one step: check every fence, then write everything, or write nothing.
--- KEYS[1]: the map's processed-frames SET, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH.
+-- Needs records.lua before it.
+-- KEYS[1]: the map's processed-frames HASH, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH,
+-- KEYS[4]: the processed-frames counter, KEYS[5]: the processed-frames sweep cursor.
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
--- ARGV[2]: JSON {frame, leases: [[key, token]...], held: [id...], upserts: [{id, version, cells}...],
---          deletes: [{id, version}...], misses: [{id, count}...]} (ids, versions and counts as decimal
---          strings; frame "" for none; cells: "i:j:k i:j:k ..." the index cells of the object's bounds;
---          upserts also carry missed, the object's miss counter, kept in its hash beside the voxels).
+-- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
+--          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...]}
+--          (ids, versions and counts as decimal strings; frame "" for none; cells: "i:j:k i:j:k ..." the
+--          index cells of the object's bounds; upserts also carry missed, the object's miss counter, kept
+--          in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago counts
+--          as not recorded, and each commit sweeps about `sweep` records for such ones).
 -- ARGV[3..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
 -- Returns 1 (written), 0 (the frame was recorded before: nothing written), or an error "STALE ..."
 -- (a fence failed: nothing written).
-local frames_key, bounds_key, meta_key = KEYS[1], KEYS[2], KEYS[3]
+local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
 local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
+local cutoff = tonumber(req.now) - tonumber(req.retention_s)
 
-if req.frame ~= '' and redis.call('SISMEMBER', frames_key, req.frame) == 1 then
-  return 0
+if req.frame ~= '' then
+  local recorded_at = redis.call('HGET', frames_key, req.frame)
+  if recorded_at and tonumber(recorded_at) >= cutoff then
+    return 0
+  end
 end
 
 local function object_key(id)
@@ -94,6 +102,8 @@ for _, m in ipairs(req.misses) do
   end
 end
 if req.frame ~= '' then
-  redis.call('SADD', frames_key, req.frame)
+  redis.call('HSET', frames_key, req.frame, req.now)
+  redis.call('INCR', count_key)
 end
+sweep(frames_key, sweep_key, cutoff, tonumber(req.sweep), tonumber)
 return 1

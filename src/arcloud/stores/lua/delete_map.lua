@@ -1,5 +1,6 @@
 -- Remove a map's objects, index, frames and id counter atomically.
--- KEYS[1]: bounds HASH, KEYS[2]: frames SET, KEYS[3]: id counter, KEYS[4]: metadata HASH.
+-- KEYS[1]: bounds HASH, KEYS[2]: processed-frames HASH, KEYS[3]: id counter, KEYS[4]: metadata HASH,
+-- KEYS[5]: processed-frames counter.
 -- ARGV[1]: the map prefix.
 -- Returns the number of objects removed. (Leases expire by themselves; the caller sweeps them.)
 local prefix = ARGV[1]
@@ -14,5 +15,5 @@ for _, id in ipairs(ids) do
   end
   redis.call('DEL', key)
 end
-redis.call('DEL', KEYS[1], KEYS[2], KEYS[3], KEYS[4])
+redis.call('DEL', KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5])
 return #ids
