@@ -346,7 +346,7 @@ def test_a_map_at_its_queue_limit_gets_503_while_another_map_still_gets_202(stor
     if server is None:
         app = create_app(Settings(detector="sim:0", workers=1, **limits), detector=Blocking())
     else:
-        app = create_app(Settings(store=server.url, detector="sim:0", workers=0, **limits))
+        app = create_app(Settings(store=server.url, auth="none", detector="sim:0", workers=0, **limits))
     try:
         with AppClient(app) as client:
             assert [post("a", i).status_code for i in range(2)] == [202, 202]
