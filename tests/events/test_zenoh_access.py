@@ -20,6 +20,7 @@ import zenoh
 from pydantic import ValidationError
 from svc_helpers import free_port, wait_until
 
+from arcloud.client import ArcloudClient
 from arcloud.core.types import AABB, N_CLASSES, MapObject, ObjectEvent
 from arcloud.core.voxels import keys_bounds, pack_keys
 from arcloud.errors import ArcloudError, InvalidInput
@@ -238,6 +239,22 @@ def test_the_api_and_workers_connect_with_the_zenoh_config_file(router: ZenohRou
         api.close()
         worker.close()
     assert [o.id for o in objects.objects] == [1]
+
+
+def test_the_sdk_subscribes_through_the_router_with_a_devices_config_file(router: ZenohRouter) -> None:
+    service = ZenohPublisher(mode="client", connect=[router.endpoint], config_file=router.credentials("arcloud"))
+    events = Received[pb.ObjectEvent]()
+    try:
+        with (
+            ArcloudClient("http://127.0.0.1:9") as client,  # HTTP is not used: the subscription is Zenoh's
+            client.subscribe(MAP, events, [router.endpoint], config_file=router.credentials("office-headset-2")),
+        ):
+            time.sleep(SETTLE_S)
+            service.publish([ObjectEvent("updated", MAP, 7, chair(7, 2))])
+            wait_until(lambda: events.snapshot(), 5, "the event at the SDK's subscriber")
+    finally:
+        service.close()
+    assert [e.object_id for e in events.snapshot()] == [7]
 
 
 # --- a bad zenoh_config stops the service at start, with one line naming it ---------------------------
