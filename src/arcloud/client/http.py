@@ -237,19 +237,24 @@ def subscribe(
     *,
     mode: SessionMode = "peer",
     include_tentative: bool = False,
+    config_file: str | os.PathLike[str] | None = None,
 ) -> Subscription:
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
     By default the served map's: confirmed objects, and an event when one leaves it (a tentative
-    state, MERGED or DELETED); ``include_tentative``: tentative objects' events too. Needs Zenoh:
-    ``pip install 'arcloud[events]'`` (the base install has no Zenoh)."""
+    state, MERGED or DELETED); ``include_tentative``: tentative objects' events too. ``config_file``: a
+    Zenoh config file the session starts from, e.g. this device's user and password for a router with
+    access control (``transport/auth/usrpwd``). Needs Zenoh: ``pip install 'arcloud[events]'`` (the
+    base install has no Zenoh)."""
     try:
         import zenoh  # noqa: F401 - loaded here so that a light install fails with what to install
     except ImportError as exc:
         raise ImportError("subscribe needs Zenoh (eclipse-zenoh): pip install 'arcloud[events]'", name="zenoh") from exc
     from arcloud.events.zenoh import subscribe_objects
 
-    return subscribe_objects(map_id, callback, connect=endpoints, mode=mode, include_tentative=include_tentative)
+    return subscribe_objects(
+        map_id, callback, connect=endpoints, mode=mode, include_tentative=include_tentative, config_file=config_file
+    )
 
 
 class ArcloudClient:
@@ -387,9 +392,10 @@ class ArcloudClient:
         endpoints: Sequence[str],
         *,
         include_tentative: bool = False,
+        config_file: str | os.PathLike[str] | None = None,
     ) -> Subscription:
         """As the module's ``subscribe``."""
-        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative)
+        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative, config_file=config_file)
 
 
 class AsyncArcloudClient:
@@ -525,6 +531,7 @@ class AsyncArcloudClient:
         endpoints: Sequence[str],
         *,
         include_tentative: bool = False,
+        config_file: str | os.PathLike[str] | None = None,
     ) -> Subscription:
         """As ``ArcloudClient.subscribe`` (the callback runs on a Zenoh thread)."""
-        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative)
+        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative, config_file=config_file)

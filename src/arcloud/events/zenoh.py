@@ -21,12 +21,18 @@ Sessions: the API's session runs in peer mode (``listen`` and/or ``connect`` end
 ``tcp/127.0.0.1:7447``) or connects to a router. Multicast scouting is off by default: a deployment
 names its endpoints. Peers do not route for other peers, so worker processes open *client* sessions to the
 API's (or a router's) endpoints; subscribers connect the same way (``subscribe_objects``).
+
+Access control is the router's (its ``access_control`` and ``transport/auth``: docs/service.md, "Zenoh"):
+every function that opens a session takes ``config_file``, a Zenoh config file that session starts from
+(credentials, TLS), with ``mode``, endpoints and multicast scouting set on top.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
+import re
 import sys
 import threading
 from collections import OrderedDict
@@ -34,6 +40,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Literal
 
 from arcloud.core.types import ObjectEvent
+from arcloud.errors import ArcloudError, InvalidInput
 
 if TYPE_CHECKING:
     import zenoh
@@ -46,6 +53,7 @@ log = logging.getLogger(__name__)
 KEY_ROOT = "arcloud"
 SessionMode = Literal["peer", "client", "router"]
 FrameHandler = Callable[[str, bytes], None]  # (map id from the key, payload)
+ConfigFile = str | os.PathLike[str]  # a Zenoh config file: .json5, .json or .yaml
 
 
 def objects_key(map_id: str) -> str:
@@ -68,13 +76,30 @@ def frames_key(map_id: str = "*", device_id: str = "*") -> str:
     return f"{KEY_ROOT}/{map_id}/frames/{device_id}"
 
 
-def zenoh_config(
-    mode: SessionMode = "peer", *, listen: Sequence[str] = (), connect: Sequence[str] = (), multicast: bool = False
-) -> zenoh.Config:
-    """A Zenoh session config: ``mode``, endpoints, multicast scouting off unless asked."""
+def load_config_file(path: ConfigFile) -> zenoh.Config:
+    """The Zenoh config in ``path`` (``zenoh.Config.from_file``). Raises ``InvalidInput`` naming the
+    ``zenoh_config`` setting, with Zenoh's reason on one line, when it cannot be read or is not a Zenoh config."""
     import zenoh
 
-    config = zenoh.Config()
+    try:
+        return zenoh.Config.from_file(os.fspath(path))
+    except zenoh.ZError as exc:
+        raise InvalidInput("zenoh_config", "a Zenoh config file", f"{path}: {_reason(exc)}") from exc
+
+
+def zenoh_config(
+    mode: SessionMode = "peer",
+    *,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    multicast: bool = False,
+    config_file: ConfigFile | None = None,
+) -> zenoh.Config:
+    """A Zenoh session config: ``config_file``'s (credentials, TLS; default: Zenoh's defaults), with
+    ``mode``, endpoints and multicast scouting (off unless asked) set on top."""
+    import zenoh
+
+    config = load_config_file(config_file) if config_file is not None else zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     if mode == "client":
@@ -85,10 +110,45 @@ def zenoh_config(
     return config
 
 
-def open_session(mode: SessionMode = "peer", *, listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.Session:
+def open_session(
+    mode: SessionMode = "peer",
+    *,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: ConfigFile | None = None,
+) -> zenoh.Session:
+    """An open session (see ``zenoh_config``). Raises ``InvalidInput`` for a bad ``config_file`` and
+    ``ArcloudError`` when Zenoh cannot open it: a client whose router is down or refuses it (a router
+    that authenticates closes a session with a wrong or missing user or password), a port in use. A peer
+    opens all the same and keeps trying its ``connect`` endpoints: a warning says when it reached none."""
     import zenoh
 
-    return zenoh.open(zenoh_config(mode, listen=listen, connect=connect))
+    config = zenoh_config(mode, listen=listen, connect=connect, config_file=config_file)
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise ArcloudError(
+            f"zenoh: no {mode} session (listen {list(listen) or '-'}, connect {list(connect) or '-'}): {_reason(exc)} "
+            "(is the router up? if it authenticates, does it accept our user and password?)"
+        ) from exc
+    if mode == "peer" and connect and not (list(session.info.routers_zid()) or list(session.info.peers_zid())):
+        log.warning("zenoh peer session reached none of %s (down, or refusing our credentials?); it keeps trying", list(connect))
+    return session
+
+
+def _reason(exc: Exception) -> str:
+    """Zenoh's error on one line: without its Rust source location, nor the lines of a config file it
+    quotes (they may hold a password); where it says, ``line L, column C:`` first."""
+    lines = [line.strip() for line in str(exc).splitlines()]
+    text = " ".join(line for line in lines if line and not re.match(r"^\d*\s*\|", line))
+    text = re.sub(r"\s+at \S+\.rs:\d+\.?$", "", text)
+    text = re.sub(
+        r'JSON error: Message \{ msg: "(.*)", location: Some\(Location \{ line: (\d+), column: (\d+) \}\) \}',
+        r"-->\2:\3 \1",
+        text,
+    )
+    text = re.sub(r"-->\s*(\d+):(\d+)\s*=?\s*", r"line \1, column \2: ", text)
+    return text.strip()
 
 
 def connectable(endpoints: Sequence[str]) -> list[str]:
@@ -142,7 +202,7 @@ class ZenohPublisher:
     ``on_frame(map_id, payload)`` (called on a Zenoh thread; it must be quick; what it raises is logged).
 
     ``session``: an open session to use (not closed by ``close``), else one is opened with ``mode``,
-    ``listen`` and ``connect``."""
+    ``listen``, ``connect`` and ``config_file`` (``open_session``)."""
 
     def __init__(
         self,
@@ -153,9 +213,12 @@ class ZenohPublisher:
         connect: Sequence[str] = (),
         store: ObjectStore | None = None,
         on_frame: FrameHandler | None = None,
+        config_file: ConfigFile | None = None,
     ) -> None:
         self._owns_session = session is None
-        self.session = session if session is not None else open_session(mode, listen=listen, connect=connect)
+        if session is None:
+            session = open_session(mode, listen=listen, connect=connect, config_file=config_file)
+        self.session = session
         self.store = store
         self.router = ServedRouter()
         self._publishing = threading.Lock()  # routing and putting: worker threads publish at once
@@ -165,7 +228,13 @@ class ZenohPublisher:
             self._declared.append(self.session.declare_queryable(f"{KEY_ROOT}/*/objects", self._answer_objects))
         if on_frame is not None:
             self._declared.append(self.session.declare_subscriber(frames_key(), lambda sample: _call_frame(on_frame, sample)))
-        log.info("zenoh %s session open (listen %s, connect %s)", mode, list(listen) or "-", list(connect) or "-")
+        log.info(
+            "zenoh %s session open (listen %s, connect %s, config %s)",
+            mode,
+            list(listen) or "-",
+            list(connect) or "-",
+            config_file or "-",
+        )
 
     def publish(self, events: Sequence[ObjectEvent]) -> None:
         """Put each event on its key space's key for its object. Never raises: a lost event is logged
@@ -257,10 +326,12 @@ def subscribe_objects(
     mode: SessionMode = "peer",
     session: zenoh.Session | None = None,
     include_tentative: bool = False,
+    config_file: ConfigFile | None = None,
 ) -> Subscription:
     """Call ``callback(ObjectEvent message)`` for every event of ``map_id``'s served map (on a Zenoh
     thread): states of confirmed objects, and the event that takes one out (a tentative state, MERGED or
-    DELETED). ``include_tentative``: the events of tentative objects too."""
+    DELETED). ``include_tentative``: the events of tentative objects too. Without ``session``, opens one
+    (``open_session``: ``mode``, ``connect``, ``config_file`` with the device's credentials)."""
     from arcloud.proto.arcloud.v1 import arcloud_pb2
 
     def on_sample(sample: Any) -> None:
@@ -270,7 +341,7 @@ def subscribe_objects(
             log.warning("event on %s not handled", sample.key_expr, exc_info=True)
 
     owns = session is None
-    session = session if session is not None else open_session(mode, connect=connect)
+    session = session if session is not None else open_session(mode, connect=connect, config_file=config_file)
     subscriber = session.declare_subscriber(f"{objects_key(map_id)}/{'**' if include_tentative else '*'}", on_sample)
     return Subscription(session, subscriber, owns)
 
@@ -283,14 +354,15 @@ def query_objects(
     session: zenoh.Session | None = None,
     timeout_s: float = 5.0,
     include_tentative: bool = False,
+    config_file: ConfigFile | None = None,
 ) -> arcloud_pb2.ObjectList:
     """The map's confirmed objects (``include_tentative``: every object), asked of whoever answers
-    ``arcloud/<map_id>/objects``.
+    ``arcloud/<map_id>/objects`` (without ``session``: on one opened as ``subscribe_objects`` does).
     Raises ``LookupError`` when nobody answers in time, ``RuntimeError`` with the answerer's error."""
     from arcloud.proto.arcloud.v1 import arcloud_pb2
 
     owns = session is None
-    session = session if session is not None else open_session(mode, connect=connect)
+    session = session if session is not None else open_session(mode, connect=connect, config_file=config_file)
     try:
         selector = f"{objects_key(map_id)}?include=tentative" if include_tentative else objects_key(map_id)
         for reply in session.get(selector, timeout=timeout_s):
@@ -304,11 +376,13 @@ def query_objects(
 
 
 __all__ = [
+    "ConfigFile",
     "ServedRouter",
     "Subscription",
     "ZenohPublisher",
     "connectable",
     "frames_key",
+    "load_config_file",
     "object_key",
     "objects_key",
     "open_session",

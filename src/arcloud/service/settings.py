@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from pathlib import Path
 from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit, urlunsplit
 
@@ -23,6 +24,7 @@ from arcloud.core.types import Params
 from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
 
 STORE_SCHEMES = ("redis", "rediss", "unix")
+ZENOH_CONFIG_TYPES = (".json5", ".json", ".yaml")  # what zenoh.Config.from_file reads
 ZenohMode = Literal["off", "peer", "client", "router"]
 AuthMode = Literal["keys", "none"]
 LogLevel = Literal["DEBUG", "INFO", "WARNING", "ERROR"]
@@ -150,7 +152,17 @@ class Settings(BaseSettings):
         default_factory=list, description="endpoints to listen on, e.g. tcp/0.0.0.0:7447"
     )
     zenoh_connect: Annotated[list[str], NoDecode] = Field(default_factory=list, description="endpoints to connect to (a router)")
-    zenoh_frames: bool = Field(False, description="also accept frames published on arcloud/<map>/frames/<device>")
+    zenoh_frames: bool = Field(
+        False,
+        description="also accept frames published on arcloud/<map>/frames/<device> (no API key is asked: only with a "
+        "router whose access control says who may publish there, docs/service.md)",
+    )
+    zenoh_config: str | None = Field(
+        None,
+        description="a Zenoh config file (.json5, .json or .yaml) that every Zenoh session of the API and workers starts "
+        "from: credentials (transport/auth/usrpwd) or TLS certificates for a router with access control; mode, endpoints "
+        "and multicast scouting are set on top from the zenoh_* settings",
+    )
     log_level: LogLevel = "INFO"
 
     # --- validation --------------------------------------------------------------------------------
@@ -186,6 +198,22 @@ class Settings(BaseSettings):
             raise ValueError(f"expected PREFIX[:ARGUMENT] naming a detector, got {value!r}")
         return value
 
+    @field_validator("zenoh_config")
+    @classmethod
+    def _check_zenoh_config(cls, value: str | None) -> str | None:
+        """A readable file of a type Zenoh reads; its content is Zenoh's to check (``arcloud.events.zenoh``)."""
+        if value is None:
+            return None
+        path = Path(value)
+        if path.suffix not in ZENOH_CONFIG_TYPES:
+            raise ValueError(f"expected a Zenoh config file ({', '.join(ZENOH_CONFIG_TYPES)}), got {value!r}")
+        try:
+            with path.open("rb") as file:
+                file.read(1)
+        except OSError as exc:
+            raise ValueError(f"expected a readable Zenoh config file, got {value!r} ({exc.strerror or exc})") from None
+        return value
+
     @field_validator("params")
     @classmethod
     def _check_params(cls, value: dict[str, Any]) -> dict[str, Any]:
@@ -206,6 +234,8 @@ class Settings(BaseSettings):
             raise ValueError("workers: expected >= 1 with the memory store (nothing would process frames), got 0")
         if self.zenoh_mode == "off" and self.zenoh_frames:
             raise ValueError("zenoh_frames: needs zenoh_mode peer, client or router, got zenoh_mode off")
+        if self.zenoh_mode == "off" and self.zenoh_config:
+            raise ValueError("zenoh_config: needs zenoh_mode peer, client or router, got zenoh_mode off")
         if self.auth == "keys" and self.embedded and not self.keys_file:
             raise ValueError("auth: keys with the memory store needs keys_file (the embedded service keeps keys in a file)")
         if self.zenoh_mode == "client" and not self.zenoh_connect:

@@ -183,8 +183,8 @@ def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> 
 
 
 def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandler | None) -> UpdatePublisher | None:
-    """The API's Zenoh session (answering map queries from ``store``; taking published frames when
-    ``zenoh_frames``), or None when Zenoh is off."""
+    """The API's Zenoh session (from ``zenoh_config``'s file, if any; answering map queries from ``store``;
+    taking published frames when ``zenoh_frames``), or None when Zenoh is off."""
     if settings.zenoh_mode == "off":
         return None
     from arcloud.events.zenoh import ZenohPublisher
@@ -195,12 +195,13 @@ def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandl
         connect=settings.zenoh_connect,
         store=store,
         on_frame=on_frame if settings.zenoh_frames else None,
+        config_file=settings.zenoh_config,
     )
 
 
 def worker_publisher(settings: Settings) -> UpdatePublisher | None:
     """A Zenoh client session for a worker process: to ``zenoh_connect`` (a router), else to the API's
-    listen endpoints. None when Zenoh is off."""
+    listen endpoints, from ``zenoh_config``'s file (its credentials), if any. None when Zenoh is off."""
     if settings.zenoh_mode == "off":
         return None
     from arcloud.events.zenoh import ZenohPublisher, connectable
@@ -209,7 +210,7 @@ def worker_publisher(settings: Settings) -> UpdatePublisher | None:
     if not endpoints:
         log.warning("zenoh is on but no endpoint to connect to: this worker publishes no events")
         return None
-    return ZenohPublisher(mode="client", connect=endpoints)
+    return ZenohPublisher(mode="client", connect=endpoints, config_file=settings.zenoh_config)
 
 
 # --- the app -----------------------------------------------------------------------------------------
