@@ -39,9 +39,10 @@ class RedisServer:
         self.url = f"redis://127.0.0.1:{port}/0"
 
     @classmethod
-    def start(cls, binary: str = "redis-server", *, port: int | None = None) -> RedisServer:
+    def start(cls, binary: str = "redis-server", *, port: int | None = None, aof_dir: str | None = None) -> RedisServer:
         """Start a server (on ``port``, else a free one) and wait until it answers PING; skip the calling
-        test when there is no binary."""
+        test when there is no binary. ``aof_dir``: keep the data there in an append-only file (fsync
+        always), which a later server started on the same folder reads back (the folder is the caller's)."""
         path = shutil.which(binary)
         if path is None:
             pytest.skip(f"{binary} not found on PATH (`make test` installs it; or apt-get install redis-server)")
@@ -49,6 +50,7 @@ class RedisServer:
         for _attempt in range(3):  # the free port may be taken between choosing and binding it
             port = chosen or free_port()
             workdir = tempfile.TemporaryDirectory(prefix="arcloud-redis-")
+            persistence = ["--appendonly", "yes", "--appendfsync", "always", "--dir", aof_dir] if aof_dir else []
             process = subprocess.Popen(
                 [
                     path,
@@ -68,6 +70,7 @@ class RedisServer:
                     "warning",
                     "--logfile",
                     str(Path(workdir.name) / "redis.log"),
+                    *persistence,
                 ],
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,

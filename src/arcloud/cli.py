@@ -1,4 +1,4 @@
-"""The `arcloud` command line: demo, eval, serve, worker, replay, frames, keys, export."""
+"""The `arcloud` command line: demo, eval, serve, worker, replay, frames, keys, export, maps."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from arcloud.argtypes import PARAMS_HELP, params_overrides, parse_users, positiv
 from arcloud.tools.export_cli import add_export_command
 from arcloud.tools.frames_cli import add_frames_commands
 from arcloud.tools.keys_cli import add_keys_commands
+from arcloud.tools.maps_cli import add_maps_commands
 from arcloud.tools.service_cli import add_service_commands
 
 
@@ -67,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_command(subparsers)
     add_frames_commands(subparsers)
     add_keys_commands(subparsers)
+    add_maps_commands(subparsers)
     return parser
 
 

@@ -355,6 +355,24 @@ class ArcloudClient:
             raise service_error(response)
         return response.content
 
+    def snapshot(self, map_id: str) -> bytes:
+        """The whole map as one file (an admin key's; ``GET /v1/maps/{map}/snapshot``)."""
+        response = self._send("GET", f"/v1/maps/{map_id}/snapshot")
+        if not response.is_success:
+            raise service_error(response)
+        return response.content
+
+    def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> dict[str, Any]:
+        """Restore a snapshot into the map (empty, or deleted first with ``replace``); an admin key's."""
+        return self._request(
+            "PUT",
+            f"/v1/maps/{map_id}/snapshot",
+            idempotent=replace,  # into an empty map, a second try would find it full
+            params={"replace": str(replace).lower()},
+            content=snapshot,
+            headers={"content-type": "application/zip"},
+        )
+
     def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[dict[str, Any]]:
         """Every map the token may read, by id (``GET /v1/maps``, page after page)."""
         maps: list[dict[str, Any]] = []
@@ -494,6 +512,22 @@ class AsyncArcloudClient:
         if not response.is_success:
             raise service_error(response)
         return response.content
+
+    async def snapshot(self, map_id: str) -> bytes:
+        response = await self._send("GET", f"/v1/maps/{map_id}/snapshot")
+        if not response.is_success:
+            raise service_error(response)
+        return response.content
+
+    async def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> dict[str, Any]:
+        return await self._request(
+            "PUT",
+            f"/v1/maps/{map_id}/snapshot",
+            idempotent=replace,
+            params={"replace": str(replace).lower()},
+            content=snapshot,
+            headers={"content-type": "application/zip"},
+        )
 
     async def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[dict[str, Any]]:
         maps: list[dict[str, Any]] = []
