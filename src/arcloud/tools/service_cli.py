@@ -156,10 +156,11 @@ def _detector_from_env() -> str:
 def run_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from arcloud.tools.wiring import check_model_file, create_app
+    from arcloud.tools.wiring import check_model_file, check_zenoh_config, create_app
 
     settings = settings_from_args(args)
     check_exposure(settings, args.host)
+    check_zenoh_config(settings)
     if settings.embedded or settings.workers > 0:
         check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
     logging.getLogger("arcloud").setLevel(settings.log_level)
@@ -191,10 +192,11 @@ def check_exposure(settings: Any, host: str) -> None:
 
 
 def run_worker_command(args: argparse.Namespace) -> int:
-    from arcloud.tools.wiring import check_model_file, configure_logging, run_worker
+    from arcloud.tools.wiring import check_model_file, check_zenoh_config, configure_logging, run_worker
 
     settings = settings_from_args(args)
     check_model_file(settings.detector)
+    check_zenoh_config(settings)
     configure_logging(settings.log_level)
     run_worker(settings)
     return 0

@@ -91,6 +91,14 @@ def check_model_file(spec: str) -> None:
     check(spec)
 
 
+def check_zenoh_config(settings: Settings) -> None:
+    """``InvalidInput`` naming ``zenoh_config`` now, when Zenoh cannot read it (not at the first session)."""
+    if settings.zenoh_mode != "off" and settings.zenoh_config:
+        from arcloud.events.zenoh import load_config_file
+
+        load_config_file(settings.zenoh_config)
+
+
 def threads_per_process(processes: int) -> int:
     """This machine's cores (those this process may run on) shared among ``processes`` worker
     processes: at least one each, so that N workers do not each start a thread per core."""
@@ -387,6 +395,7 @@ __all__ = [
     "build_store",
     "check_detector_spec",
     "check_model_file",
+    "check_zenoh_config",
     "connect",
     "create_app",
     "healthy",

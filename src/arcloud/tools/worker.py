@@ -8,7 +8,14 @@ import logging
 
 from arcloud.errors import InvalidInput
 from arcloud.service.settings import Settings
-from arcloud.tools.wiring import check_detector_spec, check_model_file, configure_logging, healthy, run_worker
+from arcloud.tools.wiring import (
+    check_detector_spec,
+    check_model_file,
+    check_zenoh_config,
+    configure_logging,
+    healthy,
+    run_worker,
+)
 
 log = logging.getLogger(__name__)
 
@@ -25,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         check_detector_spec(settings.detector)
         check_model_file(settings.detector)
+        check_zenoh_config(settings)
     except InvalidInput as exc:  # a clear line in the container's log, not a traceback
         log.error("%s", exc)
         return 2
