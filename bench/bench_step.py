@@ -4,6 +4,8 @@ The scene: 20 rectangular surfaces at 1.5-4 m in front of a wall, each an object
 few warm-up frames that detect all 20). Each timed frame moves the camera a little and detects 10 of
 the 20 (the other 10 are visible but undetected), so the step voxelizes 10 masks, finds 20 objects in
 its frustum, locks, associates, fuses, refines and writes to the embedded store. Pinned to one core.
+In the same run, on the same frames and core: Open3D's VoxelBlockGrid TSDF integration at the same voxel
+size (``tsdf``) and the real model's session (``detector``; skipped without ../shared).
 
     .venv/bin/python bench/bench_step.py [--repeats 200] [--out bench/results/step.json]
 """
@@ -85,6 +87,8 @@ def main() -> None:
 
     times = time_calls(step, warmup=args.warmup, repeats=args.repeats)
     stage_ms = {name: round(float(np.median(v[args.warmup :])) * 1000, 3) for name, v in stages.items()}
+    tsdf = time_tsdf(frames, params.voxel_size_m, warmup=args.warmup, repeats=args.repeats)
+    detector = time_detector(frames, warmup=min(args.warmup, 5), repeats=min(args.repeats, 30))
     payload = {
         "benchmark": "per-frame step without detection (embedded store)",
         "frame": f"{WIDTH}x{HEIGHT}",
@@ -95,12 +99,46 @@ def main() -> None:
         "step": summary_ms(times),
         "stages_median_ms": stage_ms,
         "target_median_ms": 15.0,
+        "tsdf": tsdf,
+        "detector": detector,
+        "step_over_tsdf": round(summary_ms(times)["median_ms"] / tsdf["median_ms"], 3),
+        "step_over_detector": None if detector is None else round(summary_ms(times)["median_ms"] / detector["median_ms"], 4),
         **environment(),
     }
     write_json(args.out, payload)
     print(
         f"step median {payload['step']['median_ms']:.2f} ms (p10 {payload['step']['p10_ms']:.2f}, "
-        f"p90 {payload['step']['p90_ms']:.2f}); stages {stage_ms}"
+        f"p90 {payload['step']['p90_ms']:.2f}); stages {stage_ms}; TSDF {tsdf['median_ms']:.2f} ms "
+        f"(step x{payload['step_over_tsdf']}); detector session "
+        + ("n/a" if detector is None else f"{detector['median_ms']:.1f} ms (step x{payload['step_over_detector']})")
+    )
+
+
+def time_tsdf(frames: list, voxel_size_m: float, *, warmup: int, repeats: int) -> dict[str, float]:
+    """Open3D's VoxelBlockGrid TSDF integration (what a user would run to map a room densely) of the same
+    frames at the same voxel size, on the same pinned core: median and spread of one frame."""
+    from bench_memory import DenseReconstruction
+
+    dense = DenseReconstruction(voxel_size_m, depth_max_m=Params().depth_max_m)
+    return summary_ms(time_calls(lambda i: dense.integrate(frames[i]), warmup=warmup, repeats=repeats))
+
+
+def time_detector(frames: list, *, warmup: int, repeats: int) -> dict[str, float] | None:
+    """The real YOLOv8n-seg session (``session.run`` only) on the same frames' colour, one thread on the
+    pinned core; None when the model is not in ../shared."""
+    model = Path(__file__).resolve().parents[1].parent / "shared/models/yolov8n-seg-fp32-640.onnx"
+    if not model.is_file():
+        return None
+    from arcloud.detectors.onnx_yolo import Letterbox, YoloSegDetector, letterbox_tensor
+
+    detector = YoloSegDetector(model, intra_op_threads=1)
+    session = detector._session  # the bare session: the step's cost is compared with the model's
+    outputs = [o.name for o in session.get_outputs()]
+    tensors = [
+        letterbox_tensor(f.rgb, Letterbox.fit(f.rgb.shape[:2], detector.input_size_px)) for f in frames[: warmup + repeats]
+    ]
+    return summary_ms(
+        time_calls(lambda i: session.run(outputs, {detector.input_name: tensors[i]}), warmup=warmup, repeats=repeats)
     )
 
 
