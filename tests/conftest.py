@@ -8,9 +8,11 @@ Set ``ARCLOUD_SHARED`` to use another folder.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from redis_server import LocalCluster
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = Path(os.environ.get("ARCLOUD_SHARED", PROJECT_ROOT.parent / "shared"))
@@ -33,3 +35,12 @@ def shared() -> type:
         path = staticmethod(shared_path)
 
     return Shared
+
+
+@pytest.fixture(scope="session")
+def redis_cluster() -> Iterator[LocalCluster]:
+    """One real 3-primary Redis Cluster on 127.0.0.1 for the whole session (skips without redis-server or
+    redis-cli); tests empty it with ``flush()`` before use."""
+    cluster = LocalCluster.start(masters=3)
+    yield cluster
+    cluster.stop()

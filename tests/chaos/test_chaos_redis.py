@@ -22,7 +22,7 @@ from arcloud.client import ArcloudClient
 from arcloud.service import app as service_app
 from arcloud.service.runtime import Adapters, FrameHandler
 from arcloud.service.settings import Settings
-from arcloud.stores.keys import ingest_counts_key
+from arcloud.stores.keys import ingest_counts_key, shard_tag
 from arcloud.tools import wiring
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
@@ -162,7 +162,7 @@ def test_replay_survives_a_redis_restart_mid_run(serving: Serving) -> None:
 
     def accepted() -> int:
         with serving.redis.client() as client:
-            return int(client.hget(ingest_counts_key("walk"), "accepted") or 0)
+            return int(client.hget(ingest_counts_key(shard_tag(0, 1), "walk"), "accepted") or 0)  # one shard (the default)
 
     started = time.monotonic()
     with ThreadPoolExecutor(1) as pool:

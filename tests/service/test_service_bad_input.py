@@ -416,10 +416,10 @@ def test_a_frame_over_the_claim_cap_is_dead_lettered_at_its_first_delivery(redis
     try:
         started = time.perf_counter()
         deadline = started + 60
-        while not redis.xlen(keys.INGEST_DEAD_LETTER_STREAM) and time.perf_counter() < deadline:
+        while not redis.xlen(keys.ingest_dead_letter_stream(keys.shard_tag(0, 1))) and time.perf_counter() < deadline:
             worker.poll_once()
         elapsed_s = time.perf_counter() - started
-        [(_, dead)] = redis.xrange(keys.INGEST_DEAD_LETTER_STREAM)
+        [(_, dead)] = redis.xrange(keys.ingest_dead_letter_stream(keys.shard_tag(0, 1)))
         assert dead[b"deliveries"] == b"1" and dead[b"reason"].startswith(
             b"TooManyCells: detections: expected at most 4096 index cells"
         ), dead

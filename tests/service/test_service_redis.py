@@ -28,8 +28,7 @@ from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
-from arcloud.stores.keys import INGEST_BACKLOG, INGEST_STATS, INGEST_STREAM, ingest_counts_key, ingest_status_key
-from arcloud.stores.keys import INGEST_DEAD_LETTER_STREAM as DEAD_LETTER_STREAM
+from arcloud.stores import keys
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_queue import RedisFrameQueue, parse_stats
 from arcloud.tools.wiring import create_app, healthy, worker_pool
@@ -38,6 +37,10 @@ from arcloud.tools.worker import main as worker_main
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
+# The ingest's keys with one shard (the default): every map's frames in it.
+SHARD = keys.shard_tag(0, 1)
+INGEST_STREAM, INGEST_STATS, INGEST_BACKLOG = keys.ingest_stream(SHARD), keys.ingest_stats(SHARD), keys.ingest_backlog(SHARD)
+DEAD_LETTER_STREAM = keys.ingest_dead_letter_stream(SHARD)
 SLOW_FRAME = 800  # frame index the detector takes SLOW_S over
 CRASH_FRAME = 900  # frame index the detector raises on
 SLOW_S = 1.0
@@ -224,8 +227,8 @@ def test_a_frame_delivered_twice_counts_once(deployment: Deployment) -> None:
 
 def test_a_frame_recorded_as_accepted_but_never_queued_is_queued_again_on_retry(deployment: Deployment) -> None:
     # What a crash used to leave between recording a frame and queueing it: the record without the entry.
-    deployment.redis.hset(ingest_status_key("r7"), "d/f000000", "queued 1-0")
-    deployment.redis.hset(ingest_counts_key("r7"), "accepted", 1)
+    deployment.redis.hset(keys.ingest_status_key(SHARD, "r7"), "d/f000000", "queued 1-0")
+    deployment.redis.hset(keys.ingest_counts_key(SHARD, "r7"), "accepted", 1)
     before = deployment.stats()
     assert deployment.post("r7", 0)["status"] == "queued"  # not "duplicate"
     wait_until(

@@ -90,6 +90,15 @@ def test_secrets_are_masked() -> None:
     assert redact_url("redis://:pw@h:1/0") == "redis://:***@h:1/0" and redact_url("redis://h:1/0") == "redis://h:1/0"
 
 
+def test_a_redis_cluster_is_named_by_its_nodes_and_its_secret_masked() -> None:
+    settings = Settings(store="redis+cluster://app:s3cret@10.0.0.1:7000,10.0.0.2:7000", workers=0, ingest_shards=3)
+    for text in (repr(settings), str(settings.redacted())):
+        assert "s3cret" not in text and "redis+cluster://app:***@10.0.0.1:7000,10.0.0.2:7000" in text
+    assert settings.ingest_shards == 3 and Settings(workers=0, store="redis://h:1/0").ingest_shards == 1
+    with pytest.raises(ValidationError, match="ingest_shards"):
+        Settings(store="redis://h:1/0", ingest_shards=0)
+
+
 def test_latency_buckets_and_stats_parsing() -> None:
     assert latency_bucket(0.0) == 0 and latency_bucket(LATENCY_BUCKETS_S[0]) == 0  # upper bounds are inclusive
     assert latency_bucket(0.0051) == 1 and latency_bucket(1e9) == len(LATENCY_BUCKETS_S)

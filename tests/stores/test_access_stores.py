@@ -1,5 +1,5 @@
 """The key stores (a JSON file, Redis) and the rate limiters (memory, Redis), each against the same
-expectations; the Redis ones on a real redis-server."""
+expectations; the Redis ones on a real redis-server and on a real Redis Cluster."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from redis_server import RedisServer
+from redis_server import empty_redis_url
 
 from arcloud.access import new_key
 from arcloud.errors import StoreError
@@ -20,15 +20,15 @@ from arcloud.stores.memory_rate import MemoryRateLimiter
 from arcloud.stores.redis_api_keys import RedisKeyStore
 from arcloud.stores.redis_rate import RedisRateLimiter
 
+REDIS = [pytest.param("redis", marks=pytest.mark.redis), pytest.param("cluster", marks=pytest.mark.redis)]
 
-@pytest.fixture(params=["file", pytest.param("redis", marks=pytest.mark.redis)])
+
+@pytest.fixture(params=["file", *REDIS])
 def key_store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[KeyStore]:
     if request.param == "file":
         yield FileKeyStore(tmp_path / "keys.json")
         return
-    server: RedisServer = request.getfixturevalue("redis_server")
-    store = RedisKeyStore(server.url)
-    store.client.flushdb()
+    store = RedisKeyStore(empty_redis_url(request))
     yield store
     store.close()
 
@@ -98,10 +98,14 @@ def test_memory_limiter_allows_a_burst_then_the_rate() -> None:
     assert [limiter.take("k", rate_per_s=2.0, burst=3) for _ in range(4)][-1] == pytest.approx(0.5)
 
 
-@pytest.mark.redis
-def test_redis_limiter_is_shared_by_every_client(redis_server: RedisServer) -> None:
-    first, second = RedisRateLimiter(redis_server.url), RedisRateLimiter(redis_server.url)
-    first.client.flushdb()
+@pytest.fixture(params=REDIS)
+def emptied_redis_url(request: pytest.FixtureRequest) -> str:
+    """An emptied Redis, or Redis Cluster."""
+    return empty_redis_url(request)
+
+
+def test_redis_limiter_is_shared_by_every_client(emptied_redis_url: str) -> None:
+    first, second = RedisRateLimiter(emptied_redis_url), RedisRateLimiter(emptied_redis_url)
     try:
         limiters: list[RateLimiter] = [first, second]
         answers = [limiters[i % 2].take("key:shared", rate_per_s=1.0, burst=4) for i in range(6)]

@@ -1,6 +1,7 @@
-"""The FrameQueue contract, run against every adapter: the embedded ``MemoryFrameQueue`` and
-``RedisFrameQueue`` on a real redis-server. Where they differ by design (a failed frame: counted failed at
-once in process, delivered again on Redis) each case says so."""
+"""The FrameQueue contract, run against every adapter: the embedded ``MemoryFrameQueue``, ``RedisFrameQueue``
+on a real redis-server (one ingest shard) and on a real 3-primary Redis Cluster (three shards). Where they
+differ by design (a failed frame: counted failed at once in process, delivered again on Redis; the overall
+limits shared among shards) each case says so."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from redis_server import RedisServer
+from redis_server import ADAPTERS, empty_redis_url
 from store_cases import Clock
 
 from arcloud.core.checks import make_frame
@@ -44,17 +45,26 @@ def frame(index: int, *, map_id: str = MAP) -> Frame:
 MakeQueue = Callable[..., FrameQueue]
 
 
-@pytest.fixture(params=["memory", pytest.param("redis", marks=pytest.mark.redis)])
+#: Ingest shards of the Redis adapters under test: one on a single Redis (the default), three on the cluster.
+SHARDS = {"redis": 1, "cluster": 3}
+
+
+@pytest.fixture(params=ADAPTERS)
 def make_queue(request: pytest.FixtureRequest) -> Iterator[MakeQueue]:
-    """Builds the adapter under test: ``make_queue(clock=..., **QueueLimits fields)`` (an empty Redis)."""
+    """Builds the adapter under test: ``make_queue(clock=..., shards=..., **QueueLimits fields)`` (an empty
+    Redis; ``shards`` overrides ``SHARDS``, and the embedded queue has none)."""
     made: list[RedisFrameQueue] = []
 
-    def make(clock: Callable[[], float] = time.time, **limits: Any) -> FrameQueue:
+    def make(clock: Callable[[], float] = time.time, shards: int | None = None, **limits: Any) -> FrameQueue:
         if request.param == "memory":
             return MemoryFrameQueue(limits=QueueLimits(**limits), clock=clock)
-        server: RedisServer = request.getfixturevalue("redis_server")
-        queue = RedisFrameQueue(server.url, limits=QueueLimits(**limits), group="contract", clock=clock)
-        queue.client.flushdb()
+        queue = RedisFrameQueue(
+            empty_redis_url(request),
+            limits=QueueLimits(**limits),
+            group="contract",
+            shards=shards or SHARDS[request.param],
+            clock=clock,
+        )
         queue.prepare()
         made.append(queue)
         return queue
@@ -144,11 +154,12 @@ def test_a_failed_frame_is_counted_failed_in_process_and_delivered_again_on_redi
 def lose_entry(queue: FrameQueue) -> None:
     """Drop the queued entry as a crash would leave it: recorded as accepted, no longer in the queue."""
     if isinstance(queue, RedisFrameQueue):  # the entry, and its part of the backlog, gone
-        ((entry_id, fields),) = queue.client.xrange(keys.INGEST_STREAM)
-        queue.client.xdel(keys.INGEST_STREAM, entry_id)
+        tag = queue.shard_tag(queue.shard_of(MAP))
+        ((entry_id, fields),) = queue.client.xrange(keys.ingest_stream(tag))
+        queue.client.xdel(keys.ingest_stream(tag), entry_id)
         n_bytes, map_id = int(fields[b"bytes"]), fields[b"map_id"].decode()
         for field, delta in (("frames", 1), ("bytes", n_bytes), (f"frames:{map_id}", 1), (f"bytes:{map_id}", n_bytes)):
-            queue.client.hincrby(keys.INGEST_BACKLOG, field, -delta)
+            queue.client.hincrby(keys.ingest_backlog(tag), field, -delta)
     else:  # in process a frame is lost only with the process: as if it were, keeping its record
         assert isinstance(queue, MemoryFrameQueue)
         lost, n_bytes = queue._ready.popleft()
@@ -232,7 +243,8 @@ def held_bytes(queue: FrameQueue, sent: Frame) -> int:
 def backlog_is_empty(queue: FrameQueue) -> bool:
     stats = queue.stats()
     if isinstance(queue, RedisFrameQueue):
-        per_map_empty = all(int(v) == 0 for v in queue.client.hgetall(keys.INGEST_BACKLOG).values())
+        backlogs = [queue.client.hgetall(keys.ingest_backlog(queue.shard_tag(shard))) for shard in range(queue.shards)]
+        per_map_empty = all(int(v) == 0 for backlog in backlogs for v in backlog.values())
     else:
         assert isinstance(queue, MemoryFrameQueue)
         per_map_empty = not queue._map_frames and not queue._map_bytes
@@ -240,7 +252,7 @@ def backlog_is_empty(queue: FrameQueue) -> bool:
 
 
 def test_a_map_at_its_frame_limit_is_refused_while_another_map_is_accepted(make_queue: MakeQueue) -> None:
-    queue = make_queue(max_queued_frames=5, max_queued_frames_per_map=2)
+    queue = make_queue(max_queued_frames=5, max_queued_frames_per_map=2, shards=1)  # one shard: the overall limit whole
     assert queue.put(frame(0, map_id="a")) and queue.put(frame(1, map_id="a"))
     with pytest.raises(
         QueueFull, match="map a has 2 frames queued \\(max_queued_frames_per_map 2\\); try again later"
@@ -306,15 +318,17 @@ def test_the_backlog_returns_to_zero_once_every_frame_is_acknowledged_or_dead_le
     queue.fail(second, "RuntimeError: boom")  # Redis: still pending, still counted
     if isinstance(queue, RedisFrameQueue):
         assert queue.stats().queue_depth == 5 and not backlog_is_empty(queue)
-        time.sleep(0.02)
-        second = queue.claim_abandoned("c2", min_idle_s=0.01)
-        assert second is not None
-        queue.dead_letter(second, "poison")
     queue.dead_letter(third, "poison")
     queue.dead_letter(third, "poison")
     queue.forget_map("b")  # the map deleted while its frames are in hand: they still leave the backlog
     for item in (fourth, fifth, sixth):
         queue.ack(item, redelivered=False)
+    if isinstance(queue, RedisFrameQueue):  # the failed frame, the one left pending, claimed and given up
+        assert not backlog_is_empty(queue)
+        time.sleep(0.02)
+        second = queue.claim_abandoned("c2", min_idle_s=0.01)
+        assert second is not None and second.deliveries == 2
+        queue.dead_letter(second, "poison")
     assert backlog_is_empty(queue)
     assert not queue.known_map("b") and queue.map_counts("a") == (3, 1)  # nothing of b written back
 
@@ -323,7 +337,7 @@ def test_the_backlog_returns_to_zero_once_every_frame_is_acknowledged_or_dead_le
 def kept_records(queue: FrameQueue, map_id: str) -> int:
     """How many frame records of the map the queue holds."""
     if isinstance(queue, RedisFrameQueue):
-        return int(queue.client.hlen(keys.ingest_status_key(map_id)))
+        return int(queue.client.hlen(keys.ingest_status_key(queue.shard_tag(queue.shard_of(map_id)), map_id)))
     assert isinstance(queue, MemoryFrameQueue)
     records = queue._maps.get(map_id)
     return 0 if records is None else len(records.status)
@@ -394,7 +408,7 @@ def test_a_failed_frame_is_listed_with_its_reason_and_queued_again_from_its_dead
 
 def test_dead_letters_are_capped_and_the_oldest_go_first(make_queue: MakeQueue) -> None:
     clock = Clock()
-    queue = make_queue(clock=clock, max_dead_letters=2)
+    queue = make_queue(clock=clock, max_dead_letters=2, shards=1)  # one shard: the cap whole
     for i in range(3):
         queue.put(frame(i))
         item = queue.take("c1", block_s=0.5)
@@ -412,6 +426,7 @@ def test_dead_letters_are_capped_and_the_oldest_go_first(make_queue: MakeQueue) 
         queue.retry_failed(MAP, "d/f000")
     assert queue.put(frame(0)) is True  # a device may still post it again
     if isinstance(queue, RedisFrameQueue):
-        assert queue.client.xlen(keys.INGEST_DEAD_LETTER_STREAM) == 2
-        kept = sum(len(fields[b"frame"]) for _, fields in queue.client.xrange(keys.INGEST_DEAD_LETTER_STREAM))
-        assert int(queue.client.get(keys.INGEST_DEAD_LETTER_BYTES)) == kept
+        tag = queue.shard_tag(queue.shard_of(MAP))
+        assert queue.client.xlen(keys.ingest_dead_letter_stream(tag)) == 2
+        kept = sum(len(fields[b"frame"]) for _, fields in queue.client.xrange(keys.ingest_dead_letter_stream(tag)))
+        assert int(queue.client.get(keys.ingest_dead_letter_bytes(tag))) == kept

@@ -80,17 +80,38 @@ def test_key_templates() -> None:
     assert keys.claim_key("m", (np.int64(3), 4, 5)) == "arcloud:{m}:claim:3:4:5"
     assert keys.hash_tag("arcloud:{m}:lock:1") == "m"
     assert keys.hash_tag("arcloud:{}:x") == "arcloud:{}:x"  # an empty tag does not count
-    assert keys.hash_tag(keys.INGEST_STREAM) == keys.INGEST_STREAM
-    assert {keys.hash_tag(k("m")) for k in (keys.ingest_status_key, keys.ingest_sweep_key, keys.ingest_counts_key)} == {"m"}
-    service_wide = (
-        keys.INGEST_STREAM,
-        keys.INGEST_DEAD_LETTER_STREAM,
-        keys.INGEST_DEAD_LETTER_BYTES,
-        keys.INGEST_BACKLOG,
-        keys.INGEST_STATS,
-        keys.INGEST_WORKERS,
+    tag = keys.shard_tag(2, 3)
+    shard_keys = [
+        keys.ingest_stream(tag),
+        keys.ingest_dead_letter_stream(tag),
+        keys.ingest_dead_letter_bytes(tag),
+        keys.ingest_backlog(tag),
+        keys.ingest_stats(tag),
+        *(k(tag, "m") for k in (keys.ingest_status_key, keys.ingest_sweep_key, keys.ingest_counts_key)),
+    ]
+    assert (
+        keys.ingest_stream(tag) == "arcloud:ingest:{s2.1}"
+        and keys.ingest_counts_key(tag, "m") == "arcloud:ingest:{s2.1}:map:m:counts"
     )
-    assert len(set(service_wide)) == 6 and not any(k.startswith(keys.map_prefix("")) for k in service_wide)
+    assert len(set(shard_keys)) == 8 and {keys.hash_tag(k) for k in shard_keys} == {tag}  # one slot: the scripts' keys
+    assert not any(k.startswith(keys.map_prefix("")) for k in shard_keys)
+    service_wide = (keys.INGEST_SHARDS, keys.INGEST_WORKERS, keys.MAPS, keys.API_KEYS, keys.LEGACY_INGEST_STREAM)
+    assert {keys.hash_tag(k) for k in service_wide} == set(service_wide)  # no tag: single-key commands only
+
+
+def test_maps_spread_over_the_shards_the_same_in_every_process() -> None:
+    assert [keys.shard_of(m, 3) for m in ("qmap", "walk", "b")] == [0, 1, 2]  # CRC-32, not the salted hash()
+    counts = np.bincount([keys.shard_of(f"map-{i}", 4) for i in range(4000)], minlength=4)
+    assert counts.min() > 900 and keys.shard_of("anything", 1) == 0
+
+
+@pytest.mark.parametrize("n_shards", [1, 2, 3, 7, 16, 1024])
+def test_each_shards_slot_lies_in_its_share_of_the_slots(n_shards: int) -> None:
+    slots = [keys.cluster_slot(keys.ingest_stream(keys.shard_tag(k, n_shards))) for k in range(n_shards)]
+    assert [slot * n_shards // keys.CLUSTER_SLOTS for slot in slots] == list(range(n_shards))
+    rng = np.random.default_rng(0)
+    for key in [keys.object_key("m", 1), "arcloud:ingest", *(f"k{{{rng.integers(1e9)}}}x" for _ in range(200))]:
+        assert keys.cluster_slot(key) == key_slot(key.encode())  # redis-py's (and Redis's) CRC-16
 
 
 def test_a_server_that_is_down_raises_store_unavailable() -> None:
@@ -305,13 +326,13 @@ def test_frame_records_parse_and_those_from_before_the_retention_expire_at_once(
     queue = RedisFrameQueue(client=client, group="legacy")
     queue.prepare()
     client.hset(
-        keys.ingest_status_key(MAP), mapping={"d/old-processed": "processed", "d/old-failed": "failed RuntimeError: boom"}
+        keys.ingest_status_key("s0.0", MAP), mapping={"d/old-processed": "processed", "d/old-failed": "failed RuntimeError: boom"}
     )
-    client.hset(keys.ingest_counts_key(MAP), mapping={"accepted": 2, "failed": 1})
+    client.hset(keys.ingest_counts_key("s0.0", MAP), mapping={"accepted": 2, "failed": 1})
     assert queue.frame_status(MAP, "d/old-processed") is None and queue.failed_frames(MAP, 10) == []
     rgb, depth = np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32)
     assert queue.put(
         make_frame(rgb, depth, (4.0, 4.0, 1.5, 1.5), np.eye(4), timestamp_s=0, map_id=MAP, device_id="d", frame_id="new")
     )
-    assert client.hkeys(keys.ingest_status_key(MAP)) == [b"d/new"]  # the sweep dropped both
+    assert client.hkeys(keys.ingest_status_key("s0.0", MAP)) == [b"d/new"]  # the sweep dropped both
     assert queue.map_counts(MAP) == (3, 1)

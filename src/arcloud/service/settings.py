@@ -23,7 +23,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 from arcloud.core.types import Params
 from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
 
-STORE_SCHEMES = ("redis", "rediss", "unix")
+STORE_SCHEMES = ("redis", "rediss", "unix", "redis+cluster", "rediss+cluster")  # stores.redis.URL_SCHEMES
 ZENOH_CONFIG_TYPES = (".json5", ".json", ".yaml")  # what zenoh.Config.from_file reads
 ZenohMode = Literal["off", "peer", "client", "router"]
 AuthMode = Literal["keys", "none"]
@@ -37,15 +37,13 @@ _PARAMS_TYPES = {f.name: f.type for f in dataclasses.fields(Params)}
 
 
 def redact_url(url: str) -> str:
-    """The URL with its password (if any) replaced by ``***``."""
+    """The URL with its password (if any) replaced by ``***`` (a cluster URL's list of nodes kept)."""
     parts = urlsplit(url)
-    if parts.password is None:
+    userinfo, at, hosts = parts.netloc.rpartition("@")
+    if not at or ":" not in userinfo:
         return url
-    host = parts.hostname or ""
-    if parts.port is not None:
-        host = f"{host}:{parts.port}"
-    user = parts.username or ""
-    return urlunsplit(parts._replace(netloc=f"{user}:***@{host}"))
+    user = userinfo.partition(":")[0]
+    return urlunsplit(parts._replace(netloc=f"{user}:***@{hosts}"))
 
 
 def split_list(value: object) -> object:
@@ -65,7 +63,11 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="ARCLOUD_", extra="forbid", frozen=True, hide_input_in_errors=True)
 
-    store: str = Field("memory", description="`memory` (embedded, one process) or a Redis URL (redis://host:port/db)")
+    store: str = Field(
+        "memory",
+        description="`memory` (embedded, one process), a Redis URL (redis://host:port/db) or a Redis Cluster's "
+        "(redis+cluster://host:port,host:port: any of its nodes)",
+    )
     detector: str = Field(
         "onnx", description="detector spec: `sim:SEED`, `onnx:PATH` (`onnx` alone: $ARCLOUD_MODEL), `maskrcnn:PATH`, ..."
     )
@@ -139,6 +141,14 @@ class Settings(BaseSettings):
     map_frame_burst: int = Field(120, ge=1, description="frame uploads a map may take at once above its rate")
     # Redis Streams ingest
     consumer_group: str = Field("arcloud-workers", min_length=1)
+    ingest_shards: int = Field(
+        1,
+        ge=1,
+        le=1024,
+        description="streams the frame queue is split into (a map's frames go to one, by a hash of its id), each with "
+        "its consumer group, spread over a Redis Cluster's primaries; the same in every process (the queue keeps it in "
+        "Redis and refuses another)",
+    )
     claim_min_idle_s: float = Field(60.0, gt=0, description="a pending frame idle this long is claimed by another worker")
     claim_interval_s: float = Field(5.0, gt=0, description="how often a worker looks for abandoned frames")
     max_deliveries: int = Field(5, ge=1, description="deliveries before a frame goes to the dead-letter stream")

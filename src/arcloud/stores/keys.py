@@ -18,37 +18,53 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
 
-    arcloud:{m}:ingest:status       HASH    frame key -> "queued <entry id>" | "processed <settled_at_s>" |
+Ingest shards (``arcloud.stores.redis_queue``): the frame queue is ``n`` shards (the setting ``ingest_shards``,
+pinned in Redis), a map's frames going to shard ``k = shard_of(map_id, n)``. Every key of shard ``k`` carries
+the hash tag ``t = shard_tag(k, n)`` (``s<k>.<j>``: ``s0.0`` with one shard), its per-map frame records
+included, so that the scripts that accept and settle a frame touch one Cluster slot, and the tags put the
+shards' slots in equal ranges of the slot space, so that a cluster's primaries share them:
+
+    arcloud:ingest:{t}              STREAM  frames to process (protobuf ``Frame`` bytes), one consumer group of workers
+    arcloud:ingest:{t}:dead         STREAM  frames given up on, with the reason (``max_dead_letters``, shared among shards)
+    arcloud:ingest:{t}:dead:bytes   STRING  the dead letters' frame bytes together (``max_dead_letter_bytes``)
+    arcloud:ingest:{t}:backlog      HASH    ``frames``, ``bytes``, ``frames:<map>``, ``bytes:<map>``: what the stream
+                                            holds of frames accepted and not settled, against ``QueueLimits``
+    arcloud:ingest:{t}:stats        HASH    the shard's counters (``QueueStats`` fields) and step latency histogram
+    arcloud:ingest:{t}:map:<m>:status  HASH  frame key -> "queued <entry id>" | "processed <settled_at_s>" |
                                             "failed <settled_at_s> <dead-letter id> <deliveries> <reason>": the
                                             frames the ingest accepted for the map and keeps a record of
-                                            (``redis_queue``; settled ones for ``frame_record_retention_s``)
-    arcloud:{m}:ingest:sweep        STRING  where the sweep of expired records goes on (HSCAN cursor)
-    arcloud:{m}:ingest:counts       HASH    ``accepted``, ``failed``: the map's frame counts (records expiring
-                                            do not lower them)
+                                            (settled ones for ``frame_record_retention_s``)
+    arcloud:ingest:{t}:map:<m>:sweep   STRING  where the sweep of expired records goes on (HSCAN cursor)
+    arcloud:ingest:{t}:map:<m>:counts  HASH    ``accepted``, ``failed``: the map's frame counts (records
+                                            expiring do not lower them)
 
-Service-wide keys (no map tag; the durable ingest of ``arcloud.stores.redis_queue``):
+Service-wide keys (no tag: single-key commands only):
 
-    arcloud:ingest                  STREAM  frames to process (protobuf ``Frame`` bytes), one consumer group of workers
-    arcloud:ingest:dead             STREAM  frames given up on, with the reason (``max_dead_letters``)
-    arcloud:ingest:dead:bytes       STRING  the dead letters' frame bytes together (``max_dead_letter_bytes``)
-    arcloud:ingest:backlog          HASH    ``frames``, ``bytes``, ``frames:<map>``, ``bytes:<map>``: what the stream
-                                            holds of frames accepted and not settled, against ``QueueLimits``
-    arcloud:ingest:stats            HASH    service-wide counters (``QueueStats`` fields) and the step latency histogram
+    arcloud:ingest:shards           STRING  how many ingest shards this Redis's queue has (set by the first
+                                            process to prepare the queue; others with another count refuse to start)
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
-
     arcloud:maps                    HASH    map id -> when its objects last changed (Unix s); written by open_map, commit
     arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
-``RedisStore.delete_map`` removes every key matching ``map_pattern``: the ingest marks of the map too (not
-its part of ``arcloud:ingest:backlog``: frames still queued leave it when they settle). Written before the
-frame records were bounded, and no longer read: ``arcloud:{m}:frames`` (SET), ``arcloud:{m}:ingest:accepted``
-and ``:failed`` (SETs); ``delete_map`` removes them with the map.
+``RedisStore.delete_map`` removes every key matching ``map_pattern``; the queue's ``forget_map`` removes the
+map's frame records and counts from its shard (not its part of the shard's backlog: frames still queued
+leave it when they settle). Written before ingest shards, and no longer read: the one stream
+``arcloud:ingest`` with ``:dead``, ``:dead:bytes``, ``:backlog``, ``:stats``, and per map
+``arcloud:{m}:ingest:status``, ``:sweep``, ``:counts`` (``delete_map`` removes those with the map); before
+the frame records were bounded: ``arcloud:{m}:frames`` (SET), ``arcloud:{m}:ingest:accepted`` and
+``:failed`` (SETs).
 """
 
 from __future__ import annotations
 
+import binascii
+import itertools
+import zlib
+from functools import cache
+
 PREFIX = "arcloud"
+CLUSTER_SLOTS = 16384
 
 # Suffixes after the map prefix; the Lua scripts build per-object and per-cell keys from these.
 IDS = "ids"
@@ -139,26 +155,71 @@ def hash_tag(key: str) -> str:
     return key
 
 
-def ingest_status_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:status"
+def shard_of(map_id: str, n_shards: int) -> int:
+    """The ingest shard of a map: CRC-32 of its id modulo ``n_shards`` (the same in every process, unlike
+    ``hash``)."""
+    return zlib.crc32(map_id.encode()) % n_shards
 
 
-def ingest_sweep_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:sweep"
+def cluster_slot(key: str) -> int:
+    """The Redis Cluster slot of a key: CRC-16/XMODEM of its hash tag (or of the whole key), mod 16384."""
+    return binascii.crc_hqx(hash_tag(key).encode(), 0) % CLUSTER_SLOTS
 
 
-def ingest_counts_key(map_id: str) -> str:
-    return f"{map_prefix(map_id)}:ingest:counts"
+@cache
+def shard_tag(shard: int, n_shards: int) -> str:
+    """The hash tag of ingest shard ``shard`` of ``n_shards``: ``s<shard>.<j>``, ``j`` the least integer that
+    puts its Cluster slot in the ``shard``-th of ``n_shards`` equal ranges of the slots. A cluster whose
+    primaries hold equal ranges (``redis-cli --cluster create``) so holds as many shards on each primary
+    as it can (3 shards on 3 primaries: one each), where ``s0``, ``s1``, ``s2`` would put two on one."""
+    if not 0 <= shard < n_shards:
+        raise ValueError(f"shard {shard} of {n_shards}")
+    first, end = shard * CLUSTER_SLOTS // n_shards, (shard + 1) * CLUSTER_SLOTS // n_shards
+    for j in itertools.count():
+        tag = f"s{shard}.{j}"
+        if first <= cluster_slot(tag) < end:
+            return tag
+    raise AssertionError("unreachable")  # itertools.count never ends
 
 
-# Service-wide keys (no map tag).
-INGEST_STREAM = f"{PREFIX}:ingest"
-INGEST_DEAD_LETTER_STREAM = f"{INGEST_STREAM}:dead"
-INGEST_STATS = f"{INGEST_STREAM}:stats"
-INGEST_WORKERS = f"{INGEST_STREAM}:workers"
-INGEST_DEAD_LETTER_BYTES = f"{INGEST_DEAD_LETTER_STREAM}:bytes"
-INGEST_BACKLOG = f"{INGEST_STREAM}:backlog"
+def ingest_stream(tag: str) -> str:
+    """``arcloud:ingest:{<tag>}``: a shard's stream (``tag``: its ``shard_tag``), and the start of every key of the shard."""
+    return f"{PREFIX}:ingest:{{{tag}}}"
 
+
+def ingest_dead_letter_stream(tag: str) -> str:
+    return f"{ingest_stream(tag)}:dead"
+
+
+def ingest_dead_letter_bytes(tag: str) -> str:
+    return f"{ingest_stream(tag)}:dead:bytes"
+
+
+def ingest_backlog(tag: str) -> str:
+    return f"{ingest_stream(tag)}:backlog"
+
+
+def ingest_stats(tag: str) -> str:
+    return f"{ingest_stream(tag)}:stats"
+
+
+def ingest_status_key(tag: str, map_id: str) -> str:
+    return f"{ingest_stream(tag)}:map:{map_id}:status"
+
+
+def ingest_sweep_key(tag: str, map_id: str) -> str:
+    return f"{ingest_stream(tag)}:map:{map_id}:sweep"
+
+
+def ingest_counts_key(tag: str, map_id: str) -> str:
+    return f"{ingest_stream(tag)}:map:{map_id}:counts"
+
+
+# Service-wide keys (no tag).
+INGEST_SHARDS = f"{PREFIX}:ingest:shards"
+INGEST_WORKERS = f"{PREFIX}:ingest:workers"
+#: The one stream before ingest shards (no longer written; ``RedisFrameQueue.health`` reports entries left in it).
+LEGACY_INGEST_STREAM = f"{PREFIX}:ingest"
 API_KEYS = f"{PREFIX}:keys"
 MAPS = f"{PREFIX}:maps"
 

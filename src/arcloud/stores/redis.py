@@ -28,7 +28,7 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   drops the expired ones, so the HASH holds about a retention's frames.
 - ``new_ids``: INCRBY on the map's counter, unique across processes.
 - ``delete_map``: a Lua script removes the objects, index, frames and counter atomically, then a SCAN
-  of ``arcloud:{map}:*`` removes whatever else is left (leases still alive). Not atomic against writers
+  of ``arcloud:{map}:*`` (on every primary of a cluster) removes whatever else is left (leases still alive). Not atomic against writers
   of the same map that run at the same time.
 
 How long a call may take: ``reply_timeout_s`` bounds each wait for a reply or a connection (workers
@@ -38,6 +38,12 @@ is sent again once on a new connection; a timeout is not (``connect_redis``). If
 reply is lost and the retry finds the commit already applied, it returns False (with a ``frame_key``:
 the frame is recorded) or raises ``StaleLease`` (without): the data was written once either way. The
 lock script is idempotent per token, so a retried acquire does not wait for itself.
+
+On a Redis Cluster (``connect_redis`` with a ``redis+cluster://`` URL: a ``RedisCluster`` client) the same
+code runs: every script and every MULTI/EXEC pipeline names keys of one map (one slot; the scripts build
+their other keys from the map prefix, so they stay in it: ``tests/stores/test_redis_cluster.py`` checks each
+script's keys), the service-wide ``arcloud:maps`` is written by its own command, and ``delete_map``'s SCAN
+runs on every primary.
 
 redis-py exceptions become ``arcloud.errors`` at this boundary: ``StoreUnavailable`` (connection,
 timeout, a Redis busy with a script: ``BUSY``), ``StaleLease`` (a fence failed), ``StoreError``
@@ -59,9 +65,14 @@ from contextlib import contextmanager
 from functools import cache
 from importlib import resources
 from typing import Any, cast
+from urllib.parse import unquote
 
 import numpy as np
 import redis
+from redis.backoff import ExponentialWithJitterBackoff
+from redis.cluster import ClusterNode, RedisCluster
+from redis.exceptions import RedisClusterException
+from redis.retry import Retry
 
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
@@ -82,28 +93,93 @@ GET_BATCH = 256  # objects per pipeline when reading many
 SCAN_COUNT = 1000
 
 
-def connect_redis(url: str, *, reply_timeout_s: float = 30.0, retries: int = 1) -> redis.Redis:
+#: URL schemes of a Redis Cluster: ``redis+cluster://[[user]:password@]host:port[,host:port...][/0]`` (any node of
+#: the cluster, more for when one is down; TLS with ``rediss+cluster://``).
+CLUSTER_SCHEMES = ("redis+cluster", "rediss+cluster")
+#: Every URL scheme ``connect_redis`` takes.
+URL_SCHEMES = ("redis", "rediss", "unix", *CLUSTER_SCHEMES)
+
+#: A client of one Redis or of a Redis Cluster: every adapter here takes either.
+RedisClient = redis.Redis | RedisCluster
+
+
+def connect_redis(url: str, *, reply_timeout_s: float = 30.0, retries: int = 1) -> RedisClient:
     """A client of ``url`` (binary responses) waiting at most ``reply_timeout_s`` for a reply or a
     connection. A command that meets a connection error is sent again ``retries`` times on a new
     connection (jittered backoff from 10 ms, doubling up to 1 s); a timeout is not retried, so a hung
-    Redis costs one ``reply_timeout_s`` per command. ``InvalidInput`` for a bad URL."""
-    from redis.backoff import ExponentialWithJitterBackoff
-    from redis.retry import Retry
-
-    retry = Retry(ExponentialWithJitterBackoff(base=0.01, cap=1.0), retries, supported_errors=(redis.exceptions.ConnectionError,))
+    Redis costs one ``reply_timeout_s`` per command. A cluster URL (``CLUSTER_SCHEMES``) gives a
+    ``RedisCluster``, which reads the slot map from the nodes now (``StoreUnavailable`` when none answers)
+    and, on a connection error or a timeout, reads it again and sends the command ``retries`` more times
+    (how it follows a failover). ``InvalidInput`` for a bad URL."""
+    backoff = ExponentialWithJitterBackoff(base=0.01, cap=1.0)
+    scheme = url.split("://", 1)[0] if "://" in url else "none"
+    if scheme in CLUSTER_SCHEMES:
+        return _connect_cluster(url, reply_timeout_s=reply_timeout_s, retry=Retry(backoff, retries))
+    retry = Retry(backoff, retries, supported_errors=(redis.exceptions.ConnectionError,))
     try:
         return redis.Redis.from_url(
             url, socket_connect_timeout=min(5.0, reply_timeout_s), socket_timeout=reply_timeout_s, retry=retry
         )
     except ValueError as exc:
-        scheme = url.split("://", 1)[0] if "://" in url else "none"
-        raise InvalidInput("url", "a redis://, rediss:// or unix:// URL", f"a URL with scheme {scheme!r}") from exc
+        raise InvalidInput("url", f"a {', '.join(s + '://' for s in URL_SCHEMES)} URL", f"a URL with scheme {scheme!r}") from exc
+
+
+def cluster_nodes(url: str) -> tuple[list[tuple[str, int]], str | None, str | None]:
+    """The (host, port) nodes, user and password of a cluster URL; ``InvalidInput`` naming what is wrong."""
+    expected = "redis+cluster://[[user]:password@]host:port[,host:port...][/0]"
+    _scheme, _, rest = url.partition("://")
+    location, _, path = rest.partition("/")
+    userinfo, _, hosts = location.rpartition("@")
+    if path.strip("/") not in ("", "0"):
+        raise InvalidInput("url", f"{expected} (a cluster has database 0 only)", f"database {path.strip('/')!r}")
+    nodes = []
+    for node in hosts.split(","):
+        host, _, port = node.strip().rpartition(":")
+        if not host or not port.isdigit():
+            raise InvalidInput("url", expected, f"node {node!r}")
+        nodes.append((host.strip("[]"), int(port)))
+    user, _, password = userinfo.partition(":")
+    return nodes, unquote(user) or None, unquote(password) or None
+
+
+def _connect_cluster(url: str, *, reply_timeout_s: float, retry: Retry) -> RedisCluster:
+    nodes, user, password = cluster_nodes(url)
+    try:
+        return RedisCluster(
+            startup_nodes=[ClusterNode(host, port) for host, port in nodes],  # type: ignore[no-untyped-call]  # redis-py leaves it untyped
+            username=user,
+            password=password,
+            ssl=url.startswith("rediss+"),
+            socket_connect_timeout=min(5.0, reply_timeout_s),
+            socket_timeout=reply_timeout_s,
+            retry=retry,
+        )
+    except (redis.exceptions.RedisError, RedisClusterException) as exc:
+        where = ",".join(f"{host}:{port}" for host, port in nodes)
+        raise StoreUnavailable(f"redis cluster at {where} unreachable ({exc})") from exc
+
+
+def where(client: RedisClient) -> str:
+    """host:port/db of the server (a cluster's nodes), never credentials."""
+    if isinstance(client, RedisCluster):
+        primaries = client.get_primaries()  # type: ignore[no-untyped-call]  # redis-py leaves it untyped
+        return "cluster " + ",".join(sorted(node.name for node in primaries))
+    kwargs = client.connection_pool.connection_kwargs
+    if "path" in kwargs:
+        return f"unix:{kwargs['path']}"
+    return f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}/{kwargs.get('db', 0)}"
 
 
 def is_busy(exc: redis.exceptions.ResponseError) -> bool:
     """Whether Redis answered ``BUSY`` (a script runs past busy-reply-threshold), alone or in a pipeline."""
     message = str(exc)
     return message.startswith("BUSY ") or "caused error: BUSY " in message
+
+
+def is_unreachable_cluster(exc: Exception) -> bool:
+    """Whether redis-py's cluster client gave up on reaching any node (it raises ``RedisClusterException``,
+    not a ``ConnectionError``, once its retries found no node to read the slot map from)."""
+    return isinstance(exc, RedisClusterException) and "cannot be connected" in str(exc)
 
 
 @cache
@@ -138,8 +214,8 @@ class RedisLease:
 
 class RedisStore:
     """``ObjectStore`` on Redis. ``cell_m``: size of the spatial index's cubic cells (every process of
-    one deployment must use the same). ``client``: an existing ``redis.Redis`` (binary responses, i.e.
-    ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
+    one deployment must use the same). ``client``: an existing ``redis.Redis`` or ``RedisCluster`` (binary
+    responses, i.e. ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
     ``reply_timeout_s``, ``retries``). ``votes_f16`` stores votes as float16 (see ``codec``).
     ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
 
@@ -150,7 +226,7 @@ class RedisStore:
         url: str = DEFAULT_URL,
         *,
         cell_m: float = 1.0,
-        client: redis.Redis | None = None,
+        client: RedisClient | None = None,
         max_query_cells: int = MAX_QUERY_CELLS,
         votes_f16: bool = False,
         reply_timeout_s: float = 30.0,
@@ -197,11 +273,7 @@ class RedisStore:
         return f"RedisStore({self._where()}, cell_m={self.cell_m})"
 
     def _where(self) -> str:
-        """host:port/db of the server, never credentials."""
-        kwargs = self.client.connection_pool.connection_kwargs
-        if "path" in kwargs:
-            return f"unix:{kwargs['path']}"
-        return f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}/{kwargs.get('db', 0)}"
+        return where(self.client)
 
     @contextmanager
     def _boundary(self, what: str) -> Iterator[None]:
@@ -217,7 +289,9 @@ class RedisStore:
             raise StoreError(f"{what}: redis at {self._where()} answered {message}") from exc
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
             raise StoreUnavailable(f"{what}: redis at {self._where()} unreachable ({exc})") from exc
-        except redis.exceptions.RedisError as exc:
+        except (redis.exceptions.RedisError, RedisClusterException) as exc:
+            if is_unreachable_cluster(exc):
+                raise StoreUnavailable(f"{what}: redis at {self._where()} unreachable ({exc})") from exc
             raise StoreError(f"{what}: redis at {self._where()} failed ({exc})") from exc
 
     def ping(self) -> None:

@@ -11,13 +11,13 @@ import redis
 from arcloud.access import ApiKey
 from arcloud.errors import StoreError, StoreUnavailable
 from arcloud.stores.keys import API_KEYS
-from arcloud.stores.redis import connect_redis
+from arcloud.stores.redis import RedisClient, connect_redis
 
 
 class RedisKeyStore:
     """``KeyStore`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
 
-    def __init__(self, url: str = "", *, client: redis.Redis | None = None, reply_timeout_s: float = 5.0) -> None:
+    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 5.0) -> None:
         self._owns_client = client is None
         self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
 

@@ -1,65 +1,83 @@
-"""The durable frame queue on Redis Streams: the API appends each validated frame to ONE stream
-(``arcloud:ingest``), read by a consumer group of worker processes. A frame is acknowledged (and deleted
-from the stream, so the stream's length is the backlog) only after its step; a worker that dies leaves it
-pending and another claims it (XAUTOCLAIM after ``min_idle_s``).
+"""The durable frame queue on Redis Streams: the API appends each validated frame to the stream of its
+map's ingest shard (``keys.ingest_stream``, shard ``keys.shard_of(map_id, shards)``), read by one consumer
+group of worker processes on each shard. A frame is acknowledged (and deleted from the stream, so the
+streams' lengths are the backlog) only after its step; a worker that dies leaves it pending and another
+claims it (XAUTOCLAIM after ``min_idle_s``).
 
-Why one global stream rather than a stream per map: a consumer group lives on one stream, and
-XREADGROUP reads a fixed list of streams, while maps appear at run time; per-map streams would need a
-registry of maps, a group per map and a reader per (worker, map). One stream gives one group, one
-pending list to claim from, and first-come-first-served across maps. Frames of one map are processed in
-parallel by several workers (the per-object locks and space claims of the step make that safe). The
-scale-out path beyond one Redis primary is N shard streams (map -> shard by hash), each with its group.
+Why shards, and not a stream per map: a consumer group lives on one stream, and XREADGROUP reads a fixed
+list of streams, while maps appear at run time; per-map streams would need a registry of maps, a group per
+map and a reader per (worker, map). A fixed number of shards (the setting ``ingest_shards``, 1 by default:
+one stream, one group, first come first served across maps) gives a fixed list of groups to read and
+claim from, and spreads the ingest over the primaries of a Redis Cluster. Frames of one map go to one
+shard and are processed in parallel by several workers (the per-object locks and space claims of the step
+make that safe). Every worker reads every shard: ``take`` looks at each shard once without waiting,
+starting from the one after where the worker's last look started (so no shard waits on another), then
+waits on one in turn (``block_s`` shared among the shards); with one shard, one blocking read as before.
+One XREADGROUP over several streams would do on one Redis, not on a Cluster (one slot a command).
 
-Per map: each accepted frame's record (its status: its entry id while in the stream, then processed or
-failed, when, and for a failed frame its dead letter, deliveries and reason), and the map's counts
-(accepted, failed: counters). ``lua/accept_frame.lua`` records, counts and queues a frame in one
-step, so no frame is recorded as accepted without its entry; a frame posted again is a duplicate while
-its entry is in the stream or it was processed, and is queued again when it failed or its entry is gone
-without an outcome (lost, e.g. in the last second before a crash). Service-wide: the counters and the
-step latency histogram in one HASH shared by every worker, consumers' heartbeats in another, the
-dead-letter stream, and the backlog (frames and bytes in the stream, overall and per map). Key templates
-are in ``keys``; entries carry ``map_id``, ``frame_key``, ``accepted_at_s``, ``bytes`` and ``frame``
+A shard's keys, the records of its maps included, share its hash tag (``keys``), so each script below
+touches one Cluster slot. Per map: each accepted frame's record (its status: its entry id while in the
+stream, then processed or failed, when, and for a failed frame its dead letter, deliveries and reason),
+and the map's counts (accepted, failed: counters). ``lua/accept_frame.lua`` records, counts and queues a
+frame in one step, so no frame is recorded as accepted without its entry; a frame posted again is a
+duplicate while its entry is in the stream or it was processed, and is queued again when it failed or its
+entry is gone without an outcome (lost, e.g. in the last second before a crash). Per shard: the counters
+and the step latency histogram in one HASH shared by every worker (``stats`` sums the shards), the
+dead-letter stream, and the backlog (frames and bytes in the stream, overall and per map). Service-wide:
+consumers' heartbeats, and the number of shards (``prepare`` writes it once; a process configured with
+another number refuses to start, since the maps' records and queued frames are where that number put
+them). Entries carry ``map_id``, ``frame_key``, ``accepted_at_s``, ``bytes`` and ``frame``
 (``stream_frames``).
 
-Limits (``QueueLimits``): ``accept_frame.lua`` checks the backlog against the four limits and adds the
-frame to it in the step that queues it; ``lua/settle_frame.lua`` acknowledges and deletes an entry, takes
-it off the backlog and writes the frame's outcome in one step, and only the call that deletes the entry
-takes it off. So the backlog is always the sum over the entries in the stream, whatever crashes when (a
-Redis restarted without its data loses the counters with the entries). The backlog is service-wide, not
-under a map's hash tag: deleting a map while frames of it are queued leaves it right. The stream is never
-trimmed by length (MAXLEN would drop frames not yet processed): entries leave it only settled, so it
-holds the backlog and nothing else.
+Limits (``QueueLimits``): ``accept_frame.lua`` checks the shard's backlog against the four limits and
+adds the frame to it in the step that queues it; ``lua/settle_frame.lua`` acknowledges and deletes an
+entry, takes it off the backlog and writes the frame's outcome in one step, and only the call that
+deletes the entry takes it off. So each backlog is always the sum over the entries in its stream,
+whatever crashes when (a Redis restarted without its data loses the counters with the entries). The
+per-map limits hold as they are (a map lives in one shard); the overall limits (and the dead-letter caps)
+are shared among the shards (``shard_limits``: an even share, at least a map's limit), so the whole
+queue holds about what they say. The backlog is not under a map's key prefix: deleting a map while frames
+of it are queued leaves it right. The streams are never trimmed by length (MAXLEN would drop frames not
+yet processed): entries leave them only settled, so they hold the backlog and nothing else.
 
 Retention: a settled frame's record carries when it settled (``FrameRecord``), and is dropped
 ``frame_record_retention_s`` after: each accept or settle of its map sweeps about
 ``RECORDS_SWEPT_PER_CALL`` records on from where the last sweep stopped (HSCAN, ``lua/records.lua``), and
 a record past the retention counts as gone even before it is dropped. Dead letters keep the frame's payload for
-``retry_failed``; the dead-letter stream is capped at ``max_dead_letters`` entries and
-``max_dead_letter_bytes`` of payload (the oldest go first), the reason staying in the frame's record.
+``retry_failed``; each shard's dead-letter stream is capped at its share of ``max_dead_letters`` entries
+and ``max_dead_letter_bytes`` of payload (the oldest go first), the reason staying in the frame's record.
 Times are the callers' clocks (Unix seconds), as the heartbeats': the hosts' clocks must agree (NTP).
 
 ``fail`` leaves an entry pending (still counted): it is delivered again once claimed, until the worker
 dead-letters it. redis-py's connection errors and timeouts, and a Redis busy with a script (``BUSY``), become
 ``StoreUnavailable`` at this boundary, other Redis errors ``StoreError``.
 
-Recovery: a Redis restarted without its data has no consumer group; the readers (``take``,
-``claim_abandoned``) create it again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
+Recovery: a Redis restarted without its data has no consumer groups; the readers (``take``,
+``claim_abandoned``) create them again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
 the restart are lost with the data; frames queued since (XADD makes the stream) are read, as the group
-starts at the stream's beginning. ``health`` reports a missing group.
+starts at the stream's beginning. ``health`` reports a missing group, and frames left in the one stream
+of the layout before shards (``keys.LEGACY_INGEST_STREAM``), which nothing reads any more.
+
+On a Redis Cluster (a ``RedisCluster`` client, ``connect_redis``) the same calls run unchanged: every
+script and every multi-key command names keys of one shard (one slot); the reads of several shards
+(``stats``, ``health``) are separate commands, pipelined without a transaction.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import re
 import time
+import zlib
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, cast
 
 import redis
+from redis.exceptions import RedisClusterException
 
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
@@ -69,13 +87,14 @@ from arcloud.ports import (
     FailedFrame,
     FrameStatus,
     QueuedFrame,
+    QueueFull,
     QueueLimits,
     QueueStats,
     latency_bucket,
     not_retriable,
 )
 from arcloud.stores import keys
-from arcloud.stores.redis import connect_redis, is_busy, lua_source
+from arcloud.stores.redis import RedisClient, connect_redis, is_busy, is_unreachable_cluster, lua_source
 from arcloud.stores.stream_frames import decode_frame, encode_frame
 
 log = logging.getLogger(__name__)
@@ -140,22 +159,48 @@ class FrameRecord:
         return cls(status, settled_at_s=float(at), dead_letter_id=dead_letter_id, deliveries=int(deliveries), reason=reason)
 
 
+def shard_limits(limits: QueueLimits, shards: int) -> QueueLimits:
+    """What one of ``shards`` ingest shards may hold: the overall limits (frames, bytes, dead letters) split
+    evenly, each share at least the per-map limit (a map alone fills its shard as it would fill the queue)
+    and at most the overall limit; the per-map limits and the retention as they are (a map lives in one
+    shard). One shard: ``limits`` unchanged."""
+
+    def share(total: int, at_least: int) -> int:
+        return min(total, max(-(-total // shards), at_least))
+
+    return dataclasses.replace(
+        limits,
+        max_queued_frames=share(limits.max_queued_frames, limits.max_queued_frames_per_map),
+        max_queued_bytes=share(limits.max_queued_bytes, limits.max_queued_bytes_per_map),
+        max_dead_letters=share(limits.max_dead_letters, 1),
+        max_dead_letter_bytes=share(limits.max_dead_letter_bytes, 1),
+    )
+
+
+#: Where a delivery came from: its shard, entry id and fields (``QueuedFrame.receipt``).
+Receipt = tuple[int, bytes | str, dict[bytes, bytes]]
+
+
 class RedisFrameQueue:
-    """``FrameQueue`` on Redis Streams. ``client``: an existing ``redis.Redis`` (binary responses) instead
-    of connecting to ``url`` (``connect_redis``: then ``socket_timeout_s`` must exceed the longest blocking
-    read). ``group``: the consumer group; ``limits``: what ``put`` allows (default ``QueueLimits()``);
+    """``FrameQueue`` on Redis Streams. ``client``: an existing ``redis.Redis`` or ``RedisCluster`` (binary
+    responses) instead of connecting to ``url`` (``connect_redis``: then ``socket_timeout_s`` must exceed
+    the longest blocking read). ``group``: the consumer group; ``limits``: what ``put`` allows (default
+    ``QueueLimits()``), the overall ones shared among ``shards`` ingest shards (``shard_limits``);
     ``clock``: Unix seconds (records' ages)."""
 
     def __init__(
         self,
         url: str = "redis://127.0.0.1:6379/0",
         *,
-        client: redis.Redis | None = None,
+        client: RedisClient | None = None,
         group: str = "arcloud-workers",
         limits: QueueLimits | None = None,
+        shards: int = 1,
         socket_timeout_s: float = 30.0,
         clock: Callable[[], float] = time.time,
     ) -> None:
+        if not (isinstance(shards, int) and shards >= 1):
+            raise InvalidInput("ingest_shards", "an integer >= 1", shards)
         if client is None:
             client = connect_redis(url, reply_timeout_s=socket_timeout_s)
             self._owns_client = True
@@ -164,16 +209,32 @@ class RedisFrameQueue:
         self.client = client
         self.group = group
         self.limits = limits or QueueLimits()
+        self.shards = shards
+        self._shard_limits = shard_limits(self.limits, shards)
+        self._tags = [keys.shard_tag(shard, shards) for shard in range(shards)]
         self._clock = clock
         self._accept = client.register_script(lua_source("records") + lua_source("accept_frame"))
         self._settle = client.register_script(lua_source("records") + lua_source("settle_frame"))
         self._dead_letters_kept = client.register_script(lua_source("dead_letters_kept"))
-        self._claim_cursors: dict[str, str] = {}  # consumer -> where its XAUTOCLAIM scan goes on
+        self._claim_cursors: dict[tuple[str, int], str] = {}  # (consumer, shard) -> where its XAUTOCLAIM scan goes on
+        self._next_shard: dict[str, int] = {}  # consumer -> the shard its next read starts at
+        self._next_claim_shard: dict[str, int] = {}  # consumer -> the shard its next claim starts at
 
     def close(self) -> None:
         """Close the connections (when the queue made its client)."""
         if self._owns_client:
             self.client.close()
+
+    def shard_of(self, map_id: str) -> int:
+        """The ingest shard of the map's frames and records."""
+        return keys.shard_of(map_id, self.shards)
+
+    def shard_tag(self, shard: int) -> str:
+        """The hash tag of the shard's keys (``keys.shard_tag``)."""
+        return self._tags[shard]
+
+    def _tag_of(self, map_id: str) -> str:
+        return self._tags[self.shard_of(map_id)]
 
     @contextmanager
     def _boundary(self, doing: str) -> Iterator[None]:
@@ -186,16 +247,20 @@ class RedisFrameQueue:
             if is_busy(exc):
                 raise StoreUnavailable(f"cannot {doing}: Redis busy ({exc})") from exc
             raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
-        except redis.exceptions.RedisError as exc:
+        except (redis.exceptions.RedisError, RedisClusterException) as exc:
+            if is_unreachable_cluster(exc):
+                raise StoreUnavailable(f"cannot {doing}: Redis Cluster unreachable ({exc})") from exc
             raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
 
-    def _recreate_group(self, exc: redis.exceptions.ResponseError) -> None:
+    def _recreate_group(self, exc: redis.exceptions.ResponseError, shard: int) -> None:
         """Re-raise ``exc`` unless it says the consumer group is gone (``NOGROUP``: Redis restarted
-        without its data); then create the group again."""
+        without its data); then create the groups again."""
         if not str(exc).startswith("NOGROUP"):
             raise exc
         log.warning(
-            "consumer group %s of %s missing (Redis restarted without its data?); creating it", self.group, keys.INGEST_STREAM
+            "consumer group %s of %s missing (Redis restarted without its data?); creating it",
+            self.group,
+            keys.ingest_stream(self._tags[shard]),
         )
         self.prepare()
 
@@ -204,17 +269,20 @@ class RedisFrameQueue:
         return self._queue(frame.map_id, frame.key, encode_frame(frame, message))
 
     def _queue(self, map_id: str, frame_key: str, payload: bytes) -> bool:
-        """``lua/accept_frame.lua``: True when queued, False for a duplicate; ``QueueFull`` over a limit."""
-        limits = self.limits
+        """``lua/accept_frame.lua`` on the map's shard: True when queued, False for a duplicate; ``QueueFull``
+        over a limit."""
+        shard = self.shard_of(map_id)
+        tag = self._tags[shard]
+        limits = self._shard_limits
         with self._boundary("queue the frame"):
             reply = self._accept(
                 keys=[
-                    keys.ingest_status_key(map_id),
-                    keys.ingest_sweep_key(map_id),
-                    keys.ingest_counts_key(map_id),
-                    keys.INGEST_STREAM,
-                    keys.INGEST_STATS,
-                    keys.INGEST_BACKLOG,
+                    keys.ingest_status_key(tag, map_id),
+                    keys.ingest_sweep_key(tag, map_id),
+                    keys.ingest_counts_key(tag, map_id),
+                    keys.ingest_stream(tag),
+                    keys.ingest_stats(tag),
+                    keys.ingest_backlog(tag),
                 ],
                 args=[
                     frame_key,
@@ -230,22 +298,26 @@ class RedisFrameQueue:
                 ],
             )
         if isinstance(reply, list):
-            limit, held, frame_bytes = reply
-            raise limits.full(_text(limit), map_id, int(held), int(frame_bytes))
+            limit, held, frame_bytes = (_text(reply[0]), int(reply[1]), int(reply[2]))
+            full = limits.full(limit, map_id, held, frame_bytes)
+            if self.shards > 1 and limit in ("max_queued_frames", "max_queued_bytes"):
+                total = getattr(self.limits, limit)
+                raise QueueFull(f"ingest shard {shard} of {self.shards} (its share of {limit} {total}): {full}", limit)
+            raise full
         return bool(reply != 0)  # the new entry id, or 0 for a duplicate
 
     def map_counts(self, map_id: str) -> tuple[int, int]:
         with self._boundary("read the map's counts"):
-            accepted, failed = self.client.hmget(keys.ingest_counts_key(map_id), ["accepted", "failed"])
+            accepted, failed = self.client.hmget(keys.ingest_counts_key(self._tag_of(map_id), map_id), ["accepted", "failed"])
         return int(accepted or 0), int(failed or 0)
 
     def known_map(self, map_id: str) -> bool:
         with self._boundary("look the map up"):
-            return bool(self.client.exists(keys.ingest_counts_key(map_id)))
+            return bool(self.client.exists(keys.ingest_counts_key(self._tag_of(map_id), map_id)))
 
     def _record(self, map_id: str, frame_key: str) -> FrameRecord | None:
         """The frame's record; None when there is none or it is past the retention."""
-        raw = self.client.hget(keys.ingest_status_key(map_id), frame_key)
+        raw = self.client.hget(keys.ingest_status_key(self._tag_of(map_id), map_id), frame_key)
         record = None if raw is None else FrameRecord.parse(_text(raw))
         return None if record is None or self._expired(record) else record
 
@@ -256,6 +328,7 @@ class RedisFrameQueue:
     def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
         """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
         (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown"."""
+        stream = keys.ingest_stream(self._tag_of(map_id))
         with self._boundary("read the frame's status"):
             record = self._record(map_id, frame_key)
             if record is None:
@@ -265,10 +338,10 @@ class RedisFrameQueue:
             if record.status == "failed":
                 return FrameStatus("failed", record.reason)
             entry_id = record.entry_id
-            if record.status != "queued" or not self.client.xrange(keys.INGEST_STREAM, entry_id, entry_id):
+            if record.status != "queued" or not self.client.xrange(stream, entry_id, entry_id):
                 return FrameStatus("unknown")  # lost: a retry queues it again
             try:
-                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=entry_id, max=entry_id, count=1)
+                pending = self.client.xpending_range(stream, self.group, min=entry_id, max=entry_id, count=1)
             except redis.exceptions.ResponseError as exc:
                 if not str(exc).startswith("NOGROUP"):
                     raise
@@ -277,17 +350,18 @@ class RedisFrameQueue:
 
     def failed_frames(self, map_id: str, limit: int) -> list[FailedFrame]:
         """Reads the map's whole status HASH (an operator's command: O(the map's kept records))."""
+        tag = self._tag_of(map_id)
         with self._boundary("list the map's failed frames"):
             records = [
                 (_text(key), FrameRecord.parse(_text(value)))
-                for key, value in self.client.hscan_iter(keys.ingest_status_key(map_id), count=1000)
+                for key, value in self.client.hscan_iter(keys.ingest_status_key(tag, map_id), count=1000)
                 if value.startswith(b"failed ")
             ]
             latest = sorted(
                 ((key, r) for key, r in records if not self._expired(r)), key=lambda kr: kr[1].settled_at_s or 0.0, reverse=True
             )[:limit]
             linked = [r.dead_letter_id for _, r in latest if r.dead_letter_id]
-            kept = self._dead_letters_kept(keys=[keys.INGEST_DEAD_LETTER_STREAM], args=linked) if linked else []
+            kept = self._dead_letters_kept(keys=[keys.ingest_dead_letter_stream(tag)], args=linked) if linked else []
         kept_ids = {dead_id for dead_id, is_kept in zip(linked, kept) if is_kept}
         return [
             FailedFrame(key, r.reason, r.deliveries, r.settled_at_s or 0.0, r.dead_letter_id in kept_ids) for key, r in latest
@@ -301,7 +375,8 @@ class RedisFrameQueue:
             if record is None or record.status != "failed":
                 raise not_retriable(map_id, frame_key, None if record is None else record.status)
             dead_id = record.dead_letter_id
-            found = self.client.xrange(keys.INGEST_DEAD_LETTER_STREAM, dead_id, dead_id) if dead_id else []
+            dead_letters = keys.ingest_dead_letter_stream(self._tag_of(map_id))
+            found = self.client.xrange(dead_letters, dead_id, dead_id) if dead_id else []
         if not found:
             raise not_retriable(map_id, frame_key, "failed")
         fields = cast("dict[bytes, bytes]", found[0][1])  # bytes: no decode_responses
@@ -310,97 +385,155 @@ class RedisFrameQueue:
         return self._queue(map_id, frame_key, fields.get(b"frame", b""))
 
     def forget_map(self, map_id: str) -> None:
+        tag = self._tag_of(map_id)
         with self._boundary("forget the map"):
-            self.client.delete(keys.ingest_status_key(map_id), keys.ingest_sweep_key(map_id), keys.ingest_counts_key(map_id))
+            self.client.delete(
+                keys.ingest_status_key(tag, map_id), keys.ingest_sweep_key(tag, map_id), keys.ingest_counts_key(tag, map_id)
+            )
 
     def stats(self) -> QueueStats:
+        """Every shard's counters summed (one pipelined round trip; on a Cluster one per node)."""
         with self._boundary("read the ingest counters"):
             pipe = self.client.pipeline(transaction=False)
-            pipe.hgetall(keys.INGEST_STATS)
-            pipe.xlen(keys.INGEST_STREAM)
-            pipe.hget(keys.INGEST_BACKLOG, "bytes")
-            raw, depth, queued_bytes = pipe.execute()
-        stats = parse_stats(raw)
-        stats.queue_depth = int(depth)
-        stats.queued_bytes = int(queued_bytes or 0)
+            for tag in self._tags:
+                pipe.hgetall(keys.ingest_stats(tag))
+                pipe.xlen(keys.ingest_stream(tag))
+                pipe.hget(keys.ingest_backlog(tag), "bytes")
+            replies = pipe.execute()
+        totals: dict[str, float] = {}
+        depth = queued_bytes = 0
+        for shard in range(self.shards):
+            raw, shard_depth, shard_bytes = replies[3 * shard : 3 * shard + 3]
+            for field, value in raw.items():
+                totals[_text(field)] = totals.get(_text(field), 0.0) + float(value)
+            depth += int(shard_depth)
+            queued_bytes += int(shard_bytes or 0)
+        stats = parse_stats({field: repr(v) if field == "latency_sum_s" else str(int(v)) for field, v in totals.items()})
+        stats.queue_depth = depth
+        stats.queued_bytes = queued_bytes
         return stats
 
     def health(self) -> dict[str, str]:
-        """``redis``: it answers; ``consumer_group``: the workers' group exists (it does not after Redis
-        restarted without its data, until a worker reads again)."""
+        """``redis``: it answers; ``consumer_group``: the workers' group exists on every shard (it does not
+        after Redis restarted without its data, until a worker reads again); ``legacy_stream``, only when
+        the one stream of the layout before shards still holds frames: nothing reads them any more."""
         try:
             self.client.ping()
         except Exception as exc:  # noqa: BLE001 - readiness reports, never raises
             return {"redis": f"unreachable: {type(exc).__name__}"}
+        missing = []
         try:
-            groups = self.client.xinfo_groups(keys.INGEST_STREAM)
-            found = any(_text(g.get("name")) == self.group for g in groups)
-        except redis.exceptions.ResponseError:  # "no such key": no stream, so no group
-            found = False
+            for tag in self._tags:
+                stream = keys.ingest_stream(tag)
+                try:
+                    groups = self.client.xinfo_groups(stream)
+                except redis.exceptions.ResponseError:  # "no such key": no stream, so no group
+                    groups = []
+                if not any(_text(g.get("name")) == self.group for g in groups):
+                    missing.append(stream)
+            legacy = int(self.client.xlen(keys.LEGACY_INGEST_STREAM))
         except Exception as exc:  # noqa: BLE001 - readiness reports, never raises
             return {"redis": f"unreachable: {type(exc).__name__}"}
-        return {"redis": "ok", "consumer_group": "ok" if found else f"missing: no group {self.group} on {keys.INGEST_STREAM}"}
+        checks = {"redis": "ok", "consumer_group": f"missing: no group {self.group} on {', '.join(missing)}" if missing else "ok"}
+        if legacy:
+            checks["legacy_stream"] = (
+                f"{legacy} frames left in {keys.LEGACY_INGEST_STREAM} (queued before ingest shards; nothing reads "
+                "them: drain them with the previous version, docs/service.md)"
+            )
+        return checks
 
     def prepare(self) -> None:
-        """Create the consumer group on the stream (and the stream) unless it exists. It starts at the
-        stream's beginning so that frames queued before any worker started are read."""
-        with self._boundary("create the consumer group"):
-            try:
-                self.client.xgroup_create(keys.INGEST_STREAM, self.group, id="0", mkstream=True)
-            except redis.exceptions.ResponseError as exc:
-                if "BUSYGROUP" not in str(exc):
-                    raise
+        """Write the number of shards unless written (``InvalidInput`` naming ``ingest_shards`` when another
+        number is), and create each shard's consumer group (and stream) unless it exists. A group starts
+        at its stream's beginning so that frames queued before any worker started are read."""
+        with self._boundary("create the consumer groups"):
+            self.client.set(keys.INGEST_SHARDS, self.shards, nx=True)
+            pinned = int(self.client.get(keys.INGEST_SHARDS) or self.shards)
+            if pinned != self.shards:
+                raise InvalidInput(
+                    "ingest_shards",
+                    f"{pinned}, the number of shards this Redis's queue has ({keys.INGEST_SHARDS}; changing it: docs/service.md)",
+                    self.shards,
+                )
+            for tag in self._tags:
+                try:
+                    self.client.xgroup_create(keys.ingest_stream(tag), self.group, id="0", mkstream=True)
+                except redis.exceptions.ResponseError as exc:
+                    if "BUSYGROUP" not in str(exc):
+                        raise
 
     # --- consumer ----------------------------------------------------------------------------------
+    def _turn(self, turns: dict[str, int], consumer: str) -> list[int]:
+        """The shards in the order ``consumer`` looks at them this time: from the one after where it
+        started last time, round."""
+        first = turns.get(consumer, zlib.crc32(consumer.encode()) % self.shards)
+        turns[consumer] = (first + 1) % self.shards
+        return [(first + n) % self.shards for n in range(self.shards)]
+
     def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
-        block_ms = max(1, int(block_s * 1000))
+        """One look at each shard without waiting (one shard: a blocking read at once), then a wait of
+        ``block_s`` shared among the shards on the first of them."""
+        order = self._turn(self._next_shard, consumer)
+        if self.shards > 1:
+            for shard in order:
+                item = self._read(shard, consumer, block_ms=None)
+                if item is not None:
+                    return item
+        return self._read(order[0], consumer, block_ms=max(1, int(block_s * 1000 / self.shards)))
+
+    def _read(self, shard: int, consumer: str, *, block_ms: int | None) -> QueuedFrame | None:
+        stream = keys.ingest_stream(self._tags[shard])
 
         def read() -> _ReadReply:
-            return cast(
-                _ReadReply, self.client.xreadgroup(self.group, consumer, {keys.INGEST_STREAM: ">"}, count=1, block=block_ms)
-            )
+            return cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {stream: ">"}, count=1, block=block_ms))
 
         with self._boundary("read the ingest stream"):
             try:
                 reply = read()
             except redis.exceptions.ResponseError as exc:
-                self._recreate_group(exc)
+                self._recreate_group(exc, shard)
                 reply = read()
         for _stream, entries in reply or []:
             for entry_id, fields in entries:
-                return self._delivery(consumer, entry_id, fields, deliveries=1)
+                return self._delivery(consumer, (shard, entry_id, fields), deliveries=1)
         return None
 
     def claim_abandoned(self, consumer: str, *, min_idle_s: float) -> QueuedFrame | None:
+        """One XAUTOCLAIM step on each shard in turn, until one gives an entry."""
         min_idle_ms = max(1, int(min_idle_s * 1000))
+        for shard in self._turn(self._next_claim_shard, consumer):
+            item = self._claim(shard, consumer, min_idle_ms)
+            if item is not None:
+                return item
+        return None
+
+    def _claim(self, shard: int, consumer: str, min_idle_ms: int) -> QueuedFrame | None:
+        stream = keys.ingest_stream(self._tags[shard])
+        cursor = (consumer, shard)
         with self._boundary("claim an abandoned entry"):
             try:
                 next_cursor, entries, *_deleted = self.client.xautoclaim(
-                    keys.INGEST_STREAM,
-                    self.group,
-                    consumer,
-                    min_idle_ms,
-                    start_id=self._claim_cursors.get(consumer, "0-0"),
-                    count=1,
+                    stream, self.group, consumer, min_idle_ms, start_id=self._claim_cursors.get(cursor, "0-0"), count=1
                 )
             except redis.exceptions.ResponseError as exc:
-                self._recreate_group(exc)
-                self._claim_cursors.pop(consumer, None)
+                self._recreate_group(exc, shard)
+                self._claim_cursors.pop(cursor, None)
                 return None  # a new group has nothing pending
-            self._claim_cursors[consumer] = _text(next_cursor) or "0-0"
+            self._claim_cursors[cursor] = _text(next_cursor) or "0-0"
             for entry_id, fields in entries:
                 if not fields:
                     continue  # deleted while pending (Redis drops it from the pending list)
-                pending = self.client.xpending_range(keys.INGEST_STREAM, self.group, min=entry_id, max=entry_id, count=1)
+                pending = self.client.xpending_range(stream, self.group, min=entry_id, max=entry_id, count=1)
                 if not pending:
                     continue  # acknowledged by its late worker since: settled
                 deliveries = int(pending[0]["times_delivered"])
-                self.client.hincrby(keys.INGEST_STATS, "claimed", 1)
-                log.warning("%s claimed entry %s (delivery %d)", consumer, _text(entry_id), deliveries)
-                return self._delivery(consumer, entry_id, fields, deliveries=deliveries)
+                self.client.hincrby(keys.ingest_stats(self._tags[shard]), "claimed", 1)
+                log.warning("%s claimed entry %s of %s (delivery %d)", consumer, _text(entry_id), stream, deliveries)
+                return self._delivery(consumer, (shard, entry_id, fields), deliveries=deliveries)
         return None
 
-    def _delivery(self, consumer: str, entry_id: bytes | str, fields: dict[bytes, bytes], *, deliveries: int) -> QueuedFrame:
+    def _delivery(self, consumer: str, receipt: Receipt, *, deliveries: int) -> QueuedFrame:
+        _shard, _entry_id, fields = receipt
         frame: Frame | None = None
         undecodable = ""
         try:
@@ -414,7 +547,7 @@ class RedisFrameQueue:
             deliveries,
             frame,
             undecodable,
-            receipt=(entry_id, fields),
+            receipt=receipt,
         )
 
     def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
@@ -433,8 +566,8 @@ class RedisFrameQueue:
         return None  # left pending: claimed again after min_idle_s, dead-lettered by the worker in the end
 
     def dead_letter(self, item: QueuedFrame, reason: str) -> None:
-        """Move the entry to the dead-letter stream (with the reason), record its frame as failed."""
-        limits = self.limits
+        """Move the entry to its shard's dead-letter stream (with the reason), record its frame as failed."""
+        limits = self._shard_limits
         with self._boundary("dead-letter the entry"):
             self._settle_entry(
                 item,
@@ -443,19 +576,19 @@ class RedisFrameQueue:
             )
 
     def _settle_entry(self, item: QueuedFrame, counters: dict[str, Any], outcome: list[Any]) -> None:
-        """``lua/settle_frame.lua`` on the delivery's entry."""
-        entry_id, fields = item.receipt
-        map_id, frame_key = item.map_id, item.frame_key
+        """``lua/settle_frame.lua`` on the delivery's entry, in the shard it came from."""
+        shard, entry_id, fields = cast(Receipt, item.receipt)
+        tag, map_id, frame_key = self._tags[shard], item.map_id, item.frame_key
         self._settle(
             keys=[
-                keys.INGEST_STREAM,
-                keys.INGEST_STATS,
-                keys.INGEST_BACKLOG,
-                keys.ingest_status_key(map_id),
-                keys.ingest_sweep_key(map_id),
-                keys.ingest_counts_key(map_id),
-                keys.INGEST_DEAD_LETTER_STREAM,
-                keys.INGEST_DEAD_LETTER_BYTES,
+                keys.ingest_stream(tag),
+                keys.ingest_stats(tag),
+                keys.ingest_backlog(tag),
+                keys.ingest_status_key(tag, map_id),
+                keys.ingest_sweep_key(tag, map_id),
+                keys.ingest_counts_key(tag, map_id),
+                keys.ingest_dead_letter_stream(tag),
+                keys.ingest_dead_letter_bytes(tag),
             ],
             args=[
                 self.group,
@@ -477,9 +610,9 @@ class RedisFrameQueue:
         with self._boundary("write the heartbeat"):
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
             if in_hand is not None:
-                entry_id, _fields = in_hand.receipt
+                shard, entry_id, _fields = cast(Receipt, in_hand.receipt)
                 try:
-                    self.client.xclaim(keys.INGEST_STREAM, self.group, consumer, 0, [entry_id], justid=True)
+                    self.client.xclaim(keys.ingest_stream(self._tags[shard]), self.group, consumer, 0, [entry_id], justid=True)
                 except redis.exceptions.ResponseError as exc:
                     if not str(exc).startswith("NOGROUP"):
                         raise

@@ -7,13 +7,13 @@ import redis
 
 from arcloud.errors import StoreError, StoreUnavailable
 from arcloud.stores.keys import rate_key
-from arcloud.stores.redis import connect_redis, lua_source
+from arcloud.stores.redis import RedisClient, connect_redis, lua_source
 
 
 class RedisRateLimiter:
     """``RateLimiter`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
 
-    def __init__(self, url: str = "", *, client: redis.Redis | None = None, reply_timeout_s: float = 2.0) -> None:
+    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 2.0) -> None:
         self._owns_client = client is None
         self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
         self._script = self.client.register_script(lua_source("rate_limit"))

@@ -6,7 +6,8 @@
 
 ``settings.store`` picks the store and the queue: ``memory`` -> ``MemoryStore`` and ``MemoryFrameQueue``
 (worker threads in the API process run the step); a Redis URL -> ``RedisStore`` and ``RedisFrameQueue``
-(worker processes run it). ``settings.detector`` picks the detector: the specs of
+(``ingest_shards`` streams; worker processes run it), on one Redis or, for a ``redis+cluster://`` URL, on a
+Redis Cluster (``stores.redis.connect_redis``). ``settings.detector`` picks the detector: the specs of
 ``arcloud.detectors.factory`` plus ``sim:SEED``, the simulator's faulty detector on ``generate_room(SEED)``
 (the one ``arcloud replay`` streams frames of), registered by ``register_sim_detector`` before any spec is
 checked or built so that importing this module never loads Open3D. ``settings.zenoh_*`` picks the
@@ -138,7 +139,7 @@ def build_store(url: str, *, cell_m: float, frame_record_retention_s: float, rep
 
 
 def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_block_s: float = 0.0) -> FrameQueue:
-    """``memory`` -> ``MemoryFrameQueue``; a Redis URL -> ``RedisFrameQueue`` (on ``store``'s connections
+    """``memory`` -> ``MemoryFrameQueue``; a Redis URL -> ``RedisFrameQueue`` of ``ingest_shards`` shards (on ``store``'s connections
     when it is a ``RedisStore``, else its own, whose reads may block ``read_block_s``)."""
     if settings.embedded:
         from arcloud.stores.memory_queue import MemoryFrameQueue
@@ -153,6 +154,7 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
         client=client,
         group=settings.consumer_group,
         limits=settings.queue_limits(),
+        shards=settings.ingest_shards,
         socket_timeout_s=max(30.0, 2 * read_block_s + 5),
     )
 

@@ -1,12 +1,13 @@
 -- Accept a frame: record it, count it and queue it in one step, so that no frame is recorded as accepted
 -- without being queued (a crash between two writes once left frames "pending" for ever) and the backlog
 -- counters are always the sum of what the stream holds (settle_frame.lua takes frames off).
--- Needs records.lua before it.
+-- Needs records.lua before it. Every key is of the map's ingest shard (its hash tag: one Cluster slot).
 -- KEYS[1] the map's status HASH, KEYS[2] its sweep cursor, KEYS[3] its counts HASH,
--- KEYS[4] the ingest STREAM, KEYS[5] the stats HASH, KEYS[6] the backlog HASH.
+-- KEYS[4] the shard's STREAM, KEYS[5] its stats HASH, KEYS[6] its backlog HASH.
 -- ARGV[1] the frame key, ARGV[2] the map id, ARGV[3] now (Unix s), ARGV[4] the encoded frame,
 -- ARGV[5] frame_record_retention_s, ARGV[6] records looked at by the sweep,
--- ARGV[7..10] max_queued_frames, max_queued_bytes, max_queued_frames_per_map, max_queued_bytes_per_map.
+-- ARGV[7..10] max_queued_frames, max_queued_bytes (the shard's share of both), max_queued_frames_per_map,
+-- max_queued_bytes_per_map.
 -- Returns the new entry id when queued, 0 for a duplicate, or {limit, held, frame bytes} when the
 -- limit (a QueueLimits field) refuses the frame (QueueLimits.refusal checks the same, in the same order).
 -- A frame accepted before is a duplicate while its entry is in the stream (queued or pending) or it was

@@ -2,15 +2,16 @@
 -- count it, and (the first time the entry settles) write the frame's outcome: processed, or failed with a
 -- dead letter. Only the call that deletes the entry takes it off the backlog, so two workers settling
 -- one entry (a claimed frame whose slow worker finished too) count it once. Needs records.lua before it.
--- KEYS[1] the ingest STREAM, KEYS[2] the stats HASH, KEYS[3] the backlog HASH,
+-- Every key is of the entry's ingest shard (its hash tag: one Cluster slot).
+-- KEYS[1] the shard's STREAM, KEYS[2] its stats HASH, KEYS[3] its backlog HASH,
 -- KEYS[4] the map's status HASH, KEYS[5] its sweep cursor, KEYS[6] its counts HASH,
--- KEYS[7] the dead-letter STREAM, KEYS[8] the dead letters' bytes STRING.
+-- KEYS[7] the shard's dead-letter STREAM, KEYS[8] its dead letters' bytes STRING.
 -- ARGV[1] the consumer group, ARGV[2] the entry id, ARGV[3] the map id, ARGV[4] the frame key (both
 -- as the entry carries them), ARGV[5] the entry's 'bytes' ('' when it has none: accepted before the
 -- backlog was counted), ARGV[6] now (Unix s), ARGV[7] frame_record_retention_s, ARGV[8] records
 -- looked at by the sweep, ARGV[9] JSON {"add": {stats field: integer}, "latency_sum_s": seconds or
 -- absent}, ARGV[10] 'processed', or 'failed' followed by ARGV[11] the reason, ARGV[12] deliveries,
--- ARGV[13] the consumer, ARGV[14] max_dead_letters, ARGV[15] max_dead_letter_bytes.
+-- ARGV[13] the consumer, ARGV[14] max_dead_letters, ARGV[15] max_dead_letter_bytes (the shard's shares).
 -- A frame's record is written only where it is still kept (not when its map was forgotten meanwhile).
 -- Returns 1 when this call settled the entry, 0 when it was settled before.
 local stream, stats, backlog = KEYS[1], KEYS[2], KEYS[3]
