@@ -378,7 +378,10 @@ def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0
     from arcloud.stores.redis_queue import RedisFrameQueue
 
     prefix = f"{host or socket.gethostname()}-"
-    client = connect_redis(settings.store, reply_timeout_s=3.0)  # a hung Redis: unhealthy in 3 s
+    try:
+        client = connect_redis(settings.store, reply_timeout_s=3.0)  # a hung Redis: unhealthy in 3 s
+    except StoreUnavailable:  # a cluster's client reads its slot map at once
+        return False
     try:
         queue = RedisFrameQueue(client=client, group=settings.consumer_group)
         return any(name.startswith(prefix) for name in queue.live_consumers(max_age_s))
