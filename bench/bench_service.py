@@ -129,10 +129,9 @@ class Service:
         self.thread.join(60)
 
     def step_stats(self) -> tuple[int, float]:
-        from arcloud.stores.keys import INGEST_STATS
-        from arcloud.stores.redis_queue import parse_stats
+        from arcloud.stores.redis_queue import RedisFrameQueue
 
-        snap = parse_stats(self.redis.client.hgetall(INGEST_STATS))
+        snap = RedisFrameQueue(client=self.redis.client).stats()  # every shard's (the service's one)
         return snap.latency_count, snap.latency_sum_s
 
     def cpu_s(self) -> dict[str, float]:

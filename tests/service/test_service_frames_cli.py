@@ -92,3 +92,19 @@ def test_a_failed_frame_is_listed_with_its_reason_retried_and_then_processed(
     finally:
         queue.close()
         store.close()
+
+
+def test_another_number_of_ingest_shards_than_the_services_is_refused_with_one_line(
+    server: RedisServer, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    queue = RedisFrameQueue(server.url, shards=1)
+    try:
+        queue.prepare()  # as the service does: the number of shards kept in Redis
+        queue.put(make_test_frame(0, map_id=MAP))
+        monkeypatch.setenv("ARCLOUD_INGEST_SHARDS", "3")  # the map would be looked for in another shard
+        assert main(["frames", "failed", "--map", MAP, "--redis", server.url]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("arcloud: error: ingest_shards: expected 1, the number of shards") and "\n" not in err
+        assert "set ARCLOUD_INGEST_SHARDS as the service has it" in err
+    finally:
+        queue.close()

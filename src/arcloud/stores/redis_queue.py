@@ -55,8 +55,8 @@ dead-letters it. redis-py's connection errors and timeouts, and a Redis busy wit
 Recovery: a Redis restarted without its data has no consumer groups; the readers (``take``,
 ``claim_abandoned``) create them again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
 the restart are lost with the data; frames queued since (XADD makes the stream) are read, as the group
-starts at the stream's beginning. ``health`` reports a missing group, and frames left in the one stream
-of the layout before shards (``keys.LEGACY_INGEST_STREAM``), which nothing reads any more.
+starts at the stream's beginning. ``health`` reports a missing group; ``prepare`` warns of frames left in
+the one stream of the layout before shards (``keys.LEGACY_INGEST_STREAM``), which nothing reads any more.
 
 On a Redis Cluster (a ``RedisCluster`` client, ``connect_redis``) the same calls run unchanged: every
 script and every multi-key command names keys of one shard (one slot); the reads of several shards
@@ -415,8 +415,7 @@ class RedisFrameQueue:
 
     def health(self) -> dict[str, str]:
         """``redis``: it answers; ``consumer_group``: the workers' group exists on every shard (it does not
-        after Redis restarted without its data, until a worker reads again); ``legacy_stream``, only when
-        the one stream of the layout before shards still holds frames: nothing reads them any more."""
+        after Redis restarted without its data, until a worker reads again)."""
         try:
             self.client.ping()
         except Exception as exc:  # noqa: BLE001 - readiness reports, never raises
@@ -431,36 +430,46 @@ class RedisFrameQueue:
                     groups = []
                 if not any(_text(g.get("name")) == self.group for g in groups):
                     missing.append(stream)
-            legacy = int(self.client.xlen(keys.LEGACY_INGEST_STREAM))
         except Exception as exc:  # noqa: BLE001 - readiness reports, never raises
             return {"redis": f"unreachable: {type(exc).__name__}"}
-        checks = {"redis": "ok", "consumer_group": f"missing: no group {self.group} on {', '.join(missing)}" if missing else "ok"}
-        if legacy:
-            checks["legacy_stream"] = (
-                f"{legacy} frames left in {keys.LEGACY_INGEST_STREAM} (queued before ingest shards; nothing reads "
-                "them: drain them with the previous version, docs/service.md)"
-            )
-        return checks
+        return {"redis": "ok", "consumer_group": f"missing: no group {self.group} on {', '.join(missing)}" if missing else "ok"}
 
     def prepare(self) -> None:
         """Write the number of shards unless written (``InvalidInput`` naming ``ingest_shards`` when another
         number is), and create each shard's consumer group (and stream) unless it exists. A group starts
-        at its stream's beginning so that frames queued before any worker started are read."""
+        at its stream's beginning so that frames queued before any worker started are read. Warns of frames
+        left in the one stream of the layout before shards."""
         with self._boundary("create the consumer groups"):
             self.client.set(keys.INGEST_SHARDS, self.shards, nx=True)
-            pinned = int(self.client.get(keys.INGEST_SHARDS) or self.shards)
-            if pinned != self.shards:
-                raise InvalidInput(
-                    "ingest_shards",
-                    f"{pinned}, the number of shards this Redis's queue has ({keys.INGEST_SHARDS}; changing it: docs/service.md)",
-                    self.shards,
-                )
+        self.check_shards()
+        with self._boundary("create the consumer groups"):
             for tag in self._tags:
                 try:
                     self.client.xgroup_create(keys.ingest_stream(tag), self.group, id="0", mkstream=True)
                 except redis.exceptions.ResponseError as exc:
                     if "BUSYGROUP" not in str(exc):
                         raise
+            legacy = int(self.client.xlen(keys.LEGACY_INGEST_STREAM))
+        if legacy:
+            log.warning(
+                "%d frames left in %s, the stream of before ingest shards: nothing reads them (drain them with the "
+                "previous version; docs/service.md, Upgrading)",
+                legacy,
+                keys.LEGACY_INGEST_STREAM,
+            )
+
+    def check_shards(self) -> None:
+        """``InvalidInput`` naming ``ingest_shards`` when this Redis's queue has another number of shards
+        than this one (``prepare`` writes it); reads only."""
+        with self._boundary("read the number of ingest shards"):
+            pinned = self.client.get(keys.INGEST_SHARDS)
+        if pinned is not None and int(pinned) != self.shards:
+            raise InvalidInput(
+                "ingest_shards",
+                f"{int(pinned)}, the number of shards this Redis's queue has ({keys.INGEST_SHARDS}; changing it: "
+                "docs/service.md)",
+                self.shards,
+            )
 
     # --- consumer ----------------------------------------------------------------------------------
     def _turn(self, turns: dict[str, int], consumer: str) -> list[int]:

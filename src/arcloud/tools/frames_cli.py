@@ -66,7 +66,7 @@ def open_queue(args: argparse.Namespace) -> RedisFrameQueue:
     from pydantic import ValidationError
 
     from arcloud.core.checks import check_map_id
-    from arcloud.errors import ArcloudError
+    from arcloud.errors import ArcloudError, InvalidInput
     from arcloud.service.settings import Settings
     from arcloud.stores.redis_queue import RedisFrameQueue
     from arcloud.tools.service_cli import validation_problems
@@ -78,7 +78,14 @@ def open_queue(args: argparse.Namespace) -> RedisFrameQueue:
         raise ArcloudError(f"invalid settings (options or ARCLOUD_* variables): {'; '.join(validation_problems(exc))}") from None
     if settings.embedded:
         raise ArcloudError("--redis: expected a Redis URL (or ARCLOUD_STORE); the embedded queue lives inside `arcloud serve`")
-    queue = RedisFrameQueue(settings.store, group=settings.consumer_group, limits=settings.queue_limits())
+    queue = RedisFrameQueue(
+        settings.store, group=settings.consumer_group, limits=settings.queue_limits(), shards=settings.ingest_shards
+    )
+    try:
+        queue.check_shards()  # the map's records are in its shard of the service's number
+    except InvalidInput as exc:
+        queue.close()
+        raise ArcloudError(f"{exc} (set ARCLOUD_INGEST_SHARDS as the service has it)") from None
     if not queue.known_map(args.map_id):
         queue.close()
         raise ArcloudError(f"--map: no frame of map {args.map_id!r} was accepted (unknown map)")

@@ -62,7 +62,7 @@ def open_key_store(args: argparse.Namespace) -> KeyStore:
 
         return FileKeyStore(path)
     url = args.redis or os.environ.get("ARCLOUD_STORE", "")
-    if not url.startswith(("redis://", "rediss://", "unix://")):
+    if not url.startswith(("redis://", "rediss://", "unix://", "redis+cluster://", "rediss+cluster://")):
         raise InvalidInput("--redis", "a Redis URL, or --file PATH (or $ARCLOUD_STORE, $ARCLOUD_KEYS_FILE)", repr(url or None))
     from arcloud.stores.redis_api_keys import RedisKeyStore
 

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-REDIS_SCHEMES = ("redis://", "rediss://", "unix://")
+REDIS_SCHEMES = ("redis://", "rediss://", "unix://", "redis+cluster://", "rediss+cluster://")
 
 
 class HttpPlace:
@@ -96,7 +96,9 @@ def open_place(where: str, token: str | None) -> HttpPlace | RedisPlace:
         return RedisPlace(where)
     if where.startswith(("http://", "https://")):
         return HttpPlace(where, token)
-    raise InvalidInput("place", "a service URL (http://, https://) or a Redis URL (redis://, rediss://, unix://)", repr(where))
+    raise InvalidInput(
+        "place", "a service URL (http://, https://) or a Redis URL (redis://, rediss://, unix://, redis+cluster://)", repr(where)
+    )
 
 
 def add_maps_commands(subparsers: argparse._SubParsersAction) -> None:
