@@ -478,6 +478,9 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
     app.include_router(router)
+    from arcloud.service import event_stream  # here: it imports this module
+
+    app.include_router(event_stream.router)
     return app
 
 
