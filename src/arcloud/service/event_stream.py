@@ -193,8 +193,6 @@ class MapWatch:
                     self.apply(metas, self.devices_of.of_map(self.map_id, within_s=DEVICE_RECENT_S))
                 if self.subscribers:
                     await asyncio.sleep(self.poll_s)
-        except asyncio.CancelledError:
-            raise
         except Exception:
             log.exception("event stream of map %s: the watch failed; closing its streams", self.map_id)
             for sub in self.subscribers:

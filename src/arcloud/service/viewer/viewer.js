@@ -267,8 +267,9 @@ function fitView() {
 }
 
 // --- voxels (GET v1/maps/{map}/objects/{id}?voxels=true, drawn as points) ---------------------------------
-const voxelState = new Map(); // id -> {version, points} drawn, or {version, loading: true}
+const voxelState = new Map(); // id -> {version, points} drawn, {version, loading: true} or {version, failed: true}
 let voxelFetches = 0;
+let voxelPauseUntil = 0; // after a 429: no voxel request before this (ms), as Retry-After says
 
 function syncVoxels() {
   const wanted = state.showVoxels ? [...state.objects.values()].filter(shown) : [];
@@ -283,10 +284,11 @@ function syncVoxels() {
     }
   }
   document.body.dataset.voxels = String(voxels.children.length);
+  if (Date.now() < voxelPauseUntil) return;
   for (const o of wanted) {
     const entry = voxelState.get(o.id);
     if (voxelFetches >= VOXEL_FETCHES) break;
-    if (entry && (entry.loading || entry.version === o.version)) continue;
+    if (entry && (entry.loading || entry.version === o.version)) continue; // in flight, drawn, or failed at this version
     loadVoxels(o);
   }
 }
@@ -300,6 +302,13 @@ async function loadVoxels(o) {
       headers: authHeaders(),
       cache: "no-store",
     });
+    if (response.status === 429) {
+      const wait_s = Number(response.headers.get("Retry-After")) || 1;
+      voxelPauseUntil = Date.now() + wait_s * 1000;
+      setTimeout(syncVoxels, wait_s * 1000);
+      if (voxelState.has(o.id)) voxelState.set(o.id, { ...voxelState.get(o.id), loading: false, version: previous?.version }); // asked again after the pause
+      return;
+    }
     if (!response.ok) throw new Error(`voxels of object ${o.id}: HTTP ${response.status}`);
     const detail = await response.json();
     const entry = voxelState.get(o.id);
@@ -320,7 +329,7 @@ async function loadVoxels(o) {
     document.body.dataset.voxels = String(voxels.children.length);
   } catch (error) {
     console.warn(error);
-    voxelState.delete(o.id);
+    if (voxelState.has(o.id)) voxelState.set(o.id, { ...voxelState.get(o.id), loading: false, failed: true }); // not asked again until it changes
   } finally {
     voxelFetches -= 1;
     requestRender();
