@@ -618,6 +618,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
     app.include_router(router)
+    from arcloud.service import event_stream, viewer_routes  # here: both import this module
+
+    app.include_router(event_stream.router)
+    app.include_router(viewer_routes.router)
     return app
 
 

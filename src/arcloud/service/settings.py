@@ -137,6 +137,14 @@ class Settings(BaseSettings):
         60.0, ge=0, description="frame uploads a second per map, from all its devices together; 0: no limit"
     )
     map_frame_burst: int = Field(120, ge=1, description="frame uploads a map may take at once above its rate")
+    # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
+    max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
+    event_poll_s: float = Field(
+        0.5, gt=0, le=60, description="how often the API reads a streamed map's objects to find what changed"
+    )
+    event_heartbeat_s: float = Field(
+        15.0, gt=0, le=300, description="an idle event stream sends a comment this often (keeps proxies from closing it)"
+    )
     # Redis Streams ingest
     consumer_group: str = Field("arcloud-workers", min_length=1)
     claim_min_idle_s: float = Field(60.0, gt=0, description="a pending frame idle this long is claimed by another worker")

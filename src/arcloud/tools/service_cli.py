@@ -154,8 +154,7 @@ def _detector_from_env() -> str:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    import uvicorn
-
+    from arcloud.tools.http_server import run_server
     from arcloud.tools.wiring import check_model_file, check_zenoh_config, create_app
 
     settings = settings_from_args(args)
@@ -165,7 +164,7 @@ def run_serve(args: argparse.Namespace) -> int:
         check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
     logging.getLogger("arcloud").setLevel(settings.log_level)
     app = create_app(settings)
-    uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(), ws="none", lifespan="on")
+    run_server(app, host=args.host, port=args.port, log_level=settings.log_level.lower())
     return 0
 
 
