@@ -13,13 +13,16 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/stats
     GET    /v1/maps/{map_id}/snapshot         the map as one file (admin); PUT it back (?replace=true)
     GET    /v1/maps/{map_id}/export           ?format=json|ply|glb|scannet &include=tentative &color= &voxels=
+    GET    /v1/maps/{map_id}/events           server-sent object events (service.event_stream, viewer_routes)
+    GET    /v1/maps/{map_id}/frames/{device}/{frame}   where an accepted frame is
+    GET    /viewer                            the web viewer (static files, open: they hold no data)
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
 
 Map routes need a key (``service.access``, with auth keys): reading needs a reader, device or admin key
 of the map, uploading a device or admin key, deleting an admin key; 401 without a valid token, 403 for a
 key of another role or map, 429 (with Retry-After) over the key's or the map's rate.
 
-A map exists once a frame of it was accepted; unknown maps and objects answer 404. Listings serve
+A map exists once a frame of it was accepted (or a snapshot restored into it); unknown maps and objects answer 404. Listings serve
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
 ``{"detail": ..., "field": ...}``: 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
