@@ -135,6 +135,13 @@ class Ingest:
     def stats(self) -> QueueStats:
         return self.queue.stats()
 
+    def live_workers(self) -> int:
+        """Workers taking frames: this process's worker threads alive, else the queue's consumers with a
+        heartbeat in the last ``LIVE_WORKER_S`` (every host's, for a shared queue)."""
+        if self.workers:
+            return sum(t.is_alive() for t in self._threads)
+        return len(self.queue.live_consumers(LIVE_WORKER_S))
+
     def ready(self) -> dict[str, str]:
         """Check name -> "ok" or what is wrong: the queue's own checks (Redis: it answers, the consumer
         group exists), and whether workers process frames: threads alive; worker processes alive, each

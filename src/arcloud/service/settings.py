@@ -22,6 +22,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from arcloud.core.types import Params
 from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
+from arcloud.service.logs import LogFormat
 
 STORE_SCHEMES = ("redis", "rediss", "unix")
 ZENOH_CONFIG_TYPES = (".json5", ".json", ".yaml")  # what zenoh.Config.from_file reads
@@ -172,12 +173,22 @@ class Settings(BaseSettings):
         "and multicast scouting are set on top from the zenoh_* settings",
     )
     log_level: LogLevel = "INFO"
+    log_format: LogFormat = Field(
+        "text",
+        description="`text` (a terminal) or `json`: one JSON object a line, with the map, device and frame ids on "
+        "every line logged while a frame is processed (arcloud.service.logs)",
+    )
 
     # --- validation --------------------------------------------------------------------------------
     @field_validator("zenoh_listen", "zenoh_connect", mode="before")
     @classmethod
     def _split(cls, value: object) -> object:
         return split_list(value)
+
+    @field_validator("log_format", mode="before")
+    @classmethod
+    def _lower(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value
 
     @field_validator("log_level", mode="before")
     @classmethod

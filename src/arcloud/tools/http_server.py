@@ -9,6 +9,7 @@ stopping service forever. Run under plain ``uvicorn`` (the Docker image), give i
 from __future__ import annotations
 
 import socket
+from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
@@ -28,9 +29,10 @@ class StreamClosingServer(uvicorn.Server):
         await super().shutdown(sockets)
 
 
-def run_server(app: FastAPI, *, host: str, port: int, log_level: str) -> None:
-    """Serve ``app`` on ``host:port`` until SIGINT or SIGTERM."""
-    config = uvicorn.Config(app, host=host, port=port, log_level=log_level, ws="none", lifespan="on")
+def run_server(app: FastAPI, *, host: str, port: int, log_level: str, log_config: dict[str, Any] | None = None) -> None:
+    """Serve ``app`` on ``host:port`` until SIGINT or SIGTERM (``log_config``: uvicorn's logging config; None
+    leaves logging as the caller configured it)."""
+    config = uvicorn.Config(app, host=host, port=port, log_level=log_level, log_config=log_config, ws="none", lifespan="on")
     StreamClosingServer(config, app).run()
 
 
