@@ -25,7 +25,7 @@ key of another role or map, 429 (with Retry-After) over the key's or the map's r
 A map exists once a frame of it was accepted (or a snapshot restored into it); unknown maps and objects answer 404. Listings serve
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
-``{"detail": ..., "field": ...}``: 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
+``{"detail": ..., "field": ...}``: 400 malformed body, 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
 503 store unreachable or queue full (with Retry-After).
 """
 
@@ -220,6 +220,7 @@ router = APIRouter()
     "one that failed or was lost is queued again (see its status).",
     responses={
         **PROBLEM_RESPONSES,
+        400: {"model": Problem, "description": "malformed multipart body (no boundary, too many parts, ...)"},
         413: {"model": Problem, "description": "body too large"},
         415: {"model": Problem, "description": "wrong content type"},
     },
