@@ -7,13 +7,15 @@ redis-server where Redis is named.
 from __future__ import annotations
 
 import json
+import socket
 from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from svc_helpers import AppClient, BlobDetector, make_test_frame
+from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame
 
 from arcloud.proto.convert import frame_to_proto
+from arcloud.service.http_protocol import JsonProblemHTTP
 from arcloud.service.settings import Settings
 from arcloud.tools.wiring import create_app
 
@@ -31,6 +33,19 @@ def assert_problem(status: int, body: bytes, expected_status: int, field: str | 
     return problem  # type: ignore[no-any-return]  # json's Any
 
 
+def raw_http(port: int, request: bytes) -> tuple[int, dict[str, str], bytes]:
+    """Send ``request`` as it is on a new connection; (status, headers, body) of the answer (read to its end)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        sock.sendall(request)
+        data = b""
+        while chunk := sock.recv(65536):
+            data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    status_line, *lines = head.decode("latin-1").split("\r\n")
+    headers = {name.lower(): value.strip() for name, _, value in (line.partition(":") for line in lines)}
+    return int(status_line.split()[1]), headers, body
+
+
 @pytest.fixture(scope="module")
 def embedded() -> Iterator[AppClient]:
     with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as api:
@@ -38,8 +53,46 @@ def embedded() -> Iterator[AppClient]:
         yield api
 
 
+@pytest.fixture(scope="module")
+def served() -> Iterator[UvicornThread]:
+    """The embedded app on uvicorn with the protocol `arcloud serve` runs."""
+    with UvicornThread(
+        create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector()), http=JsonProblemHTTP
+    ) as server:
+        yield server
+
+
 def test_multipart_with_too_many_parts_answers_a_documented_400(embedded: AppClient) -> None:
     parts = {name: (None, b"x") for name in ("meta", "rgb", "depth", "extra")}
     response = embedded.post("/v1/maps/m/frames", files=parts)
     assert_problem(response.status_code, response.content, 400, None)
     assert "400" in embedded.app.openapi()["paths"]["/v1/maps/{map_id}/frames"]["post"]["responses"]
+
+
+@pytest.mark.parametrize(
+    "request_bytes",
+    [
+        b"HELLO\r\n\r\n",
+        b"GET /healthz HTTP/9.9\r\nHost: x\r\n\r\n",
+        b"GET /v1/maps/\xff/stats HTTP/1.1\r\nHost: x\r\n\r\n",
+        b"GET /v1/maps/" + b"a" * 200_000 + b"/stats HTTP/1.1\r\nHost: x\r\n\r\n",
+        b"POST /v1/maps/m/frames HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-protobuf\r\nContent-Length: -1\r\n\r\n",
+        b"POST /v1/maps/m/frames HTTP/1.1\r\nHost: x\r\nContent-Length: 1\r\nContent-Length: 2\r\n\r\nab",
+        b"POST /v1/maps/m/frames HTTP/1.1\r\nHost: x\r\nContent-Length: 3\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n",
+        b"POST /v1/maps/m/frames HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-protobuf\r\nTransfer-Encoding: chunked\r\n\r\nZZ\r\nab\r\n",
+    ],
+    ids=[
+        "not HTTP",
+        "HTTP 9.9",
+        "raw byte 0xFF in the path",
+        "path of 200 kB",
+        "content-length -1",
+        "two content-lengths",
+        "content-length and chunked",
+        "chunk size not hex",
+    ],
+)
+def test_a_request_uvicorn_cannot_parse_answers_a_json_400(served: UvicornThread, request_bytes: bytes) -> None:
+    status, headers, body = raw_http(served.port, request_bytes)
+    assert headers["content-type"] == "application/json" and headers["connection"] == "close"
+    assert_problem(status, body, 400, None)

@@ -26,7 +26,8 @@ A map exists once a frame of it was accepted (or a snapshot restored into it); u
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
 ``{"detail": ..., "field": ...}``: 400 malformed body, 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
-503 store unreachable or queue full (with Retry-After).
+503 store unreachable or queue full (with Retry-After);
+``http_protocol`` answers requests uvicorn cannot parse the same way.
 """
 
 from __future__ import annotations
