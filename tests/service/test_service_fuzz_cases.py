@@ -96,3 +96,33 @@ def test_a_request_uvicorn_cannot_parse_answers_a_json_400(served: UvicornThread
     status, headers, body = raw_http(served.port, request_bytes)
     assert headers["content-type"] == "application/json" and headers["connection"] == "close"
     assert_problem(status, body, 400, None)
+
+
+def test_an_upload_the_client_abandons_answers_400_not_500(embedded: AppClient) -> None:
+    """The body ends in ``http.disconnect``: before, Starlette's ``ClientDisconnect`` escaped the app (a 500 and
+    a logged traceback for every abandoned upload)."""
+    messages = iter([{"type": "http.request", "body": frame_body()[:10], "more_body": True}, {"type": "http.disconnect"}])
+    sent: list[dict[str, Any]] = []
+
+    async def receive() -> dict[str, Any]:
+        return next(messages)
+
+    async def send(message: dict[str, Any]) -> None:
+        sent.append(message)
+
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0"},
+        "http_version": "1.1",
+        "method": "POST",
+        "scheme": "http",
+        "path": "/v1/maps/m/frames",
+        "raw_path": b"/v1/maps/m/frames",
+        "query_string": b"",
+        "root_path": "",
+        "headers": [(b"host", b"app"), (b"content-type", b"application/x-protobuf"), (b"content-length", b"5000")],
+        "client": ("127.0.0.1", 50000),
+        "server": ("app", 80),
+    }
+    embedded.portal.call(embedded.app, scope, receive, send)
+    assert_problem(sent[0]["status"], sent[1]["body"], 400, "body")

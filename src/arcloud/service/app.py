@@ -44,6 +44,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from arcloud import __version__
 from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
@@ -615,6 +616,13 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         return problem(request, exc.status_code, str(exc.detail), None, dict(exc.headers or {}))
+
+    @app.exception_handler(ClientDisconnect)
+    async def client_gone(request: Request, exc: ClientDisconnect) -> JSONResponse:
+        # The client closed the connection mid-body: nobody reads this answer, but the app must give one (else a
+        # 500 and a traceback in the log for every upload a client abandons).
+        log.info("%s %s: the client disconnected before sending the whole body", request.method, request.url.path)
+        return problem(request, 400, "body: the client disconnected before sending all of it", "body")
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError) -> JSONResponse:
