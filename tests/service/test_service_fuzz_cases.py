@@ -11,12 +11,15 @@ import socket
 from collections.abc import Iterator
 from typing import Any
 
+import httpx
 import pytest
+from redis_server import RedisServer
 from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame
 
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.http_protocol import JsonProblemHTTP
 from arcloud.service.settings import Settings
+from arcloud.stores import keys
 from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
@@ -126,3 +129,24 @@ def test_an_upload_the_client_abandons_answers_400_not_500(embedded: AppClient) 
     }
     embedded.portal.call(embedded.app, scope, receive, send)
     assert_problem(sent[0]["status"], sent[1]["body"], 400, "body")
+
+
+@pytest.mark.redis
+def test_a_store_error_answers_a_json_500_telling_nothing_of_it() -> None:
+    """A map's header key of the wrong type (WRONGTYPE from Redis: ``StoreError``, not a client's fault) answers 500
+    as the usual JSON problem, not Starlette's plain text, and names neither Redis nor its address."""
+    server = RedisServer.start()
+    try:
+        app = create_app(Settings(store=server.url, auth="none", detector="sim:0", workers=0))
+        with UvicornThread(app, http=JsonProblemHTTP) as api, httpx.Client(base_url=api.url, timeout=30) as http:
+            assert http.post("/v1/maps/m/frames", content=frame_body(), headers=PROTOBUF).status_code == 202
+            redis = server.client()
+            redis.delete(keys.header_key("m"))
+            redis.lpush(keys.header_key("m"), "not a hash")
+            redis.close()
+            response = http.get("/v1/maps/m/stats")
+        problem = assert_problem(response.status_code, response.content, 500, None)
+        assert response.headers["content-type"] == "application/json"
+        assert "redis" not in problem["detail"].lower() and str(server.port) not in problem["detail"], problem
+    finally:
+        server.stop()

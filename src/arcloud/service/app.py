@@ -26,7 +26,7 @@ A map exists once a frame of it was accepted (or a snapshot restored into it); u
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
 ``{"detail": ..., "field": ...}``: 400 malformed body, 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
-503 store unreachable or queue full (with Retry-After);
+503 store unreachable or queue full (with Retry-After), 500 anything unexpected (its traceback logged);
 ``http_protocol`` answers requests uvicorn cannot parse the same way.
 """
 
@@ -623,6 +623,12 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
         # 500 and a traceback in the log for every upload a client abandons).
         log.info("%s %s: the client disconnected before sending the whole body", request.method, request.url.path)
         return problem(request, 400, "body: the client disconnected before sending all of it", "body")
+
+    @app.exception_handler(Exception)
+    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+        # Starlette's last resort answers 500 in plain text; this answers the usual JSON problem, telling nothing of
+        # the cause (the server logs the traceback: Starlette raises the exception again after this answer).
+        return problem(request, 500, "internal error: the service's log has the details", None)
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError) -> JSONResponse:
