@@ -150,3 +150,18 @@ def test_a_store_error_answers_a_json_500_telling_nothing_of_it() -> None:
         assert "redis" not in problem["detail"].lower() and str(server.port) not in problem["detail"], problem
     finally:
         server.stop()
+
+
+@pytest.mark.redis
+def test_not_ready_answers_503_with_retry_after_and_a_problem() -> None:
+    """Redis with no worker anywhere: /readyz answers 503 with Retry-After, its checks, and the problem's fields."""
+    server = RedisServer.start()
+    try:
+        with AppClient(create_app(Settings(store=server.url, auth="none", detector="sim:0", workers=0))) as api:
+            response = api.get("/readyz")
+    finally:
+        server.stop()
+    assert response.status_code == 503 and response.headers["retry-after"].isdigit(), response.text
+    body = response.json()
+    assert body["status"] == "not ready" and body["checks"]["workers"].startswith("no worker heartbeat"), body
+    assert body["field"] is None and body["detail"].startswith("not ready (workers: no worker heartbeat"), body

@@ -26,7 +26,7 @@ A map exists once a frame of it was accepted (or a snapshot restored into it); u
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
 ``{"detail": ..., "field": ...}``: 400 malformed body, 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
-503 store unreachable or queue full (with Retry-After), 500 anything unexpected (its traceback logged);
+503 store unreachable, queue full or not ready (with Retry-After), 500 anything unexpected (its traceback logged);
 ``http_protocol`` answers requests uvicorn cannot parse the same way.
 """
 
@@ -80,6 +80,9 @@ from arcloud.service.settings import Settings
 log = logging.getLogger(__name__)
 
 Label = Literal[CLASSES]  # type: ignore[valid-type]  # the class names as a Literal, unpacked from the tuple at run time
+
+
+READY_RETRY_AFTER_S = 5  # a 503 from /readyz: ask again in this many seconds
 
 
 class BodyTooLarge(Exception):
@@ -546,8 +549,11 @@ def readyz(runtime: RuntimeDep) -> JSONResponse:
         checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
     if checks["store"] == "ok":  # else the ingest's checks would wait on the same unreachable store
         checks.update(runtime.ingest.ready())
-    ok = all(v == "ok" for v in checks.values())
-    return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
+    if all(v == "ok" for v in checks.values()):
+        return JSONResponse({"status": "ready", "checks": checks})
+    wrong = "; ".join(f"{name}: {value}" for name, value in checks.items() if value != "ok")
+    body = {"status": "not ready", "checks": checks, "detail": f"not ready ({wrong})", "field": None}
+    return JSONResponse(body, status_code=503, headers={"Retry-After": str(READY_RETRY_AFTER_S)})
 
 
 @router.get("/metrics", tags=["operations"], summary="Prometheus metrics", response_class=Response)

@@ -238,8 +238,12 @@ class Health(BaseModel):
 
 
 class Ready(BaseModel):
+    """``/readyz``; not ready (503, with Retry-After) also carries the problem's ``detail`` and ``field``."""
+
     status: Literal["ready", "not ready"]
     checks: dict[str, str]
+    detail: str | None = None
+    field: str | None = None
 
 
 def iso_time(seconds: float) -> str | None:
