@@ -6,15 +6,17 @@ redis-server where Redis is named.
 
 from __future__ import annotations
 
+import io
 import json
 import socket
+import zipfile
 from collections.abc import Iterator
 from typing import Any
 
 import httpx
 import pytest
 from redis_server import RedisServer
-from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame
+from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame, wait_until
 
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.http_protocol import JsonProblemHTTP
@@ -54,6 +56,37 @@ def embedded() -> Iterator[AppClient]:
     with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as api:
         assert api.post("/v1/maps/m/frames", content=frame_body(), headers=PROTOBUF).status_code == 202
         yield api
+
+
+@pytest.fixture(scope="module")
+def snapshot(embedded: AppClient) -> bytes:
+    """A snapshot of map m (its frame processed: objects with voxels)."""
+    wait_until(lambda: embedded.get("/v1/maps/m/stats").json()["frames"]["processed"] == 1, 30, "the frame processed")
+    response = embedded.get("/v1/maps/m/snapshot")
+    assert response.status_code == 200 and len(zipfile.ZipFile(io.BytesIO(response.content)).namelist()) > 1
+    return response.content  # type: ignore[no-any-return]  # httpx's bytes
+
+
+def rezipped(snapshot: bytes, changes: dict[str, bytes]) -> bytes:
+    """The snapshot with members replaced or added (``changes``: name -> bytes)."""
+    source, out = zipfile.ZipFile(io.BytesIO(snapshot)), io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as rebuilt:
+        for name in dict.fromkeys([*source.namelist(), *changes]):
+            rebuilt.writestr(name, changes[name] if name in changes else source.read(name))
+    return out.getvalue()
+
+
+def with_a_corrupt_deflate_stream(snapshot: bytes) -> bytes:
+    """The snapshot with its first voxels member's compressed bytes all 0xFF (no valid deflate block)."""
+    data = bytearray(snapshot)
+    info = next(i for i in zipfile.ZipFile(io.BytesIO(snapshot)).infolist() if i.filename.endswith(".voxels"))
+    name_length, extra_length = (
+        int.from_bytes(data[info.header_offset + 26 : info.header_offset + 28], "little"),
+        int.from_bytes(data[info.header_offset + 28 : info.header_offset + 30], "little"),
+    )
+    start = info.header_offset + 30 + name_length + extra_length
+    data[start : start + info.compress_size] = b"\xff" * info.compress_size
+    return bytes(data)
 
 
 @pytest.fixture(scope="module")
@@ -165,3 +198,24 @@ def test_not_ready_answers_503_with_retry_after_and_a_problem() -> None:
     body = response.json()
     assert body["status"] == "not ready" and body["checks"]["workers"].startswith("no worker heartbeat"), body
     assert body["field"] is None and body["detail"].startswith("not ready (workers: no worker heartbeat"), body
+
+
+@pytest.mark.parametrize(
+    ("case", "change"),
+    [
+        ("snapshot with a member outside objects/", lambda valid: rezipped(valid, {"a.meta": b"{}"})),
+        ("snapshot with a corrupt deflate stream", with_a_corrupt_deflate_stream),
+        ("snapshot with a voxels blob shorter than its header", lambda valid: rezipped(valid, {"objects/1.voxels": b"junk"})),
+    ],
+    ids=lambda value: value if isinstance(value, str) else "",
+)
+def test_a_malformed_snapshot_answers_422_naming_it(embedded: AppClient, snapshot: bytes, case: str, change: Any) -> None:
+    """Each raised past read_snapshot's except (IndexError, zlib.error, the codec's StoreError): a 500. The valid
+    snapshot still restores."""
+    body = change(snapshot)
+    response = embedded.request("PUT", "/v1/maps/r/snapshot", content=body, headers={"content-type": "application/zip"})
+    assert_problem(response.status_code, response.content, 422, "snapshot")
+    restored = embedded.request(
+        "PUT", "/v1/maps/r/snapshot?replace=true", content=snapshot, headers={"content-type": "application/zip"}
+    )
+    assert restored.status_code == 200, restored.text

@@ -14,15 +14,31 @@ from __future__ import annotations
 import io
 import json
 import zipfile
+import zlib
 
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.types import MapObject, Params
-from arcloud.errors import InvalidInput, MapMismatch
+from arcloud.errors import InvalidInput, MapMismatch, StoreError
 from arcloud.ports import ObjectStore
 from arcloud.stores import codec
 
 FORMAT = "arcloud.snapshot.v1"
 RESTORE_BATCH = 256  # objects per commit
+# What reading a malformed file raises: zipfile's own errors, a corrupt deflate stream (zlib.error), a member
+# name outside objects/ (IndexError), an encrypted or oddly compressed member (RuntimeError, NotImplementedError),
+# JSON nested too deep (RecursionError), a blob the codec refuses (StoreError: here the file's fault, not a store's).
+UNREADABLE = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    zlib.error,
+    EOFError,
+    KeyError,
+    IndexError,
+    ValueError,
+    TypeError,
+    RuntimeError,
+    StoreError,
+)
 
 
 def snapshot_bytes(store: ObjectStore, map_id: str) -> bytes:
@@ -61,7 +77,7 @@ def read_snapshot(data: bytes) -> tuple[dict[str, object], MapHeader, list[MapOb
             objects = [
                 codec.decode_object(i, archive.read(f"objects/{i}.meta"), archive.read(f"objects/{i}.voxels")) for i in ids
             ]
-    except (zipfile.BadZipFile, KeyError, ValueError, TypeError) as exc:
+    except UNREADABLE as exc:
         raise InvalidInput("snapshot", f"a {FORMAT} zip file", f"one that cannot be read ({type(exc).__name__}: {exc})") from exc
     if len(objects) != document.get("objects"):
         raise InvalidInput("snapshot", f"{document.get('objects')} objects, as it says", f"{len(objects)}")
