@@ -219,3 +219,11 @@ def test_a_malformed_snapshot_answers_422_naming_it(embedded: AppClient, snapsho
         "PUT", "/v1/maps/r/snapshot?replace=true", content=snapshot, headers={"content-type": "application/zip"}
     )
     assert restored.status_code == 200, restored.text
+
+
+def test_a_405_allows_every_method_of_the_path(embedded: AppClient) -> None:
+    """Starlette's Allow named the first route of the path only: GET for GET and PUT .../snapshot."""
+    response = embedded.post("/v1/maps/m/snapshot")
+    assert_problem(response.status_code, response.content, 405, None)
+    assert response.headers["allow"] == "GET, PUT"
+    assert embedded.request("PATCH", "/v1/maps/m").headers["allow"] == "DELETE"

@@ -45,6 +45,7 @@ from fastapi.responses import JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.routing import Match, Route
 
 from arcloud import __version__
 from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
@@ -564,6 +565,16 @@ async def metrics(request: Request) -> Response:
     return Response(body, media_type=CONTENT_TYPE_LATEST)
 
 
+def allowed_methods(app: FastAPI, scope: MutableMapping[str, Any]) -> str:
+    """The methods of every route whose path matches the request's, as an Allow header lists them (the app's
+    own routes and ``router``'s, which it includes without a prefix)."""
+    methods: set[str] = set()
+    for route in [*app.router.routes, *router.routes]:
+        if isinstance(route, Route) and route.matches(scope)[0] != Match.NONE:
+            methods |= route.methods or set()
+    return ", ".join(sorted(methods))
+
+
 # --- the factory -------------------------------------------------------------------------------------
 def create_app(settings: Settings, connect: Connect) -> FastAPI:
     """The service on the adapters ``connect`` gives (called once, by the lifespan, off the event loop)."""
@@ -621,7 +632,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        return problem(request, exc.status_code, str(exc.detail), None, dict(exc.headers or {}))
+        headers = dict(exc.headers or {})
+        if exc.status_code == 405:  # Starlette's Allow names the first route of the path only (GET of GET and PUT)
+            headers["Allow"] = allowed_methods(request.app, request.scope)
+        return problem(request, exc.status_code, str(exc.detail), None, headers)
 
     @app.exception_handler(ClientDisconnect)
     async def client_gone(request: Request, exc: ClientDisconnect) -> JSONResponse:
