@@ -19,7 +19,7 @@ from svc_helpers import wait_until
 
 pytestmark = pytest.mark.fuzz
 
-MAX_EXAMPLES = 400
+MAX_EXAMPLES = 300
 FUZZ_SETTINGS = settings(
     max_examples=MAX_EXAMPLES,
     derandomize=True,  # seeded: the same examples every run

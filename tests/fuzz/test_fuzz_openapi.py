@@ -26,7 +26,7 @@ from arcloud.tools.wiring import create_app
 
 pytestmark = pytest.mark.fuzz
 
-MAX_EXAMPLES = 300
+MAX_EXAMPLES = 200
 CONFIG = schemathesis.Config.from_dict(
     {
         "seed": 20261123,
@@ -56,7 +56,9 @@ CONFIG = schemathesis.Config.from_dict(
 )
 # The schema does not depend on the settings: one schema for both apps (building an app starts nothing).
 schema = schemathesis.openapi.from_dict(create_app(Settings(detector="sim:0")).openapi(), config=CONFIG)
-schemathesis.serializer.alias("application/x-protobuf", "application/octet-stream")  # the body's bytes as they are
+schemathesis.serializer.alias(
+    ["application/x-protobuf", "application/zip"], "application/octet-stream"
+)  # the bodies' bytes as they are
 
 
 @schema.hook
