@@ -55,7 +55,7 @@ from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
 from arcloud.ports import MapArchive, QueueFull
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
-from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels
+from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels, voxel_colors_out
 from arcloud.service.logs import bind_log_context
 from arcloud.service.map_header import check_map_header, open_map_checked
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
@@ -343,7 +343,7 @@ def get_object(
     map_id: MapId,
     object_id: Annotated[int, Path(ge=0)],
     runtime: RuntimeDep,
-    voxels: Annotated[bool, Query(description="add voxel centres (m) and occupancy weights")] = False,
+    voxels: Annotated[bool, Query(description="add voxel centres (m), occupancy weights and mean colours")] = False,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
     found: list[Any] = runtime.store.get(map_id, [object_id]) if voxels else runtime.store.object_meta(map_id, [object_id])
@@ -357,6 +357,7 @@ def get_object(
             "voxel_size_m": size,
             "centers": key_centers(obj.keys, size).tolist(),
             "weights": obj.weights.astype(float).tolist(),
+            "colors": voxel_colors_out(obj),  # 0-255 (r, g, b) a voxel, None: unknown
         }
     return out
 
@@ -369,8 +370,8 @@ def get_object(
     tags=["maps"],
     summary="The map as a file: JSON, PLY (voxels), GLB (boxes) or ScanNet prediction files (zip)",
     description="The served (confirmed) objects, or every object with `include=tentative`, in the map's world frame "
-    "(metres, z up). `json`: the objects list (`voxels=true` adds voxel centres); `ply`: one point per voxel coloured "
-    "by object or class (`color`), with an `object` property; `glb`: one glTF node per object (its oriented box; id, "
+    "(metres, z up). `json`: the objects list (`voxels=true` adds voxel centres, weights and colours); `ply`: one point "
+    "per voxel coloured by object, class or its mean RGB (`color`), with an `object` property; `glb`: one glTF node per object (its oriented box; id, "
     "label, score in `extras`); `scannet`: a zip of ScanNet benchmark prediction files for the map as one scene.",
 )
 def export(
@@ -378,8 +379,10 @@ def export(
     runtime: RuntimeDep,
     fmt: Annotated[ExportFormat, Query(alias="format", description="json, ply, glb or scannet")] = "json",
     include: Annotated[Literal["tentative"] | None, Query(description="tentative: tentative objects too")] = None,
-    color: Annotated[ColorBy, Query(description="ply: colour points by object or by class")] = "object",
-    voxels: Annotated[bool, Query(description="json: add each object's voxel centres and weights")] = False,
+    color: Annotated[
+        ColorBy, Query(description="ply: colour points by object, by class or by the voxel's mean RGB (grey: unknown)")
+    ] = "object",
+    voxels: Annotated[bool, Query(description="json: add each object's voxel centres, weights and colours")] = False,
 ) -> Response:
     known_map(runtime, map_id)
     store = runtime.store

@@ -88,6 +88,10 @@ class Voxels(BaseModel):
     voxel_size_m: float
     centers: list[Vec3]
     weights: list[float]
+    colors: list[tuple[int, int, int]] | None = Field(
+        None,
+        description="each voxel's mean colour, 0-255 (r, g, b), in the order of centers; null: unknown (stored before colours)",
+    )
 
 
 class ObjectOut(BaseModel):

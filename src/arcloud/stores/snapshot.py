@@ -4,13 +4,15 @@ restore | copy`` and the API's ``/v1/maps/{map}/snapshot``.
 The file is a zip: ``snapshot.json`` (``format``, the map id it was taken of, its header, the codec
 version, the object count) and, per object, ``objects/<id>.meta`` (``codec.encode_meta``) and
 ``objects/<id>.voxels`` (``codec.encode_voxels``), so a restore is exact: ids, labels, scores, boxes,
-status, every voxel's weight, votes and sightings. Only the versions (the stores' write fences) start again
-at 1. A restore writes into an empty map (or replaces the map, when asked) under the snapshot's header,
-keeps the ids and moves the map's id counter past them.
+status, every voxel's weight, votes, sightings and colour. Only the versions (the stores' write fences) start
+again at 1. A restore writes into an empty map (or replaces the map, when asked) under the snapshot's header
+(its codec version: the store's own, in which the objects are written again; a snapshot taken under an older
+codec version restores, its colours unknown), keeps the ids and moves the map's id counter past them.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import zipfile
@@ -59,7 +61,10 @@ def snapshot_bytes(store: ObjectStore, map_id: str) -> bytes:
         out.writestr("snapshot.json", json.dumps(document, indent=1))
         for obj in objects:
             out.writestr(f"objects/{obj.id}.meta", codec.encode_meta(obj))
-            out.writestr(f"objects/{obj.id}.voxels", codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen))
+            out.writestr(
+                f"objects/{obj.id}.voxels",
+                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors),
+            )
     return archive.getvalue()
 
 
@@ -89,8 +94,12 @@ def restore_bytes(store: ObjectStore, map_id: str, data: bytes, *, replace: bool
     (``replace``: it is deleted first); ``MapMismatch`` when it holds a header of other settings, or when
     the snapshot's differs from ``params`` (a service's: its store indexes under them)."""
     _document, header, objects = read_snapshot(data)
+    if header.codec_version not in store.readable_codec_versions:
+        raise MapMismatch(map_id, [("codec_version", header.codec_version, store.codec_version)])
     if params is not None:
-        check_header(header, params, codec_version=store.codec_version, map_id=map_id)
+        check_header(header, params, map_id=map_id)
+    # The blobs were read by the versions they name; the store writes them anew in its own.
+    header = dataclasses.replace(header, codec_version=store.codec_version)
     if replace:
         store.delete_map(map_id)
     elif store.count_objects(map_id):
