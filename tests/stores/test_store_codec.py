@@ -208,3 +208,13 @@ def test_corrupt_metadata_is_a_store_error() -> None:
         codec.decode_object(1, meta, codec.encode_voxels(keys[:2], weights[:2], votes[:2]))
     with pytest.raises(StoreError, match="bounds"):
         codec.unpack_boxes([b"short"])
+
+
+def test_a_blob_cannot_unpack_beyond_what_its_header_announces() -> None:
+    bomb = zlib.compress(bytes(50_000_000))  # 50 MB of zeros in about 50 kB
+    one_voxel = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, 1)
+    with pytest.raises(StoreError, match="expected .* bytes for 1 voxels"):
+        codec.decode_voxels(one_voxel + bomb)
+    too_many = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, codec.MAX_BLOB_VOXELS + 1)
+    with pytest.raises(StoreError, match="at most"):
+        codec.decode_voxels(too_many + bomb)

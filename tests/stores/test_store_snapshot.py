@@ -74,3 +74,14 @@ def test_a_snapshot_of_a_codec_version_the_store_cannot_read_is_refused(store) -
     with pytest.raises(MapMismatch, match="codec_version"):
         restore_bytes(store, MAP, future.getvalue())
     assert store.map_header(MAP) is None and store.list_objects(MAP) == []
+
+
+def test_a_snapshot_that_unpacks_to_more_than_the_limit_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    from arcloud.errors import InvalidInput
+    from arcloud.stores import snapshot
+
+    objects = [make_object(i, (i * 1.0, 0.0, 0.0), seed=i) for i in (1, 2)]
+    data = version_2_snapshot(objects)
+    monkeypatch.setattr(snapshot, "MAX_UNPACKED_BYTES", 1000)  # the file's members unpack to a few kB
+    with pytest.raises(InvalidInput, match="unpacked"):
+        restore_bytes(MemoryStore(), MAP, data, params=Params())

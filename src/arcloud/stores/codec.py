@@ -105,6 +105,12 @@ def encode_voxels(
     return _HEADER.pack(MAGIC, FORMAT_VERSION, flags, votes.shape[1], n) + payload
 
 
+#: The most a voxel blob may announce (a real object holds thousands of voxels; this bounds what decoding
+#: a crafted blob, e.g. a snapshot upload's, may allocate: about 1 GiB).
+MAX_BLOB_VOXELS = 20_000_000
+MAX_BLOB_CLASSES = 256
+
+
 def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """bytes -> (keys (N,) int64, weights (N,) float32, votes (N, C) float32, seen (N,) float32, colors
     (N, 3) uint8 or None: unknown)."""
@@ -113,18 +119,22 @@ def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     magic, version, flags, n_classes, n = _HEADER.unpack_from(blob)
     if magic != MAGIC or version not in READABLE_VERSIONS:
         raise StoreError(f"voxel blob: expected magic {MAGIC!r} version in {READABLE_VERSIONS}, got {magic!r} version {version}")
-    payload = memoryview(blob)[_HEADER.size :]
-    if flags & FLAG_ZLIB:
-        try:
-            payload = memoryview(zlib.decompress(payload))
-        except zlib.error as exc:
-            raise StoreError(f"voxel blob: corrupt zlib stream ({exc})") from exc
+    if n > MAX_BLOB_VOXELS or n_classes > MAX_BLOB_CLASSES:
+        raise StoreError(
+            f"voxel blob: expected at most {MAX_BLOB_VOXELS} voxels of {MAX_BLOB_CLASSES} classes, got {n} of {n_classes}"
+        )
     votes_dtype = np.dtype("<f2") if flags & FLAG_VOTES_F16 else np.dtype("<f4")
     n_float_arrays = 2 if version >= 2 else 1
     has_colors = version >= 3 and bool(flags & FLAG_COLORS)
     votes_at = n * 8 + n * 4 * n_float_arrays
     colors_at = votes_at + n * n_classes * votes_dtype.itemsize
     expected = colors_at + (n * 3 if has_colors else 0)
+    payload = memoryview(blob)[_HEADER.size :]
+    if flags & FLAG_ZLIB:
+        try:  # at most what the header announces (and one byte to tell more): a small blob cannot expand without bound
+            payload = memoryview(zlib.decompressobj().decompress(payload, expected + 1))
+        except zlib.error as exc:
+            raise StoreError(f"voxel blob: corrupt zlib stream ({exc})") from exc
     if len(payload) != expected:
         raise StoreError(f"voxel blob: expected {expected} bytes for {n} voxels, got {len(payload)}")
     keys = np.cumsum(np.frombuffer(payload, "<i8", n, 0), dtype=np.int64)

@@ -26,6 +26,7 @@ from arcloud.stores import codec
 
 FORMAT = "arcloud.snapshot.v1"
 RESTORE_BATCH = 256  # objects per commit
+MAX_UNPACKED_BYTES = 2**30  # a snapshot whose members unpack to more is refused (zip bombs); a real map is a few MB
 # What reading a malformed file raises: zipfile's own errors, a corrupt deflate stream (zlib.error), a member
 # name outside objects/ (IndexError), an encrypted or oddly compressed member (RuntimeError, NotImplementedError),
 # JSON nested too deep (RecursionError), a blob the codec refuses (StoreError: here the file's fault, not a store's).
@@ -72,6 +73,9 @@ def read_snapshot(data: bytes) -> tuple[dict[str, object], MapHeader, list[MapOb
     """(its description, header, objects); ``InvalidInput`` naming what is wrong with the file."""
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            unpacked = sum(info.file_size for info in archive.infolist())  # zipfile reads no member past its size
+            if unpacked > MAX_UNPACKED_BYTES:
+                raise InvalidInput("snapshot", f"at most {MAX_UNPACKED_BYTES} bytes unpacked", f"{unpacked} bytes")
             document = json.loads(archive.read("snapshot.json"))
             if not isinstance(document, dict) or document.get("format") != FORMAT:
                 raise InvalidInput(
