@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
 
-.PHONY: demo test lint bench accuracy proto lock clean
+.PHONY: demo test lint bench accuracy proto lock viewer-vendor clean
 
 $(STAMP): pyproject.toml constraints.txt scripts/bootstrap.sh
 	VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh
@@ -23,7 +23,7 @@ lint: $(STAMP)
 		echo "lint: the type: ignore / noqa above gives no reason" >&2; exit 1; fi
 
 test: $(STAMP) lint
-	@command -v redis-server >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
+	@{ command -v redis-server && command -v chromium; } >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 bench: $(STAMP)
@@ -39,6 +39,18 @@ accuracy: $(STAMP)
 
 proto: $(STAMP)
 	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto --pyi_out=src/arcloud/proto proto/arcloud/v1/*.proto
+
+# three.js for the web viewer (GET /viewer): the version web/package-lock.json pins, from npm, with its licence, into
+# the package. The copies are committed, so that a clean checkout and the wheel need no npm; run this after changing
+# the pin (tests/viewer checks that the copies are of the pinned version).
+VIEWER_VENDOR := src/arcloud/service/viewer/vendor
+THREE := web/node_modules/three
+viewer-vendor:
+	cd web && npm ci --no-audit --no-fund
+	mkdir -p $(VIEWER_VENDOR)
+	cp $(THREE)/build/three.module.js $(THREE)/build/three.core.js $(THREE)/examples/jsm/controls/OrbitControls.js \
+		$(THREE)/examples/jsm/renderers/CSS2DRenderer.js $(VIEWER_VENDOR)/
+	cp $(THREE)/LICENSE $(VIEWER_VENDOR)/THREE-LICENSE
 
 lock: $(STAMP)
 	$(BIN)/python -m pip freeze --exclude-editable > constraints.txt

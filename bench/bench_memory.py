@@ -150,7 +150,9 @@ class DenseReconstruction:
 
 def codec_figures(objects: list[MapObject], *, votes_f16: bool) -> dict[str, int]:
     """Bytes the store's codec writes for the objects: voxel blobs, metadata JSON, bounds."""
-    voxels = [len(codec.encode_voxels(o.keys, o.weights, o.votes, seen=o.seen, votes_f16=votes_f16)) for o in objects]
+    voxels = [
+        len(codec.encode_voxels(o.keys, o.weights, o.votes, seen=o.seen, colors=o.colors, votes_f16=votes_f16)) for o in objects
+    ]
     meta = [len(codec.encode_meta(o)) for o in objects]
     bounds = [len(codec.pack_box(o.bounds)) for o in objects if o.bounds is not None]
     return {

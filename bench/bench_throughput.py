@@ -191,6 +191,7 @@ def service_run(redis: Redis, url: str, frames: list[Any], map_id: str, rate_per
     seconds = max(done) - min(posted)
     return {
         "fps": round(len(frames) / seconds, 3),
+        "upload_bytes": round(float(np.mean([len(b) for b in bodies]))),
         "offered_per_s": None if rate_per_s is None else round(rate_per_s, 3),
         "latency_p50_s": round(float(np.percentile(latency, 50)), 3),
         "latency_p99_s": round(float(np.percentile(latency, 99)), 3),
@@ -238,6 +239,7 @@ def main() -> None:
         "latency_p50_s": at_70["latency_p50_s"],
         "latency_p99_s": at_70["latency_p99_s"],
         "service_over_bare": round(full["fps"] / bare["fps"], 3),
+        "upload_bytes": full["upload_bytes"],
         "pipeline_over_bare": round(pipeline["fps"] / bare["fps"], 3),
         "bare_onnx": bare,
         "pipeline": pipeline,

@@ -2,7 +2,8 @@
 # Prepare a fresh machine for arcloud: system libraries, then a virtual environment with the pinned
 # packages. Idempotent; `make` calls it whenever pyproject.toml or constraints.txt changed.
 #   scripts/bootstrap.sh            what `make demo` needs (libusb for open3d)
-#   scripts/bootstrap.sh --test     also a redis-server binary for the Redis tests
+#   scripts/bootstrap.sh --test     also a redis-server binary for the Redis tests, and Debian's chromium for the
+#                                   viewer's browser tests (Playwright drives it; it downloads no browser)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,6 +19,7 @@ missing=()
 ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || missing+=(libusb-1.0-0)
 ldconfig -p 2>/dev/null | grep -q 'libgomp.so.1' || missing+=(libgomp1)
 if (( want_test )) && ! command -v redis-server >/dev/null 2>&1; then missing+=(redis-server); fi
+if (( want_test )) && ! command -v chromium >/dev/null 2>&1; then missing+=(chromium); fi
 if (( ${#missing[@]} )); then
   sudo=""
   [[ $(id -u) -ne 0 ]] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"

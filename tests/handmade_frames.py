@@ -19,13 +19,15 @@ def plane_frame(
     device_id: str = "dev",
     map_id: str = "m",
     patches: tuple = (),
+    rgb: np.ndarray | None = None,
 ) -> Frame:
-    """A frame looking at a wall at ``depth_m``; ``patches`` are (rows, cols, depth) rectangles in front."""
+    """A frame looking at a wall at ``depth_m``; ``patches`` are (rows, cols, depth) rectangles in front;
+    ``rgb`` (H, W, 3) uint8 its colour image (default black)."""
     depth = np.full((HEIGHT, WIDTH), depth_m, np.float32)
     for rows, cols, patch_depth in patches:
         depth[rows, cols] = patch_depth
     return make_frame(
-        np.zeros((HEIGHT, WIDTH, 3), np.uint8),
+        np.zeros((HEIGHT, WIDTH, 3), np.uint8) if rgb is None else rgb,
         depth,
         INTRINSICS,
         np.eye(4) if cam2world is None else cam2world,
@@ -42,13 +44,23 @@ def rect_mask(rows: slice, cols: slice) -> np.ndarray:
     return mask
 
 
+CHAIR_RGB, TABLE_RGB, WALL_RGB = (200, 60, 40), (40, 90, 210), (90, 90, 90)
+
+
 def two_box_frame(frame_id: str = "f0", device_id: str = "dev", map_id: str = "m", shift_m: float = 0.0):
-    """A chair-like patch at 1.5 m and a table-like patch at 2.5 m in front of a wall at 4 m."""
+    """A chair-like patch at 1.5 m and a table-like patch at 2.5 m in front of a wall at 4 m, coloured
+    ``CHAIR_RGB``, ``TABLE_RGB`` and ``WALL_RGB``."""
     pose = np.eye(4)
     pose[0, 3] = shift_m
     chair = (slice(10, 30), slice(10, 30), 1.5)
     table = (slice(30, 55), slice(45, 75), 2.5)
-    frame = plane_frame(4.0, cam2world=pose, frame_id=frame_id, device_id=device_id, map_id=map_id, patches=(chair, table))
+    rgb = np.empty((HEIGHT, WIDTH, 3), np.uint8)
+    rgb[:] = WALL_RGB
+    rgb[chair[0], chair[1]] = CHAIR_RGB
+    rgb[table[0], table[1]] = TABLE_RGB
+    frame = plane_frame(
+        4.0, cam2world=pose, frame_id=frame_id, device_id=device_id, map_id=map_id, patches=(chair, table), rgb=rgb
+    )
     detections = [
         Detection("chair", 0.9, rect_mask(chair[0], chair[1])),
         Detection("table", 0.8, rect_mask(table[0], table[1])),

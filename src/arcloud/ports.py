@@ -104,6 +104,9 @@ class ObjectStore(MapStore, Protocol):
 
     #: The blob format this store writes (``stores.codec.FORMAT_VERSION``), part of a map's header.
     codec_version: int
+    #: The blob formats this store reads (``stores.codec.READABLE_VERSIONS``): a map created under any
+    #: of them opens (``core.header.check_header``); its objects are rewritten in ``codec_version``.
+    readable_codec_versions: tuple[int, ...]
 
     def ping(self) -> None:
         """Return when the store answers; raise ``StoreUnavailable`` otherwise."""

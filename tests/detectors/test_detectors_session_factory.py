@@ -116,3 +116,44 @@ def test_registered_factories_get_the_argument_and_options(monkeypatch) -> None:
         register_detector("fake-replay", lambda argument, **options: Fake())
     with pytest.raises(InvalidInput, match="prefix: expected a non-empty name"):
         register_detector("bad:prefix", build)
+
+
+# --- Execution providers ------------------------------------------------------------------------------
+
+
+def test_a_spec_picks_the_execution_provider_after_the_path(tiny_models) -> None:
+    from arcloud.detectors.factory import split_provider
+
+    assert split_provider("models/y.onnx@cuda") == ("models/y.onnx", "cuda")
+    assert split_provider("models/y.onnx@auto") == ("models/y.onnx", "auto")
+    assert split_provider("odd@name.onnx") == ("odd@name.onnx", "cpu")  # not a provider: part of the path
+    detector = make_detector(f"onnx:{tiny_models['yolo']}@cpu")
+    assert detector._session.get_providers() == ["CPUExecutionProvider"]  # type: ignore[attr-defined]  # the YOLO adapter's session
+    check_model_file(f"onnx:{tiny_models['yolo']}@cuda")  # the file is there: the suffix is not part of it
+
+
+def test_cuda_is_refused_with_the_way_to_get_it_where_onnxruntime_has_none(tiny_models) -> None:
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" in ort.get_available_providers():
+        pytest.skip("this onnxruntime has CUDA: test_the_cuda_provider_runs_where_there_is_a_gpu covers it")
+    with pytest.raises(ModelError, match="install onnxruntime-gpu"):
+        make_detector(f"onnx:{tiny_models['yolo']}@cuda")
+    auto = make_detector(f"onnx:{tiny_models['yolo']}@auto")  # falls back to the CPU
+    assert auto._session.get_providers() == ["CPUExecutionProvider"]  # type: ignore[attr-defined]  # the YOLO adapter's session
+    with pytest.raises(InvalidInput, match="execution_provider"):
+        load_session(tiny_models["yolo"], execution_provider="tpu")
+
+
+def test_the_cuda_provider_runs_where_there_is_a_gpu(tiny_models) -> None:
+    import numpy as np
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" not in ort.get_available_providers():
+        pytest.skip("no CUDAExecutionProvider here (onnxruntime-gpu on a machine with a GPU runs this test)")
+    gpu, cpu = make_detector(f"onnx:{tiny_models['yolo']}@cuda"), make_detector(f"onnx:{tiny_models['yolo']}@cpu")
+    assert gpu._session.get_providers()[0] == "CUDAExecutionProvider"  # type: ignore[attr-defined]  # the YOLO adapter's session
+    rgb = np.random.default_rng(0).integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    assert [(d.label, round(d.score, 3)) for d in gpu.detect_image(rgb)] == [
+        (d.label, round(d.score, 3)) for d in cpu.detect_image(rgb)
+    ]  # type: ignore[attr-defined]  # YOLO adapters

@@ -176,14 +176,15 @@ class AppClient:
 
 
 class UvicornThread:
-    """A real uvicorn server for ``app`` on 127.0.0.1 in a background thread (lifespan on)."""
+    """A real uvicorn server for ``app`` on 127.0.0.1 in a background thread (lifespan on); ``http``: its HTTP
+    protocol (``serve``'s: ``arcloud.service.http_protocol.JsonProblemHTTP``)."""
 
-    def __init__(self, app: Any) -> None:
+    def __init__(self, app: Any, http: Any = "auto") -> None:
         import uvicorn
 
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning", lifespan="on", ws="none")
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning", lifespan="on", ws="none", http=http)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
 

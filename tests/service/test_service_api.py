@@ -382,6 +382,7 @@ def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
         "arcloud_frames_accepted_total 1.0",
         "arcloud_frames_processed_total 1.0",
         "arcloud_queue_depth 0.0",
+        "arcloud_live_workers 2.0",
         'arcloud_frames_rejected_total{status="415"} 1.0',
         "arcloud_step_latency_seconds_count 1.0",
         'arcloud_step_latency_seconds_bucket{le="+Inf"} 1.0',

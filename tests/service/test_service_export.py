@@ -64,6 +64,29 @@ def test_ply_has_one_coloured_point_per_voxel_of_the_served_objects(
     assert {tuple(c) for c in colors} == {object_color(i) for i in voxels}  # one colour per object
 
 
+def test_ply_in_voxel_colours_reads_back_in_the_colour_the_frames_showed(
+    served: tuple[str, str, list[dict[str, Any]]], tmp_path: Path
+) -> None:
+    import open3d as o3d
+
+    url, token, objects = served
+    confirmed = [o for o in objects if o["status"] == "confirmed"]
+    with ArcloudClient(url, token=token) as client:
+        path = tmp_path / "room-rgb.ply"
+        path.write_bytes(client.export("room", "ply", color="rgb"))
+        voxels = [client.get_object("room", o["id"], voxels=True)["voxels"] for o in confirmed]
+    cloud = o3d.io.read_point_cloud(path)
+    points, colors = np.asarray(cloud.points), np.round(np.asarray(cloud.colors) * 255).astype(int)
+    assert cloud.has_colors() and len(points) == sum(len(v["colors"]) for v in voxels)
+    # The near boxes were (200, 60, 40) in every frame (sent as JPEG, so within a few levels).
+    np.testing.assert_allclose(colors, np.tile([200, 60, 40], (len(colors), 1)), atol=12)
+    # The API gives each voxel's colour beside its centre: the same as the PLY's point there.
+    by_point = {tuple(np.round(p, 4)): tuple(c) for p, c in zip(points, colors)}
+    for v in voxels:
+        assert len(v["colors"]) == len(v["centers"]) == len(v["weights"])
+        assert all(by_point[tuple(np.round(c, 4))] == tuple(rgb) for c, rgb in zip(v["centers"], v["colors"]))
+
+
 def test_glb_has_one_node_per_object_with_its_box_and_label(served: tuple[str, str, list[dict[str, Any]]]) -> None:
     import trimesh
 
@@ -109,6 +132,9 @@ def test_export_command_writes_each_format_and_masks_over_a_mesh(
     common = ["export", "--url", url, "--token", token, "--map", "room"]
     for fmt in ("json", "ply", "glb"):
         assert cli_main([*common, "--format", fmt, "--out", str(tmp_path / f"room.{fmt}")]) == 0
+    assert cli_main([*common, "--format", "ply", "--color", "rgb", "--out", str(tmp_path / "rgb.ply")]) == 0
+    rgb = np.round(np.asarray(o3d.io.read_point_cloud(tmp_path / "rgb.ply").colors) * 255)
+    assert len(rgb) and np.abs(rgb - [200, 60, 40]).max() <= 12
     listed = json.loads((tmp_path / "room.json").read_text())
     assert listed["world_from_export"] == np.eye(4).tolist() and len(listed["objects"]) == 2
     # A mesh of points: one inside each object's voxels, one far away.

@@ -21,11 +21,12 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
     monkeypatch.setenv("ARCLOUD_ZENOH_CONNECT", '["tcp/zenoh:7447"]')
     monkeypatch.setenv("ARCLOUD_PARAMS", '{"voxel_size_m": 0.04, "class_aware": true, "up": [0, 1, 0]}')
     monkeypatch.setenv("ARCLOUD_LOG_LEVEL", "debug")
+    monkeypatch.setenv("ARCLOUD_LOG_FORMAT", "JSON")
     monkeypatch.setenv("ARCLOUD_MODEL", "ignored.onnx")  # another component's variable: not a setting
     settings = Settings()
     assert settings.store == "redis://127.0.0.1:6379/3" and not settings.embedded and settings.workers == 4
     assert settings.zenoh_listen == ["tcp/0.0.0.0:7447", "tcp/0.0.0.0:7448"] and settings.zenoh_connect == ["tcp/zenoh:7447"]
-    assert settings.log_level == "DEBUG"
+    assert settings.log_level == "DEBUG" and settings.log_format == "json"
     params = settings.make_params()
     assert params.voxel_size_m == 0.04 and params.class_aware is True and params.up == (0.0, 1.0, 0.0)
     assert params.lock_ttl_s == settings.lock_ttl_s
@@ -47,6 +48,7 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
         ({"max_queued_bytes": 4 * 10**7}, "max_queued_bytes_per_map: expected at least the largest frame"),  # its quarter
         ({"frame_record_retention_s": 0}, "frame_record_retention_s"),
         ({"colour": "red"}, "colour"),
+        ({"log_format": "xml"}, "log_format"),
     ],
 )
 def test_wrong_settings_fail_at_once_naming_the_field(changes: dict, says: str) -> None:

@@ -57,6 +57,7 @@ def make_object(
         aabb=AABB(b_lo + 0.05, b_hi - 0.05),
         obb=OBB(center=(b_lo + b_hi) / 2, size=b_hi - b_lo, rotation=rotation, yaw_rad=yaw),
         bounds=AABB(b_lo, b_hi),
+        colors=rng.integers(0, 256, (keys.size, 3), dtype=np.uint8),  # drawn last: the other fields stay as they were
     )
 
 
@@ -66,6 +67,10 @@ def assert_same_object(got: MapObject, want: MapObject) -> None:
     np.testing.assert_array_equal(got.votes, want.votes)
     np.testing.assert_array_equal(got.seen_counts, want.seen_counts)
     assert got.keys.dtype == np.int64 and got.weights.dtype == np.float32 and got.votes.dtype == np.float32
+    assert (got.colors is None) == (want.colors is None)
+    if want.colors is not None:
+        np.testing.assert_array_equal(got.colors, want.colors)
+        assert got.colors.dtype == np.uint8
     for name in ("id", "n_frames", "devices", "score_sum", "version", "created_at_s", "updated_at_s", "label", "score"):
         assert getattr(got, name) == getattr(want, name), name
     for name in ("aabb", "bounds"):
@@ -84,9 +89,12 @@ H, W = 120, 160
 INTRINSICS = (130.0, 130.0, 80.0, 60.0)
 
 
+CHAIR_RGB, TABLE_RGB = (200, 60, 40), (40, 90, 210)
+
+
 def step_frame(device: int, index: int) -> tuple:
-    """A frame of a wall at 3 m with a chair-plane at 2 m and a table-plane at 2.5 m, from a slightly
-    moved camera, and the two rectangular detections."""
+    """A frame of a wall at 3 m with a chair-plane at 2 m and a table-plane at 2.5 m (coloured
+    ``CHAIR_RGB`` and ``TABLE_RGB``), from a slightly moved camera, and the two rectangular detections."""
     depth = np.full((H, W), 3.0, np.float32)
     depth[25:75, 25:75] = 2.0
     depth[50:100, 100:150] = 2.5
@@ -96,8 +104,11 @@ def step_frame(device: int, index: int) -> tuple:
     table[50:100, 100:150] = True
     cam2world = np.eye(4)
     cam2world[0, 3] = 0.004 * index + 0.001 * device
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[chair] = CHAIR_RGB
+    rgb[table] = TABLE_RGB
     frame = make_frame(
-        np.zeros((H, W, 3), np.uint8),
+        rgb,
         depth,
         INTRINSICS,
         cam2world,

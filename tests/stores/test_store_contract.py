@@ -8,12 +8,23 @@ import time
 
 import numpy as np
 import pytest
-from store_cases import MAP, Clock, assert_same_object, make_object, moved, run_steps_in_threads, step_frame
+from store_cases import (
+    CHAIR_RGB,
+    MAP,
+    TABLE_RGB,
+    Clock,
+    assert_same_object,
+    make_object,
+    moved,
+    run_steps_in_threads,
+    step_frame,
+)
 
-from arcloud.core.header import MapHeader
+from arcloud.core.header import MapHeader, check_header
 from arcloud.core.ports import MAX_CELLS_PER_CALL
+from arcloud.core.step import integrate_frame
 from arcloud.core.types import Params
-from arcloud.errors import LockTimeout, StaleLease, TooManyCells
+from arcloud.errors import LockTimeout, MapMismatch, StaleLease, TooManyCells
 from arcloud.stores import keys
 from arcloud.stores.redis import RedisStore
 
@@ -144,6 +155,42 @@ def test_commit_and_get_round_trip(store) -> None:
     assert_same_object(listed[0], objects[1])
     assert store.get(MAP, []) == []
     assert store.list_objects("empty-map") == []
+
+
+def test_voxel_colours_round_trip_and_unknown_ones_stay_unknown(store) -> None:
+    coloured, unknown = make_object(1, (0.0, 0.0, 0.0), seed=1), make_object(2, (2.0, 0.0, 0.0), seed=2).replace(colors=None)
+    assert coloured.colors is not None and len({tuple(c) for c in coloured.colors}) > 1
+    assert store.commit(MAP, [], [coloured, unknown], [])
+    got_coloured, got_unknown = store.get(MAP, [1, 2])
+    assert_same_object(got_coloured, coloured)
+    assert_same_object(got_unknown, unknown)  # None: unknown, not a colour
+
+
+def test_steps_through_the_store_keep_each_objects_colour(store) -> None:
+    for index in range(3):
+        integrate_frame(*step_frame(0, index), store, Params())
+    objects = store.list_objects(MAP)
+    assert sorted(o.label for o in objects) == ["chair", "table"]
+    for obj in objects:
+        assert {tuple(c) for c in obj.colors} == {CHAIR_RGB if obj.label == "chair" else TABLE_RGB}
+
+
+def test_a_map_created_under_an_older_codec_version_opens_and_a_newer_one_is_refused(store) -> None:
+    assert store.codec_version in store.readable_codec_versions
+    older = MapHeader.from_params(Params(), codec_version=2, created_at_s=1.0)
+    assert 2 in store.readable_codec_versions
+    store.open_map(MAP, older)
+    check_header(
+        store.map_header(MAP), Params(), codec_version=store.codec_version, readable_codec_versions=store.readable_codec_versions
+    )
+    store.open_map("map-b", MapHeader.from_params(Params(), codec_version=store.codec_version + 1, created_at_s=1.0))
+    with pytest.raises(MapMismatch, match=f"codec_version: map {store.codec_version + 1}, ours {store.codec_version}"):
+        check_header(
+            store.map_header("map-b"),
+            Params(),
+            codec_version=store.codec_version,
+            readable_codec_versions=store.readable_codec_versions,
+        )
 
 
 def test_commit_fences_versions_and_locks(store) -> None:

@@ -1,5 +1,5 @@
-"""Fusion of detections into objects: occupancy weights, per-voxel label votes, one instance per voxel,
-merging of duplicates, and the object's label and confidence score."""
+"""Fusion of detections into objects: occupancy weights, per-voxel label votes and mean colours, one
+instance per voxel, merging of duplicates, and the object's label and confidence score."""
 
 from __future__ import annotations
 
@@ -10,20 +10,31 @@ import numpy as np
 from arcloud.core.associate import index_bounds, overlap_matrix, stored_index_bounds
 from arcloud.core.floor import add_votes
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
-from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, sorted_unique
+from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors, sorted_unique
+
+_NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
+_NO_VOXEL_COLORS.flags.writeable = False
 
 
-def union_voxels(a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray) -> MapObject:
-    """``a`` with a sparse voxel set added: weights, seen counts and votes of a voxel in both add up."""
-    keys, weights, seen, votes, _, _ = _union_arrays(a, keys_b, weights_b, seen_b, votes_b)
-    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes)
+def union_voxels(
+    a: MapObject,
+    keys_b: np.ndarray,
+    weights_b: np.ndarray,
+    seen_b: np.ndarray,
+    votes_b: np.ndarray,
+    colors_b: np.ndarray | None = None,
+) -> MapObject:
+    """``a`` with a sparse voxel set added: weights, seen counts and votes of a voxel in both add up; its
+    colours ((N_b, 3) uint8, None: unknown) average, weighted by the weights (``_union_colors``)."""
+    keys, weights, seen, votes, colors, _, _ = _union_arrays(a, keys_b, weights_b, seen_b, votes_b, colors_b)
+    return a.replace(keys=keys, weights=weights, seen=seen, votes=votes, colors=colors)
 
 
 def _union_arrays(
-    a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The new (writable) keys, weights, seen and votes of ``union_voxels``, and where ``a``'s keys
-    (N_a,) and ``keys_b`` (N_b,) sit in them."""
+    a: MapObject, keys_b: np.ndarray, weights_b: np.ndarray, seen_b: np.ndarray, votes_b: np.ndarray, colors_b: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """The new (writable) keys, weights, seen, votes and colours of ``union_voxels``, and where ``a``'s
+    keys (N_a,) and ``keys_b`` (N_b,) sit in them."""
     keys = sorted_unique(np.concatenate((a.keys, keys_b)))
     weights = np.zeros(keys.size, np.float32)
     seen = np.zeros(keys.size, np.float32)
@@ -35,20 +46,44 @@ def _union_arrays(
         seen[at] += n
         votes[at] += v
         positions.append(at)
-    return keys, weights, seen, votes, positions[0], positions[1]
+    colors = _union_colors(a, weights_b, colors_b, positions[0], positions[1], weights)
+    return keys, weights, seen, votes, colors, positions[0], positions[1]
+
+
+def _union_colors(
+    a: MapObject, weights_b: np.ndarray, colors_b: np.ndarray | None, at_a: np.ndarray, at_b: np.ndarray, weights: np.ndarray
+) -> np.ndarray | None:
+    """The colours of a union whose summed ``weights`` hold ``a``'s voxels at ``at_a`` and the added ones
+    at ``at_b``: each voxel's mean of both sides' colours weighted by their weights, rounded half up.
+    Unknown (None) when a side with voxels has none: a mean over part of the evidence would pass for
+    one over all of it."""
+    colors_a = _NO_VOXEL_COLORS if at_a.size == 0 else a.colors  # an empty side knows all its colours
+    colors_b = _NO_VOXEL_COLORS if at_b.size == 0 else colors_b
+    if colors_a is None or colors_b is None:
+        return None
+    # Both sides' weighted colours, channel first, summed per voxel: one bincount per channel.
+    at = np.concatenate((at_a, at_b))
+    weighted = np.concatenate(
+        (np.multiply(colors_a.T, a.weights, dtype=np.float64), np.multiply(colors_b.T, weights_b, dtype=np.float64)), axis=1
+    )
+    sums = np.empty((3, weights.size))
+    for c in range(3):
+        sums[c] = np.bincount(at, weights=weighted[c], minlength=weights.size)
+    return mean_colors(sums, np.where(weights > 0, weights, 1))
 
 
 def fuse_detection(
     obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None, floor_vote: int | None = None
 ) -> MapObject:
-    """The object with one more observation: each voxel the detection covers gains weight 1 and a vote
-    of the detection's score for its label; every voxel covered or ``visible`` ((N,) bool over the
-    object's voxels: in view and not occluded in this frame) is counted as seen once more.
+    """The object with one more observation: each voxel the detection covers gains weight 1, a vote
+    of the detection's score for its label and the detection's colour into its mean; every voxel
+    covered or ``visible`` ((N,) bool over the object's voxels: in view and not occluded in this frame)
+    is counted as seen once more.
     ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
     det_votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
     det_votes[:, det.label_index] = det.score
     ones = np.ones(det.keys.size, np.float32)
-    keys, weights, seen, votes, at_obj, at_det = _union_arrays(obj, det.keys, ones, ones, det_votes)
+    keys, weights, seen, votes, colors, at_obj, at_det = _union_arrays(obj, det.keys, ones, ones, det_votes, det.colors)
     if visible is not None and visible.any():
         # Visible voxels of the object that the detection did not cover: seen, not hit.
         covered = np.zeros(keys.size, bool)
@@ -59,6 +94,7 @@ def fuse_detection(
         weights=weights,
         seen=seen,
         votes=votes,
+        colors=colors,
         floor_votes=obj.floor_votes if floor_vote is None else add_votes(obj.floor_votes, {floor_vote: 1}),
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},
@@ -78,7 +114,8 @@ def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: i
         mine = ~taken & np.isin(coarse, coarsen_keys(keys, factor))
         owner[mine] = i
         taken |= mine
-    return [VoxelDetection(det.label_index, det.score, det.keys[owner == i]) for i in range(len(owners))]
+    parts = [owner == i for i in range(len(owners))]
+    return [VoxelDetection(det.label_index, det.score, det.keys[p], None if det.colors is None else det.colors[p]) for p in parts]
 
 
 def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float, floor_vote: int | None = None) -> MapObject:
@@ -89,7 +126,7 @@ def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float
 
 def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
     """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object)."""
-    merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes)
+    merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes, absorbed.colors)
     return merged.replace(
         floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
@@ -103,7 +140,8 @@ def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
 def keep_voxels(obj: MapObject, keep: np.ndarray) -> MapObject:
     """The object with only the voxels where ``keep`` (N,) is True."""
     seen = None if obj.seen is None else obj.seen[keep]
-    return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep], seen=seen)
+    colors = None if obj.colors is None else obj.colors[keep]
+    return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep], seen=seen, colors=colors)
 
 
 def object_label_index(obj: MapObject) -> int:

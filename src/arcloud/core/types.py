@@ -92,11 +92,13 @@ class Detection:
 
 @dataclass(frozen=True, eq=False, slots=True)
 class VoxelDetection:
-    """A detection back-projected into the world: sorted unique packed voxel keys (int64)."""
+    """A detection back-projected into the world: sorted unique packed voxel keys (int64), and
+    ``colors`` (N, 3) uint8 aligned with them: the mean RGB of the samples in each voxel (None: unknown)."""
 
     label_index: int
     score: float
     keys: np.ndarray
+    colors: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -200,9 +202,12 @@ class MapObject:
     number of detections of this object that covered the voxel. votes: (N, N_CLASSES) float32
     score-weighted label votes per voxel. seen: (N,) float32, the number of those frames in which the
     voxel was visible (in view and not occluded) or covered; weights / seen is the voxel's occupancy.
-    None means unknown and reads as equal to ``weights``.
+    None means unknown and reads as equal to ``weights``. colors: (N, 3) uint8, each voxel's mean RGB
+    over the pixels of the detections that covered it, weighted as ``weights`` count them (rounded to
+    whole levels at each fusion); None means unknown (objects stored before colours: codec version 2).
+    Colours are carried along, never used in a decision.
 
-    Immutable: a change is a new object (``replace``). Construction makes the four voxel arrays
+    Immutable: a change is a new object (``replace``). Construction makes the five voxel arrays
     read-only (the arrays themselves, not copies: hand over arrays you no longer write to), so one
     object can be shared by the store, the step and its events; ``floor_votes`` is never edited either.
     """
@@ -212,6 +217,7 @@ class MapObject:
     weights: np.ndarray
     votes: np.ndarray
     seen: np.ndarray | None = None
+    colors: np.ndarray | None = None
     n_frames: int = 0
     devices: frozenset[str] = frozenset()
     score_sum: float = 0.0
@@ -229,7 +235,7 @@ class MapObject:
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
 
     def __post_init__(self) -> None:
-        for array in (self.keys, self.weights, self.votes, self.seen):
+        for array in (self.keys, self.weights, self.votes, self.seen, self.colors):
             if array is not None:
                 array.flags.writeable = False
 
@@ -256,7 +262,7 @@ class MapObject:
 
 
 _MAP_OBJECT_SLOTS = tuple(MapObject.__dict__[f.name] for f in dataclasses.fields(MapObject))
-_VOXEL_ARRAYS = frozenset(("keys", "weights", "votes", "seen"))
+_VOXEL_ARRAYS = frozenset(("keys", "weights", "votes", "seen", "colors"))
 
 
 EventKind = Literal["created", "updated", "merged", "deleted"]
@@ -500,6 +506,7 @@ def empty_object(object_id: int) -> MapObject:
         weights=np.empty(0, np.float32),
         votes=np.empty((0, N_CLASSES), np.float32),
         seen=np.empty(0, np.float32),
+        colors=np.empty((0, 3), np.uint8),
     )
 
 

@@ -247,14 +247,39 @@ def register_samples(frame: Frame, params: Params, stride_px: int) -> Registered
 def registered_mask_samples(mask: np.ndarray, params: Params, samples: RegisteredSamples) -> Samples:
     """The depth samples whose colour pixel lies in the mask (eroded by ``params.erode_px`` in the
     colour image)."""
+    near = registered_mask_indices(mask, params, samples)
+    return samples.v_px[near], samples.u_px[near], samples.z_m[near]
+
+
+def registered_mask_indices(mask: np.ndarray, params: Params, samples: RegisteredSamples) -> np.ndarray:
+    """Indices (ascending) into ``samples`` of those ``registered_mask_samples`` returns."""
     extent = mask_extent(mask)
     if extent is None:
-        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
+        return np.empty(0, np.int64)
     r0, r1, c0, c1 = extent
     crop = erode(mask[r0:r1, c0:c1], params.erode_px)
     near = np.flatnonzero((samples.rgb_v_px >= r0) & (samples.rgb_v_px < r1) & (samples.rgb_u_px >= c0) & (samples.rgb_u_px < c1))
-    near = near[crop[samples.rgb_v_px[near] - r0, samples.rgb_u_px[near] - c0]]
-    return samples.v_px[near], samples.u_px[near], samples.z_m[near]
+    return near[crop[samples.rgb_v_px[near] - r0, samples.rgb_u_px[near] - c0]]
+
+
+def mean_colors(color_sums: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8: weighted colour sums, channel first (3, N) float64, over their weights (N,) (> 0),
+    rounded half up; ``color_sums`` is overwritten. (The result is a transposed view: (N, 3), not
+    C-contiguous; channel first is what the sums are fastest to gather in.)"""
+    color_sums /= weights
+    color_sums += 0.5
+    return np.floor(color_sums, out=color_sums).astype(np.uint8).T
+
+
+def voxel_colors(sample_keys: np.ndarray, keys: np.ndarray, sample_rgb: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8: the mean colour of the samples in each voxel of ``keys`` (N,) sorted unique, from
+    each sample's voxel key (M,) (all among ``keys``) and colour (M, 3): one bincount per channel."""
+    at = np.searchsorted(keys, sample_keys)
+    channels = sample_rgb.T.astype(np.float64)  # (3, M), each channel contiguous
+    sums = np.empty((3, keys.size))
+    for c in range(3):
+        sums[c] = np.bincount(at, weights=channels[c], minlength=keys.size)
+    return mean_colors(sums, np.bincount(at, minlength=keys.size))
 
 
 def depth_jumps(z_grid: np.ndarray, params: Params) -> tuple[np.ndarray, np.ndarray] | None:
@@ -364,23 +389,32 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
 
     Each mask is sampled every n-th pixel row and column (``sampling_stride_px``: 1 to
     ``params.pixel_stride_max_px``) and cleaned with depth: samples of what lies behind or apart from
-    the object (``front_samples``) are left out."""
+    the object (``front_samples``) are left out. Each voxel's colour is the mean of the colour pixels
+    its samples land on (``voxel_colors``)."""
     stride = sampling_stride_px(frame, params)
     registered = None if frame.registered else register_samples(frame, params, stride)
+    width = frame.rgb.shape[1]
+    rgb_pixels = frame.rgb.reshape(-1, 3)  # (H * W, 3): a pixel by its flat index (a view when contiguous)
     voxelized = []
     for det in detections:
         if registered is None:
             v_px, u_px, z_m = mask_samples(frame, det.mask, params, stride)
+            rgb_px = v_px * width + u_px
         else:
-            v_px, u_px, z_m = registered_mask_samples(det.mask, params, registered)
+            near = registered_mask_indices(det.mask, params, registered)
+            v_px, u_px, z_m = registered.v_px[near], registered.u_px[near], registered.z_m[near]
+            rgb_px = registered.rgb_v_px[near] * width + registered.rgb_u_px[near]
         points = back_project(frame, v_px, u_px, z_m)
         if params.layer_margin_m is not None and z_m.size and det.label in params.layer_classes:
-            points = points[front_samples(v_px, u_px, z_m, stride, params, points)]
+            front = front_samples(v_px, u_px, z_m, stride, params, points)
+            points, rgb_px = points[front], rgb_px[front]
         if len(points) == 0:
             continue
-        keys = sorted_unique(points_to_keys(points, params.voxel_size_m))
+        sample_keys = points_to_keys(points, params.voxel_size_m)
+        keys = sorted_unique(sample_keys)
         if keys.size >= params.min_voxels_per_detection:
-            voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys))
+            colors = voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0))
+            voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors))
     return voxelized
 
 

@@ -5,6 +5,8 @@ A spec is ``PREFIX`` or ``PREFIX:ARGUMENT``. Built in:
   masks) is recognised by its outputs, anything else is taken as Ultralytics YOLO-seg.
   ``onnx`` alone uses the model named by the ``ARCLOUD_MODEL`` environment variable.
 - ``maskrcnn:PATH``: a torchvision Mask R-CNN export.
+- ``@cpu``, ``@cuda`` or ``@auto`` after a model's path picks onnxruntime's execution provider
+  (``onnx:models/y.onnx@cuda``; default cpu; ``auto``: CUDA when there, else CPU).
 
 Other modules add their own (``sim``, ``gt-masks``, ...) with ``register_detector(prefix, factory)``;
 a factory is called as ``factory(argument, **options)`` with the text after the first ':' ("" if none).
@@ -56,7 +58,18 @@ def _known() -> str:
 MODEL_PREFIXES = ("onnx", "maskrcnn")
 
 
+def split_provider(argument: str) -> tuple[str, str]:
+    """``PATH@PROVIDER`` -> (PATH, PROVIDER); a path without a known suffix runs on the CPU."""
+    from arcloud.detectors.session import EXECUTION_PROVIDERS
+
+    path, at, provider = argument.rpartition("@")
+    if at and provider in EXECUTION_PROVIDERS:
+        return path, provider
+    return argument, "cpu"
+
+
 def _model_path(argument: str, prefix: str) -> str:
+    argument = split_provider(argument)[0]
     path = argument or (os.environ.get(MODEL_ENV_VAR, "") if prefix == "onnx" else "")
     expected = f"{prefix}:PATH to a model file" + (f", or {MODEL_ENV_VAR} set to one" if prefix == "onnx" else "")
     expected += " (sim:SEED runs the simulator's detector, no model needed)"
@@ -80,8 +93,11 @@ def _onnx_detector(argument: str, **options: Any) -> Detector:
     from arcloud.detectors.onnx_yolo import YoloSegDetector
     from arcloud.detectors.session import load_session
 
-    path = _model_path(argument, "onnx")
-    session = load_session(path, intra_op_threads=options.get("intra_op_threads"))
+    path, provider = _model_path(argument, "onnx"), split_provider(argument)[1]
+    options.setdefault("execution_provider", provider)
+    session = load_session(
+        path, intra_op_threads=options.get("intra_op_threads"), execution_provider=options["execution_provider"]
+    )
     if is_maskrcnn_export([o.name for o in session.get_outputs()]):
         return MaskRCNNDetector(path, **options)
     return YoloSegDetector(path, **options)
@@ -90,6 +106,7 @@ def _onnx_detector(argument: str, **options: Any) -> Detector:
 def _maskrcnn_detector(argument: str, **options: Any) -> Detector:
     from arcloud.detectors.maskrcnn import MaskRCNNDetector
 
+    options.setdefault("execution_provider", split_provider(argument)[1])
     return MaskRCNNDetector(_model_path(argument, "maskrcnn"), **options)
 
 

@@ -212,6 +212,7 @@ class YoloSegDetector:
         mask_threshold: float = 0.5,
         class_map: Mapping[int, str] | None = None,
         intra_op_threads: int | None = None,
+        execution_provider: str = "cpu",
         max_detections: int = 100,
     ) -> None:
         self.model_path = str(model_path)
@@ -219,7 +220,7 @@ class YoloSegDetector:
         self.iou_threshold = check_fraction("iou_threshold", iou_threshold)
         self.mask_threshold = check_fraction("mask_threshold", mask_threshold)
         self.max_detections = check_count("max_detections", max_detections)
-        self._session = load_session(model_path, intra_op_threads=intra_op_threads)
+        self._session = load_session(model_path, intra_op_threads=intra_op_threads, execution_provider=execution_provider)
         self.input_name, self.input_size_px, self._output_names, n_classes = self._check_signature()
         self.class_names = self._class_names(n_classes)
         self.class_map = (

@@ -13,17 +13,21 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/stats
     GET    /v1/maps/{map_id}/snapshot         the map as one file (admin); PUT it back (?replace=true)
     GET    /v1/maps/{map_id}/export           ?format=json|ply|glb|scannet &include=tentative &color= &voxels=
+    GET    /v1/maps/{map_id}/events           server-sent object events (service.event_stream, viewer_routes)
+    GET    /v1/maps/{map_id}/frames/{device}/{frame}   where an accepted frame is
+    GET    /viewer                            the web viewer (static files, open: they hold no data)
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
 
 Map routes need a key (``service.access``, with auth keys): reading needs a reader, device or admin key
 of the map, uploading a device or admin key, deleting an admin key; 401 without a valid token, 403 for a
 key of another role or map, 429 (with Retry-After) over the key's or the map's rate.
 
-A map exists once a frame of it was accepted; unknown maps and objects answer 404. Listings serve
+A map exists once a frame of it was accepted (or a snapshot restored into it); unknown maps and objects answer 404. Listings serve
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
 its ``status``. Errors are JSON
-``{"detail": ..., "field": ...}``: 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
-503 store unreachable or queue full (with Retry-After).
+``{"detail": ..., "field": ...}``: 400 malformed body, 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
+503 store unreachable, queue full or not ready (with Retry-After), 500 anything unexpected (its traceback logged);
+``http_protocol`` answers requests uvicorn cannot parse the same way.
 """
 
 from __future__ import annotations
@@ -40,6 +44,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
+from starlette.routing import Match, Route
 
 from arcloud import __version__
 from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
@@ -49,7 +55,8 @@ from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
 from arcloud.ports import MapArchive, QueueFull
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
-from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels
+from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels, voxel_colors_out
+from arcloud.service.logs import bind_log_context
 from arcloud.service.map_header import check_map_header, open_map_checked
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
@@ -74,6 +81,9 @@ from arcloud.service.settings import Settings
 log = logging.getLogger(__name__)
 
 Label = Literal[CLASSES]  # type: ignore[valid-type]  # the class names as a Literal, unpacked from the tuple at run time
+
+
+READY_RETRY_AFTER_S = 5  # a 503 from /readyz: ask again in this many seconds
 
 
 class BodyTooLarge(Exception):
@@ -216,6 +226,7 @@ router = APIRouter()
     "one that failed or was lost is queued again (see its status).",
     responses={
         **PROBLEM_RESPONSES,
+        400: {"model": Problem, "description": "malformed multipart body (no boundary, too many parts, ...)"},
         413: {"model": Problem, "description": "body too large"},
         415: {"model": Problem, "description": "wrong content type"},
     },
@@ -238,6 +249,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
     frame = await run_in_threadpool(frames_in.validate_message, msg, map_id, max_pixels=settings.max_frame_pixels)
+    bind_log_context(map_id=frame.map_id, device_id=frame.device_id, frame_id=frame.frame_id)  # to the response's log line
     await run_in_threadpool(open_map_checked, runtime.store, map_id, runtime.params)  # 409 for other settings; lists the map
     accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
@@ -331,7 +343,7 @@ def get_object(
     map_id: MapId,
     object_id: Annotated[int, Path(ge=0)],
     runtime: RuntimeDep,
-    voxels: Annotated[bool, Query(description="add voxel centres (m) and occupancy weights")] = False,
+    voxels: Annotated[bool, Query(description="add voxel centres (m), occupancy weights and mean colours")] = False,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
     found: list[Any] = runtime.store.get(map_id, [object_id]) if voxels else runtime.store.object_meta(map_id, [object_id])
@@ -345,6 +357,7 @@ def get_object(
             "voxel_size_m": size,
             "centers": key_centers(obj.keys, size).tolist(),
             "weights": obj.weights.astype(float).tolist(),
+            "colors": voxel_colors_out(obj),  # 0-255 (r, g, b) a voxel, None: unknown
         }
     return out
 
@@ -357,8 +370,8 @@ def get_object(
     tags=["maps"],
     summary="The map as a file: JSON, PLY (voxels), GLB (boxes) or ScanNet prediction files (zip)",
     description="The served (confirmed) objects, or every object with `include=tentative`, in the map's world frame "
-    "(metres, z up). `json`: the objects list (`voxels=true` adds voxel centres); `ply`: one point per voxel coloured "
-    "by object or class (`color`), with an `object` property; `glb`: one glTF node per object (its oriented box; id, "
+    "(metres, z up). `json`: the objects list (`voxels=true` adds voxel centres, weights and colours); `ply`: one point "
+    "per voxel coloured by object, class or its mean RGB (`color`), with an `object` property; `glb`: one glTF node per object (its oriented box; id, "
     "label, score in `extras`); `scannet`: a zip of ScanNet benchmark prediction files for the map as one scene.",
 )
 def export(
@@ -366,8 +379,10 @@ def export(
     runtime: RuntimeDep,
     fmt: Annotated[ExportFormat, Query(alias="format", description="json, ply, glb or scannet")] = "json",
     include: Annotated[Literal["tentative"] | None, Query(description="tentative: tentative objects too")] = None,
-    color: Annotated[ColorBy, Query(description="ply: colour points by object or by class")] = "object",
-    voxels: Annotated[bool, Query(description="json: add each object's voxel centres and weights")] = False,
+    color: Annotated[
+        ColorBy, Query(description="ply: colour points by object, by class or by the voxel's mean RGB (grey: unknown)")
+    ] = "object",
+    voxels: Annotated[bool, Query(description="json: add each object's voxel centres, weights and colours")] = False,
 ) -> Response:
     known_map(runtime, map_id)
     store = runtime.store
@@ -538,8 +553,11 @@ def readyz(runtime: RuntimeDep) -> JSONResponse:
         checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
     if checks["store"] == "ok":  # else the ingest's checks would wait on the same unreachable store
         checks.update(runtime.ingest.ready())
-    ok = all(v == "ok" for v in checks.values())
-    return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
+    if all(v == "ok" for v in checks.values()):
+        return JSONResponse({"status": "ready", "checks": checks})
+    wrong = "; ".join(f"{name}: {value}" for name, value in checks.items() if value != "ok")
+    body = {"status": "not ready", "checks": checks, "detail": f"not ready ({wrong})", "field": None}
+    return JSONResponse(body, status_code=503, headers={"Retry-After": str(READY_RETRY_AFTER_S)})
 
 
 @router.get("/metrics", tags=["operations"], summary="Prometheus metrics", response_class=Response)
@@ -548,6 +566,16 @@ async def metrics(request: Request) -> Response:
 
     body = await run_in_threadpool(generate_latest, request.app.state.metrics_registry)
     return Response(body, media_type=CONTENT_TYPE_LATEST)
+
+
+def allowed_methods(app: FastAPI, scope: MutableMapping[str, Any]) -> str:
+    """The methods of every route whose path matches the request's, as an Allow header lists them (the app's
+    own routes and ``router``'s, which it includes without a prefix)."""
+    methods: set[str] = set()
+    for route in [*app.router.routes, *router.routes]:
+        if isinstance(route, Route) and route.matches(scope)[0] != Match.NONE:
+            methods |= route.methods or set()
+    return ", ".join(sorted(methods))
 
 
 # --- the factory -------------------------------------------------------------------------------------
@@ -607,7 +635,23 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        return problem(request, exc.status_code, str(exc.detail), None, dict(exc.headers or {}))
+        headers = dict(exc.headers or {})
+        if exc.status_code == 405:  # Starlette's Allow names the first route of the path only (GET of GET and PUT)
+            headers["Allow"] = allowed_methods(request.app, request.scope)
+        return problem(request, exc.status_code, str(exc.detail), None, headers)
+
+    @app.exception_handler(ClientDisconnect)
+    async def client_gone(request: Request, exc: ClientDisconnect) -> JSONResponse:
+        # The client closed the connection mid-body: nobody reads this answer, but the app must give one (else a
+        # 500 and a traceback in the log for every upload a client abandons).
+        log.info("%s %s: the client disconnected before sending the whole body", request.method, request.url.path)
+        return problem(request, 400, "body: the client disconnected before sending all of it", "body")
+
+    @app.exception_handler(Exception)
+    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+        # Starlette's last resort answers 500 in plain text; this answers the usual JSON problem, telling nothing of
+        # the cause (the server logs the traceback: Starlette raises the exception again after this answer).
+        return problem(request, 500, "internal error: the service's log has the details", None)
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -618,6 +662,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
     app.include_router(router)
+    from arcloud.service import event_stream, viewer_routes  # here: both import this module
+
+    app.include_router(event_stream.router)
+    app.include_router(viewer_routes.router)
     return app
 
 

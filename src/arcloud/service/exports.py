@@ -14,7 +14,7 @@ import numpy as np
 
 from arcloud.core.types import MapObject, Params
 from arcloud.core.voxels import key_centers
-from arcloud.formats.colors import class_color, object_color
+from arcloud.formats.colors import OTHER_COLOR, class_color, object_color
 from arcloud.formats.gltf import Box, boxes_glb
 from arcloud.formats.ply import points_ply
 from arcloud.formats.scannet import Prediction, scannet_files
@@ -22,7 +22,7 @@ from arcloud.ports import ObjectMeta
 from arcloud.service.schemas import object_out
 
 ExportFormat = Literal["json", "ply", "glb", "scannet"]
-ColorBy = Literal["object", "class"]
+ColorBy = Literal["object", "class", "rgb"]
 
 #: Media type and file extension of each format.
 MEDIA: dict[str, tuple[str, str]] = {
@@ -44,23 +44,32 @@ def export_json(map_id: str, objects: Sequence[MapObject | ObjectMeta], params: 
                 "voxel_size_m": params.voxel_size_m,
                 "centers": np.round(key_centers(obj.keys, params.voxel_size_m), 5).tolist(),
                 "weights": obj.weights.astype(float).tolist(),
+                "colors": voxel_colors_out(obj),
             }
         listed.append(out)
     document = {"map_id": map_id, "frame": WORLD_FRAME, "world_from_export": np.eye(4).tolist(), "objects": listed}
     return json.dumps(document).encode()
 
 
+def voxel_colors_out(obj: MapObject) -> list[list[int]] | None:
+    """The object's voxel colours as 0-255 (r, g, b) lists, aligned with its voxels; None when unknown."""
+    return None if obj.colors is None else obj.colors.tolist()
+
+
+def point_colors(obj: MapObject, color: ColorBy) -> np.ndarray:
+    """(N, 3) 0-255 colours of the object's voxels: its own, its class's or each voxel's mean RGB (grey,
+    ``OTHER_COLOR``, for an object whose colours are unknown: stored before codec version 3)."""
+    if color == "rgb" and obj.colors is not None:
+        return obj.colors
+    flat = {"object": object_color(obj.id), "class": class_color(obj.label), "rgb": OTHER_COLOR}[color]
+    return np.tile(np.array(flat, np.uint8), (len(obj.keys), 1))
+
+
 def export_ply(map_id: str, objects: Sequence[MapObject], params: Params, *, color: ColorBy) -> bytes:
-    """Every voxel of the objects as a point at its centre, coloured by object or by class."""
+    """Every voxel of the objects as a point at its centre, coloured by object, by class or by its mean RGB."""
     parts = [key_centers(o.keys, params.voxel_size_m) for o in objects]
     points = np.concatenate(parts) if parts else np.zeros((0, 3))
-    colors = (
-        np.concatenate(
-            [np.tile(object_color(o.id) if color == "object" else class_color(o.label), (len(o.keys), 1)) for o in objects]
-        )
-        if objects
-        else np.zeros((0, 3), np.uint8)
-    )
+    colors = np.concatenate([point_colors(o, color) for o in objects]) if objects else np.zeros((0, 3), np.uint8)
     ids = np.concatenate([np.full(len(o.keys), o.id, np.int32) for o in objects]) if objects else np.zeros(0, np.int32)
     comment = f"arcloud map {map_id}: voxel centres of {len(objects)} objects, {params.voxel_size_m} m voxels\n{WORLD_FRAME}"
     return points_ply(points, colors, ids, comment=comment)

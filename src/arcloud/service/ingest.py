@@ -8,7 +8,8 @@ Who runs the step depends on what the composition root gave the app:
   URL --workers N``;
 - neither: the workers run elsewhere (containers, ``arcloud worker``) and read the shared queue.
 
-Counts per map: frames accepted and failed (the queue's), processed (the store's set of recorded
+The pose of each device's last queued frame is kept in this process (``devices``: viewers draw the
+devices' cameras from it). Counts per map: frames accepted and failed (the queue's), processed (the store's set of recorded
 frames); pending is accepted - processed - failed. Service-wide counters for ``/metrics`` are the
 queue's (``QueueStats``: shared by every worker for a shared queue).
 """
@@ -24,6 +25,7 @@ from typing import Any, Literal
 
 from arcloud.core.types import Frame
 from arcloud.ports import FrameQueue, FrameStatus, ObjectStore, QueueFull, QueueStats
+from arcloud.service.devices import RecentDevices
 from arcloud.service.pool import WorkerPool
 from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name
 
@@ -70,6 +72,7 @@ class Ingest:
         self._threads: list[threading.Thread] = []
         self._stop_threads = threading.Event()
         self._stopping = False
+        self.devices = RecentDevices()
 
     def start(self) -> None:
         self.queue.prepare()
@@ -107,6 +110,8 @@ class Ingest:
         if self._stopping:
             raise QueueFull("the service is shutting down")
         queued = self.queue.put(frame, message)
+        if queued:
+            self.devices.record(frame)
         return Accepted(frame.map_id, frame.device_id, frame.frame_id, "queued" if queued else "duplicate")
 
     def counts(self, map_id: str) -> MapCounts:
@@ -125,9 +130,17 @@ class Ingest:
     def forget_map(self, map_id: str) -> None:
         """Drop the map's counts (after its objects were deleted)."""
         self.queue.forget_map(map_id)
+        self.devices.forget_map(map_id)
 
     def stats(self) -> QueueStats:
         return self.queue.stats()
+
+    def live_workers(self) -> int:
+        """Workers taking frames: this process's worker threads alive, else the queue's consumers with a
+        heartbeat in the last ``LIVE_WORKER_S`` (every host's, for a shared queue)."""
+        if self.workers:
+            return sum(t.is_alive() for t in self._threads)
+        return len(self.queue.live_consumers(LIVE_WORKER_S))
 
     def ready(self) -> dict[str, str]:
         """Check name -> "ok" or what is wrong: the queue's own checks (Redis: it answers, the consumer

@@ -16,14 +16,26 @@ from arcloud.ports import ObjectStore
 def open_map_checked(store: ObjectStore, map_id: str, params: Params) -> None:
     """Store our header if the map has none; ``MapMismatch`` if its header says other settings."""
     ours = MapHeader.from_params(params, store.codec_version, time.time())
-    check_header(store.open_map(map_id, ours), params, codec_version=store.codec_version, map_id=map_id)
+    check_store_header(store, store.open_map(map_id, ours), params, map_id)
 
 
 def check_map_header(store: ObjectStore, map_id: str, params: Params) -> None:
     """``MapMismatch`` if the map's stored header says other settings than ours (none stored: fine)."""
     header = store.map_header(map_id)
     if header is not None:
-        check_header(header, params, codec_version=store.codec_version, map_id=map_id)
+        check_store_header(store, header, params, map_id)
+
+
+def check_store_header(store: ObjectStore, header: MapHeader, params: Params, map_id: str) -> None:
+    """``check_header`` against ``params`` and the blob formats ``store`` writes and reads: a map
+    created under an older codec version the store still reads is accepted."""
+    check_header(
+        header,
+        params,
+        codec_version=store.codec_version,
+        readable_codec_versions=store.readable_codec_versions,
+        map_id=map_id,
+    )
 
 
 __all__ = ["check_map_header", "open_map_checked"]

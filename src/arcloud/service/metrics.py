@@ -15,10 +15,12 @@ from prometheus_client.registry import Collector
 
 from arcloud.ports import LATENCY_BUCKETS_S
 from arcloud.service.ingest import Ingest
+from arcloud.service.worker import LIVE_WORKER_S
 
 
 class IngestCollector(Collector):
-    """Frames accepted/processed/failed, queue depth (frames and bytes) and the step latency histogram."""
+    """Frames accepted/processed/failed, queue depth (frames and bytes), live workers and the step latency
+    histogram."""
 
     def __init__(self, ingest: Callable[[], Ingest | None]) -> None:
         self._ingest = ingest
@@ -45,6 +47,12 @@ class IngestCollector(Collector):
         yield GaugeMetricFamily("arcloud_queue_depth", "Frames queued or in progress", value=snap.queue_depth)
         yield GaugeMetricFamily(
             "arcloud_queue_bytes", "Bytes the queue holds of the frames queued or in progress", value=snap.queued_bytes
+        )
+        yield GaugeMetricFamily(
+            "arcloud_live_workers",
+            f"Workers taking frames: worker threads alive (embedded), else workers with a heartbeat in the last "
+            f"{LIVE_WORKER_S:.0f} s",
+            value=ingest.live_workers(),
         )
         cumulative, buckets = 0, []
         for bound, count in zip((*LATENCY_BUCKETS_S, float("inf")), snap.latency_counts):

@@ -88,6 +88,10 @@ class Voxels(BaseModel):
     voxel_size_m: float
     centers: list[Vec3]
     weights: list[float]
+    colors: list[tuple[int, int, int]] | None = Field(
+        None,
+        description="each voxel's mean colour, 0-255 (r, g, b), in the order of centers; null: unknown (stored before colours)",
+    )
 
 
 class ObjectOut(BaseModel):
@@ -238,8 +242,12 @@ class Health(BaseModel):
 
 
 class Ready(BaseModel):
+    """``/readyz``; not ready (503, with Retry-After) also carries the problem's ``detail`` and ``field``."""
+
     status: Literal["ready", "not ready"]
     checks: dict[str, str]
+    detail: str | None = None
+    field: str | None = None
 
 
 def iso_time(seconds: float) -> str | None:

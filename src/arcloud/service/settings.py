@@ -22,6 +22,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from arcloud.core.types import Params
 from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
+from arcloud.service.logs import LogFormat
 
 STORE_SCHEMES = ("redis", "rediss", "unix", "redis+cluster", "rediss+cluster")  # stores.redis.URL_SCHEMES
 ZENOH_CONFIG_TYPES = (".json5", ".json", ".yaml")  # what zenoh.Config.from_file reads
@@ -139,6 +140,14 @@ class Settings(BaseSettings):
         60.0, ge=0, description="frame uploads a second per map, from all its devices together; 0: no limit"
     )
     map_frame_burst: int = Field(120, ge=1, description="frame uploads a map may take at once above its rate")
+    # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
+    max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
+    event_poll_s: float = Field(
+        0.5, gt=0, le=60, description="how often the API reads a streamed map's objects to find what changed"
+    )
+    event_heartbeat_s: float = Field(
+        15.0, gt=0, le=300, description="an idle event stream sends a comment this often (keeps proxies from closing it)"
+    )
     # Redis Streams ingest
     consumer_group: str = Field("arcloud-workers", min_length=1)
     ingest_shards: int = Field(
@@ -174,12 +183,22 @@ class Settings(BaseSettings):
         "and multicast scouting are set on top from the zenoh_* settings",
     )
     log_level: LogLevel = "INFO"
+    log_format: LogFormat = Field(
+        "text",
+        description="`text` (a terminal) or `json`: one JSON object a line, with the map, device and frame ids on "
+        "every line logged while a frame is processed (arcloud.service.logs)",
+    )
 
     # --- validation --------------------------------------------------------------------------------
     @field_validator("zenoh_listen", "zenoh_connect", mode="before")
     @classmethod
     def _split(cls, value: object) -> object:
         return split_list(value)
+
+    @field_validator("log_format", mode="before")
+    @classmethod
+    def _lower(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value
 
     @field_validator("log_level", mode="before")
     @classmethod

@@ -37,6 +37,7 @@ from typing import Any, Literal
 from arcloud.core.types import Frame, Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
 from arcloud.ports import Detector, FrameQueue, ObjectStore, QueuedFrame, UpdatePublisher
+from arcloud.service.logs import log_context
 from arcloud.service.map_header import open_map_checked
 
 log = logging.getLogger(__name__)
@@ -78,6 +79,16 @@ def consumer_name(pid: int | None = None) -> str:
     return f"{socket.gethostname()}-{os.getpid() if pid is None else pid}"
 
 
+def frame_log_fields(item: QueuedFrame) -> dict[str, object]:
+    """The log context of a delivery: map, device and frame ids (from the frame key when the frame does
+    not decode) and how many times it was delivered."""
+    if item.frame is not None:
+        device_id, frame_id = item.frame.device_id, item.frame.frame_id
+    else:
+        device_id, _, frame_id = item.frame_key.rpartition("/")
+    return {"map_id": item.map_id, "device_id": device_id, "frame_id": frame_id, "deliveries": item.deliveries}
+
+
 class FrameWorker:
     """One consumer of a ``FrameQueue``, running the step on what it takes."""
 
@@ -114,7 +125,12 @@ class FrameWorker:
         self._reading = True  # the last poll did not fail: the heartbeat may say so
 
     def run(self, stop: threading.Event) -> None:
-        """Work until ``stop`` is set; the frame in hand is finished first."""
+        """Work until ``stop`` is set; the frame in hand is finished first. Every line logged meanwhile in
+        this thread carries ``worker`` (this consumer's name)."""
+        with log_context(worker=self.consumer):
+            self._run(stop)
+
+    def _run(self, stop: threading.Event) -> None:
         try:
             self.queue.prepare()
         except StoreUnavailable as exc:  # the loop waits for the queue; its readers create what is missing
@@ -180,7 +196,12 @@ class FrameWorker:
         return 1
 
     def handle(self, item: QueuedFrame) -> Outcome:
-        """Process one delivery; returns what became of it."""
+        """Process one delivery; returns what became of it. Every line logged meanwhile (in the step, the
+        store, the detector) carries the frame's map, device and frame ids and its delivery count."""
+        with log_context(**frame_log_fields(item)):
+            return self._handle(item)
+
+    def _handle(self, item: QueuedFrame) -> Outcome:
         if item.deliveries > self.max_deliveries:
             if item.map_id and item.frame_key and self.store.is_frame_done(item.map_id, item.frame_key):
                 # A slow delivery finished after the frame was claimed again: it counts once, as processed.
@@ -230,4 +251,4 @@ class FrameWorker:
         self.queue.dead_letter(item, reason)
 
 
-__all__ = ["HEARTBEAT_S", "LIVE_WORKER_S", "FrameWorker", "consumer_name", "run_step"]
+__all__ = ["HEARTBEAT_S", "LIVE_WORKER_S", "FrameWorker", "consumer_name", "frame_log_fields", "run_step"]

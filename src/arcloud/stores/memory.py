@@ -74,6 +74,7 @@ class MemoryStore:
     ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION  # objects are kept as they are, but a map's header names the format
+    readable_codec_versions = codec.READABLE_VERSIONS
 
     def __init__(
         self,

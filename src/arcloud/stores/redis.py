@@ -220,6 +220,7 @@ class RedisStore:
     ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION
+    readable_codec_versions = codec.READABLE_VERSIONS
 
     def __init__(
         self,
@@ -479,7 +480,7 @@ class RedisStore:
             payload += [
                 codec.pack_box(obj.bounds),
                 codec.encode_meta(obj),
-                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, votes_f16=self.votes_f16),
+                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors, votes_f16=self.votes_f16),
             ]
         with self._boundary(f"commit on map {map_id}"):
             written = self._scripts["commit"](

@@ -2,6 +2,7 @@
 
     arcloud export --map kitchen --format glb --out kitchen.glb                     # boxes, one glTF node each
     arcloud export --map kitchen --format ply --out kitchen.ply --color class       # voxels as coloured points
+    arcloud export --map kitchen --format ply --out kitchen.ply --color rgb         # ... in their mean colours
     arcloud export --map kitchen --format scannet --out pred/ --mesh scene_vh_clean_2.ply   # with per-vertex masks
     arcloud export --url https://arcloud.example --token $TOKEN --map kitchen --format json --out kitchen.json
 
@@ -35,8 +36,13 @@ def add_export_command(subparsers: argparse._SubParsersAction) -> None:
     export.add_argument("--format", dest="fmt", choices=FORMATS, default="json", help="json, ply, glb or scannet (default json)")
     export.add_argument("--out", type=Path, required=True, help="the file to write (scannet: a folder, or a .zip)")
     export.add_argument("--include-tentative", action="store_true", help="tentative objects too")
-    export.add_argument("--color", choices=("object", "class"), default="object", help="ply: colour by object or class")
-    export.add_argument("--voxels", action="store_true", help="json: each object's voxel centres and weights")
+    export.add_argument(
+        "--color",
+        choices=("object", "class", "rgb"),
+        default="object",
+        help="ply: colour by object, by class or by each voxel's mean RGB (default object)",
+    )
+    export.add_argument("--voxels", action="store_true", help="json: each object's voxel centres, weights and colours")
     export.add_argument("--mesh", type=Path, help="scannet: the scene's mesh (PLY), for per-vertex masks")
     export.add_argument("--retries", type=non_negative_int, default=5, help="tries again after transport errors (default 5)")
     export.set_defaults(handler=run_export)

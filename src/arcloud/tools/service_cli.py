@@ -154,18 +154,26 @@ def _detector_from_env() -> str:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    import uvicorn
+    from uvicorn.config import LOGGING_CONFIG
 
+    from arcloud.service.logs import configure_logging
+    from arcloud.tools.http_server import run_server
     from arcloud.tools.wiring import check_model_file, check_zenoh_config, create_app
 
     settings = settings_from_args(args)
+    configure_logging(settings.log_level, settings.log_format)
     check_exposure(settings, args.host)
     check_zenoh_config(settings)
     if settings.embedded or settings.workers > 0:
         check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
-    logging.getLogger("arcloud").setLevel(settings.log_level)
     app = create_app(settings)
-    uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(), ws="none", lifespan="on")
+    run_server(
+        app,
+        host=args.host,
+        port=args.port,
+        log_level=settings.log_level.lower(),
+        log_config=LOGGING_CONFIG if settings.log_format == "text" else None,  # None: its lines go through ours (JSON)
+    )
     return 0
 
 
@@ -192,12 +200,13 @@ def check_exposure(settings: Any, host: str) -> None:
 
 
 def run_worker_command(args: argparse.Namespace) -> int:
-    from arcloud.tools.wiring import check_model_file, check_zenoh_config, configure_logging, run_worker
+    from arcloud.service.logs import configure_logging
+    from arcloud.tools.wiring import check_model_file, check_zenoh_config, run_worker
 
     settings = settings_from_args(args)
     check_model_file(settings.detector)
     check_zenoh_config(settings)
-    configure_logging(settings.log_level)
+    configure_logging(settings.log_level, settings.log_format)
     run_worker(settings)
     return 0
 

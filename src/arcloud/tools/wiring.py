@@ -29,6 +29,7 @@ from fastapi import FastAPI
 from arcloud.errors import InvalidInput, StoreUnavailable
 from arcloud.ports import Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
 from arcloud.service import app as service_app
+from arcloud.service.logs import configure_logging
 from arcloud.service.pool import WorkerPool
 from arcloud.service.runtime import Adapters, Closeable, FrameHandler, close_all
 from arcloud.service.settings import Settings
@@ -291,11 +292,14 @@ def create_app(
     detector: Detector | None = None,
     publisher: UpdatePublisher | None = None,
 ) -> FastAPI:
-    """The service on the adapters the settings name (read from ``ARCLOUD_*`` when not given).
-    ``store``, ``queue``, ``detector``, ``publisher``: adapters to use instead (tests, embedding); the
-    caller keeps ownership of what it passes. Checks the detector spec now; builds nothing until the
-    app starts."""
-    settings = settings if settings is not None else Settings()
+    """The service on the adapters the settings name. Not given, they are read from ``ARCLOUD_*`` and, as
+    this is then the process's entry point (``uvicorn --factory``), configure its logging too
+    (``log_level``, ``log_format``). ``store``, ``queue``, ``detector``, ``publisher``: adapters to use
+    instead (tests, embedding); the caller keeps ownership of what it passes. Checks the detector spec
+    now; builds nothing until the app starts."""
+    if settings is None:
+        settings = Settings()
+        configure_logging(settings.log_level, settings.log_format)
     check_detector_spec(settings.detector)
     return service_app.create_app(settings, partial(connect, store=store, queue=queue, detector=detector, publisher=publisher))
 
@@ -349,13 +353,9 @@ def run_worker(
         close_all(owned)
 
 
-def configure_logging(level: str) -> None:
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(processName)s %(name)s: %(message)s")
-
-
 def worker_process(settings: Settings, detector_factory: DetectorFactory | None, processes: int) -> None:
     """The body of a worker process of a ``WorkerPool`` (spawned: it configures its own logging)."""
-    configure_logging(settings.log_level)
+    configure_logging(settings.log_level, settings.log_format)
     run_worker(settings, detector_factory=detector_factory, processes=processes)
 
 

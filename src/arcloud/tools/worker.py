@@ -7,15 +7,9 @@ import argparse
 import logging
 
 from arcloud.errors import InvalidInput
+from arcloud.service.logs import configure_logging
 from arcloud.service.settings import Settings
-from arcloud.tools.wiring import (
-    check_detector_spec,
-    check_model_file,
-    check_zenoh_config,
-    configure_logging,
-    healthy,
-    run_worker,
-)
+from arcloud.tools.wiring import check_detector_spec, check_model_file, check_zenoh_config, healthy, run_worker
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     settings = Settings()
     if args.healthcheck:
         return 0 if healthy(settings) else 1
-    configure_logging(settings.log_level)
+    configure_logging(settings.log_level, settings.log_format)
     try:
         check_detector_spec(settings.detector)
         check_model_file(settings.detector)

@@ -1,0 +1,239 @@
+"""N simulated devices, each posting frames at a fixed rate (open loop, bounded in time), against
+`arcloud serve --redis` with one worker process per core and the simulator's detector: latency from each
+POST to its frame's commit (p50, p95, p99, max), frames/s taken and processed, and what one frame costs:
+Redis commands (by command) and bytes in and out, CPU seconds of the API, the workers and Redis. Those
+costs feed ``bench/scaling_model.py`` (docs/scaling.md).
+
+Devices walk the simulated room 0 at 160 x 120 (the load is the service's, not the detector's).
+Writes ``bench/results/load.json`` (one entry per ``--devices`` value).
+
+    .venv/bin/python bench/bench_load.py --devices 10,100 --rate 1 --seconds 30
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import Redis, environment, free_port, write_json
+
+OUT = Path(__file__).parent / "results" / "load.json"
+WIDTH, HEIGHT = 160, 120
+
+
+def cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) of process ``pid`` so far (Linux /proc); 0 once it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def children(pid: int) -> list[int]:
+    """Every descendant of ``pid`` (the API's worker processes)."""
+    parents: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as stat:
+                    parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+    found, frontier = [], [pid]
+    while frontier:
+        parent = frontier.pop()
+        kids = [p for p, pp in parents.items() if pp == parent]
+        found += kids
+        frontier += kids
+    return found
+
+
+def device_bodies(map_id: str, n_devices: int, per_device: int) -> list[list[bytes]]:
+    """Each device's frames (protobuf), from one simulated walk of room 0, ids unique per device."""
+    from arcloud.core.types import Intrinsics
+    from arcloud.proto.convert import frame_to_proto
+    from arcloud.sim.room import generate_room
+    from arcloud.sim.sequence import simulate_sequence
+
+    scale = WIDTH / 640
+    intrinsics = Intrinsics(525.0 * scale, 525.0 * scale, (WIDTH - 1) / 2, (HEIGHT - 1) / 2)
+    walk = simulate_sequence(
+        generate_room(0), n_frames=60, seed=0, width=WIDTH, height=HEIGHT, intrinsics=intrinsics, map_id=map_id
+    )
+    bodies = []
+    for device in range(n_devices):
+        frames = []
+        for i in range(per_device):
+            message = frame_to_proto(walk[(device * 7 + i) % len(walk)])
+            message.device_id, message.frame_id = f"device-{device}", f"f{i:06d}"
+            frames.append(message.SerializeToString())
+        bodies.append(frames)
+    return bodies
+
+
+def redis_counters(client: Any) -> tuple[dict[str, int], int, int]:
+    """(calls by command, bytes in, bytes out) of the Redis server so far."""
+    stats = client.info("commandstats")
+    calls = {name.removeprefix("cmdstat_"): int(v["calls"]) for name, v in stats.items()}
+    net = client.info("stats")
+    return calls, int(net["total_net_input_bytes"]), int(net["total_net_output_bytes"])
+
+
+def run_load(url: str, redis: Redis, map_id: str, bodies: list[list[bytes]], rate_per_s: float, seconds: float) -> dict[str, Any]:
+    """Every device posts ``rate_per_s`` frames a second for ``seconds`` (open loop: a slow answer does not
+    delay its next frame); latency from POST to the frame's commit."""
+    from arcloud.stores.keys import processed_key
+
+    posted: dict[str, float] = {}
+    statuses: list[int] = []
+    lock = threading.Lock()
+    started = time.time() + 0.5
+    n_per_device = int(seconds * rate_per_s)
+
+    def device(k: int, http: httpx.Client) -> None:
+        offset = (k / len(bodies)) / rate_per_s  # devices spread over the period
+        threads = []
+        for i in range(n_per_device):
+            time.sleep(max(0.0, started + offset + i / rate_per_s - time.time()))
+
+            def post(body: bytes = bodies[k][i], key: str = f"device-{k}/f{i:06d}") -> None:
+                sent = time.time()
+                status = http.post(
+                    f"/v1/maps/{map_id}/frames", content=body, headers={"content-type": "application/x-protobuf"}
+                ).status_code
+                with lock:
+                    statuses.append(status)
+                    if status == 202:
+                        posted[key] = sent
+
+            thread = threading.Thread(target=post, daemon=True)
+            thread.start()
+            threads.append(thread)
+        for thread in threads:
+            thread.join(60)
+
+    limits = httpx.Limits(max_connections=max(8, len(bodies)))
+    with httpx.Client(base_url=url, timeout=60, limits=limits) as http:
+        devices = [threading.Thread(target=device, args=(k, http)) for k in range(len(bodies))]
+        for thread in devices:
+            thread.start()
+        for thread in devices:
+            thread.join()
+    keys = sorted(posted)
+    deadline = time.time() + 600
+    while True:
+        values = redis.client.hmget(processed_key(map_id), keys) if keys else []
+        if all(v is not None for v in values) or time.time() > deadline:
+            break
+        time.sleep(0.1)
+    done = {k: float(v) for k, v in zip(keys, values) if v is not None}
+    latency = np.array([done[k] - posted[k] for k in done])
+    last = max(done.values()) if done else started
+    return {
+        "devices": len(bodies),
+        "offered_per_s": round(len(bodies) * rate_per_s, 2),
+        "sent": len(statuses),
+        "accepted": statuses.count(202),
+        "refused": {str(s): statuses.count(s) for s in sorted(set(statuses)) if s != 202},
+        "processed": len(done),
+        "processed_per_s": round(len(done) / max(1e-9, last - started), 2),
+        "latency_s": {
+            "p50": round(float(np.percentile(latency, 50)), 3),
+            "p95": round(float(np.percentile(latency, 95)), 3),
+            "p99": round(float(np.percentile(latency, 99)), 3),
+            "max": round(float(latency.max()), 3),
+        }
+        if len(latency)
+        else None,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--devices", default="10,100", help="comma-separated device counts (default 10,100)")
+    parser.add_argument("--rate", type=float, default=1.0, help="frames a second per device (default 1)")
+    parser.add_argument("--seconds", type=float, default=30.0, help="how long each load runs (default 30)")
+    parser.add_argument("--workers", type=int, default=cores(), help="worker processes (default: the cores)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args()
+    counts = [int(v) for v in args.devices.split(",")]
+    redis = Redis()
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    env = {
+        **os.environ,
+        "ARCLOUD_AUTH": "none",
+        "ARCLOUD_KEY_RATE_PER_S": "0",
+        "ARCLOUD_MAP_FRAME_RATE_PER_S": "0",
+        "ARCLOUD_MAX_QUEUED_FRAMES": "100000",
+        "ARCLOUD_MAX_QUEUED_FRAMES_PER_MAP": "100000",
+        "ARCLOUD_LOG_LEVEL": "WARNING",
+    }
+    command = [sys.executable, "-m", "arcloud.cli", "serve", "--redis", redis.url, "--workers", str(args.workers)]
+    server = subprocess.Popen([*command, "--detector", "sim:0", "--port", str(port)], env=env)
+    runs = []
+    try:
+        deadline = time.time() + 180
+        while time.time() < deadline:
+            try:
+                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            time.sleep(0.25)
+        else:
+            raise SystemExit("the service did not become ready in 180 s")
+        for n in counts:
+            bodies = device_bodies(f"load-{n}", n, int(args.seconds * args.rate))
+            workers = children(server.pid)
+            cpu_before = {"api": cpu_s(server.pid), "workers": sum(cpu_s(p) for p in workers), "redis": cpu_s(redis.process.pid)}
+            calls_before, in_before, out_before = redis_counters(redis.client)
+            result = run_load(url, redis, f"load-{n}", bodies, args.rate, args.seconds)
+            calls_after, in_after, out_after = redis_counters(redis.client)
+            cpu_after = {"api": cpu_s(server.pid), "workers": sum(cpu_s(p) for p in workers), "redis": cpu_s(redis.process.pid)}
+            frames = max(1, result["processed"])
+            per_command = {c: round((calls_after[c] - calls_before.get(c, 0)) / frames, 2) for c in calls_after}
+            result["per_frame"] = {
+                "redis_commands": round(sum(per_command.values()), 1),
+                "redis_commands_by_name": {c: v for c, v in sorted(per_command.items(), key=lambda kv: -kv[1]) if v >= 0.05},
+                "redis_bytes_in": round((in_after - in_before) / frames),
+                "redis_bytes_out": round((out_after - out_before) / frames),
+                "cpu_ms": {part: round((cpu_after[part] - cpu_before[part]) / frames * 1000, 2) for part in cpu_after},
+                "request_bytes": round(float(np.mean([len(b) for d in bodies for b in d]))),
+            }
+            runs.append(result)
+            latency = result["latency_s"] or {}
+            print(
+                f"{n} devices x {args.rate:g}/s: {result['processed']} of {result['sent']} processed, "
+                f"{result['processed_per_s']}/s, latency p50 {latency.get('p50')} s p99 {latency.get('p99')} s; "
+                f"per frame {result['per_frame']['redis_commands']} Redis commands, cpu {result['per_frame']['cpu_ms']} ms"
+            )
+    finally:
+        server.terminate()
+        server.wait(60)
+        redis.stop()
+    write_json(
+        args.out,
+        {**environment(("arcloud", "numpy", "redis", "fastapi", "uvicorn")), "cores": cores(), "workers": args.workers,
+         "rate_per_device": args.rate, "seconds": args.seconds, "frame": f"{WIDTH}x{HEIGHT}", "detector": "sim:0", "runs": runs},
+    )  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,100 @@
+"""What N devices at F frames a second need, from what one frame was measured to cost here (docs/scaling.md).
+
+Inputs (written by the benches on this machine):
+- ``bench/results/step.json``: the real model's session and the step, median ms a frame on one core;
+- ``bench/results/load.json``: per frame through the service on Redis: API, worker and Redis CPU ms, Redis
+  commands and bytes (the run with the most devices: fixed per-second costs spread over the most frames);
+- ``bench/results/throughput.json``: the size of a 640 x 480 frame upload (JPEG colour, PNG depth).
+
+The model: frames/s = devices x rate; worker cores = frames/s x (session + step) s; API cores = frames/s x API
+CPU s; Redis shards = frames/s x Redis CPU s / ``REDIS_BUSY`` (a shard is one core, kept 70 % busy at most);
+network into the API = frames/s x upload bytes, into Redis = frames/s x (upload + Redis bytes in). Each
+resource's limit for one instance (one Redis, one API process, one stream shard) says what breaks first.
+
+    .venv/bin/python bench/scaling_model.py [--devices 1000,100000] [--rate 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+RESULTS = Path(__file__).parent / "results"
+REDIS_BUSY = 0.7  # the share of a Redis core a shard may use
+CORE_BUSY = 0.8  # the share of a worker or API core in use at peak
+
+
+def load(name: str) -> dict[str, Any]:
+    path = RESULTS / name
+    if not path.is_file():
+        raise SystemExit(f"{path}: run bench/{name.replace('.json', '')} first (see docs/scaling.md)")
+    data: dict[str, Any] = json.loads(path.read_text())
+    return data
+
+
+def costs() -> dict[str, float]:
+    """Per frame, from the benches: seconds of CPU, bytes, commands."""
+    step, load_run, throughput = load("step.json"), load("load.json"), load("throughput.json")
+    busiest = max(load_run["runs"], key=lambda r: r["processed"])
+    per_frame = busiest["per_frame"]
+    if step.get("detector") is None:
+        raise SystemExit("step.json has no detector timing (the model was not in ../shared when it ran)")
+    return {
+        "session_s": step["detector"]["median_ms"] / 1000,
+        "step_s": step["step"]["median_ms"] / 1000,
+        "api_s": per_frame["cpu_ms"]["api"] / 1000,
+        "redis_s": per_frame["cpu_ms"]["redis"] / 1000,
+        "redis_commands": per_frame["redis_commands"],
+        "redis_bytes_in": per_frame["redis_bytes_in"] * (640 * 480) / (160 * 120),  # the load ran 160 x 120 frames
+        "upload_bytes": throughput.get("upload_bytes", 600_000),
+        "load_devices": busiest["devices"],
+    }
+
+
+def plan(devices: int, rate: float, c: dict[str, float]) -> dict[str, float]:
+    frames = devices * rate
+    return {
+        "devices": devices,
+        "frames_per_s": frames,
+        "worker_cores": math.ceil(frames * (c["session_s"] + c["step_s"]) / CORE_BUSY),
+        "api_cores": math.ceil(frames * c["api_s"] / CORE_BUSY),
+        "redis_shards": math.ceil(frames * c["redis_s"] / REDIS_BUSY),
+        "redis_commands_per_s": round(frames * c["redis_commands"]),
+        "api_ingress_mbit_s": round(frames * c["upload_bytes"] * 8 / 1e6, 1),
+        "redis_ingress_mbit_s": round(frames * c["redis_bytes_in"] * 8 / 1e6, 1),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--devices", default="1000,100000")
+    parser.add_argument("--rate", type=float, default=1.0, help="frames a second per device (default 1)")
+    args = parser.parse_args()
+    c = costs()
+    print(
+        f"per frame (measured): session {c['session_s'] * 1000:.1f} ms + step {c['step_s'] * 1000:.1f} ms of a worker core, "
+        f"API {c['api_s'] * 1000:.2f} ms, Redis {c['redis_s'] * 1000:.2f} ms CPU and {c['redis_commands']:.0f} commands "
+        f"(at {c['load_devices']:.0f} devices), {c['upload_bytes'] / 1e3:.0f} kB upload\n"
+    )
+    print("| devices | frames/s | worker cores | API cores | Redis shards | Redis commands/s | into the API | into Redis |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n in (int(v) for v in args.devices.split(",")):
+        p = plan(n, args.rate, c)
+        print(
+            f"| {n:,} | {p['frames_per_s']:,.0f} | {p['worker_cores']:,} | {p['api_cores']:,} | {p['redis_shards']:,} | "
+            f"{p['redis_commands_per_s']:,} | {p['api_ingress_mbit_s']:,} Mbit/s | {p['redis_ingress_mbit_s']:,} Mbit/s |"
+        )
+    one_redis = REDIS_BUSY / c["redis_s"]
+    one_api = CORE_BUSY / c["api_s"]
+    one_worker = CORE_BUSY / (c["session_s"] + c["step_s"])
+    print(
+        f"\nlimits of one instance: a Redis shard {one_redis:,.0f} frames/s, an API core {one_api:,.0f} frames/s, "
+        f"a worker core {one_worker:,.1f} frames/s"
+    )
+
+
+if __name__ == "__main__":
+    main()

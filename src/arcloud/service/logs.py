@@ -1,0 +1,159 @@
+"""Logs for operators: plain text for a terminal, or one JSON object a line (``ARCLOUD_LOG_FORMAT=json``)
+for a log collector; either way with the context of the frame being processed.
+
+``log_context(map_id=..., frame_id=...)`` (a ``with`` block) and ``bind_log_context`` (the rest of the
+current task: an HTTP request) put fields in a ``contextvars`` context; ``LogContextFilter``, on the
+handler, copies them onto every record logged meanwhile, so that a line logged deep in the step or a
+store carries the frame's ids without its call site knowing of them. The context follows a request into
+``run_in_threadpool`` (anyio copies it) but not into a new thread.
+
+A JSON line::
+
+    {"time": "2025-01-31T12:00:00.123Z", "level": "DEBUG", "logger": "arcloud.core.step", "message": "...",
+     "process": "arcloud-worker-0", "pid": 4242, "thread": "MainThread", "worker": "host-4242",
+     "map_id": "office", "device_id": "phone1", "frame_id": "f000012", "deliveries": 1}
+
+plus the fields a call passed as ``extra=``, ``exception`` (the traceback, as one string) when there is
+one, and ``client``, ``method``, ``path``, ``status`` on uvicorn's access lines.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import json
+import logging
+import sys
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from datetime import UTC, datetime
+from types import MappingProxyType
+from typing import Any, Literal
+
+LogFormat = Literal["text", "json"]
+
+TEXT_FORMAT = "%(asctime)s %(levelname)s %(processName)s %(name)s: %(message)s"
+#: uvicorn's loggers, which it gives handlers of its own; with JSON they go through the root's instead.
+UVICORN_LOGGERS = ("uvicorn", "uvicorn.error", "uvicorn.access")
+
+_NO_FIELDS: Mapping[str, object] = MappingProxyType({})
+_log_context: contextvars.ContextVar[Mapping[str, object]] = contextvars.ContextVar("arcloud_log_context", default=_NO_FIELDS)
+
+#: Attributes every ``LogRecord`` has; any other one came from ``extra=`` or the log context.
+_RECORD_ATTRIBUTES = frozenset(logging.makeLogRecord({}).__dict__) | {"message", "asctime", "taskName"}
+#: Extras that repeat a line in another form (uvicorn's coloured copy of the message).
+_SKIPPED_EXTRAS = frozenset({"color_message"})
+
+
+@contextmanager
+def log_context(**fields: object) -> Iterator[None]:
+    """Every line logged in this ``with`` block (in this thread or task) carries ``fields``."""
+    token = _log_context.set(MappingProxyType({**_log_context.get(), **fields}))
+    try:
+        yield
+    finally:
+        _log_context.reset(token)
+
+
+def bind_log_context(**fields: object) -> None:
+    """Every line logged from now on in the current context carries ``fields``: for an HTTP request, its
+    task (uvicorn runs each request in a task of its own, so the fields end with the response)."""
+    _log_context.set(MappingProxyType({**_log_context.get(), **fields}))
+
+
+class LogContextFilter(logging.Filter):
+    """Copies the log context's fields onto each record (fields the call passed as ``extra=`` win)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        for name, value in _log_context.get().items():
+            record.__dict__.setdefault(name, value)
+        return True
+
+
+def record_fields(record: logging.LogRecord) -> dict[str, Any]:
+    """The fields a record carries beyond logging's own: the log context's and ``extra=``'s."""
+    return {k: v for k, v in record.__dict__.items() if k not in _RECORD_ATTRIBUTES and k not in _SKIPPED_EXTRAS}
+
+
+class TextFormatter(logging.Formatter):
+    """``TEXT_FORMAT``, then the record's fields as ``[name=value ...]`` when it has any."""
+
+    def __init__(self) -> None:
+        super().__init__(TEXT_FORMAT)
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        fields = record_fields(record)
+        if not fields:
+            return text
+        first, newline, rest = text.partition("\n")  # the fields on the message's line, before any traceback
+        return f"{first} [{' '.join(f'{k}={v}' for k, v in fields.items())}]{newline}{rest}"
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object a line (the module docstring lists its fields); values JSON cannot hold are written
+    as their ``str``."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        line: dict[str, Any] = {
+            "time": datetime.fromtimestamp(record.created, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+            "level": record.levelname,
+            "logger": record.name,
+            "message": record.getMessage(),
+            "process": record.processName,
+            "pid": record.process,
+            "thread": record.threadName,
+        }
+        if record.name == "uvicorn.access" and isinstance(record.args, tuple) and len(record.args) == 5:
+            client, method, path, _http_version, status = record.args
+            line.update(client=client, method=method, path=path, status=status)
+        for name, value in record_fields(record).items():
+            line.setdefault(name, value)
+        if record.exc_info:
+            line["exception"] = self.formatException(record.exc_info)
+        elif record.exc_text:
+            line["exception"] = record.exc_text
+        if record.stack_info:
+            line["stack"] = self.formatStack(record.stack_info)
+        return json.dumps(line, default=str, ensure_ascii=False)
+
+
+def make_formatter(log_format: LogFormat) -> logging.Formatter:
+    if log_format == "json":
+        return JsonFormatter()
+    if log_format == "text":
+        return TextFormatter()
+    raise ValueError(f"log format: expected text or json, got {log_format!r}")
+
+
+def configure_logging(level: str, log_format: LogFormat = "text") -> None:
+    """This process's logging: one handler on the root logger, writing ``log_format`` to stderr with the
+    log context; ``arcloud``'s loggers at ``level`` (the root's level, for other libraries, is left as it
+    is). With JSON, uvicorn's loggers that have handlers of their own write through the root's instead, so
+    that every line of the process is JSON. Calling it again replaces what it did."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(make_formatter(log_format))
+    handler.addFilter(LogContextFilter())
+    root = logging.getLogger()
+    for old in root.handlers[:]:
+        root.removeHandler(old)
+    root.addHandler(handler)
+    logging.getLogger("arcloud").setLevel(level)
+    if log_format == "json":
+        for name in UVICORN_LOGGERS:
+            logger = logging.getLogger(name)
+            if logger.handlers:  # uvicorn's own (none when its access log is off: that stays off)
+                logger.handlers.clear()
+                logger.propagate = True
+
+
+__all__ = [
+    "JsonFormatter",
+    "LogContextFilter",
+    "LogFormat",
+    "TextFormatter",
+    "bind_log_context",
+    "configure_logging",
+    "log_context",
+    "make_formatter",
+    "record_fields",
+]

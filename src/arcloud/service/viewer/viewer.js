@@ -1,0 +1,495 @@
+// The arcloud viewer: one map's objects, live. It reads GET v1/maps/{map}/events (server-sent events, read
+// with fetch so that the token travels in the Authorization header, never in a URL) and draws each object
+// as its oriented box, coloured by class, with the devices' last cameras. <body data-objects> is the
+// number of boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets).
+// See docs/service.md, "Web viewer".
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/OrbitControls.js";
+import { CSS2DObject, CSS2DRenderer } from "three/addons/CSS2DRenderer.js";
+
+const TOKEN_KEY = "arcloud.token"; // sessionStorage: the token lives as long as the tab
+const CLASS_COLOURS = { chair: "#ff5a36", table: "#2f9bff", laptop: "#ffd21f", couch: "#34d399", tv: "#c86bff" };
+const OTHER_COLOURS = ["#f472b6", "#a3e635", "#fb923c", "#22d3ee", "#e879f9"];
+const DEVICE_COLOUR = "#7dd3fc";
+const FRUSTUM_DEPTH_M = 0.3; // how deep a device's camera is drawn
+const DEVICE_OLD_S = 30; // a device silent this long is drawn faded
+const RETRY_MS = 2000; // between reconnections (the stream's `retry:` overrides it)
+const MISSING_MAP_RETRY_MS = 5000; // a map with no frame yet: ask again this often
+const VOXEL_FETCHES = 4; // voxel requests in flight at once
+
+const $ = (id) => document.getElementById(id);
+
+// --- what the page knows -------------------------------------------------------------------------------
+const state = {
+  map: "",
+  token: "",
+  objects: new Map(), // id -> object (every status: the tentative toggle filters)
+  devices: new Map(), // device id -> its last frame
+  hidden: new Set(), // classes unticked in the legend
+  minScore: 0,
+  showTentative: false,
+  showLabels: true,
+  showVoxels: false,
+  showCameras: true,
+  userMoved: false, // the view follows the map until the user moves it
+  connection: null, // AbortController of the open stream
+};
+
+// --- the scene (display frame: z up; `world` holds map coordinates) -------------------------------------
+const container = $("scene");
+const renderer = new THREE.WebGLRenderer({ antialias: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+container.appendChild(renderer.domElement);
+const labelRenderer = new CSS2DRenderer();
+labelRenderer.domElement.className = "labels";
+container.appendChild(labelRenderer.domElement);
+
+const scene = new THREE.Scene();
+scene.background = new THREE.Color("#15181d");
+const world = new THREE.Group(); // its rotation takes the map's up to +z (the snapshot's world2gravity)
+scene.add(world);
+const boxes = new THREE.Group();
+const voxels = new THREE.Group();
+const cameras = new THREE.Group();
+world.add(boxes, voxels, cameras);
+const grid = new THREE.GridHelper(20, 20, 0x3a4048, 0x262a31);
+grid.rotation.x = Math.PI / 2; // GridHelper lies in xz; the floor here is xy
+scene.add(grid);
+
+const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 500);
+camera.up.set(0, 0, 1);
+camera.position.set(-2, -4, 3);
+const controls = new OrbitControls(camera, labelRenderer.domElement);
+controls.enableDamping = true;
+controls.addEventListener("change", requestRender);
+controls.addEventListener("start", () => (state.userMoved = true));
+
+let renderQueued = false;
+function requestRender() {
+  if (renderQueued) return;
+  renderQueued = true;
+  requestAnimationFrame(() => {
+    renderQueued = false;
+    if (controls.update()) requestRender(); // still easing
+    renderer.render(scene, camera);
+    labelRenderer.render(scene, camera);
+  });
+}
+
+function resize() {
+  const { clientWidth: w, clientHeight: h } = container;
+  renderer.setSize(w, h);
+  labelRenderer.setSize(w, h);
+  camera.aspect = w / Math.max(1, h);
+  camera.updateProjectionMatrix();
+  requestRender();
+}
+window.addEventListener("resize", resize);
+
+// --- drawing ---------------------------------------------------------------------------------------------
+const colourCache = new Map();
+function classColour(label) {
+  if (CLASS_COLOURS[label]) return CLASS_COLOURS[label];
+  if (!colourCache.has(label)) colourCache.set(label, OTHER_COLOURS[colourCache.size % OTHER_COLOURS.length]);
+  return colourCache.get(label);
+}
+
+function shown(o) {
+  return (
+    (o.obb || o.aabb) &&
+    !state.hidden.has(o.label) &&
+    o.score >= state.minScore &&
+    (state.showTentative || o.status === "confirmed")
+  );
+}
+
+function disposeTree(root) {
+  root.traverse((node) => {
+    node.geometry?.dispose();
+    node.material?.dispose();
+    if (node.isCSS2DObject) node.element.remove();
+  });
+}
+
+function clearGroup(group) {
+  for (const child of [...group.children]) {
+    group.remove(child);
+    disposeTree(child);
+  }
+}
+
+// A box: faint faces and solid edges (dashed when tentative), centred on the OBB, turned by its yaw about up.
+function boxObject(o) {
+  const colour = new THREE.Color(classColour(o.label));
+  const tentative = o.status !== "confirmed";
+  let center, size, yaw;
+  if (o.obb) ({ center, size, yaw_rad: yaw } = o.obb);
+  else {
+    center = o.aabb.min.map((v, i) => (v + o.aabb.max[i]) / 2);
+    size = o.aabb.min.map((v, i) => o.aabb.max[i] - v);
+    yaw = 0;
+  }
+  const geometry = new THREE.BoxGeometry(...size);
+  const group = new THREE.Group();
+  const faces = new THREE.Mesh(
+    geometry,
+    new THREE.MeshBasicMaterial({ color: colour, transparent: true, opacity: tentative ? 0.08 : 0.2, depthWrite: false }),
+  );
+  const edgeMaterial = tentative
+    ? new THREE.LineDashedMaterial({ color: colour, dashSize: 0.05, gapSize: 0.04 })
+    : new THREE.LineBasicMaterial({ color: colour });
+  const edges = new THREE.LineSegments(new THREE.EdgesGeometry(geometry), edgeMaterial);
+  if (tentative) edges.computeLineDistances();
+  group.add(faces, edges);
+  group.position.set(...center);
+  // box2world = world2gravity^T Rz(yaw); `world` applies world2gravity, so the box turns by the rest.
+  const yawTurn = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(0, 0, 1), yaw);
+  group.quaternion.copy(world.quaternion).invert().multiply(yawTurn);
+  const text = document.createElement("div");
+  text.className = tentative ? "label tentative" : "label";
+  text.textContent = `${o.label} ${o.score.toFixed(2)}${tentative ? " (tentative)" : ""}`;
+  const label = new CSS2DObject(text);
+  label.position.set(0, 0, size[2] / 2);
+  label.visible = state.showLabels;
+  group.add(label);
+  group.userData = { id: o.id, version: o.version };
+  return group;
+}
+
+// A device's camera: apex at its centre, a rectangle FRUSTUM_DEPTH_M ahead (OpenCV axes: z forward, y down).
+function deviceObject(d) {
+  const { fx, fy, cx, cy } = d.intrinsics;
+  const z = FRUSTUM_DEPTH_M;
+  const corner = (u, v) => new THREE.Vector3(((u - cx) / fx) * z, ((v - cy) / fy) * z, z);
+  const [a, b, c, e] = [corner(0, 0), corner(d.width, 0), corner(d.width, d.height), corner(0, d.height)];
+  const o = new THREE.Vector3();
+  const points = [o, a, o, b, o, c, o, e, a, b, b, c, c, e, e, a];
+  const old = Date.now() / 1000 - d.received_at_s > DEVICE_OLD_S;
+  const lines = new THREE.LineSegments(
+    new THREE.BufferGeometry().setFromPoints(points),
+    new THREE.LineBasicMaterial({ color: DEVICE_COLOUR, transparent: old, opacity: old ? 0.35 : 1 }),
+  );
+  const group = new THREE.Group();
+  group.add(lines);
+  const pose = new THREE.Matrix4().set(...d.cam2world); // row-major, as sent
+  pose.decompose(group.position, group.quaternion, group.scale);
+  const text = document.createElement("div");
+  text.className = "label device";
+  text.textContent = d.device_id;
+  const label = new CSS2DObject(text);
+  label.visible = state.showLabels;
+  group.add(label);
+  return group;
+}
+
+function redrawObject(o) {
+  const old = boxes.children.find((child) => child.userData.id === o.id);
+  if (old) {
+    boxes.remove(old);
+    disposeTree(old);
+  }
+  if (shown(o)) boxes.add(boxObject(o));
+}
+
+function redrawAll() {
+  clearGroup(boxes);
+  for (const o of state.objects.values()) if (shown(o)) boxes.add(boxObject(o));
+  redrawDevices();
+}
+
+function redrawDevices() {
+  clearGroup(cameras);
+  if (state.showCameras) for (const d of state.devices.values()) cameras.add(deviceObject(d));
+}
+
+// After any change: counts, legend, voxels, view.
+function refresh() {
+  document.body.dataset.objects = String(boxes.children.length);
+  document.body.dataset.devices = String(cameras.children.length);
+  document.body.dataset.voxels = String(voxels.children.length);
+  $("drawn").textContent = boxes.children.length;
+  $("known").textContent = state.objects.size;
+  renderLegend();
+  syncVoxels();
+  if (!state.userMoved) fitView();
+  requestRender();
+}
+
+function renderLegend() {
+  const counts = new Map();
+  for (const o of state.objects.values()) {
+    if (!state.showTentative && o.status !== "confirmed") continue;
+    counts.set(o.label, (counts.get(o.label) || 0) + 1);
+  }
+  const list = $("legend");
+  list.replaceChildren();
+  for (const label of [...new Set([...counts.keys(), ...state.hidden])].sort()) {
+    const item = document.createElement("li");
+    const row = document.createElement("label");
+    const box = document.createElement("input");
+    box.type = "checkbox";
+    box.checked = !state.hidden.has(label);
+    box.dataset.label = label;
+    box.addEventListener("change", () => {
+      if (box.checked) state.hidden.delete(label);
+      else state.hidden.add(label);
+      redrawAll();
+      refresh();
+    });
+    const swatch = document.createElement("span");
+    swatch.className = "swatch";
+    swatch.style.background = classColour(label);
+    const name = document.createElement("span");
+    name.textContent = label;
+    const count = document.createElement("span");
+    count.className = "count";
+    count.textContent = counts.get(label) || 0;
+    row.append(box, swatch, name, count);
+    item.append(row);
+    list.append(item);
+  }
+}
+
+function fitView() {
+  const bounds = new THREE.Box3();
+  for (const group of [boxes, cameras]) if (group.children.length) bounds.expandByObject(group);
+  if (bounds.isEmpty()) bounds.set(new THREE.Vector3(-2, -2, 0), new THREE.Vector3(2, 2, 1));
+  const centre = bounds.getCenter(new THREE.Vector3());
+  const radius = Math.max(0.5, bounds.getSize(new THREE.Vector3()).length() / 2);
+  const distance = (radius / Math.sin(THREE.MathUtils.degToRad(camera.fov / 2))) * 1.1;
+  const direction = new THREE.Vector3(-0.4, -1, 1).normalize();
+  camera.position.copy(centre).addScaledVector(direction, distance);
+  camera.near = distance / 100;
+  camera.far = distance * 10;
+  camera.updateProjectionMatrix();
+  controls.target.copy(centre);
+  controls.update();
+}
+
+// --- voxels (GET v1/maps/{map}/objects/{id}?voxels=true, drawn as points) ---------------------------------
+const voxelState = new Map(); // id -> {version, points} drawn, {version, loading: true} or {version, failed: true}
+let voxelFetches = 0;
+let voxelPauseUntil = 0; // after a 429: no voxel request before this (ms), as Retry-After says
+
+function syncVoxels() {
+  const wanted = state.showVoxels ? [...state.objects.values()].filter(shown) : [];
+  const wantedIds = new Set(wanted.map((o) => o.id));
+  for (const [id, entry] of voxelState) {
+    if (!wantedIds.has(id)) {
+      if (entry.points) {
+        voxels.remove(entry.points);
+        disposeTree(entry.points);
+      }
+      voxelState.delete(id);
+    }
+  }
+  document.body.dataset.voxels = String(voxels.children.length);
+  if (Date.now() < voxelPauseUntil) return;
+  for (const o of wanted) {
+    const entry = voxelState.get(o.id);
+    if (voxelFetches >= VOXEL_FETCHES) break;
+    if (entry && (entry.loading || entry.version === o.version)) continue; // in flight, drawn, or failed at this version
+    loadVoxels(o);
+  }
+}
+
+async function loadVoxels(o) {
+  const previous = voxelState.get(o.id);
+  voxelState.set(o.id, { ...previous, version: o.version, loading: true });
+  voxelFetches += 1;
+  try {
+    const response = await fetch(`v1/maps/${encodeURIComponent(state.map)}/objects/${o.id}?voxels=true`, {
+      headers: authHeaders(),
+      cache: "no-store",
+    });
+    if (response.status === 429) {
+      const wait_s = Number(response.headers.get("Retry-After")) || 1;
+      voxelPauseUntil = Date.now() + wait_s * 1000;
+      setTimeout(syncVoxels, wait_s * 1000);
+      if (voxelState.has(o.id)) voxelState.set(o.id, { ...voxelState.get(o.id), loading: false, version: previous?.version }); // asked again after the pause
+      return;
+    }
+    if (!response.ok) throw new Error(`voxels of object ${o.id}: HTTP ${response.status}`);
+    const detail = await response.json();
+    const entry = voxelState.get(o.id);
+    if (!entry || !state.showVoxels) return;
+    if (entry.points) {
+      voxels.remove(entry.points);
+      disposeTree(entry.points);
+    }
+    const positions = new Float32Array(detail.voxels.centers.flat());
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
+    const points = new THREE.Points(
+      geometry,
+      new THREE.PointsMaterial({ color: classColour(detail.label), size: detail.voxels.voxel_size_m * 0.8, sizeAttenuation: true }),
+    );
+    voxels.add(points);
+    voxelState.set(o.id, { version: detail.version, points });
+    document.body.dataset.voxels = String(voxels.children.length);
+  } catch (error) {
+    console.warn(error);
+    if (voxelState.has(o.id)) voxelState.set(o.id, { ...voxelState.get(o.id), loading: false, failed: true }); // not asked again until it changes
+  } finally {
+    voxelFetches -= 1;
+    requestRender();
+  }
+  syncVoxels(); // newer versions, or objects waiting for a free fetch
+}
+
+// --- the event stream ------------------------------------------------------------------------------------
+class HttpError extends Error {
+  constructor(status, detail) {
+    super(detail);
+    this.status = status;
+  }
+}
+
+function authHeaders() {
+  return state.token ? { Authorization: `Bearer ${state.token}` } : {};
+}
+
+function setStatus(text, kind) {
+  $("status").textContent = text;
+  document.body.dataset.state = kind;
+}
+
+function handle(name, data) {
+  if (name === "snapshot") {
+    state.objects = new Map(data.objects.map((o) => [o.id, o]));
+    state.devices = new Map(data.devices.map((d) => [d.device_id, d]));
+    const m = data.world2gravity;
+    world.quaternion.setFromRotationMatrix(new THREE.Matrix4().set(m[0], m[1], m[2], 0, m[3], m[4], m[5], 0, m[6], m[7], m[8], 0, 0, 0, 0, 1));
+    redrawAll();
+  } else if (name === "upsert") {
+    state.objects.set(data.id, data);
+    redrawObject(data);
+  } else if (name === "removed") {
+    state.objects.delete(data.id);
+    redrawObject({ id: data.id });
+  } else if (name === "device") {
+    state.devices.set(data.device_id, data);
+    redrawDevices();
+  } else if (name === "device_removed") {
+    state.devices.delete(data.device_id);
+    redrawDevices();
+  } else if (name === "refused") {
+    throw new HttpError(403, data.detail);
+  } else return;
+  refresh();
+}
+
+// Reads one stream until it ends; calls handle(name, data) for each event. Returns the server's retry (ms).
+async function readStream(signal) {
+  const url = `v1/maps/${encodeURIComponent(state.map)}/events?include=tentative`;
+  const response = await fetch(url, { headers: authHeaders(), signal, cache: "no-store" });
+  if (!response.ok) {
+    let detail = `HTTP ${response.status}`;
+    try {
+      detail = (await response.json()).detail || detail;
+    } catch {}
+    throw new HttpError(response.status, detail);
+  }
+  setStatus(`Live: map ${state.map}`, "live");
+  const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buffer = "";
+  let retry = RETRY_MS;
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return retry;
+    buffer += value;
+    let end;
+    while ((end = buffer.indexOf("\n\n")) >= 0) {
+      const block = buffer.slice(0, end);
+      buffer = buffer.slice(end + 2);
+      let name = "message";
+      const data = [];
+      for (const raw of block.split("\n")) {
+        const line = raw.endsWith("\r") ? raw.slice(0, -1) : raw;
+        if (!line || line.startsWith(":")) continue; // a comment: keep-alive
+        const colon = line.indexOf(":");
+        const field = colon < 0 ? line : line.slice(0, colon);
+        const text = colon < 0 ? "" : line.slice(colon + 1).replace(/^ /, "");
+        if (field === "event") name = text;
+        else if (field === "data") data.push(text);
+        else if (field === "retry" && /^\d+$/.test(text)) retry = Number(text);
+      }
+      if (data.length) handle(name, JSON.parse(data.join("\n")));
+    }
+  }
+}
+
+async function connect() {
+  state.connection?.abort();
+  const controller = new AbortController();
+  state.connection = controller;
+  state.objects.clear();
+  state.devices.clear();
+  redrawAll();
+  refresh();
+  while (!controller.signal.aborted) {
+    let wait = RETRY_MS;
+    setStatus(`Connecting to map ${state.map}…`, "connecting");
+    try {
+      wait = await readStream(controller.signal);
+      setStatus("The stream ended; reconnecting…", "connecting");
+    } catch (error) {
+      if (controller.signal.aborted) return;
+      if (error.status === 401 || error.status === 403) {
+        setStatus(`Refused: ${error.message}. Enter a token that may read map ${state.map}.`, "error");
+        return;
+      }
+      if (error.status === 404) wait = MISSING_MAP_RETRY_MS;
+      setStatus(`${error.message}; trying again in ${Math.round(wait / 1000)} s`, "error");
+    }
+    await new Promise((done) => setTimeout(done, wait));
+  }
+}
+
+// --- controls --------------------------------------------------------------------------------------------
+function bindControls() {
+  const minScore = $("min-score");
+  minScore.addEventListener("input", () => {
+    state.minScore = Number(minScore.value);
+    $("min-score-value").textContent = state.minScore.toFixed(2);
+    redrawAll();
+    refresh();
+  });
+  for (const [id, key] of [["tentative", "showTentative"], ["labels", "showLabels"], ["voxels", "showVoxels"], ["cameras", "showCameras"]]) {
+    const box = $(id);
+    state[key] = box.checked;
+    box.addEventListener("change", () => {
+      state[key] = box.checked;
+      redrawAll();
+      refresh();
+    });
+  }
+  $("fit").addEventListener("click", () => {
+    state.userMoved = false;
+    fitView();
+    requestRender();
+  });
+  $("connect").addEventListener("submit", (event) => {
+    event.preventDefault();
+    openMap($("map").value.trim(), $("token").value.trim());
+  });
+}
+
+function openMap(map, token) {
+  state.map = map;
+  state.token = token;
+  if (token) sessionStorage.setItem(TOKEN_KEY, token);
+  else sessionStorage.removeItem(TOKEN_KEY);
+  const url = new URL(window.location.href);
+  url.search = map ? `?map=${encodeURIComponent(map)}` : ""; // the token never stays in the address bar
+  history.replaceState(null, "", url);
+  $("map").value = map;
+  $("token").value = token;
+  if (map) connect();
+  else setStatus("Enter a map id.", "error");
+}
+
+bindControls();
+resize();
+const params = new URLSearchParams(window.location.search);
+openMap(params.get("map") || "", params.get("token") || sessionStorage.getItem(TOKEN_KEY) || "");

@@ -1,0 +1,245 @@
+"""``GET /v1/maps/{map}/events`` over real HTTP: a real uvicorn server on 127.0.0.1 running the embedded service
+with a keys file (frames processed by its worker thread), and, on a real redis-server, the API with the
+workers in another process's place. Streams are read as a browser reads them: line by line, as they come."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, free_port, make_test_frame, wait_until
+from viewer_helpers import EventStream, bearer, make_keys
+
+from arcloud.proto.convert import frame_to_proto
+from arcloud.service.event_stream import EventStreams
+from arcloud.service.settings import Settings
+from arcloud.stores.file_api_keys import FileKeyStore
+from arcloud.tools.wiring import create_app
+
+PROTOBUF = {"content-type": "application/x-protobuf"}
+MAX_STREAMS = 4
+
+
+class Service:
+    def __init__(self, server: UvicornThread, app: Any, tokens: dict[str, str], keys_file: Path) -> None:
+        self.server = server
+        self.url = server.url
+        self.app = app
+        self.tokens = tokens
+        self.keys_file = keys_file
+        self.http = httpx.Client(base_url=server.url, timeout=10.0)
+
+    @property
+    def streams(self) -> EventStreams:
+        return self.app.state.event_streams  # type: ignore[no-any-return]  # app.state is untyped
+
+    def post(self, map_id: str, index: int, **frame: Any) -> None:
+        body = frame_to_proto(make_test_frame(index, map_id=map_id, **frame)).SerializeToString()
+        answer = self.http.post(f"/v1/maps/{map_id}/frames", content=body, headers={**PROTOBUF, **bearer(self.tokens["device"])})
+        assert answer.status_code == 202, answer.text
+
+    def wait_processed(self, map_id: str, n_frames: int) -> None:
+        def done() -> bool:
+            frames = self.http.get(f"/v1/maps/{map_id}/stats", headers=bearer(self.tokens["device"])).json()["frames"]
+            return int(frames["processed"]) >= n_frames
+
+        wait_until(done, 30, f"{n_frames} frames of map {map_id} processed", 0.05)
+
+    def objects(self, map_id: str) -> list[dict[str, Any]]:
+        answer = self.http.get(f"/v1/maps/{map_id}/objects", headers=bearer(self.tokens["device"]))
+        return answer.json()["objects"]  # type: ignore[no-any-return]  # httpx's JSON is Any
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    keys_file = tmp_path_factory.mktemp("keys") / "keys.json"
+    tokens = make_keys(
+        keys_file,
+        device=("device", "*"),
+        admin=("admin", "*"),
+        reader=("reader", "ev-a,ev-b,ev-c,ev-d"),
+        stranger=("reader", "elsewhere"),
+    )
+    settings = Settings(
+        detector="sim:0",
+        workers=1,
+        keys_file=str(keys_file),
+        key_cache_s=0.2,
+        key_rate_per_s=0,
+        event_poll_s=0.1,
+        event_heartbeat_s=0.5,
+        max_event_streams=MAX_STREAMS,
+    )
+    app = create_app(settings, detector=BlobDetector())
+    with UvicornThread(app) as server:
+        service = Service(server, app, tokens, keys_file)
+        yield service
+        service.http.close()
+
+
+def assert_problem(answer: httpx.Response, status: int, contains: str) -> None:
+    assert answer.status_code == status, answer.text
+    assert answer.headers["content-type"].startswith("application/json")
+    assert contains in answer.json()["detail"], answer.json()
+
+
+def test_the_events_route_keeps_the_access_rules_of_the_api(service: Service) -> None:
+    service.post("ev-a", 0)
+    path = "/v1/maps/ev-a/events"
+    assert_problem(service.http.get(path), 401, "Bearer")
+    assert_problem(service.http.get(path, headers=bearer(service.tokens["stranger"])), 403, "not for map 'ev-a'")
+    assert_problem(service.http.get("/v1/maps/never/events", headers=bearer(service.tokens["device"])), 404, "not found")
+    assert_problem(service.http.get("/v1/maps/bad%20id/events", headers=bearer(service.tokens["device"])), 422, "map_id")
+    assert service.streams.open_streams == 0
+
+
+def test_a_stream_sends_the_map_then_each_change_as_frames_are_processed(service: Service) -> None:
+    service.post("ev-b", 0, level=True)
+    service.wait_processed("ev-b", 1)
+    with (
+        EventStream(service.url, "ev-b", service.tokens["reader"]) as served,
+        EventStream(service.url, "ev-b", service.tokens["reader"], tentative=True) as every,
+    ):
+        assert served.response.headers["content-type"].startswith("text/event-stream")
+        _, snapshot = served.next_event("snapshot")
+        assert snapshot["objects"] == []  # one frame: the object is tentative, outside the served map
+        assert [d["device_id"] for d in snapshot["devices"]] == ["d"]
+        assert snapshot["devices"][0]["cam2world"][3] == 0.0 and snapshot["devices"][0]["width"] == 160
+        assert snapshot["world2gravity"] == [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        _, everything = every.next_event("snapshot")
+        [tentative] = everything["objects"]
+        assert tentative["status"] == "tentative" and tentative["label"] == "chair"
+
+        for index in range(1, 5):
+            service.post("ev-b", index, level=True)
+        service.wait_processed("ev-b", 5)
+        [listed] = service.objects("ev-b")
+        served.read_until(
+            lambda s: s.objects == {listed["id"]: listed} and s.devices["d"]["frame_id"] == "f000004", "the confirmed object"
+        )
+        assert listed["id"] == tentative["id"] and listed["status"] == "confirmed"
+        versions = [data["version"] for name, data in served.log if name == "upsert"]
+        assert versions == sorted(set(versions))  # coalesced per poll, never an older state after a newer one
+        assert served.devices["d"]["cam2world"][3] == pytest.approx(0.04)  # the device's last pose
+
+        deleted = service.http.delete("/v1/maps/ev-b", headers=bearer(service.tokens["admin"]))
+        assert deleted.status_code == 200, deleted.text
+        assert served.next_event("removed") == ("removed", {"id": listed["id"]})
+        assert every.next_event("removed") == ("removed", {"id": listed["id"]})
+    wait_until(lambda: service.streams.open_streams == 0, 5, "both streams closed once their client went")
+    wait_until(lambda: not service.streams.watches, 5, "the map's poller stopped")
+
+
+def test_an_idle_stream_sends_keep_alive_comments(service: Service) -> None:
+    service.post("ev-c", 0)
+    with EventStream(service.url, "ev-c", service.tokens["reader"]) as stream:
+        stream.next_event("snapshot")
+        started = time.monotonic()
+        assert stream.next_event(":", timeout_s=3) == (":", "keep-alive")
+        assert time.monotonic() - started < 2.0  # heartbeat 0.5 s
+
+
+def test_streams_beyond_the_limit_are_refused_and_a_closed_one_frees_its_place(service: Service) -> None:
+    service.post("ev-c", 1)
+    streams = [EventStream(service.url, "ev-c", service.tokens["reader"]) for _ in range(MAX_STREAMS)]
+    try:
+        for stream in streams:
+            stream.next_event("snapshot")
+        refused = service.http.get("/v1/maps/ev-c/events", headers=bearer(service.tokens["reader"]))
+        assert_problem(refused, 503, f"{MAX_STREAMS} open")
+        assert refused.headers["retry-after"] == "5"
+        assert len(service.streams.watches) == 1  # one poller for the map, however many streams
+        streams.pop().close()
+        wait_until(lambda: service.streams.open_streams == MAX_STREAMS - 1, 5, "the closed stream's place freed")
+        with EventStream(service.url, "ev-c", service.tokens["reader"]) as again:
+            assert again.next_event("snapshot")[0] == "snapshot"
+    finally:
+        for stream in streams:
+            stream.close()
+    wait_until(lambda: service.streams.open_streams == 0, 5, "every stream closed")
+
+
+def test_a_revoked_key_ends_its_open_streams(service: Service) -> None:
+    service.post("ev-d", 0)
+    token = make_keys(service.keys_file, revocable=("reader", "ev-d"))["revocable"]
+    with EventStream(service.url, "ev-d", token) as stream:
+        stream.next_event("snapshot")
+        keys = FileKeyStore(service.keys_file)
+        assert keys.revoke(token.split("_")[1])
+        keys.close()
+        started = time.monotonic()
+        _, data = stream.next_event("refused", timeout_s=5)
+        assert "not a valid key" in data["detail"]
+        assert time.monotonic() - started < 3.0  # key_cache_s 0.2: looked at again every second
+        assert list(stream.events()) == []  # and the stream ended
+    wait_until(lambda: service.streams.open_streams == 0, 5, "the refused stream closed")
+
+
+def test_serve_ends_open_streams_when_it_stops(tmp_path: Path) -> None:
+    """``arcloud serve``'s server ends the streams as it begins to stop: uvicorn would wait for them."""
+    import uvicorn
+
+    from arcloud.tools.http_server import StreamClosingServer
+
+    app = create_app(Settings(detector="sim:0", workers=1, event_poll_s=0.1), detector=BlobDetector())
+    port = free_port()
+    server = StreamClosingServer(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", ws="none"), app)
+    thread = threading.Thread(target=server.run, name="serve", daemon=True)
+    thread.start()
+    wait_until(lambda: server.started, 20, "the server to start")
+    url = f"http://127.0.0.1:{port}"
+    frame = frame_to_proto(make_test_frame(0, map_id="stop", boxes=(LEFT, RIGHT))).SerializeToString()
+    assert httpx.post(f"{url}/v1/maps/stop/frames", content=frame, headers=PROTOBUF).status_code == 202
+    with EventStream(url, "stop") as stream:
+        stream.next_event("snapshot")
+        server.should_exit = True
+        thread.join(5)
+        assert not thread.is_alive(), "the server still waits for the open stream"
+        assert [name for name, _ in stream.events()] == []  # ended, nothing after
+
+
+@pytest.mark.redis
+def test_on_redis_a_stream_sees_what_workers_elsewhere_write() -> None:
+    """The API on Redis with no worker of its own (Zenoh off); a worker with its own connections, as
+    another process would have, processes the frames: the API's stream sees its objects."""
+    from redis_server import RedisServer
+
+    from arcloud.service.worker import FrameWorker
+    from arcloud.stores.redis import RedisStore
+    from arcloud.stores.redis_queue import RedisFrameQueue
+
+    with RedisServer.start() as redis_server:
+        settings = Settings(store=redis_server.url, auth="none", detector="sim:0", workers=0, event_poll_s=0.1)
+        app = create_app(settings)
+        store, queue = RedisStore(redis_server.url), RedisFrameQueue(redis_server.url)
+        stop = threading.Event()
+        worker = FrameWorker(queue, store, BlobDetector(), settings.make_params(), consumer="elsewhere-1", read_block_s=0.1)
+        thread = threading.Thread(target=worker.run, args=(stop,), name="worker-elsewhere", daemon=True)
+        try:
+            with UvicornThread(app) as server, httpx.Client(base_url=server.url, timeout=10) as http:
+                thread.start()
+
+                def post(index: int) -> None:
+                    body = frame_to_proto(make_test_frame(index, map_id="r", boxes=(LEFT, RIGHT), level=True))
+                    assert http.post("/v1/maps/r/frames", content=body.SerializeToString(), headers=PROTOBUF).status_code == 202
+
+                post(0)
+                with EventStream(server.url, "r") as stream:
+                    assert stream.next_event("snapshot")[1]["objects"] == []
+                    for index in range(1, 5):
+                        post(index)
+                    seen: dict[int, dict[str, Any]] = {}
+                    while len(seen) < 2:
+                        _, obj = stream.next_event("upsert")
+                        seen[obj["id"]] = obj
+                    assert {o["status"] for o in seen.values()} == {"confirmed"}
+        finally:
+            stop.set()
+            thread.join(10)
+            queue.close()
+            store.close()

@@ -1,0 +1,194 @@
+"""The viewer in a real browser: headless Chromium (Debian's ``chromium``, driven by Playwright) opens
+``/viewer?map=M&token=T`` on a real uvicorn server running the embedded service with keys. The page sets
+``<body data-objects>`` to the number of boxes it draws; the tests read that count and the screenshot's
+pixels (the class colours of viewer.js), and post frames while the page is open.
+
+Frames are those of the service tests: an upright near rectangle left of the image's centre (a chair,
+for ``SidedDetector``) and one right of it (a tv), each confirmed after a few frames."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from svc_helpers import LEFT, RIGHT, UvicornThread, make_test_frame, wait_until
+from viewer_helpers import SidedDetector, bearer, make_keys
+
+from arcloud.proto.convert import frame_to_proto
+from arcloud.service.settings import Settings
+from arcloud.tools.wiring import create_app
+
+CHROMIUM = shutil.which("chromium")
+if CHROMIUM is None:
+    pytest.skip("chromium not found on PATH (scripts/bootstrap.sh --test installs Debian's chromium)", allow_module_level=True)
+playwright_api = pytest.importorskip("playwright.sync_api", reason="playwright is in the dev extra (make installs it)")
+
+PROTOBUF = {"content-type": "application/x-protobuf"}
+#: The class colours of viewer.js (CLASS_COLOURS), as RGB.
+CHAIR_RGB, TV_RGB = (0xFF, 0x5A, 0x36), (0xC8, 0x6B, 0xFF)
+PANEL_PX = 262  # the panel's width (viewer.css --panel-w) and its border: the scene is right of it
+WAIT_MS = 15_000  # every wait on the page
+
+
+class Service:
+    def __init__(self, url: str, tokens: dict[str, str]) -> None:
+        self.url = url
+        self.tokens = tokens
+        self.http = httpx.Client(base_url=url, timeout=10.0, headers=bearer(tokens["device"]))
+        self.sent: dict[str, int] = {}
+
+    def post(self, map_id: str, n: int, **frame: Any) -> None:
+        """``n`` more frames of ``map_id``, and wait until every frame of it was processed."""
+        first = self.sent.get(map_id, 0)
+        for index in range(first, first + n):
+            body = frame_to_proto(make_test_frame(index, map_id=map_id, **frame)).SerializeToString()
+            answer = self.http.post(f"/v1/maps/{map_id}/frames", content=body, headers=PROTOBUF)
+            assert answer.status_code == 202, answer.text
+        self.sent[map_id] = first + n
+        wait_until(
+            lambda: self.http.get(f"/v1/maps/{map_id}/stats").json()["frames"]["processed"] == first + n,
+            30,
+            f"the frames of map {map_id} processed",
+        )
+
+    def objects(self, map_id: str, **params: str) -> list[dict[str, Any]]:
+        return self.http.get(f"/v1/maps/{map_id}/objects", params=params).json()["objects"]  # type: ignore[no-any-return]  # httpx's JSON is Any
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    keys_file = tmp_path_factory.mktemp("keys") / "keys.json"
+    tokens = make_keys(
+        keys_file, device=("device", "*"), reader=("reader", "room,empty,grows,mixed"), stranger=("reader", "elsewhere")
+    )
+    settings = Settings(detector="sim:0", workers=1, keys_file=str(keys_file), key_rate_per_s=0, event_poll_s=0.2)
+    with UvicornThread(create_app(settings, detector=SidedDetector())) as server:
+        service = Service(server.url, tokens)
+        service.post("room", 4, level=True, boxes=(LEFT, RIGHT))
+        service.post("empty", 2, boxes=())  # a map with frames and no object
+        yield service
+        service.http.close()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    with playwright_api.sync_playwright() as playwright:
+        # Software WebGL (SwiftShader): headless, no GPU.
+        chromium = playwright.chromium.launch(
+            executable_path=CHROMIUM, args=["--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
+        )
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def page(browser: Any) -> Iterator[Any]:
+    context = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    page.set_default_timeout(WAIT_MS)
+    yield page
+    context.close()
+    assert not errors, f"the page raised: {errors}"
+
+
+def open_viewer(page: Any, service: Service, map_id: str, *, token: str | None = None) -> None:
+    page.goto(f"{service.url}/viewer?map={map_id}&token={token or service.tokens['reader']}")
+    page.wait_for_function("document.body.dataset.state === 'live'")
+
+
+def wait_drawn(page: Any, n: int) -> None:
+    page.wait_for_function(f"document.body.dataset.objects === '{n}'")
+
+
+def class_pixels(page: Any) -> dict[str, int]:
+    """Pixels of the scene (right of the panel) within a small distance of each class colour."""
+    import cv2
+
+    png = page.screenshot()
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, PANEL_PX:, ::-1].astype(np.int32)
+    return {
+        name: int((np.linalg.norm(image - np.array(rgb), axis=2) < 60).sum())
+        for name, rgb in (("chair", CHAIR_RGB), ("tv", TV_RGB))
+    }
+
+
+def test_the_page_draws_the_maps_boxes_in_their_class_colours(page: Any, service: Service) -> None:
+    assert len(service.objects("room")) == 2
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    assert page.evaluate("document.body.dataset.devices") == "1"  # the device's camera
+    pixels = class_pixels(page)
+    assert pixels["chair"] > 100 and pixels["tv"] > 100, pixels
+    labels = page.locator(".label:not(.device)").all_inner_texts()
+    assert sorted(text.split()[0] for text in labels) == ["chair", "tv"]
+    assert "token" not in page.url  # it moved to sessionStorage
+    assert page.evaluate("sessionStorage.getItem('arcloud.token')") == service.tokens["reader"]
+
+
+def test_an_empty_map_draws_no_box(page: Any, service: Service) -> None:
+    open_viewer(page, service, "empty")
+    wait_drawn(page, 0)
+    assert class_pixels(page) == {"chair": 0, "tv": 0}
+
+
+def test_frames_posted_while_the_page_is_open_add_boxes_without_a_reload(page: Any, service: Service) -> None:
+    service.post("grows", 4, level=True, boxes=(LEFT,))
+    open_viewer(page, service, "grows")
+    wait_drawn(page, 1)
+    assert class_pixels(page)["tv"] == 0
+    page.evaluate("window.loadedOnce = true")
+    started = time.monotonic()
+    service.post("grows", 4, level=True, boxes=(LEFT, RIGHT))
+    wait_drawn(page, 2)
+    assert time.monotonic() - started < 10
+    assert page.evaluate("window.loadedOnce") is True  # the same page: no reload
+    assert class_pixels(page)["tv"] > 100
+
+
+def set_min_score(page: Any, value: float) -> None:
+    page.eval_on_selector(
+        "#min-score", "(slider, v) => { slider.value = v; slider.dispatchEvent(new Event('input')); }", str(value)
+    )
+
+
+def test_class_filter_score_slider_tentative_toggle_and_voxels(page: Any, service: Service) -> None:
+    service.post("mixed", 4, level=True, boxes=(LEFT, RIGHT))
+    service.post("mixed", 1, boxes=(LEFT,))  # a flat box: tentative (never a chair's shape)
+    every = service.objects("mixed", include="tentative")
+    assert len(every) == 3 and len(service.objects("mixed")) == 2
+    open_viewer(page, service, "mixed")
+    wait_drawn(page, 2)
+
+    page.check("#tentative")
+    wait_drawn(page, 3)
+    page.uncheck("#tentative")
+    wait_drawn(page, 2)
+
+    page.uncheck("input[data-label=chair]")
+    wait_drawn(page, 1)
+    assert class_pixels(page)["chair"] == 0
+    page.check("input[data-label=chair]")
+    wait_drawn(page, 2)
+
+    set_min_score(page, 1.0)
+    wait_drawn(page, 0)
+    set_min_score(page, 0.0)
+    wait_drawn(page, 2)
+
+    page.check("#voxels")  # each drawn box's voxels, fetched with the token
+    page.wait_for_function("document.body.dataset.voxels === '2'")
+
+
+def test_a_key_of_another_map_or_a_wrong_token_is_refused_on_the_page(page: Any, service: Service) -> None:
+    for token in (service.tokens["stranger"], service.tokens["reader"][:-2] + "xx"):
+        page.goto(f"{service.url}/viewer?map=room&token={token}")
+        page.wait_for_function("document.body.dataset.state === 'error'")
+        assert page.inner_text("#status").startswith("Refused: authorization:")
+        assert page.evaluate("document.body.dataset.objects") == "0"

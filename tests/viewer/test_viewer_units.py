@@ -1,0 +1,75 @@
+"""The pure parts of the event stream and the devices record: what changed between two reads of a map, what
+one stream tells its client, the bounds of the record. No server."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from svc_helpers import make_test_frame
+
+from arcloud.ports import ObjectMeta
+from arcloud.service.devices import RecentDevices
+from arcloud.service.event_stream import diff_devices, diff_objects, object_event, sse
+
+
+def meta(object_id: int, version: int = 1, *, confirmed: bool = True) -> ObjectMeta:
+    return ObjectMeta(object_id, "chair", 0.8, version, 10, 2, frozenset({"d"}), 1.6, 0.0, 1.0, None, None, None, confirmed)
+
+
+def test_a_change_is_a_new_object_a_new_version_or_a_new_status() -> None:
+    before = {1: meta(1), 2: meta(2), 3: meta(3)}
+    after = [meta(1), meta(2, version=2), meta(3, confirmed=False), meta(4)]
+    changed, removed = diff_objects(before, after)
+    assert [o.id for o in changed] == [2, 3, 4] and removed == []
+    assert diff_objects(before, [meta(2)]) == ([], [1, 3])
+    assert diff_objects({}, []) == ([], [])
+
+
+def test_a_stream_of_the_served_map_removes_an_object_that_becomes_tentative() -> None:
+    shown: set[int] = set()
+    assert object_event(1, meta(1, confirmed=False), shown, include_tentative=False) is None  # never shown: nothing
+    name, data = object_event(1, meta(1, 2), shown, include_tentative=False) or ("", {})
+    assert (name, data["id"], data["status"]) == ("upsert", 1, "confirmed") and shown == {1}
+    assert object_event(1, meta(1, 3, confirmed=False), shown, include_tentative=False) == ("removed", {"id": 1})
+    assert shown == set()
+    assert object_event(1, None, shown, include_tentative=False) is None  # gone, and not shown: nothing
+
+
+def test_a_stream_with_tentative_objects_shows_them_and_removes_only_what_is_gone() -> None:
+    shown: set[int] = set()
+    assert (object_event(1, meta(1, confirmed=False), shown, include_tentative=True) or ("",))[0] == "upsert"
+    assert object_event(1, None, shown, include_tentative=True) == ("removed", {"id": 1})
+
+
+def test_an_event_is_one_data_line_of_json() -> None:
+    text = sse("upsert", {"label": "two\nlines", "score": 0.5})
+    assert text == 'event: upsert\ndata: {"label":"two\\nlines","score":0.5}\n\n'
+
+
+def test_the_devices_record_keeps_each_devices_last_pose_bounded() -> None:
+    now = [100.0]
+    devices = RecentDevices(max_maps=2, max_devices=2, clock=lambda: now[0])
+    for index, device in enumerate(["a", "b", "a", "c"]):
+        devices.record(make_test_frame(index, map_id="m", device_id=device, level=True))
+    recent = devices.of_map("m", within_s=60)
+    assert [(d.device_id, d.frame_id) for d in recent] == [("a", "f000002"), ("c", "f000003")]  # b heard least lately
+    a = recent[0]
+    assert (a.width, a.height, a.intrinsics) == (160, 120, (130.0, 130.0, 79.5, 59.5))
+    assert np.allclose(np.reshape(a.cam2world, (4, 4))[:3, 3], [0.02, 0.0, 1.0])
+    for map_id in ("n", "o"):
+        devices.record(make_test_frame(0, map_id=map_id))
+    assert devices.of_map("m", within_s=60) == []  # the map heard from least lately went
+    now[0] += 61
+    assert devices.of_map("o", within_s=60) == []  # no longer recent
+    devices.forget_map("n")
+    assert devices.of_map("n", within_s=1e9) == []
+
+
+def test_devices_diff_on_a_new_frame_and_on_going_quiet() -> None:
+    devices = RecentDevices()
+    a = devices.record(make_test_frame(0, map_id="m", device_id="a"))
+    b = devices.record(make_test_frame(0, map_id="m", device_id="b"))
+    newer = dataclasses.replace(a, frame_id="f000001")
+    assert diff_devices({"a": a, "b": b}, [newer]) == ([newer], ["b"])
+    assert diff_devices({"a": a}, [a]) == ([], [])
