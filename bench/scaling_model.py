@@ -8,7 +8,8 @@ Inputs (written by the benches on this machine):
 
 The model: frames/s = devices x rate; worker cores = frames/s x (session + step) s; API cores = frames/s x API
 CPU s; Redis shards = frames/s x Redis CPU s / ``REDIS_BUSY`` (a shard is one core, kept 70 % busy at most);
-network into the API = frames/s x upload bytes, into Redis = frames/s x (upload + Redis bytes in). Each
+network into the API = frames/s x upload bytes; into and out of Redis = frames/s x (the upload, queued and read
+once by a worker, + what the step writes and reads: objects it rewrites, whole). Each
 resource's limit for one instance (one Redis, one API process, one stream shard) says what breaks first.
 
     .venv/bin/python bench/scaling_model.py [--devices 1000,100000] [--rate 1]
@@ -48,7 +49,10 @@ def costs() -> dict[str, float]:
         "api_s": per_frame["cpu_ms"]["api"] / 1000,
         "redis_s": per_frame["cpu_ms"]["redis"] / 1000,
         "redis_commands": per_frame["redis_commands"],
-        "redis_bytes_in": per_frame["redis_bytes_in"] * (640 * 480) / (160 * 120),  # the load ran 160 x 120 frames
+        # Into Redis: the upload (queued as it came) and the step's writes (objects it rewrites); the load ran
+        # 160 x 120 frames, so its upload part is replaced by a 640 x 480 upload's size.
+        "redis_bytes_in": per_frame["redis_bytes_in"] - per_frame["request_bytes"] + throughput.get("upload_bytes", 600_000),
+        "redis_bytes_out": per_frame["redis_bytes_out"] - per_frame["request_bytes"] + throughput.get("upload_bytes", 600_000),
         "upload_bytes": throughput.get("upload_bytes", 600_000),
         "load_devices": busiest["devices"],
     }
@@ -65,6 +69,7 @@ def plan(devices: int, rate: float, c: dict[str, float]) -> dict[str, float]:
         "redis_commands_per_s": round(frames * c["redis_commands"]),
         "api_ingress_mbit_s": round(frames * c["upload_bytes"] * 8 / 1e6, 1),
         "redis_ingress_mbit_s": round(frames * c["redis_bytes_in"] * 8 / 1e6, 1),
+        "redis_egress_mbit_s": round(frames * c["redis_bytes_out"] * 8 / 1e6, 1),
     }
 
 
@@ -79,13 +84,16 @@ def main() -> None:
         f"API {c['api_s'] * 1000:.2f} ms, Redis {c['redis_s'] * 1000:.2f} ms CPU and {c['redis_commands']:.0f} commands "
         f"(at {c['load_devices']:.0f} devices), {c['upload_bytes'] / 1e3:.0f} kB upload\n"
     )
-    print("| devices | frames/s | worker cores | API cores | Redis shards | Redis commands/s | into the API | into Redis |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(
+        "| devices | frames/s | worker cores | API cores | Redis shards | Redis commands/s | into the API | into Redis | out of Redis |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     for n in (int(v) for v in args.devices.split(",")):
         p = plan(n, args.rate, c)
         print(
             f"| {n:,} | {p['frames_per_s']:,.0f} | {p['worker_cores']:,} | {p['api_cores']:,} | {p['redis_shards']:,} | "
-            f"{p['redis_commands_per_s']:,} | {p['api_ingress_mbit_s']:,} Mbit/s | {p['redis_ingress_mbit_s']:,} Mbit/s |"
+            f"{p['redis_commands_per_s']:,} | {p['api_ingress_mbit_s']:,} Mbit/s | {p['redis_ingress_mbit_s']:,} Mbit/s | "
+            f"{p['redis_egress_mbit_s']:,} Mbit/s |"
         )
     one_redis = REDIS_BUSY / c["redis_s"]
     one_api = CORE_BUSY / c["api_s"]
