@@ -45,6 +45,7 @@ __all__ = [
     "QueueStats",
     "QueuedFrame",
     "RateLimiter",
+    "RetiredObject",
     "UpdatePublisher",
     "latency_bucket",
 ]
@@ -75,6 +76,21 @@ class ObjectMeta:
     @property
     def n_devices(self) -> int:
         return len(self.devices)
+
+
+#: How long a map's history keeps a retired object by default (``ObjectStore.retired_objects``): a week.
+DEFAULT_RETIRED_HISTORY_S = 7 * 86400.0
+#: The most retired objects a map's history keeps (the oldest leave first), whatever their age.
+RETIRED_HISTORY_MAX_PER_MAP = 10_000
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class RetiredObject:
+    """An object the step retired (seen gone: ``core.step.count_misses``), as it was when it left the map,
+    and when it left (Unix seconds)."""
+
+    meta: ObjectMeta
+    retired_at_s: float
 
 
 class ObjectStore(MapStore, Protocol):
@@ -128,6 +144,12 @@ class ObjectStore(MapStore, Protocol):
 
     def count_objects(self, map_id: str) -> int:
         """How many objects the map holds (0 for an unknown map)."""
+        ...
+
+    def retired_objects(self, map_id: str) -> list[RetiredObject]:
+        """The map's history: the objects retired (``commit(retired=...)``) within the store's
+        ``retired_history_s`` (at most ``RETIRED_HISTORY_MAX_PER_MAP``), latest first. ``delete_map``
+        removes it."""
         ...
 
 

@@ -47,6 +47,7 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
         ({"max_queued_bytes_per_map": 10**6}, "max_queued_bytes_per_map: expected at least the largest frame"),
         ({"max_queued_bytes": 4 * 10**7}, "max_queued_bytes_per_map: expected at least the largest frame"),  # its quarter
         ({"frame_record_retention_s": 0}, "frame_record_retention_s"),
+        ({"retired_history_s": -1.0}, "retired_history_s"),
         ({"colour": "red"}, "colour"),
         ({"log_format": "xml"}, "log_format"),
     ],

@@ -20,6 +20,8 @@ from store_cases import (
     step_frame,
 )
 
+import arcloud.stores.memory
+import arcloud.stores.redis
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.step import integrate_frame
@@ -302,6 +304,72 @@ def test_misses_are_counted_under_the_lock_once_per_frame_without_a_new_version(
         assert store.commit(MAP, [lease], [stored.replace(version=stored.version + 1, n_missed=7)], [])
     assert store.get(MAP, [1])[0].n_missed == 7
     assert store.list_objects(MAP)[0].n_missed == 7
+
+
+def test_gone_counts_are_kept_like_misses(store) -> None:
+    a = make_object(1, (0.1, 0.1, 0.1))
+    assert store.commit(MAP, [], [a], [])
+    with pytest.raises(StaleLease):
+        store.commit(MAP, [], [], [], frame_key="f1", gone={1: 1})  # not held
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
+        assert store.commit(MAP, [lease], [], [], frame_key="f1", misses={1: 1}, gone={1: 1})
+        assert not store.commit(MAP, [lease], [], [], frame_key="f1", gone={1: 2})  # re-delivered: nothing
+        assert store.commit(MAP, [lease], [], [], frame_key="f2", misses={1: 2}, gone={1: 2})
+    stored = store.get(MAP, [1])[0]
+    assert (stored.n_missed, stored.n_gone, stored.version) == (2, 2, a.version)
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:  # a rewrite carries the object's own counts
+        assert store.commit(MAP, [lease], [stored.replace(version=stored.version + 1, n_gone=0)], [])
+    assert store.list_objects(MAP)[0].n_gone == 0 and store.list_objects(MAP)[0].n_missed == 2
+
+
+def test_retired_objects_leave_the_map_for_its_history(make_store) -> None:
+    clock = Clock()
+    store = make_store(retired_history_s=100.0, clock=clock)
+    a, b, c = make_object(1, (0.1, 0.1, 0.1)), make_object(2, (3.0, 3.0, 0.0)), make_object(3, (5.0, 0.0, 0.0))
+    assert store.commit(MAP, [], [a, b, c], [])
+    assert store.retired_objects(MAP) == []
+    with pytest.raises(StaleLease):
+        store.commit(MAP, [], [], [], retired=[a])  # not held
+    with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=1) as lease:
+        with pytest.raises(StaleLease):
+            store.commit(MAP, [lease], [], [], retired=[a.replace(version=a.version + 1)])  # not the stored version
+        assert store.commit(MAP, [lease], [], [], frame_key="f1", retired=[a])
+        clock.now_s += 10.0
+        assert store.commit(MAP, [lease], [], [], frame_key="f2", retired=[b])
+    assert [o.id for o in store.list_objects(MAP)] == [3]
+    assert store.query_region(MAP, np.full(3, -1.0), np.full(3, 4.0)) == {}
+    history = store.retired_objects(MAP)
+    assert [(r.meta.id, r.retired_at_s) for r in history] == [(2, clock.now_s), (1, clock.now_s - 10.0)]  # latest first
+    assert history[1].meta.label == a.label and history[1].meta.version == a.version and history[1].meta.n_voxels == a.n_voxels
+    assert store.retired_objects("map-b") == []
+    clock.now_s += 95.0  # a retired 105 s ago, b 95 s ago
+    assert [r.meta.id for r in store.retired_objects(MAP)] == [2]
+    assert store.commit(MAP, [], [], [], frame_key="f3")  # a commit trims the history
+    assert [r.meta.id for r in store.retired_objects(MAP)] == [2]
+    assert history_size(store) == 1
+    store.delete_map(MAP)
+    assert store.retired_objects(MAP) == [] and history_size(store) == 0
+
+
+def test_the_history_keeps_at_most_its_number_of_objects(make_store, monkeypatch) -> None:
+    monkeypatch.setattr(arcloud.stores.memory, "RETIRED_HISTORY_MAX_PER_MAP", 2)
+    monkeypatch.setattr(arcloud.stores.redis, "RETIRED_HISTORY_MAX_PER_MAP", 2)
+    clock = Clock()
+    store = make_store(clock=clock)
+    objects = [make_object(i, (i * 1.0, 0.0, 0.0)) for i in (1, 2, 3, 4)]
+    assert store.commit(MAP, [], objects, [])
+    with store.lock(MAP, [1, 2, 3, 4], ttl_s=10, timeout_s=1) as lease:
+        for obj in objects[:3]:
+            clock.now_s += 1.0
+            assert store.commit(MAP, [lease], [], [], retired=[obj])
+    assert [r.meta.id for r in store.retired_objects(MAP)] == [3, 2] and history_size(store) == 2  # the oldest left
+
+
+def history_size(store) -> int:
+    """How many retired objects the store holds for MAP, expired ones not yet dropped included."""
+    if isinstance(store, RedisStore):
+        return int(store.client.hlen(keys.retired_key(MAP)))
+    return len(store._map(MAP).retired)
 
 
 def test_delete_needs_the_lock_and_removes_the_object(store) -> None:

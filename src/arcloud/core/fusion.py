@@ -78,7 +78,7 @@ def fuse_detection(
     """The object with one more observation: each voxel the detection covers gains weight 1, a vote
     of the detection's score for its label and the detection's colour into its mean; every voxel
     covered or ``visible`` ((N,) bool over the object's voxels: in view and not occluded in this frame)
-    is counted as seen once more.
+    is counted as seen once more. Seen again, it has not been seen gone since (``n_gone`` 0).
     ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
     det_votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
     det_votes[:, det.label_index] = det.score
@@ -99,6 +99,7 @@ def fuse_detection(
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},
         score_sum=obj.score_sum + det.score,
+        n_gone=0,
     )
 
 
@@ -131,6 +132,7 @@ def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
         floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
         n_missed=keep.n_missed + absorbed.n_missed,
+        n_gone=min(keep.n_gone, absorbed.n_gone),  # seen gone since the later of their last sightings
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,
         created_at_s=min(keep.created_at_s, absorbed.created_at_s),

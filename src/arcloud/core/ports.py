@@ -84,6 +84,8 @@ class MapStore(Protocol):
         *,
         frame_key: str | None = None,
         misses: Mapping[int, int] | None = None,
+        gone: Mapping[int, int] | None = None,
+        retired: Sequence[MapObject] = (),
     ) -> bool:
         """Write atomically, and record ``frame_key`` as processed in the same step.
 
@@ -94,9 +96,13 @@ class MapStore(Protocol):
         forget a record after a retention far longer than any redelivery (a day by default); the frame
         then counts as not processed.
 
-        ``misses``: object id -> its new ``n_missed``, for held objects that are not rewritten (the
-        frame saw them and detected nothing there): a counter, so no new version. Written objects
-        carry their own ``n_missed``."""
+        ``misses``: object id -> its new ``n_missed``, and ``gone``: object id -> its new ``n_gone``, for
+        held objects that are not rewritten (the frame saw them, or saw their place empty, and detected
+        nothing there): counters, so no new version. Written objects carry their own.
+
+        ``retired``: held objects seen gone (``core.step.count_misses``), deleted like ``deletes`` (at
+        ``obj.version``) and kept in the map's history of retired objects, with the commit's time, for
+        the store's retention (``ObjectStore.retired_objects``)."""
         ...
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:

@@ -1,8 +1,10 @@
 """The per-frame step (the paper's Algorithm 1), over the ports.
 
 detect -> voxelize (masks cleaned with depth) -> find visible objects -> lock -> associate -> fuse (and
-count a miss for each visible object nothing was detected on) -> create -> refine (boxes reach the floor
-the frames saw; score and confirmation from the evidence) -> write -> unlock -> publish.
+judge each visible object nothing was detected on by the depth at its voxels: a miss when its surface is
+there, *seen gone* when the rays pass through where it was; one seen gone in enough frames is retired:
+removed, event ``removed``) -> create -> refine (boxes reach the floor the frames saw; score and
+confirmation from the evidence) -> write -> unlock -> publish.
 
 Creation is where two workers that see the same new object at the same moment would make it twice
 (locks only protect objects that exist). So new objects are created under a *space claim* on the index
@@ -43,7 +45,7 @@ from arcloud.core.fusion import (
 )
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
-from arcloud.core.voxels import key_centers, keys_bounds, visible_voxels, voxelize_detections
+from arcloud.core.voxels import center_rays, free_voxels, key_centers, keys_bounds, visible_voxels, voxelize_detections
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +63,8 @@ class StepResult:
     matched: int = 0
     created: list[int] = field(default_factory=list)
     updated: list[int] = field(default_factory=list)
-    removed: list[int] = field(default_factory=list)
+    removed: list[int] = field(default_factory=list)  # merged, deleted or retired
+    retired: list[int] = field(default_factory=list)  # seen gone: removed, kept in the map's history
     events: list[ObjectEvent] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
 
@@ -116,7 +119,8 @@ def integrate_frame(
         # ``rescored`` ones (a miss moved their score) are written as they are, the rest are left alone.
         stored = {o.id: o for o in store.get(frame.map_id, visible_ids)}
         objects, unmatched, voxels_changed = fuse_matches(list(stored.values()), observations, params, frame, floor)
-        objects, misses, rescored = count_misses(objects, voxels_changed, frame, params)
+        misses = count_misses(objects, voxels_changed, frame, params)
+        objects, rescored = misses.objects, misses.rescored
         result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
@@ -134,10 +138,21 @@ def integrate_frame(
             voxels_changed |= set(absorbed_into.values()) | trimmed
             to_write = refine_changed(objects, voxels_changed, rescored, params)
             upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
+            events += [ObjectEvent("removed", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
             written = {o.id for o in upserts} | {o.id for o in removed}
-            misses = {i: n for i, n in misses.items() if i not in written}
+            n_missed = {i: n for i, n in misses.n_missed.items() if i not in written}
+            n_gone = {i: n for i, n in misses.n_gone.items() if i not in written}
             clock.lap("create_refine")
-            if not store.commit(frame.map_id, leases, upserts, removed, frame_key=frame.key, misses=misses):
+            if not store.commit(
+                frame.map_id,
+                leases,
+                upserts,
+                removed,
+                frame_key=frame.key,
+                misses=n_missed,
+                gone=n_gone,
+                retired=misses.retired,
+            ):
                 return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
             clock.lap("write")
         finally:
@@ -146,13 +161,14 @@ def integrate_frame(
 
     result.created = [e.object_id for e in events if e.kind == "created"]
     result.updated = [e.object_id for e in events if e.kind == "updated"]
-    result.removed = [e.object_id for e in events if e.kind in ("merged", "deleted")]
+    result.removed = [e.object_id for e in events if e.kind in ("merged", "deleted", "removed")]
+    result.retired = [e.object_id for e in events if e.kind == "removed"]
     result.events = events
     if publisher is not None and events:
         publisher.publish(events)
     clock.lap("publish")
     log.debug(
-        "frame %s/%s: %d detections, %d visible, %d matched, %d created, %d removed",
+        "frame %s/%s: %d detections, %d visible, %d matched, %d created, %d removed (%d retired)",
         frame.map_id,
         frame.key,
         result.n_detections,
@@ -160,6 +176,7 @@ def integrate_frame(
         result.matched,
         len(result.created),
         len(result.removed),
+        len(result.retired),
     )
     return result
 
@@ -223,35 +240,97 @@ def fuse_matches(
     return fused, [observations[d] for d in association.unmatched], fused_ids
 
 
-def count_misses(
-    objects: list[MapObject], fused_ids: set[int], frame: Frame, params: Params
-) -> tuple[list[MapObject], dict[int, int], set[int]]:
-    """Objects the frame had in view, mostly unoccluded (``miss_min_visible`` of their voxels
-    visible), whose detection did not come (not in ``fused_ids``): one more miss each
-    (``core.confirm``). Returns the objects, those whose score or status the miss changes enough
-    replaced (rescored, to be rewritten), the new miss counts of the others (a counter the store keeps
-    without a new version), and the ids of the rescored ones (their voxels did not change: they need no
-    refinement)."""
-    out: list[MapObject] = list(objects)
-    misses: dict[int, int] = {}
-    rescored: set[int] = set()
+@dataclass(slots=True)
+class Misses:
+    """What a frame's depth says of the visible objects it detected nothing on (``count_misses``)."""
+
+    objects: list[MapObject]  # every object given, those rescored replaced, those retired left out
+    n_missed: dict[int, int] = field(default_factory=dict)  # new miss counts of objects not rewritten
+    n_gone: dict[int, int] = field(default_factory=dict)  # new gone counts of objects not rewritten (changed ones)
+    rescored: set[int] = field(default_factory=set)  # ids whose score or status moved: rewritten, not refined
+    retired: list[MapObject] = field(default_factory=list)  # seen gone long enough: removed, as read
+
+
+def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, params: Params) -> Misses:
+    """Judge the objects the frame had in view whose detection did not come (not in ``fused_ids``) by
+    the frame's depth at a sample of their voxels (``MISS_SAMPLE_VOXELS`` spread over each, all
+    objects' at once):
+
+    - *seen gone*: ``gone_min_free`` of the sample's upper part (more than ``gone_above_base_m`` above
+      its base, the 10th percentile of its heights) is seen empty (``free_voxels``: the rays through
+      each voxel meet nothing until well behind it). One more miss (``core.confirm``) and one more
+      frame seen gone (``n_gone``); at ``retire_min_gone_frames`` frames seen gone since it was last seen there
+      (detected, or its surface measured), it is *retired*: removed from the map. Its base is left
+      out because there the surface it stood on (floor, table top) is measured whether it is there or
+      not: a laptop taken off a table leaves the table top in its lowest voxels;
+    - *seen, not detected*: else, when ``miss_min_visible`` of the sample shows its surface (it is there
+      and mostly unoccluded): one more miss; it is not gone (``n_gone`` back to 0);
+    - anything else (out of view, occluded, no depth there, or a mix) is no evidence.
+
+    A missed detection of an object still there shows depth *at* its voxels, not behind them, so it
+    does not count towards retiring it. A miss rewrites an object when its score or status moves enough
+    (``rescored``); otherwise its counters are written alone (``n_missed``, ``n_gone``: no new version)."""
+    out = Misses(list(objects))
     undetected = [i for i, obj in enumerate(objects) if obj.id not in fused_ids and obj.keys.size]
     if not undetected:
-        return out, misses, rescored
+        return out
     samples = [objects[i].keys[:: max(1, objects[i].keys.size // MISS_SAMPLE_VOXELS)] for i in undetected]
-    visible = visible_voxels(frame, np.concatenate(samples), params)  # one projection for all
-    shares = np.add.reduceat(visible, np.cumsum([0] + [s.size for s in samples[:-1]])) / [s.size for s in samples]
-    for i, share in zip(undetected, shares):
+    all_samples = np.concatenate(samples)
+    starts = np.cumsum([0] + [s.size for s in samples[:-1]])
+    segments = [slice(start, start + s.size) for start, s in zip(starts, samples)]
+    visible, free_centres = center_rays(frame, all_samples, params)
+    surface_shares = np.add.reduceat(visible, starts) / [s.size for s in samples]
+    heights = key_centers(all_samples, params.voxel_size_m) @ params.gravity.up
+
+    def gone_in(free: np.ndarray, ks: Sequence[int]) -> set[int]:
+        return {k for k in ks if gone_share(free[segments[k]], heights[segments[k]], params) >= params.gone_min_free}
+
+    # An object seen gone along every ray through its voxels is seen gone along their centres' rays
+    # (center_rays, cheap): the exact test (free_voxels, which reads a pyramid of the depth image)
+    # runs on the samples of those objects alone.
+    some_free = np.flatnonzero(np.add.reduceat(free_centres, starts))
+    maybe = sorted(gone_in(free_centres, some_free.tolist()))
+    gone: set[int] = set()
+    if maybe:
+        at = np.concatenate([np.arange(all_samples.size)[segments[k]] for k in maybe])
+        free = np.zeros(all_samples.size, bool)
+        free[at] = free_voxels(frame, all_samples[at], params)
+        gone = gone_in(free, maybe)
+    retired: set[int] = set()
+    for k, (i, surface) in enumerate(zip(undetected, surface_shares)):
         obj = objects[i]
-        if share < params.miss_min_visible:
+        if k in gone:
+            n_gone = obj.n_gone + 1
+            if 0 < params.retire_min_gone_frames <= n_gone:
+                out.retired.append(obj)
+                retired.add(obj.id)
+                continue
+        elif surface >= params.miss_min_visible:
+            n_gone = 0
+        else:
             continue
         score, confirmed = evidence(obj, params, n_missed=obj.n_missed + 1)
         if confirmed != obj.confirmed or abs(score - obj.score) > params.rescore_write_delta:
-            out[i] = obj.replace(n_missed=obj.n_missed + 1, score=score, confirmed=confirmed)
-            rescored.add(obj.id)
+            out.objects[i] = obj.replace(n_missed=obj.n_missed + 1, n_gone=n_gone, score=score, confirmed=confirmed)
+            out.rescored.add(obj.id)
         else:
-            misses[obj.id] = obj.n_missed + 1
-    return out, misses, rescored
+            out.n_missed[obj.id] = obj.n_missed + 1
+            if n_gone != obj.n_gone:
+                out.n_gone[obj.id] = n_gone
+    if retired:
+        out.objects = [o for o in out.objects if o.id not in retired]
+    return out
+
+
+def gone_share(free: np.ndarray, heights: np.ndarray, params: Params) -> float:
+    """The share of an object's sampled voxels (whether each is seen empty, ``free_voxels`` (N,) bool,
+    and their heights (N,) along up) above its base (more than ``gone_above_base_m`` above the 10th
+    percentile height) that the frame sees empty. 0 when none lies above its base (a flat object)."""
+    k = (heights.size - 1) // 10
+    base_m = np.partition(heights, k)[k]
+    upper = heights > base_m + params.gone_above_base_m
+    n_upper = int(np.count_nonzero(upper))
+    return float(np.count_nonzero(free[upper])) / n_upper if n_upper else 0.0
 
 
 def floor_vote(floor: FrameFloor | None, observation: VoxelDetection, params: Params) -> int | None:

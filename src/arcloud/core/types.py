@@ -232,6 +232,7 @@ class MapObject:
     confirmed: bool = False  # served to clients by default (see ``arcloud.core.confirm``)
     floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)  # height bin -> frames (core.floor)
     n_missed: int = 0  # frames that saw it in view, unoccluded, and detected nothing there
+    n_gone: int = 0  # frames that saw its place empty since it was last seen there (core.step.count_misses)
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
 
     def __post_init__(self) -> None:
@@ -265,15 +266,16 @@ _MAP_OBJECT_SLOTS = tuple(MapObject.__dict__[f.name] for f in dataclasses.fields
 _VOXEL_ARRAYS = frozenset(("keys", "weights", "votes", "seen", "colors"))
 
 
-EventKind = Literal["created", "updated", "merged", "deleted"]
+EventKind = Literal["created", "updated", "merged", "deleted", "removed"]
 
 
 @dataclass(frozen=True, eq=False, slots=True)
 class ObjectEvent:
-    """A change to the map. ``object`` is the new state (None for deleted/merged); a merged object
-    names the one it was merged into in ``merged_into``. ``was_confirmed``: whether the object was
-    confirmed (served) before this change, so that a listener to the served map can tell an object
-    leaving it from one it never had."""
+    """A change to the map. ``object`` is the new state (None for deleted, merged and removed); a merged
+    object names the one it was merged into in ``merged_into``; a removed one was seen to be gone (it
+    left the room: ``core.step.count_misses``) and is kept in the map's history for a while.
+    ``was_confirmed``: whether the object was confirmed (served) before this change, so that a listener
+    to the served map can tell an object leaving it from one it never had."""
 
     kind: EventKind
     map_id: str
@@ -331,6 +333,10 @@ class Params:
     confirm_min_score: float = 0.2
     miss_min_visible: float = 0.3  # an undetected object counts as missed when this share of it is visible
     rescore_write_delta: float = 0.05  # a miss rewrites an object when its score moves by more (else: a counter)
+    # Change over time (core.step.count_misses): an undetected object whose place a frame sees empty
+    gone_min_free: float = 0.5  # seen gone when this share of its upper part has depth measured clearly behind it
+    gone_above_base_m: float = 0.08  # its upper part: what lies more than this above its base (10th percentile height)
+    retire_min_gone_frames: int = 3  # seen gone in this many frames since last seen there: removed (0: never)
     # Floor (core.floor): found per frame, voted per object; floor-standing classes reach it
     floor_bin_m: float = 0.04
     floor_max_tilt_deg: float = 15.0
@@ -399,6 +405,7 @@ _PARAM_KINDS: dict[str, str] = {
             "layer_jump_rel",
             "class_mismatch_penalty",
             "visibility_tolerance_m",
+            "gone_above_base_m",
             "prune_min_seen",
             "floor_min_below_camera_m",
             "floor_clearance_m",
@@ -425,6 +432,7 @@ _PARAM_KINDS: dict[str, str] = {
             "confirm_min_score",
             "miss_min_visible",
             "rescore_write_delta",
+            "gone_min_free",
             "floor_min_share",
             "floor_min_vote_share",
         ),
@@ -437,6 +445,7 @@ _PARAM_KINDS: dict[str, str] = {
             "association_tolerance_voxels",
             "split_min_frames",
             "confirm_min_frames",
+            "retire_min_gone_frames",
             "floor_min_samples",
             "floor_min_votes",
         ),

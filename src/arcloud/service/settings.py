@@ -21,7 +21,7 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from arcloud.core.types import Params
-from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, QueueLimits
+from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, DEFAULT_RETIRED_HISTORY_S, QueueLimits
 from arcloud.service.logs import LogFormat
 
 STORE_SCHEMES = ("redis", "rediss", "unix", "redis+cluster", "rediss+cluster")  # stores.redis.URL_SCHEMES
@@ -109,6 +109,11 @@ class Settings(BaseSettings):
         gt=0,
         description="how long a processed or failed frame is remembered (its status, the duplicate check, the store's "
         "processed mark); after it the frame's status answers 404 and posting it again queues it as new",
+    )
+    retired_history_s: float = Field(
+        DEFAULT_RETIRED_HISTORY_S,
+        gt=0,
+        description="how long an object the map retired (seen gone: event `removed`) stays in the map's history",
     )
     max_dead_letters: int = Field(10_000, ge=1, description="failed frames kept with their payload for `arcloud frames retry`")
     max_dead_letter_bytes: int = Field(

@@ -176,6 +176,124 @@ def _build_room(seed: int, size: np.ndarray, layout: Layout) -> Room:
     return room
 
 
+#: Objects moved by ``rearranged_room`` keep this gap (metres) to everything else, walls included.
+MOVE_GAP_M = 0.1
+#: Something whose bottom is within this of an object's top rests on it (metres).
+RESTS_ON_M = 0.02
+
+
+def rearranged_room(
+    room: Room, shifts_xy: Mapping[int, Sequence[float] | np.ndarray] | None = None, removed: Sequence[int] = ()
+) -> Room:
+    """The room after someone rearranged it: the objects of ``shifts_xy`` (instance id -> (dx, dy),
+    metres) slid along the floor, the objects of ``removed`` taken out; everything else as it was (seed,
+    instance ids, the rest of the mesh). Raises ``InvalidInput`` for an unknown id, an object that
+    something rests on (a table holding a laptop), or a move that leaves the floor or comes within
+    ``MOVE_GAP_M`` of another object or clutter item."""
+    shifts = {int(k): np.asarray(v, np.float64) for k, v in (shifts_xy or {}).items()}
+    gone = {int(i) for i in removed}
+    known = {o.instance_id for o in room.objects}
+    for instance_id in sorted(set(shifts) | gone):
+        if instance_id not in known:
+            raise InvalidInput("instance id", f"one of the room's objects {sorted(known)}", instance_id)
+    for instance_id, shift in shifts.items():
+        if shift.shape != (2,) or not np.all(np.isfinite(shift)):
+            raise InvalidInput(f"shifts_xy[{instance_id}]", "(dx, dy) in metres", repr(shift.tolist()))
+    if gone & set(shifts):
+        raise InvalidInput("removed", "objects not also moved", sorted(gone & set(shifts)))
+    clutter = [(-c.clutter_id, c.aabb_min, c.aabb_max) for c in room.clutter]  # negative: no instance id
+    for instance_id in sorted(set(shifts) | gone):
+        obj = room.object(instance_id)
+        for other, lo, hi in [(o.instance_id, o.aabb_min, o.aabb_max) for o in room.objects] + clutter:
+            if other == instance_id:
+                continue
+            if abs(lo[2] - obj.aabb_max[2]) <= RESTS_ON_M and _overlap_xy(lo, hi, obj.aabb_min, obj.aabb_max, 0.0):
+                raise InvalidInput(f"object {instance_id}", "nothing resting on it", f"something at z {lo[2]:.2f} on its top")
+    objects = []
+    for obj in room.objects:
+        if obj.instance_id in gone:
+            continue
+        if obj.instance_id in shifts:
+            delta = np.array([*shifts[obj.instance_id], 0.0])
+            obj = RoomObject(obj.instance_id, obj.label, obj.aabb_min + delta, obj.aabb_max + delta, yaw_rad=obj.yaw_rad)
+        objects.append(obj)
+    still = clutter + [(o.instance_id, o.aabb_min, o.aabb_max) for o in objects]
+    for obj in objects:
+        if obj.instance_id not in shifts:
+            continue
+        if np.any(obj.aabb_min[:2] < MOVE_GAP_M) or np.any(obj.aabb_max[:2] > room.size_m[:2] - MOVE_GAP_M):
+            raise InvalidInput(
+                f"shifts_xy[{obj.instance_id}]", "a move that stays on the floor", obj.center[:2].round(2).tolist()
+            )
+        for other, lo, hi in still:
+            if other == obj.instance_id:
+                continue
+            if (
+                lo[2] < obj.aabb_max[2]
+                and obj.aabb_min[2] < hi[2]
+                and _overlap_xy(lo, hi, obj.aabb_min, obj.aabb_max, MOVE_GAP_M)
+            ):
+                raise InvalidInput(
+                    f"shifts_xy[{obj.instance_id}]",
+                    "a free place",
+                    f"it would meet something at {((lo + hi) / 2).round(2).tolist()}",
+                )
+    vertices = room.vertices.copy()
+    for instance_id, shift in shifts.items():
+        mine = room.triangle_instance == instance_id
+        used = np.unique(room.triangles[mine])
+        if np.isin(used, room.triangles[~mine]).any():  # parts are emitted per object: never shared
+            raise AssertionError(f"object {instance_id} shares vertices with other triangles")
+        vertices[used, :2] += shift.astype(np.float32)
+    keep = ~np.isin(room.triangle_instance, sorted(gone))
+    clutter_ids = room.triangle_clutter[keep] if room.triangle_clutter is not None else None
+    moved = Room(
+        seed=room.seed,
+        size_m=room.size_m,
+        objects=tuple(objects),
+        vertices=vertices,
+        triangles=room.triangles[keep],
+        triangle_colors=room.triangle_colors[keep],
+        triangle_instance=room.triangle_instance[keep],
+        clutter=room.clutter,
+        triangle_clutter=clutter_ids,
+    )
+    for array in (moved.vertices, moved.triangles, moved.triangle_colors, moved.triangle_instance, clutter_ids):
+        if array is not None:
+            array.flags.writeable = False
+    return moved
+
+
+def free_shifts(room: Room, instance_ids: Sequence[int], seed: int, *, max_tries: int = 500) -> dict[int, np.ndarray]:
+    """(dx, dy) per object of ``instance_ids`` to a free place of the floor (``rearranged_room`` accepts
+    them all together) clear of where it stood, drawn from ``seed``; ``InvalidInput`` when some object
+    finds none in ``max_tries`` draws."""
+    rng = np.random.default_rng([seed, 7])
+    shifts: dict[int, np.ndarray] = {}
+    for instance_id in instance_ids:
+        obj = room.object(instance_id)
+        half = obj.size[:2] / 2
+        for _ in range(max_tries):
+            center = rng.uniform(half + MOVE_GAP_M, room.size_m[:2] - half - MOVE_GAP_M)
+            shift = center - obj.center[:2]
+            if _overlap_xy(obj.aabb_min, obj.aabb_max, obj.aabb_min + [*shift, 0], obj.aabb_max + [*shift, 0], MOVE_GAP_M):
+                continue  # still partly where it was
+            try:
+                rearranged_room(room, {**shifts, instance_id: shift})
+            except InvalidInput:
+                continue
+            shifts[instance_id] = shift
+            break
+        else:
+            raise InvalidInput("instance_ids", f"objects that fit elsewhere ({max_tries} draws)", instance_id)
+    return shifts
+
+
+def _overlap_xy(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray, gap_m: float) -> bool:
+    """Whether two boxes' footprints come within ``gap_m`` of each other."""
+    return bool(np.all(lo_a[:2] < hi_b[:2] + gap_m) and np.all(lo_b[:2] < hi_a[:2] + gap_m))
+
+
 def room_renderer(room: Room) -> MeshRenderer:
     """A renderer of the room's mesh. Building one costs an Embree scene: keep it while rendering."""
     return MeshRenderer(

@@ -260,8 +260,8 @@ def _meta(object_id: int, fields: dict[str, Any]) -> ObjectMeta:
     )
 
 
-def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_missed: int = 0) -> MapObject:
-    """Metadata JSON and voxel blob -> ``MapObject`` (``n_missed`` is kept beside them)."""
+def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_missed: int = 0, n_gone: int = 0) -> MapObject:
+    """Metadata JSON and voxel blob -> ``MapObject`` (the counters ``n_missed``, ``n_gone`` are kept beside them)."""
     meta = decode_meta(object_id, meta_blob)
     keys, weights, votes, seen, colors = decode_voxels(voxels_blob)
     if votes.shape[1] != N_CLASSES:
@@ -289,5 +289,6 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_mis
         confirmed=meta.confirmed,
         floor_votes=meta.floor_votes,
         n_missed=n_missed,
+        n_gone=n_gone,
         label_purity=meta.label_purity,
     )

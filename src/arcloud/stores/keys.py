@@ -13,7 +13,11 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
     arcloud:{m}:meta                HASH    object id -> metadata JSON (``codec.encode_meta``): listing needs one read
     arcloud:{m}:obj:<id>            HASH    one object: ``version`` (the fence), ``cells`` (where it is indexed,
-                                            "i:j:k i:j:k ..."), ``voxels`` (``codec.encode_voxels``)
+                                            "i:j:k i:j:k ..."), ``voxels`` (``codec.encode_voxels``), and its
+                                            counters ``missed`` (``n_missed``), ``gone`` (``n_gone``)
+    arcloud:{m}:retired             HASH    retired object id -> its metadata JSON when it left: the map's history
+    arcloud:{m}:retired:at          ZSET    retired object id, scored by when it left (Unix s); kept
+                                            ``retired_history_s``, at most ``RETIRED_HISTORY_MAX_PER_MAP``
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
@@ -76,6 +80,7 @@ OBJECT = "obj"
 CELL = "cell"
 LOCK = "lock"
 CLAIM = "claim"
+RETIRED = "retired"
 
 
 def map_prefix(map_id: str) -> str:
@@ -115,6 +120,16 @@ def bounds_key(map_id: str) -> str:
 
 def meta_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:{META}"
+
+
+def retired_key(map_id: str) -> str:
+    """The map's history of retired objects: id -> metadata JSON (``RedisStore.retired_objects``)."""
+    return f"{map_prefix(map_id)}:{RETIRED}"
+
+
+def retired_at_key(map_id: str) -> str:
+    """When each retired object of the history left the map: a ZSET id -> Unix seconds."""
+    return f"{map_prefix(map_id)}:{RETIRED}:at"
 
 
 def header_key(map_id: str) -> str:

@@ -3,7 +3,8 @@
 It keeps the semantics of the Redis store so that one contract suite tests both: locks and claims
 carry a token and a TTL (an expired lease's write is refused), writes are compare-and-set on the
 object version (fencing), frames are recorded once (a processed frame's mark kept
-``frame_record_retention_s``, as on Redis). Locks are taken all-or-nothing under one condition variable
+``frame_record_retention_s``, as on Redis), retired objects stay in the map's history for
+``retired_history_s``. Locks are taken all-or-nothing under one condition variable
 per map, so a thread never holds some locks while waiting for others.
 """
 
@@ -23,7 +24,14 @@ from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
-from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, RECORDS_SWEPT_PER_CALL, ObjectMeta
+from arcloud.ports import (
+    DEFAULT_FRAME_RECORD_RETENTION_S,
+    DEFAULT_RETIRED_HISTORY_S,
+    RECORDS_SWEPT_PER_CALL,
+    RETIRED_HISTORY_MAX_PER_MAP,
+    ObjectMeta,
+    RetiredObject,
+)
 from arcloud.stores import codec
 from arcloud.stores.codec import meta_of
 
@@ -45,6 +53,7 @@ class _MapState:
     held: dict[_Name, _Holder] = field(default_factory=dict)
     frames: dict[str, float] = field(default_factory=dict)  # processed frame key -> when (Unix s), oldest first
     n_frames: int = 0  # frames processed (marks expiring do not lower it)
+    retired: dict[int, RetiredObject] = field(default_factory=dict)  # the history, oldest first
     ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
     changed: threading.Condition = field(default_factory=threading.Condition)
 
@@ -71,7 +80,8 @@ class MemoryLease:
 
 class MemoryStore:
     """In-process ``ObjectStore``. ``cell_m`` is the size of the spatial index's cubic cells;
-    ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
+    ``frame_record_retention_s``: how long a processed frame's mark is kept; ``retired_history_s``: how
+    long a retired object stays in its map's history; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION  # objects are kept as they are, but a map's header names the format
     readable_codec_versions = codec.READABLE_VERSIONS
@@ -81,14 +91,18 @@ class MemoryStore:
         *,
         cell_m: float = 1.0,
         frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
+        retired_history_s: float = DEFAULT_RETIRED_HISTORY_S,
         clock: Callable[[], float] = time.time,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
         if not frame_record_retention_s > 0:
             raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
+        if not retired_history_s > 0:
+            raise InvalidInput("retired_history_s", "> 0", retired_history_s)
         self.cell_m = cell_m
         self.frame_record_retention_s = float(frame_record_retention_s)
+        self.retired_history_s = float(retired_history_s)
         self._clock = clock
         self._maps: dict[str, _MapState] = {}
         self._headers: dict[str, MapHeader] = {}
@@ -186,6 +200,8 @@ class MemoryStore:
         *,
         frame_key: str | None = None,
         misses: Mapping[int, int] | None = None,
+        gone: Mapping[int, int] | None = None,
+        retired: Sequence[MapObject] = (),
     ) -> bool:
         own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
         state = self._map(map_id)
@@ -213,19 +229,28 @@ class MemoryStore:
                         )
                 if obj.bounds is None:
                     raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
-            for obj in deletes:
+            for obj in [*deletes, *retired]:
                 current = state.objects.get(obj.id)
                 if current is None:
                     continue
                 if obj.id not in held or current.version != obj.version:
                     raise StaleLease(f"map {map_id}: object {obj.id} deleted without its lock or at a stale version")
-            for object_id in misses or {}:
+            for object_id in [*(misses or {}), *(gone or {})]:
                 if object_id in state.objects and object_id not in held:
                     raise StaleLease(f"map {map_id}: object {object_id} counted as missed without its lock")
             for object_id, count in (misses or {}).items():
                 if object_id in state.objects:
                     state.objects[object_id] = state.objects[object_id].replace(n_missed=int(count))
-            for obj in deletes:
+            for object_id, count in (gone or {}).items():
+                if object_id in state.objects:
+                    state.objects[object_id] = state.objects[object_id].replace(n_gone=int(count))
+            now_s = self._clock()
+            for obj in retired:
+                current = state.objects.get(obj.id)
+                if current is not None:
+                    state.retired.pop(obj.id, None)
+                    state.retired[obj.id] = RetiredObject(meta_of(current), now_s)
+            for obj in [*deletes, *retired]:
                 self._unindex(state, obj.id)
                 state.objects.pop(obj.id, None)
             for obj in upserts:
@@ -248,10 +273,27 @@ class MemoryStore:
                 itertools.islice(itertools.takewhile(lambda k: state.frames[k] < cutoff, state.frames), RECORDS_SWEPT_PER_CALL)
             ):
                 del state.frames[expired]
-            if upserts or deletes:
+            self._trim_history(state)
+            if upserts or deletes or retired:
                 with self._maps_lock:
                     self._updated[map_id] = time.time()
             return True
+
+    def _trim_history(self, state: _MapState) -> None:
+        """Under the map's lock: drop the retired objects past ``retired_history_s``, and the oldest
+        beyond ``RETIRED_HISTORY_MAX_PER_MAP``."""
+        cutoff = self._clock() - self.retired_history_s
+        while state.retired:
+            oldest = next(iter(state.retired.values()))
+            if oldest.retired_at_s >= cutoff and len(state.retired) <= RETIRED_HISTORY_MAX_PER_MAP:
+                break
+            del state.retired[oldest.meta.id]
+
+    def retired_objects(self, map_id: str) -> list[RetiredObject]:
+        state = self._map(map_id)
+        with state.changed:
+            cutoff = self._clock() - self.retired_history_s
+            return [r for r in reversed(state.retired.values()) if r.retired_at_s >= cutoff]
 
     def _recorded(self, state: _MapState, frame_key: str) -> bool:
         """Under the map's lock: whether a commit recorded the frame within the retention."""

@@ -20,6 +20,9 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
 - ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
   expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
   mark, or writes nothing. A worker whose lock expired cannot overwrite newer data.
+- Retired objects (``commit(retired=...)``): deleted like others, their metadata JSON kept in the map's
+  history (a HASH, and a ZSET of when each left), trimmed by each commit to ``retired_history_s`` and
+  ``RETIRED_HISTORY_MAX_PER_MAP``; ``retired_objects`` reads it.
 - Processed frames: a HASH frame key -> when its commit was written, and a counter (``count_frames``).
   A mark is kept ``frame_record_retention_s`` (the frame queue's records are kept as long, and a frame
   settles after its commit, so a frame posted again after its queue record went finds no mark either):
@@ -78,7 +81,14 @@ from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable, TooManyCells
-from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, RECORDS_SWEPT_PER_CALL, ObjectMeta
+from arcloud.ports import (
+    DEFAULT_FRAME_RECORD_RETENTION_S,
+    DEFAULT_RETIRED_HISTORY_S,
+    RECORDS_SWEPT_PER_CALL,
+    RETIRED_HISTORY_MAX_PER_MAP,
+    ObjectMeta,
+    RetiredObject,
+)
 from arcloud.stores import codec, keys
 
 log = logging.getLogger(__name__)
@@ -217,7 +227,8 @@ class RedisStore:
     one deployment must use the same). ``client``: an existing ``redis.Redis`` or ``RedisCluster`` (binary
     responses, i.e. ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
     ``reply_timeout_s``, ``retries``). ``votes_f16`` stores votes as float16 (see ``codec``).
-    ``frame_record_retention_s``: how long a processed frame's mark is kept; ``clock``: Unix seconds."""
+    ``frame_record_retention_s``: how long a processed frame's mark is kept; ``retired_history_s``: how
+    long a retired object stays in its map's history; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION
     readable_codec_versions = codec.READABLE_VERSIONS
@@ -233,13 +244,17 @@ class RedisStore:
         reply_timeout_s: float = 30.0,
         retries: int = 1,
         frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
+        retired_history_s: float = DEFAULT_RETIRED_HISTORY_S,
         clock: Callable[[], float] = time.time,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
         if not frame_record_retention_s > 0:
             raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
+        if not retired_history_s > 0:
+            raise InvalidInput("retired_history_s", "> 0", retired_history_s)
         self.frame_record_retention_s = float(frame_record_retention_s)
+        self.retired_history_s = float(retired_history_s)
         self._clock = clock
         if client is None:
             client = connect_redis(url, reply_timeout_s=reply_timeout_s, retries=retries)
@@ -396,11 +411,11 @@ class RedisStore:
             with self._boundary(f"get on map {map_id}"), self.client.pipeline(transaction=True) as pipe:
                 pipe.hmget(keys.meta_key(map_id), batch)
                 for object_id in batch:
-                    pipe.hmget(keys.object_key(map_id, object_id), ["voxels", "missed"])
+                    pipe.hmget(keys.object_key(map_id, object_id), ["voxels", "missed", "gone"])
                 metas, *fields = pipe.execute()
             found += [
-                codec.decode_object(i, meta, blob, n_missed=int(missed or 0))
-                for i, meta, (blob, missed) in zip(batch, metas, fields)
+                codec.decode_object(i, meta, blob, n_missed=int(missed or 0), n_gone=int(gone or 0))
+                for i, meta, (blob, missed, gone) in zip(batch, metas, fields)
                 if meta is not None and blob is not None
             ]
         return found
@@ -444,6 +459,8 @@ class RedisStore:
         *,
         frame_key: str | None = None,
         misses: Mapping[int, int] | None = None,
+        gone: Mapping[int, int] | None = None,
+        retired: Sequence[MapObject] = (),
     ) -> bool:
         own = cast("Sequence[RedisLease]", leases)  # the port's Lease: here always one this store handed out
         for lease in own:
@@ -469,13 +486,23 @@ class RedisStore:
             "upserts": [],
             "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
             "misses": [{"id": str(int(i)), "count": str(int(n))} for i, n in (misses or {}).items()],
+            "gone": [{"id": str(int(i)), "count": str(int(n))} for i, n in (gone or {}).items()],
+            "retired": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in retired],
+            "history_s": self.retired_history_s,
+            "history_max": RETIRED_HISTORY_MAX_PER_MAP,
         }
         payload: list[bytes] = []
         for obj in upserts:
             assert obj.bounds is not None
             cells = " ".join(keys.cell_name(c) for c in self.cells_of(obj.bounds.min, obj.bounds.max))
             header["upserts"].append(
-                {"id": str(int(obj.id)), "version": str(int(obj.version)), "cells": cells, "missed": str(int(obj.n_missed))}
+                {
+                    "id": str(int(obj.id)),
+                    "version": str(int(obj.version)),
+                    "cells": cells,
+                    "missed": str(int(obj.n_missed)),
+                    "gone": str(int(obj.n_gone)),
+                }
             )
             payload += [
                 codec.pack_box(obj.bounds),
@@ -490,15 +517,28 @@ class RedisStore:
                     keys.meta_key(map_id),
                     keys.processed_count_key(map_id),
                     keys.processed_sweep_key(map_id),
+                    keys.retired_key(map_id),
+                    keys.retired_at_key(map_id),
                 ],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
-            if int(written) == 1 and (upserts or deletes):
+            if int(written) == 1 and (upserts or deletes or retired):
                 self.client.hset(keys.MAPS, map_id, repr(time.time()))  # the maps list's last update
         return int(written) == 1
 
     def list_objects(self, map_id: str) -> list[MapObject]:
         return self.get(map_id, self._object_ids(map_id))
+
+    def retired_objects(self, map_id: str) -> list[RetiredObject]:
+        cutoff_s = self._clock() - self.retired_history_s
+        with self._boundary(f"retired_objects of map {map_id}"):
+            pipe = self.client.pipeline(transaction=True)  # one snapshot of the times and the metadata
+            pipe.zrevrangebyscore(keys.retired_at_key(map_id), "+inf", cutoff_s, withscores=True)
+            pipe.hgetall(keys.retired_key(map_id))
+            times, metas = pipe.execute()
+        kept = [(int(i), float(at), metas[i]) for i, at in times if i in metas]
+        decoded = codec.decode_metas([i for i, _, _ in kept], [meta for _, _, meta in kept])
+        return [RetiredObject(meta, at) for meta, (_, at, _) in zip(decoded, kept)]
 
     def delete_map(self, map_id: str) -> int:
         with self._boundary(f"delete_map {map_id}"):
@@ -510,6 +550,8 @@ class RedisStore:
                         keys.ids_key(map_id),
                         keys.meta_key(map_id),
                         keys.processed_count_key(map_id),
+                        keys.retired_key(map_id),
+                        keys.retired_at_key(map_id),
                     ],
                     args=[keys.map_prefix(map_id)],
                 )

@@ -27,7 +27,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from arcloud.errors import InvalidInput, StoreUnavailable
-from arcloud.ports import Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
+from arcloud.ports import DEFAULT_RETIRED_HISTORY_S, Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
 from arcloud.service import app as service_app
 from arcloud.service.logs import configure_logging
 from arcloud.service.pool import WorkerPool
@@ -126,17 +126,31 @@ def build_detector(spec: str, *, threads: int | None = None) -> Detector:
 
 
 # --- store, queue, publisher -------------------------------------------------------------------------
-def build_store(url: str, *, cell_m: float, frame_record_retention_s: float, reply_timeout_s: float = 30.0) -> ObjectStore:
+def build_store(
+    url: str,
+    *,
+    cell_m: float,
+    frame_record_retention_s: float,
+    reply_timeout_s: float = 30.0,
+    retired_history_s: float = DEFAULT_RETIRED_HISTORY_S,
+) -> ObjectStore:
     """``memory`` -> ``MemoryStore``; a Redis URL -> ``RedisStore`` waiting ``reply_timeout_s`` at most for
     a reply (workers: 30 s; the API: ``api_redis_timeout_s``, so that a hung Redis answers 503 within about that).
-    Processed frames' marks are kept ``frame_record_retention_s`` (the settings')."""
+    Processed frames' marks are kept ``frame_record_retention_s``, retired objects ``retired_history_s`` (the
+    settings')."""
     if url == "memory":
         from arcloud.stores.memory import MemoryStore
 
-        return MemoryStore(cell_m=cell_m, frame_record_retention_s=frame_record_retention_s)
+        return MemoryStore(cell_m=cell_m, frame_record_retention_s=frame_record_retention_s, retired_history_s=retired_history_s)
     from arcloud.stores.redis import RedisStore
 
-    return RedisStore(url, cell_m=cell_m, reply_timeout_s=reply_timeout_s, frame_record_retention_s=frame_record_retention_s)
+    return RedisStore(
+        url,
+        cell_m=cell_m,
+        reply_timeout_s=reply_timeout_s,
+        frame_record_retention_s=frame_record_retention_s,
+        retired_history_s=retired_history_s,
+    )
 
 
 def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_block_s: float = 0.0) -> FrameQueue:
@@ -252,6 +266,7 @@ def connect(
                 cell_m=params.index_cell_m,
                 reply_timeout_s=settings.api_redis_timeout_s,
                 frame_record_retention_s=settings.frame_record_retention_s,
+                retired_history_s=settings.retired_history_s,
             )
             _own(owned, store)
         if publisher is None:
@@ -327,7 +342,10 @@ def run_worker(
     owned: list[Closeable] = []
     try:
         store = build_store(
-            settings.store, cell_m=params.index_cell_m, frame_record_retention_s=settings.frame_record_retention_s
+            settings.store,
+            cell_m=params.index_cell_m,
+            frame_record_retention_s=settings.frame_record_retention_s,
+            retired_history_s=settings.retired_history_s,
         )
         _own(owned, store)
         if detector_factory is not None:

@@ -1,18 +1,23 @@
 -- Atomic commit of one step: check every fence, then write everything, or write nothing.
 -- Needs records.lua before it.
 -- KEYS[1]: the map's processed-frames HASH, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH,
--- KEYS[4]: the processed-frames counter, KEYS[5]: the processed-frames sweep cursor.
+-- KEYS[4]: the processed-frames counter, KEYS[5]: the processed-frames sweep cursor,
+-- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET).
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
 -- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
---          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...]}
+--          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
+--          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max}
 --          (ids, versions and counts as decimal strings; frame "" for none; cells: "i:j:k i:j:k ..." the
---          index cells of the object's bounds; upserts also carry missed, the object's miss counter, kept
---          in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago counts
---          as not recorded, and each commit sweeps about `sweep` records for such ones).
+--          index cells of the object's bounds; upserts also carry missed and gone, the object's counters,
+--          kept in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago
+--          counts as not recorded, and each commit sweeps about `sweep` records for such ones; retired
+--          objects are deleted like deletes and their metadata kept in the history, which keeps those
+--          retired within history_s, at most history_max).
 -- ARGV[3..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
 -- Returns 1 (written), 0 (the frame was recorded before: nothing written), or an error "STALE ..."
 -- (a fence failed: nothing written).
 local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
+local history_key, history_at_key = KEYS[6], KEYS[7]
 local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
 local cutoff = tonumber(req.now) - tonumber(req.retention_s)
@@ -56,15 +61,19 @@ for _, u in ipairs(req.upserts) do
     end
   end
 end
-for _, m in ipairs(req.misses) do
-  if redis.call('EXISTS', object_key(m.id)) == 1 and not held[m.id] then
-    return stale('object ' .. m.id .. ' counted as missed without its lock')
+for _, counters in ipairs({req.misses, req.gone}) do
+  for _, m in ipairs(counters) do
+    if redis.call('EXISTS', object_key(m.id)) == 1 and not held[m.id] then
+      return stale('object ' .. m.id .. ' counted as missed without its lock')
+    end
   end
 end
-for _, d in ipairs(req.deletes) do
-  local current = redis.call('HGET', object_key(d.id), 'version')
-  if current and (not held[d.id] or tonumber(current) ~= tonumber(d.version)) then
-    return stale('object ' .. d.id .. ' deleted without its lock or at a stale version')
+for _, deleted in ipairs({req.deletes, req.retired}) do
+  for _, d in ipairs(deleted) do
+    local current = redis.call('HGET', object_key(d.id), 'version')
+    if current and (not held[d.id] or tonumber(current) ~= tonumber(d.version)) then
+      return stale('object ' .. d.id .. ' deleted without its lock or at a stale version')
+    end
   end
 end
 
@@ -79,16 +88,25 @@ local function unindex(id)
   redis.call('HDEL', meta_key, id)
 end
 
-for _, d in ipairs(req.deletes) do
-  unindex(d.id)
-  redis.call('DEL', object_key(d.id))
+for _, r in ipairs(req.retired) do
+  local meta = redis.call('HGET', meta_key, r.id)
+  if meta then
+    redis.call('HSET', history_key, r.id, meta)
+    redis.call('ZADD', history_at_key, req.now, r.id)
+  end
+end
+for _, deleted in ipairs({req.deletes, req.retired}) do
+  for _, d in ipairs(deleted) do
+    unindex(d.id)
+    redis.call('DEL', object_key(d.id))
+  end
 end
 local at = 3
 for _, u in ipairs(req.upserts) do
   local key = object_key(u.id)
   unindex(u.id)
   redis.call('DEL', key)
-  redis.call('HSET', key, 'version', u.version, 'cells', u.cells, 'voxels', ARGV[at + 2], 'missed', u.missed)
+  redis.call('HSET', key, 'version', u.version, 'cells', u.cells, 'voxels', ARGV[at + 2], 'missed', u.missed, 'gone', u.gone)
   redis.call('HSET', bounds_key, u.id, ARGV[at])
   redis.call('HSET', meta_key, u.id, ARGV[at + 1])
   for cell in string.gmatch(u.cells, '%S+') do
@@ -96,9 +114,11 @@ for _, u in ipairs(req.upserts) do
   end
   at = at + 3
 end
-for _, m in ipairs(req.misses) do
-  if redis.call('EXISTS', object_key(m.id)) == 1 then
-    redis.call('HSET', object_key(m.id), 'missed', m.count)
+for field, counters in pairs({missed = req.misses, gone = req.gone}) do
+  for _, m in ipairs(counters) do
+    if redis.call('EXISTS', object_key(m.id)) == 1 then
+      redis.call('HSET', object_key(m.id), field, m.count)
+    end
   end
 end
 if req.frame ~= '' then
@@ -106,4 +126,18 @@ if req.frame ~= '' then
   redis.call('INCR', count_key)
 end
 sweep(frames_key, sweep_key, cutoff, tonumber(req.sweep), tonumber)
+-- The history: drop those retired more than history_s ago (a bounded number a commit), then the oldest
+-- beyond history_max.
+local history_cutoff = tonumber(req.now) - tonumber(req.history_s)
+local expired = redis.call('ZRANGEBYSCORE', history_at_key, '-inf', '(' .. history_cutoff, 'LIMIT', 0, tonumber(req.sweep))
+local excess = redis.call('ZCARD', history_at_key) - #expired - tonumber(req.history_max)
+if excess > 0 then
+  for _, id in ipairs(redis.call('ZRANGE', history_at_key, #expired, #expired + excess - 1)) do
+    expired[#expired + 1] = id
+  end
+end
+for _, id in ipairs(expired) do
+  redis.call('HDEL', history_key, id)
+  redis.call('ZREM', history_at_key, id)
+end
 return 1

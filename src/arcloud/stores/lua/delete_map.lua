@@ -1,6 +1,6 @@
--- Remove a map's objects, index, frames and id counter atomically.
+-- Remove a map's objects, index, frames, id counter and history of retired objects atomically.
 -- KEYS[1]: bounds HASH, KEYS[2]: processed-frames HASH, KEYS[3]: id counter, KEYS[4]: metadata HASH,
--- KEYS[5]: processed-frames counter.
+-- KEYS[5]: processed-frames counter, KEYS[6]: retired objects' HASH, KEYS[7]: their retirement times (ZSET).
 -- ARGV[1]: the map prefix.
 -- Returns the number of objects removed. (Leases expire by themselves; the caller sweeps them.)
 local prefix = ARGV[1]
@@ -15,5 +15,5 @@ for _, id in ipairs(ids) do
   end
   redis.call('DEL', key)
 end
-redis.call('DEL', KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5])
+redis.call('DEL', KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5], KEYS[6], KEYS[7])
 return #ids
