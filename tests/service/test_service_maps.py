@@ -94,3 +94,21 @@ def test_a_key_lists_only_its_own_maps() -> None:
                 assert [m["map_id"] for m in sdk.list_maps(page_size=1)] == ["a", "b"]  # two pages
     finally:
         server.stop()
+
+
+def test_an_object_carried_away_leaves_the_listing_for_the_retired_history() -> None:
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as client:
+        for index in range(6):  # two chairs, seen upright: confirmed
+            post(client, "r", index)
+        wait_until(lambda: client.get("/v1/maps/r/stats").json()["frames"]["processed"] == 6, 20, "frames processed")
+        before = {o["id"]: o for o in client.get("/v1/maps/r/objects").json()["objects"]}
+        assert len(before) == 2 and client.get("/v1/maps/r/retired").json() == {"objects": []}
+        for index in range(6, 12):  # the left chair is gone: its place shows the wall behind
+            body = frame_to_proto(make_test_frame(index, map_id="r", boxes=(RIGHT,), level=True)).SerializeToString()
+            assert client.post("/v1/maps/r/frames", content=body, headers=PROTOBUF).status_code == 202
+        wait_until(lambda: client.get("/v1/maps/r/stats").json()["frames"]["processed"] == 12, 20, "frames processed")
+        after = {o["id"] for o in client.get("/v1/maps/r/objects", params={"include": "tentative"}).json()["objects"]}
+        retired = client.get("/v1/maps/r/retired").json()["objects"]
+        assert len(after) == 1 and [r["id"] for r in retired] == sorted(set(before) - after)
+        assert retired[0]["label"] == "chair" and retired[0]["retired_at"].endswith("Z")
+        assert client.get("/v1/maps/nowhere/retired").status_code == 404

@@ -11,6 +11,7 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/objects/{id}     any object, with its status; ?voxels=true
     DELETE /v1/maps/{map_id}
     GET    /v1/maps/{map_id}/stats
+    GET    /v1/maps/{map_id}/retired          objects retired (seen gone), latest first
     GET    /v1/maps/{map_id}/snapshot         the map as one file (admin); PUT it back (?replace=true)
     GET    /v1/maps/{map_id}/export           ?format=json|ply|glb|scannet &include=tentative &color= &voxels=
     GET    /v1/maps/{map_id}/events           server-sent object events (service.event_stream, viewer_routes)
@@ -73,6 +74,7 @@ from arcloud.service.schemas import (
     ObjectList,
     Problem,
     Ready,
+    RetiredList,
     iso_time,
     object_out,
 )
@@ -486,6 +488,23 @@ def list_maps(
             }
         )
     return {"maps": summaries, "next_cursor": page[-1] if len(readable) > limit else None}
+
+
+@router.get(
+    "/v1/maps/{map_id}/retired",
+    dependencies=[Depends(require("read"))],
+    response_model=RetiredList,
+    responses=PROBLEM_RESPONSES,
+    tags=["objects"],
+    summary="Objects that left the map",
+    description="The map's history: objects the step retired because frames saw their place empty (each as it was "
+    "when it left, and when), latest first, kept `ARCLOUD_RETIRED_HISTORY_S`.",
+)
+def retired_objects(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
+    known_map(runtime, map_id)
+    return {
+        "objects": [{**object_out(r.meta), "retired_at": iso_time(r.retired_at_s)} for r in runtime.store.retired_objects(map_id)]
+    }
 
 
 @router.delete(

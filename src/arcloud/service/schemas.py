@@ -142,6 +142,14 @@ class ObjectList(BaseModel):
     )
 
 
+class RetiredOut(ObjectOut):
+    retired_at: str | None = Field(description="when it left the map (ISO 8601 UTC)")
+
+
+class RetiredList(BaseModel):
+    objects: list[RetiredOut]
+
+
 class FrameCounts(BaseModel):
     accepted: int
     processed: int
