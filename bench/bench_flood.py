@@ -14,8 +14,6 @@ with the flood, ...) so that the machine's drift hits both alike. Reported: the 
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 import threading
 import time
@@ -26,7 +24,7 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, free_port, write_json
+from common import Redis, ServeProcess, environment, write_json
 
 OUT = Path(__file__).parent / "results" / "flood.json"
 
@@ -117,44 +115,16 @@ def main() -> None:
         keys.add(calm_key)
         keys.add(flood_key)
         keys.close()
-        port = free_port()
-        url = f"http://127.0.0.1:{port}"
-        env = {
-            **os.environ,
+        limits = {
             "ARCLOUD_MAP_FRAME_RATE_PER_S": str(args.map_rate),
             "ARCLOUD_MAP_FRAME_BURST": str(int(2 * args.map_rate)),
             "ARCLOUD_KEY_RATE_PER_S": str(4 * args.map_rate * args.flood_factor),  # the map's limit acts, not the key's
             "ARCLOUD_MAX_QUEUED_FRAMES": "100000",
             "ARCLOUD_LOG_LEVEL": "WARNING",
         }
-        server = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "arcloud.cli",
-                "serve",
-                "--redis",
-                redis.url,
-                "--workers",
-                "1",
-                "--detector",
-                "sim:0",
-                "--port",
-                str(port),
-            ],
-            env=env,
-        )
+        service = ServeProcess(redis.url, workers=1, detector="sim:0", env=limits, ready_s=120.0)
+        url = service.url
         try:
-            deadline = time.time() + 120
-            while time.time() < deadline:
-                try:
-                    if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                time.sleep(0.2)
-            else:
-                raise SystemExit("the service did not become ready in 120 s")
             calm_bodies = frame_bodies("calm", 200, "calm-device")
             flood_bodies = frame_bodies("flooded", 200, "flood-device")
             calm: dict[str, list[float]] = {"calm": [], "flood": []}
@@ -185,8 +155,7 @@ def main() -> None:
                     calm_refused += sum(1 for _, status in answers if status != 202)
                     time.sleep(2.0)  # the flood's bucket refills; the queue drains a little
         finally:
-            server.terminate()
-            server.wait(60)
+            service.stop()
     finally:
         redis.stop()
     normal, flooded = percentiles_ms(calm["calm"]), percentiles_ms(calm["flood"])

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import threading
 import time
@@ -25,24 +24,10 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, free_port, write_json
+from common import INGEST_ONLY_ENV, Redis, ServeProcess, cores, cpu_s, environment, write_json
 
 OUT = Path(__file__).parent / "results" / "load.json"
 WIDTH, HEIGHT = 160, 120
-
-
-def cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
-def cpu_s(pid: int) -> float:
-    """CPU seconds (user + system) of process ``pid`` so far (Linux /proc); 0 once it is gone."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            fields = stat.read().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def children(pid: int) -> list[int]:
@@ -174,31 +159,10 @@ def main() -> None:
     args = parser.parse_args()
     counts = [int(v) for v in args.devices.split(",")]
     redis = Redis()
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    env = {
-        **os.environ,
-        "ARCLOUD_AUTH": "none",
-        "ARCLOUD_KEY_RATE_PER_S": "0",
-        "ARCLOUD_MAP_FRAME_RATE_PER_S": "0",
-        "ARCLOUD_MAX_QUEUED_FRAMES": "100000",
-        "ARCLOUD_MAX_QUEUED_FRAMES_PER_MAP": "100000",
-        "ARCLOUD_LOG_LEVEL": "WARNING",
-    }
-    command = [sys.executable, "-m", "arcloud.cli", "serve", "--redis", redis.url, "--workers", str(args.workers)]
-    server = subprocess.Popen([*command, "--detector", "sim:0", "--port", str(port)], env=env)
+    service = ServeProcess(redis.url, workers=args.workers, detector="sim:0", env=INGEST_ONLY_ENV)
+    url, server = service.url, service.process
     runs = []
     try:
-        deadline = time.time() + 180
-        while time.time() < deadline:
-            try:
-                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.25)
-        else:
-            raise SystemExit("the service did not become ready in 180 s")
         for n in counts:
             bodies = device_bodies(f"load-{n}", n, int(args.seconds * args.rate))
             workers = children(server.pid)
@@ -225,8 +189,7 @@ def main() -> None:
                 f"per frame {result['per_frame']['redis_commands']} Redis commands, cpu {result['per_frame']['cpu_ms']} ms"
             )
     finally:
-        server.terminate()
-        server.wait(60)
+        service.stop()
         redis.stop()
     write_json(
         args.out,

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, free_port, summary_ms, write_json
+from common import Redis, cpu_s, environment, free_port, summary_ms, write_json
 
 TARGET_SPEEDUP = 1.7
 TARGET_OVERHEAD = 1.25
@@ -79,13 +79,6 @@ def parallel_probe(n: int = 3_000_000) -> float:
         pool.map(_spin, [n, n])
         two = time.perf_counter() - started
     return 2 * one / two
-
-
-def cpu_s(pid: int) -> float:
-    """CPU seconds (user + system) process ``pid`` has used so far, from /proc (Linux)."""
-    with open(f"/proc/{pid}/stat") as stat:
-        fields = stat.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 class Service:

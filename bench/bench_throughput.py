@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import threading
 import time
@@ -32,17 +31,13 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, free_port, write_json
+from common import INGEST_ONLY_ENV, Redis, ServeProcess, cores, environment, write_json
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("ARCLOUD_SHARED", PROJECT_ROOT.parent / "shared"))
 SEQUENCE = SHARED / "data/7scenes-redkitchen"
 MODEL = SHARED / "models/yolov8n-seg-fp32-640.onnx"
 OUT = Path(__file__).parent / "results" / "throughput.json"
-
-
-def cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def load_frames(n: int, stride: int) -> list[Any]:
@@ -94,40 +89,6 @@ def bench_pipeline(frames: list[Any], threads: int) -> dict[str, Any]:
         "objects": len(store.list_meta(frames[0].map_id)),
         "threads": threads,
     }
-
-
-class Service:
-    """``arcloud serve --redis`` in its own process (auth and limits off: the bench measures ingest)."""
-
-    def __init__(self, redis: Redis, workers: int) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        env = {
-            **os.environ,
-            "ARCLOUD_AUTH": "none",
-            "ARCLOUD_KEY_RATE_PER_S": "0",
-            "ARCLOUD_MAP_FRAME_RATE_PER_S": "0",
-            "ARCLOUD_MAX_QUEUED_FRAMES": "100000",
-            "ARCLOUD_MAX_QUEUED_FRAMES_PER_MAP": "100000",
-            "ARCLOUD_LOG_LEVEL": "WARNING",
-        }
-        command = [sys.executable, "-m", "arcloud.cli", "serve", "--redis", redis.url, "--workers", str(workers)]
-        command += ["--detector", f"onnx:{MODEL}", "--port", str(self.port)]
-        self.process = subprocess.Popen(command, env=env)
-        deadline = time.time() + 180
-        while time.time() < deadline:
-            try:
-                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.25)
-        self.stop()
-        raise SystemExit("the service did not become ready in 180 s")
-
-    def stop(self) -> None:
-        self.process.terminate()
-        self.process.wait(60)
 
 
 def post_frames(url: str, map_id: str, bodies: list[bytes], *, rate_per_s: float | None, concurrency: int = 8) -> list[float]:
@@ -216,7 +177,7 @@ def main() -> None:
     print(f"pipeline (detector + step): {pipeline['fps']} frames/s (step {pipeline['step_ms_per_frame']} ms)")
     redis = Redis()
     try:
-        service = Service(redis, args.workers)
+        service = ServeProcess(redis.url, workers=args.workers, detector=f"onnx:{MODEL}", env=INGEST_ONLY_ENV)
         try:
             service_run(redis, service.url, frames[:4], "warm-up", None)  # sessions loaded, caches warm
             full = service_run(redis, service.url, frames, "as-fast", None)

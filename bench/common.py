@@ -139,3 +139,59 @@ class Redis:
         self.process.terminate()
         self.process.wait(10)
         self.dir.cleanup()
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) process ``pid`` has used so far (Linux /proc); 0 once it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+#: Settings for a service whose ingest a bench measures: no keys, no rate limits, a queue it cannot fill.
+INGEST_ONLY_ENV = {
+    "ARCLOUD_AUTH": "none",
+    "ARCLOUD_KEY_RATE_PER_S": "0",
+    "ARCLOUD_MAP_FRAME_RATE_PER_S": "0",
+    "ARCLOUD_MAX_QUEUED_FRAMES": "100000",
+    "ARCLOUD_MAX_QUEUED_FRAMES_PER_MAP": "100000",
+    "ARCLOUD_LOG_LEVEL": "WARNING",
+}
+
+
+class ServeProcess:
+    """``arcloud serve --redis URL --workers N --detector SPEC`` in its own process on a free loopback port,
+    with ``env`` (``ARCLOUD_*``) over this process's environment; ready (``/readyz`` 200) when built."""
+
+    def __init__(self, redis_url: str, *, workers: int, detector: str, env: dict[str, str], ready_s: float = 180.0) -> None:
+        import sys
+
+        import httpx
+
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        command = [sys.executable, "-m", "arcloud.cli", "serve", "--redis", redis_url, "--workers", str(workers)]
+        command += ["--detector", detector, "--port", str(self.port)]
+        self.process = subprocess.Popen(command, env={**os.environ, **env})
+        deadline = time.time() + ready_s
+        while time.time() < deadline:
+            try:
+                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.25)
+        self.stop()
+        raise SystemExit(f"the service did not become ready in {ready_s:g} s")
+
+    def stop(self) -> None:
+        self.process.terminate()
+        self.process.wait(60)

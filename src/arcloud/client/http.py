@@ -151,6 +151,13 @@ def checked(response: httpx.Response) -> dict[str, Any]:
     raise service_error(response)
 
 
+def checked_content(response: httpx.Response) -> bytes:
+    """The body of a 2xx response (a file); ``ServiceError`` otherwise."""
+    if response.is_success:
+        return response.content
+    raise service_error(response)
+
+
 def service_error(response: httpx.Response) -> ServiceError:
     """The ``ServiceError`` of a refusal (its JSON problem, or the start of its text)."""
     try:
@@ -350,17 +357,11 @@ class ArcloudClient:
     def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
         """The map as a file's bytes (``GET /v1/maps/{map}/export``): ``fmt`` json, ply, glb or scannet (a zip);
         ``options``: include="tentative", color="class", voxels=True."""
-        response = self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options))
-        if not response.is_success:
-            raise service_error(response)
-        return response.content
+        return checked_content(self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options)))
 
     def snapshot(self, map_id: str) -> bytes:
         """The whole map as one file (an admin key's; ``GET /v1/maps/{map}/snapshot``)."""
-        response = self._send("GET", f"/v1/maps/{map_id}/snapshot")
-        if not response.is_success:
-            raise service_error(response)
-        return response.content
+        return checked_content(self._send("GET", f"/v1/maps/{map_id}/snapshot"))
 
     def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> dict[str, Any]:
         """Restore a snapshot into the map (empty, or deleted first with ``replace``); an admin key's."""
@@ -508,16 +509,10 @@ class AsyncArcloudClient:
         return await self._request("GET", f"/v1/maps/{map_id}/stats")
 
     async def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
-        response = await self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options))
-        if not response.is_success:
-            raise service_error(response)
-        return response.content
+        return checked_content(await self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options)))
 
     async def snapshot(self, map_id: str) -> bytes:
-        response = await self._send("GET", f"/v1/maps/{map_id}/snapshot")
-        if not response.is_success:
-            raise service_error(response)
-        return response.content
+        return checked_content(await self._send("GET", f"/v1/maps/{map_id}/snapshot"))
 
     async def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> dict[str, Any]:
         return await self._request(
