@@ -37,6 +37,7 @@ import json
 import logging
 from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from contextlib import asynccontextmanager
+from functools import partial
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -58,7 +59,7 @@ from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
 from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels, voxel_colors_out
 from arcloud.service.logs import bind_log_context
-from arcloud.service.map_header import check_map_header, open_map_checked
+from arcloud.service.map_header import check_map_header
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
@@ -252,7 +253,8 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
     frame = await run_in_threadpool(frames_in.validate_message, msg, map_id, max_pixels=settings.max_frame_pixels)
     bind_log_context(map_id=frame.map_id, device_id=frame.device_id, frame_id=frame.frame_id)  # to the response's log line
-    await run_in_threadpool(open_map_checked, runtime.store, map_id, runtime.params)  # 409 for other settings; lists the map
+    # 409 for other settings; a map's first frame opens it (it is listed from then on)
+    await run_in_threadpool(partial(check_map_header, runtime.store, map_id, runtime.params, open_new=True))
     accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
 

@@ -19,11 +19,14 @@ def open_map_checked(store: ObjectStore, map_id: str, params: Params) -> None:
     check_store_header(store, store.open_map(map_id, ours), params, map_id)
 
 
-def check_map_header(store: ObjectStore, map_id: str, params: Params) -> None:
-    """``MapMismatch`` if the map's stored header says other settings than ours (none stored: fine)."""
+def check_map_header(store: ObjectStore, map_id: str, params: Params, *, open_new: bool = False) -> None:
+    """``MapMismatch`` if the map's stored header says other settings than ours; none stored: fine, and
+    with ``open_new`` ours is stored (the map's first frame: one read a call otherwise, as a check)."""
     header = store.map_header(map_id)
     if header is not None:
         check_store_header(store, header, params, map_id)
+    elif open_new:
+        open_map_checked(store, map_id, params)
 
 
 def check_store_header(store: ObjectStore, header: MapHeader, params: Params, map_id: str) -> None:

@@ -578,8 +578,9 @@ class RedisStore:
             pipe = self.client.pipeline(transaction=True)
             pipe.set(key, json.dumps(header.to_record()), nx=True)
             pipe.get(key)
-            _, stored = pipe.execute()
-            self.client.hsetnx(keys.MAPS, map_id, repr(header.created_at_s))  # service-wide: its own slot
+            created, stored = pipe.execute()
+            if created:  # the map's first opening lists it (a commit lists a map opened before the list existed)
+                self.client.hsetnx(keys.MAPS, map_id, repr(header.created_at_s))  # service-wide: its own slot
         return _header_of(map_id, stored)
 
     def list_maps(self) -> dict[str, float]:
