@@ -8,8 +8,8 @@ both to the object map and to the dense reconstructions, so both see the same fr
 Object map: the centralized run, ``process_frame`` with the real YOLOv8n-seg (fp32, 640) on each frame, one after
 another, into a ``RedisStore`` on a throwaway redis-server (default ``Params``: 5 cm voxels). Its size, two ways:
 - codec payload: the bytes ``codec.encode_voxels`` and ``codec.encode_meta`` produce for every object (what
-  the store writes for it; checked against ``HSTRLEN`` of the stored fields), also with float16 votes (the
-  store's ``votes_f16`` option); the 48-byte bounds of the spatial index are listed apart;
+  the store writes for it; checked against ``HSTRLEN`` of the stored fields); the 48-byte bounds of the
+  spatial index are listed apart;
 - Redis: ``MEMORY USAGE key SAMPLES 0`` (exact, not sampled) summed over the map's keys (``arcloud.stores.keys``):
   the object hashes, the metadata and bounds hashes and the index's cell sets. The id counter and the
   processed-frames set are bookkeeping of the run, reported apart and not counted.
@@ -148,11 +148,9 @@ class DenseReconstruction:
         }
 
 
-def codec_figures(objects: list[MapObject], *, votes_f16: bool) -> dict[str, int]:
+def codec_figures(objects: list[MapObject]) -> dict[str, int]:
     """Bytes the store's codec writes for the objects: voxel blobs, metadata JSON, bounds."""
-    voxels = [
-        len(codec.encode_voxels(o.keys, o.weights, o.votes, seen=o.seen, colors=o.colors, votes_f16=votes_f16)) for o in objects
-    ]
+    voxels = [len(codec.encode_voxels(o.keys, o.weights, o.votes, seen=o.seen, colors=o.colors)) for o in objects]
     meta = [len(codec.encode_meta(o)) for o in objects]
     bounds = [len(codec.pack_box(o.bounds)) for o in objects if o.bounds is not None]
     return {
@@ -270,8 +268,7 @@ def main() -> None:
         step_s = run_frames(sequence, names, detector, store, params, dense)
         objects = store.list_objects(map_id)
         n_voxels = sum(o.n_voxels for o in objects)
-        payload = codec_figures(objects, votes_f16=store.votes_f16)
-        payload_f16 = codec_figures(objects, votes_f16=True)
+        payload = codec_figures(objects)
         in_redis = redis_figures(store.client, map_id, [o.id for o in objects])
         store.close()
         redis_version = server.version
@@ -317,7 +314,6 @@ def main() -> None:
             "labels": dict(Counter(o.label or "" for o in objects)),
             "voxels": n_voxels,
             "codec": payload,
-            "codec_votes_f16": payload_f16,
             "redis": in_redis,
             "codec_voxels_bytes_per_voxel": round(payload["voxels_bytes"] / n_voxels, 3) if n_voxels else None,
             "codec_payload_bytes_per_voxel": round(payload["payload_bytes"] / n_voxels, 3) if n_voxels else None,

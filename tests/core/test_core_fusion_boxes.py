@@ -2,7 +2,16 @@ import numpy as np
 import pytest
 
 from arcloud.core.boxes import box_voxel_mask, fit_gravity_obb, refine
-from arcloud.core.fusion import find_duplicates, fuse_detection, merge_objects, new_object, object_label_index, resolve_conflicts
+from arcloud.core.fusion import (
+    VOTE_STEP,
+    find_duplicates,
+    fuse_detection,
+    merge_objects,
+    new_object,
+    object_label_index,
+    resolve_conflicts,
+    vote_of,
+)
 from arcloud.core.gravity import Gravity, up_rotation
 from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection
 from arcloud.core.voxels import pack_keys
@@ -26,6 +35,20 @@ def test_fusion_adds_weights_and_votes_and_label_is_the_mode():
     assert obj.weights.max() == 3 and obj.weights.min() == 2
     assert object_label_index(obj) == CLASS_INDEX["chair"]
     assert obj.score_sum == pytest.approx(2.3)
+
+
+def test_votes_come_in_steps_so_their_sums_do_not_depend_on_the_order_of_frames():
+    keys = block((0, 0, 0), (2, 2, 2))
+    scores = np.random.default_rng(5).uniform(0.25, 1.0, 40)
+    sums = []
+    for order in (scores, scores[::-1]):
+        obj = new_object(1, det("chair", keys, float(order[0])), "a", 0.0)
+        for score in order[1:]:
+            obj = fuse_detection(obj, det("chair", keys, float(score)), "a")
+        sums.append(obj.votes[:, CLASS_INDEX["chair"]])
+    np.testing.assert_array_equal(sums[0], sums[1])  # float32 sums of raw scores differ with their order
+    assert sums[0][0] == sum(vote_of(float(s)) for s in scores) and sums[0][0] / VOTE_STEP == round(sums[0][0] / VOTE_STEP)
+    assert abs(vote_of(0.7) - 0.7) <= VOTE_STEP / 2 and vote_of(0.0) == 0.0
 
 
 def test_conflicts_leave_each_voxel_with_one_object():

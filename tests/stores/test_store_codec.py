@@ -7,6 +7,7 @@ import zlib
 import numpy as np
 import pytest
 
+from arcloud.core.fusion import VOTE_STEP
 from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject
 from arcloud.core.voxels import KEY_OFFSET, pack_keys
 from arcloud.errors import InvalidInput, StoreError
@@ -20,6 +21,9 @@ def random_voxels(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     weights = rng.random(keys.size, np.float32) * 100
     votes = rng.random((keys.size, N_CLASSES), np.float32) * (rng.random((keys.size, N_CLASSES)) < 0.3)
     return keys, weights, votes
+
+
+HEADER_BYTES = 19  # format 4: 12 bytes, then the plane kinds and the vote count
 
 
 def random_colors(n: int, seed: int) -> np.ndarray:
@@ -50,7 +54,7 @@ def test_colours_take_three_bytes_a_voxel_at_most_and_unknown_ones_none() -> Non
     without = codec.encode_voxels(keys, weights, votes)
     with_colors = codec.encode_voxels(keys, weights, votes, colors=random_colors(keys.size, seed=8))
     assert without[5] & codec.FLAG_COLORS == 0 and with_colors[5] & codec.FLAG_COLORS
-    assert len(zlib.decompress(with_colors[12:])) - len(zlib.decompress(without[12:])) == 3 * keys.size
+    assert len(zlib.decompress(with_colors[HEADER_BYTES:])) - len(zlib.decompress(without[HEADER_BYTES:])) == 3 * keys.size
     assert codec.decode_voxels(without)[4] is None
     # Alike neighbours (one surface in two shades) cost far less than 3 bytes a voxel.
     plain = np.where(np.arange(keys.size)[:, None] % 50 < 25, [200, 60, 40], [190, 62, 41]).astype(np.uint8)
@@ -63,24 +67,59 @@ def test_compact_objects_compress_well() -> None:
     keys = np.sort(pack_keys(ijk))
     weights = np.ones(keys.size, np.float32) * 3
     votes = np.zeros((keys.size, N_CLASSES), np.float32)
-    votes[:, 1] = 2.7
+    votes[:, 1] = 2.75  # votes come in steps of VOTE_STEP
     blob = codec.encode_voxels(keys, weights, votes)
     assert blob[4:6] == bytes([codec.FORMAT_VERSION, codec.FLAG_ZLIB])
     raw_bytes = keys.size * (8 + 4 + 4 * N_CLASSES)
-    assert len(blob) < raw_bytes / 10
+    assert len(blob) < raw_bytes / 50
     np.testing.assert_array_equal(codec.decode_voxels(blob)[0], keys)
 
 
-def test_votes_as_float16_keep_the_documented_precision() -> None:
-    keys, weights, votes = random_voxels(300, seed=3)
-    votes = votes * 1000
-    blob16 = codec.encode_voxels(keys, weights, votes, votes_f16=True)
-    blob32 = codec.encode_voxels(keys, weights, votes)
-    _, got_weights, got_votes, _, _ = codec.decode_voxels(blob16)
+def test_counts_and_votes_in_steps_are_stored_as_integers_and_other_values_as_float32() -> None:
+    keys, _, _ = random_voxels(400, seed=3)
+    rng = np.random.default_rng(3)
+    counts = rng.integers(0, 700, keys.size).astype(np.float32)
+    votes = np.zeros((keys.size, N_CLASSES), np.float32)
+    votes[np.arange(keys.size), rng.integers(0, N_CLASSES, keys.size)] = rng.integers(1, 64 * 400, keys.size) * np.float32(
+        VOTE_STEP
+    )
+    blob = codec.encode_voxels(keys, counts, votes, seen=counts + 70000)  # seen above 2**16: 32-bit
+    assert tuple(blob[12:15]) == (codec.KIND_U16, codec.KIND_U32, codec.KIND_U16)
+    assert int.from_bytes(blob[15:19], "little") == keys.size  # one vote a voxel
+    _, got_counts, got_votes, got_seen, _ = codec.decode_voxels(blob)
+    np.testing.assert_array_equal(got_counts, counts)
+    np.testing.assert_array_equal(got_seen, counts + 70000)
+    np.testing.assert_array_equal(got_votes, votes)
+    # Values no integer plane holds exactly (fractions, negatives, -0.0, NaN, too large): float32, bit for bit.
+    odd = counts.copy()
+    odd[:5] = [0.3, -1.0, -0.0, np.nan, 2.0**40]
+    odd_votes = votes * np.float32(1.001)
+    blob = codec.encode_voxels(keys, odd, odd_votes)
+    assert tuple(blob[12:15]) == (codec.KIND_F32, codec.KIND_F32, codec.KIND_F32)
+    _, got_odd, got_odd_votes, _, _ = codec.decode_voxels(blob)
+    np.testing.assert_array_equal(got_odd.view(np.uint32), odd.view(np.uint32))
+    np.testing.assert_array_equal(got_odd_votes, odd_votes)
+    assert len(blob) > len(codec.encode_voxels(keys, counts, votes)) + keys.size  # integers: over a byte a voxel less
+
+
+@pytest.mark.parametrize(("f16", "compressed"), [(False, False), (False, True), (True, True)])
+def test_format_3_blobs_read(f16: bool, compressed: bool) -> None:
+    """A blob as version 3 wrote it (the layout of this test, not the encoder's): float32 arrays, votes
+    float16 with ``FLAG_VOTES_F16``, colours."""
+    keys, weights, votes = random_voxels(60, seed=10)
+    seen, colors = weights + 1, random_colors(keys.size, seed=10)
+    votes_bytes = votes.astype("<f2" if f16 else "<f4").tobytes()
+    payload = b"".join(
+        (np.diff(keys, prepend=0).astype("<i8").tobytes(), weights.tobytes(), seen.tobytes(), votes_bytes, colors.T.tobytes())
+    )
+    flags = codec.FLAG_COLORS | (codec.FLAG_VOTES_F16 if f16 else 0) | (codec.FLAG_ZLIB if compressed else 0)
+    blob = codec._HEADER.pack(b"ARCV", 3, flags, N_CLASSES, keys.size) + (zlib.compress(payload) if compressed else payload)
+    got_keys, got_weights, got_votes, got_seen, got_colors = codec.decode_voxels(blob)
+    np.testing.assert_array_equal(got_keys, keys)
     np.testing.assert_array_equal(got_weights, weights)
-    np.testing.assert_allclose(got_votes, votes, rtol=2.0**-11, atol=0)
-    assert not np.array_equal(got_votes, votes)  # it is lossy
-    assert len(zlib.decompress(blob16[12:])) < len(zlib.decompress(blob32[12:]))
+    np.testing.assert_array_equal(got_seen, seen)
+    np.testing.assert_array_equal(got_votes, votes.astype(np.float16).astype(np.float32) if f16 else votes)
+    np.testing.assert_array_equal(got_colors, colors)
 
 
 def test_format_1_blobs_read_with_seen_equal_to_weights() -> None:
@@ -139,7 +178,15 @@ def test_decode_refuses_corrupt_blobs() -> None:
     with pytest.raises(StoreError, match="magic"):
         codec.decode_voxels(b"XXXX" + blob[4:])
     with pytest.raises(StoreError, match="zlib"):
-        codec.decode_voxels(blob[:12] + b"not zlib at all")
+        codec.decode_voxels(blob[:HEADER_BYTES] + b"not zlib at all")
+    with pytest.raises(StoreError, match="corrupt header"):
+        codec.decode_voxels(blob[:12] + bytes([7]) + blob[13:])  # no such plane kind
+    with pytest.raises(StoreError, match="bytes"):  # one vote fewer than the arrays hold
+        codec.decode_voxels(blob[:15] + (int.from_bytes(blob[15:19], "little") - 1).to_bytes(4, "little") + blob[19:])
+    raw = bytearray(codec.encode_voxels(keys[:3], weights[:3], votes[:3]))  # float32 weights and seen, stored raw
+    raw[HEADER_BYTES + 3 * (8 + 4 + 4)] ^= 1  # the first voxel's vote bit of class 0
+    with pytest.raises(StoreError, match="vote bits"):
+        codec.decode_voxels(bytes(raw))
     small = codec.encode_voxels(keys[:3], weights[:3], votes[:3])  # stored raw
     with pytest.raises(StoreError, match="bytes"):
         codec.decode_voxels(small[:-1])
@@ -190,6 +237,18 @@ def test_object_round_trips_through_metadata_and_voxels() -> None:
     np.testing.assert_array_equal(bounds, [[-2, 0, 0, 2, 3, 4], [*obj.aabb.min, *obj.aabb.max]])
 
 
+def test_metadata_is_compressed_json_and_plain_json_of_older_formats_reads_alike() -> None:
+    keys, weights, votes = random_voxels(3, seed=7)
+    obj = MapObject(id=4, keys=keys, weights=weights, votes=votes, label="chair", score=0.5, devices=frozenset({"d1"}))
+    blob = codec.encode_meta(obj)
+    plain = zlib.decompress(blob)
+    assert plain.startswith(b'{"label":"chair"') and len(blob) < len(plain)
+    assert [repr(m) for m in codec.decode_metas([4, 4], [blob, plain])] == [repr(codec.meta_of(obj))] * 2
+    bomb = zlib.compress(b'{"label":"' + b"x" * (codec.MAX_META_BYTES + 10) + b'"}')
+    with pytest.raises(StoreError, match="more than"):
+        codec.decode_meta(4, bomb)
+
+
 def test_object_without_boxes_round_trips() -> None:
     keys, weights, votes = random_voxels(3, seed=5)
     obj = MapObject(id=1, keys=keys, weights=weights, votes=votes)
@@ -212,7 +271,8 @@ def test_corrupt_metadata_is_a_store_error() -> None:
 
 def test_a_blob_cannot_unpack_beyond_what_its_header_announces() -> None:
     bomb = zlib.compress(bytes(50_000_000))  # 50 MB of zeros in about 50 kB
-    one_voxel = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, 1)
+    planes = codec._PLANES.pack(codec.KIND_F32, codec.KIND_F32, codec.KIND_F32, 0)
+    one_voxel = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, 1) + planes
     with pytest.raises(StoreError, match="expected .* bytes for 1 voxels"):
         codec.decode_voxels(one_voxel + bomb)
     too_many = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, codec.MAX_BLOB_VOXELS + 1)

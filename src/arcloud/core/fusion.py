@@ -15,6 +15,17 @@ from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
 
+#: A detection votes its score rounded to this step: sums of such votes are exact in float32 (up to 2**18
+#: per voxel), so the votes of a voxel do not depend on the order of its frames, and the store keeps them
+#: as integers (``stores.codec``: 2 bytes a vote instead of 4). The label of a voxel is the mode of its
+#: votes, which a step this fine (scores are 0.25-1) changes only in near ties.
+VOTE_STEP = 2.0**-6
+
+
+def vote_of(score: float) -> np.float32:
+    """The vote a detection of ``score`` casts for its label: the score to the nearest ``VOTE_STEP``."""
+    return np.float32(round(score / VOTE_STEP) * VOTE_STEP)
+
 
 def union_voxels(
     a: MapObject,
@@ -76,12 +87,12 @@ def fuse_detection(
     obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None, floor_vote: int | None = None
 ) -> MapObject:
     """The object with one more observation: each voxel the detection covers gains weight 1, a vote
-    of the detection's score for its label and the detection's colour into its mean; every voxel
+    of the detection's score (``vote_of``) for its label and the detection's colour into its mean; every voxel
     covered or ``visible`` ((N,) bool over the object's voxels: in view and not occluded in this frame)
     is counted as seen once more. Seen again, it has not been seen gone since (``n_gone`` 0).
     ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
     det_votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
-    det_votes[:, det.label_index] = det.score
+    det_votes[:, det.label_index] = vote_of(det.score)
     ones = np.ones(det.keys.size, np.float32)
     keys, weights, seen, votes, colors, at_obj, at_det = _union_arrays(obj, det.keys, ones, ones, det_votes, det.colors)
     if visible is not None and visible.any():

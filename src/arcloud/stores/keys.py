@@ -11,7 +11,7 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:processed:count     STRING  frames of the map processed (INCR in the commit; never lowered)
     arcloud:{m}:processed:sweep     STRING  where the commits' sweep of expired marks goes on (HSCAN cursor)
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
-    arcloud:{m}:meta                HASH    object id -> metadata JSON (``codec.encode_meta``): listing needs one read
+    arcloud:{m}:meta                HASH    object id -> metadata (``codec.encode_meta``): listing needs one read
     arcloud:{m}:obj:<id>            HASH    one object: ``version`` (the fence), ``cells`` (where it is indexed,
                                             "i:j:k i:j:k ..."), ``voxels`` (``codec.encode_voxels``), and its
                                             counters ``missed`` (``n_missed``), ``gone`` (``n_gone``)

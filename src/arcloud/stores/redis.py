@@ -226,7 +226,7 @@ class RedisStore:
     """``ObjectStore`` on Redis. ``cell_m``: size of the spatial index's cubic cells (every process of
     one deployment must use the same). ``client``: an existing ``redis.Redis`` or ``RedisCluster`` (binary
     responses, i.e. ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
-    ``reply_timeout_s``, ``retries``). ``votes_f16`` stores votes as float16 (see ``codec``).
+    ``reply_timeout_s``, ``retries``).
     ``frame_record_retention_s``: how long a processed frame's mark is kept; ``retired_history_s``: how
     long a retired object stays in its map's history; ``clock``: Unix seconds."""
 
@@ -240,7 +240,6 @@ class RedisStore:
         cell_m: float = 1.0,
         client: RedisClient | None = None,
         max_query_cells: int = MAX_QUERY_CELLS,
-        votes_f16: bool = False,
         reply_timeout_s: float = 30.0,
         retries: int = 1,
         frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
@@ -266,7 +265,6 @@ class RedisStore:
         if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
-        self.votes_f16 = votes_f16
         self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "delete_map")}
         self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("commit"))
 
@@ -507,7 +505,7 @@ class RedisStore:
             payload += [
                 codec.pack_box(obj.bounds),
                 codec.encode_meta(obj),
-                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors, votes_f16=self.votes_f16),
+                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors),
             ]
         with self._boundary(f"commit on map {map_id}"):
             written = self._scripts["commit"](
