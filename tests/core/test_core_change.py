@@ -1,7 +1,8 @@
 """Change over time (core.step.count_misses, core.voxels.free_voxels): a frame that sees an object's
 place empty (depth behind it) counts it *gone*, one that sees it there and detects nothing counts a
 plain miss; an object seen gone in ``retire_min_gone_frames`` frames since it was last seen is retired
-(event ``removed``, kept in the store's history). Hand-made frames: exact boxes, exact depth."""
+(event ``removed``, kept in the store's history); one missed in nearly every frame that saw it is deleted
+as a phantom (event ``deleted``). Hand-made frames: exact boxes, exact depth."""
 
 from __future__ import annotations
 
@@ -75,6 +76,31 @@ def test_an_undetected_object_still_there_is_missed_never_retired() -> None:
     (chair,) = store.list_objects("m")
     assert chair.n_missed >= 25 and chair.n_gone == 0
     assert not any(e.kind == "removed" for e in events) and store.retired_objects("m") == []
+
+
+def test_an_object_missed_in_nearly_every_frame_that_sees_it_is_deleted_as_a_phantom() -> None:
+    store = MemoryStore()
+    chair = mapped_chair(store, n=4)  # detected in 4 frames, then seen and not detected
+    params = PARAMS.replace(discard_min_sightings=40, discard_max_detection_rate=0.1)
+    misses, last = [], None
+    for frame, _ in circle(60, first=4):
+        (before,) = store.list_objects("m")
+        last = integrate_frame(frame, [], store, params)
+        if not store.list_objects("m"):
+            break
+        misses.append(store.list_objects("m")[0].n_missed)
+    # Kept at 40 sightings (4 detected, 36 missed: a rate of 0.1); the 37th miss (4 / 41 < 0.1) deletes it.
+    assert before.n_missed == 36 and misses[-1] == 36 and len(misses) >= 36
+    assert last is not None and last.removed == [chair.id] and last.retired == []
+    (event,) = last.events
+    assert (event.kind, event.object_id, event.was_confirmed) == ("deleted", chair.id, before.confirmed)
+    assert store.retired_objects("m") == []  # not kept in the history of things taken away
+    never = MemoryStore()  # discard_max_detection_rate 0: never deleted
+    mapped_chair(never, n=4)
+    for frame, _ in circle(60, first=4):
+        integrate_frame(frame, [], never, params.replace(discard_max_detection_rate=0.0))
+    (kept,) = never.list_objects("m")
+    assert kept.n_missed > 36
 
 
 def test_an_object_seen_gone_is_retired_after_the_stated_frames() -> None:

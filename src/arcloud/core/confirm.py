@@ -18,6 +18,11 @@ is evaluated at every refinement and whenever a frame misses the object, so a co
 evidence weakens (it was carried out of the room, or it was a phantom seen long enough) becomes
 tentative again. The number of devices is not evidence: in the multi-user protocol it reflects how the
 walk was cut.
+
+A *phantom* is forgotten: an object that at least ``discard_min_sightings`` frames saw, detected in fewer
+than ``discard_max_detection_rate`` of them, cannot be confirmed without far more detections than a
+real object gets; it is deleted (``core.step.count_misses``) rather than stored for ever. Should the
+detector call the place that class again, a new object starts from that detection.
 """
 
 from __future__ import annotations
@@ -45,6 +50,13 @@ def detection_rate(obj: MapObject, n_missed: int | None = None) -> float:
     instead of its own, when given)."""
     seen = obj.n_frames + (obj.n_missed if n_missed is None else n_missed)
     return obj.n_frames / seen if seen else 0.0
+
+
+def is_phantom(obj: MapObject, params: Params, *, n_missed: int | None = None) -> bool:
+    """Whether the object is a phantom to forget (see the module docstring), with ``n_missed`` misses
+    instead of its own when given."""
+    sightings = obj.n_frames + (obj.n_missed if n_missed is None else n_missed)
+    return sightings >= params.discard_min_sightings and detection_rate(obj, n_missed) < params.discard_max_detection_rate
 
 
 def plausible(obj: MapObject, params: Params) -> bool:

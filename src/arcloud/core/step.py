@@ -3,8 +3,9 @@
 detect -> voxelize (masks cleaned with depth) -> find visible objects -> lock -> associate -> fuse (and
 judge each visible object nothing was detected on by the depth at its voxels: a miss when its surface is
 there, *seen gone* when the rays pass through where it was; one seen gone in enough frames is retired:
-removed, event ``removed``) -> create -> refine (boxes reach the floor the frames saw; score and
-confirmation from the evidence) -> write -> unlock -> publish.
+removed, event ``removed``; one missed in nearly all the frames that saw it is a phantom: deleted) ->
+create -> refine (boxes reach the floor the frames saw; score and confirmation from the evidence) ->
+write -> unlock -> publish.
 
 Creation is where two workers that see the same new object at the same moment would make it twice
 (locks only protect objects that exist). So new objects are created under a *space claim* on the index
@@ -31,7 +32,7 @@ from arcloud.core.associate import associate, stored_index_bounds
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
-from arcloud.core.confirm import evidence
+from arcloud.core.confirm import evidence, is_phantom
 from arcloud.core.errors import LockTimeout, TooManyCells
 from arcloud.core.floor import FrameFloor, frame_floor
 from arcloud.core.fusion import (
@@ -139,6 +140,8 @@ def integrate_frame(
             to_write = refine_changed(objects, voxels_changed, rescored, params)
             upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
             events += [ObjectEvent("removed", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
+            events += [ObjectEvent("deleted", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.phantoms]
+            removed += misses.phantoms
             written = {o.id for o in upserts} | {o.id for o in removed}
             n_missed = {i: n for i, n in misses.n_missed.items() if i not in written}
             n_gone = {i: n for i, n in misses.n_gone.items() if i not in written}
@@ -244,11 +247,12 @@ def fuse_matches(
 class Misses:
     """What a frame's depth says of the visible objects it detected nothing on (``count_misses``)."""
 
-    objects: list[MapObject]  # every object given, those rescored replaced, those retired left out
+    objects: list[MapObject]  # every object given, those rescored replaced, those retired or phantoms left out
     n_missed: dict[int, int] = field(default_factory=dict)  # new miss counts of objects not rewritten
     n_gone: dict[int, int] = field(default_factory=dict)  # new gone counts of objects not rewritten (changed ones)
     rescored: set[int] = field(default_factory=set)  # ids whose score or status moved: rewritten, not refined
     retired: list[MapObject] = field(default_factory=list)  # seen gone long enough: removed, as read
+    phantoms: list[MapObject] = field(default_factory=list)  # missed too often (core.confirm.is_phantom): deleted, as read
 
 
 def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, params: Params) -> Misses:
@@ -268,7 +272,8 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
     - anything else (out of view, occluded, no depth there, or a mix) is no evidence.
 
     A missed detection of an object still there shows depth *at* its voxels, not behind them, so it
-    does not count towards retiring it. A miss rewrites an object when its score or status moves enough
+    does not count towards retiring it. An object that one more miss makes a phantom
+    (``core.confirm.is_phantom``) is deleted (``phantoms``). A miss rewrites an object when its score or status moves enough
     (``rescored``); otherwise its counters are written alone (``n_missed``, ``n_gone``: no new version)."""
     out = Misses(list(objects))
     undetected = [i for i, obj in enumerate(objects) if obj.id not in fused_ids and obj.keys.size]
@@ -296,18 +301,22 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
         free = np.zeros(all_samples.size, bool)
         free[at] = free_voxels(frame, all_samples[at], params)
         gone = gone_in(free, maybe)
-    retired: set[int] = set()
+    removed_ids: set[int] = set()  # retired and phantoms
     for k, (i, surface) in enumerate(zip(undetected, surface_shares)):
         obj = objects[i]
         if k in gone:
             n_gone = obj.n_gone + 1
             if 0 < params.retire_min_gone_frames <= n_gone:
                 out.retired.append(obj)
-                retired.add(obj.id)
+                removed_ids.add(obj.id)
                 continue
         elif surface >= params.miss_min_visible:
             n_gone = 0
         else:
+            continue
+        if is_phantom(obj, params, n_missed=obj.n_missed + 1):
+            out.phantoms.append(obj)
+            removed_ids.add(obj.id)
             continue
         score, confirmed = evidence(obj, params, n_missed=obj.n_missed + 1)
         if confirmed != obj.confirmed or abs(score - obj.score) > params.rescore_write_delta:
@@ -317,8 +326,8 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
             out.n_missed[obj.id] = obj.n_missed + 1
             if n_gone != obj.n_gone:
                 out.n_gone[obj.id] = n_gone
-    if retired:
-        out.objects = [o for o in out.objects if o.id not in retired]
+    if removed_ids:
+        out.objects = [o for o in out.objects if o.id not in removed_ids]
     return out
 
 

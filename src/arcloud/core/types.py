@@ -331,6 +331,9 @@ class Params:
     confirm_min_frames: int = 3
     confirm_min_detection_rate: float = 0.4
     confirm_min_score: float = 0.2
+    # Phantoms (core.confirm.is_phantom): seen in this many frames, detected in fewer than this share (0: never): deleted
+    discard_min_sightings: int = 50
+    discard_max_detection_rate: float = 0.1
     miss_min_visible: float = 0.3  # an undetected object counts as missed when this share of it is visible
     rescore_write_delta: float = 0.05  # a miss rewrites an object when its score moves by more (else: a counter)
     # Change over time (core.step.count_misses): an undetected object whose place a frame sees empty
@@ -430,6 +433,7 @@ _PARAM_KINDS: dict[str, str] = {
             "implausible_score_factor",
             "confirm_min_detection_rate",
             "confirm_min_score",
+            "discard_max_detection_rate",
             "miss_min_visible",
             "rescore_write_delta",
             "gone_min_free",
@@ -445,6 +449,7 @@ _PARAM_KINDS: dict[str, str] = {
             "association_tolerance_voxels",
             "split_min_frames",
             "confirm_min_frames",
+            "discard_min_sightings",
             "retire_min_gone_frames",
             "floor_min_samples",
             "floor_min_votes",
