@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from handmade_frames import HEIGHT, INTRINSICS, WIDTH, look_down_pose, plane_frame, scene_frame
 
-from arcloud.core.step import integrate_frame
-from arcloud.core.types import Detection, MapObject, Params
+from arcloud.core.step import integrate_frame, stands_apart
+from arcloud.core.types import AABB, Detection, MapObject, Params
 from arcloud.core.voxels import center_rays, free_voxels, key_centers, min_pyramid, points_to_keys, visible_voxels
 from arcloud.stores.memory import MemoryStore
 
@@ -101,6 +101,22 @@ def test_an_object_missed_in_nearly_every_frame_that_sees_it_is_deleted_as_a_pha
         integrate_frame(frame, [], never, params.replace(discard_max_detection_rate=0.0))
     (kept,) = never.list_objects("m")
     assert kept.n_missed > 36
+
+
+def test_a_phantom_is_deleted_only_when_it_stands_apart_from_other_objects() -> None:
+    def boxed(object_id: int, lo: tuple[float, float, float], hi: tuple[float, float, float] | None) -> MapObject:
+        empty = np.empty(0, np.int64)
+        bounds = None if hi is None else AABB(np.array(lo), np.array(hi))
+        return MapObject(
+            id=object_id, keys=empty, weights=np.empty(0, np.float32), votes=np.empty((0, 5), np.float32), bounds=bounds
+        )
+
+    phantom = boxed(1, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    assert stands_apart(phantom, [phantom, boxed(2, (1.2, 0.0, 0.0), (2.0, 1.0, 1.0))])
+    assert not stands_apart(phantom, [phantom, boxed(2, (1.0, 0.5, 0.5), (2.0, 1.0, 1.0))])  # touching
+    assert not stands_apart(phantom, [boxed(2, (0.2, 0.2, -1.0), (0.4, 0.4, 3.0)), phantom])  # through it
+    assert stands_apart(phantom, [phantom, boxed(2, (0.2, 0.2, 0.2), None)])  # no bounds: nowhere
+    assert not stands_apart(boxed(3, (0.0, 0.0, 0.0), None), [phantom])
 
 
 def test_an_object_seen_gone_is_retired_after_the_stated_frames() -> None:

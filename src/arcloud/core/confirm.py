@@ -21,8 +21,9 @@ walk was cut.
 
 A *phantom* is forgotten: an object that at least ``discard_min_sightings`` frames saw, detected in fewer
 than ``discard_max_detection_rate`` of them, cannot be confirmed without far more detections than a
-real object gets; it is deleted (``core.step.count_misses``) rather than stored for ever. Should the
-detector call the place that class again, a new object starts from that detection.
+real object gets; it is deleted (``core.step.count_misses``) rather than stored for ever, unless other
+objects lie within its bounds (``core.step.stands_apart``). Should the detector call the place that
+class again, a new object starts from that detection.
 """
 
 from __future__ import annotations

@@ -273,7 +273,8 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
 
     A missed detection of an object still there shows depth *at* its voxels, not behind them, so it
     does not count towards retiring it. An object that one more miss makes a phantom
-    (``core.confirm.is_phantom``) is deleted (``phantoms``). A miss rewrites an object when its score or status moves enough
+    (``core.confirm.is_phantom``) is deleted (``phantoms``) when it stands apart from the other objects
+    (``stands_apart``). A miss rewrites an object when its score or status moves enough
     (``rescored``); otherwise its counters are written alone (``n_missed``, ``n_gone``: no new version)."""
     out = Misses(list(objects))
     undetected = [i for i, obj in enumerate(objects) if obj.id not in fused_ids and obj.keys.size]
@@ -314,7 +315,7 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
             n_gone = 0
         else:
             continue
-        if is_phantom(obj, params, n_missed=obj.n_missed + 1):
+        if is_phantom(obj, params, n_missed=obj.n_missed + 1) and stands_apart(obj, objects):
             out.phantoms.append(obj)
             removed_ids.add(obj.id)
             continue
@@ -329,6 +330,21 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
     if removed_ids:
         out.objects = [o for o in out.objects if o.id not in removed_ids]
     return out
+
+
+def stands_apart(obj: MapObject, objects: Sequence[MapObject]) -> bool:
+    """Whether the bounds of ``obj`` (all its voxels) meet those of none of the other ``objects``. A
+    phantom among other objects is kept: it holds voxels that would otherwise go to them (one object a
+    voxel), so deleting it would reshape its neighbours (on 7-Scenes, a phantom chair under two TVs let
+    them grow into each other and merge)."""
+    if obj.bounds is None:
+        return False
+    return not any(
+        other.id != obj.id
+        and other.bounds is not None
+        and bool(np.all(other.bounds.min <= obj.bounds.max) and np.all(obj.bounds.min <= other.bounds.max))
+        for other in objects
+    )
 
 
 def gone_share(free: np.ndarray, heights: np.ndarray, params: Params) -> float:
