@@ -1,6 +1,7 @@
 """N simulated devices, each posting frames at a fixed rate (open loop, bounded in time), against
 `arcloud serve --redis` with one worker process per core and the simulator's detector: latency from each
-POST to its frame's commit (p50, p95, p99, max), frames/s taken and processed, and what one frame costs:
+POST to its frame's commit (p50, p95, p99, max; split into the POST until its 202 and what follows),
+frames/s taken and processed, and what one frame costs:
 Redis commands (by command) and bytes in and out, CPU seconds of the API, the workers and Redis. Those
 costs feed ``bench/scaling_model.py`` (docs/scaling.md).
 
@@ -86,6 +87,7 @@ def run_load(url: str, redis: Redis, map_id: str, bodies: list[list[bytes]], rat
     from arcloud.stores.keys import processed_key
 
     posted: dict[str, float] = {}
+    answered: dict[str, float] = {}  # when the 202 came back
     statuses: list[int] = []
     lock = threading.Lock()
     started = time.time() + 0.5
@@ -105,7 +107,7 @@ def run_load(url: str, redis: Redis, map_id: str, bodies: list[list[bytes]], rat
                 with lock:
                     statuses.append(status)
                     if status == 202:
-                        posted[key] = sent
+                        posted[key], answered[key] = sent, time.time()
 
             thread = threading.Thread(target=post, daemon=True)
             thread.start()
@@ -129,6 +131,7 @@ def run_load(url: str, redis: Redis, map_id: str, bodies: list[list[bytes]], rat
         time.sleep(0.1)
     done = {k: float(v) for k, v in zip(keys, values) if v is not None}
     latency = np.array([done[k] - posted[k] for k in done])
+    post_latency = np.array([answered[k] - posted[k] for k in done])
     last = max(done.values()) if done else started
     return {
         "devices": len(bodies),
@@ -138,15 +141,17 @@ def run_load(url: str, redis: Redis, map_id: str, bodies: list[list[bytes]], rat
         "refused": {str(s): statuses.count(s) for s in sorted(set(statuses)) if s != 202},
         "processed": len(done),
         "processed_per_s": round(len(done) / max(1e-9, last - started), 2),
-        "latency_s": {
-            "p50": round(float(np.percentile(latency, 50)), 3),
-            "p95": round(float(np.percentile(latency, 95)), 3),
-            "p99": round(float(np.percentile(latency, 99)), 3),
-            "max": round(float(latency.max()), 3),
-        }
-        if len(latency)
-        else None,
+        "latency_s": percentiles(latency),
+        "post_latency_s": percentiles(post_latency),  # the POST alone: sent -> 202
+        "after_202_s": percentiles(latency - post_latency),  # queue, step and commit
     }
+
+
+def percentiles(seconds: np.ndarray) -> dict[str, float] | None:
+    """p50, p95, p99 and max of ``seconds``, rounded to ms (None when empty)."""
+    if not len(seconds):
+        return None
+    return {f"p{q}": round(float(np.percentile(seconds, q)), 3) for q in (50, 95, 99)} | {"max": round(float(seconds.max()), 3)}
 
 
 def main() -> None:
@@ -185,7 +190,8 @@ def main() -> None:
             latency = result["latency_s"] or {}
             print(
                 f"{n} devices x {args.rate:g}/s: {result['processed']} of {result['sent']} processed, "
-                f"{result['processed_per_s']}/s, latency p50 {latency.get('p50')} s p99 {latency.get('p99')} s; "
+                f"{result['processed_per_s']}/s, latency p50 {latency.get('p50')} s p99 {latency.get('p99')} s "
+                f"(the POST alone: {result['post_latency_s']}); "
                 f"per frame {result['per_frame']['redis_commands']} Redis commands, cpu {result['per_frame']['cpu_ms']} ms"
             )
     finally:

@@ -105,6 +105,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
                 claim_interval_s=settings.claim_interval_s,
                 max_deliveries=settings.max_deliveries,
                 heartbeat_s=None,
+                warm_up=True,
             )
             for i in range(settings.workers)
         ]

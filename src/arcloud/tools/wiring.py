@@ -366,6 +366,7 @@ def run_worker(
             claim_interval_s=settings.claim_interval_s,
             max_deliveries=settings.max_deliveries,
             read_block_s=settings.read_block_s,
+            warm_up=True,
         ).run(stop)
     finally:
         close_all(owned)
