@@ -26,11 +26,19 @@ test: $(STAMP) lint
 	@{ command -v redis-server && command -v chromium; } >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
+# Every benchmark behind the README's "Measured" table -> bench/results/*.json (about 30 min; accuracy apart).
 bench: $(STAMP)
 	$(BIN)/python bench/bench_step.py
 	$(BIN)/python bench/bench_detector.py
+	$(BIN)/python bench/bench_batch.py
 	$(BIN)/python bench/bench_service.py
+	$(BIN)/python bench/bench_throughput.py
+	$(BIN)/python bench/bench_load.py
+	$(BIN)/python bench/bench_load.py --devices 100 --rate 0.35 --out bench/results/load_70.json
+	$(BIN)/python bench/bench_flood.py
+	$(BIN)/python bench/bench_shards.py
 	$(BIN)/python bench/bench_memory.py
+	$(BIN)/python bench/scaling_model.py
 
 # Accuracy suites (simulated rooms, ScanNet renders, 7-Scenes) -> bench/results/accuracy.json; about 20 min.
 # ACCURACY_ARGS=--quick for the short versions, --suites sim for one suite.
