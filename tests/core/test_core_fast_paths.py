@@ -5,6 +5,7 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
+from arcloud.core.associate import index_bounds
 from arcloud.core.boxes import convex_hull_2d, fit_gravity_obb, footprint_outline, footprint_outline_plain
 from arcloud.core.checks import make_frame
 from arcloud.core.gravity import Gravity
@@ -17,8 +18,10 @@ from arcloud.core.voxels import (
     erode_sampled,
     ijk_bounds,
     ijk_centers,
+    ijk_extent,
     key_centers,
     keys_bounds,
+    keys_extent,
     mask_extent,
     mask_extent_plain,
     pack_keys,
@@ -69,6 +72,17 @@ def test_voxel_centres_and_bounds_from_indices_are_those_from_keys():
         ijk = unpack_keys(keys)
         assert np.array_equal(ijk_centers(ijk, size), key_centers(keys, size))
         assert all(np.array_equal(a, b) for a, b in zip(ijk_bounds(ijk, size), keys_bounds(keys, size)))
+
+
+def test_index_extents_are_axis_reductions_of_the_unpacked_keys():
+    rng = np.random.default_rng(7)
+    for _ in range(CASES):
+        ijk = random_ijk(rng, int(rng.integers(1, 300)))
+        keys = pack_keys(ijk)  # unsorted, with repeats: the extents take any keys
+        assert np.array_equal(unpack_keys(keys), ijk)
+        plain = (ijk.min(axis=0), ijk.max(axis=0))
+        for extent in (ijk_extent(ijk), keys_extent(keys), index_bounds(keys)):
+            assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(extent, plain))
 
 
 def test_erode_is_binary_erosion_with_background_outside():

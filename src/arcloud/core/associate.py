@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from arcloud.core.types import CLASS_INDEX, MapObject, Params
-from arcloud.core.voxels import coarsen_keys, unpack_keys
+from arcloud.core.voxels import coarsen_keys, keys_extent
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
 
@@ -58,8 +58,7 @@ def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) ->
 
 def index_bounds(keys: np.ndarray) -> np.ndarray:
     """(2, 3) min and max voxel indices of non-empty keys."""
-    ijk = unpack_keys(keys)
-    return np.array((ijk.min(axis=0), ijk.max(axis=0)))
+    return np.array(keys_extent(keys))
 
 
 def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | None:

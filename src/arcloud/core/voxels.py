@@ -32,10 +32,12 @@ def unpack_keys(keys: np.ndarray) -> np.ndarray:
     """(N,) int64 keys -> (N, 3) int64 voxel indices."""
     keys = np.asarray(keys, dtype=np.int64)
     ijk = np.empty((keys.size, 3), np.int64)
-    ijk[:, 0] = (keys >> (2 * KEY_BITS)) & KEY_MASK
-    ijk[:, 1] = (keys >> KEY_BITS) & KEY_MASK
-    ijk[:, 2] = keys & KEY_MASK
-    return ijk - KEY_OFFSET
+    ijk[:, 0] = keys >> (2 * KEY_BITS)
+    ijk[:, 1] = keys >> KEY_BITS
+    ijk[:, 2] = keys
+    ijk &= KEY_MASK  # all fields at once, then the offset, in place (no temporaries)
+    ijk -= KEY_OFFSET
+    return ijk
 
 
 def points_to_keys(points_xyz: np.ndarray, voxel_size_m: float) -> np.ndarray:
@@ -100,12 +102,37 @@ def coarsen_keys_unsorted(keys: np.ndarray, factor: int) -> np.ndarray:
 
 def keys_bounds(keys: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Outer (min, max) corners in metres of the voxels ``keys`` (non-empty)."""
-    return ijk_bounds(unpack_keys(keys), voxel_size_m)
+    lo, hi = keys_extent(keys)
+    return lo * voxel_size_m, (hi + 1) * voxel_size_m
 
 
 def ijk_bounds(ijk: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Outer (min, max) corners in metres of the voxels at indices ``ijk`` (N, 3), N > 0."""
-    return ijk.min(axis=0) * voxel_size_m, (ijk.max(axis=0) + 1) * voxel_size_m
+    lo, hi = ijk_extent(ijk)
+    return lo * voxel_size_m, (hi + 1) * voxel_size_m
+
+
+def ijk_extent(ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) (3,) each of integer voxel indices ``ijk`` (N, 3), N > 0: ``ijk.min(axis=0)`` and
+    ``ijk.max(axis=0)``, reduced along the rows of a transposed copy (a reduction down the columns of an
+    (N, 3) array costs several times more: 25 us against 3 at N = 2000)."""
+    columns = np.ascontiguousarray(ijk.T)
+    return columns.min(axis=1), columns.max(axis=1)
+
+
+def keys_extent(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``ijk_extent(unpack_keys(keys))`` of non-empty keys, without unpacking them all: packed keys sort
+    by their first index, so the smallest and largest keys hold its extent; the other two fields are
+    masked out one at a time."""
+    keys = np.asarray(keys, dtype=np.int64)
+    first = np.array((keys.min(), keys.max())) >> (2 * KEY_BITS)
+    second = (keys >> KEY_BITS) & KEY_MASK
+    third = keys & KEY_MASK
+    lo = np.array((first[0], second.min(), third.min()))
+    hi = np.array((first[1], second.max(), third.max()))
+    lo -= KEY_OFFSET
+    hi -= KEY_OFFSET
+    return lo, hi
 
 
 def erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
