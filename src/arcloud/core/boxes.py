@@ -13,7 +13,7 @@ from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import ijk_bounds, ijk_centers, sorted_unique, unpack_keys
+from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, sorted_unique, unpack_keys
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
@@ -54,8 +54,8 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
     if keep.sum() < 2:
         return keep
     ijk = ijk_all[keep]
-    origin = ijk.min(axis=0)
-    shape = ijk.max(axis=0) - origin + 1
+    origin, top = ijk_extent(ijk)
+    shape = top - origin + 1
     if np.prod(shape) > MAX_COMPONENT_GRID_CELLS:
         return keep
     grid = np.zeros(shape, bool)
@@ -85,8 +85,10 @@ def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     np.minimum.at(lowest, column, cells[:, 1])
     np.maximum.at(highest, column, cells[:, 1])
     present = np.flatnonzero(highest >= lowest)
-    cols = present + first_col
-    outline = np.concatenate([np.column_stack((cols, lowest[present])), np.column_stack((cols, highest[present]))])
+    n = present.size
+    outline = np.empty((2 * n, 2), np.int64)  # the lowest cells, then the highest (column_stack's cost 3x)
+    outline[:n, 0] = outline[n:, 0] = present + first_col
+    outline[:n, 1], outline[n:, 1] = lowest[present], highest[present]
     return (outline + 0.5) * voxel_size_m
 
 
@@ -161,14 +163,17 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, 
         # Hull points in each candidate frame: (A, H) coordinates along the two box axes.
         u = hull[:, 0][None] * c[:, None] + hull[:, 1][None] * s[:, None]
         v = -hull[:, 0][None] * s[:, None] + hull[:, 1][None] * c[:, None]
-        areas = np.ptp(u, axis=1) * np.ptp(v, axis=1)
+        areas = (u.max(axis=1) - u.min(axis=1)) * (v.max(axis=1) - v.min(axis=1))  # np.ptp, without its wrapper
         yaw = float(angles[np.argmin(areas)])
     c, s = math.cos(yaw), math.sin(yaw)
     yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
     local_xy = xy @ yaw_rotation[:2, :2]
     half = voxel_size_m / 2 if pad_m is None else pad_m
-    lo = np.array([*local_xy.min(axis=0), points[:, 2].min()]) - half
-    hi = np.array([*local_xy.max(axis=0), points[:, 2].max()]) + half
+    lo, hi = np.empty(3), np.empty(3)
+    lo[:2], lo[2] = local_xy.min(axis=0), points[:, 2].min()
+    hi[:2], hi[2] = local_xy.max(axis=0), points[:, 2].max()
+    lo -= half
+    hi += half
     lo, hi = at_least(lo, hi, voxel_size_m)
     box2world = rotation.T @ yaw_rotation
     return OBB(center=box2world @ ((lo + hi) / 2), size=hi - lo, rotation=box2world, yaw_rad=yaw)
@@ -211,7 +216,8 @@ def refine(obj: MapObject, params: Params) -> MapObject:
     box_mask = _box_voxel_mask(obj, params, ijk, floor_m)
     if not box_mask.any():  # no voxel is solid enough yet: box what there is
         box_mask = np.ones(obj.keys.size, bool)
-    label_index = object_label_index(obj)
+    voxel_labels = obj.votes.argmax(axis=1)  # once: the label and its purity use it
+    label_index = object_label_index(obj, voxel_labels)
     centers = ijk_centers(ijk[box_mask], params.voxel_size_m)
     if params.world2aligned is not None:
         world2aligned = np.asarray(params.world2aligned, np.float64)
@@ -226,7 +232,7 @@ def refine(obj: MapObject, params: Params) -> MapObject:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(
         label=label,
-        label_purity=label_purity(obj.weights[box_mask], obj.votes[box_mask], label_index),
+        label_purity=label_purity(obj.weights[box_mask], voxel_labels[box_mask], label_index),
         aabb=aabb,
         obb=obb,
         bounds=AABB(lo, hi),

@@ -100,8 +100,8 @@ def with_evidence(obj: MapObject, params: Params) -> MapObject:
     return obj.replace(score=score, confirmed=confirmed)
 
 
-def label_purity(weights: np.ndarray, votes: np.ndarray, label_index: int) -> float:
-    """The share of the voxels' occupancy ``weights`` (N,) whose label (the mode of ``votes`` (N, C))
-    is ``label_index``."""
+def label_purity(weights: np.ndarray, voxel_labels: np.ndarray, label_index: int) -> float:
+    """The share of the voxels' occupancy ``weights`` (N,) whose label (``voxel_labels`` (N,): the
+    mode of each voxel's votes, ``votes.argmax(axis=1)``) is ``label_index``."""
     total = float(weights.sum())
-    return float(weights[votes.argmax(axis=1) == label_index].sum() / total) if total > 0 else 0.0
+    return float(weights[voxel_labels == label_index].sum() / total) if total > 0 else 0.0

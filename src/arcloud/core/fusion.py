@@ -146,12 +146,13 @@ def keep_voxels(obj: MapObject, keep: np.ndarray) -> MapObject:
     return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep], seen=seen, colors=colors)
 
 
-def object_label_index(obj: MapObject) -> int:
-    """The mode of the voxels' labels (each voxel's label is the mode of its votes), weighted by
-    occupancy; -1 for an object without voxels."""
+def object_label_index(obj: MapObject, voxel_labels: np.ndarray | None = None) -> int:
+    """The mode of the voxels' labels (each voxel's label is the mode of its votes: ``voxel_labels``
+    (N,) when the caller has them), weighted by occupancy; -1 for an object without voxels."""
     if obj.keys.size == 0:
         return -1
-    voxel_labels = obj.votes.argmax(axis=1)
+    if voxel_labels is None:
+        voxel_labels = obj.votes.argmax(axis=1)
     return int(np.bincount(voxel_labels, weights=obj.weights, minlength=N_CLASSES).argmax())
 
 
