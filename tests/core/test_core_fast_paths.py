@@ -25,6 +25,7 @@ from arcloud.core.voxels import (
     mask_extent,
     mask_extent_plain,
     pack_keys,
+    points_extent,
     sampling_stride_px,
     sorted_unique,
     unpack_keys,
@@ -83,6 +84,20 @@ def test_index_extents_are_axis_reductions_of_the_unpacked_keys():
         plain = (ijk.min(axis=0), ijk.max(axis=0))
         for extent in (ijk_extent(ijk), keys_extent(keys), index_bounds(keys)):
             assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(extent, plain))
+
+
+def test_points_extent_is_the_axis_reductions_signed_zeros_and_nan_included():
+    rng = np.random.default_rng(8)
+    for _ in range(CASES):
+        points = rng.normal(0, 10, (int(rng.integers(1, 300)), int(rng.integers(1, 4))))
+        points *= rng.choice([-1, 1], points.shape[1])[None] if rng.random() < 0.5 else np.sign(points)  # zeros at an end too
+        if rng.random() < 0.2:  # columns of +0.0 and -0.0 alone: the order of comparisons picks the sign
+            points = np.where(rng.random(points.shape) < 0.5, 0.0, -0.0)
+        for special in rng.choice([0.0, -0.0, np.nan, np.inf], int(rng.integers(0, 3))):
+            points[rng.integers(0, points.shape[0]), rng.integers(0, points.shape[1])] = special
+        plain = (points.min(axis=0), points.max(axis=0))
+        for a, b in zip(points_extent(points), plain):
+            assert a.tobytes() == b.tobytes()  # bit for bit: the sign of a zero too
 
 
 def test_erode_is_binary_erosion_with_background_outside():

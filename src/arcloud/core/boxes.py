@@ -13,7 +13,7 @@ from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, sorted_unique, unpack_keys
+from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, points_extent, sorted_unique, unpack_keys
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
@@ -140,7 +140,8 @@ def at_least(lo: np.ndarray, hi: np.ndarray, min_size_m: float) -> tuple[np.ndar
 def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
     """The tightest axis-aligned box around voxel centres (N, 3), grown by ``pad_m`` on every side and
     at least ``min_size_m`` on every axis (one layer of voxels is one voxel thick, not flat)."""
-    return AABB(*at_least(centers.min(axis=0) - pad_m, centers.max(axis=0) + pad_m, min_size_m))
+    lo, hi = points_extent(centers)
+    return AABB(*at_least(lo - pad_m, hi + pad_m, min_size_m))
 
 
 def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, pad_m: float | None = None) -> OBB:

@@ -120,6 +120,17 @@ def ijk_extent(ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return columns.min(axis=1), columns.max(axis=1)
 
 
+def points_extent(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``points.min(axis=0)`` and ``points.max(axis=0)`` of float points (N, D), N > 0, reduced as
+    ``ijk_extent`` does. A minimum that is not zero (nor NaN) is one value whatever the order of the
+    comparisons; where one is (a minimum of -0.0 and +0.0 keeps whichever it met first), the axis
+    reductions themselves."""
+    lo, hi = ijk_extent(points)
+    if all(v != 0 and v == v for v in lo.tolist() + hi.tolist()):
+        return lo, hi
+    return points.min(axis=0), points.max(axis=0)
+
+
 def keys_extent(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``ijk_extent(unpack_keys(keys))`` of non-empty keys, without unpacking them all: packed keys sort
     by their first index, so the smallest and largest keys hold its extent; the other two fields are
