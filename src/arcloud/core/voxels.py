@@ -79,7 +79,8 @@ def coarsen_keys(keys: np.ndarray, factor: int) -> np.ndarray:
     # A power of two divides the offset 2**20, so on each packed field s = i + 2**20 the coarse field is
     # floor(i / factor) + 2**20 = (s >> shift) + 2**20 - 2**(20 - shift): one shift of the whole key,
     # the bits that slid into a lower field cleared, and a constant added (no field overflows).
-    slid = np.int64(sum(((1 << shift) - 1) << (KEY_BITS * f - shift) for f in (1, 2)))
+    low_bits = (1 << shift) - 1
+    slid = np.int64((low_bits << (KEY_BITS - shift)) | (low_bits << (2 * KEY_BITS - shift)))
     offset = KEY_OFFSET - (KEY_OFFSET >> shift)
     add = np.int64(offset | (offset << KEY_BITS) | (offset << (2 * KEY_BITS)))
     coarse = np.right_shift(np.asarray(keys, np.int64), shift)
@@ -176,18 +177,15 @@ def eroded_lines(mask: np.ndarray, radius_px: int, axis: int, stride_px: int) ->
     padded_shape[axis] = n + 2 * radius_px
     padded = np.zeros(padded_shape, bool)
 
-    def lines(start: int, step: int = stride_px) -> tuple[slice, ...]:
-        along = slice(start, start + n, step)
-        return (along, slice(None)) if axis == 0 else (slice(None), along)
-
-    padded[lines(radius_px, 1)] = mask
-    eroded = padded[lines(0)].copy()
+    across = (slice(None),) * axis  # the index of a line along ``axis``: (along,) or (:, along)
+    padded[(*across, slice(radius_px, radius_px + n))] = mask
+    eroded = padded[(*across, slice(0, n, stride_px))].copy()
     for offset in range(1, 2 * radius_px + 1):
-        eroded &= padded[lines(offset)]
+        eroded &= padded[(*across, slice(offset, offset + n, stride_px))]
     return eroded
 
 
-MASK_EXTENT_BLOCK_ROWS = 32  # mask_extent looks for a mask's last row in blocks of this many rows
+MASK_EXTENT_BLOCK_ROWS = 64  # mask_extent looks for a mask's last row in blocks of this many rows
 
 
 def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
