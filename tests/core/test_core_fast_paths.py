@@ -29,6 +29,8 @@ from arcloud.core.voxels import (
     sampling_stride_px,
     sorted_unique,
     unpack_keys,
+    visible_voxels,
+    visible_voxels_of_sets,
     voxelize_detections,
 )
 
@@ -189,3 +191,31 @@ def test_pixel_stride_is_capped_by_params_and_one_samples_every_pixel():
         voxelize_detections(frame, [Detection("tv", 0.9, mask)], Params(pixel_stride_max_px=n, erode_px=0)) for n in (1, 4)
     )
     assert np.isin(sampled[0].keys, every[0].keys).all()  # a sample of the same pixels
+
+
+def test_visibility_of_several_sets_at_once_is_that_of_each_set():
+    rng = np.random.default_rng(9)
+    params = Params()
+    for _ in range(CASES // 3):
+        depth = rng.uniform(0.5, 4.0, (48, 64)).astype(np.float32)
+        depth[rng.random(depth.shape) < 0.2] = 0.0
+        pose = np.eye(4)
+        pose[:3, 3] = rng.normal(0, 0.2, 3)
+        frame = make_frame(
+            np.zeros((48, 64, 3), np.uint8),
+            depth,
+            (50.0, 50.0, 31.5, 23.5),
+            pose,
+            timestamp_s=0.0,
+            map_id="m",
+            device_id="d",
+            frame_id="f",
+        )
+        sets = [
+            sorted_unique(pack_keys(rng.integers(-30, 30, (int(rng.integers(0, 80)), 3)) + [0, 0, 40]))
+            for _ in range(int(rng.integers(1, 6)))
+        ]
+        together = visible_voxels_of_sets(frame, sets, params)
+        assert len(together) == len(sets)
+        for keys, visible in zip(sets, together):
+            assert np.array_equal(visible, visible_voxels(frame, keys, params))

@@ -45,7 +45,7 @@ from arcloud.core.fusion import (
 )
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
-from arcloud.core.voxels import center_rays, free_voxels, key_centers, keys_bounds, visible_voxels, voxelize_detections
+from arcloud.core.voxels import center_rays, free_voxels, key_centers, keys_bounds, visible_voxels_of_sets, voxelize_detections
 
 log = logging.getLogger(__name__)
 
@@ -232,11 +232,12 @@ def fuse_matches(
                 views[rival] = part
     fused = list(objects)
     fused_ids = set()
-    for o, view in views.items():
-        if view.keys.size:
-            visible = visible_voxels(frame, fused[o].keys, params)
-            fused[o] = fuse_detection(fused[o], view, frame.device_id, visible, floor_vote(floor, view, params))
-            fused_ids.add(fused[o].id)
+    viewed = [(o, view) for o, view in views.items() if view.keys.size]
+    # Which voxels of each object the frame saw, as it was read (each object takes one view).
+    visible = visible_voxels_of_sets(frame, [objects[o].keys for o, _ in viewed], params)
+    for (o, view), visible_of_o in zip(viewed, visible):
+        fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
+        fused_ids.add(fused[o].id)
     return fused, [observations[d] for d in association.unmatched], fused_ids
 
 

@@ -483,13 +483,22 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
     return voxelized
 
 
-def project_centers(frame: Frame, keys: np.ndarray, params: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def project_centers(
+    frame: Frame, keys: np.ndarray, params: Params, set_sizes: Sequence[int] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where the voxels' centres land in the frame: u_px, v_px (N,) the pixel (rounded, as floats),
     z_m (N,) the depth of the centre, and inside (N,) bool: in front of the camera (beyond
-    ``depth_min_m``) and within the image."""
+    ``depth_min_m``) and within the image. ``set_sizes``: ``keys`` are several sets one after another,
+    of these sizes; each set is turned into the camera by a matrix product of its own, so that its
+    results are those of a call of its own (a product's rounding may depend on its shape; the rest
+    is elementwise)."""
     centers = key_centers(keys, params.voxel_size_m)
     rotation, origin = frame.cam2world[:3, :3], frame.cam2world[:3, 3]
-    cam = (centers - origin) @ rotation  # world2cam of a rigid pose: R^T (x - t)
+    if set_sizes is None:
+        cam = (centers - origin) @ rotation  # world2cam of a rigid pose: R^T (x - t)
+    else:
+        ends = np.cumsum(set_sizes).tolist()
+        cam = np.concatenate([(centers[end - size : end] - origin) @ rotation for size, end in zip(set_sizes, ends)])
     z = cam[:, 2]
     intr = frame.intrinsics
     height, width = frame.depth_m.shape
@@ -500,15 +509,18 @@ def project_centers(frame: Frame, keys: np.ndarray, params: Params) -> tuple[np.
     return u, v, z, inside
 
 
-def center_rays(frame: Frame, keys: np.ndarray, params: Params) -> tuple[np.ndarray, np.ndarray]:
+def center_rays(
+    frame: Frame, keys: np.ndarray, params: Params, set_sizes: Sequence[int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """What the depth on each voxel's centre ray says, (N,) bool each: ``visible_voxels``, and whether
     the ray lands in the image on depth more than ``visibility_tolerance_m`` (plus half a voxel) behind
     the centre. The centre ray is one of the rays ``free_voxels`` tests: a voxel free by
-    ``free_voxels`` is free along it (a cheap test that rules voxels out)."""
+    ``free_voxels`` is free along it (a cheap test that rules voxels out). ``set_sizes``: see
+    ``project_centers``."""
     visible, free = np.zeros(keys.size, bool), np.zeros(keys.size, bool)
     if keys.size == 0:
         return visible, free
-    u, v, z, inside = project_centers(frame, keys, params)
+    u, v, z, inside = project_centers(frame, keys, params, set_sizes)
     idx = np.flatnonzero(inside)
     measured = frame.depth_m[v[idx].astype(np.int64), u[idx].astype(np.int64)]
     tolerance = params.visibility_tolerance_m + params.voxel_size_m / 2
@@ -522,6 +534,16 @@ def visible_voxels(frame: Frame, keys: np.ndarray, params: Params) -> np.ndarray
     camera, onto valid depth within ``visibility_tolerance_m`` (plus half a voxel) of the centre's
     depth. Voxels behind a nearer surface (occluded) or in front of the measured one are not."""
     return center_rays(frame, keys, params)[0]
+
+
+def visible_voxels_of_sets(frame: Frame, key_sets: Sequence[np.ndarray], params: Params) -> list[np.ndarray]:
+    """``visible_voxels`` of each of several key sets, in one pass over all their voxels (each set's
+    results are those of a call of its own: ``project_centers``' ``set_sizes``)."""
+    if not key_sets:
+        return []
+    sizes = [keys.size for keys in key_sets]
+    visible = center_rays(frame, np.concatenate(key_sets), params, sizes)[0]
+    return np.split(visible, np.cumsum(sizes)[:-1])
 
 
 def free_voxels(frame: Frame, keys: np.ndarray, params: Params) -> np.ndarray:
