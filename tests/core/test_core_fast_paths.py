@@ -5,11 +5,11 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from arcloud.core.associate import index_bounds
+from arcloud.core.associate import index_bounds, index_bounds_of_sets, stored_index_bounds, stored_index_bounds_of
 from arcloud.core.boxes import convex_hull_2d, fit_gravity_obb, footprint_outline, footprint_outline_plain
 from arcloud.core.checks import make_frame
 from arcloud.core.gravity import Gravity
-from arcloud.core.types import Detection, Params
+from arcloud.core.types import AABB, Detection, Params, empty_object
 from arcloud.core.voxels import (
     KEY_OFFSET,
     coarsen_keys,
@@ -219,3 +219,23 @@ def test_visibility_of_several_sets_at_once_is_that_of_each_set():
         assert len(together) == len(sets)
         for keys, visible in zip(sets, together):
             assert np.array_equal(visible, visible_voxels(frame, keys, params))
+
+
+def test_bounds_of_several_sets_or_objects_at_once_are_those_of_each():
+    rng = np.random.default_rng(10)
+    for _ in range(CASES // 3):
+        sets = [pack_keys(random_ijk(rng, int(rng.integers(1, 60)))) for _ in range(int(rng.integers(1, 8)))]
+        together = index_bounds_of_sets(sets)
+        assert together.shape == (len(sets), 2, 3) and together.dtype == np.int64
+        assert all(np.array_equal(b, index_bounds(keys)) for b, keys in zip(together, sets))
+        size = float(rng.choice([0.01, 0.05, 0.1]))
+        dtype = np.float64 if rng.random() < 0.8 else np.float32  # float32 bounds: one by one
+        objects = [
+            empty_object(i).replace(
+                bounds=None if rng.random() < 0.2 else AABB(*(b.astype(dtype) for b in keys_bounds(keys, size)))
+            )
+            for i, keys in enumerate(sets)
+        ]
+        for b, obj in zip(stored_index_bounds_of(objects, size), objects):
+            plain = stored_index_bounds(obj, size)
+            assert (b is None and plain is None) or (np.array_equal(b, plain) and b.dtype == plain.dtype)

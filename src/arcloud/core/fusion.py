@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from arcloud.core.associate import index_bounds, overlap_matrix, stored_index_bounds
+from arcloud.core.associate import index_bounds_of_sets, overlap_matrix, stored_index_bounds_of
 from arcloud.core.floor import add_votes
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors, sorted_unique
@@ -180,8 +180,13 @@ def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Seque
     keys = [o.keys for o in objects]
     # Unchanged objects' stored bounds are exact; only changed ones need their keys unpacked (once,
     # here, rather than once for each side of the matrix).
-    bounds = [stored_index_bounds(o, params.voxel_size_m) if not c else None for o, c in zip(objects, flags)]
-    bounds = [index_bounds(o.keys) if b is None and o.keys.size else b for o, b in zip(objects, bounds)]
+    bounds = stored_index_bounds_of([o for o, c in zip(objects, flags) if not c], params.voxel_size_m)
+    unchanged = iter(bounds)
+    bounds = [next(unchanged) if not c else None for c in flags]
+    unknown = [i for i, (o, b) in enumerate(zip(objects, bounds)) if b is None and o.keys.size]
+    if unknown:
+        for i, b in zip(unknown, index_bounds_of_sets([objects[i].keys for i in unknown])):
+            bounds[i] = b
     overlap = overlap_matrix(
         keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted
     )

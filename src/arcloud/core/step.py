@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arcloud.core.associate import associate, stored_index_bounds
+from arcloud.core.associate import associate, stored_index_bounds_of
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
@@ -214,7 +214,7 @@ def fuse_matches(
         [o.keys for o in objects],
         [current_label_index(o, changed=False) for o in objects],  # as read: refined
         params,
-        object_bounds=[stored_index_bounds(o, params.voxel_size_m) for o in objects],
+        object_bounds=stored_index_bounds_of(objects, params.voxel_size_m),
         object_frames=[o.n_frames for o in objects],
     )
     matched = {o for _, o in association.pairs}
