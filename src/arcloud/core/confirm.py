@@ -54,10 +54,10 @@ def plausible(obj: MapObject, params: Params) -> bool:
     if sizes is None or obj.obb is None:
         return obj.obb is not None
     (long_min, long_max), (height_min, height_max), thickness_max = sizes
-    longest, shortest = float(max(obj.obb.size[:2])), float(min(obj.obb.size[:2]))
+    width, depth, height = obj.obb.size.tolist()  # Python floats: max and min of numpy scalars cost more
+    longest, shortest = max(width, depth), min(width, depth)
     if obj.label == "tv":  # a screen stands upright: its longest side may be its height
-        longest = max(longest, float(obj.obb.size[2]))
-    height = float(obj.obb.size[2])
+        longest = max(longest, height)
     if obj.label in params.floor_standing:
         floor_m = floor_height(obj.floor_votes, params)
         if floor_m is not None:
