@@ -190,10 +190,10 @@ def find_visible(store: MapStore, frame: Frame, params: Params) -> list[int]:
     candidates = store.query_region(frame.map_id, lo, hi)
     if not candidates:
         return []
-    ids = np.array(list(candidates))
+    ids = list(candidates)
     mins = np.array([candidates[i][0] for i in ids])
     maxs = np.array([candidates[i][1] for i in ids])
-    return sorted(int(i) for i in ids[boxes_in_frustum(frustum, mins, maxs)])
+    return sorted(int(ids[k]) for k in np.flatnonzero(boxes_in_frustum(frustum, mins, maxs)))
 
 
 def fuse_matches(
