@@ -14,6 +14,7 @@ from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors
 
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
+_ZERO = np.float32(0.0)
 
 
 def union_voxels(
@@ -39,15 +40,18 @@ def _union_arrays(
     weights = np.zeros(keys.size, np.float32)
     seen = np.zeros(keys.size, np.float32)
     votes = np.zeros((keys.size, N_CLASSES), np.float32)
-    positions = []
-    for k, w, n, v in ((a.keys, a.weights, a.seen_counts, a.votes), (keys_b, weights_b, seen_b, votes_b)):
-        at = np.searchsorted(keys, k)
-        weights[at] += w
-        seen[at] += n
-        votes[at] += v
-        positions.append(at)
-    colors = _union_colors(a, weights_b, colors_b, positions[0], positions[1], weights)
-    return keys, weights, seen, votes, colors, positions[0], positions[1]
+    # a's keys are unique: each lands on a zero, and x + 0 is 0 + x bit for bit (-0.0 becomes +0.0
+    # either way), so a's values are written, not gathered and added.
+    at_a = np.searchsorted(keys, a.keys)
+    weights[at_a] = a.weights + _ZERO
+    seen[at_a] = a.seen_counts + _ZERO
+    votes[at_a] = a.votes + _ZERO
+    at_b = np.searchsorted(keys, keys_b)
+    weights[at_b] += weights_b
+    seen[at_b] += seen_b
+    votes[at_b] += votes_b
+    colors = _union_colors(a, weights_b, colors_b, at_a, at_b, weights)
+    return keys, weights, seen, votes, colors, at_a, at_b
 
 
 def _union_colors(
