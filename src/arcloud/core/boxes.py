@@ -77,14 +77,15 @@ def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     the lowest and highest row (by column). Their convex hull is the footprint's; M is at most twice the
     columns. ``footprint_outline_plain`` without the sort (a test holds them equal)."""
     cells = np.floor(xy / voxel_size_m).astype(np.int64)
-    first_col = int(cells[:, 0].min())
-    column = cells[:, 0] - first_col
+    cols, rows = cells[:, 0], cells[:, 1]
+    first_col = int(cols.min())
+    column = cols - first_col
     n_cols = int(column.max()) + 1
     lowest, highest = np.empty(n_cols, np.int64), np.empty(n_cols, np.int64)  # np.full costs 3x
     lowest.fill(np.iinfo(np.int64).max)
     highest.fill(np.iinfo(np.int64).min)
-    np.minimum.at(lowest, column, cells[:, 1])
-    np.maximum.at(highest, column, cells[:, 1])
+    np.minimum.at(lowest, column, rows)
+    np.maximum.at(highest, column, rows)
     present = np.flatnonzero(highest >= lowest)
     n = present.size
     outline = np.empty((2 * n, 2), np.int64)  # the lowest cells, then the highest (column_stack's cost 3x)
@@ -177,8 +178,8 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, 
     local_xy = xy @ yaw_rotation[:2, :2]
     half = voxel_size_m / 2 if pad_m is None else pad_m
     lo, hi = np.empty(3), np.empty(3)
-    lo[:2], lo[2] = local_xy.min(axis=0), points[:, 2].min()
-    hi[:2], hi[2] = local_xy.max(axis=0), points[:, 2].max()
+    heights = points[:, 2]
+    (lo[:2], hi[:2]), lo[2], hi[2] = points_extent(local_xy), heights.min(), heights.max()
     lo -= half
     hi += half
     lo, hi = at_least(lo, hi, voxel_size_m)
