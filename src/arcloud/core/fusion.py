@@ -65,14 +65,15 @@ def _union_colors(
     colors_b = _NO_VOXEL_COLORS if at_b.size == 0 else colors_b
     if colors_a is None or colors_b is None:
         return None
-    # Both sides' weighted colours, channel first, summed per voxel: one bincount per channel.
+    # Both sides' weighted colours, channel first, summed per voxel: one bincount for the three channels,
+    # channel c's voxel k in bin c * N + k (each bin adds its terms in their order, as one bincount per
+    # channel does).
+    n = weights.size
     at = np.concatenate((at_a, at_b))
     weighted = np.concatenate(
         (np.multiply(colors_a.T, a.weights, dtype=np.float64), np.multiply(colors_b.T, weights_b, dtype=np.float64)), axis=1
     )
-    sums = np.empty((3, weights.size))
-    for c in range(3):
-        sums[c] = np.bincount(at, weights=weighted[c], minlength=weights.size)
+    sums = np.bincount(np.concatenate((at, at + n, at + 2 * n)), weights=weighted.reshape(-1), minlength=3 * n).reshape(3, n)
     return mean_colors(sums, np.where(weights > 0, weights, 1))
 
 
