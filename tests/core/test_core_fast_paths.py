@@ -5,10 +5,11 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
+from arcloud.core.associate import index_bounds, index_bounds_of_sets, stored_index_bounds, stored_index_bounds_of
 from arcloud.core.boxes import convex_hull_2d, fit_gravity_obb, footprint_outline, footprint_outline_plain
 from arcloud.core.checks import make_frame
 from arcloud.core.gravity import Gravity
-from arcloud.core.types import Detection, Params
+from arcloud.core.types import AABB, Detection, Params, empty_object
 from arcloud.core.voxels import (
     KEY_OFFSET,
     coarsen_keys,
@@ -17,14 +18,19 @@ from arcloud.core.voxels import (
     erode_sampled,
     ijk_bounds,
     ijk_centers,
+    ijk_extent,
     key_centers,
     keys_bounds,
+    keys_extent,
     mask_extent,
     mask_extent_plain,
     pack_keys,
+    points_extent,
     sampling_stride_px,
     sorted_unique,
     unpack_keys,
+    visible_voxels,
+    visible_voxels_of_sets,
     voxelize_detections,
 )
 
@@ -71,6 +77,31 @@ def test_voxel_centres_and_bounds_from_indices_are_those_from_keys():
         assert all(np.array_equal(a, b) for a, b in zip(ijk_bounds(ijk, size), keys_bounds(keys, size)))
 
 
+def test_index_extents_are_axis_reductions_of_the_unpacked_keys():
+    rng = np.random.default_rng(7)
+    for _ in range(CASES):
+        ijk = random_ijk(rng, int(rng.integers(1, 300)))
+        keys = pack_keys(ijk)  # unsorted, with repeats: the extents take any keys
+        assert np.array_equal(unpack_keys(keys), ijk)
+        plain = (ijk.min(axis=0), ijk.max(axis=0))
+        for extent in (ijk_extent(ijk), keys_extent(keys), index_bounds(keys)):
+            assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(extent, plain))
+
+
+def test_points_extent_is_the_axis_reductions_signed_zeros_and_nan_included():
+    rng = np.random.default_rng(8)
+    for _ in range(CASES):
+        points = rng.normal(0, 10, (int(rng.integers(1, 300)), int(rng.integers(1, 4))))
+        points *= rng.choice([-1, 1], points.shape[1])[None] if rng.random() < 0.5 else np.sign(points)  # zeros at an end too
+        if rng.random() < 0.2:  # columns of +0.0 and -0.0 alone: the order of comparisons picks the sign
+            points = np.where(rng.random(points.shape) < 0.5, 0.0, -0.0)
+        for special in rng.choice([0.0, -0.0, np.nan, np.inf], int(rng.integers(0, 3))):
+            points[rng.integers(0, points.shape[0]), rng.integers(0, points.shape[1])] = special
+        plain = (points.min(axis=0), points.max(axis=0))
+        for a, b in zip(points_extent(points), plain):
+            assert a.tobytes() == b.tobytes()  # bit for bit: the sign of a zero too
+
+
 def test_erode_is_binary_erosion_with_background_outside():
     rng = np.random.default_rng(2)
     for _ in range(CASES):
@@ -92,7 +123,9 @@ def test_mask_extent_is_its_plain_version():
     rng = np.random.default_rng(4)
     for _ in range(CASES):
         width = int(rng.choice([8, 16, 64, 640, int(rng.integers(1, 70))]))
-        mask = random_mask(rng, int(rng.integers(1, 40)), width)
+        mask = random_mask(
+            rng, int(rng.choice([rng.integers(1, 40), rng.integers(40, 200)])), width
+        )  # one block of rows or several
         views = [mask, mask[:, ::2], mask.T, np.asfortranarray(mask)]  # contiguous and not
         for view in views:
             assert mask_extent(view) == mask_extent_plain(view)
@@ -158,3 +191,51 @@ def test_pixel_stride_is_capped_by_params_and_one_samples_every_pixel():
         voxelize_detections(frame, [Detection("tv", 0.9, mask)], Params(pixel_stride_max_px=n, erode_px=0)) for n in (1, 4)
     )
     assert np.isin(sampled[0].keys, every[0].keys).all()  # a sample of the same pixels
+
+
+def test_visibility_of_several_sets_at_once_is_that_of_each_set():
+    rng = np.random.default_rng(9)
+    params = Params()
+    for _ in range(CASES // 3):
+        depth = rng.uniform(0.5, 4.0, (48, 64)).astype(np.float32)
+        depth[rng.random(depth.shape) < 0.2] = 0.0
+        pose = np.eye(4)
+        pose[:3, 3] = rng.normal(0, 0.2, 3)
+        frame = make_frame(
+            np.zeros((48, 64, 3), np.uint8),
+            depth,
+            (50.0, 50.0, 31.5, 23.5),
+            pose,
+            timestamp_s=0.0,
+            map_id="m",
+            device_id="d",
+            frame_id="f",
+        )
+        sets = [
+            sorted_unique(pack_keys(rng.integers(-30, 30, (int(rng.integers(0, 80)), 3)) + [0, 0, 40]))
+            for _ in range(int(rng.integers(1, 6)))
+        ]
+        together = visible_voxels_of_sets(frame, sets, params)
+        assert len(together) == len(sets)
+        for keys, visible in zip(sets, together):
+            assert np.array_equal(visible, visible_voxels(frame, keys, params))
+
+
+def test_bounds_of_several_sets_or_objects_at_once_are_those_of_each():
+    rng = np.random.default_rng(10)
+    for _ in range(CASES // 3):
+        sets = [pack_keys(random_ijk(rng, int(rng.integers(1, 60)))) for _ in range(int(rng.integers(1, 8)))]
+        together = index_bounds_of_sets(sets)
+        assert together.shape == (len(sets), 2, 3) and together.dtype == np.int64
+        assert all(np.array_equal(b, index_bounds(keys)) for b, keys in zip(together, sets))
+        size = float(rng.choice([0.01, 0.05, 0.1]))
+        dtype = np.float64 if rng.random() < 0.8 else np.float32  # float32 bounds: one by one
+        objects = [
+            empty_object(i).replace(
+                bounds=None if rng.random() < 0.2 else AABB(*(b.astype(dtype) for b in keys_bounds(keys, size)))
+            )
+            for i, keys in enumerate(sets)
+        ]
+        for b, obj in zip(stored_index_bounds_of(objects, size), objects):
+            plain = stored_index_bounds(obj, size)
+            assert (b is None and plain is None) or (np.array_equal(b, plain) and b.dtype == plain.dtype)

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from arcloud.core.types import CLASS_INDEX, MapObject, Params
-from arcloud.core.voxels import coarsen_keys, unpack_keys
+from arcloud.core.voxels import coarsen_keys, keys_extent, unpack_keys
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
 
@@ -58,8 +58,28 @@ def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) ->
 
 def index_bounds(keys: np.ndarray) -> np.ndarray:
     """(2, 3) min and max voxel indices of non-empty keys."""
-    ijk = unpack_keys(keys)
-    return np.array((ijk.min(axis=0), ijk.max(axis=0)))
+    return np.array(keys_extent(keys))
+
+
+def index_bounds_of_sets(sets: Sequence[np.ndarray]) -> np.ndarray:
+    """(S, 2, 3) ``index_bounds`` of each of S >= 1 non-empty key sets, for all at once: the keys
+    concatenated and unpacked, each index reduced set by set (``reduceat``)."""
+    starts = np.cumsum([0] + [s.size for s in sets[:-1]])
+    indices = np.ascontiguousarray(unpack_keys(np.concatenate(sets)).T)  # (3, N): rows reduce fastest
+    return np.stack((np.minimum.reduceat(indices, starts, axis=1).T, np.maximum.reduceat(indices, starts, axis=1).T), axis=1)
+
+
+def stored_index_bounds_of(objects: Sequence[MapObject], voxel_size_m: float) -> list[np.ndarray | None]:
+    """``stored_index_bounds`` of each object, worked out for all at once when their stored bounds are
+    all float64 (the same arithmetic, element by element), else one by one."""
+    stored = [o.bounds for o in objects if o.bounds is not None]
+    if not stored or any(b.min.dtype != np.float64 or b.max.dtype != np.float64 for b in stored):
+        return [stored_index_bounds(o, voxel_size_m) for o in objects]
+    corners = np.array([(b.min, b.max) for b in stored])  # (M, 2, 3)
+    lo = np.floor(corners[:, 0] / voxel_size_m + 1e-6).astype(np.int64)
+    hi = np.floor(corners[:, 1] / voxel_size_m - 1e-6).astype(np.int64)
+    computed = iter(np.stack((lo, hi), axis=1))
+    return [None if o.bounds is None else next(computed) for o in objects]
 
 
 def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | None:
@@ -75,8 +95,12 @@ def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | Non
 def known_or_computed_bounds(
     sets: Sequence[np.ndarray], live: Sequence[int], known: Sequence[np.ndarray | None] | None
 ) -> np.ndarray:
-    """(len(live), 2, 3) voxel-index bounds of ``sets[live]``: the known ones where given."""
-    return np.array([index_bounds(sets[i]) if known is None or known[i] is None else known[i] for i in live])
+    """(len(live), 2, 3) voxel-index bounds of ``sets[live]`` (non-empty): the known ones where given."""
+    missing = [i for i in live if known is None or known[i] is None]
+    if not missing:
+        return np.array([known[i] for i in live])  # type: ignore[index]  # known holds every live one
+    computed = dict(zip(missing, index_bounds_of_sets([sets[i] for i in missing])))
+    return np.array([computed[i] if i in computed else known[i] for i in live])  # type: ignore[index]  # known when not computed
 
 
 def overlap_matrix(

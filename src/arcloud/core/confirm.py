@@ -67,10 +67,10 @@ def plausible(obj: MapObject, params: Params) -> bool:
     if sizes is None or obj.obb is None:
         return obj.obb is not None
     (long_min, long_max), (height_min, height_max), thickness_max = sizes
-    longest, shortest = float(max(obj.obb.size[:2])), float(min(obj.obb.size[:2]))
+    width, depth, height = obj.obb.size.tolist()  # Python floats: max and min of numpy scalars cost more
+    longest, shortest = max(width, depth), min(width, depth)
     if obj.label == "tv":  # a screen stands upright: its longest side may be its height
-        longest = max(longest, float(obj.obb.size[2]))
-    height = float(obj.obb.size[2])
+        longest = max(longest, height)
     if obj.label in params.floor_standing:
         floor_m = floor_height(obj.floor_votes, params)
         if floor_m is not None:
@@ -113,8 +113,8 @@ def with_evidence(obj: MapObject, params: Params) -> MapObject:
     return obj.replace(score=score, confirmed=confirmed)
 
 
-def label_purity(weights: np.ndarray, votes: np.ndarray, label_index: int) -> float:
-    """The share of the voxels' occupancy ``weights`` (N,) whose label (the mode of ``votes`` (N, C))
-    is ``label_index``."""
+def label_purity(weights: np.ndarray, voxel_labels: np.ndarray, label_index: int) -> float:
+    """The share of the voxels' occupancy ``weights`` (N,) whose label (``voxel_labels`` (N,): the
+    mode of each voxel's votes, ``votes.argmax(axis=1)``) is ``label_index``."""
     total = float(weights.sum())
-    return float(weights[votes.argmax(axis=1) == label_index].sum() / total) if total > 0 else 0.0
+    return float(weights[voxel_labels == label_index].sum() / total) if total > 0 else 0.0

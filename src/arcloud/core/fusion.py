@@ -7,13 +7,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from arcloud.core.associate import index_bounds, overlap_matrix, stored_index_bounds
+from arcloud.core.associate import index_bounds_of_sets, overlap_matrix, stored_index_bounds_of
 from arcloud.core.floor import add_votes
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors, sorted_unique
 
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
+_ZERO = np.float32(0.0)
 
 #: A detection votes its score rounded to this step: sums of such votes are exact in float32 (up to 2**18
 #: per voxel), so the votes of a voxel do not depend on the order of its frames, and the store keeps them
@@ -50,15 +51,18 @@ def _union_arrays(
     weights = np.zeros(keys.size, np.float32)
     seen = np.zeros(keys.size, np.float32)
     votes = np.zeros((keys.size, N_CLASSES), np.float32)
-    positions = []
-    for k, w, n, v in ((a.keys, a.weights, a.seen_counts, a.votes), (keys_b, weights_b, seen_b, votes_b)):
-        at = np.searchsorted(keys, k)
-        weights[at] += w
-        seen[at] += n
-        votes[at] += v
-        positions.append(at)
-    colors = _union_colors(a, weights_b, colors_b, positions[0], positions[1], weights)
-    return keys, weights, seen, votes, colors, positions[0], positions[1]
+    # a's keys are unique: each lands on a zero, and x + 0 is 0 + x bit for bit (-0.0 becomes +0.0
+    # either way), so a's values are written, not gathered and added.
+    at_a = np.searchsorted(keys, a.keys)
+    weights[at_a] = a.weights + _ZERO
+    seen[at_a] = a.seen_counts + _ZERO
+    votes[at_a] = a.votes + _ZERO
+    at_b = np.searchsorted(keys, keys_b)
+    weights[at_b] += weights_b
+    seen[at_b] += seen_b
+    votes[at_b] += votes_b
+    colors = _union_colors(a, weights_b, colors_b, at_a, at_b, weights)
+    return keys, weights, seen, votes, colors, at_a, at_b
 
 
 def _union_colors(
@@ -72,14 +76,15 @@ def _union_colors(
     colors_b = _NO_VOXEL_COLORS if at_b.size == 0 else colors_b
     if colors_a is None or colors_b is None:
         return None
-    # Both sides' weighted colours, channel first, summed per voxel: one bincount per channel.
+    # Both sides' weighted colours, channel first, summed per voxel: one bincount for the three channels,
+    # channel c's voxel k in bin c * N + k (each bin adds its terms in their order, as one bincount per
+    # channel does).
+    n = weights.size
     at = np.concatenate((at_a, at_b))
     weighted = np.concatenate(
         (np.multiply(colors_a.T, a.weights, dtype=np.float64), np.multiply(colors_b.T, weights_b, dtype=np.float64)), axis=1
     )
-    sums = np.empty((3, weights.size))
-    for c in range(3):
-        sums[c] = np.bincount(at, weights=weighted[c], minlength=weights.size)
+    sums = np.bincount(np.concatenate((at, at + n, at + 2 * n)), weights=weighted.reshape(-1), minlength=3 * n).reshape(3, n)
     return mean_colors(sums, np.where(weights > 0, weights, 1))
 
 
@@ -157,12 +162,13 @@ def keep_voxels(obj: MapObject, keep: np.ndarray) -> MapObject:
     return obj.replace(keys=obj.keys[keep], weights=obj.weights[keep], votes=obj.votes[keep], seen=seen, colors=colors)
 
 
-def object_label_index(obj: MapObject) -> int:
-    """The mode of the voxels' labels (each voxel's label is the mode of its votes), weighted by
-    occupancy; -1 for an object without voxels."""
+def object_label_index(obj: MapObject, voxel_labels: np.ndarray | None = None) -> int:
+    """The mode of the voxels' labels (each voxel's label is the mode of its votes: ``voxel_labels``
+    (N,) when the caller has them), weighted by occupancy; -1 for an object without voxels."""
     if obj.keys.size == 0:
         return -1
-    voxel_labels = obj.votes.argmax(axis=1)
+    if voxel_labels is None:
+        voxel_labels = obj.votes.argmax(axis=1)
     return int(np.bincount(voxel_labels, weights=obj.weights, minlength=N_CLASSES).argmax())
 
 
@@ -190,8 +196,13 @@ def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Seque
     keys = [o.keys for o in objects]
     # Unchanged objects' stored bounds are exact; only changed ones need their keys unpacked (once,
     # here, rather than once for each side of the matrix).
-    bounds = [stored_index_bounds(o, params.voxel_size_m) if not c else None for o, c in zip(objects, flags)]
-    bounds = [index_bounds(o.keys) if b is None and o.keys.size else b for o, b in zip(objects, bounds)]
+    bounds = stored_index_bounds_of([o for o, c in zip(objects, flags) if not c], params.voxel_size_m)
+    unchanged = iter(bounds)
+    bounds = [next(unchanged) if not c else None for c in flags]
+    unknown = [i for i, (o, b) in enumerate(zip(objects, bounds)) if b is None and o.keys.size]
+    if unknown:
+        for i, b in zip(unknown, index_bounds_of_sets([objects[i].keys for i in unknown])):
+            bounds[i] = b
     overlap = overlap_matrix(
         keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted
     )

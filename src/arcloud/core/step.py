@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arcloud.core.associate import associate, stored_index_bounds
+from arcloud.core.associate import associate, stored_index_bounds_of
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
@@ -46,7 +46,7 @@ from arcloud.core.fusion import (
 )
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
-from arcloud.core.voxels import center_rays, free_voxels, key_centers, keys_bounds, visible_voxels, voxelize_detections
+from arcloud.core.voxels import center_rays, free_voxels, key_centers, keys_bounds, visible_voxels_of_sets, voxelize_detections
 
 log = logging.getLogger(__name__)
 
@@ -193,10 +193,10 @@ def find_visible(store: MapStore, frame: Frame, params: Params) -> list[int]:
     candidates = store.query_region(frame.map_id, lo, hi)
     if not candidates:
         return []
-    ids = np.array(list(candidates))
+    ids = list(candidates)
     mins = np.array([candidates[i][0] for i in ids])
     maxs = np.array([candidates[i][1] for i in ids])
-    return sorted(int(i) for i in ids[boxes_in_frustum(frustum, mins, maxs)])
+    return sorted(int(ids[k]) for k in np.flatnonzero(boxes_in_frustum(frustum, mins, maxs)))
 
 
 def fuse_matches(
@@ -217,7 +217,7 @@ def fuse_matches(
         [o.keys for o in objects],
         [current_label_index(o, changed=False) for o in objects],  # as read: refined
         params,
-        object_bounds=[stored_index_bounds(o, params.voxel_size_m) for o in objects],
+        object_bounds=stored_index_bounds_of(objects, params.voxel_size_m),
         object_frames=[o.n_frames for o in objects],
     )
     matched = {o for _, o in association.pairs}
@@ -235,11 +235,12 @@ def fuse_matches(
                 views[rival] = part
     fused = list(objects)
     fused_ids = set()
-    for o, view in views.items():
-        if view.keys.size:
-            visible = visible_voxels(frame, fused[o].keys, params)
-            fused[o] = fuse_detection(fused[o], view, frame.device_id, visible, floor_vote(floor, view, params))
-            fused_ids.add(fused[o].id)
+    viewed = [(o, view) for o, view in views.items() if view.keys.size]
+    # Which voxels of each object the frame saw, as it was read (each object takes one view).
+    visible = visible_voxels_of_sets(frame, [objects[o].keys for o, _ in viewed], params)
+    for (o, view), visible_of_o in zip(viewed, visible):
+        fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
+        fused_ids.add(fused[o].id)
     return fused, [observations[d] for d in association.unmatched], fused_ids
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import operator
 from dataclasses import dataclass
 from typing import Any, Literal, TypeGuard
 
@@ -250,11 +251,12 @@ class MapObject:
         return self.weights if self.seen is None else self.seen
 
     def replace(self, **changes: object) -> MapObject:
-        """``dataclasses.replace(self, **changes)`` at a third of its cost (the step makes dozens a
-        frame): the fields copied slot by slot, not through the frozen ``__init__``."""
+        """``dataclasses.replace(self, **changes)`` at a sixth of its cost (the step makes dozens a
+        frame): the fields read at once (``attrgetter``) and set slot by slot, not through the frozen
+        ``__init__``."""
         new = object.__new__(MapObject)
-        for slot in _MAP_OBJECT_SLOTS:
-            slot.__set__(new, slot.__get__(self))
+        for set_field, value in zip(_SET_MAP_OBJECT_FIELDS, _GET_MAP_OBJECT_FIELDS(self)):
+            set_field(new, value)
         for name, value in changes.items():
             object.__setattr__(new, name, value)  # AttributeError for a name that is no field
         if not _VOXEL_ARRAYS.isdisjoint(changes):
@@ -262,7 +264,8 @@ class MapObject:
         return new
 
 
-_MAP_OBJECT_SLOTS = tuple(MapObject.__dict__[f.name] for f in dataclasses.fields(MapObject))
+_GET_MAP_OBJECT_FIELDS = operator.attrgetter(*(f.name for f in dataclasses.fields(MapObject)))
+_SET_MAP_OBJECT_FIELDS = tuple(MapObject.__dict__[f.name].__set__ for f in dataclasses.fields(MapObject))
 _VOXEL_ARRAYS = frozenset(("keys", "weights", "votes", "seen", "colors"))
 
 
