@@ -275,7 +275,7 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
     A missed detection of an object still there shows depth *at* its voxels, not behind them, so it
     does not count towards retiring it. An object that one more miss makes a phantom
     (``core.confirm.is_phantom``) is deleted (``phantoms``) when it stands apart from the other objects
-    (``stands_apart``). A miss rewrites an object when its score or status moves enough
+    the frame has in view (``stands_apart``). A miss rewrites an object when its score or status moves enough
     (``rescored``); otherwise its counters are written alone (``n_missed``, ``n_gone``: no new version)."""
     out = Misses(list(objects))
     undetected = [i for i, obj in enumerate(objects) if obj.id not in fused_ids and obj.keys.size]
