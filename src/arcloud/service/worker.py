@@ -4,9 +4,10 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
 ``FrameWorker.run``:
 
 0. With ``warm_up`` (the service's workers), ``warm_up``: what the first frame would otherwise wait for,
-   before the worker takes frames or beats. A thread writes the worker's heartbeat every second (``heartbeat_s``; off for threads of the API),
-   which also keeps the frame in hand from being taken for abandoned. It beats only while the loop
-   reads (its last poll did not fail) or holds a frame: a fresh heartbeat says frames get processed.
+   before the worker takes frames or beats. A thread writes the worker's heartbeat every second
+   (``heartbeat_s``; off for threads of the API), which also keeps the frame in hand from being taken for
+   abandoned. It beats only while the loop reads (its last poll did not fail) or holds a frame: a fresh
+   heartbeat says frames get processed.
 1. Every ``claim_interval_s``: claim one frame another consumer took ``claim_min_idle_s`` ago without
    settling it (it died or hangs). Beyond ``max_deliveries`` it is a poison frame: dead-lettered (or,
    when a slow delivery did commit it meanwhile, acknowledged as redelivered). Otherwise processed here.
@@ -60,12 +61,12 @@ def warm_up(detector: Detector) -> float:
     and scipy, the detector's first run, e.g. an ONNX session's buffers or a simulated room's renderer),
     running the detector on a blank frame. Returns the seconds it took. A detector that cannot take a
     blank frame stays cold (logged): its first frame pays instead."""
+    started = time.perf_counter()
     import numpy as np
 
     from arcloud.core.checks import make_frame
     from arcloud.core.step import process_frame  # noqa: F401 - imported for its modules (scipy)
 
-    started = time.perf_counter()
     height, width = WARM_UP_SHAPE
     blank = make_frame(
         np.zeros((height, width, 3), np.uint8),
