@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +24,8 @@ def random_voxels(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return keys, weights, votes
 
 
-HEADER_BYTES = 19  # format 4: 12 bytes, then the plane kinds and the vote count
+HEADER_BYTES = 21  # format 5 without a grid: 12 bytes, then the plane kinds, the vote count and the prediction
+DATA = Path(__file__).parent / "data"
 
 
 def random_colors(n: int, seed: int) -> np.ndarray:
@@ -69,7 +71,7 @@ def test_compact_objects_compress_well() -> None:
     votes = np.zeros((keys.size, N_CLASSES), np.float32)
     votes[:, 1] = 2.75  # votes come in steps of VOTE_STEP
     blob = codec.encode_voxels(keys, weights, votes)
-    assert blob[4:6] == bytes([codec.FORMAT_VERSION, codec.FLAG_ZLIB])
+    assert blob[4] == codec.FORMAT_VERSION and blob[5] & codec.FLAG_ZLIB
     raw_bytes = keys.size * (8 + 4 + 4 * N_CLASSES)
     assert len(blob) < raw_bytes / 50
     np.testing.assert_array_equal(codec.decode_voxels(blob)[0], keys)
@@ -241,9 +243,16 @@ def test_metadata_is_compressed_json_and_plain_json_of_older_formats_reads_alike
     keys, weights, votes = random_voxels(3, seed=7)
     obj = MapObject(id=4, keys=keys, weights=weights, votes=votes, label="chair", score=0.5, devices=frozenset({"d1"}))
     blob = codec.encode_meta(obj)
-    plain = zlib.decompress(blob)
+    unpacker = zlib.decompressobj(zdict=codec.META_DICTIONARY)
+    plain = unpacker.decompress(blob)
     assert plain.startswith(b'{"label":"chair"') and len(blob) < len(plain)
-    assert [repr(m) for m in codec.decode_metas([4, 4], [blob, plain])] == [repr(codec.meta_of(obj))] * 2
+    format_4 = zlib.compress(plain)  # compressed without a dictionary
+    assert len(blob) < len(format_4) - 40  # the dictionary spells the field names
+    got = codec.decode_metas([4, 4, 4], [blob, format_4, plain])
+    assert [repr(m) for m in got] == [repr(codec.meta_of(obj))] * 3
+    unknown = zlib.compressobj(zdict=b"another dictionary")
+    with pytest.raises(StoreError, match="unknown dictionary"):
+        codec.decode_meta(4, unknown.compress(plain) + unknown.flush())
     bomb = zlib.compress(b'{"label":"' + b"x" * (codec.MAX_META_BYTES + 10) + b'"}')
     with pytest.raises(StoreError, match="more than"):
         codec.decode_meta(4, bomb)
@@ -271,10 +280,126 @@ def test_corrupt_metadata_is_a_store_error() -> None:
 
 def test_a_blob_cannot_unpack_beyond_what_its_header_announces() -> None:
     bomb = zlib.compress(bytes(50_000_000))  # 50 MB of zeros in about 50 kB
-    planes = codec._PLANES.pack(codec.KIND_F32, codec.KIND_F32, codec.KIND_F32, 0)
+    planes = codec._PLANES.pack(codec.KIND_F32, codec.KIND_F32, codec.KIND_F32, 0, 0)
     one_voxel = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, 1) + planes
     with pytest.raises(StoreError, match="expected .* bytes for 1 voxels"):
         codec.decode_voxels(one_voxel + bomb)
     too_many = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, codec.MAX_BLOB_VOXELS + 1)
     with pytest.raises(StoreError, match="at most"):
         codec.decode_voxels(too_many + bomb)
+
+
+def format_4_counts_voxels() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What ``data/voxels-format4-counts.bin`` holds (written by the format 4 encoder of 74f0e52)."""
+    keys, _, _ = random_voxels(300, seed=40)
+    rng = np.random.default_rng(40)
+    counts = rng.integers(0, 700, keys.size).astype(np.float32)
+    votes = np.zeros((keys.size, N_CLASSES), np.float32)
+    votes[np.arange(keys.size), rng.integers(0, N_CLASSES, keys.size)] = rng.integers(1, 6400, keys.size) * np.float32(VOTE_STEP)
+    return keys, counts, votes, counts + 3, random_colors(keys.size, seed=40)
+
+
+def test_format_4_blobs_read() -> None:
+    """Blobs the format 4 encoder wrote (kept as files): integer planes, colours, zlib; and float planes, raw."""
+    blob = (DATA / "voxels-format4-counts.bin").read_bytes()
+    assert blob[4:6] == bytes([4, codec.FLAG_ZLIB | codec.FLAG_COLORS])
+    for got, expected in zip(codec.decode_voxels(blob), format_4_counts_voxels(), strict=True):
+        np.testing.assert_array_equal(got, expected)
+    raw = (DATA / "voxels-format4-raw.bin").read_bytes()
+    keys, weights, votes = random_voxels(300, seed=40)
+    got_keys, got_weights, got_votes, got_seen, got_colors = codec.decode_voxels(raw)
+    np.testing.assert_array_equal(got_keys, keys[:3])
+    np.testing.assert_array_equal(got_weights, weights[:3])
+    np.testing.assert_array_equal(got_seen, weights[:3])
+    np.testing.assert_array_equal(got_votes, votes[:3])
+    assert got_colors is None
+
+
+def compact_object(seed: int, n_labels: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Voxels shaped like a fused object: a lumpy block near the key range's low corner, integer counts
+    (seen >= weights), votes in steps of about 0.6 a unit of weight (some voxels voting for ``n_labels``),
+    colours of a surface with noise."""
+    rng = np.random.default_rng(seed)
+    ijk = np.stack(np.meshgrid(np.arange(12), np.arange(9), np.arange(15), indexing="ij"), axis=-1).reshape(-1, 3)
+    ijk = ijk[rng.random(len(ijk)) < 0.6] - KEY_OFFSET  # indices at the very bottom of the key range
+    keys = pack_keys(ijk)
+    n = keys.size
+    weights = rng.integers(1, 300, n).astype(np.float32)
+    seen = weights + rng.integers(0, 40, n)
+    votes = np.zeros((n, N_CLASSES), np.float32)
+    steps = np.round(weights * rng.normal(0.6, 0.1, n) / VOTE_STEP).clip(1)
+    votes[:, 0] = steps * np.float32(VOTE_STEP)
+    for label in range(1, n_labels):
+        some = rng.random(n) < 0.1
+        votes[some, label] = rng.integers(1, 100, np.count_nonzero(some)) * np.float32(VOTE_STEP)
+    colors = (np.array([180, 120, 90]) + rng.normal(0, 6, (n, 3))).clip(0, 255).astype(np.uint8)
+    return keys, weights, votes, seen, colors
+
+
+def test_compact_objects_store_keys_as_grid_bits_and_counts_and_votes_from_predictions(monkeypatch: pytest.MonkeyPatch) -> None:
+    keys, weights, votes, seen, colors = compact_object(seed=11, n_labels=3)
+    blob = codec.encode_voxels(keys, weights, votes, seen=seen, colors=colors)
+    flags = blob[5]
+    for flag in (codec.FLAG_KEYS_GRID, codec.FLAG_SEEN_EXTRA, codec.FLAG_VOTES_PREDICTED, codec.FLAG_COLORS, codec.FLAG_ZLIB):
+        assert flags & flag, flag
+    for got, expected in zip(codec.decode_voxels(blob), (keys, weights, votes, seen, colors), strict=True):
+        np.testing.assert_array_equal(got, expected)
+    # The grid's bits cost fewer bytes than the keys' differences.
+    monkeypatch.setattr(codec, "GRID_CELLS_PER_VOXEL", 0)
+    plain_keys = codec.encode_voxels(keys, weights, votes, seen=seen, colors=colors)
+    monkeypatch.undo()
+    assert not plain_keys[5] & codec.FLAG_KEYS_GRID and len(plain_keys) > len(blob) + keys.size // 4
+    for got, expected in zip(codec.decode_voxels(plain_keys), (keys, weights, votes, seen, colors), strict=True):
+        np.testing.assert_array_equal(got, expected)
+    votes_apart = votes.copy()
+    votes_apart[0, 0] *= np.float32(1.001)  # no longer in steps: every vote as float32, none predicted
+    unpredicted = codec.encode_voxels(keys, weights, votes_apart, seen=seen, colors=colors)
+    assert not unpredicted[5] & codec.FLAG_VOTES_PREDICTED
+    np.testing.assert_array_equal(codec.decode_voxels(unpredicted)[2], votes_apart)
+
+
+def test_seen_below_weights_and_votes_far_from_their_prediction_round_trip_exactly() -> None:
+    keys, weights, votes, seen, colors = compact_object(seed=12)
+    seen[:10] = weights[:10] - 1  # seen below weights: stored as it is
+    blob = codec.encode_voxels(keys, weights, votes, seen=seen)
+    assert not blob[5] & codec.FLAG_SEEN_EXTRA and blob[5] & codec.FLAG_VOTES_PREDICTED
+    np.testing.assert_array_equal(codec.decode_voxels(blob)[3], seen)
+    # Most voxels vote 60000 steps a unit of weight; one of weight 65535 votes one step: its difference
+    # (about 3.9e9, zigzag 7.9e9) fits no integer plane, so the votes go as they are.
+    far_weights = np.ones(keys.size, np.float32)
+    far_votes = np.zeros_like(votes)
+    far_votes[:, 0] = 60000 * np.float32(VOTE_STEP)
+    far_weights[0], far_votes[0, 0] = 65535, VOTE_STEP
+    far = codec.encode_voxels(keys, far_weights, far_votes)
+    assert not far[5] & codec.FLAG_VOTES_PREDICTED and far[14] == codec.KIND_U16
+    np.testing.assert_array_equal(codec.decode_voxels(far)[2], far_votes)
+    # Zero weights predict nothing; colours at both ends of the byte wrap around exactly.
+    zero_weights = weights.copy()
+    zero_weights[::3] = 0
+    extremes = colors.copy()
+    extremes[::2] = [0, 255, 0]
+    got = codec.decode_voxels(codec.encode_voxels(keys, zero_weights, votes, seen=seen, colors=extremes))
+    np.testing.assert_array_equal(got[1], zero_weights)
+    np.testing.assert_array_equal(got[2], votes)
+    np.testing.assert_array_equal(got[4], extremes)
+
+
+def test_decode_refuses_corrupt_grids() -> None:
+    keys, weights, votes, seen, _ = compact_object(seed=13)
+    blob = codec.encode_voxels(keys, weights, votes, seen=seen)
+    grid_at = codec._HEADER.size + codec._PLANES.size
+    first_and_extent = codec._GRID.unpack_from(blob, grid_at)
+
+    def with_grid(*values: int) -> bytes:
+        return blob[:grid_at] + codec._GRID.pack(*values) + blob[grid_at + codec._GRID.size :]
+
+    with pytest.raises(StoreError, match="corrupt grid"):  # more cells than a blob may unpack
+        codec.decode_voxels(with_grid(*first_and_extent[:3], 1 << 10, 1 << 10, 1 << 10))
+    with pytest.raises(StoreError, match="corrupt grid"):  # below the key range
+        codec.decode_voxels(with_grid(-KEY_OFFSET - 1, *first_and_extent[1:]))
+    with pytest.raises(StoreError, match="corrupt grid"):  # fewer cells than voxels
+        codec.decode_voxels(with_grid(*first_and_extent[:3], 1, 1, 1))
+    with pytest.raises(StoreError, match="expected .* bytes|grid holds"):  # another box: the bits no longer fit
+        codec.decode_voxels(with_grid(*first_and_extent[:5], first_and_extent[5] + 1))
+    with pytest.raises(StoreError, match="header"):
+        codec.decode_voxels(blob[: grid_at + 5])

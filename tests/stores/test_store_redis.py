@@ -75,7 +75,7 @@ def test_objects_written_before_colours_read_with_colours_unknown_and_are_rewrit
     with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
         assert store.commit(MAP, [lease], [read.replace(version=2)], [])
     rewritten = store.client.hget(keys.object_key(MAP, 1), "voxels")
-    assert rewritten[4] == codec.FORMAT_VERSION == 4 and not rewritten[5] & codec.FLAG_COLORS
+    assert rewritten[4] == codec.FORMAT_VERSION == 5 and not rewritten[5] & codec.FLAG_COLORS
     assert store.get(MAP, [1])[0].colors is None
 
 
