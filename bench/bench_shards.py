@@ -20,13 +20,21 @@ The issue's target (2 shards' worth of workers >= 1.7x the throughput of 1, with
 a machine with a core per worker and Redis; on fewer cores the workers, the API, Redis and this load generator
 share them, which this bench records (cores, load average, the machine's two-process speedup) and does not hide.
 
-    .venv/bin/python bench/bench_shards.py [--frames 48] [--rounds 3] [--out bench/results/shards.json]
+``--detector-wait-ms W``: each worker's detection takes at least W ms of wall time (the simulator's, then a
+sleep for the rest): a stand-in for a detector that runs on an accelerator or a remote model server, which
+the worker waits for without using its core. With W well above the CPU a frame costs, throughput is bounded
+by the workers' waiting, not by this machine's cores, so the ratio shows whether anything the workers share
+(streams, locks, Redis) keeps 4 workers from doing twice what 2 do. It measures the service's scaling, not
+the real model's: the workers that run the real model on CPU need a core each.
+
+    .venv/bin/python bench/bench_shards.py [--frames 48] [--rounds 3] [--detector-wait-ms 0] [--out bench/results/shards.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import dataclasses
 import os
 import shutil
 import statistics
@@ -120,14 +128,41 @@ def maps_for(shards: int, per_shard: int = 2) -> list[str]:
     return names[0] + names[1]
 
 
-class Service:
-    """The API (uvicorn in a thread of this process) with ``workers`` worker processes on ``url``."""
+@dataclasses.dataclass(frozen=True)
+class WaitingSimDetector:
+    """Builds a worker's detector (picklable: workers are spawned): ``sim:SEED`` with one ray-casting thread,
+    each frame taking at least ``wait_s`` of wall time (``--detector-wait-ms``)."""
 
-    def __init__(self, url: str, shards: int, workers: int, seed: int) -> None:
+    seed: int
+    wait_s: float
+
+    def __call__(self) -> Any:
+        from arcloud.tools.wiring import build_detector
+
+        return _Waiting(build_detector(f"sim:{self.seed}", threads=1), self.wait_s)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Waiting:
+    detector: Any
+    wait_s: float
+
+    def detect(self, frame: Any) -> Any:
+        started = time.perf_counter()
+        detections = self.detector.detect(frame)
+        time.sleep(max(0.0, self.wait_s - (time.perf_counter() - started)))
+        return detections
+
+
+class Service:
+    """The API (uvicorn in a thread of this process) with ``workers`` worker processes on ``url`` (their
+    detections taking at least ``detector_wait_s`` each when that is > 0)."""
+
+    def __init__(self, url: str, shards: int, workers: int, seed: int, detector_wait_s: float = 0.0) -> None:
         import uvicorn
 
         from arcloud.service.settings import Settings
-        from arcloud.tools.wiring import create_app
+        from arcloud.tools.wiring import create_app, worker_pool
 
         settings = Settings(
             store=url,
@@ -136,13 +171,16 @@ class Service:
             map_frame_rate_per_s=0,
             detector=f"sim:{seed}",
             detector_threads=1,
-            workers=workers,
+            workers=0 if detector_wait_s > 0 else workers,  # waiting workers: started here, not by the API
             ingest_shards=shards,
             max_queued_frames=10_000,
             read_block_s=0.2,
             log_level="WARNING",
         )
         self.store_url, self.shards, self.workers = url, shards, workers
+        self.pool = None
+        if detector_wait_s > 0:
+            self.pool = worker_pool(settings, workers, detector_factory=WaitingSimDetector(seed, detector_wait_s), restart=False)
         port = free_port()
         self.url = f"http://127.0.0.1:{port}"
         self.server = uvicorn.Server(
@@ -156,11 +194,15 @@ class Service:
         self.thread.start()
         while not self.server.started:
             time.sleep(0.05)
+        if self.pool is not None:
+            self.pool.start()
         self.queue = RedisFrameQueue(self.store_url, shards=self.shards)
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.queue.close()
+        if self.pool is not None:
+            self.pool.stop()
         self.server.should_exit = True
         self.thread.join(60)
 
@@ -191,11 +233,13 @@ class Service:
         return time.perf_counter()
 
 
-def run_config(url: str, flush: Any, shards: int, workers: int, seed: int, warmup: list[Any], timed: list[Any]) -> dict[str, Any]:
+def run_config(
+    url: str, flush: Any, shards: int, workers: int, seed: int, warmup: list[Any], timed: list[Any], detector_wait_s: float
+) -> dict[str, Any]:
     """One fresh service: warm-up until every worker has taken a frame, then the timed burst."""
     flush()
     started = time.perf_counter()
-    with Service(url, shards, workers, seed) as service:
+    with Service(url, shards, workers, seed, detector_wait_s) as service:
         warm = [("warmup", body) for body in encode(warmup, "warmup")[0]]
         while True:  # every worker loaded and reading (each takes a frame)
             service.post_all(warm, concurrency=1)
@@ -241,6 +285,9 @@ def main() -> None:
     parser.add_argument("--backends", default="redis,cluster")
     parser.add_argument("--replay-frames", type=int, default=60)
     parser.add_argument("--replay-runs", type=int, default=3)
+    parser.add_argument(
+        "--detector-wait-ms", type=float, default=0.0, help="each detection takes at least this long (0: as the simulator takes)"
+    )
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results/shards.json")
     args = parser.parse_args()
     from arcloud.allocator import keep_freed_memory
@@ -277,7 +324,7 @@ def main() -> None:
         for r in range(args.rounds):
             for name, (_, url, flush) in backends.items():
                 for shards, workers in CONFIGS:
-                    row = run_config(url, flush, shards, workers, args.seed, warmup, timed)
+                    row = run_config(url, flush, shards, workers, args.seed, warmup, timed, args.detector_wait_ms / 1000)
                     runs[name][f"{shards}x{workers}"].append(row)
                     print(
                         f"round {r + 1}, {name}, {shards} shard(s), {workers} worker(s): {row['frames_per_s']:.2f} frames/s",
@@ -338,6 +385,7 @@ def main() -> None:
                 "rounds": args.rounds,
                 "detector": f"sim:{args.seed}",
                 "detector_threads": 1,
+                "detector_wait_ms": args.detector_wait_ms,
                 "maps": "4, round robin: 2 in each shard of 2",
                 "concurrency": 4,
                 "poll_s": POLL_S,
