@@ -5,7 +5,13 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from arcloud.core.associate import index_bounds, index_bounds_of_sets, stored_index_bounds, stored_index_bounds_of
+from arcloud.core.associate import (
+    index_bounds,
+    index_bounds_of_sets,
+    overlap_matrix,
+    stored_index_bounds,
+    stored_index_bounds_of,
+)
 from arcloud.core.boxes import (
     at_least,
     at_least_floats,
@@ -21,6 +27,7 @@ from arcloud.core.boxes import (
     voxels_outline,
 )
 from arcloud.core.checks import make_frame
+from arcloud.core.fusion import box_containment
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, Detection, Params, empty_object
 from arcloud.core.voxels import (
@@ -213,6 +220,58 @@ def test_voxels_obb_is_the_obb_of_their_centres():
         for a, b in ((fast.center, plain.center), (fast.size, plain.size), (fast.rotation, plain.rotation)):
             assert a.tobytes() == b.tobytes()
         assert fast.yaw_rad == plain.yaw_rad
+
+
+def test_overlap_of_sets_with_themselves_is_that_of_a_copy_and_pair_by_pair():
+    """The merge pass's call (one list on both sides, each set coarsened once) against the general path
+    and each pair's overlap coefficient on its own; with empty sets, wanted pairs and known bounds."""
+    rng = np.random.default_rng(15)
+    for _ in range(CASES // 3):
+        n = int(rng.integers(1, 8))
+        sets = [
+            sorted_unique(pack_keys(rng.integers(-6, 6, (int(rng.integers(0, 3)) * int(rng.integers(1, 40)), 3)) + c))
+            for c in rng.integers(-12, 12, (n, 3))
+        ]
+        wanted = rng.random((n, n)) < 0.7 if rng.random() < 0.7 else None
+        bounds = [index_bounds(s) if s.size and rng.random() < 0.5 else None for s in sets]
+        tolerance = int(rng.integers(0, 3))
+        same = overlap_matrix(sets, sets, tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
+        copy = overlap_matrix(sets, list(sets), tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
+        assert same.tobytes() == copy.tobytes()
+        coarse = [coarsen_keys(s, 1 + tolerance) for s in sets]
+        for i, j in np.ndindex(n, n):
+            if not sets[i].size or not sets[j].size:
+                assert same[i, j] == 0.0
+                continue
+            own = np.intersect1d(coarse[i], coarse[j]).size / min(coarse[i].size, coarse[j].size)
+            if wanted is None or wanted[i, j]:
+                assert same[i, j] == own
+            else:  # computed when its row and column are in some wanted pair, else 0
+                assert same[i, j] in (0.0, own)
+
+
+def box_containment_plain(objects):
+    """``box_containment`` through numpy's wrappers (np.clip, np.prod, np.nan_to_num)."""
+    n = len(objects)
+    lo = np.array([o.aabb.min if o.aabb is not None else np.full(3, np.nan) for o in objects])
+    hi = np.array([o.aabb.max if o.aabb is not None else np.full(3, np.nan) for o in objects])
+    inter = np.prod(np.clip(np.minimum(hi[:, None], hi[None]) - np.maximum(lo[:, None], lo[None]), 0, None), axis=2)
+    volume = np.prod(hi - lo, axis=1)
+    smaller = np.minimum(volume[:, None], volume[None])
+    out = np.divide(inter, smaller, out=np.zeros((n, n)), where=np.isfinite(smaller) & (smaller > 0))
+    return np.nan_to_num(out)
+
+
+def test_box_containment_is_its_plain_version():
+    rng = np.random.default_rng(16)
+    for _ in range(CASES):
+        objects = []
+        for i in range(int(rng.integers(1, 12))):
+            lo = rng.normal(0, 1, 3).round(int(rng.integers(0, 3)))
+            hi = lo + rng.choice([0.0, 0.1, 1.0, 1e-200], 3) * rng.random(3)  # flat, thin and tiny boxes too
+            box = None if rng.random() < 0.2 else AABB(lo, hi)
+            objects.append(empty_object(i).replace(aabb=box))
+        assert box_containment(objects).tobytes() == box_containment_plain(objects).tobytes()
 
 
 def test_monotone_chain_hull_is_qhulls_polygon():
