@@ -5,9 +5,29 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from arcloud.core.associate import index_bounds, index_bounds_of_sets, stored_index_bounds, stored_index_bounds_of
-from arcloud.core.boxes import convex_hull_2d, fit_gravity_obb, footprint_outline, footprint_outline_plain
+from arcloud.core.associate import (
+    index_bounds,
+    index_bounds_of_sets,
+    overlap_matrix,
+    stored_index_bounds,
+    stored_index_bounds_of,
+)
+from arcloud.core.boxes import (
+    at_least,
+    at_least_floats,
+    convex_hull_2d,
+    fit_aabb,
+    fit_gravity_obb,
+    fit_voxels_aabb,
+    fit_voxels_obb,
+    footprint_outline,
+    footprint_outline_plain,
+    min_area_yaw,
+    min_area_yaw_plain,
+    voxels_outline,
+)
 from arcloud.core.checks import make_frame
+from arcloud.core.fusion import box_containment
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, Detection, Params, empty_object
 from arcloud.core.voxels import (
@@ -137,6 +157,121 @@ def test_footprint_outline_is_its_plain_version():
         xy = rng.normal(0, rng.choice([0.05, 0.5, 3.0]), (int(rng.integers(1, 400)), 2)) + rng.uniform(-10, 10, 2)
         size = float(rng.choice([0.02, 0.05, 0.1]))
         assert np.array_equal(footprint_outline(xy, size), footprint_outline_plain(xy, size))
+
+
+def sorted_voxels(rng, n):
+    """Unique voxel indices (N, 3) sorted as their keys sort, of a few shapes and places."""
+    ijk = random_ijk(rng, n) if rng.random() < 0.3 else rng.integers(-25, 25, (n, 3)) + rng.integers(-(10**5), 10**5, 3)
+    return unpack_keys(sorted_unique(pack_keys(ijk)))
+
+
+def test_voxels_outline_is_the_footprint_outline_of_their_centres():
+    rng = np.random.default_rng(10)
+    for _ in range(CASES):
+        size = float(rng.choice([0.01, 0.02, 0.05, 0.1, 0.3]))
+        ijk = sorted_voxels(rng, int(rng.integers(1, 400)))
+        assert np.array_equal(voxels_outline(ijk, size), footprint_outline(ijk_centers(ijk, size)[:, :2], size))
+
+
+def test_min_area_yaw_is_its_plain_version():
+    rng = np.random.default_rng(11)
+    for _ in range(CASES):
+        points = (rng.integers(-30, 30, (int(rng.integers(3, 40)), 2)) + 0.5) * float(rng.choice([0.05, 0.1]))
+        if rng.random() < 0.3:
+            points = rng.normal(0, 2.0, points.shape)
+        hull = convex_hull_2d(points)
+        if len(hull) >= 3:
+            assert min_area_yaw(hull) == min_area_yaw_plain(hull)
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # ties: the first angle
+    assert min_area_yaw(square) == min_area_yaw_plain(square) == 0.0
+
+
+def test_at_least_floats_is_at_least():
+    rng = np.random.default_rng(12)
+    for _ in range(CASES):
+        lo = rng.normal(0, 1, 3) * rng.choice([0.0, 1.0], 3)
+        hi = lo + rng.choice([0.0, 0.01, 0.5], 3) * rng.random(3)
+        min_size = float(rng.choice([0.0, 0.05, 0.2]))
+        floats = at_least_floats(lo.tolist(), hi.tolist(), min_size)
+        arrays = at_least(lo, hi, min_size)
+        assert all(np.array(f).tobytes() == a.tobytes() for f, a in zip(floats, arrays))  # signed zeros too
+
+
+def test_voxels_aabb_is_the_aabb_of_their_centres():
+    rng = np.random.default_rng(14)
+    for _ in range(CASES):
+        size, pad = float(rng.choice([0.02, 0.05, 0.1])), float(rng.choice([0.0, 0.05]))
+        ijk = random_ijk(rng, int(rng.integers(1, 300)))
+        lo, hi = (corner.tolist() for corner in ijk_extent(ijk))
+        fast, plain = fit_voxels_aabb(lo, hi, size, pad), fit_aabb(ijk_centers(ijk, size), pad, size)
+        assert fast.min.tobytes() == plain.min.tobytes() and fast.max.tobytes() == plain.max.tobytes()
+
+
+def test_voxels_obb_is_the_obb_of_their_centres():
+    rng = np.random.default_rng(13)
+    up, tilted = Gravity.of((0.0, 0.0, 1.0)), Gravity.of((0.1, -0.2, 1.0))
+    for case in range(CASES):
+        size = float(rng.choice([0.02, 0.05, 0.1]))
+        ijk = sorted_voxels(rng, int(rng.integers(1, 300)))
+        gravity, pad = (up, tilted)[case % 2], [None, 0.0, size][case % 3]
+        k_range = (int(ijk[:, 2].min()), int(ijk[:, 2].max())) if rng.random() < 0.5 else None
+        fast = fit_voxels_obb(ijk, size, gravity, pad, k_range)
+        plain = fit_gravity_obb(ijk_centers(ijk, size), size, gravity, pad)
+        for a, b in ((fast.center, plain.center), (fast.size, plain.size), (fast.rotation, plain.rotation)):
+            assert a.tobytes() == b.tobytes()
+        assert fast.yaw_rad == plain.yaw_rad
+
+
+def test_overlap_of_sets_with_themselves_is_that_of_a_copy_and_pair_by_pair():
+    """The merge pass's call (one list on both sides, each set coarsened once) against the general path
+    and each pair's overlap coefficient on its own; with empty sets, wanted pairs and known bounds."""
+    rng = np.random.default_rng(15)
+    for _ in range(CASES // 3):
+        n = int(rng.integers(1, 8))
+        sets = [
+            sorted_unique(pack_keys(rng.integers(-6, 6, (int(rng.integers(0, 3)) * int(rng.integers(1, 40)), 3)) + c))
+            for c in rng.integers(-12, 12, (n, 3))
+        ]
+        wanted = rng.random((n, n)) < 0.7 if rng.random() < 0.7 else None
+        bounds = [index_bounds(s) if s.size and rng.random() < 0.5 else None for s in sets]
+        tolerance = int(rng.integers(0, 3))
+        same = overlap_matrix(sets, sets, tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
+        copy = overlap_matrix(sets, list(sets), tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
+        assert same.tobytes() == copy.tobytes()
+        coarse = [coarsen_keys(s, 1 + tolerance) for s in sets]
+        for i, j in np.ndindex(n, n):
+            if not sets[i].size or not sets[j].size:
+                assert same[i, j] == 0.0
+                continue
+            own = np.intersect1d(coarse[i], coarse[j]).size / min(coarse[i].size, coarse[j].size)
+            if wanted is None or wanted[i, j]:
+                assert same[i, j] == own
+            else:  # computed when its row and column are in some wanted pair, else 0
+                assert same[i, j] in (0.0, own)
+
+
+def box_containment_plain(objects):
+    """``box_containment`` through numpy's wrappers (np.clip, np.prod, np.nan_to_num)."""
+    n = len(objects)
+    lo = np.array([o.aabb.min if o.aabb is not None else np.full(3, np.nan) for o in objects])
+    hi = np.array([o.aabb.max if o.aabb is not None else np.full(3, np.nan) for o in objects])
+    inter = np.prod(np.clip(np.minimum(hi[:, None], hi[None]) - np.maximum(lo[:, None], lo[None]), 0, None), axis=2)
+    volume = np.prod(hi - lo, axis=1)
+    smaller = np.minimum(volume[:, None], volume[None])
+    out = np.divide(inter, smaller, out=np.zeros((n, n)), where=np.isfinite(smaller) & (smaller > 0))
+    return np.nan_to_num(out)
+
+
+def test_box_containment_is_its_plain_version():
+    rng = np.random.default_rng(16)
+    for _ in range(CASES):
+        objects = []
+        for i in range(int(rng.integers(1, 12))):
+            lo = rng.normal(0, 1, 3).round(int(rng.integers(0, 3)))
+            hi = lo + rng.choice([0.0, 0.1, 1.0, 1e-200], 3) * rng.random(3)  # flat, thin and tiny boxes too
+            box = None if rng.random() < 0.2 else AABB(lo, hi)
+            objects.append(empty_object(i).replace(aabb=box))
+        assert box_containment(objects).tobytes() == box_containment_plain(objects).tobytes()
 
 
 def test_monotone_chain_hull_is_qhulls_polygon():

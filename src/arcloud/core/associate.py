@@ -131,20 +131,28 @@ def overlap_matrix(
         & (bounds_b_arr[None, :, 0] <= bounds_a_arr[:, None, 1] + reach),
         axis=2,
     )
+    all_live = len(live_a) == len(sets_a) and len(live_b) == len(sets_b)  # then live index k is set k
     if pairs_wanted is not None:
-        touching &= pairs_wanted[np.ix_(live_a, live_b)]
-    rows, cols = np.nonzero(touching)
-    if rows.size == 0:
+        touching &= pairs_wanted if all_live else pairs_wanted[np.ix_(live_a, live_b)]
+    used_a = np.flatnonzero(touching.any(axis=1))  # the rows and columns of the touching pairs
+    if used_a.size == 0:
         return overlap
+    used_b = np.flatnonzero(touching.any(axis=0))
     factor = 1 + tolerance_voxels
-    used_a, used_b = np.unique(rows), np.unique(cols)
-    coarse_a = [coarsen_keys(sets_a[live_a[i]], factor) for i in used_a]
-    coarse_b = [coarsen_keys(sets_b[live_b[j]], factor) for j in used_b]
+    coarse_a = [coarsen_keys(sets_a[live_a[i]], factor) for i in used_a.tolist()]
+    if sets_b is sets_a:  # one list against itself (the merge pass): coarsen each set once
+        coarse_of = dict(zip(used_a.tolist(), coarse_a))
+        coarse_b = [coarse_of[j] if j in coarse_of else coarsen_keys(sets_b[live_b[j]], factor) for j in used_b.tolist()]
+    else:
+        coarse_b = [coarsen_keys(sets_b[live_b[j]], factor) for j in used_b.tolist()]
     common = common_counts(coarse_a, coarse_b)
     sizes_a = np.array([s.size for s in coarse_a], np.float64)
     sizes_b = np.array([s.size for s in coarse_b], np.float64)
     block = common / np.minimum(sizes_a[:, None], sizes_b[None, :])
-    overlap[np.ix_(np.asarray(live_a)[used_a], np.asarray(live_b)[used_b])] = block
+    if all_live:
+        overlap[np.ix_(used_a, used_b)] = block
+    else:
+        overlap[np.ix_(np.asarray(live_a)[used_a], np.asarray(live_b)[used_b])] = block
     return overlap
 
 

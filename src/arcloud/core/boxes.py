@@ -94,6 +94,20 @@ def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     return (outline + 0.5) * voxel_size_m
 
 
+def voxels_outline(ijk: np.ndarray, voxel_size_m: float) -> np.ndarray:
+    """``footprint_outline`` of the centres of voxels at indices ``ijk`` (N, 3), N > 0, sorted by i then j
+    (as their keys sort), on the voxels' own grid (a test holds them equal): a centre's ground cell is
+    its (i, j) (floor((i + 0.5) * s / s) is i: the two roundings move it by far less than half a cell
+    for any index a key holds), and a column's lowest and highest cells are its first and last voxels."""
+    columns = ijk[:, 0]
+    new_column = columns[1:] != columns[:-1]
+    first, last = np.empty(columns.size, bool), np.empty(columns.size, bool)
+    first[0] = last[-1] = True
+    first[1:] = last[:-1] = new_column
+    cells = ijk[:, :2]
+    return (np.concatenate((cells[first], cells[last])) + 0.5) * voxel_size_m
+
+
 def footprint_outline_plain(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
     """``footprint_outline`` from the sorted unique cells: the first and last cell of each column."""
     cells = np.unique(np.floor(xy / voxel_size_m).astype(np.int64), axis=0)  # sorted by column, then row
@@ -143,11 +157,27 @@ def at_least(lo: np.ndarray, hi: np.ndarray, min_size_m: float) -> tuple[np.ndar
     return lo - grow, hi + grow
 
 
+def at_least_floats(lo: list[float], hi: list[float], min_size_m: float) -> tuple[list[float], list[float]]:
+    """``at_least`` of corners as Python floats: the same arithmetic element by element, without numpy's
+    cost per call on three numbers."""
+    grow = [max(min_size_m - (h - low), 0.0) / 2 for low, h in zip(lo, hi)]
+    return [low - g for low, g in zip(lo, grow)], [h + g for h, g in zip(hi, grow)]
+
+
 def fit_aabb(centers: np.ndarray, pad_m: float, min_size_m: float) -> AABB:
     """The tightest axis-aligned box around voxel centres (N, 3), grown by ``pad_m`` on every side and
     at least ``min_size_m`` on every axis (one layer of voxels is one voxel thick, not flat)."""
     lo, hi = points_extent(centers)
     return AABB(*at_least(lo - pad_m, hi + pad_m, min_size_m))
+
+
+def fit_voxels_aabb(ijk_lo: list[int], ijk_hi: list[int], voxel_size_m: float, pad_m: float) -> AABB:
+    """``fit_aabb(centres, pad_m, voxel_size_m)`` of voxels whose indices span ``ijk_lo``..``ijk_hi`` (their
+    ``ijk_extent``): the centres' extent is that of the extreme indices' centres (rounding is monotone;
+    a test holds them equal)."""
+    lo = [(i + 0.5) * voxel_size_m - pad_m for i in ijk_lo]
+    hi = [(i + 0.5) * voxel_size_m + pad_m for i in ijk_hi]
+    return AABB(*(np.array(corner) for corner in at_least_floats(lo, hi, voxel_size_m)))
 
 
 def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, pad_m: float | None = None) -> OBB:
@@ -157,34 +187,76 @@ def fit_gravity_obb(centers: np.ndarray, voxel_size_m: float, gravity: Gravity, 
     rotation = gravity.world2gravity
     points = centers if gravity.is_identity else centers @ rotation.T
     xy = footprint_outline(points[:, :2], voxel_size_m) if voxel_size_m > 0 else points[:, :2]
+    heights = points[:, 2]
+    return footprint_obb(xy, float(heights.min()), float(heights.max()), voxel_size_m, rotation, pad_m)
+
+
+def fit_voxels_obb(
+    ijk: np.ndarray, voxel_size_m: float, gravity: Gravity, pad_m: float | None = None, k_range: tuple[int, int] | None = None
+) -> OBB:
+    """``fit_gravity_obb`` of the centres of voxels at indices ``ijk`` (N, 3), N > 0, sorted by i then j
+    (as their keys sort); ``k_range``: their (min, max) k when the caller has it. Where up is +z, on the
+    voxels' grid (a test holds them equal): the footprint is ``voxels_outline``, the heights' extent
+    that of the lowest and highest layers' centres (rounding is monotone)."""
+    if not gravity.is_identity or voxel_size_m <= 0:
+        return fit_gravity_obb(ijk_centers(ijk, voxel_size_m), voxel_size_m, gravity, pad_m)
+    k_min, k_max = (int(ijk[:, 2].min()), int(ijk[:, 2].max())) if k_range is None else k_range
+    z_lo, z_hi = (k_min + 0.5) * voxel_size_m, (k_max + 0.5) * voxel_size_m
+    return footprint_obb(voxels_outline(ijk, voxel_size_m), z_lo, z_hi, voxel_size_m, gravity.world2gravity, pad_m)
+
+
+def footprint_obb(
+    xy: np.ndarray, z_lo: float, z_hi: float, voxel_size_m: float, world2gravity: np.ndarray, pad_m: float | None = None
+) -> OBB:
+    """``fit_gravity_obb`` of points whose ground outline is ``xy`` (M, 2) and whose heights span
+    ``z_lo``..``z_hi`` (in the gravity frame ``world2gravity``)."""
     hull = convex_hull_2d(xy) if len(xy) <= 64 or _collinear(xy) else xy[ConvexHull(xy).vertices]  # qhull wins beyond ~60 points
     yaw = 0.0
     if len(hull) == 2:  # collinear: the box lies along the line
         dx, dy = hull[1] - hull[0]
         yaw = float(np.mod(np.arctan2(dy, dx), np.pi / 2))
     elif len(hull) >= 3:
-        edges = np.concatenate((hull[1:], hull[:1])) - hull  # each point to the next, wrapping (np.roll costs 4x)
-        # Sorted unique angles (np.mod by a positive divisor gives no -0.0, so equal means identical).
-        angles = sorted_unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
-        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        hull_x, hull_y = hull[:, 0], hull[:, 1]
-        # Hull points in each candidate frame: (A, H) coordinates along the two box axes.
-        u = hull_x * c + hull_y * s
-        v = -hull_x * s + hull_y * c
-        areas = (u.max(axis=1) - u.min(axis=1)) * (v.max(axis=1) - v.min(axis=1))  # np.ptp, without its wrapper
-        yaw = float(angles[np.argmin(areas)])
+        yaw = min_area_yaw(hull)
     c, s = math.cos(yaw), math.sin(yaw)
     yaw_rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # box2gravity
-    local_xy = xy @ yaw_rotation[:2, :2]
+    (x_lo, y_lo), (x_hi, y_hi) = (corner.tolist() for corner in points_extent(xy @ yaw_rotation[:2, :2]))
     half = voxel_size_m / 2 if pad_m is None else pad_m
-    lo, hi = np.empty(3), np.empty(3)
-    heights = points[:, 2]
-    (lo[:2], hi[:2]), lo[2], hi[2] = points_extent(local_xy), heights.min(), heights.max()
-    lo -= half
-    hi += half
-    lo, hi = at_least(lo, hi, voxel_size_m)
-    box2world = rotation.T @ yaw_rotation
-    return OBB(center=box2world @ ((lo + hi) / 2), size=hi - lo, rotation=box2world, yaw_rad=yaw)
+    lo, hi = at_least_floats(
+        [x_lo - half, y_lo - half, z_lo - half], [x_hi + half, y_hi + half, z_hi + half], voxel_size_m
+    )  # Python floats: numpy's cost per call is most of the work on three numbers
+    box2world = world2gravity.T @ yaw_rotation
+    center = box2world @ np.array([(low + h) / 2 for low, h in zip(lo, hi)])
+    return OBB(center=center, size=np.array([h - low for low, h in zip(lo, hi)]), rotation=box2world, yaw_rad=yaw)
+
+
+def min_area_yaw(hull: np.ndarray) -> float:
+    """The yaw in [0, pi/2) of the smallest-area rectangle around a convex polygon (H, 2), H >= 3, of
+    finite points (rotating calipers: a side of that rectangle lies along an edge); the first such
+    edge angle in increasing order on ties. The angles and their sines and cosines by numpy, the
+    rectangles by Python floats (a few points and angles: numpy's cost per call would dominate)."""
+    edges = np.concatenate((hull[1:], hull[:1])) - hull  # each point to the next, wrapping (np.roll costs 4x)
+    # Sorted unique angles (np.mod by a positive divisor gives no -0.0, so equal means identical).
+    angles = sorted(set(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2).tolist()))
+    at = np.array(angles)
+    points = hull.tolist()
+    best_area, yaw = math.inf, angles[0]
+    for angle, c, s in zip(angles, np.cos(at).tolist(), np.sin(at).tolist()):
+        along = [x * c + y * s for x, y in points]  # the hull in the candidate frame, axis by axis
+        across = [-x * s + y * c for x, y in points]
+        area = (max(along) - min(along)) * (max(across) - min(across))
+        if area < best_area:
+            best_area, yaw = area, angle
+    return yaw
+
+
+def min_area_yaw_plain(hull: np.ndarray) -> float:
+    """``min_area_yaw`` all in numpy: every candidate frame's coordinates (A, H) at once."""
+    edges = np.concatenate((hull[1:], hull[:1])) - hull
+    angles = sorted_unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    u = hull[:, 0] * c + hull[:, 1] * s
+    v = -hull[:, 0] * s + hull[:, 1] * c
+    return float(angles[np.argmin(np.ptp(u, axis=1) * np.ptp(v, axis=1))])
 
 
 def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[AABB, OBB]:
@@ -226,16 +298,17 @@ def refine(obj: MapObject, params: Params) -> MapObject:
         box_mask = np.ones(obj.keys.size, bool)
     voxel_labels = obj.votes.argmax(axis=1)  # once: the label and its purity use it
     label_index = object_label_index(obj, voxel_labels)
-    centers = ijk_centers(ijk[box_mask], params.voxel_size_m)
+    box_ijk = ijk[box_mask]
+    box_lo, box_hi = (corner.tolist() for corner in ijk_extent(box_ijk))
+    size_m, pad_m = params.voxel_size_m, params.box_pad_voxels * params.voxel_size_m
     if params.world2aligned is not None:
         world2aligned = np.asarray(params.world2aligned, np.float64)
-        aligned = centers @ world2aligned[:3, :3].T + world2aligned[:3, 3]
+        aabb = fit_aabb(ijk_centers(box_ijk, size_m) @ world2aligned[:3, :3].T + world2aligned[:3, 3], pad_m, size_m)
     else:
-        aligned = centers
-    lo, hi = ijk_bounds(ijk, params.voxel_size_m)
+        aabb = fit_voxels_aabb(box_lo, box_hi, size_m, pad_m)
+    obb = fit_voxels_obb(box_ijk, size_m, params.gravity, pad_m, (box_lo[2], box_hi[2]))
+    lo, hi = ijk_bounds(ijk, size_m)
     label = CLASSES[label_index]
-    aabb = fit_aabb(aligned, params.box_pad_voxels * params.voxel_size_m, params.voxel_size_m)
-    obb = fit_gravity_obb(centers, params.voxel_size_m, params.gravity, params.box_pad_voxels * params.voxel_size_m)
     if floor_m is not None and label in params.floor_standing:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(

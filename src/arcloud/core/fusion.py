@@ -15,6 +15,8 @@ from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
 _ZERO = np.float32(0.0)
+_NO_CORNER = np.full(3, np.nan)  # the corner of a missing box (box_containment)
+_NO_CORNER.flags.writeable = False
 
 #: A detection votes its score rounded to this step: sums of such votes are exact in float32 (up to 2**18
 #: per voxel), so the votes of a voxel do not depend on the order of its frames, and the store keeps them
@@ -235,13 +237,14 @@ def box_containment(objects: Sequence[MapObject]) -> np.ndarray:
     Parts of one object seen from different sides (a chair's back from behind, its seat from the front)
     share few voxels but sit in one box."""
     n = len(objects)
-    lo = np.array([o.aabb.min if o.aabb is not None else np.full(3, np.nan) for o in objects])
-    hi = np.array([o.aabb.max if o.aabb is not None else np.full(3, np.nan) for o in objects])
-    inter = np.prod(np.clip(np.minimum(hi[:, None], hi[None]) - np.maximum(lo[:, None], lo[None]), 0, None), axis=2)
-    volume = np.prod(hi - lo, axis=1)
+    lo = np.concatenate([o.aabb.min if o.aabb is not None else _NO_CORNER for o in objects]).reshape(n, 3)
+    hi = np.concatenate([o.aabb.max if o.aabb is not None else _NO_CORNER for o in objects]).reshape(n, 3)
+    # np.clip(x, 0, None) is np.maximum(x, 0) and np.prod np.multiply.reduce, called without their wrappers.
+    inter = np.multiply.reduce(np.maximum(np.minimum(hi[:, None], hi[None]) - np.maximum(lo[:, None], lo[None]), 0), axis=2)
+    volume = np.multiply.reduce(hi - lo, axis=1)
     smaller = np.minimum(volume[:, None], volume[None])
     out = np.divide(inter, smaller, out=np.zeros((n, n)), where=np.isfinite(smaller) & (smaller > 0))
-    return np.nan_to_num(out)
+    return out if np.isfinite(out).all() else np.nan_to_num(out)  # nan_to_num leaves finite values as they are
 
 
 def resolve_conflicts(objects: Sequence[MapObject]) -> list[MapObject]:
