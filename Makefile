@@ -34,7 +34,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_service.py
 	$(BIN)/python bench/bench_throughput.py
 	$(BIN)/python bench/bench_load.py
-	$(BIN)/python bench/bench_load.py --devices 100 --rate 0.35 --out bench/results/load_70.json
+	$(BIN)/python bench/bench_load.py --devices 100 --rate 0.42 --out bench/results/load_70.json
 	$(BIN)/python bench/bench_flood.py
 	$(BIN)/python bench/bench_shards.py
 	$(BIN)/python bench/bench_shards.py --detector-wait-ms 300 --replay-runs 0 --out bench/results/shards_wait.json
