@@ -130,12 +130,12 @@ def encode_voxels(
     votes = np.asarray(votes, np.float32)
     voting = votes != 0
     weights_kind, weights_plane, weight_counts = _narrowest(weights, 1.0)
-    seen_kind, seen_plane, _ = _narrowest(seen, 1.0)
-    if weights_kind != KIND_F32 and seen_kind != KIND_F32:
-        extra_kind, extra_plane, extra = _narrowest(seen - weights, 1.0)
-        if extra_kind != KIND_F32 and np.array_equal((weights + _widened(extra, 1.0)).view(np.uint32), seen.view(np.uint32)):
-            seen_kind, seen_plane = extra_kind, extra_plane
+    if weights_kind != KIND_F32:  # seen as seen - weights when that is an integer plane giving seen back exactly
+        seen_kind, seen_plane, extra = _narrowest(seen - weights, 1.0)
+        if seen_kind != KIND_F32 and np.array_equal((weights + _widened(extra, 1.0)).view(np.uint32), seen.view(np.uint32)):
             flags |= FLAG_SEEN_EXTRA
+    if not flags & FLAG_SEEN_EXTRA:
+        seen_kind, seen_plane, _ = _narrowest(seen, 1.0)
     votes_kind, votes_plane, vote_steps = _narrowest(votes[voting], VOTES_SCALE)
     votes_per_weight = 0
     if weights_kind != KIND_F32 and votes_kind != KIND_F32 and vote_steps.size:
