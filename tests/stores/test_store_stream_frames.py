@@ -49,14 +49,20 @@ def assert_same_frame(a: Frame, b: Frame) -> None:
 @pytest.mark.parametrize("rgb_png", [True, False])
 def test_a_worker_decodes_the_frame_the_api_validated(depth_scale: float, rgb_png: bool) -> None:
     msg = upload(np.random.default_rng(7), depth_scale=depth_scale, rgb_png=rgb_png)
+    uploaded = pb.Frame()
+    uploaded.CopyFrom(msg)
+    uploaded.map_id = "room"
     validated = validate_message(msg, "room")
-    carried = stream_message(msg, validated)
-    assert carried.depth_encoding == pb.DEPTH_ENCODING_RAW_UINT16
-    if rgb_png:
-        assert carried.rgb_encoding == pb.RGB_ENCODING_RAW_RGB8
-    else:  # JPEG is lossy: carried as uploaded, never re-encoded
-        assert carried.rgb_encoding == pb.RGB_ENCODING_JPEG and carried.rgb == msg.rgb
-    assert_same_frame(decode_frame(carried.SerializeToString()), validated)
+    # the API decoded the PNGs once, and its message carries their pixels on
+    assert msg.depth_encoding == pb.DEPTH_ENCODING_RAW_UINT16 and (msg.width, msg.height) == (WIDTH, HEIGHT)
+    for carried in (stream_message(msg, validated), stream_message(uploaded, validated)):  # the API's, an upload's
+        assert carried.depth_encoding == pb.DEPTH_ENCODING_RAW_UINT16
+        if rgb_png:
+            assert carried.rgb_encoding == pb.RGB_ENCODING_RAW_RGB8
+        else:  # JPEG is lossy: carried as uploaded, never re-encoded
+            assert carried.rgb_encoding == pb.RGB_ENCODING_JPEG and carried.rgb == uploaded.rgb
+        assert_same_frame(decode_frame(carried.SerializeToString()), validated)
+    assert stream_message(msg, validated) == stream_message(uploaded, validated)
 
 
 def test_raw_uploads_are_carried_as_they_are() -> None:

@@ -91,8 +91,11 @@ class ObjectLike(Protocol):
 
 
 # --- frames in --------------------------------------------------------------------------------------
-def frame_from_proto(msg: pb.Frame) -> Frame:
-    """A validated ``Frame`` from a wire ``Frame``; ``InvalidInput`` names the first wrong field."""
+def frame_from_proto(msg: pb.Frame, *, lossless_to_raw: bool = False) -> Frame:
+    """A validated ``Frame`` from a wire ``Frame``; ``InvalidInput`` names the first wrong field.
+    ``lossless_to_raw``: once the frame is valid, the message's PNG images are replaced in place by the
+    pixels decoded here (``RAW_UINT16`` depth, ``RAW_RGB8`` colour, with width and height), so that whoever
+    carries the message on does not decode them again; JPEG stays as uploaded (lossy: never re-encoded)."""
     if not msg.HasField("intrinsics"):
         raise InvalidInput("intrinsics", "fx, fy, cx, cy", "nothing")
     if len(msg.cam2world) != 16:
@@ -104,7 +107,7 @@ def frame_from_proto(msg: pb.Frame) -> Frame:
     else:
         depth_scale = msg.depth_scale or None
     intr = msg.intrinsics
-    return make_frame(
+    frame = make_frame(
         rgb,
         depth,
         Intrinsics(intr.fx, intr.fy, intr.cx, intr.cy),
@@ -115,6 +118,20 @@ def frame_from_proto(msg: pb.Frame) -> Frame:
         frame_id=msg.frame_id,
         depth_scale=depth_scale,
     )
+    if lossless_to_raw:
+        _lossless_to_raw(msg, rgb, depth)
+    return frame
+
+
+def _lossless_to_raw(msg: pb.Frame, rgb: np.ndarray, depth: np.ndarray) -> None:
+    """``msg``'s PNG images replaced by ``rgb`` and ``depth``, the pixels decoded from them (valid)."""
+    if msg.depth_encoding == pb.DEPTH_ENCODING_PNG:
+        msg.depth = depth.astype("<u2", copy=False).tobytes()
+        msg.depth_encoding = pb.DEPTH_ENCODING_RAW_UINT16
+    if msg.rgb_encoding == pb.RGB_ENCODING_PNG:
+        msg.rgb = np.ascontiguousarray(rgb, np.uint8).tobytes()
+        msg.rgb_encoding = pb.RGB_ENCODING_RAW_RGB8
+    msg.height, msg.width = depth.shape
 
 
 def _cv2() -> ModuleType:

@@ -7,7 +7,7 @@ sizes (pixels are counted from the headers before decoding, so a small file cann
 image), decoding, dtypes, shapes, pose, ids, and the map id of the body against the path.
 
 The ingest queues the validated ``Frame`` with its message (a queue that serialises, such as the Redis
-one, carries the message rather than encoding the frame again).
+one, carries the message rather than encoding the frame again; its PNG images were decoded once, here).
 """
 
 from __future__ import annotations
@@ -143,7 +143,8 @@ def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
 
 def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Frame:
     """The validated ``Frame`` of a message posted to ``map_id`` (the message's map id is set to the
-    path's when empty, and must equal it otherwise)."""
+    path's when empty, and must equal it otherwise; its PNG images become the pixels decoded here, for
+    the queue to carry: ``frame_from_proto(lossless_to_raw=True)``)."""
     check_map_id("map_id", map_id)
     if msg.map_id and msg.map_id != map_id:
         raise InvalidInput("map_id", f"the map id of the path ({map_id!r}) or none", repr(msg.map_id))
@@ -151,7 +152,7 @@ def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MA
     check_pixels(msg, max_pixels)
     if msg.depth_encoding != pb.DEPTH_ENCODING_RAW_FLOAT32:  # 16-bit depth: units per metre (float: metres)
         check_depth_scale(msg.depth_scale)
-    return check_plausible_frame(frame_from_proto(msg))
+    return check_plausible_frame(frame_from_proto(msg, lossless_to_raw=True))
 
 
 def form_bytes(form: Mapping[str, Any], name: str, what: str) -> bytes | None:

@@ -18,7 +18,8 @@ from arcloud.proto.convert import frame_from_proto
 def stream_message(msg: pb.Frame, frame: Frame) -> pb.Frame:
     """The message the ingest stream carries for ``frame``, validated from ``msg``: PNG images (lossless,
     slow to decode) become their pixels (``RAW_*``), JPEG stays as uploaded (lossy: never re-encoded).
-    A worker decodes it to the same ``Frame``, bit for bit."""
+    A worker decodes it to the same ``Frame``, bit for bit. (The API's messages come with their PNGs
+    decoded already: ``frame_from_proto(lossless_to_raw=True)``; this is for the others.)"""
     out = pb.Frame()
     out.CopyFrom(msg)
     height, width = frame.shape
