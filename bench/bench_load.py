@@ -14,7 +14,6 @@ Writes ``bench/results/load.json`` (one entry per ``--devices`` value).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import threading
 import time
@@ -25,29 +24,10 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import INGEST_ONLY_ENV, Redis, ServeProcess, cores, cpu_s, environment, write_json
+from common import INGEST_ONLY_ENV, Redis, ServeProcess, ServiceMeter, cores, environment, write_json
 
 OUT = Path(__file__).parent / "results" / "load.json"
 WIDTH, HEIGHT = 160, 120
-
-
-def children(pid: int) -> list[int]:
-    """Every descendant of ``pid`` (the API's worker processes)."""
-    parents: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as stat:
-                    parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
-            except OSError:
-                continue
-    found, frontier = [], [pid]
-    while frontier:
-        parent = frontier.pop()
-        kids = [p for p, pp in parents.items() if pp == parent]
-        found += kids
-        frontier += kids
-    return found
 
 
 def device_bodies(map_id: str, n_devices: int, per_device: int) -> list[list[bytes]]:
@@ -71,14 +51,6 @@ def device_bodies(map_id: str, n_devices: int, per_device: int) -> list[list[byt
             frames.append(message.SerializeToString())
         bodies.append(frames)
     return bodies
-
-
-def redis_counters(client: Any) -> tuple[dict[str, int], int, int]:
-    """(calls by command, bytes in, bytes out) of the Redis server so far."""
-    stats = client.info("commandstats")
-    calls = {name.removeprefix("cmdstat_"): int(v["calls"]) for name, v in stats.items()}
-    net = client.info("stats")
-    return calls, int(net["total_net_input_bytes"]), int(net["total_net_output_bytes"])
 
 
 def run_load(url: str, redis: Redis, map_id: str, bodies: list[list[bytes]], rate_per_s: float, seconds: float) -> dict[str, Any]:
@@ -170,22 +142,10 @@ def main() -> None:
     try:
         for n in counts:
             bodies = device_bodies(f"load-{n}", n, int(args.seconds * args.rate))
-            workers = children(server.pid)
-            cpu_before = {"api": cpu_s(server.pid), "workers": sum(cpu_s(p) for p in workers), "redis": cpu_s(redis.process.pid)}
-            calls_before, in_before, out_before = redis_counters(redis.client)
+            meter = ServiceMeter(server.pid, redis)
+            meter.start()
             result = run_load(url, redis, f"load-{n}", bodies, args.rate, args.seconds)
-            calls_after, in_after, out_after = redis_counters(redis.client)
-            cpu_after = {"api": cpu_s(server.pid), "workers": sum(cpu_s(p) for p in workers), "redis": cpu_s(redis.process.pid)}
-            frames = max(1, result["processed"])
-            per_command = {c: round((calls_after[c] - calls_before.get(c, 0)) / frames, 2) for c in calls_after}
-            result["per_frame"] = {
-                "redis_commands": round(sum(per_command.values()), 1),
-                "redis_commands_by_name": {c: v for c, v in sorted(per_command.items(), key=lambda kv: -kv[1]) if v >= 0.05},
-                "redis_bytes_in": round((in_after - in_before) / frames),
-                "redis_bytes_out": round((out_after - out_before) / frames),
-                "cpu_ms": {part: round((cpu_after[part] - cpu_before[part]) / frames * 1000, 2) for part in cpu_after},
-                "request_bytes": round(float(np.mean([len(b) for d in bodies for b in d]))),
-            }
+            result["per_frame"] = meter.per_frame(result["processed"], float(np.mean([len(b) for d in bodies for b in d])))
             runs.append(result)
             latency = result["latency_s"] or {}
             print(

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import INGEST_ONLY_ENV, FramePoster, Redis, ServeProcess, cores, environment, write_json
+from common import INGEST_ONLY_ENV, FramePoster, Redis, ServeProcess, ServiceMeter, cores, environment, write_json
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("ARCLOUD_SHARED", PROJECT_ROOT.parent / "shared"))
@@ -135,7 +135,9 @@ def committed_at(redis: Redis, map_id: str, keys: list[str], timeout_s: float) -
         time.sleep(0.05)
 
 
-def service_run(redis: Redis, url: str, frames: list[Any], map_id: str, rate_per_s: float | None) -> dict[str, Any]:
+def service_run(redis: Redis, service: ServeProcess, frames: list[Any], map_id: str, rate_per_s: float | None) -> dict[str, Any]:
+    """One run through the service; ``per_frame``: what the API, the workers and Redis spent a frame (CPU ms,
+    Redis commands and bytes: what docs/scaling.md's model reads)."""
     from arcloud.proto.convert import frame_to_proto
 
     bodies = []
@@ -144,10 +146,13 @@ def service_run(redis: Redis, url: str, frames: list[Any], map_id: str, rate_per
         message.map_id = map_id
         bodies.append(message.SerializeToString())
     keys = [f.key for f in frames]
+    meter = ServiceMeter(service.process.pid, redis)
+    meter.start()
     cpu_started = time.process_time()
-    posted = post_frames(url, map_id, bodies, rate_per_s=rate_per_s)
+    posted = post_frames(service.url, map_id, bodies, rate_per_s=rate_per_s)
     done = committed_at(redis, map_id, keys, timeout_s=600)
     load_cpu_s = time.process_time() - cpu_started  # the load generator's own, on the service's cores
+    per_frame = meter.per_frame(len(frames), float(np.mean([len(b) for b in bodies])))
     latency = np.array(done) - np.array(posted)
     seconds = max(done) - min(posted)
     return {
@@ -158,6 +163,7 @@ def service_run(redis: Redis, url: str, frames: list[Any], map_id: str, rate_per
         "latency_p99_s": round(float(np.percentile(latency, 99)), 3),
         "latency_max_s": round(float(latency.max()), 3),
         "load_generator_cpu_ms_per_frame": round(load_cpu_s / len(frames) * 1000, 2),
+        "per_frame": per_frame,
     }
 
 
@@ -180,10 +186,10 @@ def main() -> None:
     try:
         service = ServeProcess(redis.url, workers=args.workers, detector=f"onnx:{MODEL}", env=INGEST_ONLY_ENV)
         try:
-            service_run(redis, service.url, frames[:4], "warm-up", None)  # sessions loaded, caches warm
-            full = service_run(redis, service.url, frames, "as-fast", None)
+            service_run(redis, service, frames[:4], "warm-up", None)  # sessions loaded, caches warm
+            full = service_run(redis, service, frames, "as-fast", None)
             print(f"service: {full['fps']} frames/s")
-            at_70 = service_run(redis, service.url, frames, "at-70", 0.7 * full["fps"])
+            at_70 = service_run(redis, service, frames, "at-70", 0.7 * full["fps"])
             print(f"service at 70 %: latency p50 {at_70['latency_p50_s']} s, p99 {at_70['latency_p99_s']} s")
         finally:
             service.stop()

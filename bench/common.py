@@ -17,6 +17,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 
 def pin_to_one_core() -> int | None:
@@ -155,6 +156,73 @@ def cpu_s(pid: int) -> float:
     except OSError:
         return 0.0
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def children(pid: int) -> list[int]:
+    """Every descendant of ``pid`` (the API's worker processes)."""
+    parents: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as stat:
+                    parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+    found, frontier = [], [pid]
+    while frontier:
+        parent = frontier.pop()
+        kids = [p for p, pp in parents.items() if pp == parent]
+        found += kids
+        frontier += kids
+    return found
+
+
+def redis_counters(client: Any) -> tuple[dict[str, int], int, int]:
+    """(calls by command, bytes in, bytes out) of the Redis server so far."""
+    stats = client.info("commandstats")
+    calls = {name.removeprefix("cmdstat_"): int(v["calls"]) for name, v in stats.items()}
+    net = client.info("stats")
+    return calls, int(net["total_net_input_bytes"]), int(net["total_net_output_bytes"])
+
+
+class ServiceMeter:
+    """What a service spends between ``start`` and ``per_frame``: CPU of the API process (``api_pid``), of
+    its worker processes (its descendants when started) and of the redis-server; Redis commands and bytes
+    in and out. ``per_frame(frames, request_bytes)`` divides them by the frames processed meanwhile."""
+
+    def __init__(self, api_pid: int, redis: Redis) -> None:
+        self.api_pid, self.redis = api_pid, redis
+        self.workers: list[int] = []
+        self._cpu: dict[str, float] = {}
+        self._calls: dict[str, int] = {}
+        self._bytes = (0, 0)
+
+    def _cpu_now(self) -> dict[str, float]:
+        return {
+            "api": cpu_s(self.api_pid),
+            "workers": sum(cpu_s(p) for p in self.workers),
+            "redis": cpu_s(self.redis.process.pid),
+        }
+
+    def start(self) -> None:
+        self.workers = children(self.api_pid)
+        self._cpu = self._cpu_now()
+        self._calls, *counted = redis_counters(self.redis.client)
+        self._bytes = (counted[0], counted[1])
+
+    def per_frame(self, frames: int, request_bytes: float) -> dict[str, Any]:
+        cpu_after = self._cpu_now()
+        calls_after, in_after, out_after = redis_counters(self.redis.client)
+        frames = max(1, frames)
+        per_command = {c: round((calls_after[c] - self._calls.get(c, 0)) / frames, 2) for c in calls_after}
+        return {
+            "redis_commands": round(sum(per_command.values()), 1),
+            "redis_commands_by_name": {c: v for c, v in sorted(per_command.items(), key=lambda kv: -kv[1]) if v >= 0.05},
+            "redis_bytes_in": round((in_after - self._bytes[0]) / frames),
+            "redis_bytes_out": round((out_after - self._bytes[1]) / frames),
+            "cpu_ms": {part: round((cpu_after[part] - self._cpu[part]) / frames * 1000, 2) for part in cpu_after},
+            "request_bytes": round(request_bytes),
+        }
 
 
 class FramePoster:

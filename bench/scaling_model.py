@@ -1,16 +1,17 @@
 """What N devices at F frames a second need, from what one frame was measured to cost here (docs/scaling.md).
 
 Inputs (written by the benches on this machine):
-- ``bench/results/step.json``: the real model's session and the step, median ms a frame on one core;
-- ``bench/results/load.json``: per frame through the service on Redis: API, worker and Redis CPU ms, Redis
-  commands and bytes (the run with the most devices: fixed per-second costs spread over the most frames);
-- ``bench/results/throughput.json``: the size of a 640 x 480 frame upload (JPEG colour, PNG depth).
+- ``bench/results/step.json``: the real model's session and the step, median ms a frame on one core (shown
+  beside the workers' measured CPU, which also holds decoding, the Redis client and the codec);
+- ``bench/results/throughput.json``: per 640 x 480 frame through the service on Redis with the real model (its
+  as-fast run): API, worker and Redis CPU ms, Redis commands and bytes in and out, the upload's size.
 
-The model: frames/s = devices x rate; worker cores = frames/s x (session + step) s; API cores = frames/s x API
-CPU s; Redis shards = frames/s x Redis CPU s / ``REDIS_BUSY`` (a shard is one core, kept 70 % busy at most);
-network into the API = frames/s x upload bytes; into and out of Redis = frames/s x (the upload, queued and read
-once by a worker, + what the step writes and reads: objects it rewrites, whole). Each
-resource's limit for one instance (one Redis, one API process, one stream shard) says what breaks first.
+The model: frames/s = devices x rate; worker cores = frames/s x worker CPU s / ``CORE_BUSY``; API cores =
+frames/s x API CPU s / ``CORE_BUSY``; Redis shards = frames/s x Redis CPU s / ``REDIS_BUSY`` (a shard is one
+core, kept 70 % busy at most); network into the API = frames/s x upload bytes; into and out of Redis =
+frames/s x the bytes Redis took in and gave out a frame (the queued frame, whose PNG depth travels as its
+pixels, the step's reads and writes). Each resource's limit for one instance (one Redis, one API process,
+one stream shard) says what breaks first.
 
     .venv/bin/python bench/scaling_model.py [--devices 1000,100000] [--rate 1]
 """
@@ -38,23 +39,22 @@ def load(name: str) -> dict[str, Any]:
 
 def costs() -> dict[str, float]:
     """Per frame, from the benches: seconds of CPU, bytes, commands."""
-    step, load_run, throughput = load("step.json"), load("load.json"), load("throughput.json")
-    busiest = max(load_run["runs"], key=lambda r: r["processed"])
-    per_frame = busiest["per_frame"]
+    step, throughput = load("step.json"), load("throughput.json")
     if step.get("detector") is None:
         raise SystemExit("step.json has no detector timing (the model was not in ../shared when it ran)")
+    per_frame = throughput["service"].get("per_frame")
+    if per_frame is None:
+        raise SystemExit("throughput.json has no per-frame costs: run bench/bench_throughput.py again")
     return {
         "session_s": step["detector"]["median_ms"] / 1000,
         "step_s": step["step"]["median_ms"] / 1000,
+        "worker_s": per_frame["cpu_ms"]["workers"] / 1000,
         "api_s": per_frame["cpu_ms"]["api"] / 1000,
         "redis_s": per_frame["cpu_ms"]["redis"] / 1000,
         "redis_commands": per_frame["redis_commands"],
-        # Into Redis: the upload (queued as it came) and the step's writes (objects it rewrites); the load ran
-        # 160 x 120 frames, so its upload part is replaced by a 640 x 480 upload's size.
-        "redis_bytes_in": per_frame["redis_bytes_in"] - per_frame["request_bytes"] + throughput.get("upload_bytes", 600_000),
-        "redis_bytes_out": per_frame["redis_bytes_out"] - per_frame["request_bytes"] + throughput.get("upload_bytes", 600_000),
-        "upload_bytes": throughput.get("upload_bytes", 600_000),
-        "load_devices": busiest["devices"],
+        "redis_bytes_in": per_frame["redis_bytes_in"],
+        "redis_bytes_out": per_frame["redis_bytes_out"],
+        "upload_bytes": throughput["upload_bytes"],
     }
 
 
@@ -63,7 +63,7 @@ def plan(devices: int, rate: float, c: dict[str, float]) -> dict[str, float]:
     return {
         "devices": devices,
         "frames_per_s": frames,
-        "worker_cores": math.ceil(frames * (c["session_s"] + c["step_s"]) / CORE_BUSY),
+        "worker_cores": math.ceil(frames * c["worker_s"] / CORE_BUSY),
         "api_cores": math.ceil(frames * c["api_s"] / CORE_BUSY),
         "redis_shards": math.ceil(frames * c["redis_s"] / REDIS_BUSY),
         "redis_commands_per_s": round(frames * c["redis_commands"]),
@@ -80,9 +80,10 @@ def main() -> None:
     args = parser.parse_args()
     c = costs()
     print(
-        f"per frame (measured): session {c['session_s'] * 1000:.1f} ms + step {c['step_s'] * 1000:.1f} ms of a worker core, "
-        f"API {c['api_s'] * 1000:.2f} ms, Redis {c['redis_s'] * 1000:.2f} ms CPU and {c['redis_commands']:.0f} commands "
-        f"(at {c['load_devices']:.0f} devices), {c['upload_bytes'] / 1e3:.0f} kB upload\n"
+        f"per frame (measured): workers {c['worker_s'] * 1000:.1f} ms of CPU (the session alone {c['session_s'] * 1000:.1f} ms "
+        f"and the step {c['step_s'] * 1000:.1f} ms on one core), API {c['api_s'] * 1000:.2f} ms, Redis {c['redis_s'] * 1000:.2f} ms "
+        f"and {c['redis_commands']:.0f} commands, {c['redis_bytes_in'] / 1e3:.0f} kB into Redis and {c['redis_bytes_out'] / 1e3:.0f} kB "
+        f"out, {c['upload_bytes'] / 1e3:.0f} kB upload\n"
     )
     print(
         "| devices | frames/s | worker cores | API cores | Redis shards | Redis commands/s | into the API | into Redis | out of Redis |"
@@ -97,7 +98,7 @@ def main() -> None:
         )
     one_redis = REDIS_BUSY / c["redis_s"]
     one_api = CORE_BUSY / c["api_s"]
-    one_worker = CORE_BUSY / (c["session_s"] + c["step_s"])
+    one_worker = CORE_BUSY / c["worker_s"]
     print(
         f"\nlimits of one instance: a Redis shard {one_redis:,.0f} frames/s, an API core {one_api:,.0f} frames/s, "
         f"a worker core {one_worker:,.1f} frames/s"
