@@ -1,5 +1,5 @@
-"""The ingest stream's message: PNG images become the pixels the API decoded, and a worker decodes the
-same frame, bit for bit."""
+"""The ingest stream's message: the upload as the API validated it (its PNG images as the pixels the API
+decoded, or as uploaded), from which a worker decodes the same frame, bit for bit."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from arcloud.core.types import Frame
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.service.frames import validate_message
-from arcloud.stores.stream_frames import decode_frame, encode_frame, stream_message
+from arcloud.stores.stream_frames import decode_frame, encode_frame
 
 HEIGHT, WIDTH = 48, 64
 
@@ -48,21 +48,32 @@ def assert_same_frame(a: Frame, b: Frame) -> None:
 @pytest.mark.parametrize("depth_scale", [1000.0, 5000.0, 4000.0, 10_000 / 3, 1.0, 100_000.0])
 @pytest.mark.parametrize("rgb_png", [True, False])
 def test_a_worker_decodes_the_frame_the_api_validated(depth_scale: float, rgb_png: bool) -> None:
-    msg = upload(np.random.default_rng(7), depth_scale=depth_scale, rgb_png=rgb_png)
-    uploaded = pb.Frame()
-    uploaded.CopyFrom(msg)
-    uploaded.map_id = "room"
+    uploaded = upload(np.random.default_rng(7), depth_scale=depth_scale, rgb_png=rgb_png)
+    msg = pb.Frame()
+    msg.CopyFrom(uploaded)
     validated = validate_message(msg, "room")
-    # the API decoded the PNGs once, and its message carries their pixels on
+    # the API decoded the PNGs once, and the message it queues carries their pixels on
     assert msg.depth_encoding == pb.DEPTH_ENCODING_RAW_UINT16 and (msg.width, msg.height) == (WIDTH, HEIGHT)
-    for carried in (stream_message(msg, validated), stream_message(uploaded, validated)):  # the API's, an upload's
-        assert carried.depth_encoding == pb.DEPTH_ENCODING_RAW_UINT16
-        if rgb_png:
-            assert carried.rgb_encoding == pb.RGB_ENCODING_RAW_RGB8
-        else:  # JPEG is lossy: carried as uploaded, never re-encoded
-            assert carried.rgb_encoding == pb.RGB_ENCODING_JPEG and carried.rgb == uploaded.rgb
-        assert_same_frame(decode_frame(carried.SerializeToString()), validated)
-    assert stream_message(msg, validated) == stream_message(uploaded, validated)
+    if rgb_png:
+        assert msg.rgb_encoding == pb.RGB_ENCODING_RAW_RGB8
+    else:  # JPEG is lossy: carried as uploaded, never re-encoded
+        assert msg.rgb_encoding == pb.RGB_ENCODING_JPEG and msg.rgb == uploaded.rgb
+    assert_same_frame(decode_frame(encode_frame(validated, msg)), validated)
+
+
+@pytest.mark.parametrize("rgb_png", [True, False])
+def test_images_queued_as_uploaded_decode_to_the_same_frame(rgb_png: bool) -> None:
+    uploaded = upload(np.random.default_rng(8), depth_scale=1000.0, rgb_png=rgb_png)
+    msg = pb.Frame()
+    msg.CopyFrom(uploaded)
+    validated = validate_message(msg, "room", queue_decoded_png=False)
+    uploaded.map_id = "room"
+    assert msg == uploaded  # as it came (the path's map id set)
+    decoded_png = pb.Frame()
+    decoded_png.CopyFrom(uploaded)
+    assert_same_frame(validate_message(decoded_png, "room"), validated)
+    assert decoded_png.depth_encoding == pb.DEPTH_ENCODING_RAW_UINT16 and msg.depth_encoding == pb.DEPTH_ENCODING_PNG
+    assert_same_frame(decode_frame(encode_frame(validated, msg)), validated)
 
 
 def test_raw_uploads_are_carried_as_they_are() -> None:
@@ -79,10 +90,10 @@ def test_raw_uploads_are_carried_as_they_are() -> None:
         depth=rng.random((HEIGHT, WIDTH), dtype=np.float32).astype("<f4").tobytes(),
         depth_encoding=pb.DEPTH_ENCODING_RAW_FLOAT32,
     )
+    rgb, depth = msg.rgb, msg.depth
     validated = validate_message(msg, "room")
-    carried = stream_message(msg, validated)
-    assert (carried.rgb, carried.depth) == (msg.rgb, msg.depth)
-    assert_same_frame(decode_frame(carried.SerializeToString()), validated)
+    assert (msg.rgb, msg.depth) == (rgb, depth)
+    assert_same_frame(decode_frame(encode_frame(validated, msg)), validated)
 
 
 def test_a_frame_queued_without_its_upload_is_carried_losslessly() -> None:

@@ -251,7 +251,15 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
         msg = frames_in.message_from_parts(frames_in.parse_meta(parts["meta"]), parts["rgb"], parts["depth"], map_id)
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
-    frame = await run_in_threadpool(frames_in.validate_message, msg, map_id, max_pixels=settings.max_frame_pixels)
+    frame = await run_in_threadpool(
+        partial(
+            frames_in.validate_message,
+            msg,
+            map_id,
+            max_pixels=settings.max_frame_pixels,
+            queue_decoded_png=settings.queued_images == "decoded",
+        )
+    )
     bind_log_context(map_id=frame.map_id, device_id=frame.device_id, frame_id=frame.frame_id)  # to the response's log line
     # 409 for other settings; a map's first frame opens it (it is listed from then on)
     await run_in_threadpool(partial(check_map_header, runtime.store, map_id, runtime.params, open_new=True))

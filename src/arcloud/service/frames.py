@@ -7,7 +7,8 @@ sizes (pixels are counted from the headers before decoding, so a small file cann
 image), decoding, dtypes, shapes, pose, ids, and the map id of the body against the path.
 
 The ingest queues the validated ``Frame`` with its message (a queue that serialises, such as the Redis
-one, carries the message rather than encoding the frame again; its PNG images were decoded once, here).
+one, carries the message rather than encoding the frame again: with its PNG images replaced by the pixels
+decoded here, unless ``Settings.queued_images`` says ``uploaded``).
 """
 
 from __future__ import annotations
@@ -141,10 +142,13 @@ def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
             raise InvalidInput(field, f"at most {max_pixels} pixels", f"{size[0]} x {size[1]}")
 
 
-def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Frame:
+def validate_message(
+    msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MAX_PIXELS, queue_decoded_png: bool = True
+) -> Frame:
     """The validated ``Frame`` of a message posted to ``map_id`` (the message's map id is set to the
-    path's when empty, and must equal it otherwise; its PNG images become the pixels decoded here, for
-    the queue to carry: ``frame_from_proto(lossless_to_raw=True)``)."""
+    path's when empty, and must equal it otherwise). ``queue_decoded_png``: the message's PNG images become
+    the pixels decoded here, for the queue to carry (``frame_from_proto(lossless_to_raw=True)``;
+    ``Settings.queued_images``)."""
     check_map_id("map_id", map_id)
     if msg.map_id and msg.map_id != map_id:
         raise InvalidInput("map_id", f"the map id of the path ({map_id!r}) or none", repr(msg.map_id))
@@ -152,7 +156,7 @@ def validate_message(msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MA
     check_pixels(msg, max_pixels)
     if msg.depth_encoding != pb.DEPTH_ENCODING_RAW_FLOAT32:  # 16-bit depth: units per metre (float: metres)
         check_depth_scale(msg.depth_scale)
-    return check_plausible_frame(frame_from_proto(msg, lossless_to_raw=True))
+    return check_plausible_frame(frame_from_proto(msg, lossless_to_raw=queue_decoded_png))
 
 
 def form_bytes(form: Mapping[str, Any], name: str, what: str) -> bytes | None:

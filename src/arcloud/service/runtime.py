@@ -131,7 +131,9 @@ def ingest_published_frame(ingest: Ingest, map_id: str, payload: bytes, settings
     """A frame published on ``arcloud/<map_id>/frames/<device>``: validated and queued like an upload
     (the map id of the key plays the part of the path's)."""
     msg = frames_in.parse_message(payload)
-    frame = frames_in.validate_message(msg, map_id, max_pixels=settings.max_frame_pixels)
+    frame = frames_in.validate_message(
+        msg, map_id, max_pixels=settings.max_frame_pixels, queue_decoded_png=settings.queued_images == "decoded"
+    )
     ingest.submit(frame, msg)
 
 

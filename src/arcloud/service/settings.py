@@ -29,7 +29,9 @@ ZENOH_CONFIG_TYPES = (".json5", ".json", ".yaml")  # what zenoh.Config.from_file
 ZenohMode = Literal["off", "peer", "client", "router"]
 AuthMode = Literal["keys", "none"]
 LogLevel = Literal["DEBUG", "INFO", "WARNING", "ERROR"]
-#: The most a queued frame holds a pixel: RGB8 and float32 depth (embedded); an upload on Redis at most 3 + 2.
+QueuedImages = Literal["decoded", "uploaded"]
+#: The most a queued frame holds a pixel: RGB8 and float32 depth (embedded); an upload on Redis at most 3 + 2
+#: (its pixels; with ``queued_images=uploaded`` its images as they came, usually far less).
 QUEUED_BYTES_PER_PIXEL = 7
 
 # Params fields that the settings set themselves (or that are not plain numbers/flags).
@@ -84,6 +86,13 @@ class Settings(BaseSettings):
         ge=1,
         description="largest image accepted, in pixels (read from its header before decoding): a queued frame "
         "holds at most 5 bytes a pixel (14 MB at the default)",
+    )
+    queued_images: QueuedImages = Field(
+        "decoded",
+        description="how a queue on Redis carries a frame's PNG images: `decoded`, the pixels the API decoded to "
+        "validate them (no worker decodes them again), or `uploaded`, as they came (a VGA frame: ~180 kB in the "
+        "stream instead of ~680 kB, 40 % less Redis CPU, 2.7 ms more of a worker's; worth it past a few hundred "
+        "devices: docs/scaling.md). JPEG travels as uploaded either way",
     )
     max_queued_frames: int = Field(
         1000, ge=1, description="frames queued or in progress, all maps together, before ingest answers 503"
