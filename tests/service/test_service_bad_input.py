@@ -5,6 +5,7 @@ naming the field at fault, never a 5xx, and queues nothing (issue 10, "plausible
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -63,6 +64,26 @@ def jpeg_with_a_stray_byte(jpeg: bytes) -> bytes:
     """The JPEG with one byte between its first segment (APP0) and the next marker: decoders skip it."""
     app0_end = 4 + int.from_bytes(jpeg[4:6], "big")
     return jpeg[:app0_end] + b"\x00" + jpeg[app0_end:]
+
+
+def jpeg_carrying(jpeg: bytes, n_bytes: int) -> bytes:
+    """The JPEG with ``n_bytes`` of comment segments (COM) after its start marker: decoders skip them."""
+    segments = b""
+    while n_bytes > 0:
+        size = min(n_bytes, 65533)
+        segments += b"\xff\xfe" + (size + 2).to_bytes(2, "big") + b"x" * size
+        n_bytes -= size
+    return jpeg[:2] + segments + jpeg[2:]
+
+
+def png_carrying(data: bytes, n_bytes: int) -> bytes:
+    """The PNG with a text chunk (tEXt) of ``n_bytes`` after its header chunk: decoders skip it."""
+    import zlib
+
+    body = b"tEXt" + b"comment\x00" + b"x" * n_bytes
+    chunk = (len(body) - 4).to_bytes(4, "big") + body + zlib.crc32(body).to_bytes(4, "big")
+    ihdr_end = 8 + 4 + 4 + 13 + 4
+    return data[:ihdr_end] + chunk + data[ihdr_end:]
 
 
 @pytest.fixture(scope="module")
@@ -209,6 +230,22 @@ def bad_requests() -> list[tuple[str, str, str, dict[str, Any], int, str | None]
             {"files": {**parts, "rgb": ("rgb.jpg", jpeg_with_a_stray_byte(parts["rgb"][1]), "image/jpeg")}},
             422,
             "rgb",
+        ),
+        (
+            "160 x 120 JPEG carrying 200 kB of comments",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "rgb": ("rgb.jpg", jpeg_carrying(parts["rgb"][1], 200_000), "image/jpeg")}},
+            422,
+            "rgb",
+        ),
+        (
+            "160 x 120 depth PNG carrying 200 kB of text",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": {**parts, "depth": ("depth.png", png_carrying(parts["depth"][1], 200_000), "image/png")}},
+            422,
+            "depth",
         ),
         (
             "PNG without IHDR",
@@ -380,6 +417,32 @@ def test_the_default_pixel_limit_bounds_a_queued_frame() -> None:
         response = api.post("/v1/maps/m/frames", files={**parts, "rgb": ("rgb.png", huge_png, "image/png")})
     assert_problem(response, 422, "rgb")
     assert f"at most {1920 * 1440} pixels" in response.json()["detail"]
+
+
+def test_images_with_what_real_cameras_add_are_accepted() -> None:
+    """The bound on an image's bytes leaves room for real images: noise at JPEG quality 100 with full-resolution
+    chroma (1.37x its pixels' size), and a camera's metadata (60 kB of comments, a 60 kB text chunk)."""
+    frame = make_test_frame(2)
+    noise = np.random.default_rng(2).integers(0, 256, frame.rgb.shape, dtype=np.uint8)
+    ok, rgb = cv2.imencode(
+        ".jpg", noise, [cv2.IMWRITE_JPEG_QUALITY, 100, cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
+    )
+    assert ok and len(rgb) > noise.nbytes
+    parts = multipart_parts(frame)
+    uploads = [
+        {**parts, "rgb": ("rgb.jpg", rgb.tobytes(), "image/jpeg")},
+        {
+            **parts,
+            "rgb": ("rgb.jpg", jpeg_carrying(parts["rgb"][1], 60_000), "image/jpeg"),
+            "depth": ("depth.png", png_carrying(parts["depth"][1], 60_000), "image/png"),
+        },
+    ]
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as api:
+        for i, files in enumerate(uploads):
+            meta = json.loads(files["meta"][1])
+            files = {**files, "meta": ("meta.json", json.dumps({**meta, "frame_id": f"real-{i}"}).encode(), "application/json")}
+            response = api.post("/v1/maps/m/frames", files=files)
+            assert response.status_code == 202, response.text
 
 
 def wide_tilted_frame(map_id: str) -> Any:

@@ -57,6 +57,17 @@ def test_wrong_settings_fail_at_once_naming_the_field(changes: dict, says: str) 
         Settings(**changes)
 
 
+def test_the_largest_frame_on_redis_depends_on_how_its_images_are_queued() -> None:
+    """At 1920 x 1440: decoded depth 2 bytes a pixel, depth as uploaded up to 4 (twice its pixels' size, the
+    bound on an upload's bytes), colour up to 6, each with 64 KiB for metadata."""
+    pixels = 1920 * 1440
+    on_redis = {"store": "redis://127.0.0.1:6379/0", "max_queued_bytes_per_map": 25 * 10**6}
+    assert Settings(**on_redis).largest_queued_frame() == 8 * pixels + 64 * 1024 < 25 * 10**6
+    with pytest.raises(ValidationError, match="max_queued_bytes_per_map: expected at least the largest frame"):
+        Settings(**on_redis, queued_images="uploaded")
+    assert Settings(store="memory").largest_queued_frame() == 7 * pixels
+
+
 def test_queue_limits_default_a_map_to_a_quarter_of_the_queue(monkeypatch: pytest.MonkeyPatch) -> None:
     limits = Settings().queue_limits()
     assert (limits.max_queued_frames, limits.max_queued_frames_per_map) == (1000, 250)

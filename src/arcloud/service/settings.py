@@ -30,9 +30,8 @@ ZenohMode = Literal["off", "peer", "client", "router"]
 AuthMode = Literal["keys", "none"]
 LogLevel = Literal["DEBUG", "INFO", "WARNING", "ERROR"]
 QueuedImages = Literal["decoded", "uploaded"]
-#: The most a queued frame holds a pixel: RGB8 and float32 depth (embedded); an upload on Redis at most 3 + 2
-#: (its pixels; with ``queued_images=uploaded`` its images as they came, usually far less).
-QUEUED_BYTES_PER_PIXEL = 7
+#: The most an embedded queued frame holds a pixel: RGB8 and float32 depth (``largest_queued_frame``).
+EMBEDDED_BYTES_PER_PIXEL = 7
 
 # Params fields that the settings set themselves (or that are not plain numbers/flags).
 _PARAMS_OWN = {"lock_ttl_s", "lock_timeout_s"}
@@ -84,8 +83,9 @@ class Settings(BaseSettings):
     max_frame_pixels: int = Field(
         1920 * 1440,
         ge=1,
-        description="largest image accepted, in pixels (read from its header before decoding): a queued frame "
-        "holds at most 5 bytes a pixel (14 MB at the default)",
+        description="largest image accepted, in pixels (read from its header before decoding); an encoded image "
+        "may take at most twice its pixels' size + 64 KiB, so a queued frame holds at most 8 bytes a pixel + 64 KiB "
+        "(`uploaded` images: 10 + 128 KiB; embedded: 7), 22 MB at the default",
     )
     queued_images: QueuedImages = Field(
         "decoded",
@@ -101,8 +101,8 @@ class Settings(BaseSettings):
     max_queued_bytes: int = Field(
         2**30,
         ge=1,
-        description="bytes of the frames queued or in progress (Redis: stream entries, up to 5 bytes a pixel; embedded: "
-        "their arrays, 7 bytes a pixel) before ingest answers 503",
+        description="bytes of the frames queued or in progress (Redis: stream entries, up to 8 bytes a pixel + 64 KiB; "
+        "embedded: their arrays, 7 bytes a pixel) before ingest answers 503",
     )
     max_queued_frames_per_map: int | None = Field(
         None,
@@ -284,14 +284,26 @@ class Settings(BaseSettings):
         if self.zenoh_mode == "client" and not self.zenoh_connect:
             raise ValueError("zenoh_connect: a Zenoh client needs at least one endpoint to connect to, got none")
         limits = self.queue_limits()
-        largest = QUEUED_BYTES_PER_PIXEL * self.max_frame_pixels
+        largest = self.largest_queued_frame()
         for name in ("max_queued_bytes", "max_queued_bytes_per_map"):
             if getattr(limits, name) < largest:
                 raise ValueError(
-                    f"{name}: expected at least the largest frame ({QUEUED_BYTES_PER_PIXEL} bytes a pixel of "
-                    f"max_frame_pixels: {largest}), got {getattr(limits, name)}"
+                    f"{name}: expected at least the largest frame ({largest} bytes at max_frame_pixels "
+                    f"{self.max_frame_pixels}), got {getattr(limits, name)}"
                 )
         return self
+
+    def largest_queued_frame(self) -> int:
+        """The most bytes one queued frame can take: embedded, its arrays; on Redis, its colour image as
+        uploaded and its depth as pixels (``queued_images=decoded``) or as uploaded, each image at most
+        ``frames.max_encoded_bytes`` (the protobuf's other fields: a few hundred bytes, in the slack)."""
+        from arcloud.service.frames import max_encoded_bytes
+
+        pixels = self.max_frame_pixels
+        if self.embedded:
+            return EMBEDDED_BYTES_PER_PIXEL * pixels
+        depth = 2 * pixels if self.queued_images == "decoded" else max_encoded_bytes(pixels, 1, 2)
+        return max_encoded_bytes(pixels, 1, 3) + depth
 
     # --- derived -----------------------------------------------------------------------------------
     @property
