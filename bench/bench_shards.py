@@ -246,7 +246,8 @@ def run_config(
             done = service.wait_processed(service.queue.stats().accepted)
             if len(service.queue.live_consumers(5.0)) >= workers:
                 break
-            warm = [("warmup", body) for body in encode(warmup, f"warmup-{done:.0f}")[0]]
+            again = f"warmup-{done:.0f}"  # a map of its own: the same frames again would be duplicates
+            warm = [(again, body) for body in encode(warmup, again)[0]]
         ready_s = time.perf_counter() - started
         before = service.queue.stats().processed
         maps = maps_for(shards)
