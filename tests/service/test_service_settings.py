@@ -66,6 +66,11 @@ def test_the_largest_frame_on_redis_depends_on_how_its_images_are_queued() -> No
     with pytest.raises(ValidationError, match="max_queued_bytes_per_map: expected at least the largest frame"):
         Settings(**on_redis, queued_images="uploaded")
     assert Settings(store="memory").largest_queued_frame() == 7 * pixels
+    # the API swaps PNGs for pixels only where a queue carries the message (embedded: the decoded frame)
+    assert [
+        Settings(**kw).queue_decoded_png
+        for kw in ({}, on_redis, {**on_redis, "max_queued_bytes_per_map": 3 * 10**7, "queued_images": "uploaded"})
+    ] == [False, True, False]
 
 
 def test_queue_limits_default_a_map_to_a_quarter_of_the_queue(monkeypatch: pytest.MonkeyPatch) -> None:

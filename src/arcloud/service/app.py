@@ -257,7 +257,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
             msg,
             map_id,
             max_pixels=settings.max_frame_pixels,
-            queue_decoded_png=settings.queued_images == "decoded",
+            queue_decoded_png=settings.queue_decoded_png,
         )
     )
     bind_log_context(map_id=frame.map_id, device_id=frame.device_id, frame_id=frame.frame_id)  # to the response's log line

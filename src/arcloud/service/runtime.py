@@ -132,7 +132,7 @@ def ingest_published_frame(ingest: Ingest, map_id: str, payload: bytes, settings
     (the map id of the key plays the part of the path's)."""
     msg = frames_in.parse_message(payload)
     frame = frames_in.validate_message(
-        msg, map_id, max_pixels=settings.max_frame_pixels, queue_decoded_png=settings.queued_images == "decoded"
+        msg, map_id, max_pixels=settings.max_frame_pixels, queue_decoded_png=settings.queue_decoded_png
     )
     ingest.submit(frame, msg)
 

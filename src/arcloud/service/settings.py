@@ -312,6 +312,12 @@ class Settings(BaseSettings):
         return self.store == "memory"
 
     @property
+    def queue_decoded_png(self) -> bool:
+        """Whether the API puts the pixels of an upload's PNG images in the message it queues (on Redis, with
+        ``queued_images=decoded``; the embedded queue takes the decoded frame, not the message)."""
+        return not self.embedded and self.queued_images == "decoded"
+
+    @property
     def auth_mode(self) -> AuthMode:
         """``auth``, or its default: keys with Redis or a keys file, none embedded."""
         if self.auth is not None:
