@@ -49,8 +49,8 @@ and ``max_dead_letter_bytes`` of payload (the oldest go first), the reason stayi
 Times are the callers' clocks (Unix seconds), as the heartbeats': the hosts' clocks must agree (NTP).
 
 ``fail`` leaves an entry pending (still counted): it is delivered again once claimed, until the worker
-dead-letters it. redis-py's connection errors and timeouts, and a Redis busy with a script (``BUSY``), become
-``StoreUnavailable`` at this boundary, other Redis errors ``StoreError``.
+dead-letters it. redis-py's exceptions become arcloud's at the adapters' one boundary, ``stores.redis_errors``
+(connection errors, timeouts, a Redis busy with a script: ``StoreUnavailable``).
 
 Recovery: a Redis restarted without its data has no consumer groups; the readers (``take``,
 ``claim_abandoned``) create them again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
@@ -71,16 +71,14 @@ import logging
 import re
 import time
 import zlib
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
 
 import redis
-from redis.exceptions import RedisClusterException
 
 from arcloud.core.types import Frame
-from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
+from arcloud.errors import InvalidInput, StoreError
 from arcloud.ports import (
     LATENCY_BUCKETS_S,
     RECORDS_SWEPT_PER_CALL,
@@ -94,7 +92,8 @@ from arcloud.ports import (
     not_retriable,
 )
 from arcloud.stores import keys
-from arcloud.stores.redis import RedisClient, connect_redis, is_busy, is_unreachable_cluster, lua_source
+from arcloud.stores.redis import RedisClient, connect_redis, lua_source, where
+from arcloud.stores.redis_errors import redis_errors
 from arcloud.stores.stream_frames import decode_frame, encode_frame
 
 log = logging.getLogger(__name__)
@@ -236,21 +235,8 @@ class RedisFrameQueue:
     def _tag_of(self, map_id: str) -> str:
         return self._tags[self.shard_of(map_id)]
 
-    @contextmanager
-    def _boundary(self, doing: str) -> Iterator[None]:
-        """Map redis-py's exceptions to arcloud's."""
-        try:
-            yield
-        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
-            raise StoreUnavailable(f"cannot {doing}: Redis unreachable ({exc})") from exc
-        except redis.exceptions.ResponseError as exc:
-            if is_busy(exc):
-                raise StoreUnavailable(f"cannot {doing}: Redis busy ({exc})") from exc
-            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
-        except (redis.exceptions.RedisError, RedisClusterException) as exc:
-            if is_unreachable_cluster(exc):
-                raise StoreUnavailable(f"cannot {doing}: Redis Cluster unreachable ({exc})") from exc
-            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
+    def _where(self) -> str:
+        return where(self.client)
 
     def _recreate_group(self, exc: redis.exceptions.ResponseError, shard: int) -> None:
         """Re-raise ``exc`` unless it says the consumer group is gone (``NOGROUP``: Redis restarted
@@ -274,7 +260,7 @@ class RedisFrameQueue:
         shard = self.shard_of(map_id)
         tag = self._tags[shard]
         limits = self._shard_limits
-        with self._boundary("queue the frame"):
+        with redis_errors("queue the frame", self._where):
             reply = self._accept(
                 keys=[
                     keys.ingest_status_key(tag, map_id),
@@ -307,12 +293,12 @@ class RedisFrameQueue:
         return bool(reply != 0)  # the new entry id, or 0 for a duplicate
 
     def map_counts(self, map_id: str) -> tuple[int, int]:
-        with self._boundary("read the map's counts"):
+        with redis_errors("read the map's counts", self._where):
             accepted, failed = self.client.hmget(keys.ingest_counts_key(self._tag_of(map_id), map_id), ["accepted", "failed"])
         return int(accepted or 0), int(failed or 0)
 
     def known_map(self, map_id: str) -> bool:
-        with self._boundary("look the map up"):
+        with redis_errors("look the map up", self._where):
             return bool(self.client.exists(keys.ingest_counts_key(self._tag_of(map_id), map_id)))
 
     def _record(self, map_id: str, frame_key: str) -> FrameRecord | None:
@@ -329,7 +315,7 @@ class RedisFrameQueue:
         """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
         (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown"."""
         stream = keys.ingest_stream(self._tag_of(map_id))
-        with self._boundary("read the frame's status"):
+        with redis_errors("read the frame's status", self._where):
             record = self._record(map_id, frame_key)
             if record is None:
                 return None
@@ -351,7 +337,7 @@ class RedisFrameQueue:
     def failed_frames(self, map_id: str, limit: int) -> list[FailedFrame]:
         """Reads the map's whole status HASH (an operator's command: O(the map's kept records))."""
         tag = self._tag_of(map_id)
-        with self._boundary("list the map's failed frames"):
+        with redis_errors("list the map's failed frames", self._where):
             records = [
                 (_text(key), FrameRecord.parse(_text(value)))
                 for key, value in self.client.hscan_iter(keys.ingest_status_key(tag, map_id), count=1000)
@@ -370,7 +356,7 @@ class RedisFrameQueue:
     def retry_failed(self, map_id: str, frame_key: str) -> bool:
         """Reads the frame's dead letter and accepts its payload again (``lua/accept_frame.lua``: a frame
         posted again since is a duplicate, False)."""
-        with self._boundary("read the frame's dead letter"):
+        with redis_errors("read the frame's dead letter", self._where):
             record = self._record(map_id, frame_key)
             if record is None or record.status != "failed":
                 raise not_retriable(map_id, frame_key, None if record is None else record.status)
@@ -386,14 +372,14 @@ class RedisFrameQueue:
 
     def forget_map(self, map_id: str) -> None:
         tag = self._tag_of(map_id)
-        with self._boundary("forget the map"):
+        with redis_errors("forget the map", self._where):
             self.client.delete(
                 keys.ingest_status_key(tag, map_id), keys.ingest_sweep_key(tag, map_id), keys.ingest_counts_key(tag, map_id)
             )
 
     def stats(self) -> QueueStats:
         """Every shard's counters summed (one pipelined round trip; on a Cluster one per node)."""
-        with self._boundary("read the ingest counters"):
+        with redis_errors("read the ingest counters", self._where):
             pipe = self.client.pipeline(transaction=False)
             for tag in self._tags:
                 pipe.hgetall(keys.ingest_stats(tag))
@@ -439,10 +425,10 @@ class RedisFrameQueue:
         number is), and create each shard's consumer group (and stream) unless it exists. A group starts
         at its stream's beginning so that frames queued before any worker started are read. Warns of frames
         left in the one stream of the layout before shards."""
-        with self._boundary("create the consumer groups"):
+        with redis_errors("create the consumer groups", self._where):
             self.client.set(keys.INGEST_SHARDS, self.shards, nx=True)
         self.check_shards()
-        with self._boundary("create the consumer groups"):
+        with redis_errors("create the consumer groups", self._where):
             for tag in self._tags:
                 try:
                     self.client.xgroup_create(keys.ingest_stream(tag), self.group, id="0", mkstream=True)
@@ -461,7 +447,7 @@ class RedisFrameQueue:
     def check_shards(self) -> None:
         """``InvalidInput`` naming ``ingest_shards`` when this Redis's queue has another number of shards
         than this one (``prepare`` writes it); reads only."""
-        with self._boundary("read the number of ingest shards"):
+        with redis_errors("read the number of ingest shards", self._where):
             pinned = self.client.get(keys.INGEST_SHARDS)
         if pinned is not None and int(pinned) != self.shards:
             raise InvalidInput(
@@ -496,7 +482,7 @@ class RedisFrameQueue:
         def read() -> _ReadReply:
             return cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {stream: ">"}, count=1, block=block_ms))
 
-        with self._boundary("read the ingest stream"):
+        with redis_errors("read the ingest stream", self._where):
             try:
                 reply = read()
             except redis.exceptions.ResponseError as exc:
@@ -519,7 +505,7 @@ class RedisFrameQueue:
     def _claim(self, shard: int, consumer: str, min_idle_ms: int) -> QueuedFrame | None:
         stream = keys.ingest_stream(self._tags[shard])
         cursor = (consumer, shard)
-        with self._boundary("claim an abandoned entry"):
+        with redis_errors("claim an abandoned entry", self._where):
             try:
                 next_cursor, entries, *_deleted = self.client.xautoclaim(
                     stream, self.group, consumer, min_idle_ms, start_id=self._claim_cursors.get(cursor, "0-0"), count=1
@@ -568,7 +554,7 @@ class RedisFrameQueue:
             add["processed"] = 1
             add[latency_field(latency_bucket(elapsed_s))] = 1
             counters["latency_sum_s"] = elapsed_s
-        with self._boundary("acknowledge the entry"):
+        with redis_errors("acknowledge the entry", self._where):
             self._settle_entry(item, counters, ["processed"])
 
     def fail(self, item: QueuedFrame, reason: str) -> None:
@@ -577,7 +563,7 @@ class RedisFrameQueue:
     def dead_letter(self, item: QueuedFrame, reason: str) -> None:
         """Move the entry to its shard's dead-letter stream (with the reason), record its frame as failed."""
         limits = self._shard_limits
-        with self._boundary("dead-letter the entry"):
+        with redis_errors("dead-letter the entry", self._where):
             self._settle_entry(
                 item,
                 {"add": {"failed": 1}},
@@ -616,7 +602,7 @@ class RedisFrameQueue:
     def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
         """Write the heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to its own
         consumer: no new delivery) so that a long step is never taken for an abandoned one."""
-        with self._boundary("write the heartbeat"):
+        with redis_errors("write the heartbeat", self._where):
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
             if in_hand is not None:
                 shard, entry_id, _fields = cast(Receipt, in_hand.receipt)
@@ -628,11 +614,11 @@ class RedisFrameQueue:
                     # The group went with Redis's data, and the entry with it: nothing left to keep fresh.
 
     def leave(self, consumer: str) -> None:
-        with self._boundary("remove the heartbeat"):
+        with redis_errors("remove the heartbeat", self._where):
             self.client.hdel(keys.INGEST_WORKERS, consumer)
 
     def live_consumers(self, max_age_s: float) -> list[str]:
         now = time.time()
-        with self._boundary("read the heartbeats"):
+        with redis_errors("read the heartbeats", self._where):
             beats = self.client.hgetall(keys.INGEST_WORKERS)
         return sorted(_text(name) for name, seen in beats.items() if now - float(seen) <= max_age_s)
