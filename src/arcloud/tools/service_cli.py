@@ -4,7 +4,7 @@
     arcloud serve                                        # embedded: one process, in-memory store, loopback only
     arcloud serve --redis redis://127.0.0.1:6379/0 --workers 4 --detector sim:0   # API keys required
     arcloud worker --redis redis://redis:6379/0          # one more worker process (e.g. in a container)
-    arcloud replay --url http://127.0.0.1:8000 --map room0 --users 10 --seed 0 --out results.json --token TOKEN
+    arcloud replay --url http://127.0.0.1:8000 --map kitchen --users 10 --seed 0 --out results.json --token TOKEN
 
 Options left out come from ``ARCLOUD_*`` environment variables (``service.settings``).
 """
@@ -68,10 +68,14 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
         "replay",
         help="stream a simulated room through a running service as K users and score the map",
         description="The service must run `--detector sim:SEED` with the same seed. Writes mAP of every object (Table 1), "
-        "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes.",
+        "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes. The map is "
+        "kept as it is (a device key may replay into it); --fresh deletes it first (an admin key).",
     )
     replay.add_argument("--url", default="http://127.0.0.1:8000", help="service URL (default http://127.0.0.1:8000)")
-    replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>); deleted first")
+    replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>)")
+    replay.add_argument(
+        "--fresh", action="store_true", help="delete the map first, so that no earlier frame counts (needs an admin key)"
+    )
     replay.add_argument("--users", type=positive_int, default=10, help="concurrent users K (default 10)")
     replay.add_argument("--seed", type=non_negative_int, default=0, help="room, walk and detector seed (default 0)")
     replay.add_argument("--frames", type=positive_int, default=300, help="frames in the walk (default 300)")
@@ -83,7 +87,7 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
     replay.add_argument(
         "--token",
         default=None,
-        help="API key token (default $ARCLOUD_TOKEN): an admin key of the map (replay deletes the map first)",
+        help="API key token (default $ARCLOUD_TOKEN): a device key of the map (an admin key with --fresh)",
     )
     replay.add_argument("--no-progress", action="store_true", help="no progress bar")
     replay.set_defaults(handler=run_replay_command)
@@ -227,6 +231,7 @@ def run_replay_command(args: argparse.Namespace) -> int:
         height=height,
         timeout_s=args.timeout,
         show_progress=not args.no_progress,
+        fresh=args.fresh,
         token=args.token,
     )
     row = results["table1"][0]
