@@ -404,14 +404,14 @@ class RedisStore:
         with redis_errors(f"list on map {map_id}", self._where):
             return sorted(int(i) for i in self.client.hkeys(keys.bounds_key(map_id)))
 
-    def new_ids(self, map_id: str, n: int) -> list[int]:
+    def new_ids(self, map_id: str, n: int) -> range:
         if n < 0:
             raise InvalidInput("n", ">= 0", n)
         if n == 0:
-            return []
+            return range(0)
         with redis_errors(f"new_ids on map {map_id}", self._where):
             last = int(self.client.incrby(keys.ids_key(map_id), n))
-        return list(range(last - n + 1, last + 1))
+        return range(last - n + 1, last + 1)
 
     def commit(
         self,
