@@ -4,6 +4,7 @@ keys file; the SDK carrying its token over real HTTP."""
 
 from __future__ import annotations
 
+import random
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -12,7 +13,7 @@ from typing import Any
 import httpx
 import pytest
 from redis_server import RedisServer
-from svc_helpers import AppClient, UvicornThread, make_test_frame
+from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame
 
 from arcloud.cli import main as cli_main
 from arcloud.client.http import ArcloudClient, ServiceError
@@ -185,6 +186,49 @@ def test_rate_limits_answer_429_with_retry_after_and_one_map_cannot_take_another
         assert api.post("/v1/maps/a/frames", content=frame_body("a", 7), headers={**PROTOBUF, **bearer(other)}).status_code == 202
         metrics = api.get("/metrics").text
         assert 'status="429"' in metrics
+
+
+def random_token(rng: random.Random) -> str:
+    """A token of the right form that no key has (a spray of guesses)."""
+    alphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-"
+    return f"arc_{rng.getrandbits(48):012x}_{''.join(rng.choice(alphabet) for _ in range(43))}"
+
+
+@pytest.mark.parametrize("where", ["embedded", "redis"])
+def test_a_spray_of_invalid_tokens_gets_429_from_its_address_only(
+    where: str, redis_server: RedisServer, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 22: 3,000 random tokens were answered 401 at 453/s, never 429. Failed authentications are limited
+    per client address (the memory and the Redis rate limiter); a key from another address is unaffected."""
+    import redis
+
+    limits = {"auth_failure_rate_per_s": 0.5, "auth_failure_burst": 5, "key_cache_s": 0.0}
+    if where == "redis":
+        redis.Redis.from_url(redis_server.url).flushdb()
+        token = create_key(capsys, "--redis", redis_server.url, maps="*", role="reader")
+        app = create_app(Settings(store=redis_server.url, detector="sim:0", workers=0, **limits))
+    else:
+        keys_file = tmp_path / "keys.json"
+        token = create_key(capsys, "--file", str(keys_file), maps="*", role="reader")
+        app = create_app(Settings(detector="sim:0", workers=1, keys_file=str(keys_file), **limits), detector=BlobDetector())
+    rng = random.Random(22)
+    spray, other = "203.0.113.7", "198.51.100.2"
+    with AppClient(app) as api:
+        answers = [api.get("/v1/maps", headers=bearer(random_token(rng)), address=spray) for _ in range(20)]
+        assert [a.status_code for a in answers] == [401] * 5 + [429] * 15
+        refused = answers[5]
+        assert_problem(refused, 429, "authorization", contains=f"client {spray} failed to authenticate more than 5 times")
+        assert int(refused.headers["retry-after"]) == 2
+        # Barred: the address's requests are refused before their token is looked at, a valid one's too.
+        assert_problem(api.get("/v1/maps", headers=bearer(token), address=spray), 429, "authorization")
+        assert api.get("/v1/maps", address=spray).status_code == 429
+        # Another address has its own budget: its key is served, its first bad token a plain 401.
+        assert api.get("/v1/maps", headers=bearer(token), address=other).status_code == 200
+        assert api.get("/v1/maps", headers=bearer(random_token(rng)), address=other).status_code == 401
+        time.sleep(float(refused.headers["retry-after"]))
+        assert api.get("/v1/maps", headers=bearer(token), address=spray).status_code == 200
+        assert api.get("/v1/maps", headers=bearer(random_token(rng)), address=spray).status_code == 401  # one more try
+        assert api.get("/v1/maps", headers=bearer(random_token(rng)), address=spray).status_code == 429
 
 
 def test_embedded_service_with_a_keys_file_and_the_sdk_token(

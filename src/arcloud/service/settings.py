@@ -154,6 +154,15 @@ class Settings(BaseSettings):
         60.0, ge=0, description="frame uploads a second per map, from all its devices together; 0: no limit"
     )
     map_frame_burst: int = Field(120, ge=1, description="frame uploads a map may take at once above its rate")
+    auth_failure_rate_per_s: float = Field(
+        1.0,
+        ge=0,
+        description="failed authentications (401) a second per client address (auth keys); past them the address's "
+        "requests answer 429 with Retry-After, before their token is looked at; 0: no limit",
+    )
+    auth_failure_burst: int = Field(
+        50, ge=1, description="failed authentications a client address may make at once above its rate"
+    )
     # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
     max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
     event_poll_s: float = Field(

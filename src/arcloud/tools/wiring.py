@@ -192,8 +192,9 @@ def build_key_store(settings: Settings, store: ObjectStore | None = None) -> Key
 
 
 def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> RateLimiter | None:
-    """In memory (embedded) or on Redis (shared by every API process); None when both limits are off."""
-    if settings.key_rate_per_s <= 0 and settings.map_frame_rate_per_s <= 0:
+    """In memory (embedded) or on Redis (shared by every API process); None when every limit is off."""
+    failures_limited = settings.auth_mode == "keys" and settings.auth_failure_rate_per_s > 0
+    if settings.key_rate_per_s <= 0 and settings.map_frame_rate_per_s <= 0 and not failures_limited:
         return None
     if settings.embedded:
         from arcloud.stores.memory_rate import MemoryRateLimiter
