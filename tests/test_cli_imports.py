@@ -26,6 +26,8 @@ COMMANDS = (
     ["frames"],
     ["frames", "failed"],
     ["frames", "retry"],
+    ["models"],
+    ["models", "pull"],
 )
 
 
