@@ -19,6 +19,7 @@ COMMANDS = (
     ["eval"],
     ["eval", "scannet"],
     ["eval", "7scenes"],
+    ["eval", "recording"],
     ["render-scannet"],
     ["serve"],
     ["worker"],
