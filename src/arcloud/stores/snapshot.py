@@ -110,13 +110,11 @@ def read_snapshot(data: bytes) -> tuple[dict[str, object], MapHeader, list[MapOb
 def _object_id(member: str) -> int:
     """The id a metadata member's name gives (``objects/<id>.meta``); ``InvalidInput`` naming it otherwise."""
     found = _META_MEMBER.fullmatch(member)
-    text = found.group(1) if found else ""
+    if found is None:
+        raise InvalidInput("snapshot", "metadata members objects/<id>.meta", f"member {describe(member)}")
+    text = found.group(1)
     if not (text.isascii() and text.isdigit() and len(text) <= 16 and text[0] != "0" and int(text) <= MAX_OBJECT_ID):
-        raise InvalidInput(
-            f"{member.removesuffix('.meta')[:60]}.id",
-            f"an object id from 1 to {MAX_OBJECT_ID} (members objects/<id>.meta)",
-            describe(member),
-        )
+        raise InvalidInput(f"objects/{text[:40]}.id", f"an object id from 1 to {MAX_OBJECT_ID}", describe(text))
     return int(text)
 
 
