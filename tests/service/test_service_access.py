@@ -4,6 +4,7 @@ keys file; the SDK carrying its token over real HTTP."""
 
 from __future__ import annotations
 
+import logging
 import random
 import time
 from collections.abc import Iterator
@@ -229,6 +230,59 @@ def test_a_spray_of_invalid_tokens_gets_429_from_its_address_only(
         assert api.get("/v1/maps", headers=bearer(token), address=spray).status_code == 200
         assert api.get("/v1/maps", headers=bearer(random_token(rng)), address=spray).status_code == 401  # one more try
         assert api.get("/v1/maps", headers=bearer(random_token(rng)), address=spray).status_code == 429
+
+
+def test_keys_lost_with_redis_data_make_the_service_not_ready_and_log_it_once(
+    keyed: AppClient, redis_server: RedisServer, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 22: after a FLUSHALL every upload got 401 while /readyz said ready."""
+    import redis
+
+    assert keyed.get("/readyz").json()["checks"]["keys"] == "ok"  # no key yet: a new deployment is not "lost"
+    token = create_key(capsys, "--redis", redis_server.url, maps="a", role="device")
+    assert keyed.post("/v1/maps/a/frames", content=frame_body("a"), headers={**PROTOBUF, **bearer(token)}).status_code == 202
+    assert keyed.get("/readyz").json()["checks"]["keys"] == "ok"
+    redis.Redis.from_url(redis_server.url).flushall()
+    time.sleep(0.3)  # the key cache (key_cache_s 0.2)
+    with caplog.at_level(logging.ERROR, logger="arcloud"):
+        assert_problem(
+            keyed.post("/v1/maps/a/frames", content=frame_body("a", 1), headers={**PROTOBUF, **bearer(token)}),
+            401,
+            "authorization",
+        )
+        probes = [keyed.get("/readyz") for _ in range(3)]
+    for probe in probes:
+        assert probe.status_code == 503 and probe.headers["retry-after"]
+        keys_check = probe.json()["checks"]["keys"]
+        assert keys_check.startswith("lost: the key store holds no key where it held 1"), keys_check
+        assert "keys: lost" in probe.json()["detail"]
+    lost = [r for r in caplog.records if "API keys lost" in r.getMessage()]
+    assert len(lost) == 1 and lost[0].levelname == "ERROR"  # one line, not one a probe
+    # Keys restored (here: a new one): ready as far as keys go, and a later loss is logged again.
+    create_key(capsys, "--redis", redis_server.url, maps="a", role="device")
+    assert keyed.get("/readyz").json()["checks"]["keys"] == "ok"
+
+
+def test_keys_in_a_redis_of_their_own_survive_the_data(redis_server: RedisServer, capsys: pytest.CaptureFixture[str]) -> None:
+    import redis
+
+    data = redis.Redis.from_url(redis_server.url)
+    data.flushdb()
+    with RedisServer.start() as keys_redis:
+        token = create_key(capsys, "--redis", keys_redis.url, maps="a", role="device")
+        settings = Settings(store=redis_server.url, keys_store=keys_redis.url, detector="sim:0", workers=0, key_cache_s=0.0)
+        assert settings.auth_mode == "keys"
+        with_password = Settings(store=redis_server.url, keys_store=keys_redis.url.replace("//", "//:s3cret@"))
+        assert "s3cret" not in repr(with_password) and "s3cret" not in str(with_password.redacted())
+        with AppClient(create_app(settings)) as api:
+            upload = {**PROTOBUF, **bearer(token)}
+            assert api.post("/v1/maps/a/frames", content=frame_body("a"), headers=upload).status_code == 202
+            assert not data.hexists("arcloud:keys", token.split("_")[1])  # the key is not in the maps' Redis
+            data.flushall()
+            assert api.post("/v1/maps/a/frames", content=frame_body("a", 1), headers=upload).status_code == 202
+            assert api.get("/readyz").json()["checks"]["keys"] == "ok"
+    with pytest.raises(ValueError, match="keys_store"):
+        Settings(store=redis_server.url, keys_store="mysql://h/0")
 
 
 def test_embedded_service_with_a_keys_file_and_the_sdk_token(

@@ -14,10 +14,15 @@ In order, so that each answer tells no more than the caller may know:
 
 The body of a request is read only after all four passed. Keys are looked up through a small cache
 (``Settings.key_cache_s``, 5 s): a key created or revoked takes effect within that time in every API process.
+
+Keys can be lost with the data (a Redis restarted without it, a FLUSHALL): then every request answers 401
+while the service looks healthy. ``Access.keys_health`` (a check of ``/readyz``) reports a key store that
+holds no key where this process saw some, and logs it once.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -30,8 +35,11 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from arcloud.access import ROLE_ACTIONS, Action, ApiKey, split_token, verify
 from arcloud.core.checks import check_map_id
+from arcloud.errors import ArcloudError
 from arcloud.ports import KeyStore, RateLimiter
 from arcloud.service.settings import Settings
+
+log = logging.getLogger(__name__)
 
 KEY_CACHE_ENTRIES = 10_000  # lookups kept at most (cleared when full)
 BARRED_ADDRESSES = 10_000  # addresses refused for failed authentications, kept at most (cleared when full)
@@ -103,6 +111,34 @@ class Access:
     clock: Callable[[], float] = time.monotonic
     _barred: dict[str, float] = field(default_factory=dict)  # address -> until when (clock) it is refused at once
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    _keys_seen: int = 0  # the most keys this process saw in the key store (1: a lookup found one)
+    _loss_logged: bool = False
+
+    def keys_health(self) -> str:
+        """``ok``, or what is wrong with the keys: the store unreachable, or ``lost``: it holds no key where this
+        process saw some (Redis restarted without its data, a FLUSHALL, a deleted keys file; or every key
+        revoked), logged once as an error when it begins."""
+        if self.keys is None:
+            return "ok"
+        try:
+            n_keys = len(self.keys.keys.list_keys())
+        except ArcloudError as exc:
+            return f"unreachable: {exc}"
+        with self._lock:
+            if n_keys:
+                self._keys_seen, self._loss_logged = max(self._keys_seen, n_keys), False
+                return "ok"
+            if not self._keys_seen:
+                return "ok"  # no key yet: a new deployment (`arcloud keys create`)
+            seen, first = self._keys_seen, not self._loss_logged
+            self._loss_logged = True
+        detail = (
+            f"lost: the key store holds no key where it held {seen}, so every request answers 401 (its Redis restarted "
+            "without its data or was flushed? restore the keys: docs/service.md, Recovery)"
+        )
+        if first:
+            log.error("API keys %s", detail)
+        return detail
 
     def authenticate(self, token: str | None, address: str) -> Caller:
         if self.keys is None:
@@ -116,6 +152,8 @@ class Access:
         key = self.keys.find(parts[0]) if parts is not None else None
         if parts is None or key is None or not verify(key, parts[1]):
             raise self._failed(address, "authorization: the token is not a valid key (unknown, revoked, or mistyped)")
+        if not self._keys_seen:
+            self._keys_seen = 1
         return Caller(key, address)
 
     def _failed(self, address: str, detail: str) -> Refused:

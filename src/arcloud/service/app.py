@@ -569,7 +569,7 @@ async def healthz() -> dict[str, str]:
     response_model=Ready,
     responses={503: {"model": Ready}},
     tags=["operations"],
-    summary="Store reachable, detector loaded, workers alive",
+    summary="Store reachable, detector loaded, workers alive, API keys not lost",
 )
 def readyz(runtime: RuntimeDep) -> JSONResponse:
     checks: dict[str, str] = {}
@@ -582,6 +582,8 @@ def readyz(runtime: RuntimeDep) -> JSONResponse:
         checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
     if checks["store"] == "ok":  # else the ingest's checks would wait on the same unreachable store
         checks.update(runtime.ingest.ready())
+    if runtime.access.keys is not None:
+        checks["keys"] = runtime.access.keys_health()
     if all(v == "ok" for v in checks.values()):
         return JSONResponse({"status": "ready", "checks": checks})
     wrong = "; ".join(f"{name}: {value}" for name, value in checks.items() if value != "ok")
