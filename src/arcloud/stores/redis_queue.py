@@ -82,8 +82,11 @@ from arcloud.errors import InvalidInput, StoreError
 from arcloud.ports import (
     LATENCY_BUCKETS_S,
     RECORDS_SWEPT_PER_CALL,
+    WAIT_BUCKETS_S,
     FailedFrame,
     FrameStatus,
+    FrameTimings,
+    Histogram,
     QueuedFrame,
     QueueFull,
     QueueLimits,
@@ -101,13 +104,22 @@ log = logging.getLogger(__name__)
 #: XREADGROUP's reply (bytes: no decode_responses): [(stream, [(entry id, fields), ...])], None when nothing came.
 _ReadReply = list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]] | None
 
-#: The stats HASH's counters (``QueueStats`` fields), beside ``latency_le_<bound>`` and ``latency_sum_s``.
+#: The stats HASH's counters (``QueueStats`` fields), beside ``latency_le_<bound>`` and ``latency_sum_s``,
+#: and the wait histograms' ``<name>_le_<bound>`` and ``<name>_sum_s`` (``WAIT_HISTOGRAMS``).
 STAT_FIELDS = ("accepted", "duplicates", "processed", "redelivered", "failed", "claimed", "retried")
+#: The ``QueueStats`` histograms of waits, by the name their fields in the stats HASH start with.
+WAIT_HISTOGRAMS = ("queue_wait", "lock_wait")
 
 
 def latency_field(bucket: int) -> str:
     """The stats HASH's field counting the steps of latency bucket ``bucket``."""
     return f"latency_le_{LATENCY_BUCKETS_S[bucket]:g}" if bucket < len(LATENCY_BUCKETS_S) else "latency_le_inf"
+
+
+def histogram_field(name: str, histogram: Histogram, bucket: int) -> str:
+    """The stats HASH's field counting bucket ``bucket`` of the histogram ``name`` (``WAIT_HISTOGRAMS``)."""
+    bounds = histogram.bounds_s
+    return f"{name}_le_{bounds[bucket]:g}" if bucket < len(bounds) else f"{name}_le_inf"
 
 
 def parse_stats(raw: Mapping[bytes | str, bytes | str]) -> QueueStats:
@@ -117,11 +129,23 @@ def parse_stats(raw: Mapping[bytes | str, bytes | str]) -> QueueStats:
     stats = QueueStats(**counts)
     stats.latency_counts = [int(values.get(latency_field(b), 0)) for b in range(len(LATENCY_BUCKETS_S) + 1)]
     stats.latency_sum_s = float(values.get("latency_sum_s", 0.0))
+    for name in WAIT_HISTOGRAMS:
+        histogram: Histogram = getattr(stats, name)
+        histogram.counts = [int(values.get(histogram_field(name, histogram, b), 0)) for b in range(len(histogram.counts))]
+        histogram.sum_s = float(values.get(f"{name}_sum_s", 0.0))
     return stats
 
 
 def _text(value: bytes | str | None) -> str:
     return value.decode(errors="replace") if isinstance(value, bytes) else (value or "")
+
+
+def _seconds(value: bytes | None) -> float | None:
+    """An entry's time field (Unix seconds) as a float; None when absent or not a number."""
+    try:
+        return None if value is None else float(value)
+    except ValueError:
+        return None
 
 
 _ENTRY_ID = re.compile(r"\d+-\d+")
@@ -394,7 +418,7 @@ class RedisFrameQueue:
                 totals[_text(field)] = totals.get(_text(field), 0.0) + float(value)
             depth += int(shard_depth)
             queued_bytes += int(shard_bytes or 0)
-        stats = parse_stats({field: repr(v) if field == "latency_sum_s" else str(int(v)) for field, v in totals.items()})
+        stats = parse_stats({field: repr(v) if field.endswith("_sum_s") else str(int(v)) for field, v in totals.items()})
         stats.queue_depth = depth
         stats.queued_bytes = queued_bytes
         return stats
@@ -542,18 +566,26 @@ class RedisFrameQueue:
             deliveries,
             frame,
             undecodable,
+            accepted_at_s=_seconds(fields.get(b"accepted_at_s")),
             receipt=receipt,
         )
 
-    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
+    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, timings: FrameTimings | None = None) -> None:
+        timings = timings or FrameTimings()
         add = {"retried": retries} if retries else {}
-        counters: dict[str, Any] = {"add": add}
+        sums: dict[str, float] = {}
+        counters: dict[str, Any] = {"add": add, "sums": sums}
         if redelivered:
             add["redelivered"] = 1
         else:
             add["processed"] = 1
-            add[latency_field(latency_bucket(elapsed_s))] = 1
-            counters["latency_sum_s"] = elapsed_s
+            add[latency_field(latency_bucket(timings.step_s))] = 1
+            sums["latency_sum_s"] = timings.step_s
+            for name, seconds in (("queue_wait", timings.queue_wait_s), ("lock_wait", timings.lock_wait_s)):
+                if seconds is not None:
+                    histogram = Histogram.empty(WAIT_BUCKETS_S)
+                    add[histogram_field(name, histogram, histogram.bucket(seconds))] = 1
+                    sums[f"{name}_sum_s"] = seconds
         with redis_errors("acknowledge the entry", self._where):
             self._settle_entry(item, counters, ["processed"])
 
