@@ -63,7 +63,9 @@ def test_the_lock_timer_counts_the_time_another_holder_kept_the_objects() -> Non
     with timer.lock("m", [2, 3], ttl_s=10, timeout_s=5):
         waited_s = time.perf_counter() - started
     releaser.join()
-    assert 0.2 <= timer.lock_wait_s <= waited_s + 0.01
-    with timer.claim("m", [(0, 0, 0)], ttl_s=10, timeout_s=0):  # free: about nothing more
-        pass
-    assert timer.lock_wait_s < waited_s + 0.05
+    assert 0.2 <= timer.lock_wait_s <= waited_s  # the call's time, within what the test saw
+    locked_s = timer.lock_wait_s
+    started = time.perf_counter()
+    with timer.claim("m", [(0, 0, 0)], ttl_s=10, timeout_s=0):  # free cells: added, taken at once
+        claimed_s = time.perf_counter() - started
+    assert 0 < timer.lock_wait_s - locked_s <= claimed_s
