@@ -110,7 +110,7 @@ def test_keda_scales_the_workers_on_every_ingest_stream_of_their_group() -> None
     for trigger in triggers:
         assert trigger["type"] == "redis-cluster-streams" and trigger["metadata"]["consumerGroup"] == settings.consumer_group
         assert trigger["metadata"]["passwordFromEnv"] in container_env(worker)  # KEDA reads it from the target's container
-    assert scaled["spec"]["minReplicaCount"] >= 1  # the API's /readyz wants a worker's heartbeat
+    assert scaled["spec"]["minReplicaCount"] >= 1  # a warm worker: the first frame waits for no model load
 
 
 def test_the_hpa_scales_the_workers_on_the_queue_depth_metrics_serves() -> None:

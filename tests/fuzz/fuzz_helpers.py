@@ -150,8 +150,9 @@ def serve(kind: str, headers: Mapping[str, str]) -> Iterator[FuzzApi]:
 
 
 def answer_faults(status: int, headers: Mapping[str, str], body: bytes) -> list[str]:
-    """What is wrong with an answer: a 5xx other than a 503 carrying Retry-After, or a 4xx/5xx whose body is not
-    a JSON object with "detail" (a non-empty string) and "field" (a string or null). ``headers``: lower-case names."""
+    """What is wrong with an answer: a 5xx other than a 503 carrying Retry-After, or a 4xx/5xx that is not an RFC 9457
+    problem: ``application/problem+json``, a JSON object with "type" and "title" (non-empty strings), "status" (the
+    answer's), "detail" (a non-empty string) and "field" (a string or null). ``headers``: lower-case names."""
     faults = []
     if status >= 500 and not (status == 503 and headers.get("retry-after", "").isdigit()):
         faults.append(f"{status}: a server error (only a 503 with Retry-After is allowed)")
@@ -160,14 +161,16 @@ def answer_faults(status: int, headers: Mapping[str, str], body: bytes) -> list[
             problem = json.loads(body)
         except ValueError:
             return [*faults, f"{status} with a body that is not JSON: {body[:200]!r}"]
+        if headers.get("content-type") != "application/problem+json":
+            faults.append(f"{status} as {headers.get('content-type')!r}, not application/problem+json")
         if not (
             isinstance(problem, dict)
-            and isinstance(problem.get("detail"), str)
-            and problem["detail"]
+            and all(isinstance(problem.get(name), str) and problem[name] for name in ("type", "title", "detail"))
+            and problem.get("status") == status
             and "field" in problem
             and (problem["field"] is None or isinstance(problem["field"], str))
         ):
-            faults.append(f'{status} with a body that is not {{"detail": str, "field": str | null}}: {body[:200]!r}')
+            faults.append(f"{status} with a body that is not a problem (type, title, status, detail, field): {body[:200]!r}")
     return faults
 
 

@@ -1,8 +1,8 @@
 """Schemathesis over every operation of the app's own OpenAPI schema (``app.openapi()``), against the real app
 over real HTTP, embedded (auth none) and on a real redis-server (auth keys: an admin token in the fixture's
-headers), issue "Safe to expose". Every answer: no 5xx but a 503 with Retry-After, every 4xx/5xx a JSON
-``{"detail", "field"}``, and the response conforms to the schema (status code, content type, headers, body);
-schema-violating input is refused; with auth keys a request without a token or with a wrong one is refused.
+headers), issue "Safe to expose". Every answer: no 5xx but a 503 with Retry-After, every 4xx/5xx an RFC 9457
+problem (``application/problem+json``: type, title, status, detail, field), and the response conforms to the schema
+(status code, content type, headers, body); schema-violating input is refused; with auth keys a request without a token or with a wrong one is refused.
 Generated strings mix in ``ODD_STRINGS``; frame uploads mix in a valid frame mutated (``frame_strategies``).
 Bounded: seeded and derandomized, the examples and coverage phases' cases plus ``MAX_EXAMPLES`` fuzzed cases
 per operation.
@@ -99,7 +99,7 @@ def with_body(case: schemathesis.Case, body: Any) -> schemathesis.Case:
 
 
 def arcloud_answer_rules(ctx: Any, response: schemathesis.Response, case: schemathesis.Case) -> None:
-    """No 5xx but a 503 with Retry-After; every 4xx/5xx a JSON problem."""
+    """No 5xx but a 503 with Retry-After; every 4xx/5xx an RFC 9457 problem."""
     faults = answer_faults(response.status_code, {k: ", ".join(v) for k, v in response.headers.items()}, response.content)
     if faults:
         raise AssertionError("; ".join(faults))

@@ -209,6 +209,24 @@ class UvicornThread:
         self.thread.join(20.0)
 
 
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+
+
+def assert_problem(response: Any, status: int, field: str | None) -> dict[str, Any]:
+    """The RFC 9457 problem of an error answer (httpx's or requests' response), checked: the status, the media
+    type, ``type`` (a URI reference), ``title`` and ``detail`` non-empty strings, ``status`` the answer's,
+    ``field`` as expected. Returns the problem."""
+    assert response.status_code == status, (status, response.status_code, response.text[:500])
+    assert response.headers["content-type"] == PROBLEM_MEDIA_TYPE, response.headers
+    problem = json.loads(response.content)
+    assert isinstance(problem, dict) and {"type", "title", "status", "detail", "field"} <= set(problem), problem
+    assert isinstance(problem["type"], str) and (problem["type"].startswith("/problems/") or problem["type"] == "about:blank")
+    assert isinstance(problem["title"], str) and problem["title"], problem
+    assert isinstance(problem["detail"], str) and problem["detail"] and problem["status"] == status, problem
+    assert problem["field"] == field, problem
+    return problem
+
+
 def wait_until(predicate: Callable[[], object], timeout_s: float, what: str, interval_s: float = 0.02) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

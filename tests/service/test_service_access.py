@@ -13,6 +13,7 @@ from typing import Any
 
 import httpx
 import pytest
+import svc_helpers
 from redis_server import RedisServer
 from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame
 
@@ -45,9 +46,8 @@ def create_key(capsys: pytest.CaptureFixture[str], *where: str, maps: str, role:
 
 
 def assert_problem(response: httpx.Response, status: int, field: str | None, *, contains: str = "") -> None:
-    assert response.status_code == status, response.text
-    body = response.json()
-    assert set(body) == {"detail", "field"} and body["field"] == field and contains in body["detail"], body
+    problem = svc_helpers.assert_problem(response, status, field)
+    assert set(problem) == {"type", "title", "status", "detail", "field"} and contains in problem["detail"], problem
 
 
 @pytest.fixture(scope="module")

@@ -371,7 +371,9 @@ def test_a_map_at_its_queue_limit_gets_503_while_another_map_still_gets_202(stor
 
 def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
     assert client.get("/healthz").json() == {"status": "ok"}
-    assert client.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok", "detector": "ok", "workers": "ok"}}
+    assert client.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok"}}
+    workers = client.get("/healthz/workers").json()
+    assert workers["checks"] == {"detector": "ok", "workers": "ok"} and len(workers["live"]) == workers["expected"] == 2
     client.post("/v1/maps/m/frames", content=proto_body(make_test_frame(0)), headers=PROTOBUF)
     client.post("/v1/maps/m/frames", content=b"x", headers={"content-type": "text/plain"})
     wait_until(lambda: processed(client, "m") == 1, 20, "frame processed")
@@ -453,6 +455,9 @@ def test_a_service_with_other_settings_refuses_the_map_and_its_workers_leave_it_
         refused = second.post("/v1/maps/h/frames", content=proto_body(make_test_frame(3, map_id="h")), headers=PROTOBUF)
         assert refused.status_code == 409, refused.text
         assert refused.json() == {
+            "type": "/problems/map-mismatch",
+            "title": "Map of other settings",
+            "status": 409,
             "detail": "map h was built with other settings: voxel_size_m: map 0.05, ours 0.04",
             "field": "map_id",
         }

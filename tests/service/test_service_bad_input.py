@@ -1,4 +1,4 @@
-"""Implausible and hostile input through the real app: every case answers a 4xx JSON ``{"detail", "field"}``
+"""Implausible and hostile input through the real app: every case answers a 4xx problem (``detail``, ``field``)
 naming the field at fault, never a 5xx, and queues nothing (issue 10, "plausible input only" and
 "bounded state"). The Redis cases run against a real redis-server.
 """
@@ -14,6 +14,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
+import svc_helpers
 from redis_server import RedisServer
 from svc_helpers import AppClient, BlobDetector, make_test_frame, multipart_parts, wait_until
 
@@ -38,11 +39,9 @@ def proto_body(frame: Any, **changes: Any) -> bytes:
 
 
 def assert_problem(response: httpx.Response, status: int, field: str | None) -> None:
-    """A 4xx answered as ``{"detail": str, "field": field}``."""
-    assert response.status_code == status, response.text
-    body = response.json()
-    assert set(body) == {"detail", "field"} and isinstance(body["detail"], str) and body["detail"], body
-    assert body["field"] == field, body
+    """A 4xx answered as a problem (``application/problem+json``) naming ``field``."""
+    problem = svc_helpers.assert_problem(response, status, field)
+    assert set(problem) == {"type", "title", "status", "detail", "field"}, problem
 
 
 MAX_PIXELS = 640 * 480

@@ -1,5 +1,5 @@
 """Regressions the API fuzz run (tests/fuzz) and its raw-HTTP probes found, each named after its case: every
-answer a JSON ``{"detail", "field"}`` (uvicorn's and Starlette's own included), documented in the OpenAPI
+answer an RFC 9457 problem with ``detail`` and ``field`` (uvicorn's and Starlette's own included), documented in the OpenAPI
 schema, and no 5xx but a 503 with Retry-After. Against the real app, over ASGI or real HTTP, on a real
 redis-server where Redis is named.
 """
@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import pytest
 from redis_server import RedisServer
-from svc_helpers import AppClient, BlobDetector, UvicornThread, make_test_frame, wait_until
+from svc_helpers import PROBLEM_MEDIA_TYPE, AppClient, BlobDetector, UvicornThread, make_test_frame, wait_until
 
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.http_protocol import JsonProblemHTTP
@@ -35,6 +35,7 @@ def assert_problem(status: int, body: bytes, expected_status: int, field: str | 
     assert status == expected_status, body
     problem = json.loads(body)
     assert isinstance(problem["detail"], str) and problem["detail"] and problem["field"] == field, problem
+    assert problem["status"] == status and problem["type"].startswith("/problems/") and problem["title"], problem
     return problem  # type: ignore[no-any-return]  # json's Any
 
 
@@ -130,7 +131,7 @@ def test_multipart_with_too_many_parts_answers_a_documented_400(embedded: AppCli
 )
 def test_a_request_uvicorn_cannot_parse_answers_a_json_400(served: UvicornThread, request_bytes: bytes) -> None:
     status, headers, body = raw_http(served.port, request_bytes)
-    assert headers["content-type"] == "application/json" and headers["connection"] == "close"
+    assert headers["content-type"] == PROBLEM_MEDIA_TYPE and headers["connection"] == "close"
     assert_problem(status, body, 400, None)
 
 
@@ -179,25 +180,32 @@ def test_a_store_error_answers_a_json_500_telling_nothing_of_it() -> None:
             redis.close()
             response = http.get("/v1/maps/m/stats")
         problem = assert_problem(response.status_code, response.content, 500, None)
-        assert response.headers["content-type"] == "application/json"
+        assert response.headers["content-type"] == PROBLEM_MEDIA_TYPE
         assert "redis" not in problem["detail"].lower() and str(server.port) not in problem["detail"], problem
     finally:
         server.stop()
 
 
 @pytest.mark.redis
-def test_not_ready_answers_503_with_retry_after_and_a_problem() -> None:
-    """Redis with no worker anywhere: /readyz answers 503 with Retry-After, its checks, and the problem's fields."""
+def test_no_worker_anywhere_leaves_the_api_ready_and_the_workers_report_503() -> None:
+    """Redis with no worker anywhere: /readyz answers 200 (this process takes and answers requests: a frame is
+    queued, the map read), /healthz/workers 503 with Retry-After, its checks and the problem's fields."""
     server = RedisServer.start()
     try:
         with AppClient(create_app(Settings(store=server.url, auth="none", detector="sim:0", workers=0))) as api:
-            response = api.get("/readyz")
+            ready = api.get("/readyz")
+            queued = api.post("/v1/maps/m/frames", content=frame_body(), headers=PROTOBUF)
+            stats = api.get("/v1/maps/m/stats")
+            workers = api.get("/healthz/workers")
     finally:
         server.stop()
-    assert response.status_code == 503 and response.headers["retry-after"].isdigit(), response.text
-    body = response.json()
-    assert body["status"] == "not ready" and body["checks"]["workers"].startswith("no worker heartbeat"), body
-    assert body["field"] is None and body["detail"].startswith("not ready (workers: no worker heartbeat"), body
+    assert ready.status_code == 200 and ready.json() == {"status": "ready", "checks": {"store": "ok"}}, ready.text
+    assert queued.json()["status"] == "queued" and stats.json()["frames"]["pending"] == 1
+    problem = assert_problem(workers.status_code, workers.content, 503, None)
+    assert workers.headers["content-type"] == PROBLEM_MEDIA_TYPE and workers.headers["retry-after"].isdigit()
+    assert problem["type"] == "/problems/workers-unavailable" and problem["checks"]["workers"].startswith("no worker heartbeat")
+    assert problem["detail"].startswith("workers unavailable (workers: no worker heartbeat"), problem
+    assert problem["checks"]["consumer_group"] == "ok" and problem["live"] == [] and problem["expected"] is None, problem
 
 
 @pytest.mark.parametrize(

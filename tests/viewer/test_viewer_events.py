@@ -84,7 +84,7 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
 
 def assert_problem(answer: httpx.Response, status: int, contains: str) -> None:
     assert answer.status_code == status, answer.text
-    assert answer.headers["content-type"].startswith("application/json")
+    assert answer.headers["content-type"] == "application/problem+json"
     assert contains in answer.json()["detail"], answer.json()
 
 

@@ -23,8 +23,8 @@ times, after an exponential backoff with jitter (``backoff_s`` doubling up to ``
 0.5 to 1.5; ``seed`` makes it repeatable), and at least the server's Retry-After. Only requests safe to
 send twice are: GET and DELETE, and frame uploads (the API answers ``duplicate`` for a frame (device,
 frame id) it accepted before, and queues nothing). Other refusals raise ``ServiceError`` with the status
-and the server's message; a transport failure after the last try is httpx's exception, with a note
-saying how many attempts were made over how long.
+and the server's problem (RFC 9457: its ``type``, ``title``, ``detail`` and ``field``); a transport failure
+after the last try is httpx's exception, with a note saying how many attempts were made over how long.
 """
 
 from __future__ import annotations
@@ -78,12 +78,17 @@ def frame_status_path(map_id: str, device_id: str, frame_id: str) -> str:
 
 class ServiceError(ArcloudError):
     """The service refused a request: ``status`` (HTTP), ``detail`` (its message), ``field`` (the input
-    at fault, when it names one)."""
+    at fault, when it names one), and from its RFC 9457 problem the ``type`` (a URI reference such as
+    ``/problems/queue-full``: what kind of refusal, to branch on) and ``title``; ``problem``: the whole
+    document (extension members too, e.g. ``checks`` of ``/readyz``), empty when the answer was not one."""
 
-    def __init__(self, status: int, detail: str, field: str | None = None) -> None:
+    def __init__(self, status: int, detail: str, field: str | None = None, *, problem: Mapping[str, Any] | None = None) -> None:
         self.status = status
         self.detail = detail
         self.field = field
+        self.problem = dict(problem or {})
+        self.type = str(self.problem.get("type") or "about:blank")
+        self.title = str(self.problem.get("title") or "")
         super().__init__(f"HTTP {status}: {detail}")
 
 
@@ -164,13 +169,17 @@ def checked_content(response: httpx.Response) -> bytes:
 
 
 def service_error(response: httpx.Response) -> ServiceError:
-    """The ``ServiceError`` of a refusal (its JSON problem, or the start of its text)."""
+    """The ``ServiceError`` of a refusal: its problem (``application/problem+json``; the ``{"detail", "field"}``
+    of services before problems, a JSON object all the same), or the start of its text (a proxy's page)."""
     try:
         body = response.json()
-        detail, field = str(body.get("detail")), body.get("field")
     except ValueError:
-        detail, field = response.text[:500], None
-    return ServiceError(response.status_code, detail, field)
+        body = None
+    if not isinstance(body, dict):
+        return ServiceError(response.status_code, response.text[:500])
+    field = body.get("field")
+    detail = body.get("detail") or body.get("title") or response.reason_phrase
+    return ServiceError(response.status_code, str(detail), field if isinstance(field, str) else None, problem=body)
 
 
 def retry_after_s(response: httpx.Response, default_s: float = 1.0) -> float:

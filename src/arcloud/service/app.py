@@ -18,6 +18,8 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/frames/{device}/{frame}   where an accepted frame is
     GET    /viewer                            the web viewer (static files, open: they hold no data)
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
+    GET    /healthz/workers                   whether the workers process what is accepted (apart from /readyz)
+    GET    /problems/{name}                   what a problem type means (the ``type`` of every error answer)
 
 Map routes need a key (``service.access``, with auth keys): reading needs a reader, device or admin key
 of the map, uploading a device or admin key, deleting an admin key; 401 without a valid token, 403 for a
@@ -25,10 +27,11 @@ key of another role or map, 429 (with Retry-After) over the key's or the map's r
 
 A map exists once a frame of it was accepted (or a snapshot restored into it); unknown maps and objects answer 404. Listings serve
 confirmed objects (``MapObject.confirmed``) unless asked for tentative ones too; every object carries
-its ``status``. Errors are JSON
-``{"detail": ..., "field": ...}``: 400 malformed body, 401/403 access, 429 rate limit, 413 body too large, 415 wrong content type, 422 invalid input,
-503 store unreachable, queue full or not ready (with Retry-After), 500 anything unexpected (its traceback logged);
-``http_protocol`` answers requests uvicorn cannot parse the same way.
+its ``status``. Errors are RFC 9457 problems (``application/problem+json``: ``type``, ``title``, ``status``,
+``detail``, ``field``; built by ``service.problems`` alone): 400 malformed body, 401/403 access, 429 rate limit, 413
+body too large, 415 wrong content type, 422 invalid input, 503 store unreachable, queue full or not ready (with
+Retry-After), 500 anything unexpected (its traceback logged); ``http_protocol`` answers requests uvicorn cannot parse
+the same way.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ from arcloud.service.access import Caller, Refused, require
 from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels, voxel_colors_out
 from arcloud.service.logs import bind_log_context
 from arcloud.service.map_header import check_map_header
+from arcloud.service.problems import PROBLEM_TYPES, TYPE_PREFIX, problem_openapi, problem_response
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
@@ -71,11 +75,15 @@ from arcloud.service.schemas import (
     MapList,
     MapRestored,
     MapStats,
+    NotReady,
     ObjectDetail,
     ObjectList,
     Problem,
+    ProblemTypeOut,
     Ready,
     RetiredList,
+    WorkersHealth,
+    WorkersUnavailable,
     iso_time,
     object_out,
 )
@@ -86,7 +94,7 @@ log = logging.getLogger(__name__)
 Label = Literal[CLASSES]  # type: ignore[valid-type]  # the class names as a Literal, unpacked from the tuple at run time
 
 
-READY_RETRY_AFTER_S = 5  # a 503 from /readyz: ask again in this many seconds
+READY_RETRY_AFTER_S = 5  # a 503 from /readyz or /healthz/workers: ask again in this many seconds
 
 
 class BodyTooLarge(Exception):
@@ -115,16 +123,13 @@ class BodyLimit:
         declared = dict(scope.get("headers") or []).get(b"content-length")
         if declared is not None:
             if not declared.isdigit():
-                await JSONResponse(
-                    {
-                        "detail": f"content-length: expected a number of bytes, got {declared.decode(errors='replace')!r}",
-                        "field": "content-length",
-                    },
-                    400,
-                )(scope, receive, send)
+                got = declared.decode(errors="replace")
+                await problem_response(400, f"content-length: expected a number of bytes, got {got!r}", "content-length")(
+                    scope, receive, send
+                )
                 return
             if int(declared) > self.max_bytes:
-                await JSONResponse({"detail": str(BodyTooLarge(self.max_bytes, f"{int(declared)} bytes")), "field": "body"}, 413)(
+                await problem_response(413, str(BodyTooLarge(self.max_bytes, f"{int(declared)} bytes")), "body")(
                     scope, receive, send
                 )
                 return
@@ -567,28 +572,69 @@ async def healthz() -> dict[str, str]:
 @router.get(
     "/readyz",
     response_model=Ready,
-    responses={503: {"model": Ready}},
+    responses={503: {"model": NotReady, "description": "not ready: `checks` says why (with Retry-After)"}},
     tags=["operations"],
-    summary="Store reachable, detector loaded, workers alive, API keys not lost",
+    summary="This process takes and answers requests: store reachable, API keys not lost",
+    description="Whether this process can accept frames and answer reads, whatever the workers do (their health is "
+    "`/healthz/workers`): a worker outage leaves the API ready, so readers keep being served.",
 )
-def readyz(runtime: RuntimeDep) -> JSONResponse:
+def readyz(runtime: RuntimeDep) -> Response:
     checks: dict[str, str] = {}
     try:
         runtime.store.ping()
         checks["store"] = "ok"
     except Exception as exc:  # noqa: BLE001 - readiness reports
         checks["store"] = f"unreachable: {exc}"
-    if runtime.settings.embedded:
-        checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
-    if checks["store"] == "ok":  # else the ingest's checks would wait on the same unreachable store
-        checks.update(runtime.ingest.ready())
     if runtime.access.keys is not None:
         checks["keys"] = runtime.access.keys_health()
     if all(v == "ok" for v in checks.values()):
         return JSONResponse({"status": "ready", "checks": checks})
     wrong = "; ".join(f"{name}: {value}" for name, value in checks.items() if value != "ok")
-    body = {"status": "not ready", "checks": checks, "detail": f"not ready ({wrong})", "field": None}
-    return JSONResponse(body, status_code=503, headers={"Retry-After": str(READY_RETRY_AFTER_S)})
+    return problem_response(
+        503,
+        f"not ready ({wrong})",
+        kind="not-ready",
+        headers={"Retry-After": str(READY_RETRY_AFTER_S)},
+        extra={"checks": checks},
+    )
+
+
+@router.get(
+    "/healthz/workers",
+    response_model=WorkersHealth,
+    responses={503: {"model": WorkersUnavailable, "description": "frames are not all processed: `checks` says why"}},
+    tags=["operations"],
+    summary="The workers take the frames accepted (apart from readiness)",
+    description="The queue's own checks (Redis: it answers, the consumer group exists) and whether workers process "
+    "frames: this process's worker threads or processes alive, each with a fresh heartbeat; workers elsewhere: some "
+    "fresh heartbeat. The same as the gauge `arcloud_workers_up`.",
+)
+def workers_health(runtime: RuntimeDep) -> Response:
+    health = runtime.ingest.workers_health()
+    if health.ok:
+        return JSONResponse({"status": "ok", "checks": health.checks, "live": health.live, "expected": health.expected})
+    wrong = "; ".join(f"{name}: {value}" for name, value in health.checks.items() if value != "ok")
+    return problem_response(
+        503,
+        f"workers unavailable ({wrong})",
+        kind="workers-unavailable",
+        headers={"Retry-After": str(READY_RETRY_AFTER_S)},
+        extra={"checks": health.checks, "live": health.live, "expected": health.expected},
+    )
+
+
+@router.get(
+    TYPE_PREFIX + "{name}",
+    response_model=ProblemTypeOut,
+    responses={404: {"model": Problem, "description": "no such problem type"}},
+    tags=["operations"],
+    summary="What a problem type means (the `type` of an error answer)",
+)
+async def problem_type(name: Annotated[str, Path(description="the last part of a problem's `type`")]) -> dict[str, Any]:
+    found = PROBLEM_TYPES.get(name)
+    if found is None:
+        raise HTTPException(404, f"problem type {name[:64]!r} not found: expected one of {', '.join(sorted(PROBLEM_TYPES))}")
+    return {"type": found.uri, "title": found.title, "statuses": list(found.statuses), "description": found.description}
 
 
 @router.get("/metrics", tags=["operations"], summary="Prometheus metrics", response_class=Response)
@@ -635,63 +681,83 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     app.state.metrics_registry = registry
 
     def problem(
-        request: Request, status: int, detail: str, field_name: str | None = None, headers: dict[str, str] | None = None
-    ) -> JSONResponse:
+        request: Request,
+        status: int,
+        detail: str,
+        field_name: str | None = None,
+        headers: dict[str, str] | None = None,
+        kind: str | None = None,
+    ) -> Response:
         if request.method == "POST" and request.url.path.endswith("/frames"):
             rejected.labels(status=str(status)).inc()
-        return JSONResponse({"detail": detail, "field": field_name}, status_code=status, headers=headers)
+        return problem_response(status, detail, field_name, kind=kind, headers=headers)
 
     @app.exception_handler(InvalidInput)
-    async def invalid_input(request: Request, exc: InvalidInput) -> JSONResponse:
+    async def invalid_input(request: Request, exc: InvalidInput) -> Response:
         return problem(request, 422, str(exc), exc.field)
 
     @app.exception_handler(Refused)
-    async def refused(request: Request, exc: Refused) -> JSONResponse:
+    async def refused(request: Request, exc: Refused) -> Response:
         return problem(request, exc.status, exc.detail, exc.field, exc.headers)
 
     @app.exception_handler(BodyTooLarge)
-    async def too_large(request: Request, exc: BodyTooLarge) -> JSONResponse:
+    async def too_large(request: Request, exc: BodyTooLarge) -> Response:
         return problem(request, 413, str(exc), "body")
 
     @app.exception_handler(QueueFull)
-    async def queue_full(request: Request, exc: QueueFull) -> JSONResponse:
-        return problem(request, 503, f"queue full: {exc}", None, {"Retry-After": "1"})
+    async def queue_full(request: Request, exc: QueueFull) -> Response:
+        return problem(request, 503, f"queue full: {exc}", None, {"Retry-After": "1"}, kind="queue-full")
 
     @app.exception_handler(MapMismatch)
-    async def map_mismatch(request: Request, exc: MapMismatch) -> JSONResponse:
+    async def map_mismatch(request: Request, exc: MapMismatch) -> Response:
         return problem(request, 409, str(exc), "map_id")
 
     @app.exception_handler(StoreUnavailable)
-    async def store_down(request: Request, exc: StoreUnavailable) -> JSONResponse:
+    async def store_down(request: Request, exc: StoreUnavailable) -> Response:
         log.error("store unavailable: %s", exc)
-        return problem(request, 503, f"store unavailable: {exc}", None, {"Retry-After": "5"})
+        return problem(request, 503, f"store unavailable: {exc}", None, {"Retry-After": "5"}, kind="store-unavailable")
 
     @app.exception_handler(StarletteHTTPException)
-    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def http_error(request: Request, exc: StarletteHTTPException) -> Response:
         headers = dict(exc.headers or {})
+        detail = str(exc.detail)
+        request_line = f"{request.method} {request.url.path[:200]}"
         if exc.status_code == 405:  # Starlette's Allow names the first route of the path only (GET of GET and PUT)
             headers["Allow"] = allowed_methods(request.app, request.scope)
-        return problem(request, exc.status_code, str(exc.detail), None, headers)
+            detail = f"{request_line}: method not allowed (the route takes {headers['Allow']})"
+        elif exc.status_code == 404 and detail == "Not Found":  # the router's: no route has this path
+            detail = f"{request_line}: no such route (the routes: /openapi.json)"
+        return problem(request, exc.status_code, detail, None, headers)
 
     @app.exception_handler(ClientDisconnect)
-    async def client_gone(request: Request, exc: ClientDisconnect) -> JSONResponse:
+    async def client_gone(request: Request, exc: ClientDisconnect) -> Response:
         # The client closed the connection mid-body: nobody reads this answer, but the app must give one (else a
         # 500 and a traceback in the log for every upload a client abandons).
         log.info("%s %s: the client disconnected before sending the whole body", request.method, request.url.path)
         return problem(request, 400, "body: the client disconnected before sending all of it", "body")
 
     @app.exception_handler(Exception)
-    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
-        # Starlette's last resort answers 500 in plain text; this answers the usual JSON problem, telling nothing of
+    async def internal_error(request: Request, exc: Exception) -> Response:
+        # Starlette's last resort answers 500 in plain text; this answers the usual problem, telling nothing of
         # the cause (the server logs the traceback: Starlette raises the exception again after this answer).
         return problem(request, 500, "internal error: the service's log has the details", None)
 
     @app.exception_handler(RequestValidationError)
-    async def bad_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def bad_request(request: Request, exc: RequestValidationError) -> Response:
         first = exc.errors()[0] if exc.errors() else {"loc": (), "msg": "invalid request"}
         where = ".".join(str(p) for p in first["loc"][1:]) or ".".join(str(p) for p in first["loc"])
         got = first.get("input")
         return problem(request, 422, f"{where}: {first['msg']}" + (f", got {got!r}" if got is not None else ""), where or None)
+
+    fastapi_openapi = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        """FastAPI's schema (made once), with every error answer documented as sent: ``application/problem+json``."""
+        if app.openapi_schema is None:
+            app.openapi_schema = problem_openapi(fastapi_openapi())
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]  # FastAPI's documented way to change the schema
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
     app.include_router(router)

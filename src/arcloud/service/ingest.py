@@ -142,34 +142,56 @@ class Ingest:
             return sum(t.is_alive() for t in self._threads)
         return len(self.queue.live_consumers(LIVE_WORKER_S))
 
-    def ready(self) -> dict[str, str]:
-        """Check name -> "ok" or what is wrong: the queue's own checks (Redis: it answers, the consumer
-        group exists), and whether workers process frames: threads alive; worker processes alive, each
-        with a fresh heartbeat (a worker beats only while its reads succeed); workers elsewhere: some
-        fresh heartbeat."""
+    def workers_health(self) -> WorkersReport:
+        """Whether the frames accepted get processed (``/healthz/workers``; not part of this process's readiness):
+        the queue's own checks (Redis: it answers, the consumer group exists), the detector of the worker threads,
+        and the workers: threads alive; worker processes alive, each with a fresh heartbeat (a worker beats only
+        while its reads succeed); workers elsewhere: some fresh heartbeat."""
         checks = self.queue.health()
         if self.workers:
-            alive, total = sum(t.is_alive() for t in self._threads), len(self.workers)
-            checks["workers"] = "ok" if alive == total else f"{alive} of {total} worker threads alive"
-        elif self.pool is not None:
+            alive = [w.consumer for w, t in zip(self.workers, self._threads) if t.is_alive()]
+            total = len(self.workers)
+            checks["detector"] = "ok"  # the threads' detector, loaded before the app started
+            checks["workers"] = "ok" if len(alive) == total else f"{len(alive)} of {total} worker threads alive"
+            return WorkersReport(checks, alive, total)
+        if self.pool is not None:
             pids = [p.pid for p in self.pool.processes if p.is_alive()]
             total = self.pool.size
+            reading: list[str] = []
             if len(pids) < total:
                 checks["workers"] = f"{len(pids)} of {total} worker processes alive"
             elif all(v == "ok" for v in checks.values()):
                 beating = set(self.queue.live_consumers(LIVE_WORKER_S))
-                reading = sum(consumer_name(pid) in beating for pid in pids)
+                reading = sorted(consumer_name(pid) for pid in pids if consumer_name(pid) in beating)
                 checks["workers"] = (
                     "ok"
-                    if reading == total
-                    else f"{reading} of {total} worker processes reading (heartbeat in {LIVE_WORKER_S:.0f} s)"
+                    if len(reading) == total
+                    else f"{len(reading)} of {total} worker processes reading (heartbeat in {LIVE_WORKER_S:.0f} s)"
                 )
             else:
                 checks["workers"] = "unknown: the queue is not ready"
-        elif all(v == "ok" for v in checks.values()):
+            return WorkersReport(checks, reading, total)
+        live: list[str] = []
+        if all(v == "ok" for v in checks.values()):
             live = self.queue.live_consumers(LIVE_WORKER_S)
             checks["workers"] = "ok" if live else f"no worker heartbeat in {LIVE_WORKER_S:.0f} s (frames wait in the stream)"
-        return checks
+        else:
+            checks["workers"] = "unknown: the queue is not ready"
+        return WorkersReport(checks, live, None)
 
 
-__all__ = ["Accepted", "Ingest", "MapCounts"]
+@dataclass(frozen=True, slots=True)
+class WorkersReport:
+    """``Ingest.workers_health``: check name -> ``ok`` or what is wrong; the workers taking frames (consumer
+    names); how many this process started (None: workers run elsewhere, any one will do)."""
+
+    checks: dict[str, str]
+    live: list[str]
+    expected: int | None
+
+    @property
+    def ok(self) -> bool:
+        return all(v == "ok" for v in self.checks.values())
+
+
+__all__ = ["Accepted", "Ingest", "MapCounts", "WorkersReport"]

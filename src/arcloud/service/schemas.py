@@ -231,18 +231,29 @@ class MapDeleted(BaseModel):
 
 
 class Problem(BaseModel):
-    """Every 4xx/5xx body: what was wrong (``field`` names the input at fault, when one is)."""
+    """Every 4xx/5xx body: an RFC 9457 problem, ``application/problem+json`` (``service.problems``): its ``type``
+    (a URI reference: ``GET`` it for the type's description) and ``title``, the ``status``, what was wrong
+    (``detail``) and the input at fault (``field``, when one is)."""
 
     model_config = ConfigDict(
         json_schema_extra={
             "examples": [
-                {"detail": "cam2world: expected a proper rotation (det +1), got a reflection (det -1)", "field": "cam2world"}
+                {
+                    "type": "/problems/invalid-input",
+                    "title": "Invalid input",
+                    "status": 422,
+                    "detail": "cam2world: expected a proper rotation (det +1), got a reflection (det -1)",
+                    "field": "cam2world",
+                }
             ]
         }
     )
 
-    detail: str
-    field: str | None = None
+    type: str = Field(description="the kind of problem: a URI reference (`/problems/<name>`), or about:blank")
+    title: str = Field(description="the type's title, the same for every occurrence")
+    status: int = Field(description="the HTTP status")
+    detail: str = Field(description="what was wrong, naming the input at fault first when there is one")
+    field: str | None = Field(None, description="the input at fault (a parameter, a part, a field of the frame), or null")
 
 
 class Health(BaseModel):
@@ -250,12 +261,57 @@ class Health(BaseModel):
 
 
 class Ready(BaseModel):
-    """``/readyz``; not ready (503, with Retry-After) also carries the problem's ``detail`` and ``field``."""
+    """``/readyz`` 200: this process takes and answers requests (each check ``ok``)."""
 
-    status: Literal["ready", "not ready"]
+    status: Literal["ready"]
     checks: dict[str, str]
-    detail: str | None = None
-    field: str | None = None
+
+
+class NotReady(Problem):
+    """``/readyz`` 503: the problem, with the checks (check name -> ``ok`` or what is wrong)."""
+
+    checks: dict[str, str]
+
+
+class WorkersHealth(BaseModel):
+    """``/healthz/workers``: whether the frames accepted get processed. ``live``: the workers taking frames (their
+    consumer names); ``expected``: how many this process started (threads or processes), null for workers that
+    run elsewhere (then any one is enough)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "status": "ok",
+                    "checks": {"redis": "ok", "consumer_group": "ok", "workers": "ok"},
+                    "live": ["w1-7"],
+                    "expected": None,
+                }
+            ]
+        }
+    )
+
+    status: Literal["ok"]
+    checks: dict[str, str]
+    live: list[str]
+    expected: int | None
+
+
+class WorkersUnavailable(Problem):
+    """``/healthz/workers`` 503: the problem, with the checks and the workers of ``WorkersHealth``."""
+
+    checks: dict[str, str]
+    live: list[str]
+    expected: int | None
+
+
+class ProblemTypeOut(BaseModel):
+    """What a problem ``type`` means (``GET /problems/{name}``)."""
+
+    type: str
+    title: str
+    statuses: list[int]
+    description: str
 
 
 def iso_time(seconds: float) -> str | None:
