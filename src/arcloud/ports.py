@@ -10,6 +10,8 @@
   Redis ``stores.redis_api_keys``).
 - ``RateLimiter``: token buckets shared by every API process (``stores.memory_rate``, ``stores.redis_rate``).
 - ``MapArchive``: a map as one file and back, on any ``ObjectStore`` (``stores.snapshot``).
+- ``DeviceAlignments``: each device's ``device_from_map`` per map (``core.conventions``), shared by every API
+  process (``stores.memory_alignments``, ``stores.redis_alignments``).
 
 The service (``arcloud.service``) talks to these and never to an adapter; ``arcloud.tools.wiring``
 chooses the adapters.
@@ -22,6 +24,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
+import numpy as np
+
 from arcloud.access import ApiKey
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
@@ -31,6 +35,7 @@ from arcloud.errors import ArcloudError, InvalidInput
 __all__ = [
     "LATENCY_BUCKETS_S",
     "Detector",
+    "DeviceAlignments",
     "FailedFrame",
     "FrameQueue",
     "FrameTimings",
@@ -502,6 +507,36 @@ class RateLimiter(Protocol):
 
     def take(self, bucket: str, *, rate_per_s: float, burst: int) -> float:
         """Spend one token of ``bucket``: 0.0 when allowed, else the seconds until one is (nothing spent)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+# --- device alignments ------------------------------------------------------------------------------
+class DeviceAlignments(Protocol):
+    """Each device's ``device_from_map`` per map: a rigid (4, 4), checked before it is put (``core.conventions.
+    check_device_from_map``), applied by the API to every frame of the device that brings none of its own.
+    Kept apart from the map's objects: deleting the map's objects (``ObjectStore.delete_map``) leaves them,
+    ``forget_map`` removes them. Safe to call from many threads (and, shared, many processes)."""
+
+    def get(self, map_id: str, device_id: str) -> np.ndarray | None:
+        """The device's alignment, a new (4, 4) float64 array; None when it has none."""
+        ...
+
+    def put(self, map_id: str, device_id: str, device_from_map: np.ndarray) -> None:
+        """Set (or replace) the device's alignment."""
+        ...
+
+    def delete(self, map_id: str, device_id: str) -> bool:
+        """Remove the device's alignment; False when it had none."""
+        ...
+
+    def of_map(self, map_id: str) -> dict[str, np.ndarray]:
+        """Every device of the map with an alignment -> its alignment."""
+        ...
+
+    def forget_map(self, map_id: str) -> None:
+        """Remove every alignment of the map."""
         ...
 
     def close(self) -> None: ...

@@ -58,6 +58,9 @@ def test_field_numbers_never_change() -> None:
         "depth_scale": 11,
         "width": 12,
         "height": 13,
+        "pose_convention": 14,
+        "world_up": 15,
+        "device_from_map": 16,
     }
     assert numbers(pb.Intrinsics) == {"fx": 1, "fy": 2, "cx": 3, "cy": 4}
     assert numbers(pb.Object) == {
@@ -91,6 +94,12 @@ def test_field_numbers_never_change() -> None:
         "DEPTH_ENCODING_PNG": 1,
         "DEPTH_ENCODING_RAW_UINT16": 2,
         "DEPTH_ENCODING_RAW_FLOAT32": 3,
+    }
+    assert dict(pb.PoseConvention.items()) == {
+        "POSE_CONVENTION_UNSPECIFIED": 0,
+        "POSE_CONVENTION_OPENCV": 1,
+        "POSE_CONVENTION_ARKIT": 2,
+        "POSE_CONVENTION_ARCORE": 3,
     }
     assert dict(pb.ObjectEvent.Kind.items()) == {
         "KIND_UNSPECIFIED": 0,

@@ -15,7 +15,9 @@ frames it had accepted (``sent``), and ``wait_until_processed(map_id)`` waits un
 done (asking each frame's status), however many frames other clients sent to the map.
 
 Frames travel as protobuf (``arcloud.v1.Frame``: JPEG colour, 16-bit PNG depth in millimetres by
-default).
+default). An AR app's poses go as they come, with how to read them: ``send_frame(...,
+pose_convention="arkit")`` (or ``"arcore"``; ``world_up=``, ``device_from_map=``: ``arcloud.core.conventions``,
+docs/ar-apps.md); ``set_device_alignment`` stores a device's ``device_from_map`` (an admin key's).
 
 Retries (``RetryPolicy``): a request that could not be sent or answered (connect or read error, a
 dropped connection, a timeout) and a 429, 502, 503 or 504 answer are tried again, ``max_retries``
@@ -46,6 +48,7 @@ from arcloud.core.types import Frame, Intrinsics
 from arcloud.errors import ArcloudError
 
 if TYPE_CHECKING:
+    from arcloud.core.conventions import PoseConvention
     from arcloud.events.zenoh import SessionMode, Subscription
     from arcloud.proto.arcloud.v1 import arcloud_pb2
     from arcloud.proto.convert import RgbEncodingName
@@ -69,6 +72,19 @@ def auth_headers(token: str | None) -> dict[str, str]:
     """``Authorization: Bearer`` with ``token``, else ``$ARCLOUD_TOKEN``; none when neither is set."""
     token = token if token is not None else os.environ.get(TOKEN_ENV) or None
     return {"Authorization": f"Bearer {token}"} if token else {}
+
+
+def alignment_path(map_id: str, device_id: str) -> str:
+    """A device's alignment route, the ids percent-encoded."""
+    return "/v1/maps/" + "/".join(quote(part, safe="") for part in (map_id, "devices", device_id, "alignment"))
+
+
+def alignment_body(device_from_map: np.ndarray | Sequence[float] | Sequence[Sequence[float]]) -> dict[str, Any]:
+    """The JSON body of a device's alignment: its 4 rows."""
+    matrix = np.asarray(device_from_map, np.float64)
+    if matrix.size != 16:
+        raise ArcloudError(f"device_from_map: expected a 4x4 matrix (16 numbers), got {matrix.size} numbers")
+    return {"device_from_map": matrix.reshape(4, 4).tolist()}
 
 
 def frame_status_path(map_id: str, device_id: str, frame_id: str) -> str:
@@ -105,12 +121,24 @@ def frame_body(
     frame_id: str = "",
     depth_scale: float = 1000.0,
     rgb_encoding: RgbEncodingName = "jpeg",
+    pose_convention: PoseConvention = "opencv",
+    world_up: Sequence[float] | None = None,
+    device_from_map: np.ndarray | None = None,
 ) -> tuple[str, bytes]:
-    """(map id, protobuf bytes) of a frame given as a ``Frame`` or as arrays (validated here first)."""
+    """(map id, protobuf bytes) of a frame given as a ``Frame`` or as arrays (validated here first).
+    ``pose_convention`` (``opencv``, ``arkit``, ``arcore``), ``world_up`` and ``device_from_map`` say how the
+    service is to read the pose (``arcloud.core.conventions``)."""
     from arcloud.proto.convert import frame_to_proto
 
     if frame is not None:
-        msg = frame_to_proto(frame, rgb_encoding=rgb_encoding, depth_scale=depth_scale)
+        msg = frame_to_proto(
+            frame,
+            rgb_encoding=rgb_encoding,
+            depth_scale=depth_scale,
+            pose_convention=pose_convention,
+            world_up=world_up,
+            device_from_map=device_from_map,
+        )
     else:
         msg = frame_to_proto(
             rgb=rgb,
@@ -123,6 +151,9 @@ def frame_body(
             frame_id=frame_id,
             depth_scale=depth_scale,
             rgb_encoding=rgb_encoding,
+            pose_convention=pose_convention,
+            world_up=world_up,
+            device_from_map=device_from_map,
         )
     target = map_id or msg.map_id
     if not target:
@@ -418,7 +449,8 @@ class ArcloudClient:
     def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
         """Upload one frame: ``send_frame(frame)`` or ``send_frame(map_id=, rgb=, depth=, intrinsics=,
         cam2world=, timestamp_s=, device_id=, frame_id=, depth_scale=)`` (rgb (H, W, 3) uint8, depth
-        (H, W) float32 metres or uint16 units). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
+        (H, W) float32 metres or uint16 units), with ``pose_convention=``, ``world_up=``, ``device_from_map=``
+        for an AR app's pose (``frame_body``). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
         map_id, body = frame_body(frame, **arrays)
         answer = self._request(
             "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
@@ -461,6 +493,27 @@ class ArcloudClient:
         """The map as a file's bytes (``GET /v1/maps/{map}/export``): ``fmt`` json, ply, glb or scannet (a zip);
         ``options``: include="tentative", color="class", voxels=True."""
         return checked_content(self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options)))
+
+    def set_device_alignment(
+        self, map_id: str, device_id: str, device_from_map: np.ndarray | Sequence[float] | Sequence[Sequence[float]]
+    ) -> dict[str, Any]:
+        """Store where the device's session world stands in the map (an admin key's): ``device_from_map``, a rigid
+        4x4 mapping map points to the device's world (``arcloud.core.conventions``), applied to every frame the
+        device sends from now on without one of its own. Returns ``{"map_id", "device_id", "device_from_map"}``."""
+        return self._request("PUT", alignment_path(map_id, device_id), idempotent=True, json=alignment_body(device_from_map))
+
+    def device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
+        """The device's stored alignment; ``ServiceError`` 404 when it has none."""
+        return self._request("GET", alignment_path(map_id, device_id))
+
+    def delete_device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
+        """Remove the device's alignment (an admin key's): ``{"map_id", "device_id", "deleted"}``."""
+        return self._request("DELETE", alignment_path(map_id, device_id))
+
+    def device_alignments(self, map_id: str) -> list[dict[str, Any]]:
+        """Every stored alignment of the map, by device id."""
+        found: list[dict[str, Any]] = self._request("GET", f"/v1/maps/{map_id}/alignments")["alignments"]
+        return found
 
     def snapshot(self, map_id: str) -> bytes:
         """The whole map as one file (an admin key's; ``GET /v1/maps/{map}/snapshot``)."""
@@ -631,6 +684,23 @@ class AsyncArcloudClient:
 
     async def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
         return checked_content(await self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options)))
+
+    async def set_device_alignment(
+        self, map_id: str, device_id: str, device_from_map: np.ndarray | Sequence[float] | Sequence[Sequence[float]]
+    ) -> dict[str, Any]:
+        return await self._request(
+            "PUT", alignment_path(map_id, device_id), idempotent=True, json=alignment_body(device_from_map)
+        )
+
+    async def device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
+        return await self._request("GET", alignment_path(map_id, device_id))
+
+    async def delete_device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
+        return await self._request("DELETE", alignment_path(map_id, device_id))
+
+    async def device_alignments(self, map_id: str) -> list[dict[str, Any]]:
+        found: list[dict[str, Any]] = (await self._request("GET", f"/v1/maps/{map_id}/alignments"))["alignments"]
+        return found
 
     async def snapshot(self, map_id: str) -> bytes:
         return checked_content(await self._send("GET", f"/v1/maps/{map_id}/snapshot"))

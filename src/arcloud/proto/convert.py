@@ -1,7 +1,9 @@
 """Conversions between the wire messages (``arcloud.v1``) and the core types.
 
 Frames coming in are decoded (JPEG/PNG with OpenCV) and validated by ``arcloud.core.checks.make_frame``;
-every problem is an ``InvalidInput`` naming the message field. Objects and events going out become
+every problem is an ``InvalidInput`` naming the message field. A frame's pose is read as the message declares
+it (``pose_convention``, ``world_up``, ``device_from_map``: ``arcloud.core.conventions``) and becomes the
+OpenCV camera's pose in the map's world, in the frame and in the message (``to_map_world``). Objects and events going out become
 ``Object`` / ``ObjectEvent`` snapshots (no voxels), with their status (``MapObject.confirmed`` ->
 ``Object.STATUS_CONFIRMED`` or ``STATUS_TENTATIVE``).
 """
@@ -16,7 +18,8 @@ from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 
-from arcloud.core.checks import make_frame
+from arcloud.core.checks import check_pose, make_frame
+from arcloud.core.conventions import PoseConvention, cam2map, check_convention, check_device_from_map, check_up
 from arcloud.core.types import AABB, OBB, Frame, Intrinsics, ObjectEvent
 from arcloud.errors import InvalidInput
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
@@ -38,6 +41,11 @@ DEPTH_ENCODINGS: dict[str, pb.DepthEncoding] = {
     "png": pb.DEPTH_ENCODING_PNG,
     "raw_uint16": pb.DEPTH_ENCODING_RAW_UINT16,
     "raw_float32": pb.DEPTH_ENCODING_RAW_FLOAT32,
+}
+POSE_CONVENTIONS: dict[str, pb.PoseConvention] = {
+    "opencv": pb.POSE_CONVENTION_OPENCV,
+    "arkit": pb.POSE_CONVENTION_ARKIT,
+    "arcore": pb.POSE_CONVENTION_ARCORE,
 }
 EVENT_KINDS: dict[str, pb.ObjectEvent.Kind] = {
     "created": pb.ObjectEvent.KIND_CREATED,
@@ -91,15 +99,62 @@ class ObjectLike(Protocol):
 
 
 # --- frames in --------------------------------------------------------------------------------------
-def frame_from_proto(msg: pb.Frame, *, lossless_to_raw: bool = False) -> Frame:
-    """A validated ``Frame`` from a wire ``Frame``; ``InvalidInput`` names the first wrong field.
+def declared_convention(msg: pb.Frame) -> PoseConvention:
+    """The message's ``pose_convention`` by name (``UNSPECIFIED``: ``opencv``, what frames always meant)."""
+    if msg.pose_convention == pb.POSE_CONVENTION_UNSPECIFIED:
+        return "opencv"
+    for name, value in POSE_CONVENTIONS.items():
+        if msg.pose_convention == value:
+            return check_convention("pose_convention", name)
+    raise InvalidInput("pose_convention", "POSE_CONVENTION_OPENCV, _ARKIT or _ARCORE (or none: OpenCV)", msg.pose_convention)
+
+
+def to_map_world(
+    msg: pb.Frame, *, map_up: Sequence[float] | np.ndarray = (0.0, 0.0, 1.0), device_from_map: np.ndarray | None = None
+) -> None:
+    """The message's pose, read as it declares it (``pose_convention``, ``world_up``, ``device_from_map``; without
+    one of its own, ``device_from_map``: the device's stored alignment, checked when it was stored), written back
+    as the OpenCV camera's pose in the world of a map whose up is ``map_up`` (``core.conventions.cam2map``), and
+    the declaration cleared: whoever reads the message after this reads that pose. Nothing changes for a message
+    that declares nothing when no ``device_from_map`` is given. ``InvalidInput`` names the field at fault."""
+    declares = msg.pose_convention != pb.POSE_CONVENTION_UNSPECIFIED or msg.HasField("world_up") or len(msg.device_from_map) > 0
+    if not declares and device_from_map is None:
+        return
+    convention = declared_convention(msg)
+    _check_pose_length(msg)
+    pose = check_pose("cam2world", np.array(msg.cam2world, np.float64).reshape(4, 4))
+    world_up = check_up("world_up", (msg.world_up.x, msg.world_up.y, msg.world_up.z)) if msg.HasField("world_up") else None
+    if len(msg.device_from_map) > 0:
+        device_from_map = check_device_from_map("device_from_map", np.array(msg.device_from_map, np.float64), map_up)
+    converted = cam2map(pose, convention, world_up, map_up, device_from_map)
+    del msg.cam2world[:]
+    msg.cam2world.extend(float(v) for v in converted.reshape(16))
+    for name in ("pose_convention", "world_up", "device_from_map"):
+        msg.ClearField(name)
+
+
+def _check_pose_length(msg: pb.Frame) -> None:
+    if len(msg.cam2world) != 16:
+        raise InvalidInput("cam2world", "16 values (a row-major 4x4 matrix)", f"{len(msg.cam2world)} values")
+
+
+def frame_from_proto(
+    msg: pb.Frame,
+    *,
+    lossless_to_raw: bool = False,
+    map_up: Sequence[float] | np.ndarray = (0.0, 0.0, 1.0),
+    device_from_map: np.ndarray | None = None,
+) -> Frame:
+    """A validated ``Frame`` from a wire ``Frame``; ``InvalidInput`` names the first wrong field. Its pose is
+    the OpenCV camera's in the world of a map whose up is ``map_up``: ``to_map_world`` (with the device's stored
+    alignment ``device_from_map``, if any) rewrites the message's first.
     ``lossless_to_raw``: once the frame is valid, the message's PNG images are replaced in place by the
     pixels decoded here (``RAW_UINT16`` depth, ``RAW_RGB8`` colour, with width and height), so that whoever
     carries the message on does not decode them again; JPEG stays as uploaded (lossy: never re-encoded)."""
     if not msg.HasField("intrinsics"):
         raise InvalidInput("intrinsics", "fx, fy, cx, cy", "nothing")
-    if len(msg.cam2world) != 16:
-        raise InvalidInput("cam2world", "16 values (a row-major 4x4 matrix)", f"{len(msg.cam2world)} values")
+    _check_pose_length(msg)
+    to_map_world(msg, map_up=map_up, device_from_map=device_from_map)
     rgb = _decode_rgb(msg)
     depth = _decode_depth(msg)
     if msg.depth_encoding == pb.DEPTH_ENCODING_RAW_FLOAT32:
@@ -225,12 +280,19 @@ def frame_to_proto(
     rgb_encoding: RgbEncodingName = "jpeg",
     depth_encoding: DepthEncodingName = "png",
     jpeg_quality: int = 90,
+    pose_convention: PoseConvention = "opencv",
+    world_up: Sequence[float] | np.ndarray | None = None,
+    device_from_map: Sequence[float] | np.ndarray | None = None,
 ) -> pb.Frame:
     """A wire ``Frame`` from a ``Frame``, or from arrays (validated first, as ``make_frame`` does).
 
     rgb (H, W, 3) uint8 RGB; depth (H, W) float32 metres, or uint16 units with ``depth_scale`` units per
     metre. uint16 encodings (``png``, ``raw_uint16``) quantise metres to 1 / ``depth_scale`` (1 mm by
     default); depths beyond 65535 units become 0 (no depth). ``jpeg`` is lossy, ``png`` and ``raw`` are not.
+
+    How the service is to read ``cam2world`` (``arcloud.core.conventions``): ``pose_convention`` (``opencv``,
+    ``arkit`` or ``arcore``), ``world_up`` (3 numbers: up in cam2world's world; None: the convention's) and
+    ``device_from_map`` (a rigid 4x4: map points to the device's world; None: the device's stored alignment).
     """
     if rgb_encoding not in RGB_ENCODINGS:
         raise InvalidInput("rgb_encoding", f"one of {sorted(RGB_ENCODINGS)}", rgb_encoding)
@@ -266,6 +328,13 @@ def frame_to_proto(
         width=width,
         height=height,
     )
+    if check_convention("pose_convention", pose_convention) != "opencv":
+        msg.pose_convention = POSE_CONVENTIONS[pose_convention]
+    if world_up is not None:
+        x, y, z = (float(v) for v in check_up("world_up", world_up))
+        msg.world_up.CopyFrom(pb.Vec3(x=x, y=y, z=z))
+    if device_from_map is not None:
+        msg.device_from_map.extend(float(v) for v in check_pose("device_from_map", device_from_map).reshape(16))
     msg.rgb = _encode_rgb(frame.rgb, rgb_encoding, jpeg_quality)
     if depth_encoding == "raw_float32":
         msg.depth = frame.depth_m.astype("<f4").tobytes()

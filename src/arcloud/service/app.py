@@ -16,6 +16,7 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/export           ?format=json|ply|glb|scannet &include=tentative &color= &voxels=
     GET    /v1/maps/{map_id}/events           server-sent object events (service.event_stream, viewer_routes)
     GET    /v1/maps/{map_id}/frames/{device}/{frame}   where an accepted frame is
+    PUT    /v1/maps/{map_id}/devices/{device}/alignment   a device's device_from_map (admin; GET, DELETE: alignment_routes)
     GET    /viewer                            the web viewer (static files, open: they hold no data)
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
     GET    /healthz/workers                   whether the workers process what is accepted (apart from /readyz)
@@ -263,6 +264,8 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
             map_id,
             max_pixels=settings.max_frame_pixels,
             queue_decoded_png=settings.queue_decoded_png,
+            map_up=runtime.params.up,
+            alignments=runtime.alignments,
         )
     )
     bind_log_context(map_id=frame.map_id, device_id=frame.device_id, frame_id=frame.frame_id)  # to the response's log line
@@ -528,12 +531,14 @@ def retired_objects(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     dependencies=[Depends(require("admin"))],
     responses=PROBLEM_RESPONSES,
     tags=["maps"],
-    summary="Delete a map and its counts",
+    summary="Delete a map, its counts and its devices' alignments",
 )
 def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
     known_map(runtime, map_id, same_settings=False)
     removed = runtime.store.delete_map(map_id)
     runtime.ingest.forget_map(map_id)
+    if runtime.alignments is not None:
+        runtime.alignments.forget_map(map_id)
     log.info("map %s deleted (%d objects)", map_id, removed)
     return MapDeleted(map_id=map_id, deleted_objects=removed)
 
@@ -761,11 +766,12 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
     app.include_router(router)
-    from arcloud.service import docs_routes, event_stream, viewer_routes  # here: the last two import this module
+    from arcloud.service import alignment_routes, docs_routes, event_stream, viewer_routes  # here: most import this module
 
     app.include_router(event_stream.router)
     app.include_router(viewer_routes.router)
     app.include_router(docs_routes.router)
+    app.include_router(alignment_routes.router)
     return app
 
 

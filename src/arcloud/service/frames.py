@@ -6,6 +6,10 @@ file). Both become one message. Everything is checked before the frame is queued
 sizes (pixels are counted from the headers before decoding, so a small file cannot expand into a huge
 image), decoding, dtypes, shapes, pose, ids, and the map id of the body against the path.
 
+The pose is taken into the map's world with OpenCV camera axes here, at the edge (``proto.convert.to_map_world``:
+the frame's declared ``pose_convention`` and ``world_up``, and its ``device_from_map`` or else the device's
+stored alignment, ``ports.DeviceAlignments``): the queue, the workers and the core see only that pose.
+
 The ingest queues the validated ``Frame`` with its message (a queue that serialises, such as the Redis
 one, carries the message rather than encoding the frame again: with its PNG images replaced by the pixels
 decoded here, unless ``Settings.queued_images`` says ``uploaded``).
@@ -15,16 +19,17 @@ from __future__ import annotations
 
 import json
 import struct
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from pydantic import ValidationError
 
-from arcloud.core.checks import check_depth_scale, check_map_id, check_plausible_frame, describe
+from arcloud.core.checks import check_depth_scale, check_id, check_map_id, check_plausible_frame, describe
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput
+from arcloud.ports import DeviceAlignments
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
-from arcloud.proto.convert import frame_from_proto
+from arcloud.proto.convert import POSE_CONVENTIONS, frame_from_proto
 from arcloud.service.schemas import FrameMeta
 
 PROTOBUF_MEDIA_TYPES = ("application/x-protobuf", "application/protobuf", "application/vnd.google.protobuf")
@@ -86,7 +91,7 @@ def message_from_parts(meta: FrameMeta, rgb: bytes, depth: bytes, map_id: str) -
     if not depth.startswith(PNG_MAGIC):
         raise InvalidInput("depth", "a 16-bit PNG image", f"{len(depth)} bytes starting with {depth[:8]!r}")
     i = meta.intrinsics
-    return pb.Frame(
+    msg = pb.Frame(
         map_id=meta.map_id or map_id,
         device_id=meta.device_id,
         frame_id=meta.frame_id,
@@ -99,6 +104,14 @@ def message_from_parts(meta: FrameMeta, rgb: bytes, depth: bytes, map_id: str) -
         depth_encoding=pb.DEPTH_ENCODING_PNG,
         depth_scale=meta.depth_scale,
     )
+    if meta.pose_convention != "opencv":
+        msg.pose_convention = POSE_CONVENTIONS[meta.pose_convention]
+    if meta.world_up is not None:
+        x, y, z = meta.world_up
+        msg.world_up.CopyFrom(pb.Vec3(x=x, y=y, z=z))
+    if meta.device_from_map is not None:
+        msg.device_from_map.extend(meta.flat_device_from_map())
+    return msg
 
 
 def image_size(data: bytes) -> tuple[int, int] | None:
@@ -159,12 +172,19 @@ def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
 
 
 def validate_message(
-    msg: pb.Frame, map_id: str, *, max_pixels: int = DEFAULT_MAX_PIXELS, queue_decoded_png: bool = True
+    msg: pb.Frame,
+    map_id: str,
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    queue_decoded_png: bool = True,
+    map_up: Sequence[float] = (0.0, 0.0, 1.0),
+    alignments: DeviceAlignments | None = None,
 ) -> Frame:
     """The validated ``Frame`` of a message posted to ``map_id`` (the message's map id is set to the
     path's when empty, and must equal it otherwise). ``queue_decoded_png``: the message's PNG images become
     the pixels decoded here, for the queue to carry (``frame_from_proto(lossless_to_raw=True)``;
-    ``Settings.queued_images``)."""
+    ``Settings.queued_images``). The pose, in the message too, becomes the OpenCV camera's in the world of the
+    map (whose up is ``map_up``), with the device's alignment from ``alignments`` when the frame brings none."""
     check_map_id("map_id", map_id)
     if msg.map_id and msg.map_id != map_id:
         raise InvalidInput("map_id", f"the map id of the path ({map_id!r}) or none", repr(msg.map_id))
@@ -172,7 +192,11 @@ def validate_message(
     check_pixels(msg, max_pixels)
     if msg.depth_encoding != pb.DEPTH_ENCODING_RAW_FLOAT32:  # 16-bit depth: units per metre (float: metres)
         check_depth_scale(msg.depth_scale)
-    return check_plausible_frame(frame_from_proto(msg, lossless_to_raw=queue_decoded_png))
+    stored = None
+    if alignments is not None and not msg.device_from_map:
+        stored = alignments.get(map_id, check_id("device_id", msg.device_id))
+    frame = frame_from_proto(msg, lossless_to_raw=queue_decoded_png, map_up=map_up, device_from_map=stored)
+    return check_plausible_frame(frame)
 
 
 def form_bytes(form: Mapping[str, Any], name: str, what: str) -> bytes | None:

@@ -16,7 +16,16 @@ from typing import Protocol
 
 from arcloud.core.types import Params
 from arcloud.errors import InvalidInput
-from arcloud.ports import Detector, FrameQueue, KeyStore, MapArchive, ObjectStore, RateLimiter, UpdatePublisher
+from arcloud.ports import (
+    Detector,
+    DeviceAlignments,
+    FrameQueue,
+    KeyStore,
+    MapArchive,
+    ObjectStore,
+    RateLimiter,
+    UpdatePublisher,
+)
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Access, KeyCache
 from arcloud.service.ingest import Ingest
@@ -43,7 +52,8 @@ class Adapters:
     """What the composition root connected for one app. ``detector``: run the step in ``settings.workers``
     threads of this process (None: workers run elsewhere); ``pool``: worker processes to start and stop
     with the app; ``keys``: the API keys (None: auth none); ``limiter``: the rate limits (None: none);
-    ``archive``: map snapshots (None: no snapshot routes); ``owned``: closed on shutdown, last first."""
+    ``archive``: map snapshots (None: no snapshot routes); ``owned``: closed on shutdown, last first;
+    ``alignments``: the devices' stored alignments (None: no alignment routes, frames bring their own)."""
 
     store: ObjectStore
     queue: FrameQueue
@@ -54,6 +64,7 @@ class Adapters:
     limiter: RateLimiter | None = None
     archive: MapArchive | None = None
     owned: list[Closeable] = field(default_factory=list)
+    alignments: DeviceAlignments | None = None
 
 
 Connect = Callable[[Settings, FrameHandler], Adapters]
@@ -72,13 +83,19 @@ class Runtime:
     publisher: UpdatePublisher | None = None
     archive: MapArchive | None = None
     owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
+    alignments: DeviceAlignments | None = None
 
 
 def start_runtime(settings: Settings, connect: Connect) -> Runtime:
     """Connect the adapters, start the ingest. Blocking: loads models and connects."""
     params = settings.make_params()
     holder: dict[str, Ingest] = {}
-    adapters = connect(settings, lambda map_id, payload: ingest_published_frame(holder["ingest"], map_id, payload, settings))
+    adapters = connect(
+        settings,
+        lambda map_id, payload: ingest_published_frame(
+            holder["ingest"], map_id, payload, settings, map_up=params.up, alignments=adapters.alignments
+        ),
+    )
     if settings.auth_mode == "keys" and adapters.keys is None:
         close_all(adapters.owned)
         raise InvalidInput("auth", "a key store with auth keys (a Redis store or keys_file)", "none connected")
@@ -119,7 +136,16 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         raise
     log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
     return Runtime(
-        settings, params, adapters.store, ingest, access, adapters.detector, adapters.publisher, adapters.archive, adapters.owned
+        settings,
+        params,
+        adapters.store,
+        ingest,
+        access,
+        adapters.detector,
+        adapters.publisher,
+        adapters.archive,
+        adapters.owned,
+        adapters.alignments,
     )
 
 
@@ -129,12 +155,25 @@ def stop_runtime(runtime: Runtime) -> None:
     log.info("arcloud service stopped")
 
 
-def ingest_published_frame(ingest: Ingest, map_id: str, payload: bytes, settings: Settings) -> None:
+def ingest_published_frame(
+    ingest: Ingest,
+    map_id: str,
+    payload: bytes,
+    settings: Settings,
+    *,
+    map_up: tuple[float, float, float] = (0.0, 0.0, 1.0),
+    alignments: DeviceAlignments | None = None,
+) -> None:
     """A frame published on ``arcloud/<map_id>/frames/<device>``: validated and queued like an upload
-    (the map id of the key plays the part of the path's)."""
+    (the map id of the key plays the part of the path's; its pose taken into the map's world the same way)."""
     msg = frames_in.parse_message(payload)
     frame = frames_in.validate_message(
-        msg, map_id, max_pixels=settings.max_frame_pixels, queue_decoded_png=settings.queue_decoded_png
+        msg,
+        map_id,
+        max_pixels=settings.max_frame_pixels,
+        queue_decoded_png=settings.queue_decoded_png,
+        map_up=map_up,
+        alignments=alignments,
     )
     ingest.submit(frame, msg)
 

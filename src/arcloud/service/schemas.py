@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 Vec3 = tuple[float, float, float]
 ObjectStatus = Literal["confirmed", "tentative"]
+PoseConventionName = Literal["opencv", "arkit", "arcore"]  # core.conventions.POSE_CONVENTIONS
 
 
 class FrameAccepted(BaseModel):
@@ -65,12 +66,69 @@ class FrameMeta(BaseModel):
     cam2world: list[float] | list[list[float]] = Field(description="4x4 camera-to-world, row-major: 16 numbers or 4 rows of 4")
     depth_scale: float = Field(1000.0, description="depth units per metre of the 16-bit depth PNG (1000: millimetres)")
     map_id: str | None = Field(None, description="if given, must equal the map id of the path")
+    pose_convention: PoseConventionName = Field(
+        "opencv",
+        description="how cam2world is to be read: opencv (camera x right, y down, z forward), arkit or arcore "
+        "(camera x right, y up, z backwards; a y-up world); docs/ar-apps.md",
+    )
+    world_up: tuple[float, float, float] | None = Field(
+        None, description="up in cam2world's world; null: the convention's (opencv: the map's; arkit, arcore: +y)"
+    )
+    device_from_map: list[float] | list[list[float]] | None = Field(
+        None,
+        description="rigid 4x4 (16 numbers or 4 rows of 4): map points to this device's gravity-aligned world; "
+        "null: the device's stored alignment, if any",
+    )
 
     def flat_pose(self) -> list[float]:
-        pose = self.cam2world
-        if pose and isinstance(pose[0], list):
-            return [float(v) for row in pose for v in row]
-        return [float(v) for v in pose]  # type: ignore[arg-type]  # not nested: a flat list of numbers
+        return _flat(self.cam2world)
+
+    def flat_device_from_map(self) -> list[float]:
+        return [] if self.device_from_map is None else _flat(self.device_from_map)
+
+
+def _flat(matrix: list[float] | list[list[float]]) -> list[float]:
+    """The numbers of a matrix given flat or as rows, row by row."""
+    if matrix and isinstance(matrix[0], list):
+        return [float(v) for row in matrix for v in row]
+    return [float(v) for v in matrix]  # type: ignore[arg-type]  # not nested: a flat list of numbers
+
+
+class DeviceAlignmentIn(BaseModel):
+    """A device's alignment, to store (``PUT .../devices/{device_id}/alignment``)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"device_from_map": [[0, -1, 0, 2.5], [1, 0, 0, -0.4], [0, 0, 1, 0], [0, 0, 0, 1]]}]},
+    )
+
+    device_from_map: list[float] | list[list[float]] = Field(
+        description="rigid 4x4 (16 numbers row-major, or 4 rows of 4): map points to the device's world, once its frames "
+        "are in the map's axes and up (their convention and world_up applied); a rotation about the map's up and a "
+        "translation (a tilt of at most 2 degrees)"
+    )
+
+    def flat(self) -> list[float]:
+        return _flat(self.device_from_map)
+
+
+class DeviceAlignment(BaseModel):
+    """A device's stored alignment: applied to every frame of the device that brings none of its own."""
+
+    map_id: str
+    device_id: str
+    device_from_map: list[list[float]] = Field(description="4 rows of 4: map points to the device's world")
+
+
+class DeviceAlignmentList(BaseModel):
+    map_id: str
+    alignments: list[DeviceAlignment] = Field(description="by device id")
+
+
+class AlignmentDeleted(BaseModel):
+    map_id: str
+    device_id: str
+    deleted: bool = Field(description="false: the device had no alignment")
 
 
 class Box(BaseModel):

@@ -21,6 +21,9 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
+    arcloud:alignments:{m}          HASH    device id -> its ``device_from_map`` (JSON, 16 numbers row-major;
+                                            ``redis_alignments``): outside ``map_pattern``, so that deleting the
+                                            map's objects leaves it (the API's map deletion forgets it)
 
 Ingest shards (``arcloud.stores.redis_queue``): the frame queue is ``n`` shards (the setting ``ingest_shards``,
 pinned in Redis), a map's frames going to shard ``k = shard_of(map_id, n)``. Every key of shard ``k`` carries
@@ -135,6 +138,11 @@ def retired_at_key(map_id: str) -> str:
 def header_key(map_id: str) -> str:
     """The map's header (``core.header.MapHeader``, JSON): the settings its data was written under."""
     return f"{map_prefix(map_id)}:{HEADER}"
+
+
+def alignments_key(map_id: str) -> str:
+    """The map's device alignments (``stores.redis_alignments``): the map's hash tag, not its prefix."""
+    return f"{PREFIX}:alignments:{{{map_id}}}"
 
 
 def object_key(map_id: str, object_id: int) -> str:

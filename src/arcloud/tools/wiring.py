@@ -27,7 +27,16 @@ from typing import Any
 from fastapi import FastAPI
 
 from arcloud.errors import InvalidInput, StoreUnavailable
-from arcloud.ports import DEFAULT_RETIRED_HISTORY_S, Detector, FrameQueue, KeyStore, ObjectStore, RateLimiter, UpdatePublisher
+from arcloud.ports import (
+    DEFAULT_RETIRED_HISTORY_S,
+    Detector,
+    DeviceAlignments,
+    FrameQueue,
+    KeyStore,
+    ObjectStore,
+    RateLimiter,
+    UpdatePublisher,
+)
 from arcloud.service import app as service_app
 from arcloud.service.logs import configure_logging
 from arcloud.service.pool import WorkerPool
@@ -210,6 +219,21 @@ def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> 
     return RedisRateLimiter(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
 
 
+def build_alignments(settings: Settings, store: ObjectStore | None = None) -> DeviceAlignments:
+    """The devices' alignments: in memory (embedded), else in the store's Redis (on ``store``'s connections when
+    it is a ``RedisStore``), shared by every API process."""
+    if settings.embedded:
+        from arcloud.stores.memory_alignments import MemoryDeviceAlignments
+
+        return MemoryDeviceAlignments()
+    from arcloud.stores.redis import RedisStore
+    from arcloud.stores.redis_alignments import RedisDeviceAlignments
+
+    if isinstance(store, RedisStore):
+        return RedisDeviceAlignments(client=store.client)
+    return RedisDeviceAlignments(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+
+
 def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandler | None) -> UpdatePublisher | None:
     """The API's Zenoh session (from ``zenoh_config``'s file, if any; answering map queries from ``store``;
     taking published frames when ``zenoh_frames``), or None when Zenoh is off."""
@@ -282,6 +306,8 @@ def connect(
         _own(owned, keys)
         limiter = build_rate_limiter(settings, store)
         _own(owned, limiter)
+        alignments = build_alignments(settings, store)
+        _own(owned, alignments)
         pool = None
         if settings.embedded:
             if detector is None:
@@ -293,7 +319,7 @@ def connect(
         raise
     from arcloud.stores.snapshot import ZipMapArchive
 
-    return Adapters(store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned)
+    return Adapters(store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned, alignments)
 
 
 def _own(owned: list[Closeable], thing: Any) -> None:
@@ -414,6 +440,7 @@ def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0
 
 
 __all__ = [
+    "build_alignments",
     "build_detector",
     "build_key_store",
     "build_publisher",

@@ -20,6 +20,13 @@ class DepthEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DEPTH_ENCODING_PNG: _ClassVar[DepthEncoding]
     DEPTH_ENCODING_RAW_UINT16: _ClassVar[DepthEncoding]
     DEPTH_ENCODING_RAW_FLOAT32: _ClassVar[DepthEncoding]
+
+class PoseConvention(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    POSE_CONVENTION_UNSPECIFIED: _ClassVar[PoseConvention]
+    POSE_CONVENTION_OPENCV: _ClassVar[PoseConvention]
+    POSE_CONVENTION_ARKIT: _ClassVar[PoseConvention]
+    POSE_CONVENTION_ARCORE: _ClassVar[PoseConvention]
 RGB_ENCODING_UNSPECIFIED: RgbEncoding
 RGB_ENCODING_JPEG: RgbEncoding
 RGB_ENCODING_PNG: RgbEncoding
@@ -28,6 +35,10 @@ DEPTH_ENCODING_UNSPECIFIED: DepthEncoding
 DEPTH_ENCODING_PNG: DepthEncoding
 DEPTH_ENCODING_RAW_UINT16: DepthEncoding
 DEPTH_ENCODING_RAW_FLOAT32: DepthEncoding
+POSE_CONVENTION_UNSPECIFIED: PoseConvention
+POSE_CONVENTION_OPENCV: PoseConvention
+POSE_CONVENTION_ARKIT: PoseConvention
+POSE_CONVENTION_ARCORE: PoseConvention
 
 class Intrinsics(_message.Message):
     __slots__ = ("fx", "fy", "cx", "cy")
@@ -42,7 +53,7 @@ class Intrinsics(_message.Message):
     def __init__(self, fx: _Optional[float] = ..., fy: _Optional[float] = ..., cx: _Optional[float] = ..., cy: _Optional[float] = ...) -> None: ...
 
 class Frame(_message.Message):
-    __slots__ = ("map_id", "device_id", "frame_id", "timestamp_s", "intrinsics", "cam2world", "rgb", "rgb_encoding", "depth", "depth_encoding", "depth_scale", "width", "height")
+    __slots__ = ("map_id", "device_id", "frame_id", "timestamp_s", "intrinsics", "cam2world", "rgb", "rgb_encoding", "depth", "depth_encoding", "depth_scale", "width", "height", "pose_convention", "world_up", "device_from_map")
     MAP_ID_FIELD_NUMBER: _ClassVar[int]
     DEVICE_ID_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
@@ -56,6 +67,9 @@ class Frame(_message.Message):
     DEPTH_SCALE_FIELD_NUMBER: _ClassVar[int]
     WIDTH_FIELD_NUMBER: _ClassVar[int]
     HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    POSE_CONVENTION_FIELD_NUMBER: _ClassVar[int]
+    WORLD_UP_FIELD_NUMBER: _ClassVar[int]
+    DEVICE_FROM_MAP_FIELD_NUMBER: _ClassVar[int]
     map_id: str
     device_id: str
     frame_id: str
@@ -69,7 +83,10 @@ class Frame(_message.Message):
     depth_scale: float
     width: int
     height: int
-    def __init__(self, map_id: _Optional[str] = ..., device_id: _Optional[str] = ..., frame_id: _Optional[str] = ..., timestamp_s: _Optional[float] = ..., intrinsics: _Optional[_Union[Intrinsics, _Mapping]] = ..., cam2world: _Optional[_Iterable[float]] = ..., rgb: _Optional[bytes] = ..., rgb_encoding: _Optional[_Union[RgbEncoding, str]] = ..., depth: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth_scale: _Optional[float] = ..., width: _Optional[int] = ..., height: _Optional[int] = ...) -> None: ...
+    pose_convention: PoseConvention
+    world_up: Vec3
+    device_from_map: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, map_id: _Optional[str] = ..., device_id: _Optional[str] = ..., frame_id: _Optional[str] = ..., timestamp_s: _Optional[float] = ..., intrinsics: _Optional[_Union[Intrinsics, _Mapping]] = ..., cam2world: _Optional[_Iterable[float]] = ..., rgb: _Optional[bytes] = ..., rgb_encoding: _Optional[_Union[RgbEncoding, str]] = ..., depth: _Optional[bytes] = ..., depth_encoding: _Optional[_Union[DepthEncoding, str]] = ..., depth_scale: _Optional[float] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., pose_convention: _Optional[_Union[PoseConvention, str]] = ..., world_up: _Optional[_Union[Vec3, _Mapping]] = ..., device_from_map: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class Vec3(_message.Message):
     __slots__ = ("x", "y", "z")

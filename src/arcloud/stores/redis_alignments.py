@@ -1,0 +1,67 @@
+"""Device alignments on Redis, shared by every API process: one HASH a map, ``keys.alignments_key`` (the
+map's hash tag), device id -> its ``device_from_map`` as JSON (16 numbers, row-major). Every frame the API
+takes reads its device's field (one HGET), so that an alignment set through any process applies to the next
+frame of the device, whichever process takes it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from arcloud.errors import StoreError
+from arcloud.stores.keys import alignments_key
+from arcloud.stores.redis import RedisClient, connect_redis, where
+from arcloud.stores.redis_errors import redis_errors
+
+
+class RedisDeviceAlignments:
+    """``DeviceAlignments`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
+
+    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 2.0) -> None:
+        self._owns_client = client is None
+        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
+
+    def close(self) -> None:
+        if self._owns_client:
+            self.client.close()
+
+    def _call(self, doing: str, method: str, *args: object) -> object:
+        with redis_errors(doing, lambda: where(self.client)):
+            return getattr(self.client, method)(*args)
+
+    def get(self, map_id: str, device_id: str) -> np.ndarray | None:
+        raw = self._call(f"read the alignment of device {device_id}", "hget", alignments_key(map_id), device_id)
+        return None if raw is None else _decode(raw, map_id, device_id)
+
+    def put(self, map_id: str, device_id: str, device_from_map: np.ndarray) -> None:
+        values = np.asarray(device_from_map, np.float64).reshape(16)
+        encoded = json.dumps([float(v) for v in values])
+        self._call(f"store the alignment of device {device_id}", "hset", alignments_key(map_id), device_id, encoded)
+
+    def delete(self, map_id: str, device_id: str) -> bool:
+        return bool(self._call(f"delete the alignment of device {device_id}", "hdel", alignments_key(map_id), device_id))
+
+    def of_map(self, map_id: str) -> dict[str, np.ndarray]:
+        raw = self._call("list the map's alignments", "hgetall", alignments_key(map_id))
+        assert isinstance(raw, dict)  # HGETALL answers a dict
+        found = {}
+        for device, value in raw.items():
+            device_id = device.decode() if isinstance(device, bytes) else str(device)
+            found[device_id] = _decode(value, map_id, device_id)
+        return found
+
+    def forget_map(self, map_id: str) -> None:
+        self._call("delete the map's alignments", "delete", alignments_key(map_id))
+
+
+def _decode(raw: object, map_id: str, device_id: str) -> np.ndarray:
+    """A stored value as (4, 4) float64; ``StoreError`` for one this module did not write."""
+    try:
+        values = np.array(json.loads(raw), dtype=np.float64)  # type: ignore[arg-type]  # bytes or str from redis-py
+        return values.reshape(4, 4)
+    except (TypeError, ValueError) as exc:
+        raise StoreError(f"the alignment of device {device_id} in map {map_id} is not 16 numbers: {raw!r:.80}") from exc
+
+
+__all__ = ["RedisDeviceAlignments"]
