@@ -118,6 +118,10 @@ class ObjectStore(MapStore, Protocol):
         """These objects without their voxels, in the order given; ids that do not exist are skipped."""
         ...
 
+    def object_ids(self, map_id: str) -> list[int]:
+        """The ids of the map's objects, sorted: a page of a listing reads these, then only its own objects."""
+        ...
+
     def delete_map(self, map_id: str) -> int:
         """Remove a map and everything under it; returns the number of objects removed."""
         ...

@@ -506,6 +506,15 @@ def test_metadata_listing_matches_the_objects(store) -> None:
     assert store.list_meta("empty-map") == [] and store.object_meta(MAP, []) == []
 
 
+def test_object_ids_are_the_maps_ids_in_order_and_follow_its_changes(store) -> None:
+    objects = [make_object(i, (i * 1.0, 0, 0), seed=i) for i in (12, 3, 7)]
+    store.commit(MAP, [], objects, [])
+    assert store.object_ids(MAP) == [3, 7, 12] and store.object_ids("empty-map") == []
+    with store.lock(MAP, [7], ttl_s=10, timeout_s=1) as lease:
+        store.commit(MAP, [lease], [], [objects[2]])
+    assert store.object_ids(MAP) == [3, 12]
+
+
 def test_a_reachable_store_answers_its_health_check(store) -> None:
     assert store.ping() is None
 

@@ -33,6 +33,7 @@ from arcloud.ports import (
     RetiredObject,
 )
 from arcloud.stores import codec
+from arcloud.stores.cells import check_lock_ids, check_object_cells, check_script_cells
 from arcloud.stores.codec import meta_of
 
 _Name = tuple[str, Any]  # what a lease holds: ("object", id) or ("cell", (i, j, k))
@@ -143,7 +144,9 @@ class MemoryStore:
 
     # --- locks and claims --------------------------------------------------------------------------
     def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> MemoryLease:
-        return self._acquire(map_id, [("object", int(i)) for i in sorted(set(ids))], ttl_s, timeout_s)
+        held = sorted({int(i) for i in ids})
+        check_lock_ids(len(held))  # as Redis refuses one script of more keys
+        return self._acquire(map_id, [("object", i) for i in held], ttl_s, timeout_s)
 
     def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> MemoryLease:
         names: list[_Name] = [("cell", tuple(int(c) for c in cell)) for cell in sorted(set(cells))]
@@ -232,6 +235,14 @@ class MemoryStore:
                         )
                 if obj.bounds is None:
                     raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
+            # The index cells this write adds and removes, bounded as Redis bounds one script's (``stores.cells``).
+            touched = sum(
+                check_object_cells(f"object {o.id}.bounds", o.bounds.min, o.bounds.max, self.cell_m)
+                for o in upserts
+                if o.bounds is not None
+            )
+            touched += sum(len(state.cells_of.get(o.id, ())) for o in [*upserts, *deletes, *retired])
+            check_script_cells(touched)
             for obj in [*deletes, *retired]:
                 current = state.objects.get(obj.id)
                 if current is None:
@@ -322,6 +333,11 @@ class MemoryStore:
 
     def object_meta(self, map_id: str, ids: Sequence[int]) -> list[ObjectMeta]:
         return [meta_of(obj) for obj in self.get(map_id, ids)]
+
+    def object_ids(self, map_id: str) -> list[int]:
+        state = self._map(map_id)
+        with state.changed:
+            return sorted(state.objects)
 
     def delete_map(self, map_id: str) -> int:
         with self._maps_lock:

@@ -19,7 +19,11 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   another. ``get`` of many ids is one MULTI/EXEC pipeline (a consistent snapshot).
 - ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
   expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
-  mark, or writes nothing. A worker whose lock expired cannot overwrite newer data.
+  mark, or writes nothing. A worker whose lock expired cannot overwrite newer data. Redis runs nothing else
+  while a script runs, so one script adds and removes at most ``cells.MAX_SCRIPT_CELLS`` index cells (an object
+  covers at most ``cells.MAX_OBJECT_CELLS``; the script counts the cells it would remove before it writes) and
+  one lock call takes at most ``cells.MAX_LOCKS_PER_CALL`` objects: a few tens of milliseconds whatever a
+  request holds (``TooManyCells`` / ``InvalidInput`` beyond, nothing written).
 - Retired objects (``commit(retired=...)``): deleted like others, their metadata JSON kept in the map's
   history (a HASH, and a ZSET of when each left), trimmed by each commit to ``retired_history_s`` and
   ``RETIRED_HISTORY_MAX_PER_MAP``; ``retired_objects`` reads it.
@@ -30,9 +34,13 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   ``RECORDS_SWEPT_PER_CALL`` marks on from where the last one stopped (HSCAN, ``lua/records.lua``) and
   drops the expired ones, so the HASH holds about a retention's frames.
 - ``new_ids``: INCRBY on the map's counter, unique across processes.
-- ``delete_map``: a Lua script removes the objects, index, frames and counter atomically, then a SCAN
-  of ``arcloud:{map}:*`` (on every primary of a cluster) removes whatever else is left (leases still alive). Not atomic against writers
-  of the same map that run at the same time.
+- ``delete_map``: takes the map off the list and unlinks its registries (header, bounds, metadata, id counter,
+  frame marks, history: readers see an empty map at once; large values are freed in Redis's background
+  thread), then SCANs ``arcloud:{map}:*`` (on every primary of a cluster) and unlinks what it finds
+  (objects, index cells, leases) ``DELETE_BATCH`` keys a call, logging its progress every
+  ``PROGRESS_LOG_S``: Redis answers others between calls whatever the map holds (one script deleting a
+  map of 5 million index cells held Redis 9 s). Not atomic against writers of the same map that run at the
+  same time.
 
 How long a call may take: ``reply_timeout_s`` bounds each wait for a reply or a connection (workers
 30 s; the API ``api_redis_timeout_s``, 2 s, so that a hung Redis answers ``StoreUnavailable`` within
@@ -88,18 +96,20 @@ from arcloud.ports import (
     RetiredObject,
 )
 from arcloud.stores import codec, keys
+from arcloud.stores.cells import MAX_SCRIPT_CELLS, check_lock_ids, check_object_cells, check_script_cells, count_cells
 from arcloud.stores.redis_errors import redis_errors
 
 log = logging.getLogger(__name__)
 
 DEFAULT_URL = "redis://127.0.0.1:6379/0"
 MAX_QUERY_CELLS = MAX_CELLS_PER_CALL  # larger query boxes read the bounds HASH instead of the cells
-MAX_OBJECT_CELLS = 100_000  # an object whose bounds touch more index cells is refused (stray far voxels)
 SCAN_CELLS_PER_OBJECT = 2  # a box of more cells than this many per object reads the bounds HASH (cheaper)
 BACKOFF_MIN_S = 0.002
 BACKOFF_MAX_S = 0.05
 GET_BATCH = 256  # objects per pipeline when reading many
 SCAN_COUNT = 1000
+DELETE_BATCH = 1000  # keys a call when deleting a map
+PROGRESS_LOG_S = 5.0  # a long deletion says how far it got this often
 
 
 #: URL schemes of a Redis Cluster: ``redis+cluster://[[user]:password@]host:port[,host:port...][/0]`` (any node of
@@ -249,7 +259,7 @@ class RedisStore:
         if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
-        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "delete_map")}
+        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query")}
         self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("commit"))
 
     @classmethod
@@ -287,11 +297,7 @@ class RedisStore:
 
     def _n_cells(self, lo: np.ndarray, hi: np.ndarray) -> float:
         """How many index cells the box [lo, hi] touches (inf when unbounded)."""
-        with np.errstate(invalid="ignore", over="ignore"):
-            c_lo = np.floor(np.asarray(lo, np.float64) / self.cell_m)
-            c_hi = np.floor(np.asarray(hi, np.float64) / self.cell_m)
-            n_cells = float(np.prod(np.maximum(0.0, c_hi - c_lo + 1)))  # floats: never an OverflowError
-        return n_cells if np.isfinite(n_cells) else math.inf
+        return count_cells(lo, hi, self.cell_m)
 
     def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         lo = _vec3("lo", lo)
@@ -325,6 +331,7 @@ class RedisStore:
     # --- locks and claims --------------------------------------------------------------------------
     def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> RedisLease:
         held = tuple(sorted({int(i) for i in ids}))
+        check_lock_ids(len(held))  # one script takes every key: keep it short
         return self._acquire(map_id, [keys.lock_key(map_id, i) for i in held], held, ttl_s, timeout_s)
 
     def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> RedisLease:
@@ -400,7 +407,8 @@ class RedisStore:
         ordered = sorted((int(i), meta) for i, meta in metas.items())
         return codec.decode_metas([i for i, _ in ordered], [meta for _, meta in ordered])
 
-    def _object_ids(self, map_id: str) -> list[int]:
+    def object_ids(self, map_id: str) -> list[int]:
+        """The ids of the map's objects, sorted (one read of the bounds HASH's fields: no metadata, no voxels)."""
         with redis_errors(f"list on map {map_id}", self._where):
             return sorted(int(i) for i in self.client.hkeys(keys.bounds_key(map_id)))
 
@@ -429,16 +437,12 @@ class RedisStore:
         for lease in own:
             if lease.map_id != map_id:
                 raise InvalidInput("leases", f"leases of map {map_id}", f"a lease of map {lease.map_id}")
+        new_cells = 0
         for obj in upserts:
             if obj.bounds is None:
                 raise InvalidInput(f"object {obj.id}.bounds", "bounds of its voxels (refine the object first)", None)
-            n_cells = self._n_cells(obj.bounds.min, obj.bounds.max)
-            if n_cells > MAX_OBJECT_CELLS:
-                raise InvalidInput(
-                    f"object {obj.id}.bounds",
-                    f"at most {MAX_OBJECT_CELLS} index cells of {self.cell_m} m",
-                    f"{n_cells:.0f} cells ({obj.bounds.min} to {obj.bounds.max})",
-                )
+            new_cells += check_object_cells(f"object {obj.id}.bounds", obj.bounds.min, obj.bounds.max, self.cell_m)
+        check_script_cells(new_cells)  # the script adds these and checks them with those it removes
         header: dict[str, Any] = {
             "frame": frame_key or "",
             "now": self._clock(),
@@ -453,6 +457,8 @@ class RedisStore:
             "retired": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in retired],
             "history_s": self.retired_history_s,
             "history_max": RETIRED_HISTORY_MAX_PER_MAP,
+            "new_cells": new_cells,
+            "max_cells": MAX_SCRIPT_CELLS,
         }
         payload: list[bytes] = []
         for obj in upserts:
@@ -487,10 +493,12 @@ class RedisStore:
             )
             if int(written) == 1 and (upserts or deletes or retired):
                 self.client.hset(keys.MAPS, map_id, repr(time.time()))  # the maps list's last update
+        if int(written) < 0:  # the cells it would remove and add, over the bound: nothing written
+            check_script_cells(-int(written))
         return int(written) == 1
 
     def list_objects(self, map_id: str) -> list[MapObject]:
-        return self.get(map_id, self._object_ids(map_id))
+        return self.get(map_id, self.object_ids(map_id))
 
     def retired_objects(self, map_id: str) -> list[RetiredObject]:
         cutoff_s = self._clock() - self.retired_history_s
@@ -504,27 +512,42 @@ class RedisStore:
         return [RetiredObject(meta, at) for meta, (_, at, _) in zip(decoded, kept)]
 
     def delete_map(self, map_id: str) -> int:
+        registries = [
+            keys.header_key(map_id),
+            keys.bounds_key(map_id),
+            keys.meta_key(map_id),
+            keys.ids_key(map_id),
+            keys.processed_key(map_id),
+            keys.processed_count_key(map_id),
+            keys.processed_sweep_key(map_id),
+            keys.retired_key(map_id),
+            keys.retired_at_key(map_id),
+        ]
+        started = last_log = time.monotonic()
+        removed_keys = 0
         with redis_errors(f"delete_map {map_id}", self._where):
-            removed = int(
-                self._scripts["delete_map"](
-                    keys=[
-                        keys.bounds_key(map_id),
-                        keys.processed_key(map_id),
-                        keys.ids_key(map_id),
-                        keys.meta_key(map_id),
-                        keys.processed_count_key(map_id),
-                        keys.retired_key(map_id),
-                        keys.retired_at_key(map_id),
-                    ],
-                    args=[keys.map_prefix(map_id)],
-                )
-            )
+            n_objects = int(self.client.hlen(keys.bounds_key(map_id)))
             self.client.hdel(keys.MAPS, map_id)
-            leftovers = list(self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT))
-            for start in range(0, len(leftovers), SCAN_COUNT):
-                self.client.unlink(*leftovers[start : start + SCAN_COUNT])
-        log.info("map %s deleted: %d objects, %d other keys", map_id, removed, len(leftovers))
-        return removed
+            removed_keys += int(self.client.unlink(*registries))  # one slot: the map's tag
+            batch: list[bytes] = []
+            for key in self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT):
+                batch.append(key)
+                if len(batch) == DELETE_BATCH:
+                    removed_keys += int(self.client.unlink(*batch))
+                    batch = []
+                    if time.monotonic() - last_log >= PROGRESS_LOG_S:
+                        last_log = time.monotonic()
+                        log.info(
+                            "map %s: deleting, %d keys removed in %.0f s (%d objects)",
+                            map_id,
+                            removed_keys,
+                            last_log - started,
+                            n_objects,
+                        )
+            if batch:
+                removed_keys += int(self.client.unlink(*batch))
+        log.info("map %s deleted: %d objects, %d keys in %.1f s", map_id, n_objects, removed_keys, time.monotonic() - started)
+        return n_objects
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         with redis_errors(f"is_frame_done on map {map_id}", self._where):

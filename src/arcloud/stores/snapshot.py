@@ -8,6 +8,11 @@ status, every voxel's weight, votes, sightings and colour. Only the versions (th
 again at 1. A restore writes into an empty map (or replaces the map, when asked) under the snapshot's header
 (its codec version: the store's own, in which the objects are written again; a snapshot taken under an older
 codec version restores, its colours unknown), keeps the ids and moves the map's id counter past them.
+
+A restore writes in bounded commits, so that no request holds a shared store (Redis runs one script at a time):
+at most ``RESTORE_BATCH`` objects, ``RESTORE_BATCH_CELLS`` index cells and ``RESTORE_BATCH_VOXELS`` voxels a
+commit, each object covering at most ``cells.MAX_OBJECT_CELLS`` cells (the snapshot is refused otherwise, before
+anything is written); a long restore logs how far it got every ``PROGRESS_LOG_S``.
 """
 
 from __future__ import annotations
@@ -15,9 +20,12 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import logging
 import re
+import time
 import zipfile
 import zlib
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -28,9 +36,15 @@ from arcloud.core.voxels import keys_bounds
 from arcloud.errors import InvalidInput, MapMismatch, StoreError
 from arcloud.ports import ObjectStore
 from arcloud.stores import codec
+from arcloud.stores.cells import MAX_OBJECT_CELLS, check_object_cells
+
+log = logging.getLogger(__name__)
 
 FORMAT = "arcloud.snapshot.v1"
-RESTORE_BATCH = 256  # objects per commit
+RESTORE_BATCH = 16  # objects per commit, at most
+RESTORE_BATCH_CELLS = MAX_OBJECT_CELLS  # index cells per commit, at most: about 10 ms of Redis a script
+RESTORE_BATCH_VOXELS = 1 << 18  # voxels per commit, at most (an object of more goes alone): a few MB of blobs
+PROGRESS_LOG_S = 5.0  # a long restore says how far it got this often
 MAX_UNPACKED_BYTES = 2**30  # a snapshot whose members unpack to more is refused (zip bombs); a real map is a few MB
 #: The largest object id restored: what a JSON number carries exactly (the viewer reads ids as doubles).
 MAX_OBJECT_ID = 2**53 - 1
@@ -153,6 +167,7 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
             f"the box of its voxels, {_corners(voxels_lo, voxels_hi)} (within a voxel)",
             _corners(bounds.min, bounds.max),
         )
+    check_object_cells(f"{where}.bounds", bounds.min, bounds.max, header.index_cell_m)  # what one write may index
     aabb = _finite_box(f"{where}.aabb", obj.aabb)
     aabb_lo, aabb_hi = aabb.min, aabb.max
     if header.world2aligned is not None:  # the aabb is in the aligned frame: its corners back in the world
@@ -224,10 +239,37 @@ def restore_bytes(store: ObjectStore, map_id: str, data: bytes, *, replace: bool
         raise MapMismatch(map_id, differences)  # an empty map opened under other settings: restore with replace
     if objects:
         store.new_ids(map_id, max(o.id for o in objects))  # the id counter past every restored id
-    for start in range(0, len(objects), RESTORE_BATCH):
-        batch = [o.replace(version=1) for o in objects[start : start + RESTORE_BATCH]]
-        store.commit(map_id, [], batch, [])
+    started = last_log = time.monotonic()
+    written = 0
+    for batch in restore_batches(objects, header.index_cell_m):
+        store.commit(map_id, [], [o.replace(version=1) for o in batch], [])
+        written += len(batch)
+        if time.monotonic() - last_log >= PROGRESS_LOG_S:
+            last_log = time.monotonic()
+            log.info("map %s: restoring, %d of %d objects written in %.0f s", map_id, written, len(objects), last_log - started)
     return len(objects)
+
+
+def restore_batches(objects: Sequence[MapObject], cell_m: float) -> Iterator[list[MapObject]]:
+    """``objects`` in order, in batches of at most ``RESTORE_BATCH`` objects, ``RESTORE_BATCH_CELLS`` index cells of
+    ``cell_m`` and ``RESTORE_BATCH_VOXELS`` voxels (an object over one of these alone in its batch)."""
+    batch: list[MapObject] = []
+    n_cells = n_voxels = 0
+    for obj in objects:
+        assert obj.bounds is not None  # checked: check_object
+        cells = check_object_cells(f"objects/{obj.id}.bounds", obj.bounds.min, obj.bounds.max, cell_m)
+        if batch and (
+            len(batch) == RESTORE_BATCH
+            or n_cells + cells > RESTORE_BATCH_CELLS
+            or n_voxels + obj.keys.size > RESTORE_BATCH_VOXELS
+        ):
+            yield batch
+            batch, n_cells, n_voxels = [], 0, 0
+        batch.append(obj)
+        n_cells += cells
+        n_voxels += obj.keys.size
+    if batch:
+        yield batch
 
 
 class ZipMapArchive:

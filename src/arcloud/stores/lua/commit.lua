@@ -6,16 +6,17 @@
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
 -- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
---          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max}
+--          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells}
 --          (ids, versions and counts as decimal strings; frame "" for none; cells: "i:j:k i:j:k ..." the
 --          index cells of the object's bounds; upserts also carry missed and gone, the object's counters,
 --          kept in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago
 --          counts as not recorded, and each commit sweeps about `sweep` records for such ones; retired
 --          objects are deleted like deletes and their metadata kept in the history, which keeps those
---          retired within history_s, at most history_max).
+--          retired within history_s, at most history_max; new_cells: how many index cells the upserts add,
+--          max_cells: the most cells one commit may add and remove together, counted before anything is written).
 -- ARGV[3..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
--- Returns 1 (written), 0 (the frame was recorded before: nothing written), or an error "STALE ..."
--- (a fence failed: nothing written).
+-- Returns 1 (written), 0 (the frame was recorded before: nothing written), -N (the commit would add and remove
+-- N > max_cells index cells: nothing written), or an error "STALE ..." (a fence failed: nothing written).
 local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
 local history_key, history_at_key = KEYS[6], KEYS[7]
 local prefix = ARGV[1]
@@ -75,6 +76,21 @@ for _, deleted in ipairs({req.deletes, req.retired}) do
       return stale('object ' .. d.id .. ' deleted without its lock or at a stale version')
     end
   end
+end
+-- The index cells this commit touches: those it adds, and those of the objects it rewrites or deletes, which it
+-- removes (counted in their stored list, before anything is written: Redis serves no one while a script runs).
+local touched = tonumber(req.new_cells)
+for _, written in ipairs({req.upserts, req.deletes, req.retired}) do
+  for _, w in ipairs(written) do
+    local cells = redis.call('HGET', object_key(w.id), 'cells')
+    if cells then
+      local _, n = string.gsub(cells, '%S+', '')
+      touched = touched + n
+    end
+  end
+end
+if touched > tonumber(req.max_cells) then
+  return -touched
 end
 
 local function unindex(id)
