@@ -50,6 +50,7 @@ __all__ = [
     "QueueFull",
     "QueueLimits",
     "QueueStats",
+    "SETTLED_OUTCOMES",
     "QueuedFrame",
     "RateLimiter",
     "RetiredObject",
@@ -336,10 +337,20 @@ class QueueStats:
     latency_sum_s: float = 0.0
     queue_wait: Histogram = field(default_factory=lambda: Histogram.empty(WAIT_BUCKETS_S))
     lock_wait: Histogram = field(default_factory=lambda: Histogram.empty(WAIT_BUCKETS_S))
+    #: Frames settled, by map and by worker (consumer): name -> outcome (``SETTLED_OUTCOMES``) -> frames. A
+    #: map's leave with it (``forget_map``); a worker's with its consumer, once it is gone (Redis: ``prepare``).
+    maps: dict[str, dict[str, int]] = field(default_factory=dict)
+    workers: dict[str, dict[str, int]] = field(default_factory=dict)
+    map_depth: dict[str, int] = field(default_factory=dict)  # map -> frames queued or in progress (none: absent)
 
     @property
     def latency_count(self) -> int:
         return sum(self.latency_counts)
+
+
+#: What a settled frame became, for the per-map and per-worker counts of ``QueueStats``: its step committed,
+#: it had been committed before (delivered again), or it was given up on (dead-lettered).
+SETTLED_OUTCOMES: tuple[str, ...] = ("processed", "redelivered", "failed")
 
 
 #: Where an accepted frame is: in the queue, in a consumer's hands (Redis: pending, also between failed

@@ -233,6 +233,31 @@ def test_a_frame_status_follows_it_from_accepted_to_processed_or_failed(queue: F
     assert queue.frame_status(MAP, ok.key) is None
 
 
+def test_settled_frames_are_counted_per_map_and_per_worker_and_a_forgotten_map_s_go(make_queue: MakeQueue) -> None:
+    queue = make_queue()
+    for index, map_id in ((1, "ma"), (2, "ma"), (3, "mb"), (4, "mb")):
+        queue.put(frame(index, map_id=map_id))
+    assert queue.stats().map_depth == {"ma": 2, "mb": 2}
+    by_frame = {}
+    for consumer in ("w1", "w2", "w1", "w2"):
+        item = queue.take(consumer, block_s=0.5)
+        assert item is not None
+        by_frame[item.frame_key] = item
+    queue.ack(by_frame["d/f001"], redelivered=False, timings=FrameTimings(step_s=0.01))
+    queue.ack(by_frame["d/f002"], redelivered=True)
+    queue.ack(by_frame["d/f003"], redelivered=False, timings=FrameTimings(step_s=0.01))
+    queue.dead_letter(by_frame["d/f004"], "InvalidInput: no")
+    stats = queue.stats()
+    assert stats.maps == {"ma": {"processed": 1, "redelivered": 1}, "mb": {"processed": 1, "failed": 1}}
+    workers: dict[str, dict[str, int]] = {}
+    for key, outcome in (("d/f001", "processed"), ("d/f002", "redelivered"), ("d/f003", "processed"), ("d/f004", "failed")):
+        counts = workers.setdefault(by_frame[key].consumer, {})
+        counts[outcome] = counts.get(outcome, 0) + 1
+    assert stats.workers == workers and stats.map_depth == {}
+    queue.forget_map("ma")
+    assert queue.stats().maps == {"mb": {"processed": 1, "failed": 1}}
+
+
 def test_heartbeats_tell_live_consumers(queue: FrameQueue) -> None:
     queue.heartbeat("c1", None)
     expected = [] if isinstance(queue, MemoryFrameQueue) else ["c1"]  # threads of one process need none

@@ -166,6 +166,7 @@ class MemoryFrameQueue:
     def forget_map(self, map_id: str) -> None:
         with self._changed:
             self._maps.pop(map_id, None)
+            self._stats.maps.pop(map_id, None)
             for gone in [k for k in self._dead if k[0] == map_id]:
                 self._drop_dead_letter(*gone)
 
@@ -174,6 +175,9 @@ class MemoryFrameQueue:
             stats = QueueStats(**{name: getattr(self._stats, name) for name in QueueStats.__dataclass_fields__})
             stats.latency_counts = list(self._stats.latency_counts)
             stats.queue_wait, stats.lock_wait = self._stats.queue_wait.copy(), self._stats.lock_wait.copy()
+            stats.maps = {name: dict(counts) for name, counts in self._stats.maps.items()}
+            stats.workers = {name: dict(counts) for name, counts in self._stats.workers.items()}
+            stats.map_depth = dict(self._map_frames)
             stats.queue_depth = self._frames
             stats.queued_bytes = self._bytes
         return stats
@@ -212,6 +216,7 @@ class MemoryFrameQueue:
             if not self._settle(item):
                 return
             self._stats.retried += retries
+            self._count_settled(item, "redelivered" if redelivered else "processed")
             if redelivered:
                 self._stats.redelivered += 1
             else:
@@ -231,6 +236,7 @@ class MemoryFrameQueue:
             if not self._settle(item):
                 return
             self._stats.failed += 1
+            self._count_settled(item, "failed")
             records = self._record_outcome(item, FrameStatus("failed", reason))
             if records is None:
                 return
@@ -258,6 +264,14 @@ class MemoryFrameQueue:
                 per_map[map_id] = left
             else:
                 per_map.pop(map_id, None)
+
+    def _count_settled(self, item: QueuedFrame, outcome: str) -> None:
+        """Under the lock: count the frame's outcome for its map (while the map is known) and its consumer."""
+        if item.map_id in self._maps:
+            by_map = self._stats.maps.setdefault(item.map_id, {})
+            by_map[outcome] = by_map.get(outcome, 0) + 1
+        by_worker = self._stats.workers.setdefault(item.consumer, {})
+        by_worker[outcome] = by_worker.get(outcome, 0) + 1
 
     def _settle(self, item: QueuedFrame) -> bool:
         """Under the lock: the delivery leaves the queue's count; False when it was settled before."""

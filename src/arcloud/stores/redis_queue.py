@@ -22,7 +22,8 @@ and the map's counts (accepted, failed: counters). ``lua/accept_frame.lua`` reco
 frame in one step, so no frame is recorded as accepted without its entry; a frame posted again is a
 duplicate while its entry is in the stream or it was processed, and is queued again when it failed or its
 entry is gone without an outcome (lost, e.g. in the last second before a crash). Per shard: the counters
-and the step latency histogram in one HASH shared by every worker (``stats`` sums the shards), the
+and the step latency histogram in one HASH shared by every worker (``stats`` sums the shards; each map's and
+each worker's frames settled too, ``map:<map id>:<outcome>`` and ``worker:<consumer>:<outcome>``), the
 dead-letter stream, and the backlog (frames and bytes in the stream, overall and per map). Service-wide:
 consumers' heartbeats, and the number of shards (``prepare`` writes it once; a process configured with
 another number refuses to start, since the maps' records and queued frames are where that number put
@@ -51,6 +52,9 @@ Times are the callers' clocks (Unix seconds), as the heartbeats': the hosts' clo
 ``fail`` leaves an entry pending (still counted): it is delivered again once claimed, until the worker
 dead-letters it. redis-py's exceptions become arcloud's at the adapters' one boundary, ``stores.redis_errors``
 (connection errors, timeouts, a Redis busy with a script: ``StoreUnavailable``).
+
+Consumers: every worker that starts reads as a new consumer (host-pid), so the groups would keep one per
+worker start; ``prepare`` removes those of workers gone (``remove_stale_consumers``).
 
 Recovery: a Redis restarted without its data has no consumer groups; the readers (``take``,
 ``claim_abandoned``) create them again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
@@ -82,6 +86,7 @@ from arcloud.errors import InvalidInput, StoreError
 from arcloud.ports import (
     LATENCY_BUCKETS_S,
     RECORDS_SWEPT_PER_CALL,
+    SETTLED_OUTCOMES,
     WAIT_BUCKETS_S,
     FailedFrame,
     FrameStatus,
@@ -109,6 +114,15 @@ _ReadReply = list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]] | None
 STAT_FIELDS = ("accepted", "duplicates", "processed", "redelivered", "failed", "claimed", "retried")
 #: The ``QueueStats`` histograms of waits, by the name their fields in the stats HASH start with.
 WAIT_HISTOGRAMS = ("queue_wait", "lock_wait")
+#: A consumer of the group with no pending entry, idle this long and without a heartbeat this long (a worker
+#: that stopped or died) is removed by ``prepare``, with its counters.
+STALE_CONSUMER_S = 300.0
+
+
+def settled_field(kind: str, name: str, outcome: str) -> str:
+    """The stats HASH's field counting the frames of map or worker ``name`` (``kind``: ``map`` or ``worker``)
+    settled as ``outcome`` (``SETTLED_OUTCOMES``): ``map:<map id>:processed``, ``worker:<consumer>:failed``."""
+    return f"{kind}:{name}:{outcome}"
 
 
 def latency_field(bucket: int) -> str:
@@ -133,7 +147,21 @@ def parse_stats(raw: Mapping[bytes | str, bytes | str]) -> QueueStats:
         histogram: Histogram = getattr(stats, name)
         histogram.counts = [int(values.get(histogram_field(name, histogram, b), 0)) for b in range(len(histogram.counts))]
         histogram.sum_s = float(values.get(f"{name}_sum_s", 0.0))
+    for field, value in values.items():
+        kind, _, rest = field.partition(":")
+        name, _, outcome = rest.rpartition(":")
+        if kind in ("map", "worker") and name and outcome in SETTLED_OUTCOMES:
+            by = stats.maps if kind == "map" else stats.workers
+            by.setdefault(name, {})[outcome] = int(value)
     return stats
+
+
+def _settled(item: QueuedFrame, outcome: str) -> dict[str, int]:
+    """The stats HASH's increments counting a settled frame for its map and its consumer."""
+    add = {settled_field("worker", item.consumer, outcome): 1}
+    if item.map_id:
+        add[settled_field("map", item.map_id, outcome)] = 1
+    return add
 
 
 def _text(value: bytes | str | None) -> str:
@@ -209,7 +237,8 @@ class RedisFrameQueue:
     responses) instead of connecting to ``url`` (``connect_redis``: then ``socket_timeout_s`` must exceed
     the longest blocking read). ``group``: the consumer group; ``limits``: what ``put`` allows (default
     ``QueueLimits()``), the overall ones shared among ``shards`` ingest shards (``shard_limits``);
-    ``clock``: Unix seconds (records' ages)."""
+    ``clock``: Unix seconds (records' ages); ``stale_consumer_s``: how long a consumer of the group without
+    pending entries or heartbeat stays before ``prepare`` removes it (``remove_stale_consumers``)."""
 
     def __init__(
         self,
@@ -221,6 +250,7 @@ class RedisFrameQueue:
         shards: int = 1,
         socket_timeout_s: float = 30.0,
         clock: Callable[[], float] = time.time,
+        stale_consumer_s: float = STALE_CONSUMER_S,
     ) -> None:
         if not (isinstance(shards, int) and shards >= 1):
             raise InvalidInput("ingest_shards", "an integer >= 1", shards)
@@ -236,6 +266,7 @@ class RedisFrameQueue:
         self._shard_limits = shard_limits(self.limits, shards)
         self._tags = [keys.shard_tag(shard, shards) for shard in range(shards)]
         self._clock = clock
+        self.stale_consumer_s = stale_consumer_s
         self._accept = client.register_script(lua_source("records") + lua_source("accept_frame"))
         self._settle = client.register_script(lua_source("records") + lua_source("settle_frame"))
         self._dead_letters_kept = client.register_script(lua_source("dead_letters_kept"))
@@ -400,6 +431,7 @@ class RedisFrameQueue:
             self.client.delete(
                 keys.ingest_status_key(tag, map_id), keys.ingest_sweep_key(tag, map_id), keys.ingest_counts_key(tag, map_id)
             )
+            self.client.hdel(keys.ingest_stats(tag), *(settled_field("map", map_id, o) for o in SETTLED_OUTCOMES))
 
     def stats(self) -> QueueStats:
         """Every shard's counters summed (one pipelined round trip; on a Cluster one per node)."""
@@ -408,19 +440,26 @@ class RedisFrameQueue:
             for tag in self._tags:
                 pipe.hgetall(keys.ingest_stats(tag))
                 pipe.xlen(keys.ingest_stream(tag))
-                pipe.hget(keys.ingest_backlog(tag), "bytes")
+                pipe.hgetall(keys.ingest_backlog(tag))
             replies = pipe.execute()
         totals: dict[str, float] = {}
         depth = queued_bytes = 0
+        map_depth: dict[str, int] = {}
         for shard in range(self.shards):
-            raw, shard_depth, shard_bytes = replies[3 * shard : 3 * shard + 3]
+            raw, shard_depth, backlog = replies[3 * shard : 3 * shard + 3]
             for field, value in raw.items():
                 totals[_text(field)] = totals.get(_text(field), 0.0) + float(value)
             depth += int(shard_depth)
-            queued_bytes += int(shard_bytes or 0)
+            for field, value in backlog.items():  # frames, bytes, frames:<map>, bytes:<map> (zeros dropped)
+                name = _text(field)
+                if name == "bytes":
+                    queued_bytes += int(value)
+                elif name.startswith("frames:") and int(value) > 0:
+                    map_depth[name.removeprefix("frames:")] = int(value)
         stats = parse_stats({field: repr(v) if field.endswith("_sum_s") else str(int(v)) for field, v in totals.items()})
         stats.queue_depth = depth
         stats.queued_bytes = queued_bytes
+        stats.map_depth = map_depth
         return stats
 
     def health(self) -> dict[str, str]:
@@ -467,6 +506,47 @@ class RedisFrameQueue:
                 legacy,
                 keys.LEGACY_INGEST_STREAM,
             )
+        self.remove_stale_consumers()
+
+    def remove_stale_consumers(self) -> list[str]:
+        """Remove the group's consumers left by workers that stopped or died (each start of a worker leaves one:
+        consumer names are host-pid): on every shard, a consumer with no pending entry, idle (Redis's ``idle``:
+        since it last read or claimed) longer than ``stale_consumer_s`` and without a heartbeat as recent is
+        deleted (``XGROUP DELCONSUMER``), and so are heartbeats older than that and the per-worker counters of
+        consumers in no group any more. A consumer holding entries stays until they are claimed; a live worker
+        beats every second, so it is never taken for a stale one (its next read would create it again anyway).
+        Returns the consumers deleted. Called by ``prepare``, so every worker (and API) that starts sweeps."""
+        stale_s = self.stale_consumer_s
+        now = time.time()
+        removed: set[str] = set()
+        with redis_errors("remove stale consumers", self._where):
+            beats = {_text(name): float(seen) for name, seen in self.client.hgetall(keys.INGEST_WORKERS).items()}
+            fresh = {name for name, seen in beats.items() if now - seen <= stale_s}
+            kept: set[str] = set()
+            for tag in self._tags:
+                stream = keys.ingest_stream(tag)
+                try:
+                    consumers = self.client.xinfo_consumers(stream, self.group)
+                except redis.exceptions.ResponseError:  # no stream or no group: no consumers
+                    continue
+                for consumer in consumers:
+                    name = _text(consumer["name"])
+                    if int(consumer["pending"]) == 0 and int(consumer["idle"]) > stale_s * 1000 and name not in fresh:
+                        self.client.xgroup_delconsumer(stream, self.group, name)
+                        removed.add(name)
+                    else:
+                        kept.add(name)
+            old_beats = [name for name in beats if name not in fresh and name not in kept]
+            if old_beats:
+                self.client.hdel(keys.INGEST_WORKERS, *old_beats)
+            for tag in self._tags:
+                fields = [_text(f) for f in self.client.hkeys(keys.ingest_stats(tag))]
+                gone = [f for f in fields if f.startswith("worker:") and f[7:].rpartition(":")[0] not in kept | fresh]
+                if gone:
+                    self.client.hdel(keys.ingest_stats(tag), *gone)
+        if removed:
+            log.info("removed %d stale consumers of group %s: %s", len(removed), self.group, ", ".join(sorted(removed)))
+        return sorted(removed)
 
     def check_shards(self) -> None:
         """``InvalidInput`` naming ``ingest_shards`` when this Redis's queue has another number of shards
@@ -575,6 +655,7 @@ class RedisFrameQueue:
         add = {"retried": retries} if retries else {}
         sums: dict[str, float] = {}
         counters: dict[str, Any] = {"add": add, "sums": sums}
+        add |= _settled(item, "redelivered" if redelivered else "processed")
         if redelivered:
             add["redelivered"] = 1
         else:
@@ -598,7 +679,7 @@ class RedisFrameQueue:
         with redis_errors("dead-letter the entry", self._where):
             self._settle_entry(
                 item,
-                {"add": {"failed": 1}},
+                {"add": {"failed": 1} | _settled(item, "failed")},
                 ["failed", reason, item.deliveries, item.consumer, limits.max_dead_letters, limits.max_dead_letter_bytes],
             )
 
