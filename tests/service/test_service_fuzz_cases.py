@@ -197,6 +197,7 @@ def test_no_worker_anywhere_leaves_the_api_ready_and_the_workers_report_503() ->
             queued = api.post("/v1/maps/m/frames", content=frame_body(), headers=PROTOBUF)
             stats = api.get("/v1/maps/m/stats")
             workers = api.get("/healthz/workers")
+            metrics = api.get("/metrics").text
     finally:
         server.stop()
     assert ready.status_code == 200 and ready.json() == {"status": "ready", "checks": {"store": "ok"}}, ready.text
@@ -206,6 +207,7 @@ def test_no_worker_anywhere_leaves_the_api_ready_and_the_workers_report_503() ->
     assert problem["type"] == "/problems/workers-unavailable" and problem["checks"]["workers"].startswith("no worker heartbeat")
     assert problem["detail"].startswith("workers unavailable (workers: no worker heartbeat"), problem
     assert problem["checks"]["consumer_group"] == "ok" and problem["live"] == [] and problem["expected"] is None, problem
+    assert "\narcloud_workers_up 0.0\n" in metrics and "\narcloud_live_workers 0.0\n" in metrics
 
 
 @pytest.mark.parametrize(

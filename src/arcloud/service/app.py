@@ -650,20 +650,24 @@ async def metrics(request: Request) -> Response:
     return Response(body, media_type=CONTENT_TYPE_LATEST)
 
 
+def matching_routes(app: FastAPI, scope: MutableMapping[str, Any]) -> list[Route]:
+    """Every route whose path matches the request's, whatever its method: the app's own routes and ``router``'s,
+    which it includes without a prefix (FastAPI keeps an included router's routes apart from the app's)."""
+    return [r for r in [*app.router.routes, *router.routes] if isinstance(r, Route) and r.matches(scope)[0] != Match.NONE]
+
+
 def allowed_methods(app: FastAPI, scope: MutableMapping[str, Any]) -> str:
-    """The methods of every route whose path matches the request's, as an Allow header lists them (the app's
-    own routes and ``router``'s, which it includes without a prefix)."""
+    """The methods of every route whose path matches the request's, as an Allow header lists them."""
     methods: set[str] = set()
-    for route in [*app.router.routes, *router.routes]:
-        if isinstance(route, Route) and route.matches(scope)[0] != Match.NONE:
-            methods |= route.methods or set()
+    for route in matching_routes(app, scope):
+        methods |= route.methods or set()
     return ", ".join(sorted(methods))
 
 
 # --- the factory -------------------------------------------------------------------------------------
 def create_app(settings: Settings, connect: Connect) -> FastAPI:
     """The service on the adapters ``connect`` gives (called once, by the lifespan, off the event loop)."""
-    from arcloud.service.metrics import make_registry
+    from arcloud.service.metrics import HttpMetrics, make_registry
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -682,8 +686,8 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
         redoc_url=None,
     )
     app.state.runtime = None
-    registry, rejected = make_registry(lambda: app.state.runtime.ingest if app.state.runtime is not None else None)
-    app.state.metrics_registry = registry
+    metrics = make_registry(lambda: app.state.runtime.ingest if app.state.runtime is not None else None)
+    app.state.metrics_registry = metrics.registry
 
     def problem(
         request: Request,
@@ -694,7 +698,7 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
         kind: str | None = None,
     ) -> Response:
         if request.method == "POST" and request.url.path.endswith("/frames"):
-            rejected.labels(status=str(status)).inc()
+            metrics.rejected.labels(status=str(status)).inc()
         return problem_response(status, detail, field_name, kind=kind, headers=headers)
 
     @app.exception_handler(InvalidInput)
@@ -765,6 +769,8 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     app.openapi = openapi  # type: ignore[method-assign]  # FastAPI's documented way to change the schema
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
+    # Outside the body limit: its refusals, answered before routing, are counted too (with the route they were for).
+    app.add_middleware(HttpMetrics, metrics=metrics, routes=lambda scope: [r.path for r in matching_routes(app, scope)])
     app.include_router(router)
     from arcloud.service import alignment_routes, docs_routes, event_stream, viewer_routes  # here: most import this module
 

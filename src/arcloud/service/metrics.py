@@ -1,21 +1,39 @@
-"""Prometheus metrics of the service, read from the frame queue's counters (``QueueStats``) at scrape time.
+"""Prometheus metrics of the service: the frame queue's counters (``QueueStats``) read at scrape time, the
+HTTP requests this process answered (``HttpMetrics``), and the process itself (prometheus-client's process,
+platform and garbage collector collectors: ``process_*``, ``python_*``).
 
-One collector per app on the app's own registry (several apps in one process never clash). With a
-shared queue (Redis) the counters are every worker's, so any API replica reports the whole deployment's
-frames and step latencies.
+One registry per app (several apps in one process never clash). With a shared queue (Redis) the frame
+counters are every worker's, so any API replica reports the whole deployment's frames, per map and per worker
+too; the HTTP and process metrics are this process's.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Awaitable, Callable, Iterator, MutableMapping
+from dataclasses import dataclass
+from typing import Any
 
-from prometheus_client import CollectorRegistry, Counter
+from prometheus_client import CollectorRegistry, Counter, Gauge
+from prometheus_client import Histogram as PromHistogram
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.gc_collector import GCCollector
+from prometheus_client.platform_collector import PlatformCollector
+from prometheus_client.process_collector import ProcessCollector
 from prometheus_client.registry import Collector
 
-from arcloud.ports import LATENCY_BUCKETS_S, Histogram
+from arcloud.ports import LATENCY_BUCKETS_S, SETTLED_OUTCOMES, Histogram
 from arcloud.service.ingest import Ingest
 from arcloud.service.worker import LIVE_WORKER_S
+
+#: At most this many maps get series of their own (those with the most frames settled, and every map with frames
+#: queued among them first): a label value per map, and maps are made by clients.
+MAX_MAP_SERIES = 500
+#: Upper bounds (seconds) of the HTTP request duration histogram's buckets: a probe's millisecond to a slow export.
+HTTP_BUCKETS_S: tuple[float, ...] = (0.001, 0.0025, *LATENCY_BUCKETS_S)
+#: The methods counted as themselves; any other is counted as ``other`` (a label value per method sent: unbounded).
+HTTP_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"})
+UNMATCHED_ROUTE = "unmatched"  # the route label of a request no route took (a 404): paths are the client's
 
 
 class IngestCollector(Collector):
@@ -64,6 +82,12 @@ class IngestCollector(Collector):
             buckets=buckets,
             sum_value=snap.latency_sum_s,
         )
+        yield from settled_families(snap.maps, snap.map_depth, snap.workers)
+        yield GaugeMetricFamily(
+            "arcloud_workers_up",
+            "1 when the workers take the frames accepted (GET /healthz/workers answers 200), else 0",
+            value=1.0 if ingest.workers_health().ok else 0.0,
+        )
         for name, histogram, text in (
             (
                 "arcloud_queue_wait_seconds",
@@ -84,9 +108,119 @@ def cumulative_buckets(histogram: Histogram) -> list[tuple[str, float]]:
     return buckets
 
 
-def make_registry(ingest: Callable[[], Ingest | None]) -> tuple[CollectorRegistry, Counter]:
-    """A registry with the ingest collector, and the counter of rejected frame uploads (by status)."""
+def settled_families(
+    maps: dict[str, dict[str, int]], map_depth: dict[str, int], workers: dict[str, dict[str, int]]
+) -> Iterator[Metric]:
+    """The frames settled per map (``map_id``: at most ``MAX_MAP_SERIES`` maps) and per worker (``worker``: its
+    consumer name, as in the logs), by outcome, and each map's frames queued or in progress."""
+    ranked = sorted(set(maps) | set(map_depth), key=lambda m: (-map_depth.get(m, 0), -sum(maps.get(m, {}).values()), m))
+    shown = ranked[:MAX_MAP_SERIES]
+    for kind, label, names, counts in (("map", "map_id", shown, maps), ("worker", "worker", sorted(workers), workers)):
+        for outcome in SETTLED_OUTCOMES:
+            family = CounterMetricFamily(
+                f"arcloud_{kind}_frames_{outcome}",
+                f"Frames {outcome} ({'dead-lettered' if outcome == 'failed' else 'settled'}), by {kind}",
+                labels=[label],
+            )
+            for name in names:
+                family.add_metric([name], counts.get(name, {}).get(outcome, 0))
+            yield family
+    depth = GaugeMetricFamily("arcloud_map_queue_depth", "Frames of the map queued or in progress", labels=["map_id"])
+    for name in shown:
+        depth.add_metric([name], map_depth.get(name, 0))
+    yield depth
+
+
+@dataclass(frozen=True, eq=False)
+class ServiceMetrics:
+    """An app's metrics: its ``registry`` (what ``/metrics`` serves), the counter of refused frame uploads (by
+    status), and the HTTP request metrics ``HttpMetrics`` records."""
+
+    registry: CollectorRegistry
+    rejected: Counter
+    requests: Counter
+    duration: PromHistogram
+    in_flight: Gauge
+
+
+def make_registry(ingest: Callable[[], Ingest | None]) -> ServiceMetrics:
+    """A registry with the ingest collector, the process, platform and GC collectors, the counter of rejected
+    frame uploads and the HTTP request metrics."""
     registry = CollectorRegistry(auto_describe=False)
     registry.register(IngestCollector(ingest))
+    ProcessCollector(registry=registry)
+    PlatformCollector(registry=registry)
+    GCCollector(registry=registry)
     rejected = Counter("arcloud_frames_rejected", "Frame uploads refused, by HTTP status", ["status"], registry=registry)
-    return registry, rejected
+    requests = Counter(
+        "http_requests",
+        "HTTP requests answered, by method, route template (unmatched: no route) and status",
+        ["method", "route", "status"],
+        registry=registry,
+    )
+    duration = PromHistogram(
+        "http_request_duration_seconds",
+        "Time from a request's arrival to the end of its answer, by method and route template (an event stream: while open)",
+        ["method", "route"],
+        buckets=HTTP_BUCKETS_S,
+        registry=registry,
+    )
+    in_flight = Gauge("http_requests_in_flight", "HTTP requests being answered (event streams while open)", registry=registry)
+    return ServiceMetrics(registry, rejected, requests, duration, in_flight)
+
+
+class HttpMetrics:
+    """ASGI middleware counting each HTTP request by method, route template and status, timing it to the end of
+    its answer, and counting the requests in flight. The route is the one the router took (``scope["route"]``),
+    else the first of ``routes(scope)`` (the templates whose path matches: a refusal before routing, the body
+    limit's 413), else ``unmatched``; a request whose exception escaped the app counts as 500 (the answer the
+    app's last handler gives)."""
+
+    def __init__(
+        self,
+        app: Callable[..., Awaitable[None]],
+        metrics: ServiceMetrics,
+        routes: Callable[[MutableMapping[str, Any]], list[str]] = lambda scope: [],
+    ) -> None:
+        self.app = app
+        self.metrics = metrics
+        self.routes = routes
+
+    async def __call__(
+        self,
+        scope: MutableMapping[str, Any],
+        receive: Callable[[], Awaitable[dict[str, Any]]],
+        send: Callable[[dict[str, Any]], Awaitable[None]],
+    ) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = time.perf_counter()
+        status = 500
+
+        async def counted(message: dict[str, Any]) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = int(message["status"])
+            await send(message)
+
+        self.metrics.in_flight.inc()
+        try:
+            await self.app(scope, receive, counted)
+        finally:
+            self.metrics.in_flight.dec()
+            method = scope.get("method", "")
+            method = method if method in HTTP_METHODS else "other"
+            route = route_template(scope, self.routes)
+            self.metrics.requests.labels(method, route, str(status)).inc()
+            self.metrics.duration.labels(method, route).observe(time.perf_counter() - started)
+
+
+def route_template(scope: MutableMapping[str, Any], routes: Callable[[MutableMapping[str, Any]], list[str]]) -> str:
+    """The path template of the route that took the request (``/v1/maps/{map_id}/objects``), else the first of
+    ``routes(scope)``, else ``UNMATCHED_ROUTE``."""
+    path = getattr(scope.get("route"), "path", None)  # a Route's or a Mount's (a BaseRoute may have none)
+    return path if isinstance(path, str) and path else next(iter(routes(scope)), UNMATCHED_ROUTE)
+
+
+__all__ = ["HttpMetrics", "IngestCollector", "ServiceMetrics", "make_registry", "route_template"]
