@@ -81,6 +81,8 @@ def test_the_dashboard_is_a_grafana_dashboard_on_a_prometheus_datasource_variabl
     for topic in ("queue depth (frames)", "queue depth (bytes)", "frames per second", "refused", "latency", "failures"):
         assert topic in titles, topic
     assert "live workers" in titles and "retries and claims" in titles
+    for topic in ("by route", "by map", "by worker", "workers up", "memory"):
+        assert topic in titles, topic
 
 
 def scraped_sample_names(client: AppClient) -> set[str]:
@@ -104,6 +106,15 @@ def test_every_metric_the_dashboard_queries_is_on_a_real_apps_metrics() -> None:
         "arcloud_live_workers",
         "arcloud_queue_wait_seconds_bucket",
         "arcloud_lock_wait_seconds_bucket",
+        "arcloud_workers_up",
+        "arcloud_map_frames_processed_total",
+        "arcloud_map_queue_depth",
+        "arcloud_worker_frames_processed_total",
+        "http_requests_total",
+        "http_request_duration_seconds_bucket",
+        "http_requests_in_flight",
+        "process_cpu_seconds_total",
+        "process_resident_memory_bytes",
     }
     assert wanted <= queried, wanted - queried
     assert any(e.startswith("histogram_quantile(0.99,") for e in exprs_of(dashboard))
