@@ -21,6 +21,10 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
+    <lock or claim key>:wanted      STRING  someone waits for the lock or claim (PX its holder's ttl; set by
+                                            ``lua/acquire.lua``): its release wakes one waiter
+    <lock or claim key>:wake        LIST    a token for the waiter blocked on it (BLPOP; pushed by
+                                            ``lua/release.lua``, at most one, PX 1 s)
     arcloud:alignments:{m}          HASH    device id -> its ``device_from_map`` (JSON, 16 numbers row-major;
                                             ``redis_alignments``): outside ``map_pattern``, so that deleting the
                                             map's objects leaves it (the API's map deletion forgets it)
@@ -83,6 +87,7 @@ OBJECT = "obj"
 CELL = "cell"
 LOCK = "lock"
 CLAIM = "claim"
+WAKE = "wake"
 RETIRED = "retired"
 
 
@@ -157,6 +162,11 @@ def cell_name(cell: tuple[int, int, int]) -> str:
 
 def cell_key(map_id: str, cell: tuple[int, int, int]) -> str:
     return f"{map_prefix(map_id)}:{CELL}:{cell_name(cell)}"
+
+
+def lease_wake_key(lease_key: str) -> str:
+    """The list a caller waiting for a lock or claim key blocks on (``lua/release.lua`` builds the same name)."""
+    return f"{lease_key}:{WAKE}"
 
 
 def lock_key(map_id: str, object_id: int) -> str:

@@ -11,9 +11,13 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   instead; a box of more than ``max_query_cells`` cells (or an unbounded one) reads the bounds HASH
   too, to keep one script call short: O(objects of the map) then.
 - Locks and space claims: keys holding a random token with a TTL (``SET key token PX ttl``), taken
-  all-or-nothing by one Lua script (in sorted order; never some held while waiting), retried with
-  jittered exponential backoff until ``timeout_s`` (0: try once); released by a script that deletes
-  only the keys still holding the lease's token.
+  all-or-nothing by one Lua script (in sorted order; never some held while waiting), retried until
+  ``timeout_s`` (0: try once); released by a script that deletes only the keys still holding the lease's
+  token. A caller that found a key busy blocks (BLPOP, at most ``WAKE_MAX_S``, at most the holder's ttl)
+  on that key's wake list, which the release pushes a token to, so the next waiter tries again within a
+  round trip of the release and waiting costs no CPU (it polled with a backoff of up to 50 ms before:
+  issue 24 measured 0.4-0.5 s of lock wait a frame with 16 workers on one map; docs/scaling.md). The
+  embedded store waits on a condition the same way.
 - Objects: a HASH per object (``version``: the fence, ``cells``: where it is indexed, ``voxels``: the
   ``codec`` blob), the metadata JSON in one HASH per map (listing a map is one read), the bounds in
   another. ``get`` of many ids is one MULTI/EXEC pipeline (a consistent snapshot).
@@ -68,7 +72,6 @@ import itertools
 import json
 import logging
 import math
-import random
 import time
 import uuid
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -104,8 +107,7 @@ log = logging.getLogger(__name__)
 DEFAULT_URL = "redis://127.0.0.1:6379/0"
 MAX_QUERY_CELLS = MAX_CELLS_PER_CALL  # larger query boxes read the bounds HASH instead of the cells
 SCAN_CELLS_PER_OBJECT = 2  # a box of more cells than this many per object reads the bounds HASH (cheaper)
-BACKOFF_MIN_S = 0.002
-BACKOFF_MAX_S = 0.05
+WAKE_MAX_S = 0.05  # the longest a lock waiter blocks before trying again (a wake-up may go to another waiter)
 GET_BATCH = 256  # objects per pipeline when reading many
 SCAN_COUNT = 1000
 DELETE_BATCH = 1000  # keys a call when deleting a map
@@ -347,8 +349,6 @@ class RedisStore:
             return lease
         ttl_ms = max(1, math.ceil(ttl_s * 1000))
         deadline = time.monotonic() + timeout_s
-        jitter = random.Random(token)  # de-synchronises workers that retry together
-        delay_s = BACKOFF_MIN_S
         while True:
             with redis_errors(f"lock on map {map_id}", self._where):
                 busy, busy_ttl_ms = (list(self._scripts["acquire"](keys=lease_keys, args=[token, ttl_ms])) + [0])[:2]
@@ -360,11 +360,9 @@ class RedisStore:
                     f"map {map_id}: {lease_keys[busy - 1]} busy after {timeout_s:.3g} s "
                     f"({len(lease_keys)} keys requested, none held)"
                 )
-            wait_s = delay_s * (0.5 + jitter.random())
-            if busy_ttl_ms > 0:
-                wait_s = min(wait_s, busy_ttl_ms / 1000)
-            time.sleep(max(0.0, min(remaining_s, wait_s)))
-            delay_s = min(BACKOFF_MAX_S, delay_s * 2)
+            wait_s = min(remaining_s, WAKE_MAX_S, busy_ttl_ms / 1000 if busy_ttl_ms > 0 else WAKE_MAX_S)
+            with redis_errors(f"wait for a lock on map {map_id}", self._where):  # until released (or the ttl ends)
+                self.client.blpop([keys.lease_wake_key(lease_keys[busy - 1])], timeout=max(0.001, wait_s))
 
     def _release(self, lease: RedisLease) -> None:
         if lease.keys:
