@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_shards.py
 	$(BIN)/python bench/bench_shards.py --detector-wait-ms 300 --replay-runs 0 --out bench/results/shards_wait.json
 	$(BIN)/python bench/bench_memory.py
+	$(BIN)/python bench/bench_scaling.py
 	$(BIN)/python bench/scaling_model.py
 
 # Accuracy suites (simulated rooms, ScanNet renders, 7-Scenes) -> bench/results/accuracy.json; about 20 min.

@@ -13,7 +13,7 @@ import subprocess
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
@@ -188,10 +188,14 @@ def redis_counters(client: Any) -> tuple[dict[str, int], int, int]:
 class ServiceMeter:
     """What a service spends between ``start`` and ``per_frame``: CPU of the API process (``api_pid``), of
     its worker processes (its descendants when started) and of the redis-server; Redis commands and bytes
-    in and out. ``per_frame(frames, request_bytes)`` divides them by the frames processed meanwhile."""
+    in and out. ``per_frame(frames, request_bytes)`` divides them by the frames processed meanwhile.
+    ``worker_pids``: the worker processes, when they are not the API's (``serve --workers 0``); the API is
+    then ``api_pid`` and its descendants (``serve --api-processes N``)."""
 
-    def __init__(self, api_pid: int, redis: Redis) -> None:
+    def __init__(self, api_pid: int, redis: Redis, *, worker_pids: Sequence[int] | None = None) -> None:
         self.api_pid, self.redis = api_pid, redis
+        self.worker_pids = None if worker_pids is None else list(worker_pids)
+        self.api: list[int] = [api_pid]
         self.workers: list[int] = []
         self._cpu: dict[str, float] = {}
         self._calls: dict[str, int] = {}
@@ -199,13 +203,16 @@ class ServiceMeter:
 
     def _cpu_now(self) -> dict[str, float]:
         return {
-            "api": cpu_s(self.api_pid),
+            "api": sum(cpu_s(p) for p in self.api),
             "workers": sum(cpu_s(p) for p in self.workers),
             "redis": cpu_s(self.redis.process.pid),
         }
 
     def start(self) -> None:
-        self.workers = children(self.api_pid)
+        if self.worker_pids is None:
+            self.workers = children(self.api_pid)
+        else:
+            self.api, self.workers = [self.api_pid, *children(self.api_pid)], self.worker_pids
         self._cpu = self._cpu_now()
         self._calls, *counted = redis_counters(self.redis.client)
         self._bytes = (counted[0], counted[1])
@@ -273,10 +280,12 @@ INGEST_ONLY_ENV = {
 
 
 class ServeProcess:
-    """``arcloud serve --redis URL --workers N --detector SPEC`` in its own process on a free loopback port,
-    with ``env`` (``ARCLOUD_*``) over this process's environment; ready (``/readyz`` 200) when built."""
+    """``arcloud serve --redis URL --workers N --detector SPEC [--api-processes A]`` in its own process on a free
+    loopback port, with ``env`` (``ARCLOUD_*``) over this process's environment; ready (``/readyz`` 200) when built."""
 
-    def __init__(self, redis_url: str, *, workers: int, detector: str, env: dict[str, str], ready_s: float = 180.0) -> None:
+    def __init__(
+        self, redis_url: str, *, workers: int, detector: str, env: dict[str, str], ready_s: float = 180.0, api_processes: int = 1
+    ) -> None:
         import sys
 
         import httpx
@@ -284,7 +293,7 @@ class ServeProcess:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         command = [sys.executable, "-m", "arcloud.cli", "serve", "--redis", redis_url, "--workers", str(workers)]
-        command += ["--detector", detector, "--port", str(self.port)]
+        command += ["--detector", detector, "--port", str(self.port), "--api-processes", str(api_processes)]
         self.process = subprocess.Popen(command, env={**os.environ, **env})
         deadline = time.time() + ready_s
         while time.time() < deadline:

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# The scaling bench (bench/bench_scaling.py) on a lent machine of many cores, where neither ../shared nor
+# PyPI nor redis-server are (/work/shared/DEVICE.md says why each step is needed). Two steps:
+#
+#   bench/scaling_device.sh prepare        here: gathers what the run needs into .device/ (git ignores it;
+#                                          about 40 MB: the model, 60 frames, cp312 wheels, redis-server)
+#   bench/scaling_device.sh run [ARGS]     there, from the repository root (the `run` tool with carry
+#                                          [".device"]): installs the wheels into /tmp/site, runs
+#                                          bench_scaling.py with the many-core arguments (ARGS replace or add
+#                                          to them) and writes $OUT/scaling.json (bench/results/ without $OUT)
+#
+# Plot it here afterwards: .venv/bin/python bench/bench_scaling.py --plot FILE.json (matplotlib is not carried).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+DEVICE=.device
+SHARED=${ARCLOUD_SHARED:-../shared}
+MODEL=yolo11n-seg-fp32-640.onnx
+FRAMES=60  # every STRIDE-th frame of 7-Scenes redkitchen, as bench_scaling.py's defaults take them
+STRIDE=10
+# What the machine there lacks (DEVICE.md); versions from constraints.txt.
+WHEELS="fastapi starlette uvicorn pydantic pydantic_core pydantic-settings python-dotenv python-multipart redis
+annotated-types typing-inspection annotated-doc httptools opentelemetry-api"
+
+prepare() {
+    rm -rf "$DEVICE"
+    mkdir -p "$DEVICE"/wheels "$DEVICE"/bin "$DEVICE"/lib "$DEVICE"/shared/models "$DEVICE"/shared/data/7scenes-redkitchen
+    grep -qx "$DEVICE/" .git/info/exclude 2>/dev/null || echo "$DEVICE/" >> .git/info/exclude
+    cp "$SHARED/models/$MODEL" "$DEVICE/shared/models/"
+    local scene="$SHARED/data/7scenes-redkitchen"
+    cp "$scene/camera-intrinsics.txt" "$scene/gravity-direction.txt" "$DEVICE/shared/data/7scenes-redkitchen/"
+    for ((i = 0; i < FRAMES * STRIDE; i += STRIDE)); do
+        cp "$scene"/frame-$(printf %06d $i).{color.jpg,depth.png,pose.txt} "$DEVICE/shared/data/7scenes-redkitchen/"
+    done
+    local pins=()
+    for name in $WHEELS; do
+        local pin
+        pin=$(grep -i "^${name//[-_]/[-_]}==" constraints.txt) || { echo "no pin for $name in constraints.txt" >&2; exit 1; }
+        pins+=("$pin")
+    done
+    .venv/bin/python -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+        --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux_2_28_x86_64 \
+        -d "$DEVICE/wheels" "${pins[@]}"
+    # Debian's redis-server is the same binary as redis-check-rdb; it needs these two libraries.
+    cp "$(command -v redis-check-rdb)" "$DEVICE/bin/redis-server"
+    cp /lib/x86_64-linux-gnu/liblzf.so.1 /lib/x86_64-linux-gnu/libjemalloc.so.2 "$DEVICE/lib/"
+    du -sh "$DEVICE"
+}
+
+run() {
+    local python=${PYTHON:-python3}
+    "$python" -m pip install -q --no-index --no-deps --target /tmp/site "$DEVICE"/wheels/*.whl
+    export PATH="$PWD/$DEVICE/bin:$PATH" LD_LIBRARY_PATH="$PWD/$DEVICE/lib" PYTHONPATH="/tmp/site:$PWD/src"
+    export ARCLOUD_SHARED="$PWD/$DEVICE/shared"
+    local out=${OUT:-bench/results}
+    nproc
+    "$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 \
+        --workers 1,2,4,8,15 --wait-workers 1,2,4,8,16,32 --wait-phase-s 2 --out "$out/scaling.json" "$@"
+}
+
+case "${1:-}" in
+    prepare) prepare ;;
+    run) shift; run "$@" ;;
+    *) echo "usage: $0 prepare | run [bench_scaling.py arguments]" >&2; exit 2 ;;
+esac
