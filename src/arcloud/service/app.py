@@ -58,12 +58,13 @@ from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
-from arcloud.ports import MapArchive, QueueFull
+from arcloud.ports import MapArchive, ObjectMeta, QueueFull
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
-from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_map, needs_voxels, voxel_colors_out
+from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_from_store, voxel_colors_out
 from arcloud.service.logs import bind_log_context
 from arcloud.service.map_header import check_map_header
+from arcloud.service.pages import object_page, parse_cursor
 from arcloud.service.problems import PROBLEM_TYPES, TYPE_PREFIX, problem_openapi, problem_response
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
@@ -89,6 +90,7 @@ from arcloud.service.schemas import (
     object_out,
 )
 from arcloud.service.settings import Settings
+from arcloud.service.uploads import UploadTicket, admit_upload
 
 log = logging.getLogger(__name__)
 
@@ -227,7 +229,6 @@ router = APIRouter()
 @router.post(
     "/v1/maps/{map_id}/frames",
     status_code=202,
-    dependencies=[Depends(require("write"))],
     response_model=FrameAccepted,
     summary="Upload one posed RGB-D frame",
     description="Validated in full, then queued; processing is asynchronous (see the map's stats). Posting a frame "
@@ -242,7 +243,10 @@ router = APIRouter()
     openapi_extra=FRAME_BODY_DOC,
     tags=["frames"],
 )
-async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> FrameAccepted:
+async def post_frame(
+    map_id: MapId, request: Request, runtime: RuntimeDep, upload: Annotated[UploadTicket, Depends(admit_upload)]
+) -> FrameAccepted:
+    # ``admit_upload``: access, then 429 before the body is read when the map or key has too many uploads in progress
     check_map_id("map_id", map_id)
     settings = runtime.settings
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
@@ -257,7 +261,7 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
         msg = frames_in.message_from_parts(frames_in.parse_meta(parts["meta"]), parts["rgb"], parts["depth"], map_id)
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
-    frame = await run_in_threadpool(
+    frame = await upload.decode(  # holding a decoding slot, maps taking turns (service.uploads)
         partial(
             frames_in.validate_message,
             msg,
@@ -270,8 +274,8 @@ async def post_frame(map_id: MapId, request: Request, runtime: RuntimeDep) -> Fr
     )
     bind_log_context(map_id=frame.map_id, device_id=frame.device_id, frame_id=frame.frame_id)  # to the response's log line
     # 409 for other settings; a map's first frame opens it (it is listed from then on)
-    await run_in_threadpool(partial(check_map_header, runtime.store, map_id, runtime.params, open_new=True))
-    accepted = await run_in_threadpool(runtime.ingest.submit, frame, msg)
+    await upload.run(partial(check_map_header, runtime.store, map_id, runtime.params, open_new=True))
+    accepted = await upload.run(partial(runtime.ingest.submit, frame, msg))
     return FrameAccepted(map_id=accepted.map_id, device_id=accepted.device_id, frame_id=accepted.frame_id, status=accepted.status)
 
 
@@ -329,24 +333,18 @@ def list_objects(
     cursor: Annotated[str | None, Query(description="the `next_cursor` of the page before", examples=["17"])] = None,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
+    after = parse_cursor(cursor)
     if bbox is not None:
         lo, hi = parse_bbox(bbox)
-        objects = runtime.store.object_meta(map_id, sorted(runtime.store.query_region(map_id, lo, hi)))
+        ids = sorted(runtime.store.query_region(map_id, lo, hi))
     else:
-        objects = runtime.store.list_meta(map_id)
-    chosen = [
-        o
-        for o in objects
-        if (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score
-    ]
-    chosen.sort(key=lambda o: o.id)
-    if cursor is not None:
-        if not cursor.isdigit() or len(cursor) > 19:
-            raise InvalidInput("cursor", "the next_cursor of a page before (an object id)", repr(cursor[:40]))
-        chosen = [o for o in chosen if o.id > int(cursor)]
-    page = chosen if limit is None else chosen[:limit]
-    more = limit is not None and len(chosen) > limit
-    return {"objects": [object_out(o) for o in page], "next_cursor": str(page[-1].id) if more else None}
+        ids = runtime.store.object_ids(map_id)
+
+    def keep(o: ObjectMeta) -> bool:
+        return (include == "tentative" or o.confirmed) and (label is None or o.label == label) and o.score >= min_score
+
+    page, next_id = object_page(runtime.store, map_id, ids, keep, after=after, limit=limit)  # reads what it returns
+    return {"objects": [object_out(o) for o in page], "next_cursor": None if next_id is None else str(next_id)}
 
 
 @router.get(
@@ -405,10 +403,17 @@ def export(
     voxels: Annotated[bool, Query(description="json: add each object's voxel centres, weights and colours")] = False,
 ) -> Response:
     known_map(runtime, map_id)
-    store = runtime.store
-    objects: list[Any] = store.list_objects(map_id) if needs_voxels(fmt, voxels) else store.list_meta(map_id)
-    chosen = [o for o in objects if include == "tentative" or o.confirmed]
-    body = export_map(map_id, chosen, runtime.params, fmt, color=color, voxels=voxels)
+    body = export_from_store(  # 422 over max_export_objects / max_export_voxels, before any voxel is read
+        runtime.store,
+        map_id,
+        runtime.params,
+        fmt,
+        include_tentative=include == "tentative",
+        color=color,
+        voxels=voxels,
+        max_voxels=runtime.settings.max_export_voxels,
+        max_objects=runtime.settings.max_export_objects,
+    )
     media, extension = MEDIA[fmt]
     return Response(body, media_type=media, headers={"Content-Disposition": f'attachment; filename="{map_id}.{extension}"'})
 

@@ -23,8 +23,10 @@ Events, each ``event: NAME`` and one line of JSON ``data:``:
 and a ``: keep-alive`` comment when nothing was sent for ``event_heartbeat_s`` (15 s). Like the objects
 listing, a stream carries confirmed objects unless asked ``?include=tentative``. It needs a key that may
 read the map, looked at again every ``key_cache_s`` (1 s at least: a revoked key's streams end within
-about twice that); at most ``max_event_streams`` streams are
-open in a process (503 beyond). A stream ends when its client goes, or when ``close_event_streams``
+about twice that). Streams are shared fairly: at most ``max_event_streams`` are open in a process (503 beyond),
+``max_event_streams_per_map`` of one map and ``max_event_streams_per_key`` of one key (with auth none: one client
+address; 429 beyond, both with ``Retry-After`` and the limit named), so that one key cannot take every place from
+other maps' viewers (one reader key opened the 100 of a process in 0.88 s before). A stream ends when its client goes, or when ``close_event_streams``
 is called (``arcloud serve`` calls it as uvicorn begins to shut down: uvicorn waits for open responses
 before it ends the app's lifespan, and a stream never ends by itself).
 
@@ -39,6 +41,7 @@ import contextlib
 import json
 import logging
 import time
+from collections import Counter
 from collections.abc import AsyncIterator, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
@@ -51,7 +54,7 @@ from starlette.concurrency import run_in_threadpool
 from arcloud.core.types import Params
 from arcloud.errors import ArcloudError
 from arcloud.ports import ObjectMeta, ObjectStore
-from arcloud.service.access import Refused, bearer_scheme, require
+from arcloud.service.access import Caller, Refused, bearer_scheme, require
 from arcloud.service.app import MapId, RuntimeDep, known_map
 from arcloud.service.devices import DevicePose, RecentDevices
 from arcloud.service.schemas import PROBLEM_RESPONSES, object_out
@@ -61,6 +64,7 @@ log = logging.getLogger(__name__)
 DEVICE_RECENT_S = 120.0  # a device drawn is one heard from this recently
 MIN_ACCESS_RECHECK_S = 1.0  # an open stream's key is looked at again every key_cache_s, at most this often
 RETRY_MS = 2000  # what the stream tells clients to wait before reconnecting
+REFUSED_RETRY_AFTER_S = 5  # a stream refused for a limit: ask again in this many seconds
 
 Event = tuple[str, dict[str, Any]]  # (name, data)
 
@@ -120,6 +124,7 @@ class Subscriber:
     """One open stream: what it still has to tell its client (coalesced per object and device)."""
 
     include_tentative: bool
+    key: str = ""  # whose stream it is (``Caller.bucket``): the per-key limit counts it
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     needs_snapshot: bool = True
     shown: set[int] = field(default_factory=set)
@@ -216,33 +221,69 @@ class MapWatch:
 
 
 class EventStreams:
-    """Every event stream of one app (one per process): the watched maps, the limit, the shutdown.
-    Used on the event loop only (no locks)."""
+    """Every event stream of one app (one per process): the watched maps, the limits (in all, per map, per key),
+    the shutdown. Used on the event loop only (no locks)."""
 
-    def __init__(self, max_streams: int, poll_s: float, heartbeat_s: float) -> None:
+    def __init__(
+        self,
+        max_streams: int,
+        poll_s: float,
+        heartbeat_s: float,
+        *,
+        max_per_map: int | None = None,
+        max_per_key: int | None = None,
+    ) -> None:
         self.max_streams = max_streams
+        self.max_per_map = max_per_map or max_streams
+        self.max_per_key = max_per_key or max_streams
         self.poll_s = poll_s
         self.heartbeat_s = heartbeat_s
         self.watches: dict[str, MapWatch] = {}
         self.open_streams = 0
+        self.by_key: Counter[str] = Counter()  # open streams per key (``Caller.bucket``)
         self.closing = False
 
     def subscribe(
-        self, map_id: str, store: ObjectStore, devices: RecentDevices, params: Params, *, include_tentative: bool
+        self,
+        map_id: str,
+        store: ObjectStore,
+        devices: RecentDevices,
+        params: Params,
+        *,
+        include_tentative: bool,
+        key: str = "",
     ) -> tuple[MapWatch, Subscriber]:
-        """A new stream of ``map_id``; ``HTTPException`` 503 when the process has its maximum open or stops."""
+        """A new stream of ``map_id`` for ``key``; ``HTTPException`` 503 when the process has its maximum open or
+        stops, 429 when the map or the key has its maximum open (each naming the limit, with Retry-After)."""
+        retry = {"Retry-After": str(REFUSED_RETRY_AFTER_S)}
         if self.closing:
-            raise HTTPException(503, "event streams: the service is shutting down", headers={"Retry-After": "5"})
+            raise HTTPException(503, "event streams: the service is shutting down", headers=retry)
         if self.open_streams >= self.max_streams:
             raise HTTPException(
-                503, f"event streams: {self.max_streams} open in this process, the maximum", headers={"Retry-After": "5"}
+                503, f"event streams: {self.max_streams} open in this process, the maximum (max_event_streams)", headers=retry
             )
         watch = self.watches.get(map_id)
+        if watch is not None and len(watch.subscribers) >= self.max_per_map:
+            raise HTTPException(
+                429,
+                f"event streams: map {map_id!r} has {len(watch.subscribers)} open in this process, the maximum "
+                f"(max_event_streams_per_map {self.max_per_map})",
+                headers=retry,
+            )
+        if self.by_key[key] >= self.max_per_key:
+            who = f"key {key.removeprefix('key:')}" if key.startswith("key:") else f"client {key.removeprefix('ip:')}"
+            raise HTTPException(
+                429,
+                f"event streams: {who} has {self.by_key[key]} open in this process, the maximum "
+                f"(max_event_streams_per_key {self.max_per_key})",
+                headers=retry,
+            )
         if watch is None:
             world2gravity = tuple(float(v) for v in params.gravity.world2gravity.reshape(9))
             watch = self.watches[map_id] = MapWatch(map_id, store, devices, self.poll_s, world2gravity)
-        sub = Subscriber(include_tentative)
+        sub = Subscriber(include_tentative, key)
         watch.subscribers.add(sub)
+        self.by_key[key] += 1
         if watch.task is None:
             watch.task = asyncio.create_task(watch.run(self._forget), name=f"arcloud-events-{map_id}")
         elif watch.ready:
@@ -254,6 +295,9 @@ class EventStreams:
         if sub in watch.subscribers:
             watch.subscribers.discard(sub)
             self.open_streams -= 1
+            self.by_key[sub.key] -= 1
+            if self.by_key[sub.key] <= 0:
+                del self.by_key[sub.key]
 
     def _forget(self, watch: MapWatch) -> None:
         if self.watches.get(watch.map_id) is watch:
@@ -283,7 +327,13 @@ def close_event_streams(app: FastAPI) -> None:
 @contextlib.asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings = app.state.runtime.settings  # the app's own lifespan, run first, started the runtime
-    app.state.event_streams = EventStreams(settings.max_event_streams, settings.event_poll_s, settings.event_heartbeat_s)
+    app.state.event_streams = EventStreams(
+        settings.max_event_streams,
+        settings.event_poll_s,
+        settings.event_heartbeat_s,
+        max_per_map=settings.max_event_streams_per_map,
+        max_per_key=settings.max_event_streams_per_key,
+    )
     try:
         yield
     finally:
@@ -295,7 +345,6 @@ router = APIRouter(lifespan=lifespan)
 
 @router.get(
     "/v1/maps/{map_id}/events",
-    dependencies=[Depends(require("read"))],
     response_class=StreamingResponse,
     responses={
         **PROBLEM_RESPONSES,
@@ -311,6 +360,7 @@ async def map_events(
     map_id: MapId,
     request: Request,
     runtime: RuntimeDep,
+    caller: Annotated[Caller, Depends(require("read"))],
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)],
     include: Annotated[
         Literal["tentative"] | None, Query(description="tentative: tentative objects too", examples=["tentative"])
@@ -319,7 +369,12 @@ async def map_events(
     await run_in_threadpool(known_map, runtime, map_id)
     streams: EventStreams = request.app.state.event_streams
     watch, sub = streams.subscribe(
-        map_id, runtime.store, runtime.ingest.devices, runtime.params, include_tentative=include == "tentative"
+        map_id,
+        runtime.store,
+        runtime.ingest.devices,
+        runtime.params,
+        include_tentative=include == "tentative",
+        key=caller.bucket,
     )
     token = credentials.credentials if credentials is not None else None
     address = request.client.host if request.client is not None else "unknown"

@@ -170,8 +170,41 @@ class Settings(BaseSettings):
     auth_failure_burst: int = Field(
         50, ge=1, description="failed authentications a client address may make at once above its rate"
     )
+    # what one map or one key may take of an API process (service.uploads, service.event_stream, exports)
+    upload_decode_slots: int | None = Field(
+        None,
+        ge=1,
+        description="uploads one API process decodes and checks at once, shared among the maps uploading (a map alone "
+        "takes all, two maps half each; one more slot for a map holding none), so a flooded map cannot slow the others' "
+        "uploads; more wait their map's turn; default: the process's cores",
+    )
+    max_uploads_per_map: int = Field(
+        16,
+        ge=1,
+        description="uploads of one map in progress at once in one API process (read, waiting their turn, checked, "
+        "queued): 429 beyond, before the body is read",
+    )
+    max_uploads_per_key: int = Field(
+        16, ge=1, description="uploads of one key (with auth none: one client address) in progress at once: 429 beyond"
+    )
+    max_export_voxels: int = Field(
+        1_000_000,
+        ge=1,
+        description="voxels one export may carry (format=ply, or json with voxels=true): 422 beyond, before any voxel "
+        "is read (JSON takes about 9 us and 60 bytes a voxel, PLY 0.2 us and 19 bytes)",
+    )
+    max_export_objects: int = Field(100_000, ge=1, description="objects one export may carry, any format: 422 beyond")
     # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
     max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
+    max_event_streams_per_key: int = Field(
+        10,
+        ge=1,
+        description="event streams one key (with auth none: one client address) may hold open in one API process "
+        "(429 beyond), so that one key cannot take the process's streams from every other map's viewers",
+    )
+    max_event_streams_per_map: int = Field(
+        50, ge=1, description="event streams of one map open at once in one API process (429 beyond)"
+    )
     event_poll_s: float = Field(
         0.5, gt=0, le=60, description="how often the API reads a streamed map's objects to find what changed"
     )
