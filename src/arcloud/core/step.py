@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arcloud.core.associate import associate, stored_index_bounds_of
+from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
@@ -42,6 +42,7 @@ from arcloud.core.fusion import (
     merge_objects,
     new_object,
     resolve_conflicts,
+    seen_apart,
     split_detection,
 )
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
@@ -134,6 +135,7 @@ def integrate_frame(
                 stored.update({o.id: o for o in late})
                 objects += late_and_new
                 voxels_changed |= late_changed
+            objects = mark_apart(objects, observations, voxels_changed, params)
             objects, absorbed_into = merge_duplicates(objects, voxels_changed, params)
             objects, trimmed = resolve_shared_voxels(objects)
             voxels_changed |= set(absorbed_into.values()) | trimmed
@@ -219,6 +221,7 @@ def fuse_matches(
         params,
         object_bounds=stored_index_bounds_of(objects, params.voxel_size_m),
         object_frames=[o.n_frames for o in objects],
+        seen_apart=apart_matrix(objects, params),
     )
     matched = {o for _, o in association.pairs}
     views: dict[int, VoxelDetection] = {}
@@ -242,6 +245,56 @@ def fuse_matches(
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
     return fused, [observations[d] for d in association.unmatched], fused_ids
+
+
+def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | None:
+    """(O, O) bool: the pairs of ``objects`` that frames saw apart (``seen_apart``); None when there is none."""
+    if not any(o.apart for o in objects):
+        return None
+    index = {o.id: i for i, o in enumerate(objects)}
+    out = np.zeros((len(objects), len(objects)), bool)
+    for i, obj in enumerate(objects):
+        for other in obj.apart:
+            j = index.get(other)
+            if j is not None and seen_apart(obj, objects[j], params):
+                out[i, j] = out[j, i] = True
+    return out
+
+
+def mark_apart(
+    objects: list[MapObject], observations: Sequence[VoxelDetection], changed: set[int], params: Params
+) -> list[MapObject]:
+    """Two detections of one class in this frame that share few voxels (coarse overlap below
+    ``association_min_overlap``) are two instances the frame saw apart: the objects that took them (the
+    changed object holding most of each one's voxels), when not the same, count one more frame apart
+    from each other (``MapObject.apart``; ``core.fusion.seen_apart`` keeps them from being merged, and a
+    later mask spanning both is shared out between them)."""
+    by_label: dict[int, list[int]] = {}
+    for d, obs in enumerate(observations):
+        by_label.setdefault(obs.label_index, []).append(d)
+    groups = [ds for ds in by_label.values() if len(ds) > 1]
+    if not groups or params.apart_min_frames == 0:
+        return objects
+    candidates = [i for i, o in enumerate(objects) if o.id in changed and o.keys.size]
+    pairs: set[tuple[int, int]] = set()
+    for ds in groups:
+        keys = [observations[d].keys for d in ds]
+        overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels)
+        owners = []
+        for k in keys:
+            held = [int(np.count_nonzero(np.isin(k, objects[i].keys, assume_unique=True))) for i in candidates]
+            owners.append(candidates[int(np.argmax(held))] if held and max(held) > 0 else None)
+        for a in range(len(ds)):
+            for b in range(a + 1, len(ds)):
+                oa, ob = owners[a], owners[b]
+                if oa is not None and ob is not None and oa != ob and overlap[a, b] < params.association_min_overlap:
+                    pairs.add((min(oa, ob), max(oa, ob)))
+    out = list(objects)
+    for a, b in sorted(pairs):
+        for i, j in ((a, b), (b, a)):
+            other = objects[j].id
+            out[i] = out[i].replace(apart={**out[i].apart, other: out[i].apart.get(other, 0) + 1})
+    return out
 
 
 @dataclass(slots=True)
