@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
 
-.PHONY: demo test lint bench accuracy proto lock viewer-vendor clean
+.PHONY: demo test lint bench accuracy proto lock web-vendor clean
 
 $(STAMP): pyproject.toml constraints.txt scripts/bootstrap.sh
 	VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh
@@ -49,17 +49,28 @@ accuracy: $(STAMP)
 proto: $(STAMP)
 	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto --pyi_out=src/arcloud/proto proto/arcloud/v1/*.proto
 
-# three.js for the web viewer (GET /viewer): the version web/package-lock.json pins, from npm, with its licence, into
-# the package. The copies are committed, so that a clean checkout and the wheel need no npm; run this after changing
-# the pin (tests/viewer checks that the copies are of the pinned version).
+# The browser libraries the service ships, at the versions web/package-lock.json pins, from npm, with their licences, into
+# the package: three.js for the web viewer (GET /viewer), Swagger UI and ReDoc for the API docs (GET /docs, /redoc). The
+# copies are committed, so that a clean checkout, the wheel and a machine offline need no npm; run this after changing a
+# pin (tests/viewer and tests/service/test_service_docs.py check that the copies are of the pinned versions).
+# --ignore-scripts: no package's install script runs (swagger-ui-dist's would report the install to a server).
 VIEWER_VENDOR := src/arcloud/service/viewer/vendor
+DOCS_VENDOR := src/arcloud/service/docs_ui
 THREE := web/node_modules/three
-viewer-vendor:
-	cd web && npm ci --no-audit --no-fund
-	mkdir -p $(VIEWER_VENDOR)
+SWAGGER_UI := web/node_modules/swagger-ui-dist
+REDOC := web/node_modules/redoc
+web-vendor:
+	cd web && npm ci --ignore-scripts --no-audit --no-fund
+	mkdir -p $(VIEWER_VENDOR) $(DOCS_VENDOR)
 	cp $(THREE)/build/three.module.js $(THREE)/build/three.core.js $(THREE)/examples/jsm/controls/OrbitControls.js \
 		$(THREE)/examples/jsm/renderers/CSS2DRenderer.js $(VIEWER_VENDOR)/
 	cp $(THREE)/LICENSE $(VIEWER_VENDOR)/THREE-LICENSE
+	cp $(SWAGGER_UI)/swagger-ui-bundle.js $(SWAGGER_UI)/swagger-ui-bundle.js.LICENSE.txt $(SWAGGER_UI)/swagger-ui.css \
+		$(SWAGGER_UI)/favicon-32x32.png $(REDOC)/bundles/redoc.standalone.js $(REDOC)/bundles/redoc.standalone.js.LICENSE.txt \
+		$(DOCS_VENDOR)/
+	cp $(SWAGGER_UI)/LICENSE $(DOCS_VENDOR)/SWAGGER-UI-LICENSE
+	cp $(SWAGGER_UI)/NOTICE $(DOCS_VENDOR)/SWAGGER-UI-NOTICE
+	cp $(REDOC)/LICENSE $(DOCS_VENDOR)/REDOC-LICENSE
 
 lock: $(STAMP)
 	$(BIN)/python -m pip freeze --exclude-editable > constraints.txt

@@ -19,6 +19,7 @@ COMMANDS = (
     ["eval"],
     ["eval", "scannet"],
     ["eval", "7scenes"],
+    ["eval", "recording"],
     ["render-scannet"],
     ["serve"],
     ["worker"],
@@ -26,6 +27,8 @@ COMMANDS = (
     ["frames"],
     ["frames", "failed"],
     ["frames", "retry"],
+    ["models"],
+    ["models", "pull"],
 )
 
 

@@ -1,7 +1,9 @@
 """The deployment files, read as YAML and held against the code: ``docker-compose.yml`` (its ``cluster``
 profile) and the Kubernetes manifests under ``deploy/k8s`` (docs/kubernetes.md).
 
-What checks them: the settings they set are ``Settings`` fields and build valid settings; the KEDA triggers
+What checks them: the settings they set are ``Settings`` fields (or the detector's own variables: the model,
+the model cache) and build valid settings; the model cache the workers read is the one the compose pull step or
+the Kubernetes Job fills, with the catalogue's default model; the KEDA triggers
 name the ingest streams and consumer group the settings give; the HPA's metric is one ``/metrics`` serves;
 what refers to what exists. Schemas: the Kubernetes kinds against the Kubernetes 1.37 JSON schemas (strict:
 no unknown field) when ``kubernetes-validate`` is installed (it bundles them, so no network; it is not a
@@ -20,6 +22,8 @@ from typing import Any
 import pytest
 import yaml
 
+from arcloud.detectors.catalogue import DEFAULT_MODEL, MODELS_ENV_VAR, catalogue_model
+from arcloud.detectors.factory import MODEL_ENV_VAR
 from arcloud.service import metrics
 from arcloud.service.settings import Settings
 from arcloud.stores import keys
@@ -27,6 +31,10 @@ from arcloud.stores import keys
 ROOT = Path(__file__).resolve().parents[1]
 K8S = ROOT / "deploy" / "k8s"
 KUBERNETES_VERSION = "1.37.0"
+#: Manifests applied apart from the kustomization (kubectl apply -f).
+APART = {"worker-hpa.yaml", "models-pull-job.yaml"}
+#: Variables the detector reads itself (not ``Settings``): the model file, the model cache.
+DETECTOR_VARIABLES = {MODEL_ENV_VAR, MODELS_ENV_VAR}
 
 
 def documents() -> list[tuple[str, dict[str, Any]]]:
@@ -55,7 +63,9 @@ def container_env(deployment: dict[str, Any]) -> dict[str, str]:
 
 
 def settings_of(env: dict[str, str]) -> Settings:
-    arcloud = {k.removeprefix("ARCLOUD_").lower(): v for k, v in env.items() if k.startswith("ARCLOUD_")}
+    arcloud = {
+        k.removeprefix("ARCLOUD_").lower(): v for k, v in env.items() if k.startswith("ARCLOUD_") and k not in DETECTOR_VARIABLES
+    }
     unknown = set(arcloud) - set(Settings.model_fields)
     assert not unknown, f"not settings: {unknown}"
     return Settings(**arcloud)
@@ -65,7 +75,7 @@ def settings_of(env: dict[str, str]) -> Settings:
 def test_every_manifest_is_named_and_listed_in_the_kustomization() -> None:
     kustomization = yaml.safe_load((K8S / "kustomization.yaml").read_text())
     assert all((K8S / name).exists() for name in kustomization["resources"])
-    assert set(kustomization["resources"]) | {"kustomization.yaml", "worker-hpa.yaml"} == {p.name for p in K8S.glob("*.yaml")}
+    assert set(kustomization["resources"]) | {"kustomization.yaml"} | APART == {p.name for p in K8S.glob("*.yaml")}
     for name, doc in documents():
         if doc["kind"] != "Kustomization":
             assert (
@@ -109,6 +119,32 @@ def test_the_hpa_scales_the_workers_on_the_queue_depth_metrics_serves() -> None:
     (metric,) = hpa["spec"]["metrics"]
     assert metric["external"]["metric"]["name"] == "arcloud_queue_depth"
     assert '"arcloud_queue_depth"' in Path(metrics.__file__).read_text()
+
+
+def test_the_workers_read_the_default_model_from_the_cache_the_job_fills() -> None:
+    worker, job = only("Deployment", "arcloud-worker"), only("Job", "arcloud-models-pull")
+    env, model = container_env(worker), catalogue_model(DEFAULT_MODEL)
+    assert settings_of(env).detector == "onnx"  # onnx alone: the default model from the cache
+    (container,) = worker["spec"]["template"]["spec"]["containers"]
+    (mount,) = container["volumeMounts"]
+    (volume,) = worker["spec"]["template"]["spec"]["volumes"]
+    assert mount["mountPath"] == env[MODELS_ENV_VAR] and mount["readOnly"] and volume["name"] == mount["name"]
+    claim = volume["persistentVolumeClaim"]["claimName"]
+    assert "ReadOnlyMany" in only("PersistentVolumeClaim", claim)["spec"]["accessModes"]
+
+    spec = job["spec"]["template"]["spec"]
+    (export,), (pull,) = spec["initContainers"], spec["containers"]
+    assert " ".join(export["command"]) == model.export_command
+    assert pull["command"] == [
+        "arcloud", "models", "pull", DEFAULT_MODEL, "--from", f"{export['workingDir']}/{model.exported_file}", "--exported",
+    ]  # fmt: skip
+    assert container_env(job)[MODELS_ENV_VAR] == env[MODELS_ENV_VAR]
+    volumes = {v["name"]: v for v in spec["volumes"]}
+    mounts = {m["name"]: m for m in pull["volumeMounts"]}
+    (written,) = [m for m in mounts.values() if m["mountPath"] == env[MODELS_ENV_VAR]]
+    assert not written.get("readOnly") and volumes[written["name"]]["persistentVolumeClaim"]["claimName"] == claim
+    assert "ReadWriteOnce" in only("PersistentVolumeClaim", claim)["spec"]["accessModes"]
+    assert {m["mountPath"] for m in export["volumeMounts"]} == {export["workingDir"]}
 
 
 #: The ScaledObject fields these manifests use, as KEDA's documentation describes them (keda.sh/v1alpha1).
@@ -216,6 +252,19 @@ def test_kubectl_renders_the_kustomization() -> None:
 
 
 # --- docker compose ------------------------------------------------------------------------------------
+def test_compose_mounts_the_hosts_model_cache_where_the_containers_look_for_it() -> None:
+    compose = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+    for name in ("api", "worker", "api-cluster", "worker-cluster"):
+        service = compose["services"][name]
+        (volume,) = service["volumes"]
+        host, target, mode = volume.rsplit(":", 2)
+        assert host == "${ARCLOUD_MODELS:-~/.cache/arcloud/models}" and mode == "ro", name  # models_dir()'s default
+        assert service["environment"][MODELS_ENV_VAR] == target, name
+        assert service["environment"]["ARCLOUD_DETECTOR"] == "${ARCLOUD_DETECTOR:-onnx}", name
+    header = (ROOT / "docker-compose.yml").read_text().split("\nname:")[0]
+    assert f"arcloud models pull {DEFAULT_MODEL} --from FILE" in header
+
+
 def test_the_compose_cluster_profile_runs_the_service_on_three_primaries() -> None:
     services = yaml.safe_load((ROOT / "docker-compose.yml").read_text())["services"]
     profiled = {name for name, service in services.items() if "cluster" in service.get("profiles", [])}

@@ -1,4 +1,4 @@
-"""The `arcloud` command line: demo, eval, serve, worker, replay, frames, keys, export, maps."""
+"""The `arcloud` command line: demo, eval, serve, worker, replay, frames, keys, export, maps, models."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from arcloud.tools.export_cli import add_export_command
 from arcloud.tools.frames_cli import add_frames_commands
 from arcloud.tools.keys_cli import add_keys_commands
 from arcloud.tools.maps_cli import add_maps_commands
+from arcloud.tools.models_cli import add_models_commands
 from arcloud.tools.service_cli import add_service_commands
 
 
@@ -69,6 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_frames_commands(subparsers)
     add_keys_commands(subparsers)
     add_maps_commands(subparsers)
+    add_models_commands(subparsers)
     return parser
 
 

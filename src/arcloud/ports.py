@@ -33,6 +33,8 @@ __all__ = [
     "Detector",
     "FailedFrame",
     "FrameQueue",
+    "FrameTimings",
+    "Histogram",
     "KeyStore",
     "MapArchive",
     "Lease",
@@ -47,6 +49,7 @@ __all__ = [
     "RateLimiter",
     "RetiredObject",
     "UpdatePublisher",
+    "WAIT_BUCKETS_S",
     "latency_bucket",
 ]
 
@@ -157,11 +160,58 @@ class ObjectStore(MapStore, Protocol):
 # --- the frame queue ---------------------------------------------------------------------------------
 #: Upper bounds (seconds) of the step latency histogram's buckets (+Inf implied).
 LATENCY_BUCKETS_S: tuple[float, ...] = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
+#: Upper bounds (seconds) of the wait histograms' buckets (queue wait, lock wait; +Inf implied): from a
+#: lock taken at once (one Redis round trip, under a millisecond) to a backlog of a minute.
+WAIT_BUCKETS_S: tuple[float, ...] = (
+    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0
+)  # fmt: skip
 
 
 def latency_bucket(seconds: float) -> int:
     """Index of the histogram bucket holding ``seconds`` (upper bounds inclusive)."""
     return bisect.bisect_left(LATENCY_BUCKETS_S, seconds)
+
+
+@dataclass(slots=True)
+class Histogram:
+    """Observations (seconds) counted in buckets of upper bounds ``bounds_s`` (inclusive), a last bucket
+    for +Inf: ``counts`` per bucket (not cumulative, ``len(bounds_s) + 1`` of them) and their ``sum_s``."""
+
+    bounds_s: tuple[float, ...]
+    counts: list[int]
+    sum_s: float = 0.0
+
+    @classmethod
+    def empty(cls, bounds_s: tuple[float, ...]) -> Histogram:
+        return cls(bounds_s, [0] * (len(bounds_s) + 1))
+
+    def bucket(self, seconds: float) -> int:
+        """Index of the bucket holding ``seconds``."""
+        return bisect.bisect_left(self.bounds_s, seconds)
+
+    def observe(self, seconds: float) -> None:
+        self.counts[self.bucket(seconds)] += 1
+        self.sum_s += seconds
+
+    @property
+    def count(self) -> int:
+        return sum(self.counts)
+
+    def copy(self) -> Histogram:
+        return Histogram(self.bounds_s, list(self.counts), self.sum_s)
+
+
+@dataclass(frozen=True, slots=True)
+class FrameTimings:
+    """What one processed frame took and waited (seconds), for the queue's histograms (``QueueStats``):
+    ``step_s``, the step (detect to publish, its retries included); ``queue_wait_s``, from the frame's
+    acceptance until a worker took it (None: not counted, as for a frame delivered again, whose wait holds
+    its earlier deliveries; the API's and the worker's clocks must agree); ``lock_wait_s``, in the store's
+    lock and claim calls (a round trip each when nothing else holds the objects or cells)."""
+
+    step_s: float = 0.0
+    queue_wait_s: float | None = None
+    lock_wait_s: float = 0.0
 
 
 class QueueFull(ArcloudError):
@@ -262,7 +312,8 @@ def _mb(n_bytes: int) -> str:
 @dataclass(slots=True)
 class QueueStats:
     """Service-wide counters of a ``FrameQueue`` (every worker's, for a shared queue). ``latency_counts``
-    are per bucket of ``LATENCY_BUCKETS_S`` (not cumulative), the last one for +Inf."""
+    are per bucket of ``LATENCY_BUCKETS_S`` (not cumulative), the last one for +Inf. ``queue_wait`` and
+    ``lock_wait``: the processed frames' waits (``FrameTimings``) in buckets of ``WAIT_BUCKETS_S``."""
 
     accepted: int = 0
     duplicates: int = 0
@@ -275,6 +326,8 @@ class QueueStats:
     queued_bytes: int = 0  # what the queue holds of them (``QueueLimits``)
     latency_counts: list[int] = field(default_factory=lambda: [0] * (len(LATENCY_BUCKETS_S) + 1))
     latency_sum_s: float = 0.0
+    queue_wait: Histogram = field(default_factory=lambda: Histogram.empty(WAIT_BUCKETS_S))
+    lock_wait: Histogram = field(default_factory=lambda: Histogram.empty(WAIT_BUCKETS_S))
 
     @property
     def latency_count(self) -> int:
@@ -311,7 +364,9 @@ class QueuedFrame:
     """One delivery of a queued frame to one consumer, until it is acknowledged, failed or dead-lettered.
 
     ``frame`` is None when the queued bytes do not decode (``undecodable`` says why). ``deliveries``
-    counts this one (1 the first time). ``receipt`` is the adapter's own handle; nothing else reads it."""
+    counts this one (1 the first time). ``accepted_at_s``: when the queue accepted the frame (Unix
+    seconds, the accepting process's clock; None when not known). ``receipt`` is the adapter's own handle;
+    nothing else reads it."""
 
     map_id: str
     frame_key: str
@@ -319,6 +374,7 @@ class QueuedFrame:
     deliveries: int
     frame: Frame | None
     undecodable: str = ""
+    accepted_at_s: float | None = None
     receipt: Any = field(default=None, repr=False)
 
 
@@ -392,8 +448,9 @@ class FrameQueue(Protocol):
         """A frame another consumer took ``min_idle_s`` ago or more without settling it, or None."""
         ...
 
-    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
-        """The step ran (``redelivered``: the frame had been processed before); remove it, count it."""
+    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, timings: FrameTimings | None = None) -> None:
+        """The step ran (``redelivered``: the frame had been processed before); remove it, count it, and
+        (processed) count its ``timings`` in the histograms of ``stats``."""
         ...
 
     def fail(self, item: QueuedFrame, reason: str) -> None:

@@ -1,23 +1,32 @@
 """The Redis adapters when Redis loses its data (FLUSHALL: as a restart without it) or is busy running a
-script: the queue's readers recreate the consumer group, a busy Redis is ``StoreUnavailable``."""
+script: the queue's readers recreate the consumer group, a busy Redis is ``StoreUnavailable`` to every
+adapter and 503 with Retry-After to the API's clients."""
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator
 
 import pytest
+import redis
+from chaos_helpers import busy
 from redis_server import RedisServer
-from svc_helpers import make_test_frame
+from svc_helpers import AppClient, make_test_frame
 
+from arcloud.access import new_key
 from arcloud.errors import StoreUnavailable
+from arcloud.proto.convert import frame_to_proto
+from arcloud.service.settings import Settings
 from arcloud.stores.redis import RedisStore
+from arcloud.stores.redis_api_keys import RedisKeyStore
 from arcloud.stores.redis_queue import RedisFrameQueue
+from arcloud.stores.redis_rate import RedisRateLimiter
+from arcloud.tools.wiring import create_app
 
 pytestmark = pytest.mark.redis
 
 BUSY_SCRIPT_S = 1.5
+PROTOBUF = {"content-type": "application/x-protobuf"}
 
 
 @pytest.fixture
@@ -48,28 +57,50 @@ def test_the_readers_recreate_the_consumer_group_after_redis_lost_its_data(serve
         queue.close()
 
 
-def test_a_redis_busy_running_a_script_is_unavailable(server: RedisServer) -> None:
-    with server.client() as client:
-        client.config_set("busy-reply-threshold", 100)  # ms: BUSY replies after this long in a script
-    # A script that spins BUSY_SCRIPT_S (its own connection; redis.call('TIME') allowed since Redis 5).
-    spin = "local t0 = redis.call('TIME') repeat local t = redis.call('TIME') until (t[1] - t0[1]) * 1e6 + (t[2] - t0[2]) > tonumber(ARGV[1])"
-
-    def run_script() -> None:
-        with server.client() as client:
-            client.eval(spin, 0, int(BUSY_SCRIPT_S * 1e6))
-
-    runner = threading.Thread(target=run_script, daemon=True)
+def test_a_redis_busy_running_a_script_is_unavailable_to_every_adapter(server: RedisServer) -> None:
     store = RedisStore(server.url, retries=0)
     queue = RedisFrameQueue(server.url)
+    keys = RedisKeyStore(server.url)
+    limiter = RedisRateLimiter(server.url)
     try:
-        runner.start()
-        time.sleep(0.3)
-        with pytest.raises(StoreUnavailable, match="busy"):
-            store.ping()
-        with pytest.raises(StoreUnavailable, match="busy"):
-            queue.stats()
+        with busy(server, BUSY_SCRIPT_S):
+            for name, call in [
+                ("store", store.ping),
+                ("queue", queue.stats),
+                ("keys", lambda: keys.find("0123456789ab")),
+                ("rate limits", lambda: limiter.take("ip:127.0.0.1", rate_per_s=1.0, burst=1)),
+            ]:
+                with pytest.raises(StoreUnavailable, match="busy") as caught:
+                    call()
+                assert isinstance(caught.value.__cause__, redis.exceptions.ResponseError), name
     finally:
-        runner.join(BUSY_SCRIPT_S + 5)
-        store.close()
-        queue.close()
-    assert not runner.is_alive()
+        for adapter in (store, queue, keys, limiter):
+            adapter.close()
+
+
+def test_the_api_answers_503_with_retry_after_while_redis_is_busy(server: RedisServer) -> None:
+    """Issue 22: a key lookup answered BUSY was a 500 (GET .../stats for 11 s); every route that reads Redis
+    answers 503 with Retry-After, whichever adapter met the BUSY reply first."""
+    key, token = new_key("admin", ("*",), now_s=time.time())
+    keys = RedisKeyStore(server.url)
+    keys.add(key)
+    keys.close()
+    auth = {"authorization": f"Bearer {token}"}
+    settings = Settings(store=server.url, detector="sim:0", workers=0, key_cache_s=0.0)
+    with AppClient(create_app(settings)) as api:
+        body = frame_to_proto(make_test_frame(0, map_id="a")).SerializeToString()
+        assert api.post("/v1/maps/a/frames", content=body, headers={**PROTOBUF, **auth}).status_code == 202
+        assert api.get("/v1/maps/a/stats", headers=auth).status_code == 200
+        with busy(server, BUSY_SCRIPT_S):
+            answers = {
+                "stats": api.get("/v1/maps/a/stats", headers=auth),
+                "objects": api.get("/v1/maps/a/objects", headers=auth),
+                "maps": api.get("/v1/maps", headers=auth),
+                "upload": api.post("/v1/maps/a/frames", content=body, headers={**PROTOBUF, **auth}),
+                "readyz": api.get("/readyz"),
+            }
+        for route, answer in answers.items():
+            assert answer.status_code == 503, (route, answer.status_code, answer.text)
+            assert int(answer.headers["retry-after"]) > 0, route
+        assert "busy" in answers["stats"].json()["detail"]
+        assert api.get("/v1/maps/a/stats", headers=auth).status_code == 200  # the script ended: all is well again

@@ -68,14 +68,15 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
                 depth_scale=1000.0,
             )
             assert sent["status"] == "queued" and sent["device_id"] == "d2"
-            stats = client.wait_until_processed("c1", 2, timeout_s=20)
-            assert stats["frames"] == {"accepted": 2, "processed": 2, "failed": 0, "pending": 0}
+            done = client.wait_until_processed("c1", timeout_s=20)
+            assert done == {"map_id": "c1", "frames": {"sent": 2, "processed": 2, "failed": 0, "lost": 0}}
+            assert client.stats("c1")["frames"] == {"accepted": 2, "processed": 2, "failed": 0, "pending": 0}
             (tentative,) = client.list_objects("c1", include_tentative=True)
             assert tentative["status"] == "tentative" and client.list_objects("c1") == []  # two frames: not yet served
             assert client.get_object("c1", tentative["id"])["status"] == "tentative"
             for i in (2, 3, 4):
                 client.send_frame(make_test_frame(i, map_id="c1", level=True))
-            client.wait_until_processed("c1", 5, timeout_s=20)
+            assert client.wait_until_processed("c1", timeout_s=20)["frames"]["processed"] == 5
             deadline = time.monotonic() + 10
             while (not everything.events or everything.events[-1].object.version < 5) and time.monotonic() < deadline:
                 time.sleep(0.02)
@@ -107,8 +108,8 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
         with pytest.raises(ServiceError) as missing:
             client.get_object("c1", 12345)
         assert missing.value.status == 404
-        with pytest.raises(TimeoutError, match="not processed"):
-            client.wait_until_processed("c1", 6, timeout_s=0.3)
+        with pytest.raises(TimeoutError, match="not processed within 0.3 s: 6 frames of the map in all"):
+            client.wait_until_processed("c1", 6, timeout_s=0.3)  # every client's: 5 are all there will be
         assert client.frame_status("c1", "d2", "x1") == {
             "map_id": "c1",
             "device_id": "d2",
@@ -141,7 +142,9 @@ def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
 
             answers = [a for batch in await asyncio.gather(*(user(k) for k in range(3))) for a in batch]
             await client.send_frame(replace(make_test_frame(9, map_id="c2", device_id="user-0"), frame_id="refused"))
-            stats = await client.wait_until_processed("c2", 10, timeout_s=30)
+            done = await client.wait_until_processed("c2", timeout_s=30)
+            assert done["frames"] == {"sent": 10, "processed": 9, "failed": 1, "lost": 0}
+            stats = await client.stats("c2")
             refused = await client.frame_status("c2", "user-0", "refused")  # InvalidInput from the step: failed at once
             assert refused["status"] == "failed" and refused["reason"].startswith("InvalidInput: detections[0].label")
             assert await client.list_objects("c2", min_score=0.0) == []  # lying flat: never confirmed

@@ -1,4 +1,4 @@
-"""Builders of tiny ScanNet-layout and 7-Scenes-layout folders (in tmp_path) for the dataset tests."""
+"""Builders of tiny ScanNet-layout, 7-Scenes-layout and TUM-RGB-D-layout folders (in tmp_path) for the dataset tests."""
 
 from __future__ import annotations
 
@@ -181,6 +181,52 @@ def build_seven_scenes(root: Path, *, n_frames: int = 3, gravity: np.ndarray | N
     np.savetxt(root / "camera-intrinsics.txt", np.array([[58.5, 0, 32.0], [0, 58.5, 24.0], [0, 0, 1]]))
     if gravity is not None:
         np.savetxt(root / "gravity-direction.txt", gravity)
+    return root
+
+
+#: TUM timestamps of ``build_tum_from_seven_scenes``: 7-Scenes frame N was taken at TUM_START_S + N / 30 s.
+TUM_START_S = 1305031102.0
+#: How long after its depth image each colour image of ``build_tum_from_seven_scenes`` was taken.
+TUM_RGB_DELAY_S = 0.008
+
+
+def tum_time(frame_number: int) -> str:
+    return f"{TUM_START_S + frame_number / 30.0:.6f}"
+
+
+def build_tum_from_seven_scenes(seven_root: Path, root: Path, frame_numbers: list[int], *, intrinsics: bool = True) -> Path:
+    """A TUM RGB-D layout recording of frames of a 7-Scenes folder: colour as PNG (``rgb/``, taken
+    ``TUM_RGB_DELAY_S`` after the depth, plus one stray colour image 0.5 s after the last), depth in TUM's
+    units (``depth/``: millimetres x 5; 7-Scenes' invalid 65535 -> 0, and one more depth image 1 s after
+    the last, beyond the trajectory), and ``groundtruth.txt`` holding the poses as quaternion lines at the
+    depth timestamps, newest first. ``intrinsics``: copy ``camera-intrinsics.txt``."""
+    from scipy.spatial.transform import Rotation
+
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    rgb_lines, depth_lines, pose_lines = ["# color images", "# timestamp filename"], ["# depth maps"], []
+    for number in frame_numbers:
+        stem = f"frame-{number:06d}"
+        depth_time, rgb_time = tum_time(number), f"{float(tum_time(number)) + TUM_RGB_DELAY_S:.6f}"
+        depth_mm = cv2.imread(str(seven_root / f"{stem}.depth.png"), cv2.IMREAD_UNCHANGED)
+        depth_mm = np.where(depth_mm == 65535, 0, depth_mm).astype(np.uint32)
+        cv2.imwrite(str(root / "depth" / f"{depth_time}.png"), np.minimum(depth_mm * 5, 65535).astype(np.uint16))
+        cv2.imwrite(str(root / "rgb" / f"{rgb_time}.png"), cv2.imread(str(seven_root / f"{stem}.color.jpg")))
+        rgb_lines.append(f"{rgb_time} rgb/{rgb_time}.png")
+        depth_lines.append(f"{depth_time} depth/{depth_time}.png")
+        pose = np.loadtxt(seven_root / f"{stem}.pose.txt")
+        quaternion = Rotation.from_matrix(pose[:3, :3]).as_quat()
+        pose_lines.append(" ".join([depth_time, *(f"{v:.9f}" for v in (*pose[:3, 3], *quaternion))]))
+    late = f"{float(tum_time(frame_numbers[-1])) + 1.0:.6f}"
+    cv2.imwrite(str(root / "depth" / f"{late}.png"), np.zeros((48, 64), np.uint16))
+    cv2.imwrite(str(root / "rgb" / f"{late}.png"), np.zeros((48, 64, 3), np.uint8))
+    depth_lines.append(f"{late} depth/{late}.png")
+    rgb_lines += [f"{late} rgb/{late}.png", f"{float(late) - 0.5:.6f} rgb/{late}.png"]
+    (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    (root / "groundtruth.txt").write_text("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(reversed(pose_lines)) + "\n")
+    if intrinsics:
+        (root / "camera-intrinsics.txt").write_text((seven_root / "camera-intrinsics.txt").read_text())
     return root
 
 

@@ -12,7 +12,9 @@ import pytest
 from datasets_builders import build_seven_scenes
 
 from arcloud.core.types import Intrinsics
-from arcloud.datasets.sevenscenes import DEFAULT_INTRINSICS, ColourCamera, load_ground_truth, load_seven_scenes
+from arcloud.datasets.frames import ColourCamera
+from arcloud.datasets.gt_boxes import load_ground_truth
+from arcloud.datasets.sevenscenes import DEFAULT_INTRINSICS, load_seven_scenes
 from arcloud.errors import DatasetError
 
 

@@ -63,22 +63,28 @@ def test_onnx_spec_autodetects_the_adapter_and_passes_options(tiny_models) -> No
         make_detector(f"maskrcnn:{tiny_models['yolo']}")
 
 
-def test_bare_onnx_spec_reads_the_model_from_the_environment(tiny_models, monkeypatch) -> None:
+def test_bare_onnx_spec_reads_the_model_from_the_environment(tiny_models, monkeypatch, tmp_path) -> None:
     monkeypatch.setenv(MODEL_ENV_VAR, str(tiny_models["maskrcnn"]))
+    monkeypatch.setenv("ARCLOUD_MODELS", str(tmp_path))  # an empty model cache
     assert isinstance(make_detector("onnx"), MaskRCNNDetector)
     monkeypatch.delenv(MODEL_ENV_VAR)
     with pytest.raises(
-        InvalidInput, match="expected onnx:PATH to a model file, or ARCLOUD_MODEL set to one .*got 'onnx' with no path"
+        InvalidInput,
+        match="expected onnx:PATH to a model file, or ARCLOUD_MODEL set to one, or the default model .* in the model "
+        "cache .*got no file at .*get it with `arcloud models pull",
     ):
         make_detector("onnx")
 
 
 def test_model_files_are_checked_before_anything_loads(tiny_models, tmp_path, monkeypatch) -> None:
     monkeypatch.delenv(MODEL_ENV_VAR, raising=False)
+    monkeypatch.setenv("ARCLOUD_MODELS", str(tmp_path / "cache"))  # an empty model cache
     for spec in (f"onnx:{tiny_models['yolo']}", f"maskrcnn:{tiny_models['maskrcnn']}", "sim:0", "gt-masks:anything"):
         check_model_file(spec)  # no model file to check, or one that is there
-    with pytest.raises(InvalidInput, match="sim:SEED runs the simulator's detector.*got 'onnx' with no path"):
+    with pytest.raises(InvalidInput, match="sim:SEED runs the simulator's detector.*got no file at .*yolo11n-seg-fp32-640.onnx"):
         check_model_file("onnx")
+    with pytest.raises(InvalidInput, match="got 'maskrcnn' with no path"):
+        check_model_file("maskrcnn")
     missing = tmp_path / "nowhere.onnx"
     for spec in (f"onnx:{missing}", f"maskrcnn:{missing}"):
         with pytest.raises(InvalidInput, match=f"got '{missing}', which is not a file"):

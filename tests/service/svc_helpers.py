@@ -139,10 +139,12 @@ def free_port() -> int:
 
 class AppClient:
     """httpx against the ASGI app in this process (no socket), with its lifespan run: the blocking
-    methods of ``httpx.Client`` (``get``, ``post``, ``delete``, ``request``) on an event loop in a thread."""
+    methods of ``httpx.Client`` (``get``, ``post``, ``delete``, ``request``) on an event loop in a thread.
+    ``address=`` on a request: the client address the app sees (default 127.0.0.1)."""
 
     def __init__(self, app: Any) -> None:
         self.app = app
+        self._from: dict[str, Any] = {}  # client address -> its httpx.AsyncClient
 
     def __enter__(self) -> AppClient:
         import anyio.from_thread
@@ -157,13 +159,22 @@ class AppClient:
 
     def __exit__(self, *exc: object) -> None:
         try:
-            self.portal.call(self._client.aclose)
+            for client in [self._client, *self._from.values()]:
+                self.portal.call(client.aclose)
             self.portal.call(self._lifespan.__aexit__, None, None, None)
         finally:
             self._portal_cm.__exit__(None, None, None)
 
-    def request(self, method: str, url: str, **kwargs: Any) -> Any:
-        return self.portal.call(functools.partial(self._client.request, method, url, **kwargs))
+    def request(self, method: str, url: str, *, address: str | None = None, **kwargs: Any) -> Any:
+        client = self._client
+        if address is not None:
+            import httpx
+
+            if address not in self._from:
+                transport = httpx.ASGITransport(app=self.app, client=(address, 123))
+                self._from[address] = httpx.AsyncClient(transport=transport, base_url="http://app")
+            client = self._from[address]
+        return self.portal.call(functools.partial(client.request, method, url, **kwargs))
 
     def get(self, url: str, **kwargs: Any) -> Any:
         return self.request("GET", url, **kwargs)

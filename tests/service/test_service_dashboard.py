@@ -102,6 +102,8 @@ def test_every_metric_the_dashboard_queries_is_on_a_real_apps_metrics() -> None:
         "arcloud_step_retries_total",
         "arcloud_frames_claimed_total",
         "arcloud_live_workers",
+        "arcloud_queue_wait_seconds_bucket",
+        "arcloud_lock_wait_seconds_bucket",
     }
     assert wanted <= queried, wanted - queried
     assert any(e.startswith("histogram_quantile(0.99,") for e in exprs_of(dashboard))

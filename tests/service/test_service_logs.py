@@ -26,7 +26,15 @@ from svc_helpers import BlobDetector, free_port, make_test_frame, wait_until
 
 from arcloud.core.types import Frame, Intrinsics
 from arcloud.proto.convert import frame_to_proto
-from arcloud.service.logs import JsonFormatter, LogContextFilter, TextFormatter, bind_log_context, log_context
+from arcloud.service.logs import (
+    SECRET_FILTER,
+    JsonFormatter,
+    LogContextFilter,
+    TextFormatter,
+    bind_log_context,
+    log_context,
+    scrub,
+)
 from arcloud.service.settings import Settings
 from arcloud.service.worker import FrameWorker
 from arcloud.stores.memory import MemoryStore
@@ -249,3 +257,63 @@ def test_arcloud_serve_on_redis_logs_json_from_its_worker_process(tmp_path: Path
     check_frame_lines(lines, "arcloud-worker-0")
     assert any(line["process"] == "arcloud-worker-0" and "taking frames" in line["message"] for line in lines)
     assert "arcloud_live_workers 1.0" in metrics
+
+
+# --- no secrets in logs (issue 22: the documented viewer URL /viewer?map=M&token=arc_... was logged in clear) ---------
+SECRET_TOKEN = "arc_0123456789ab_" + "S3cr3t" * 7 + "x"  # an API token's form: 12 hex digits, 43 characters
+
+
+def test_a_record_loses_its_secrets_and_keeps_the_rest(json_lines: io.StringIO) -> None:
+    log = logging.getLogger("arcloud.test")
+    log.addFilter(SECRET_FILTER)  # as configure_logging puts it on uvicorn's loggers
+    try:
+        try:
+            raise RuntimeError(f"GET http://h/viewer?map=m&token={SECRET_TOKEN}")
+        except RuntimeError:
+            log.exception(
+                "%s %r %d",
+                "/viewer?token=arc_secret&map=m",
+                {"authorization": "Bearer arc_secret"},
+                401,
+                extra={"url": "?token=x1"},
+            )
+        log.info("%s - %s", ("127.0.0.1", 5), f"Authorization: Bearer {SECRET_TOKEN}")
+    finally:
+        log.removeFilter(SECRET_FILTER)
+    text = json_lines.getvalue()
+    assert "arc_secret" not in text and "S3cr3t" not in text and "x1" not in text, text
+    failed, other = parsed(json_lines)
+    assert failed["message"] == "/viewer?token=***&map=m {'authorization': 'Bearer ***'} 401" and failed["url"] == "?token=***"
+    assert failed["exception"].endswith("RuntimeError: GET http://h/viewer?map=m&token=***")
+    assert other["message"] == "('127.0.0.1', 5) - Authorization: Bearer ***"
+    assert scrub(f"key {SECRET_TOKEN} used") == "key arc_0123456789ab_*** used"  # the key id stays: it names the key
+
+
+@pytest.mark.parametrize("log_format", ["text", "json"])
+def test_arcloud_serve_writes_no_token_to_its_logs(tmp_path: Path, log_format: str) -> None:
+    from redis_server import RedisServer
+
+    def alive() -> bool:
+        try:
+            return httpx.get(f"{serve.url}/healthz", timeout=2.0).status_code == 200
+        except httpx.TransportError:
+            return False
+
+    with RedisServer.start() as server:
+        environment = {"ARCLOUD_LOG_FORMAT": log_format, "ARCLOUD_LOG_LEVEL": "INFO"}
+        serve = ServeProcess(tmp_path, (*SERVE, "--redis", server.url, "--workers", "0"), environment)
+        try:
+            wait_until(alive, 60, "arcloud serve to answer", interval_s=0.2)
+            assert httpx.get(f"{serve.url}/viewer?map=m&token=arc_secret1", timeout=5.0).status_code == 200
+            refused = httpx.get(
+                f"{serve.url}/v1/maps/m/stats?token=arc_secret2",
+                headers={"authorization": f"Bearer {SECRET_TOKEN}"},
+                timeout=5.0,
+            )
+            assert refused.status_code == 401
+            assert httpx.get(f"{serve.url}/v1/maps/m/events?access_token=arc_secret3", timeout=5.0).status_code == 401
+        finally:
+            serve.stop()
+    text = serve.stderr_path.read_text() + serve.stdout_path.read_text()
+    assert "/viewer?map=m&token=***" in text and "/v1/maps/m/stats?token=***" in text, text[-3000:]
+    assert "arc_secret" not in text and "S3cr3t" not in text, text[-3000:]

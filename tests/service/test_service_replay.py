@@ -137,10 +137,11 @@ def test_cli_options_become_settings(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_serve_and_worker_without_a_model_stop_at_once_with_one_line(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     monkeypatch.delenv("ARCLOUD_MODEL", raising=False)
     monkeypatch.delenv("ARCLOUD_DETECTOR", raising=False)
+    monkeypatch.setenv("ARCLOUD_MODELS", str(tmp_path))  # an empty model cache
     for argv in (
         ["serve"],
         ["serve", "--redis", "redis://127.0.0.1:1/0", "--workers", "2"],
@@ -149,6 +150,8 @@ def test_serve_and_worker_without_a_model_stop_at_once_with_one_line(
         assert cli_main(argv) == 2  # before any server, worker process or Redis connection starts
         err = capsys.readouterr().err
         assert err.startswith("arcloud: error: detector spec: expected onnx:PATH to a model file") and "sim:SEED" in err
+        assert f"got no file at {tmp_path}/yolo11n-seg-fp32-640.onnx" in err
+        assert "get it with `arcloud models pull yolo11n-seg-fp32-640 --from FILE`" in err
         assert "Traceback" not in err and err.count("\n") == 1
     monkeypatch.setenv("ARCLOUD_STORE", "redis://127.0.0.1:1/0")
     assert worker_main([]) == 2  # the container's entry point: logged, exit 2

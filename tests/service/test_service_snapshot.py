@@ -9,11 +9,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from redis_server import RedisServer
+from snapshot_edits import first_object_id, with_object_changed, with_object_renamed
 from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, UvicornThread, make_test_frame
 
 from arcloud.cli import main as cli_main
+from arcloud.core.types import AABB
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
 from arcloud.service.worker import FrameWorker
@@ -119,6 +122,27 @@ def test_a_snapshot_restores_the_same_objects_into_an_empty_redis_and_the_embedd
     with AppClient(other) as mismatched:
         refused = mismatched.request("PUT", "/v1/maps/a/snapshot", content=snapshot.content)
         assert refused.status_code == 409 and "voxel_size_m" in refused.json()["detail"]
+
+
+def test_a_snapshot_holding_what_no_frame_could_make_is_refused_422_naming_the_object(filled: Filled) -> None:
+    """Issue 22: an HTML label was stored and served, a NaN box served as null, an id >= 2**63 answered 500."""
+    with AppClient(redis_app(filled.server.url)) as source:
+        valid = source.get("/v1/maps/a/snapshot").content
+    first = first_object_id(valid)
+    bad = {
+        f"objects/{first}.label": with_object_changed(valid, first, label="<script>alert(1)</script>\nchair"),
+        f"objects/{first}.aabb": with_object_changed(valid, first, aabb=AABB(np.array([np.nan, 0.0, 0.0]), np.ones(3))),
+        f"objects/{2**63}.id": with_object_renamed(valid, first, str(2**63)),
+    }
+    embedded = create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())
+    with RedisServer.start() as empty, AppClient(redis_app(empty.url)) as on_redis, AppClient(embedded) as in_memory:
+        for api in (on_redis, in_memory):
+            for field, body in bad.items():
+                answer = api.request("PUT", "/v1/maps/r/snapshot", content=body, headers={"content-type": "application/zip"})
+                assert answer.status_code == 422 and answer.json()["field"] == field, answer.text
+                assert answer.json()["detail"].startswith(f"{field}: expected ")
+            assert api.get("/v1/maps/r/objects").status_code == 404  # nothing restored
+            assert api.request("PUT", "/v1/maps/r/snapshot", content=valid).status_code == 200
 
 
 def test_maps_commands_list_snapshot_restore_and_copy(filled: Filled, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -17,7 +17,7 @@ from store_cases import Clock
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame
 from arcloud.errors import InvalidInput
-from arcloud.ports import FrameQueue, FrameStatus, QueueFull, QueueLimits
+from arcloud.ports import WAIT_BUCKETS_S, FrameQueue, FrameStatus, FrameTimings, QueueFull, QueueLimits
 from arcloud.stores import keys
 from arcloud.stores.memory_queue import MemoryFrameQueue, queued_bytes
 from arcloud.stores.redis_queue import RedisFrameQueue
@@ -92,7 +92,7 @@ def test_a_frame_goes_through_once_and_is_counted(queue: FrameQueue) -> None:
     np.testing.assert_array_equal(item.frame.depth_m, sent.depth_m)  # carried losslessly
     np.testing.assert_array_equal(item.frame.rgb, sent.rgb)
     assert queue.take("c1", block_s=0.05) is None
-    queue.ack(item, redelivered=False, retries=2, elapsed_s=0.02)
+    queue.ack(item, redelivered=False, retries=2, timings=FrameTimings(step_s=0.02))
     stats = queue.stats()
     assert (
         stats.accepted,
@@ -104,6 +104,25 @@ def test_a_frame_goes_through_once_and_is_counted(queue: FrameQueue) -> None:
         stats.queue_depth,
     ) == (1, 1, 1, 0, 2, 0, 0)
     assert stats.latency_count == 1 and stats.latency_sum_s == pytest.approx(0.02)
+
+
+def test_a_processed_frame_s_waits_are_counted_in_the_histograms(queue: FrameQueue) -> None:
+    before = time.time()
+    queue.put(frame(3))
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None and item.accepted_at_s is not None and before <= item.accepted_at_s <= time.time()
+    queue.ack(item, redelivered=False, timings=FrameTimings(step_s=0.2, queue_wait_s=0.004, lock_wait_s=0.0007))
+    queue.put(frame(4))
+    other = queue.take("c1", block_s=0.5)
+    assert other is not None
+    queue.ack(other, redelivered=False, timings=FrameTimings(step_s=0.2, queue_wait_s=None, lock_wait_s=70.0))
+    stats = queue.stats()
+    assert stats.queue_wait.bounds_s == stats.lock_wait.bounds_s == WAIT_BUCKETS_S
+    assert stats.queue_wait.count == 1 and stats.queue_wait.sum_s == pytest.approx(0.004)  # None: not counted
+    assert stats.queue_wait.counts[WAIT_BUCKETS_S.index(0.005)] == 1
+    assert stats.lock_wait.count == 2 and stats.lock_wait.sum_s == pytest.approx(70.0007)
+    assert stats.lock_wait.counts[WAIT_BUCKETS_S.index(0.001)] == 1 and stats.lock_wait.counts[-1] == 1  # +Inf
+    assert stats.latency_count == 2 and stats.latency_sum_s == pytest.approx(0.4)
 
 
 def test_a_redelivered_frame_is_not_counted_processed(queue: FrameQueue) -> None:
@@ -162,7 +181,7 @@ def lose_entry(queue: FrameQueue) -> None:
             queue.client.hincrby(keys.ingest_backlog(tag), field, -delta)
     else:  # in process a frame is lost only with the process: as if it were, keeping its record
         assert isinstance(queue, MemoryFrameQueue)
-        lost, n_bytes = queue._ready.popleft()
+        lost, n_bytes, _accepted_at_s = queue._ready.popleft()
         queue._count(lost.map_id, -1, -n_bytes)
         queue._maps[lost.map_id].status[lost.key] = FrameStatus("unknown")
 

@@ -13,7 +13,7 @@ from redis_server import empty_redis_url
 from test_queue_contract import frame
 
 from arcloud.errors import InvalidInput
-from arcloud.ports import QueueFull, QueueLimits
+from arcloud.ports import FrameTimings, QueueFull, QueueLimits
 from arcloud.stores import keys
 from arcloud.stores.redis_queue import RedisFrameQueue, shard_limits
 
@@ -73,10 +73,12 @@ def test_maps_go_to_their_shard_and_a_consumer_takes_from_every_shard_in_turn(ma
     ]
     for item in rest[:-1]:
         assert item is not None
-        queue.ack(item, redelivered=False, elapsed_s=0.3)
+        queue.ack(item, redelivered=False, timings=FrameTimings(step_s=0.3, queue_wait_s=0.01, lock_wait_s=0.002))
     stats = queue.stats()  # every shard's counters, summed
     assert (stats.accepted, stats.processed, stats.queue_depth, stats.queued_bytes, stats.latency_count) == (12, 12, 0, 0, 12)
     assert stats.latency_sum_s == pytest.approx(6 * 0.3)
+    assert (stats.queue_wait.count, stats.lock_wait.count) == (6, 12)  # the first 6 acknowledged without timings
+    assert stats.queue_wait.sum_s == pytest.approx(6 * 0.01) and stats.lock_wait.sum_s == pytest.approx(6 * 0.002)
 
 
 def test_a_consumer_waiting_on_an_empty_shard_gets_a_frame_of_another_soon(make_queue: MakeQueue) -> None:

@@ -40,7 +40,7 @@ def test_cluster_urls_name_nodes_and_credentials() -> None:
 
 
 def test_an_unreachable_cluster_is_store_unavailable() -> None:
-    with pytest.raises(StoreUnavailable, match=f"redis cluster at 127.0.0.1:{(port := free_port())} unreachable"):
+    with pytest.raises(StoreUnavailable, match=f"redis at cluster 127.0.0.1:{(port := free_port())} unreachable"):
         connect_redis(f"redis+cluster://127.0.0.1:{port}", reply_timeout_s=0.5)
 
 

@@ -26,7 +26,7 @@ from arcloud.core.header import MapHeader, check_header
 from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import Params
-from arcloud.errors import LockTimeout, MapMismatch, StaleLease, TooManyCells
+from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, TooManyCells
 from arcloud.stores import keys
 from arcloud.stores.redis import RedisStore
 
@@ -384,8 +384,8 @@ def test_delete_needs_the_lock_and_removes_the_object(store) -> None:
 
 
 def test_new_ids_are_unique_across_threads(store) -> None:
-    assert store.new_ids(MAP, 0) == []
-    first = store.new_ids(MAP, 3)
+    assert list(store.new_ids(MAP, 0)) == []
+    first = list(store.new_ids(MAP, 3))
     assert len(set(first)) == 3 and min(first) >= 1
     results: list[list[int]] = []
     lock = threading.Lock()
@@ -405,7 +405,18 @@ def test_new_ids_are_unique_across_threads(store) -> None:
     every = first + [i for r in results for i in r]
     assert len(every) == 3 + 6 * 40 * 3
     assert len(set(every)) == len(every)
-    assert store.new_ids("map-b", 1) == [1]  # counters are per map
+    assert list(store.new_ids("map-b", 1)) == [1]  # counters are per map
+
+
+def test_new_ids_cost_the_same_for_any_number(store) -> None:
+    """A restore moves the counter past its largest id in one call: no list of that many ids is built."""
+    started = time.monotonic()
+    many = store.new_ids(MAP, 2**53 - 2)
+    assert len(many) == 2**53 - 2 and many[0] == 1 and many[-1] == 2**53 - 2
+    assert list(store.new_ids(MAP, 1)) == [2**53 - 1]
+    assert time.monotonic() - started < 1.0
+    with pytest.raises(InvalidInput, match="n: expected >= 0"):
+        store.new_ids(MAP, -1)
 
 
 def test_delete_map_removes_only_that_map(store) -> None:
@@ -416,7 +427,7 @@ def test_delete_map_removes_only_that_map(store) -> None:
     assert store.list_objects(MAP) == []
     assert store.query_region(MAP, np.full(3, -5.0), np.full(3, 5.0)) == {}
     assert not store.is_frame_done(MAP, "dev/f1") and store.count_frames(MAP) == 0
-    assert store.new_ids(MAP, 1) == [1]
+    assert list(store.new_ids(MAP, 1)) == [1]
     assert [o.id for o in store.list_objects("map-b")] == [1]
     assert store.is_frame_done("map-b", "dev/f1")
     assert store.delete_map("never-made") == 0

@@ -1,5 +1,6 @@
-"""Snapshots (``arcloud.stores.snapshot``) on both stores: voxel colours go through, and a snapshot taken
-before colours (codec version 2) still restores, its colours unknown."""
+"""Snapshots (``arcloud.stores.snapshot``) on both stores: voxel colours go through, a snapshot taken before
+colours (codec version 2) still restores, its colours unknown, and a restore refuses, naming the object and the
+field, what the step could not have stored (labels, boxes, ids)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,12 @@ import zipfile
 
 import numpy as np
 import pytest
+from snapshot_edits import with_object_changed, with_object_renamed
 from store_cases import MAP, assert_same_object, make_object
 
 from arcloud.core.header import MapHeader
-from arcloud.core.types import MapObject, Params
-from arcloud.errors import MapMismatch
+from arcloud.core.types import AABB, OBB, MapObject, Params
+from arcloud.errors import InvalidInput, MapMismatch
 from arcloud.stores import codec
 from arcloud.stores.memory import MemoryStore
 from arcloud.stores.snapshot import FORMAT, restore_bytes, snapshot_bytes
@@ -85,3 +87,70 @@ def test_a_snapshot_that_unpacks_to_more_than_the_limit_is_refused(monkeypatch: 
     monkeypatch.setattr(snapshot, "MAX_UNPACKED_BYTES", 1000)  # the file's members unpack to a few kB
     with pytest.raises(InvalidInput, match="unpacked"):
         restore_bytes(MemoryStore(), MAP, data, params=Params())
+
+
+# --- what a snapshot may hold (issue 22: any label was stored and served, a NaN box served as null, an id >= 2**63 a 500)
+NAN3 = np.array([np.nan, 0.0, 0.0])
+FAR = np.array([50.0, 50.0, 50.0])
+
+
+def valid_snapshot() -> tuple[bytes, MapObject]:
+    source = MemoryStore()
+    source.open_map(MAP, MapHeader.from_params(Params(), codec_version=source.codec_version, created_at_s=1.0))
+    objects = [make_object(1, (0.0, 0.0, 0.0), seed=1), make_object(2, (2.0, 0.0, 0.0), seed=2)]
+    source.commit(MAP, [], objects, [])
+    return snapshot_bytes(source, MAP), objects[0]
+
+
+def edits(obj: MapObject) -> list[tuple[str, dict[str, object]]]:
+    """(the field a refusal names, the change to object 1) for each way an object can be wrong."""
+    assert obj.aabb is not None and obj.bounds is not None and obj.obb is not None
+    lo, hi = obj.bounds.min, obj.bounds.max
+    return [
+        ("label", {"label": "<img src=x onerror=alert(1)>\nchair"}),
+        ("label", {"label": "unicorn"}),
+        ("aabb", {"aabb": AABB(NAN3, obj.aabb.max)}),
+        ("aabb", {"aabb": AABB(obj.aabb.max, obj.aabb.min)}),
+        ("aabb", {"aabb": AABB(FAR, FAR + 1)}),
+        ("bounds", {"bounds": AABB(lo + 0.1, hi)}),  # voxels outside the box the index files it under
+        ("bounds", {"bounds": AABB(lo - 1000.0, hi + 1000.0)}),
+        ("bounds", {"bounds": AABB(lo, np.array([hi[0], np.inf, hi[2]]))}),
+        ("bounds", {"bounds": None}),
+        ("obb", {"obb": OBB(NAN3, obj.obb.size, obj.obb.rotation, obj.obb.yaw_rad)}),
+        ("obb", {"obb": OBB(FAR, obj.obb.size, obj.obb.rotation, obj.obb.yaw_rad)}),
+        ("obb", {"obb": OBB(obj.obb.center, -obj.obb.size, obj.obb.rotation, obj.obb.yaw_rad)}),
+        ("score", {"score": float("nan")}),
+        ("score", {"score": 1.5}),
+        ("label_purity", {"label_purity": -0.1}),
+        ("score_sum", {"score_sum": float("inf")}),
+        ("n_frames", {"n_frames": -3}),
+        ("devices", {"devices": frozenset({"phone 1\n<b>"})}),
+        ("floor_votes", {"floor_votes": {3: -1}}),
+    ]
+
+
+@pytest.mark.parametrize("case", range(len(edits(valid_snapshot()[1]))))
+def test_a_restore_refuses_an_object_the_step_could_not_have_stored_naming_it(store, case: int) -> None:
+    valid, obj = valid_snapshot()
+    field, change = edits(obj)[case]
+    with pytest.raises(InvalidInput) as refused:
+        restore_bytes(store, MAP, with_object_changed(valid, 1, **change), params=Params())
+    assert refused.value.field == f"objects/1.{field}", str(refused.value)
+    assert str(refused.value).startswith(f"objects/1.{field}: expected ")
+    assert store.map_header(MAP) is None and store.list_objects(MAP) == []  # nothing written
+
+
+@pytest.mark.parametrize("name", [str(2**63), str(2**53), "0", "01", "+1", "1_0", "-1", "1e3", "\u0661", "x"])
+def test_a_restore_refuses_an_object_id_out_of_range_or_not_written_as_a_snapshot_writes_it(store, name: str) -> None:
+    valid, _ = valid_snapshot()
+    with pytest.raises(InvalidInput) as refused:
+        restore_bytes(store, MAP, with_object_renamed(valid, 1, name), params=Params())
+    assert refused.value.field == f"objects/{name}.id" and f"an object id from 1 to {2**53 - 1}" in str(refused.value)
+    assert store.map_header(MAP) is None
+
+
+def test_the_largest_id_restores_and_the_next_new_id_follows_it(store) -> None:
+    valid, _ = valid_snapshot()
+    assert restore_bytes(store, MAP, with_object_renamed(valid, 1, str(2**53 - 1)), params=Params()) == 2
+    assert sorted(o.id for o in store.list_objects(MAP)) == [2, 2**53 - 1]
+    assert list(store.new_ids(MAP, 1)) == [2**53]

@@ -27,7 +27,7 @@ def test_vendored_three_is_the_version_package_lock_pins_with_its_licence() -> N
     revision = re.search(r"const REVISION = '(\d+)';", (VIEWER / "vendor" / "three.core.js").read_text())
     assert revision is not None and revision.group(1) == pinned.split(".")[1]
     for name in VENDORED:
-        assert (VIEWER / "vendor" / name).is_file(), f"vendor/{name} missing: run `make viewer-vendor`"
+        assert (VIEWER / "vendor" / name).is_file(), f"vendor/{name} missing: run `make web-vendor`"
     assert (VIEWER / "vendor" / "THREE-LICENSE").read_text().startswith("The MIT License")
 
 

@@ -1,5 +1,5 @@
-"""The evaluation commands of the ``arcloud`` CLI: ``eval scannet`` and ``eval 7scenes`` (with the dataset
-command ``render-scannet`` of ``arcloud.datasets.cli``).
+"""The evaluation commands of the ``arcloud`` CLI: ``eval scannet``, ``eval recording`` and ``eval 7scenes``
+(with the dataset command ``render-scannet`` of ``arcloud.datasets.cli``).
 
 ``add_eval_commands(subparsers)`` adds them to the CLI's sub-command parsers; every command sets
 ``handler`` (``args.handler(args)`` runs it and returns the exit status; ``ArcloudError`` is left to
@@ -8,10 +8,12 @@ the CLI's edge). Results are JSON::
     {"table1": [{"approach": "centralized"|"distributed", "users": K, "runs": M,
                  "map25_mean": .., "map25_var": .., "map50_mean": .., "map50_var": ..}, ...], ...}
 
-The runs and their rows are ``arcloud.accuracy.dataset_runs``'s; with ``gt-boxes.json`` in a 7-Scenes
-folder, boxes are fitted in its aligned frame and ``accuracy`` rows score every run against its observed
-and amodal boxes. Pictures are written next to ``--out``; every exported map (``--export``) declares its
-frame (``arcloud.datasets.export``).
+The runs and their rows are ``arcloud.accuracy.dataset_runs``'s. ``eval recording`` reads any recording
+(``arcloud.datasets.recording``: ScanNet, 7-Scenes or TUM RGB-D layout, a folder of any name); ``eval
+7scenes`` is the same command on the 7-Scenes layout. With ground truth (``--gt-boxes``, the folder's
+``gt-boxes.json``, or a ScanNet scene's annotation) boxes are fitted in its aligned frame and ``accuracy``
+rows score every run against its boxes. Pictures are written next to ``--out``; every exported map
+(``--export``) declares its frame (``arcloud.datasets.export``).
 
 Adding the commands imports nothing heavy (``arcloud --help`` stays fast); each handler imports what it runs.
 """
@@ -46,7 +48,7 @@ def parse_colour_camera(text: str) -> Any:
     import numpy as np
 
     from arcloud.core.types import Intrinsics
-    from arcloud.datasets.sevenscenes import ColourCamera
+    from arcloud.datasets.frames import ColourCamera
 
     try:
         values = [float(v) for v in text.split(",")]
@@ -59,6 +61,21 @@ def parse_colour_camera(text: str) -> Any:
     depth2rgb = np.eye(4)
     depth2rgb[:3, 3] = values[4:7] if len(values) == 7 else (0.0, 0.0, 0.0)
     return ColourCamera(Intrinsics(*values[:4]), depth2rgb)
+
+
+def parse_numbers(count: int, form: str) -> Any:
+    """An argparse type reading ``count`` comma-separated finite numbers (``form`` names them) as a tuple."""
+
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != count or not all(abs(v) < float("inf") for v in values):
+            raise argparse.ArgumentTypeError(f"expected {form} ({count} finite numbers, comma-separated), got {text!r}")
+        return values
+
+    return parse
 
 
 def parse_scenes(text: str) -> tuple[str, ...]:
@@ -97,10 +114,12 @@ def _make_detector(spec: str) -> Detector:
 
 
 def run_eval_scannet(args: argparse.Namespace) -> int:
-    """``arcloud eval scannet``: Table 1 on ScanNet-layout scenes; writes ``--out`` (and ``--export``)."""
+    """``arcloud eval scannet``: Table 1 on ScanNet-layout scenes, against each scene's annotation or
+    ``--gt-boxes`` (one scene); writes ``--out`` (and ``--export``)."""
     from arcloud.accuracy.dataset_runs import evaluate_scenes, export_runs
     from arcloud.datasets.export import scannet_export_frame
     from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
+    from arcloud.datasets.gt_boxes import load_ground_truth
     from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options
     from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
 
@@ -108,23 +127,31 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     scene_dirs = find_scene_dirs(args.root, args.scenes)
     if args.axis_alignment and len(scene_dirs) != 1:
         raise DatasetError(f"--axis-alignment: expected one scene, got {len(scene_dirs)}")
+    if args.gt_boxes and len(scene_dirs) != 1:
+        raise DatasetError(f"--gt-boxes: expected one scene, got {len(scene_dirs)}")
+    ground_truth = load_ground_truth(args.gt_boxes) if args.gt_boxes else None
     prefix, _, argument = args.detector.partition(":")
     gt_options = gt_masks_options(argument)[0] if prefix == GT_MASKS else {}
     shared_detector = None if prefix == GT_MASKS else _make_detector(args.detector)
+    params = _params(args)
     entries, frame_counts, export_frames = [], {}, {}
     for scene_dir in scene_dirs:
         scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
         names = scene.frame_names[:: args.stride]
         frames = LazyFrames(names, scene.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
         detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector
-        entries.append((scene.scene_id, frames, detector, scene.gt_boxes()))
+        export_frames[scene.scene_id] = scannet_export_frame(scene, ground_truth)
+        if ground_truth is not None:  # one scene: its boxes are fitted in the file's aligned frame
+            params = export_frames[scene.scene_id].params(params)
+        entries.append(
+            (scene.scene_id, frames, detector, scene.gt_boxes() if ground_truth is None else ground_truth.boxes("observed"))
+        )
         frame_counts[scene.scene_id] = len(names)
-        export_frames[scene.scene_id] = scannet_export_frame(scene)
-        if not scene.objects:
+        if ground_truth is None and not scene.objects:
             logger.warning("scene %s has no ground truth of our classes", scene.scene_id)
     export_dir = Path(args.export) if args.export else None
     result = evaluate_scenes(
-        entries, _params(args), users=args.users, runs=args.runs, seed=args.seed,
+        entries, params, users=args.users, runs=args.runs, seed=args.seed,
         workers=_workers(args.workers), on_run=export_runs(export_dir, export_frames), progress=not args.no_progress,
     )  # fmt: skip
     out = {
@@ -137,39 +164,59 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         "seed": args.seed,
         "wall_s": round(time.perf_counter() - started, 2),
     }
+    if ground_truth is not None:
+        out["ground_truth"] = {
+            "file": str(ground_truth.path),
+            "objects": [o.id for o in ground_truth.objects],
+            "boxes": "observed",
+        }
     _write_json(Path(args.out), out)
+    source = ground_truth.path if ground_truth is not None else "each scene's annotation"
+    print(f"Table 1: mAP against {source} ({len(frame_counts)} scenes, {sum(frame_counts.values())} frames)")
     _print_table(out["table1"])
+    print(f"wrote {args.out}")
     return 0
 
 
-def run_eval_7scenes(args: argparse.Namespace) -> int:
-    """``arcloud eval 7scenes``: agreement of distributed maps with the centralized one, accuracy against
-    ``gt-boxes.json`` when the sequence has it, and pictures."""
+def run_eval_recording(args: argparse.Namespace) -> int:
+    """``arcloud eval recording`` (and ``eval 7scenes``, the same on the 7-Scenes layout): agreement of
+    distributed maps with the centralized one, accuracy against the ground truth when the recording has
+    one (all objects and the served set, per class), and pictures."""
     from arcloud.accuracy.dataset_runs import accuracy_rows, agreement, each_run, export_runs, score_runs
-    from arcloud.datasets.export import objects_json, seven_scenes_export_frame
+    from arcloud.core.types import Intrinsics
+    from arcloud.datasets.export import objects_json
     from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
-    from arcloud.datasets.sevenscenes import load_seven_scenes
+    from arcloud.datasets.recording import load_recording
     from arcloud.eval.map_pictures import write_pictures
 
     started = time.perf_counter()
-    sequence = load_seven_scenes(args.root, align_gravity=True, colour=args.colour_camera)
-    ground_truth = sequence.ground_truth
-    names = sequence.frame_names[:: args.stride]
-    frames = LazyFrames(names, sequence.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+    recording = load_recording(
+        args.root, layout=args.layout, gt_boxes=args.gt_boxes, up=args.up,
+        intrinsics=None if args.intrinsics is None else Intrinsics(*args.intrinsics), depth_factor=args.depth_factor,
+        pose_time_offset_s=args.pose_time_offset_s, colour=args.colour_camera,
+    )  # fmt: skip
+    ground_truth = recording.ground_truth
+    names = recording.frame_names[:: args.stride]
+    frames = LazyFrames(names, recording.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
     out_path = Path(args.out)
     export_dir = Path(args.export) if args.export else None
-    frame = seven_scenes_export_frame(sequence)
+    frame = recording.export_frame
     scores: dict[int, list[dict[str, dict[str, Any]]]] = {}
     rows, centralized, first_runs = agreement(
-        frames, _make_detector(args.detector), frame.params(_params(args)), name=sequence.name, users=args.users,
+        frames, _make_detector(args.detector), frame.params(_params(args)), name=recording.name, users=args.users,
         runs=args.runs, seed=args.seed, workers=_workers(args.workers), progress=not args.no_progress,
-        on_run=each_run(export_runs(export_dir, {sequence.name: frame}), score_runs(ground_truth, scores)),
+        on_run=each_run(export_runs(export_dir, {recording.name: frame}), score_runs(ground_truth, scores)),
         reference_min_score=args.reference_min_score,
     )  # fmt: skip
-    stem = out_path.with_suffix("")
     gt_boxes = ground_truth.boxes("observed") if ground_truth is not None else []
     pictures = write_pictures(
-        stem, frames, centralized, first_runs, title=sequence.name, gt=gt_boxes, world2boxes=frame.world2export
+        out_path.with_suffix(""),
+        frames,
+        centralized,
+        first_runs,
+        title=recording.name,
+        gt=gt_boxes,
+        world2boxes=frame.world2export,
     )
     out: dict[str, Any] = {"agreement": rows}
     if ground_truth is not None:
@@ -177,16 +224,20 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
         out["ground_truth"] = {
             "file": str(ground_truth.path),
             "objects": [o.id for o in ground_truth.objects],
+            "box_kinds": list(ground_truth.box_kinds),
             "primary": "observed",
         }
     out |= {
-        "dataset": "7scenes",
+        "dataset": recording.layout,
+        "root": str(recording.root),
         "detector": args.detector,
-        "sequence": sequence.name,
+        "sequence": recording.name,
         "frames": len(names),
         "stride": args.stride,
         "seed": args.seed,
-        "gravity_aligned": sequence.up_file is not None,
+        "gravity_aligned": recording.gravity.up_file is not None,
+        "gravity": recording.gravity.to_json(),
+        "recording": dict(recording.facts),
         "frame": frame.description,
         "reference_min_score": args.reference_min_score,
         "centralized_objects": [
@@ -196,9 +247,18 @@ def run_eval_7scenes(args: argparse.Namespace) -> int:
         "wall_s": round(time.perf_counter() - started, 2),
     }
     _write_json(out_path, out)
+    print(
+        f"Agreement of distributed maps with the centralized one ({recording.name}, {recording.layout} layout, {len(names)} frames)"
+    )
     _print_table(rows)
     if ground_truth is not None:
-        _print_accuracy(out["accuracy"])
+        for kind in ground_truth.box_kinds:
+            chosen = [r for r in out["accuracy"] if r["boxes"] == kind]
+            print(f"\nAccuracy against {ground_truth.path} ({kind} boxes)")
+            _print_accuracy(chosen)
+            print(f"\nAP per class against {ground_truth.path} ({kind} boxes), IoU 0.25 / 0.5")
+            _print_per_class(chosen)
+    print(f"\nwrote {out_path} and {len(pictures)} pictures beside it")
     return 0
 
 
@@ -219,14 +279,26 @@ def _print_table(rows: Sequence[dict[str, Any]]) -> None:
 
 
 def _print_accuracy(rows: Sequence[dict[str, Any]]) -> None:
+    """mAP of every object with a box and of the served set, the served set's precision and recall."""
     import numpy as np
 
-    print(f"{'approach':<12} {'users':>5} {'runs':>4} {'boxes':>8} {'mAP@0.25':>16} {'mAP@0.5':>16} {'P@0.25':>7} {'R@0.25':>7}")
+    print(f"{'approach':<12} {'users':>5} {'runs':>4} {'mAP@0.25':>16} {'mAP@0.5':>16} {'served mAP@0.25':>15} "
+          f"{'served mAP@0.5':>14} {'P@0.25':>7} {'R@0.25':>7} {'P@0.5':>7} {'R@0.5':>7}")  # fmt: skip
     for r in rows:
         map25 = f"{r['map25_mean']:.4f}±{np.sqrt(r['map25_var']):.4f}"
         map50 = f"{r['map50_mean']:.4f}±{np.sqrt(r['map50_var']):.4f}"
-        print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {r['boxes']:>8} {map25:>16} {map50:>16} "
-              f"{r['served_precision25']:>7.3f} {r['served_recall25']:>7.3f}")  # fmt: skip
+        print(f"{r['approach']:<12} {r['users']:>5} {r['runs']:>4} {map25:>16} {map50:>16} {r['served_map25']:>15.4f} "
+              f"{r['served_map50']:>14.4f} {r['served_precision25']:>7.3f} {r['served_recall25']:>7.3f} "
+              f"{r['served_precision50']:>7.3f} {r['served_recall50']:>7.3f}")  # fmt: skip
+
+
+def _print_per_class(rows: Sequence[dict[str, Any]]) -> None:
+    """Each class's AP at IoU 0.25 and 0.5 (mean over runs), for the classes with ground truth."""
+    labels = [label for label in (rows[0]["ap25_per_class"] if rows else {}) if rows[0]["ap25_per_class"][label] is not None]
+    print(f"{'approach':<12} {'users':>5} " + " ".join(f"{label:>13}" for label in labels))
+    for r in rows:
+        cells = [f"{r['ap25_per_class'][label]:.3f} / {r['ap50_per_class'][label]:.3f}" for label in labels]
+        print(f"{r['approach']:<12} {r['users']:>5} " + " ".join(f"{cell:>13}" for cell in cells))
 
 
 def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: int) -> None:
@@ -251,12 +323,74 @@ def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: i
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) -> None:
+    """What ``eval recording`` and ``eval 7scenes`` take besides ``_add_common``'s (the reader's options
+    when ``layouts``; ``eval 7scenes`` reads the 7-Scenes layout only)."""
+    parser.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
+    parser.add_argument(
+        "--gt-boxes",
+        default=None,
+        metavar="FILE",
+        help="ground-truth boxes (the gt-boxes.json format, its world the frame of the recording's poses; "
+        "default: gt-boxes.json in --root, else a ScanNet scene's annotation)",
+    )
+    parser.add_argument(
+        "--up",
+        type=parse_numbers(3, "x,y,z"),
+        default=None,
+        metavar="X,Y,Z",
+        help="up in the frame of the recording's poses (default: gravity-direction.txt, the ground truth's, "
+        "else estimated from the depth; ScanNet: z)",
+    )
+    parser.add_argument(
+        "--colour-camera",
+        type=parse_colour_camera,
+        default=None,
+        metavar="FX,FY,CX,CY[,TX,TY,TZ]",
+        help="7-Scenes: the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
+        "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)",
+    )
+    parser.add_argument(
+        "--reference-min-score",
+        type=float,
+        default=0.0,
+        help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)",
+    )
+    if not layouts:
+        parser.set_defaults(layout="7scenes", intrinsics=None, depth_factor=None, pose_time_offset_s=0.0)
+        return
+    from arcloud.datasets.recording import LAYOUTS
+
+    parser.add_argument(
+        "--layout",
+        choices=("auto", *LAYOUTS),
+        default="auto",
+        help="auto: TUM (rgb.txt and depth.txt), 7-Scenes (frame-*.pose.txt) or ScanNet (pose/)",
+    )
+    parser.add_argument(
+        "--intrinsics",
+        type=parse_numbers(4, "fx,fy,cx,cy"),
+        default=None,
+        metavar="FX,FY,CX,CY",
+        help="TUM: the intrinsics in pixels (default: camera-intrinsics.txt or intrinsics.txt in --root, "
+        "else TUM's by the folder's freiburg1/2/3 name, else 525,525,319.5,239.5)",
+    )
+    parser.add_argument("--depth-factor", type=float, default=None, help="TUM: depth PNG units a metre (default 5000)")
+    parser.add_argument(
+        "--pose-time-offset-s",
+        type=float,
+        default=0.0,
+        help="TUM: added to each depth timestamp before its pose is interpolated (default 0)",
+    )
+
+
 def add_eval_commands(subparsers: Any) -> Any:
-    """Add ``eval scannet``, ``eval 7scenes`` and ``render-scannet`` to an argparse sub-parsers object.
+    """Add ``eval scannet``, ``eval recording``, ``eval 7scenes`` and ``render-scannet`` to an argparse
+    sub-parsers object.
 
     Returns the sub-parsers of ``eval`` so that other evaluations can join them."""
-    evaluation = subparsers.add_parser("eval", help="evaluate on real datasets (ScanNet layout, 7-Scenes)")
-    kinds = evaluation.add_subparsers(dest="dataset", required=True, metavar="{scannet,7scenes}")
+    evaluation = subparsers.add_parser("eval", help="evaluate on real datasets (ScanNet, 7-Scenes, TUM RGB-D layouts)")
+    kinds = evaluation.add_subparsers(dest="dataset", required=True, metavar="{scannet,recording,7scenes}")
 
     scannet = kinds.add_parser(
         "scannet",
@@ -264,7 +398,7 @@ def add_eval_commands(subparsers: Any) -> Any:
         description="Table 1 on ScanNet-layout scenes. The default scene list is every scene folder under "
         "--root (the paper does not list its 41 scenes; see docs/datasets.md).",
     )
-    scannet.add_argument("--root", required=True, help="a scene folder, a folder of scenes, or one holding scans/")
+    scannet.add_argument("--root", required=True, help="a scene folder (any name), a folder of scenes, or one holding scans/")
     scannet.add_argument("--scenes", type=parse_scenes, default=None, help="scene names, comma-separated, or @FILE")
     scannet.add_argument(
         "--detector",
@@ -277,32 +411,36 @@ def add_eval_commands(subparsers: Any) -> Any:
         default=None,
         help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt",
     )
+    scannet.add_argument(
+        "--gt-boxes",
+        default=None,
+        metavar="FILE",
+        help="ground-truth boxes of one scene (the gt-boxes.json format, its world the scan frame of pose/) "
+        "instead of the scene's annotation; boxes are fitted in its aligned frame",
+    )
     _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
     scannet.set_defaults(handler=run_eval_scannet)
 
+    recording = kinds.add_parser(
+        "recording",
+        help="accuracy against ground-truth boxes (when given or found), agreement of distributed maps with the "
+        "centralized map, and pictures, on any recording: ScanNet, 7-Scenes or TUM RGB-D layout",
+        description="Evaluate one recording of any layout and any folder name (see docs/datasets.md).",
+    )
+    recording.add_argument("--root", required=True, help="the recording's folder")
+    _add_recording_options(recording, layouts=True)
+    _add_common(recording, DEFAULT_7SCENES_USERS, 3)
+    recording.set_defaults(handler=run_eval_recording)
+
     seven = kinds.add_parser(
         "7scenes",
-        help="accuracy against gt-boxes.json (when the sequence has it), agreement of distributed maps with "
-        "the centralized map, and pictures, on a 7-Scenes sequence",
+        help="eval recording on the 7-Scenes layout: accuracy against gt-boxes.json (when the sequence has it), "
+        "agreement of distributed maps with the centralized map, and pictures",
     )
     seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
-    seven.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
-    seven.add_argument(
-        "--colour-camera",
-        type=parse_colour_camera,
-        default=None,
-        metavar="FX,FY,CX,CY[,TX,TY,TZ]",
-        help="the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
-        "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)",
-    )
-    seven.add_argument(
-        "--reference-min-score",
-        type=float,
-        default=0.0,
-        help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)",
-    )
+    _add_recording_options(seven, layouts=False)
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)
-    seven.set_defaults(handler=run_eval_7scenes)
+    seven.set_defaults(handler=run_eval_recording)
 
     add_render_command(subparsers)
     return kinds

@@ -53,6 +53,7 @@ def score_run(objects: Sequence[MapObject], ground_truth: Sequence[LabelledBox],
         "n_served": len(served),
         "n_gt": len(ground_truth),
         "ap25_per_class": all_result.at(0.25).ap,
+        "ap50_per_class": all_result.at(0.5).ap,
     }
 
 

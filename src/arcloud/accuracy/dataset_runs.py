@@ -1,10 +1,11 @@
-"""Evaluation runs on dataset sequences (``arcloud eval scannet`` and ``eval 7scenes``): Table 1 pooled
-over ScanNet scenes, the agreement of distributed maps with the centralized one, accuracy rows against
-ground-truth boxes, and callbacks that export or score every run.
+"""Evaluation runs on dataset recordings (``arcloud eval scannet``, ``eval recording`` and ``eval 7scenes``):
+Table 1 pooled over ScanNet scenes, the agreement of distributed maps with the centralized one, accuracy
+rows against ground-truth boxes, and callbacks that export or score every run.
 
-ScanNet: mAP against the scenes' ground truth, predictions pooled across scenes (the standard ScanNet
-evaluation). 7-Scenes: ``agreement`` rows hold the mAP of each distributed map taken against the
-centralized map as ground truth; ``accuracy_rows`` score every run against the observed and amodal boxes.
+Table 1: mAP against the scenes' ground truth, predictions pooled across scenes (the standard ScanNet
+evaluation). One recording: ``agreement`` rows hold the mAP of each distributed map taken against the
+centralized map as ground truth; ``accuracy_rows`` score every run against the ground truth's boxes
+(observed and amodal).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from arcloud.eval.metrics import variance
 from arcloud.ports import Detector
 
 if TYPE_CHECKING:
-    from arcloud.datasets.sevenscenes import SevenScenesGroundTruth
+    from arcloud.datasets.gt_boxes import GroundTruthBoxes
 
 OnRun = Callable[[str, int, int, list[MapObject]], None]
 
@@ -194,20 +195,28 @@ def agreement(
     for k in (k for k in users if k > 1):
         results = [evaluate(collector.boxes[(k, run)], reference) for run in range(runs)]
         row = _row("distributed", k, [r.map_at(0.25) for r in results], [r.map_at(0.5) for r in results], collector.wall_s[k])
-        per_class = {label: [r.at(0.25).ap[label] for r in results] for label in CLASSES}
-        row["ap25_per_class"] = {
-            label: None if any(ap is None for ap in aps) else float(np.mean(aps))  # type: ignore[arg-type]  # no None in aps here
-            for label, aps in per_class.items()
-        }
+        row["ap25_per_class"] = mean_per_class([r.at(0.25).ap for r in results])
         rows.append(row)
     return rows, centralized, collector.first
+
+
+def mean_per_class(per_run: Sequence[Mapping[str, float | None]]) -> dict[str, float | None]:
+    """Each class's AP averaged over runs; None where a run has none (no ground truth of the class)."""
+    out: dict[str, float | None] = {}
+    for label in CLASSES:
+        aps = [run.get(label) for run in per_run]
+        out[label] = (
+            None if not aps or any(ap is None for ap in aps) else float(np.mean([float(ap) for ap in aps if ap is not None]))
+        )
+    return out
 
 
 def accuracy_rows(scores: Mapping[int, Sequence[Mapping[str, Mapping[str, Any]]]]) -> list[dict[str, object]]:
     """Rows of the runs' figures against ground truth: ``scores[K]`` holds each run's
     ``arcloud.accuracy.sevenscenes.score_against`` (``score_run`` figures per box kind). One row per K
-    and box kind: mean and variance over runs of mAP, and the means of the served set's precision and
-    recall at IoU 0.25 and 0.5 (a missing figure, e.g. recall without ground truth, reads as NaN)."""
+    and box kind: mean and variance over runs of mAP (every object with a box), the means of the served
+    set's mAP, precision and recall at IoU 0.25 and 0.5 (a missing figure, e.g. recall without ground
+    truth, reads as NaN), and each class's AP at 0.25 and 0.5 (``mean_per_class``)."""
     rows: list[dict[str, object]] = []
     for k, runs in sorted(scores.items()):
         for kind in runs[0]:
@@ -228,14 +237,18 @@ def accuracy_rows(scores: Mapping[int, Sequence[Mapping[str, Mapping[str, Any]]]
                 **{key: float(np.mean(values[key])) for key in _SERVED_FIGURES},
                 "n_gt": figures[0]["n_gt"],
                 "n_served_mean": float(np.mean([f["n_served"] for f in figures])),
+                "ap25_per_class": mean_per_class([f["ap25_per_class"] for f in figures]),
+                "ap50_per_class": mean_per_class([f["ap50_per_class"] for f in figures]),
             })  # fmt: skip
     return rows
 
 
-_SERVED_FIGURES = ("served_precision25", "served_recall25", "served_precision50", "served_recall50")
+_SERVED_FIGURES = (
+    "served_map25", "served_map50", "served_precision25", "served_recall25", "served_precision50", "served_recall50"
+)  # fmt: skip
 
 
-def score_runs(ground_truth: SevenScenesGroundTruth | None, scores: dict[int, list[dict[str, dict[str, Any]]]]) -> OnRun | None:
+def score_runs(ground_truth: GroundTruthBoxes | None, scores: dict[int, list[dict[str, dict[str, Any]]]]) -> OnRun | None:
     """Appends each run's ``score_against`` to ``scores[K]`` (None without ground truth)."""
     if ground_truth is None:
         return None

@@ -37,7 +37,8 @@ from arcloud.errors import DatasetError
 
 if TYPE_CHECKING:
     from arcloud.datasets.export import ExportFrame
-    from arcloud.datasets.sevenscenes import SevenScenesGroundTruth, SevenScenesSequence
+    from arcloud.datasets.gt_boxes import GroundTruthBoxes
+    from arcloud.datasets.sevenscenes import SevenScenesSequence
     from arcloud.ports import Detector
 
 logger = logging.getLogger(__name__)
@@ -74,16 +75,15 @@ CASES = (SequenceCase(0, 999, "report"), SequenceCase(0, 499, "tune"), SequenceC
 
 def score_against(
     objects: Sequence[MapObject],
-    ground_truth: SevenScenesGroundTruth,
+    ground_truth: GroundTruthBoxes,
     *,
     frames: tuple[int, int] | None = None,
     scene: str = "scene",
 ) -> dict[str, dict[str, Any]]:
-    """``score_run`` of a map (boxed in the ground truth's aligned frame) against the observed and the
-    amodal boxes of the objects visible within ``frames`` (first, last frame numbers; None: all)."""
-    from arcloud.datasets.sevenscenes import BOX_KINDS
-
-    return {kind: score_run(objects, ground_truth.boxes(kind, frames=frames), scene=scene) for kind in BOX_KINDS}
+    """``score_run`` of a map (boxed in the ground truth's aligned frame) against each kind of box the
+    ground truth has (observed and amodal; a mesh annotation's: observed) of the objects visible within
+    ``frames`` (first, last frame numbers; None: all)."""
+    return {kind: score_run(objects, ground_truth.boxes(kind, frames=frames), scene=scene) for kind in ground_truth.box_kinds}
 
 
 def run_suite(

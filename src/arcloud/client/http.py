@@ -3,12 +3,16 @@
 
     with ArcloudClient("http://127.0.0.1:8000") as client:
         client.send_frame(frame)                       # a core Frame, or arrays (see send_frame)
-        client.wait_until_processed("office", n_frames=100, timeout_s=60)
+        client.wait_until_processed("office", timeout_s=60)   # until this client's frames are done
         for obj in client.list_objects("office", label="chair", min_score=0.5):
             print(obj["id"], obj["aabb"])     # confirmed objects; include_tentative=True for every object
 
 With API keys (``arcloud keys create``), give ``token=`` or set ``$ARCLOUD_TOKEN``: every request then
 carries ``Authorization: Bearer TOKEN``.
+
+Uploads are asynchronous: the service answers 202 and processes the frame later. Each client keeps the
+frames it had accepted (``sent``), and ``wait_until_processed(map_id)`` waits until every one of them is
+done (asking each frame's status), however many frames other clients sent to the map.
 
 Frames travel as protobuf (``arcloud.v1.Frame``: JPEG colour, 16-bit PNG depth in millimetres by
 default).
@@ -29,6 +33,7 @@ import asyncio
 import logging
 import os
 import random
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -232,9 +237,93 @@ def _next_wait_s(
     return wait_s
 
 
-def _done(stats: Mapping[str, Any], n_frames: int) -> bool:
+def _map_done(stats: Mapping[str, Any], n_frames: int) -> bool:
     frames = stats["frames"]
     return bool(frames["processed"] + frames["failed"] >= n_frames)
+
+
+#: A frame status (``GET .../frames/{device}/{frame}``) -> its outcome for ``wait_until_processed``; None: not done.
+OUTCOMES: dict[str, str | None] = {
+    "queued": None,
+    "processing": None,
+    "processed": "processed",
+    "failed": "failed",
+    "unknown": "lost",
+}
+
+
+class SentFrames:
+    """The frames a client had accepted (202), by map, until it sees each done: ``processed``, ``failed`` or
+    ``lost`` (the service no longer knows it: 404 or ``unknown``, e.g. a Redis that lost its data). Counts are
+    of uploads answered 202 (``duplicate`` too: a frame sent again counts again), from the client's start or
+    from ``delete_map`` through it."""
+
+    def __init__(self) -> None:
+        self._pending: dict[str, dict[tuple[str, str], None]] = {}  # map -> (device, frame), in send order
+        self._counts: dict[str, dict[str, int]] = {}
+        self._lock = threading.Lock()  # the blocking client may be shared by threads
+
+    def add(self, answer: Mapping[str, Any]) -> None:
+        """Record an upload's answer (``queued`` or ``duplicate``: both are the service's to process)."""
+        key = (str(answer["device_id"]), str(answer["frame_id"]))
+        with self._lock:
+            pending = self._pending.setdefault(answer["map_id"], {})
+            if key not in pending:
+                pending[key] = None
+                self._counts_of(answer["map_id"])["sent"] += 1
+
+    def pending(self, map_id: str) -> list[tuple[str, str]]:
+        with self._lock:
+            return list(self._pending.get(map_id, ()))
+
+    def settle(self, map_id: str, key: tuple[str, str], outcome: str) -> None:
+        with self._lock:
+            pending = self._pending.get(map_id, {})
+            if key in pending:
+                del pending[key]
+                self._counts_of(map_id)[outcome] += 1
+
+    def forget(self, map_id: str) -> None:
+        with self._lock:
+            self._pending.pop(map_id, None)
+            self._counts.pop(map_id, None)
+
+    def summary(self, map_id: str) -> dict[str, Any]:
+        """``{"map_id", "frames": {"sent", "processed", "failed", "lost"}}``: this client's frames of the map."""
+        with self._lock:
+            return {"map_id": map_id, "frames": dict(self._counts_of(map_id))}
+
+    def _counts_of(self, map_id: str) -> dict[str, int]:
+        return self._counts.setdefault(map_id, {"sent": 0, "processed": 0, "failed": 0, "lost": 0})
+
+
+def frame_outcome(response: httpx.Response) -> tuple[str | None, str]:
+    """(outcome or None when not done yet, status) of a frame status answer; 404 (never accepted, or no
+    longer known: the map deleted, the store's data lost) is ``lost``; other refusals raise ``ServiceError``."""
+    if response.status_code == 404:
+        return "lost", "not found"
+    status = str(checked(response)["status"])
+    return OUTCOMES.get(status), status
+
+
+def not_processed(
+    map_id: str,
+    sent: SentFrames,
+    last: tuple[str, str, str] | None,
+    n_frames: int | None,
+    stats: Mapping[str, Any] | None,
+    timeout_s: float,
+) -> TimeoutError:
+    """The ``TimeoutError`` of ``wait_until_processed``: what it was waiting for, and what it last saw."""
+    pending = sent.pending(map_id)
+    what = []
+    if pending:
+        first = f" ({last[0]}/{last[1]}: {last[2]})" if last is not None else ""
+        what.append(f"{len(pending)} of the {sent.summary(map_id)['frames']['sent']} frames this client sent{first}")
+    if n_frames is not None:
+        frames = stats.get("frames") if stats else None
+        what.append(f"{n_frames} frames of the map in all (last: {frames})")
+    return TimeoutError(f"map {map_id}: not processed within {timeout_s} s: {'; '.join(what)}")
 
 
 def subscribe(
@@ -282,6 +371,7 @@ class ArcloudClient:
         self.url = url.rstrip("/")
         self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
         self.headers = auth_headers(token)
+        self.sent = SentFrames()
         self._owns = http is None
         self.http = http if http is not None else httpx.Client(base_url=self.url, timeout=timeout_s)
 
@@ -321,9 +411,11 @@ class ArcloudClient:
         cam2world=, timestamp_s=, device_id=, frame_id=, depth_scale=)`` (rgb (H, W, 3) uint8, depth
         (H, W) float32 metres or uint16 units). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
         map_id, body = frame_body(frame, **arrays)
-        return self._request(
+        answer = self._request(
             "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
         )
+        self.sent.add(answer)
+        return answer
 
     def list_objects(
         self,
@@ -344,7 +436,9 @@ class ArcloudClient:
         return self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
 
     def delete_map(self, map_id: str) -> dict[str, Any]:
-        return self._request("DELETE", f"/v1/maps/{map_id}")
+        answer = self._request("DELETE", f"/v1/maps/{map_id}")
+        self.sent.forget(map_id)
+        return answer
 
     def frame_status(self, map_id: str, device_id: str, frame_id: str) -> dict[str, Any]:
         """Where an accepted frame is: ``status`` queued, processing, processed, failed (with ``reason``) or
@@ -385,24 +479,39 @@ class ArcloudClient:
             if cursor is None:
                 return maps
 
-    def wait_until_processed(self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1) -> dict[str, Any]:
-        """Poll the map's stats until ``n_frames`` frames are done (processed or failed); returns the
-        stats. Raises ``TimeoutError`` with the last counts."""
+    def wait_until_processed(
+        self, map_id: str, n_frames: int | None = None, timeout_s: float = 60.0, *, poll_s: float = 0.1
+    ) -> dict[str, Any]:
+        """Wait until every frame this client sent to the map (each upload answered 202) is done: processed,
+        failed, or lost (the service no longer knows it); asks each frame's status, in send order. Returns
+        ``{"map_id", "frames": {"sent", "processed", "failed", "lost"}}`` (this client's frames of the map).
+        ``n_frames``: wait also until the map counts that many frames done in all, every client's (for a
+        client waiting on others' frames). Raises ``TimeoutError`` saying what is still waited for."""
         deadline = time.monotonic() + timeout_s
-        stats: dict[str, Any] = {}
+        last: tuple[str, str, str] | None = None
+        stats: dict[str, Any] | None = None
         while True:
-            try:
-                stats = self.stats(map_id)
-                if _done(stats, n_frames):
-                    return stats
-            except ServiceError as exc:
-                if exc.status != 404:  # 404: no frame of the map accepted yet
-                    raise
+            for device_id, frame_id in self.sent.pending(map_id):
+                outcome, status = frame_outcome(self._send("GET", frame_status_path(map_id, device_id, frame_id)))
+                last = (device_id, frame_id, status)
+                if outcome is None:
+                    break  # still queued or processing: the later ones most likely too
+                self.sent.settle(map_id, (device_id, frame_id), outcome)
+            else:
+                if n_frames is None or _map_done(stats := self._map_stats(map_id), n_frames):
+                    return self.sent.summary(map_id)
             if time.monotonic() >= deadline:
-                raise TimeoutError(
-                    f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
-                )
+                raise not_processed(map_id, self.sent, last, n_frames, stats, timeout_s)
             time.sleep(poll_s)
+
+    def _map_stats(self, map_id: str) -> dict[str, Any]:
+        """The map's stats; no frame counted for a map the service does not know (404)."""
+        try:
+            return self.stats(map_id)
+        except ServiceError as exc:
+            if exc.status != 404:
+                raise
+            return {"map_id": map_id, "frames": {"accepted": 0, "processed": 0, "failed": 0, "pending": 0}}
 
     def subscribe(
         self,
@@ -435,6 +544,7 @@ class AsyncArcloudClient:
         self.url = url.rstrip("/")
         self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
         self.headers = auth_headers(token)
+        self.sent = SentFrames()
         self._owns = http is None
         self.http = http if http is not None else httpx.AsyncClient(base_url=self.url, timeout=timeout_s)
 
@@ -471,15 +581,15 @@ class AsyncArcloudClient:
     async def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
         """As ``ArcloudClient.send_frame``; the encoding runs in a thread."""
         map_id, body = await asyncio.to_thread(frame_body, frame, **arrays)
-        return await self._request(
-            "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
-        )
+        return await self.send_encoded(map_id, body)
 
     async def send_encoded(self, map_id: str, body: bytes) -> dict[str, Any]:
         """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
-        return await self._request(
+        answer = await self._request(
             "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
         )
+        self.sent.add(answer)
+        return answer
 
     async def list_objects(
         self,
@@ -500,7 +610,9 @@ class AsyncArcloudClient:
         )
 
     async def delete_map(self, map_id: str) -> dict[str, Any]:
-        return await self._request("DELETE", f"/v1/maps/{map_id}")
+        answer = await self._request("DELETE", f"/v1/maps/{map_id}")
+        self.sent.forget(map_id)
+        return answer
 
     async def frame_status(self, map_id: str, device_id: str, frame_id: str) -> dict[str, Any]:
         return await self._request("GET", frame_status_path(map_id, device_id, frame_id))
@@ -535,23 +647,33 @@ class AsyncArcloudClient:
                 return maps
 
     async def wait_until_processed(
-        self, map_id: str, n_frames: int, timeout_s: float = 60.0, *, poll_s: float = 0.1
+        self, map_id: str, n_frames: int | None = None, timeout_s: float = 60.0, *, poll_s: float = 0.1
     ) -> dict[str, Any]:
+        """As ``ArcloudClient.wait_until_processed``."""
         deadline = time.monotonic() + timeout_s
-        stats: dict[str, Any] = {}
+        last: tuple[str, str, str] | None = None
+        stats: dict[str, Any] | None = None
         while True:
-            try:
-                stats = await self.stats(map_id)
-                if _done(stats, n_frames):
-                    return stats
-            except ServiceError as exc:
-                if exc.status != 404:
-                    raise
+            for device_id, frame_id in self.sent.pending(map_id):
+                outcome, status = frame_outcome(await self._send("GET", frame_status_path(map_id, device_id, frame_id)))
+                last = (device_id, frame_id, status)
+                if outcome is None:
+                    break
+                self.sent.settle(map_id, (device_id, frame_id), outcome)
+            else:
+                if n_frames is None or _map_done(stats := await self._map_stats(map_id), n_frames):
+                    return self.sent.summary(map_id)
             if time.monotonic() >= deadline:
-                raise TimeoutError(
-                    f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
-                )
+                raise not_processed(map_id, self.sent, last, n_frames, stats, timeout_s)
             await asyncio.sleep(poll_s)
+
+    async def _map_stats(self, map_id: str) -> dict[str, Any]:
+        try:
+            return await self.stats(map_id)
+        except ServiceError as exc:
+            if exc.status != 404:
+                raise
+            return {"map_id": map_id, "frames": {"accepted": 0, "processed": 0, "failed": 0, "pending": 0}}
 
     def subscribe(
         self,

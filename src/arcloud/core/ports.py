@@ -71,8 +71,9 @@ class MapStore(Protocol):
         """The objects with these ids, in the order given; ids that do not exist are skipped."""
         ...
 
-    def new_ids(self, map_id: str, n: int) -> list[int]:
-        """``n`` object ids never used before in this map, unique across every process of the store."""
+    def new_ids(self, map_id: str, n: int) -> Sequence[int]:
+        """``n`` object ids never used before in this map, unique across every process of the store (consecutive:
+        a ``range``, so that moving the counter past restored ids costs the same for any ``n``)."""
         ...
 
     def commit(

@@ -15,8 +15,10 @@ import numpy as np
 from arcloud.core.types import MapObject, Params
 
 if TYPE_CHECKING:
+    from arcloud.datasets.gt_boxes import GroundTruthBoxes
     from arcloud.datasets.scannet import ScanNetScene
     from arcloud.datasets.sevenscenes import SevenScenesSequence
+    from arcloud.datasets.tum import TumSequence
 
 
 def objects_json(objects: Sequence[MapObject]) -> list[dict[str, Any]]:
@@ -52,25 +54,42 @@ class ExportFrame:
         return params.replace(world2aligned=tuple(tuple(float(v) for v in row) for row in self.world2export))
 
 
-def scannet_export_frame(scene: ScanNetScene) -> ExportFrame:
-    """ScanNet maps are built in the scene's aligned frame (the reader aligns the poses)."""
+def ground_truth_export_frame(ground_truth: GroundTruthBoxes, world2file: np.ndarray) -> ExportFrame:
+    """The ground truth's aligned frame (the recording's declared evaluation frame, as ScanNet's
+    axisAlignment is); ``world2file`` (4, 4) maps the map's world to the ground truth's (pose) world."""
+    return ExportFrame(
+        f"{ground_truth.path.name} aligned frame (gravity_aligned.world_to_aligned: z up, floor at z = 0, x along the walls)",
+        np.linalg.inv(ground_truth.file2aligned),
+        ground_truth.file2aligned @ world2file,
+    )
+
+
+def scannet_export_frame(scene: ScanNetScene, ground_truth: GroundTruthBoxes | None = None) -> ExportFrame:
+    """ScanNet maps are built in the scene's aligned frame (the reader aligns the poses); with a
+    ground-truth file (its world the scan frame of the poses), they are boxed in its aligned frame."""
+    if ground_truth is not None:
+        return ground_truth_export_frame(ground_truth, np.linalg.inv(scene.scan2aligned))
     return ExportFrame("ScanNet axis-aligned frame (axisAlignment applied to the scan frame)", np.linalg.inv(scene.scan2aligned))
 
 
-def seven_scenes_export_frame(sequence: SevenScenesSequence) -> ExportFrame:
-    """With ground truth, its aligned frame (the sequence's declared evaluation frame, as ScanNet's
-    axisAlignment is); without, the sequence's (gravity-aligned) world."""
+def gravity_export_frame(sequence: SevenScenesSequence | TumSequence, pose_frame: str) -> ExportFrame:
+    """With ground truth, its aligned frame; without, the sequence's (gravity-aligned) world, or its
+    pose frame (``pose_frame`` in words) when it is not aligned."""
     if sequence.ground_truth is not None:
-        return ExportFrame(
-            f"{sequence.ground_truth.path.name} aligned frame (gravity_aligned.world_to_aligned: z up, floor at z = 0, x along the walls)",
-            np.linalg.inv(sequence.ground_truth.file2aligned),
-            sequence.world2gt,
-        )  # fmt: skip
+        return ground_truth_export_frame(sequence.ground_truth, sequence.world2file)
     if np.allclose(sequence.world2file, np.eye(4)):
-        return ExportFrame("7-Scenes pose frame", sequence.world2file)
+        return ExportFrame(pose_frame, sequence.world2file)
     return ExportFrame(
         "gravity-aligned world (the pose frame turned by the smallest rotation that takes up to +z)", sequence.world2file
     )
+
+
+def seven_scenes_export_frame(sequence: SevenScenesSequence) -> ExportFrame:
+    return gravity_export_frame(sequence, "7-Scenes pose frame")
+
+
+def tum_export_frame(sequence: TumSequence) -> ExportFrame:
+    return gravity_export_frame(sequence, "TUM groundtruth.txt frame")
 
 
 def export_payload(objects: Sequence[MapObject], frame: ExportFrame, **facts: object) -> dict[str, object]:

@@ -189,6 +189,13 @@ def read_ply_mesh(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray
     return vertices, colors, triangles.astype(np.int32)
 
 
+def map_id_of(name: str) -> str:
+    """A map id made of a folder's name: characters a map id may not hold become '_', at most 128 of them."""
+    from arcloud.core.checks import MAP_ID_CHARACTERS, MAX_ID_LENGTH
+
+    return "".join(c if c in MAP_ID_CHARACTERS else "_" for c in name)[:MAX_ID_LENGTH] or "recording"
+
+
 def natural_key(name: str) -> tuple[int, str]:
     """Sort key putting '2' before '10' (frame file stems)."""
     digits = re.findall(r"\d+", name)

@@ -1,11 +1,15 @@
-"""Frames of a dataset read on demand, so that long sequences need not fit in memory."""
+"""Frames of a dataset read on demand, so that long sequences need not fit in memory, and the colour camera
+of an unregistered RGB-D pair."""
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 
-from arcloud.core.types import Frame
+import numpy as np
+
+from arcloud.core.types import Frame, Intrinsics
 
 #: Frames kept in memory when a sequence has at most this many (about 2.2 MB each at 640x480).
 CACHE_FRAMES_UP_TO = 1500
@@ -38,3 +42,12 @@ class LazyFrames(Sequence[Frame]):
 
     def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))
+
+
+@dataclass(frozen=True, eq=False)
+class ColourCamera:
+    """The colour camera of an unregistered RGB-D pair: its intrinsics (at the depth image's size) and
+    ``depth2rgb`` (4, 4), depth camera coordinates to colour camera coordinates (see ``core.types.Frame``)."""
+
+    intrinsics: Intrinsics
+    depth2rgb: np.ndarray

@@ -42,6 +42,7 @@ import numpy as np
 from arcloud.core.checks import make_frame
 from arcloud.core.types import CLASSES, Frame, Intrinsics
 from arcloud.datasets.files import (
+    map_id_of,
     natural_key,
     read_key_values,
     read_matrix,
@@ -53,6 +54,7 @@ from arcloud.errors import DatasetError, InvalidInput
 
 if TYPE_CHECKING:
     from arcloud.core.types import LabelledBox
+    from arcloud.datasets.gt_boxes import GroundTruthBoxes
 
 logger = logging.getLogger(__name__)
 
@@ -263,7 +265,7 @@ class ScanNetScene:
             self.depth_intrinsics,
             self.pose(name),
             timestamp_s=max(natural_key(name)[0], 0) / FRAME_RATE_HZ,  # file numbers count 30 Hz frames
-            map_id=self.scene_id,
+            map_id=map_id_of(self.scene_id),
             device_id=device_id or self.device_id,
             frame_id=name,
             depth_scale=1000.0,
@@ -280,6 +282,23 @@ class ScanNetScene:
         from arcloud.core.types import LabelledBox
 
         return [LabelledBox(inst.label, inst.aabb_min, inst.aabb_max, 1.0) for inst in self.objects if inst.label is not None]
+
+    def ground_truth(self) -> GroundTruthBoxes | None:
+        """``gt_boxes`` as ``GroundTruthBoxes`` (its world the scan frame, its aligned frame the scene's),
+        one box kind, ``observed`` (mesh vertices); None when the scene has no object of our classes."""
+        from arcloud.datasets.gt_boxes import GroundTruthBoxes, GroundTruthObject
+
+        if not self.objects:
+            return None
+        last_frame = max((max(natural_key(name)[0], 0) for name in self.frame_names), default=0)
+        objects = tuple(
+            GroundTruthObject(id=str(inst.object_id), label=box.label, observed=box, amodal=box, visible_frames=(0, last_frame),
+                              confidence="", uncertainty_m=None, notes=inst.raw_category)
+            for inst, box in zip(self.objects, self.gt_boxes(), strict=True)
+        )  # fmt: skip
+        source = self.root / (V2_LABELS_DIR if self.annotation == "v2" else f"{self.scene_id}.aggregation.json")
+        method = f"ScanNet {self.annotation} annotation: axis-aligned bounds of each instance's mesh vertices"
+        return GroundTruthBoxes(source, self.scan2aligned, objects, (), method, box_kinds=("observed",))
 
 
 def parse_axis_alignment(text: str, source: object = "axisAlignment") -> np.ndarray:
@@ -561,24 +580,30 @@ def load_scannet_scene(
     return scene
 
 
+def is_scene_dir(folder: Path) -> bool:
+    """Whether a folder is a ScanNet-layout scene: it has ``pose/`` or a ``<name>.txt``."""
+    return (folder / "pose").is_dir() or (folder / f"{folder.name}.txt").is_file()
+
+
 def find_scene_dirs(root: str | Path, scenes: Sequence[str] | None = None) -> list[Path]:
-    """Scene folders under ``root`` (itself a scene, a folder of scenes, or one with ``scans/``), in
-    name order; ``scenes`` picks those names (each must exist)."""
+    """Scene folders under ``root`` (itself a scene of any name, a folder of scenes, or one with
+    ``scans/``), in name order: sub-folders that are scenes (``is_scene_dir``) or named ``scene*``;
+    ``scenes`` picks those names (each must exist)."""
     base = Path(root)
     if not base.is_dir():
         raise DatasetError(f"{base}: expected a folder of ScanNet scenes, got no such folder")
-    if (base / "pose").is_dir() or (base / f"{base.name}.txt").is_file():
+    if is_scene_dir(base):
         candidates = {base.name: base}
     else:
         parent = base / "scans" if (base / "scans").is_dir() else base
-        candidates = {p.name: p for p in parent.iterdir() if p.is_dir() and p.name.startswith("scene")}
+        candidates = {p.name: p for p in parent.iterdir() if p.is_dir() and (p.name.startswith("scene") or is_scene_dir(p))}
     if scenes:
         missing = [s for s in scenes if s not in candidates]
         if missing:
             raise DatasetError(f"{base}: expected scene folders {missing}, got only {sorted(candidates)[:10]}")
         return [candidates[s] for s in scenes]
     if not candidates:
-        raise DatasetError(f"{base}: expected scene folders named scene*, got none")
+        raise DatasetError(f"{base}: expected a scene folder (with pose/) or folders of scenes, got none")
     return [candidates[name] for name in sorted(candidates)]
 
 
@@ -593,6 +618,7 @@ __all__ = [
     "choose_annotation",
     "find_label_table",
     "find_scene_dirs",
+    "is_scene_dir",
     "load_axis_alignment",
     "load_scannet_scene",
     "read_instances",

@@ -6,32 +6,34 @@ optionally ``camera-intrinsics.txt`` (3x3; default fx = fy = 585, cx = 320, cy =
 Kinect) and ``gravity-direction.txt`` (3 numbers: the direction gravity pulls, in world coordinates).
 A scene folder with ``seq-XX`` sub-folders is read as those sequences one after the other.
 
-7-Scenes worlds are not z-up: with ``align_gravity=True`` the poses are rotated (the smallest rotation,
-``arcloud.core.gravity.up_rotation``) into a world whose +z is up (opposite gravity), so that gravity-aligned boxes are simply boxes in that world.
+7-Scenes worlds are not z-up: up in the pose frame is chosen by ``arcloud.datasets.gravity.choose_up``
+(given, ``gravity-direction.txt``, the ground truth's, or estimated from the depth), and with
+``align_gravity=True`` the poses are rotated (the smallest rotation, ``arcloud.core.gravity.up_rotation``)
+into a world whose +z is up, so that gravity-aligned boxes are simply boxes in that world.
 
-Optional 3D ground truth, ``gt-boxes.json`` (hand-checked boxes, see ``load_ground_truth``), is parsed into
-``SevenScenesGroundTruth``: boxes in its own *aligned* frame (z up, floor at z = 0, x along the walls),
-related to the file's world by ``file2aligned``. The map's world reaches it through
-``SevenScenesSequence.world2gt`` (``file2aligned @ world2file``).
+Optional 3D ground truth, ``gt-boxes.json`` (``arcloud.datasets.gt_boxes``), holds boxes in its own
+*aligned* frame (z up, floor at z = 0, x along the walls), related to the file's world by
+``file2aligned``. The map's world reaches it through ``SevenScenesSequence.world2gt``
+(``file2aligned @ world2file``).
 """
 
 from __future__ import annotations
 
-import json
 import logging
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
-from typing import cast
 
 import numpy as np
 
 from arcloud.core.checks import make_frame
-from arcloud.core.gravity import up_rotation
-from arcloud.core.types import CLASSES, Frame, Intrinsics, LabelledBox
-from arcloud.datasets.files import natural_key, read_matrix, read_png_u16, read_rgb
-from arcloud.errors import DatasetError, InvalidInput
+from arcloud.core.types import Frame, Intrinsics
+from arcloud.datasets.files import map_id_of, natural_key, read_matrix, read_png_u16, read_rgb
+from arcloud.datasets.frames import ColourCamera, LazyFrames
+from arcloud.datasets.gravity import GRAVITY_FILE, choose_up, estimate_up_from_frames, gravity_world2file
+from arcloud.datasets.gt_boxes import GT_BOXES_FILE, GroundTruthBoxes, load_ground_truth
+from arcloud.errors import DatasetError
 
 logger = logging.getLogger(__name__)
 
@@ -39,73 +41,6 @@ DEFAULT_INTRINSICS = Intrinsics(585.0, 585.0, 320.0, 240.0)
 INVALID_DEPTH_MM = 65535
 FRAME_RATE_HZ = 30.0
 _SUFFIX = ".pose.txt"
-GT_BOXES_FILE = "gt-boxes.json"
-#: The two boxes of every ground-truth object: what the sensor saw (the primary score) and amodal.
-BOX_KINDS = ("observed", "amodal")
-#: How far from orthonormal a file's rotation may be (its numbers are rounded to 4 decimals).
-_GT_ROTATION_TOLERANCE = 1e-3
-
-
-@dataclass(frozen=True, eq=False)
-class SevenScenesObject:
-    """One hand-checked object of ``gt-boxes.json``; boxes in the ground truth's aligned frame.
-
-    observed: the box of the depth points the sensor saw (ScanNet's convention for ground truth).
-    amodal: completed (chairs under the table from a fitted template, the table down to the floor).
-    visible_frames: (first, last) frame numbers in which it is visible, inclusive."""
-
-    id: str
-    label: str
-    observed: LabelledBox
-    amodal: LabelledBox
-    visible_frames: tuple[int, int]
-    confidence: str
-    uncertainty_m: float | None
-    notes: str
-
-    def box(self, kind: str) -> LabelledBox:
-        """The ``observed`` or ``amodal`` box."""
-        if kind not in BOX_KINDS:
-            raise InvalidInput("box kind", f"one of {BOX_KINDS}", repr(kind))
-        return self.observed if kind == "observed" else self.amodal
-
-    def visible_within(self, first_frame: int, last_frame: int) -> bool:
-        """Whether its visible range meets the frame numbers ``first_frame..last_frame`` (inclusive)."""
-        return self.visible_frames[0] <= last_frame and first_frame <= self.visible_frames[1]
-
-
-@dataclass(frozen=True, eq=False)
-class ColourCamera:
-    """The colour camera of an unregistered RGB-D pair: its intrinsics (at the depth image's size) and
-    ``depth2rgb`` (4, 4), depth camera coordinates to colour camera coordinates (see ``core.types.Frame``)."""
-
-    intrinsics: Intrinsics
-    depth2rgb: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class SevenScenesGroundTruth:
-    """``gt-boxes.json`` parsed: ``file2aligned`` (4, 4) maps the file's (pose) world to the aligned
-    frame of the boxes (the file's ``gravity_aligned.world_to_aligned``: z up, floor at z = 0, x along
-    the walls); ``objects`` hold the boxes there. ``not_annotated``: things a detector may fire on that
-    are none of our classes; ``method``: how the boxes were made; ``colour``: the colour camera as the
-    annotation estimated it (``colour_intrinsics_estimated``), None when the file has none."""
-
-    path: Path
-    file2aligned: np.ndarray
-    objects: tuple[SevenScenesObject, ...]
-    not_annotated: tuple[str, ...]
-    method: str
-    colour: ColourCamera | None = None
-
-    def boxes(self, kind: str = "observed", *, frames: tuple[int, int] | None = None) -> list[LabelledBox]:
-        """The ``kind`` boxes (see ``BOX_KINDS``), of the objects visible within ``frames`` = (first,
-        last) frame numbers when given."""
-        return [o.box(kind) for o in self.objects_within(frames)]
-
-    def objects_within(self, frames: tuple[int, int] | None = None) -> list[SevenScenesObject]:
-        """The objects visible within ``frames`` = (first, last) frame numbers (all when None)."""
-        return [o for o in self.objects if frames is None or o.visible_within(*frames)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,9 +48,10 @@ class SevenScenesSequence:
     """A parsed sequence. ``cam2world``: (N, 4, 4) poses of ``frame_names`` in the output world (the
     file world, or the gravity-aligned one when ``world2file`` is not the identity).
 
-    up_file: (3,) unit up (opposite gravity) in the file's world, or None without gravity-direction.txt.
+    up_file: (3,) unit up (opposite gravity) in the file's world, or None when unknown; ``up_source``
+    says where it came from (``arcloud.datasets.gravity.choose_up``).
     world2file: (4, 4) maps output-world points to the file's world (identity unless gravity-aligned).
-    ground_truth: ``gt-boxes.json`` parsed, or None when the folder has none.
+    ground_truth: ``gt-boxes.json`` parsed (the folder's, or the one given), or None.
     colour: the colour camera, when colour and depth are not registered (Kinect v1: frames then carry it,
     and masks drawn on colour land where the colour camera saw); None: registered pixel for pixel."""
 
@@ -129,9 +65,10 @@ class SevenScenesSequence:
     skipped_frames: tuple[str, ...]
     up_file: np.ndarray | None
     world2file: np.ndarray
-    ground_truth: SevenScenesGroundTruth | None = None
+    ground_truth: GroundTruthBoxes | None = None
     colour: ColourCamera | None = None
     device_id: str = "user-0"
+    up_source: str = "none"
 
     @cached_property
     def _index(self) -> dict[str, int]:
@@ -204,14 +141,25 @@ def _find_file(root: Path, folders: list[Path], name: str) -> Path | None:
 
 
 def load_seven_scenes(
-    root: str | Path, *, align_gravity: bool = False, name: str | None = None, colour: ColourCamera | None = None
+    root: str | Path,
+    *,
+    align_gravity: bool = False,
+    name: str | None = None,
+    colour: ColourCamera | None = None,
+    gt_boxes: str | Path | None = None,
+    up: object = None,
+    estimate_up: bool = False,
 ) -> SevenScenesSequence:
-    """Parse a 7-Scenes sequence (or a scene of ``seq-XX`` folders), with its ``gt-boxes.json`` when the
-    folder has one. Frames whose pose is not finite are skipped with a logged count.
+    """Parse a 7-Scenes sequence (or a scene of ``seq-XX`` folders), with ``gt_boxes`` (a ground-truth
+    file) or else the folder's ``gt-boxes.json`` when it has one. Frames whose pose is not finite are
+    skipped with a logged count. ``name`` (default: the folder's name, as a map id) names the maps.
+
+    Up in the pose frame: ``up`` (3 numbers), else ``gravity-direction.txt``, else the ground truth's,
+    else, with ``estimate_up``, an estimate from the depth (``arcloud.datasets.gravity``).
 
     ``colour``: the colour camera (the 7-Scenes release does not calibrate it; its Kinect's colour and
     depth differ by focal length and a 3.5 cm baseline, so masks miss the depth by up to ~35 px near the
-    borders). None takes the one ``gt-boxes.json`` estimated, when present, else treats the images as
+    borders). None takes the one the ground truth estimated, when present, else treats the images as
     registered."""
     base = Path(root)
     if not base.is_dir():
@@ -224,13 +172,6 @@ def load_seven_scenes(
     else:
         logger.info("%s: no camera-intrinsics.txt; using the 7-Scenes default %s", base, DEFAULT_INTRINSICS)
         intrinsics = DEFAULT_INTRINSICS
-    gravity_path = _find_file(base, folders, "gravity-direction.txt")
-    up_file = None
-    if gravity_path is not None:
-        gravity = read_matrix(gravity_path, (3,))
-        if not np.all(np.isfinite(gravity)) or np.linalg.norm(gravity) < 1e-9:
-            raise DatasetError(f"{gravity_path}: expected a finite non-zero direction, got {gravity}")
-        up_file = -gravity / np.linalg.norm(gravity)
 
     names, dirs, stems_kept, poses, skipped = [], [], [], [], []
     for folder in folders:
@@ -250,145 +191,38 @@ def load_seven_scenes(
     if skipped:
         logger.warning("%s: skipped %d of %d frames with invalid poses", base, len(skipped), len(names) + len(skipped))
 
-    world2file = np.eye(4)
-    if align_gravity and up_file is not None:
-        world2file[:3, :3] = up_rotation(up_file).T  # up_rotation takes up to +z: file -> world
+    gt_path = Path(gt_boxes) if gt_boxes is not None else base / GT_BOXES_FILE
+    ground_truth = load_ground_truth(gt_path) if gt_boxes is not None or gt_path.is_file() else None
     cam2file = np.asarray(poses)
-    cam2world = np.einsum("ij,njk->nik", np.linalg.inv(world2file), cam2file)
-    gt_path = base / GT_BOXES_FILE
-    ground_truth = load_ground_truth(gt_path) if gt_path.is_file() else None
-    return SevenScenesSequence(
-        name=name or base.name,
+    in_file_world = SevenScenesSequence(
+        name=name or map_id_of(base.name),
         root=base,
         intrinsics=intrinsics,
         frame_names=tuple(names),
         frame_dirs=tuple(dirs),
         frame_stems=tuple(stems_kept),
-        cam2world=cam2world,
+        cam2world=cam2file,
         skipped_frames=tuple(skipped),
-        up_file=up_file,
-        world2file=world2file,
+        up_file=None,
+        world2file=np.eye(4),
         ground_truth=ground_truth,
         colour=colour if colour is not None else (ground_truth.colour if ground_truth is not None else None),
     )
-
-
-def load_ground_truth(path: str | Path) -> SevenScenesGroundTruth:
-    """Parse ``gt-boxes.json``: ``gravity_aligned.world_to_aligned`` (4x4, rigid) and, per object of
-    ``gravity_aligned.objects``, ``id``, ``label`` (one of ``CLASSES``), ``aabb_observed_min/max`` and
-    ``aabb_min/max`` (the aligned frame), ``visible_frames`` ([first, last]). The top-level ``objects``
-    (boxes in the tilted pose frame, much larger) are not read. Raises ``DatasetError`` naming the
-    field that is missing or malformed."""
-    file = Path(path)
-    try:
-        data = json.loads(file.read_text())
-    except OSError as exc:
-        raise DatasetError(f"{file}: expected a readable ground-truth file, got {exc}") from exc
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{file}: expected JSON, got {exc}") from exc
-    aligned = _field(file, data, "gravity_aligned", Mapping)
-    file2aligned = _rigid(
-        file, "gravity_aligned.world_to_aligned", _field(file, aligned, "world_to_aligned", list, "gravity_aligned.")
-    )
-    entries = cast(list, _field(file, aligned, "objects", list, "gravity_aligned."))
-    if not entries:
-        raise DatasetError(f"{file}: gravity_aligned.objects: expected at least one object, got none")
-    objects = tuple(_ground_truth_object(file, i, entry) for i, entry in enumerate(entries))
-    ids = [o.id for o in objects]
-    if len(set(ids)) != len(ids):
-        raise DatasetError(f"{file}: gravity_aligned.objects: expected distinct ids, got {ids}")
-    not_annotated = tuple(
-        f"{item.get('what', '')} ({item.get('why', '')})" if isinstance(item, Mapping) else str(item)
-        for item in data.get("not_annotated", [])
-    )
-    colour = _colour_camera(file, data["colour_intrinsics_estimated"]) if "colour_intrinsics_estimated" in data else None
-    return SevenScenesGroundTruth(file, file2aligned, objects, not_annotated, str(data.get("method", "")), colour)
-
-
-def _colour_camera(file: Path, entry: object) -> ColourCamera:
-    """``colour_intrinsics_estimated``: fx, fy, cx, cy (pixels) and depth_to_colour_translation_m (3)."""
-    where = "colour_intrinsics_estimated"
-    if not isinstance(entry, Mapping):
-        raise DatasetError(f"{file}: {where}: expected an object with fx, fy, cx, cy, got {type(entry).__name__}")
-    values = _numbers(file, f"{where}.fx/fy/cx/cy", [entry.get(k) for k in ("fx", "fy", "cx", "cy")], (4,))
-    if values[0] <= 0 or values[1] <= 0:
-        raise DatasetError(f"{file}: {where}: expected positive focal lengths, got fx {values[0]}, fy {values[1]}")
-    depth2rgb = np.eye(4)
-    depth2rgb[:3, 3] = _numbers(
-        file, f"{where}.depth_to_colour_translation_m", entry.get("depth_to_colour_translation_m", [0, 0, 0]), (3,)
-    )
-    return ColourCamera(Intrinsics(*(float(v) for v in values)), depth2rgb)
-
-
-def _field(file: Path, data: object, key: str, kind: type, prefix: str = "") -> object:
-    if not isinstance(data, Mapping) or key not in data:
-        raise DatasetError(f"{file}: expected a field {prefix}{key}, got none")
-    value = data[key]
-    if not isinstance(value, kind):
-        raise DatasetError(f"{file}: {prefix}{key}: expected a {kind.__name__}, got {type(value).__name__}")
-    return value
-
-
-def _numbers(file: Path, name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise DatasetError(f"{file}: {name}: expected finite numbers of shape {shape}, got {value!r}") from exc
-    if array.shape != shape or not np.all(np.isfinite(array)):
-        raise DatasetError(f"{file}: {name}: expected finite numbers of shape {shape}, got {value!r}")
-    return array
-
-
-def _rigid(file: Path, name: str, value: object) -> np.ndarray:
-    matrix = _numbers(file, name, value, (4, 4))
-    rotation = matrix[:3, :3]
-    error, det = float(np.abs(rotation.T @ rotation - np.eye(3)).max()), float(np.linalg.det(rotation))
-    if not np.allclose(matrix[3], (0, 0, 0, 1)) or error > _GT_ROTATION_TOLERANCE or det < 0:
-        raise DatasetError(f"{file}: {name}: expected a rigid transform (rotation, translation, last row 0 0 0 1), "
-                           f"got last row {matrix[3].tolist()}, orthonormality error {error:.2g}, det {det:.3f}")  # fmt: skip
-    return matrix
-
-
-def _ground_truth_object(file: Path, index: int, entry: object) -> SevenScenesObject:
-    where = f"gravity_aligned.objects[{index}]"
-    if not isinstance(entry, Mapping):
-        raise DatasetError(f"{file}: {where}: expected an object, got {type(entry).__name__}")
-    object_id = str(_field(file, entry, "id", str, f"{where}."))
-    where = f"{where} ({object_id})"
-    label = str(_field(file, entry, "label", str, f"{where}."))
-    if label not in CLASSES:
-        raise DatasetError(f"{file}: {where}.label: expected one of {CLASSES}, got {label!r}")
-    boxes = {}
-    for kind, prefix in (("observed", "aabb_observed_"), ("amodal", "aabb_")):
-        lo = _numbers(file, f"{where}.{prefix}min", entry.get(f"{prefix}min"), (3,))
-        hi = _numbers(file, f"{where}.{prefix}max", entry.get(f"{prefix}max"), (3,))
-        if np.any(hi <= lo):
-            raise DatasetError(f"{file}: {where}.{prefix}max: expected above {prefix}min {lo.tolist()}, got {hi.tolist()}")
-        boxes[kind] = LabelledBox(label, lo, hi)
-    frames = _numbers(file, f"{where}.visible_frames", entry.get("visible_frames"), (2,))
-    if np.any(frames != np.round(frames)) or frames[0] > frames[1] or frames[0] < 0:
-        raise DatasetError(f"{file}: {where}.visible_frames: expected [first, last] frame numbers, got {frames.tolist()}")
-    uncertainty = entry.get("uncertainty_m")
-    return SevenScenesObject(
-        id=object_id,
-        label=label,
-        observed=boxes["observed"],
-        amodal=boxes["amodal"],
-        visible_frames=(int(frames[0]), int(frames[1])),
-        confidence=str(entry.get("confidence", "")),
-        uncertainty_m=None if uncertainty is None else float(_numbers(file, f"{where}.uncertainty_m", uncertainty, ())),
-        notes=str(entry.get("notes", "")),
+    choice = choose_up(
+        given=up,
+        gravity_file=_find_file(base, folders, GRAVITY_FILE),
+        ground_truth=ground_truth,
+        estimate=(lambda: estimate_up_from_frames(LazyFrames(names, in_file_world.load_frame, cache=False))) if estimate_up else None,
+        where=base,
+    )  # fmt: skip
+    world2file = gravity_world2file(choice.up_file) if align_gravity else np.eye(4)
+    return replace(
+        in_file_world,
+        cam2world=np.einsum("ij,njk->nik", np.linalg.inv(world2file), cam2file),
+        up_file=choice.up_file,
+        up_source=choice.source,
+        world2file=world2file,
     )
 
 
-__all__ = [
-    "BOX_KINDS",
-    "DEFAULT_INTRINSICS",
-    "GT_BOXES_FILE",
-    "SevenScenesGroundTruth",
-    "SevenScenesObject",
-    "SevenScenesSequence",
-    "ColourCamera",
-    "load_ground_truth",
-    "load_seven_scenes",
-]
+__all__ = ["DEFAULT_INTRINSICS", "SevenScenesSequence", "load_seven_scenes"]

@@ -3,7 +3,8 @@
 A spec is ``PREFIX`` or ``PREFIX:ARGUMENT``. Built in:
 - ``onnx:PATH``: an ONNX model; a torchvision Mask R-CNN export (outputs boxes, labels, scores,
   masks) is recognised by its outputs, anything else is taken as Ultralytics YOLO-seg.
-  ``onnx`` alone uses the model named by the ``ARCLOUD_MODEL`` environment variable.
+  ``onnx`` alone uses the model named by the ``ARCLOUD_MODEL`` environment variable, else the
+  catalogue's default model in the model cache (``detectors.catalogue``: ``arcloud models pull``).
 - ``maskrcnn:PATH``: a torchvision Mask R-CNN export.
 - ``@cpu``, ``@cuda`` or ``@auto`` after a model's path picks onnxruntime's execution provider
   (``onnx:models/y.onnx@cuda``; default cpu; ``auto``: CUDA when there, else CPU).
@@ -69,10 +70,18 @@ def split_provider(argument: str) -> tuple[str, str]:
 
 
 def _model_path(argument: str, prefix: str) -> str:
+    from arcloud.detectors.catalogue import DEFAULT_MODEL, cached_path, not_cached
+
     argument = split_provider(argument)[0]
     path = argument or (os.environ.get(MODEL_ENV_VAR, "") if prefix == "onnx" else "")
-    expected = f"{prefix}:PATH to a model file" + (f", or {MODEL_ENV_VAR} set to one" if prefix == "onnx" else "")
+    expected = f"{prefix}:PATH to a model file" + (
+        f", or {MODEL_ENV_VAR} set to one, or the default model {DEFAULT_MODEL} in the model cache" if prefix == "onnx" else ""
+    )
     expected += " (sim:SEED runs the simulator's detector, no model needed)"
+    if not path and prefix == "onnx":
+        if not cached_path().is_file():
+            raise InvalidInput("detector spec", expected, not_cached())
+        return str(cached_path())
     if not path:
         raise InvalidInput("detector spec", expected, f"{prefix!r} with no path")
     if not os.path.isfile(path):

@@ -569,7 +569,7 @@ async def healthz() -> dict[str, str]:
     response_model=Ready,
     responses={503: {"model": Ready}},
     tags=["operations"],
-    summary="Store reachable, detector loaded, workers alive",
+    summary="Store reachable, detector loaded, workers alive, API keys not lost",
 )
 def readyz(runtime: RuntimeDep) -> JSONResponse:
     checks: dict[str, str] = {}
@@ -582,6 +582,8 @@ def readyz(runtime: RuntimeDep) -> JSONResponse:
         checks["detector"] = "ok" if runtime.detector is not None else "not loaded"
     if checks["store"] == "ok":  # else the ingest's checks would wait on the same unreachable store
         checks.update(runtime.ingest.ready())
+    if runtime.access.keys is not None:
+        checks["keys"] = runtime.access.keys_health()
     if all(v == "ok" for v in checks.values()):
         return JSONResponse({"status": "ready", "checks": checks})
     wrong = "; ".join(f"{name}: {value}" for name, value in checks.items() if value != "ok")
@@ -625,6 +627,8 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
         version=__version__,
         summary="Multi-user 3D object detection in an AR cloud: posed RGB-D frames in, one shared map of 3D objects out.",
         lifespan=lifespan,
+        docs_url=None,  # /docs and /redoc: docs_routes, from the package's files (FastAPI's load them from a CDN)
+        redoc_url=None,
     )
     app.state.runtime = None
     registry, rejected = make_registry(lambda: app.state.runtime.ingest if app.state.runtime is not None else None)
@@ -691,10 +695,11 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
     app.include_router(router)
-    from arcloud.service import event_stream, viewer_routes  # here: both import this module
+    from arcloud.service import docs_routes, event_stream, viewer_routes  # here: the last two import this module
 
     app.include_router(event_stream.router)
     app.include_router(viewer_routes.router)
+    app.include_router(docs_routes.router)
     return app
 
 

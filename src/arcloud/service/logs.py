@@ -15,6 +15,11 @@ A JSON line::
 
 plus the fields a call passed as ``extra=``, ``exception`` (the traceback, as one string) when there is
 one, and ``client``, ``method``, ``path``, ``status`` on uvicorn's access lines.
+
+No line carries a secret: ``SecretFilter``, on uvicorn's loggers and on the handler, rewrites each record
+(message, arguments, fields, traceback) with ``scrub``: a ``token=`` value in a URL (the viewer's documented
+``/viewer?map=M&token=T``, written in clear by the access log before), an ``Authorization`` header's value and
+an API token anywhere become ``***`` (a token keeps its key id, which names the key in ``keys list``).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from __future__ import annotations
 import contextvars
 import json
 import logging
+import re
 import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -69,6 +75,51 @@ class LogContextFilter(logging.Filter):
         return True
 
 
+#: (pattern, replacement) of each secret a log line must not carry (``scrub``).
+_SECRETS = (
+    (re.compile(r"(?i)(token=)[^&\s\"'#]+"), r"\1***"),  # ?token=..., access_token=...
+    (re.compile(r"(?i)(authorization['\"]?\s*[:=,]\s*(?:b?['\"])?)((?:bearer|basic)\s+)?[^\s'\",}]+"), r"\1\2***"),
+    (re.compile(r"\b(arc_[0-9a-f]{12})_[A-Za-z0-9_-]{43}"), r"\1_***"),  # an API token (``arcloud.access``)
+)
+
+
+def scrub(text: str) -> str:
+    """``text`` without secrets: ``token=`` values, ``Authorization`` values and API tokens become ``***``."""
+    for pattern, replacement in _SECRETS:
+        text = pattern.sub(replacement, text)
+    return text
+
+
+class SecretFilter(logging.Filter):
+    """Scrubs each record's message, string fields and traceback (``scrub``). A record whose message held a
+    secret carries the scrubbed message with no arguments, but for uvicorn's access lines, which keep their five
+    (client, method, path, HTTP version, status: the JSON lines' fields), the path scrubbed."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        try:
+            message = record.getMessage()
+        except Exception:  # noqa: BLE001 - arguments that do not fit the message: the handler reports it
+            return True
+        cleaned = scrub(message)
+        if cleaned != message:
+            if record.name == "uvicorn.access" and isinstance(record.args, tuple):
+                record.args = tuple(scrub(arg) if isinstance(arg, str) else arg for arg in record.args)
+            else:
+                record.msg, record.args = cleaned, None
+        for name, value in record_fields(record).items():
+            if isinstance(value, str):
+                record.__dict__[name] = scrub(value)
+        if record.exc_info and not record.exc_text:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+        if record.exc_text:
+            record.exc_text = scrub(record.exc_text)
+        return True
+
+
+#: The one filter configure_logging puts on loggers (adding it again to a logger is a no-op).
+SECRET_FILTER = SecretFilter()
+
+
 def record_fields(record: logging.LogRecord) -> dict[str, Any]:
     """The fields a record carries beyond logging's own: the log context's and ``extra=``'s."""
     return {k: v for k, v in record.__dict__.items() if k not in _RECORD_ATTRIBUTES and k not in _SKIPPED_EXTRAS}
@@ -108,10 +159,10 @@ class JsonFormatter(logging.Formatter):
             line.update(client=client, method=method, path=path, status=status)
         for name, value in record_fields(record).items():
             line.setdefault(name, value)
-        if record.exc_info:
-            line["exception"] = self.formatException(record.exc_info)
-        elif record.exc_text:
+        if record.exc_text:  # formatted already (and scrubbed: SecretFilter)
             line["exception"] = record.exc_text
+        elif record.exc_info:
+            line["exception"] = self.formatException(record.exc_info)
         if record.stack_info:
             line["stack"] = self.formatStack(record.stack_info)
         return json.dumps(line, default=str, ensure_ascii=False)
@@ -129,15 +180,19 @@ def configure_logging(level: str, log_format: LogFormat = "text") -> None:
     """This process's logging: one handler on the root logger, writing ``log_format`` to stderr with the
     log context; ``arcloud``'s loggers at ``level`` (the root's level, for other libraries, is left as it
     is). With JSON, uvicorn's loggers that have handlers of their own write through the root's instead, so
-    that every line of the process is JSON. Calling it again replaces what it did."""
+    that every line of the process is JSON. Every line is scrubbed of secrets (``SecretFilter`` on the handler
+    and on uvicorn's loggers). Calling it again replaces what it did."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(make_formatter(log_format))
     handler.addFilter(LogContextFilter())
+    handler.addFilter(SECRET_FILTER)  # after the context: its fields are scrubbed too
     root = logging.getLogger()
     for old in root.handlers[:]:
         root.removeHandler(old)
     root.addHandler(handler)
     logging.getLogger("arcloud").setLevel(level)
+    for name in UVICORN_LOGGERS:  # their records, before any handler (uvicorn's own write text lines)
+        logging.getLogger(name).addFilter(SECRET_FILTER)
     if log_format == "json":
         for name in UVICORN_LOGGERS:
             logger = logging.getLogger(name)
@@ -150,10 +205,12 @@ __all__ = [
     "JsonFormatter",
     "LogContextFilter",
     "LogFormat",
+    "SecretFilter",
     "TextFormatter",
     "bind_log_context",
     "configure_logging",
     "log_context",
     "make_formatter",
     "record_fields",
+    "scrub",
 ]

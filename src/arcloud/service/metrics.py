@@ -13,14 +13,14 @@ from prometheus_client import CollectorRegistry, Counter
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from arcloud.ports import LATENCY_BUCKETS_S
+from arcloud.ports import LATENCY_BUCKETS_S, Histogram
 from arcloud.service.ingest import Ingest
 from arcloud.service.worker import LIVE_WORKER_S
 
 
 class IngestCollector(Collector):
-    """Frames accepted/processed/failed, queue depth (frames and bytes), live workers and the step latency
-    histogram."""
+    """Frames accepted/processed/failed, queue depth (frames and bytes), live workers, and the histograms of
+    the step latency, the queue wait and the lock wait."""
 
     def __init__(self, ingest: Callable[[], Ingest | None]) -> None:
         self._ingest = ingest
@@ -64,6 +64,24 @@ class IngestCollector(Collector):
             buckets=buckets,
             sum_value=snap.latency_sum_s,
         )
+        for name, histogram, text in (
+            (
+                "arcloud_queue_wait_seconds",
+                snap.queue_wait,
+                "Time a frame waited in the queue, from its acceptance until a worker took it",
+            ),
+            ("arcloud_lock_wait_seconds", snap.lock_wait, "Time a frame's step spent taking object locks and space claims"),
+        ):
+            yield HistogramMetricFamily(name, text, buckets=cumulative_buckets(histogram), sum_value=histogram.sum_s)
+
+
+def cumulative_buckets(histogram: Histogram) -> list[tuple[str, float]]:
+    """A ``Histogram``'s counts as Prometheus's cumulative (le, count) pairs, +Inf last."""
+    cumulative, buckets = 0, list[tuple[str, float]]()
+    for bound, count in zip((*histogram.bounds_s, float("inf")), histogram.counts):
+        cumulative += count
+        buckets.append(("+Inf" if bound == float("inf") else repr(bound), cumulative))
+    return buckets
 
 
 def make_registry(ingest: Callable[[], Ingest | None]) -> tuple[CollectorRegistry, Counter]:

@@ -26,7 +26,9 @@ RESTART_MAX_DELAY_S = 60.0
 
 class WorkerPool:
     """``size`` processes running ``target(*args)`` (a picklable top-level function). ``claim_after_s``:
-    how long the frames of a dead worker wait before another claims them (for the log)."""
+    how long the frames of a dead worker wait before another claims them (for the log). ``kind``: what
+    the processes are, in their names (``arcloud-<kind>-<i>``) and the log (``serve --api-processes``
+    runs its API processes in a pool of kind ``api``)."""
 
     def __init__(
         self,
@@ -36,8 +38,10 @@ class WorkerPool:
         *,
         claim_after_s: float = 60.0,
         restart: bool = True,
+        kind: str = "worker",
     ) -> None:
         self.size = size
+        self.kind = kind
         self.target = target
         self.args = args
         self.claim_after_s = claim_after_s
@@ -51,7 +55,7 @@ class WorkerPool:
         self._restart_at: dict[int, float] = {}
 
     def _spawn(self, index: int) -> multiprocessing.process.BaseProcess:
-        process = self._context.Process(target=self.target, args=self.args, name=f"arcloud-worker-{index}", daemon=False)
+        process = self._context.Process(target=self.target, args=self.args, name=f"arcloud-{self.kind}-{index}", daemon=False)
         process.start()
         return process
 
@@ -59,7 +63,7 @@ class WorkerPool:
         self._stopping.clear()
         self.processes = [self._spawn(i) for i in range(self.size)]
         self._started_at = dict.fromkeys(range(self.size), time.monotonic())
-        log.info("started %d worker processes: %s", self.size, ", ".join(str(p.pid) for p in self.processes))
+        log.info("started %d %s processes: %s", self.size, self.kind, ", ".join(str(p.pid) for p in self.processes))
         if self.restart:
             self._supervisor = threading.Thread(target=self._supervise, name="arcloud-worker-supervisor", daemon=True)
             self._supervisor.start()
@@ -78,13 +82,15 @@ class WorkerPool:
                 self._quick_exits[i] = self._quick_exits.get(i, 0) + 1 if quick else 0
                 delay_s = min(RESTART_MAX_DELAY_S, 2.0 ** self._quick_exits[i]) if quick else 0.0
                 self._restart_at[i] = now + delay_s
+                claimed = f" (its frames are claimed after {self.claim_after_s:.0f} s)" if self.kind == "worker" else ""
                 log.error(
-                    "worker process %s exited with %s%s; starting another in %.0f s (its frames are claimed after %.0f s)",
+                    "%s process %s exited with %s%s; starting another in %.0f s%s",
+                    self.kind,
                     process.pid,
                     process.exitcode,
                     " right after starting" if quick else "",
                     delay_s,
-                    self.claim_after_s,
+                    claimed,
                 )
             if now >= self._restart_at[i]:
                 del self._restart_at[i]
@@ -106,7 +112,7 @@ class WorkerPool:
         for process in self.processes:
             process.join(max(0.0, deadline - time.monotonic()))
             if process.is_alive():
-                log.warning("worker process %s did not stop in %.0f s; killing it", process.pid, timeout_s)
+                log.warning("%s process %s did not stop in %.0f s; killing it", self.kind, process.pid, timeout_s)
                 process.kill()
                 process.join()
         self.processes = []

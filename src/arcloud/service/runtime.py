@@ -89,6 +89,8 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
     )
     if access.keys is None:
         log.warning("auth none: anyone who reaches this service may read, write and delete every map")
+    else:
+        access.keys_health()  # counts the keys there are now: losing them later is then seen
     threads = []
     if adapters.detector is not None:
         threads = [

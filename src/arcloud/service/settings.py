@@ -33,6 +33,8 @@ QueuedImages = Literal["decoded", "uploaded"]
 #: The most an embedded queued frame holds a pixel: RGB8 and float32 depth (``largest_queued_frame``).
 EMBEDDED_BYTES_PER_PIXEL = 7
 
+_URLS = ("store", "keys_store")  # settings that may hold a password (redacted)
+
 # Params fields that the settings set themselves (or that are not plain numbers/flags).
 _PARAMS_OWN = {"lock_ttl_s", "lock_timeout_s"}
 _PARAMS_TYPES = {f.name: f.type for f in dataclasses.fields(Params)}
@@ -143,6 +145,11 @@ class Settings(BaseSettings):
     keys_file: str | None = Field(
         None, description="a JSON file of API keys (`arcloud keys create --file`); default with Redis: the keys in Redis"
     )
+    keys_store: str | None = Field(
+        None,
+        description="a Redis URL for the API keys (`arcloud keys create --redis URL`), kept apart from the maps' Redis so "
+        "that losing or flushing that one keeps the keys; default: the store's Redis (the HASH arcloud:keys)",
+    )
     key_cache_s: float = Field(
         5.0, ge=0, description="how long the API reuses a key lookup: a created or revoked key takes effect within this"
     )
@@ -154,6 +161,15 @@ class Settings(BaseSettings):
         60.0, ge=0, description="frame uploads a second per map, from all its devices together; 0: no limit"
     )
     map_frame_burst: int = Field(120, ge=1, description="frame uploads a map may take at once above its rate")
+    auth_failure_rate_per_s: float = Field(
+        1.0,
+        ge=0,
+        description="failed authentications (401) a second per client address (auth keys); past them the address's "
+        "requests answer 429 with Retry-After, before their token is looked at; 0: no limit",
+    )
+    auth_failure_burst: int = Field(
+        50, ge=1, description="failed authentications a client address may make at once above its rate"
+    )
     # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
     max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
     event_poll_s: float = Field(
@@ -230,6 +246,16 @@ class Settings(BaseSettings):
             raise ValueError(f"expected `memory` or a URL with scheme {'/'.join(STORE_SCHEMES)}, got {redact_url(value)!r}")
         return value
 
+    @field_validator("keys_store")
+    @classmethod
+    def _check_keys_store(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        value = value.strip()
+        if urlsplit(value).scheme not in STORE_SCHEMES:
+            raise ValueError(f"expected a Redis URL with scheme {'/'.join(STORE_SCHEMES)}, got {redact_url(value)!r}")
+        return value
+
     @field_validator("detector")
     @classmethod
     def _check_detector(cls, value: str) -> str:
@@ -279,8 +305,10 @@ class Settings(BaseSettings):
             raise ValueError("zenoh_frames: needs zenoh_mode peer, client or router, got zenoh_mode off")
         if self.zenoh_mode == "off" and self.zenoh_config:
             raise ValueError("zenoh_config: needs zenoh_mode peer, client or router, got zenoh_mode off")
-        if self.auth == "keys" and self.embedded and not self.keys_file:
+        if self.auth == "keys" and self.embedded and not (self.keys_file or self.keys_store):
             raise ValueError("auth: keys with the memory store needs keys_file (the embedded service keeps keys in a file)")
+        if self.keys_file and self.keys_store:
+            raise ValueError("keys_store: expected either keys_file or keys_store, got both")
         if self.zenoh_mode == "client" and not self.zenoh_connect:
             raise ValueError("zenoh_connect: a Zenoh client needs at least one endpoint to connect to, got none")
         limits = self.queue_limits()
@@ -319,10 +347,10 @@ class Settings(BaseSettings):
 
     @property
     def auth_mode(self) -> AuthMode:
-        """``auth``, or its default: keys with Redis or a keys file, none embedded."""
+        """``auth``, or its default: keys with Redis, a keys file or a keys store, none embedded."""
         if self.auth is not None:
             return self.auth
-        return "keys" if self.keys_file or not self.embedded else "none"
+        return "keys" if self.keys_file or self.keys_store or not self.embedded else "none"
 
     def queue_limits(self) -> QueueLimits:
         """The frame queue's limits; a per-map limit left out is a quarter of the overall one."""
@@ -343,12 +371,13 @@ class Settings(BaseSettings):
     def redacted(self) -> dict[str, Any]:
         """The settings as a dict, safe to log (the store URL's password masked)."""
         data = self.model_dump()
-        data["store"] = redact_url(self.store)
+        for name in _URLS:
+            data[name] = data[name] and redact_url(data[name])
         return data
 
     def __repr_args__(self) -> Any:
         for name, value in super().__repr_args__():
-            yield name, (redact_url(value) if name == "store" else value)
+            yield name, (redact_url(value) if name in _URLS and value else value)
 
 
 def _coerce_param(name: str, value: object) -> object:

@@ -2,7 +2,7 @@
 
 The page and its files hold no data, so they are open to anyone; the page calls the map routes with the
 token it was given (``Authorization: Bearer``). The files ship in the package (``service/viewer/``):
-the page, its script and style, and three.js under ``vendor/`` (copied from npm by ``make viewer-vendor``,
+the page, its script and style, and three.js under ``vendor/`` (copied from npm by ``make web-vendor``,
 with its licence), so nothing is fetched from elsewhere when the page runs.
 """
 

@@ -25,6 +25,12 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
 A frame delivered twice (a worker died after its commit but before its acknowledgement) is not counted
 twice: the store's commit records the frame key atomically and refuses a second one; it is acknowledged
 as ``redelivered``.
+
+A processed frame is acknowledged with its ``FrameTimings``: the step's time, how long it waited in the
+queue (its first delivery: from its acceptance until this worker took it) and how long the step waited in
+the store's lock and claim calls (``LockTimer``); the queue counts them in the histograms that
+``/metrics`` serves (``arcloud_step_latency_seconds``, ``arcloud_queue_wait_seconds``,
+``arcloud_lock_wait_seconds``).
 """
 
 from __future__ import annotations
@@ -34,13 +40,17 @@ import os
 import socket
 import threading
 import time
-from typing import Any, Literal
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Literal
 
-from arcloud.core.types import Frame, Params
+from arcloud.core.types import Frame, MapObject, Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
-from arcloud.ports import Detector, FrameQueue, ObjectStore, QueuedFrame, UpdatePublisher
+from arcloud.ports import Detector, FrameQueue, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame, UpdatePublisher
 from arcloud.service.logs import log_context
 from arcloud.service.map_header import open_map_checked
+
+if TYPE_CHECKING:
+    import numpy as np
 
 log = logging.getLogger(__name__)
 
@@ -85,10 +95,60 @@ def warm_up(detector: Detector) -> float:
     return time.perf_counter() - started
 
 
+class LockTimer:
+    """``store`` for one frame's step, adding up the seconds its ``lock`` and ``claim`` calls took
+    (``lock_wait_s``): what the step waited for objects and index cells, other workers' holds and the
+    round trips included. Every other call goes straight to ``store``."""
+
+    def __init__(self, store: MapStore) -> None:
+        self.store = store
+        self.lock_wait_s = 0.0
+
+    def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> Lease:
+        started = time.perf_counter()
+        try:
+            return self.store.lock(map_id, ids, ttl_s=ttl_s, timeout_s=timeout_s)
+        finally:
+            self.lock_wait_s += time.perf_counter() - started
+
+    def claim(self, map_id: str, cells: Sequence[tuple[int, int, int]], *, ttl_s: float, timeout_s: float) -> Lease:
+        started = time.perf_counter()
+        try:
+            return self.store.claim(map_id, cells, ttl_s=ttl_s, timeout_s=timeout_s)
+        finally:
+            self.lock_wait_s += time.perf_counter() - started
+
+    def query_region(self, map_id: str, lo: np.ndarray, hi: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        return self.store.query_region(map_id, lo, hi)
+
+    def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
+        return self.store.get(map_id, ids)
+
+    def new_ids(self, map_id: str, n: int) -> Sequence[int]:
+        return self.store.new_ids(map_id, n)
+
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        upserts: Sequence[MapObject],
+        deletes: Sequence[MapObject],
+        *,
+        frame_key: str | None = None,
+        misses: Mapping[int, int] | None = None,
+        gone: Mapping[int, int] | None = None,
+        retired: Sequence[MapObject] = (),
+    ) -> bool:
+        return self.store.commit(map_id, leases, upserts, deletes, frame_key=frame_key, misses=misses, gone=gone, retired=retired)
+
+    def is_frame_done(self, map_id: str, frame_key: str) -> bool:
+        return self.store.is_frame_done(map_id, frame_key)
+
+
 def run_step(
     frame: Frame,
     detector: Detector,
-    store: ObjectStore,
+    store: MapStore,
     params: Params,
     publisher: UpdatePublisher | None,
     *,
@@ -250,11 +310,15 @@ class FrameWorker:
         if item.frame is None:
             self._dead_letter(item, f"undecodable: {item.undecodable}")
             return "dead"
+        queue_wait_s = None
+        if item.deliveries == 1 and item.accepted_at_s is not None:  # a later delivery's wait holds the earlier ones
+            queue_wait_s = max(0.0, time.time() - item.accepted_at_s)
         started = time.perf_counter()
         self._in_hand = item
+        locks = LockTimer(self.store)
         try:
             open_map_checked(self.store, item.frame.map_id, self.params)
-            result, retries = run_step(item.frame, self.detector, self.store, self.params, self.publisher, attempts=self.attempts)
+            result, retries = run_step(item.frame, self.detector, locks, self.params, self.publisher, attempts=self.attempts)
         except MapMismatch as exc:  # this worker's settings are wrong for the map: leave the frame to others
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
@@ -277,7 +341,8 @@ class FrameWorker:
         finally:
             self._in_hand = None
         elapsed_s = time.perf_counter() - started
-        self.queue.ack(item, redelivered=result.skipped, retries=retries, elapsed_s=elapsed_s)
+        timings = FrameTimings(step_s=elapsed_s, queue_wait_s=queue_wait_s, lock_wait_s=locks.lock_wait_s)
+        self.queue.ack(item, redelivered=result.skipped, retries=retries, timings=timings)
         outcome: Outcome = "redelivered" if result.skipped else "processed"
         log.debug("worker %s: map %s frame %s %s in %.3f s", self.consumer, item.map_id, item.frame_key, outcome, elapsed_s)
         return outcome
@@ -289,4 +354,4 @@ class FrameWorker:
         self.queue.dead_letter(item, reason)
 
 
-__all__ = ["HEARTBEAT_S", "LIVE_WORKER_S", "FrameWorker", "consumer_name", "frame_log_fields", "run_step", "warm_up"]
+__all__ = ["HEARTBEAT_S", "LIVE_WORKER_S", "FrameWorker", "LockTimer", "consumer_name", "frame_log_fields", "run_step", "warm_up"]

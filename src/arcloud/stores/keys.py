@@ -240,5 +240,5 @@ MAPS = f"{PREFIX}:maps"
 
 
 def rate_key(bucket: str) -> str:
-    """A rate limit bucket (``key:<key id>``, ``ip:<address>``, ``map:<map id>:frames``)."""
+    """A rate limit bucket (``key:<key id>``, ``ip:<address>``, ``map:<map id>:frames``, ``auth-failures:<address>``)."""
     return f"{PREFIX}:rate:{bucket}"

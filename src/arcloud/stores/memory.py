@@ -54,7 +54,7 @@ class _MapState:
     frames: dict[str, float] = field(default_factory=dict)  # processed frame key -> when (Unix s), oldest first
     n_frames: int = 0  # frames processed (marks expiring do not lower it)
     retired: dict[int, RetiredObject] = field(default_factory=dict)  # the history, oldest first
-    ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
+    next_id: int = 1
     changed: threading.Condition = field(default_factory=threading.Condition)
 
 
@@ -186,10 +186,13 @@ class MemoryStore:
         with state.changed:
             return [state.objects[i] for i in ids if i in state.objects]
 
-    def new_ids(self, map_id: str, n: int) -> list[int]:
+    def new_ids(self, map_id: str, n: int) -> range:
         state = self._map(map_id)
+        if n < 0:
+            raise InvalidInput("n", ">= 0", n)
         with state.changed:
-            return [next(state.ids) for _ in range(n)]
+            first, state.next_id = state.next_id, state.next_id + n
+        return range(first, first + n)
 
     def commit(
         self,

@@ -31,6 +31,7 @@ from arcloud.ports import (
     RECORDS_SWEPT_PER_CALL,
     FailedFrame,
     FrameStatus,
+    FrameTimings,
     QueuedFrame,
     QueueLimits,
     QueueStats,
@@ -73,7 +74,7 @@ class MemoryFrameQueue:
         self.limits = limits or QueueLimits()
         self._clock = clock
         self._changed = threading.Condition(threading.RLock())  # guards everything below
-        self._ready: deque[tuple[Frame, int]] = deque()  # (frame, its queued bytes), oldest first
+        self._ready: deque[tuple[Frame, int, float]] = deque()  # (frame, its queued bytes, accepted at), oldest first
         self._in_hand: dict[int, tuple[str, int]] = {}  # receipt -> (map, queued bytes) until settled
         self._frames = 0  # queued or in hand, and their bytes, overall and per map (zeros dropped)
         self._bytes = 0
@@ -108,7 +109,7 @@ class MemoryFrameQueue:
             )
             if refusal is not None:
                 raise refusal
-            self._ready.append((frame, n_bytes))
+            self._ready.append((frame, n_bytes, now))
             self._count(frame.map_id, 1, n_bytes)
             records = self._maps.setdefault(frame.map_id, _MapRecords())
             if status is None:
@@ -172,6 +173,7 @@ class MemoryFrameQueue:
         with self._changed:
             stats = QueueStats(**{name: getattr(self._stats, name) for name in QueueStats.__dataclass_fields__})
             stats.latency_counts = list(self._stats.latency_counts)
+            stats.queue_wait, stats.lock_wait = self._stats.queue_wait.copy(), self._stats.lock_wait.copy()
             stats.queue_depth = self._frames
             stats.queued_bytes = self._bytes
         return stats
@@ -195,16 +197,17 @@ class MemoryFrameQueue:
                 if remaining <= 0:
                     return None
                 self._changed.wait(remaining)
-            frame, n_bytes = self._ready.popleft()
+            frame, n_bytes, accepted_at_s = self._ready.popleft()
             receipt = next(self._receipts)
             self._in_hand[receipt] = (frame.map_id, n_bytes)
             self._set_status(frame.map_id, frame.key, FrameStatus("processing"))
-        return QueuedFrame(frame.map_id, frame.key, consumer, 1, frame, receipt=receipt)
+        return QueuedFrame(frame.map_id, frame.key, consumer, 1, frame, accepted_at_s=accepted_at_s, receipt=receipt)
 
     def claim_abandoned(self, consumer: str, *, min_idle_s: float) -> QueuedFrame | None:
         return None  # every consumer is a thread of this process: none is abandoned
 
-    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
+    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, timings: FrameTimings | None = None) -> None:
+        timings = timings or FrameTimings()
         with self._changed:
             if not self._settle(item):
                 return
@@ -213,8 +216,11 @@ class MemoryFrameQueue:
                 self._stats.redelivered += 1
             else:
                 self._stats.processed += 1
-                self._stats.latency_counts[latency_bucket(elapsed_s)] += 1
-                self._stats.latency_sum_s += elapsed_s
+                self._stats.latency_counts[latency_bucket(timings.step_s)] += 1
+                self._stats.latency_sum_s += timings.step_s
+                if timings.queue_wait_s is not None:
+                    self._stats.queue_wait.observe(timings.queue_wait_s)
+                self._stats.lock_wait.observe(timings.lock_wait_s)
             self._record_outcome(item, FrameStatus("processed"))
 
     def fail(self, item: QueuedFrame, reason: str) -> None:

@@ -48,10 +48,10 @@ their other keys from the map prefix, so they stay in it: ``tests/stores/test_re
 script's keys), the service-wide ``arcloud:maps`` is written by its own command, and ``delete_map``'s SCAN
 runs on every primary.
 
-redis-py exceptions become ``arcloud.errors`` at this boundary: ``StoreUnavailable`` (connection,
-timeout, a Redis busy with a script: ``BUSY``), ``StaleLease`` (a fence failed), ``StoreError``
-(anything else). The client (a connection pool) is safe to share between threads; each process must
-build its own ``RedisStore``.
+redis-py exceptions become ``arcloud.errors`` at the one boundary of every Redis adapter,
+``stores.redis_errors``: ``StoreUnavailable`` (connection, timeout, a Redis busy with a script: ``BUSY``, a
+cluster that reaches no node), ``StaleLease`` (a fence failed), ``StoreError`` (anything else). The client
+(a connection pool) is safe to share between threads; each process must build its own ``RedisStore``.
 """
 
 from __future__ import annotations
@@ -63,8 +63,7 @@ import math
 import random
 import time
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from functools import cache
 from importlib import resources
 from typing import Any, cast
@@ -74,13 +73,12 @@ import numpy as np
 import redis
 from redis.backoff import ExponentialWithJitterBackoff
 from redis.cluster import ClusterNode, RedisCluster
-from redis.exceptions import RedisClusterException
 from redis.retry import Retry
 
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
-from arcloud.errors import InvalidInput, LockTimeout, StaleLease, StoreError, StoreUnavailable, TooManyCells
+from arcloud.errors import InvalidInput, LockTimeout, StoreError, TooManyCells
 from arcloud.ports import (
     DEFAULT_FRAME_RECORD_RETENTION_S,
     DEFAULT_RETIRED_HISTORY_S,
@@ -90,6 +88,7 @@ from arcloud.ports import (
     RetiredObject,
 )
 from arcloud.stores import codec, keys
+from arcloud.stores.redis_errors import redis_errors
 
 log = logging.getLogger(__name__)
 
@@ -154,7 +153,7 @@ def cluster_nodes(url: str) -> tuple[list[tuple[str, int]], str | None, str | No
 
 def _connect_cluster(url: str, *, reply_timeout_s: float, retry: Retry) -> RedisCluster:
     nodes, user, password = cluster_nodes(url)
-    try:
+    with redis_errors("connect", "cluster " + ",".join(f"{host}:{port}" for host, port in nodes)):
         return RedisCluster(
             startup_nodes=[ClusterNode(host, port) for host, port in nodes],  # type: ignore[no-untyped-call]  # redis-py leaves it untyped
             username=user,
@@ -164,9 +163,6 @@ def _connect_cluster(url: str, *, reply_timeout_s: float, retry: Retry) -> Redis
             socket_timeout=reply_timeout_s,
             retry=retry,
         )
-    except (redis.exceptions.RedisError, RedisClusterException) as exc:
-        where = ",".join(f"{host}:{port}" for host, port in nodes)
-        raise StoreUnavailable(f"redis cluster at {where} unreachable ({exc})") from exc
 
 
 def where(client: RedisClient) -> str:
@@ -178,18 +174,6 @@ def where(client: RedisClient) -> str:
     if "path" in kwargs:
         return f"unix:{kwargs['path']}"
     return f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}/{kwargs.get('db', 0)}"
-
-
-def is_busy(exc: redis.exceptions.ResponseError) -> bool:
-    """Whether Redis answered ``BUSY`` (a script runs past busy-reply-threshold), alone or in a pipeline."""
-    message = str(exc)
-    return message.startswith("BUSY ") or "caused error: BUSY " in message
-
-
-def is_unreachable_cluster(exc: Exception) -> bool:
-    """Whether redis-py's cluster client gave up on reaching any node (it raises ``RedisClusterException``,
-    not a ``ConnectionError``, once its retries found no node to read the slot map from)."""
-    return isinstance(exc, RedisClusterException) and "cannot be connected" in str(exc)
 
 
 @cache
@@ -289,28 +273,9 @@ class RedisStore:
     def _where(self) -> str:
         return where(self.client)
 
-    @contextmanager
-    def _boundary(self, what: str) -> Iterator[None]:
-        """Map redis-py exceptions to arcloud's."""
-        try:
-            yield
-        except redis.exceptions.ResponseError as exc:
-            message = str(exc)
-            if message.startswith("STALE "):
-                raise StaleLease(message.removeprefix("STALE ")) from exc
-            if is_busy(exc):
-                raise StoreUnavailable(f"{what}: redis at {self._where()} busy ({message})") from exc
-            raise StoreError(f"{what}: redis at {self._where()} answered {message}") from exc
-        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
-            raise StoreUnavailable(f"{what}: redis at {self._where()} unreachable ({exc})") from exc
-        except (redis.exceptions.RedisError, RedisClusterException) as exc:
-            if is_unreachable_cluster(exc):
-                raise StoreUnavailable(f"{what}: redis at {self._where()} unreachable ({exc})") from exc
-            raise StoreError(f"{what}: redis at {self._where()} failed ({exc})") from exc
-
     def ping(self) -> None:
         """Raise ``StoreUnavailable`` unless the server answers."""
-        with self._boundary("ping"):
+        with redis_errors("ping", self._where):
             self.client.ping()
 
     # --- spatial index -----------------------------------------------------------------------------
@@ -335,7 +300,7 @@ class RedisStore:
             return {}
         n_cells = self._n_cells(lo, hi)
         pairs: Iterable[tuple[Any, Any]]
-        with self._boundary(f"query_region on map {map_id}"):
+        with redis_errors(f"query_region on map {map_id}", self._where):
             if n_cells <= self.max_query_cells:
                 c_lo, c_hi = np.floor(lo / self.cell_m), np.floor(hi / self.cell_m)
                 ranges = [int(c) for pair in zip(c_lo, c_hi) for c in pair]  # i0 i1 j0 j1 k0 k1
@@ -378,7 +343,7 @@ class RedisStore:
         jitter = random.Random(token)  # de-synchronises workers that retry together
         delay_s = BACKOFF_MIN_S
         while True:
-            with self._boundary(f"lock on map {map_id}"):
+            with redis_errors(f"lock on map {map_id}", self._where):
                 busy, busy_ttl_ms = (list(self._scripts["acquire"](keys=lease_keys, args=[token, ttl_ms])) + [0])[:2]
             if busy == 0:
                 return lease
@@ -396,7 +361,7 @@ class RedisStore:
 
     def _release(self, lease: RedisLease) -> None:
         if lease.keys:
-            with self._boundary(f"release on map {lease.map_id}"):
+            with redis_errors(f"release on map {lease.map_id}", self._where):
                 self._scripts["release"](keys=lease.keys, args=[lease.token])
 
     # --- objects -----------------------------------------------------------------------------------
@@ -406,7 +371,7 @@ class RedisStore:
         for start in range(0, len(ids), GET_BATCH):
             batch = ids[start : start + GET_BATCH]
             # MULTI/EXEC: one consistent snapshot of the batch
-            with self._boundary(f"get on map {map_id}"), self.client.pipeline(transaction=True) as pipe:
+            with redis_errors(f"get on map {map_id}", self._where), self.client.pipeline(transaction=True) as pipe:
                 pipe.hmget(keys.meta_key(map_id), batch)
                 for object_id in batch:
                     pipe.hmget(keys.object_key(map_id, object_id), ["voxels", "missed", "gone"])
@@ -423,30 +388,30 @@ class RedisStore:
         ids = [int(i) for i in ids]
         if not ids:
             return []
-        with self._boundary(f"object_meta on map {map_id}"):
+        with redis_errors(f"object_meta on map {map_id}", self._where):
             metas = cast("list[bytes | None]", self.client.hmget(keys.meta_key(map_id), ids))  # bytes: no decode_responses
         present = [(i, meta) for i, meta in zip(ids, metas) if meta is not None]
         return codec.decode_metas([i for i, _ in present], [meta for _, meta in present])
 
     def list_meta(self, map_id: str) -> list[ObjectMeta]:
         """Metadata of every object of the map (one read), by id."""
-        with self._boundary(f"list_meta on map {map_id}"):
+        with redis_errors(f"list_meta on map {map_id}", self._where):
             metas = cast("dict[bytes, bytes]", self.client.hgetall(keys.meta_key(map_id)))  # bytes: no decode_responses
         ordered = sorted((int(i), meta) for i, meta in metas.items())
         return codec.decode_metas([i for i, _ in ordered], [meta for _, meta in ordered])
 
     def _object_ids(self, map_id: str) -> list[int]:
-        with self._boundary(f"list on map {map_id}"):
+        with redis_errors(f"list on map {map_id}", self._where):
             return sorted(int(i) for i in self.client.hkeys(keys.bounds_key(map_id)))
 
-    def new_ids(self, map_id: str, n: int) -> list[int]:
+    def new_ids(self, map_id: str, n: int) -> range:
         if n < 0:
             raise InvalidInput("n", ">= 0", n)
         if n == 0:
-            return []
-        with self._boundary(f"new_ids on map {map_id}"):
+            return range(0)
+        with redis_errors(f"new_ids on map {map_id}", self._where):
             last = int(self.client.incrby(keys.ids_key(map_id), n))
-        return list(range(last - n + 1, last + 1))
+        return range(last - n + 1, last + 1)
 
     def commit(
         self,
@@ -507,7 +472,7 @@ class RedisStore:
                 codec.encode_meta(obj),
                 codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors),
             ]
-        with self._boundary(f"commit on map {map_id}"):
+        with redis_errors(f"commit on map {map_id}", self._where):
             written = self._scripts["commit"](
                 keys=[
                     keys.processed_key(map_id),
@@ -529,7 +494,7 @@ class RedisStore:
 
     def retired_objects(self, map_id: str) -> list[RetiredObject]:
         cutoff_s = self._clock() - self.retired_history_s
-        with self._boundary(f"retired_objects of map {map_id}"):
+        with redis_errors(f"retired_objects of map {map_id}", self._where):
             pipe = self.client.pipeline(transaction=True)  # one snapshot of the times and the metadata
             pipe.zrevrangebyscore(keys.retired_at_key(map_id), "+inf", cutoff_s, withscores=True)
             pipe.hgetall(keys.retired_key(map_id))
@@ -539,7 +504,7 @@ class RedisStore:
         return [RetiredObject(meta, at) for meta, (_, at, _) in zip(decoded, kept)]
 
     def delete_map(self, map_id: str) -> int:
-        with self._boundary(f"delete_map {map_id}"):
+        with redis_errors(f"delete_map {map_id}", self._where):
             removed = int(
                 self._scripts["delete_map"](
                     keys=[
@@ -562,17 +527,17 @@ class RedisStore:
         return removed
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
-        with self._boundary(f"is_frame_done on map {map_id}"):
+        with redis_errors(f"is_frame_done on map {map_id}", self._where):
             recorded_at_s = self.client.hget(keys.processed_key(map_id), frame_key)
         return recorded_at_s is not None and float(recorded_at_s) >= self._clock() - self.frame_record_retention_s
 
     def count_frames(self, map_id: str) -> int:
-        with self._boundary(f"count_frames on map {map_id}"):
+        with redis_errors(f"count_frames on map {map_id}", self._where):
             return int(self.client.get(keys.processed_count_key(map_id)) or 0)
 
     def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
         key = keys.header_key(map_id)
-        with self._boundary(f"open_map {map_id}"):
+        with redis_errors(f"open_map {map_id}", self._where):
             pipe = self.client.pipeline(transaction=True)
             pipe.set(key, json.dumps(header.to_record()), nx=True)
             pipe.get(key)
@@ -582,16 +547,16 @@ class RedisStore:
         return _header_of(map_id, stored)
 
     def list_maps(self) -> dict[str, float]:
-        with self._boundary("list the maps"):
+        with redis_errors("list the maps", self._where):
             raw = self.client.hgetall(keys.MAPS)
         return {(m.decode() if isinstance(m, bytes) else m): float(t) for m, t in raw.items()}
 
     def count_objects(self, map_id: str) -> int:
-        with self._boundary(f"count the objects of map {map_id}"):
+        with redis_errors(f"count the objects of map {map_id}", self._where):
             return int(self.client.hlen(keys.meta_key(map_id)))
 
     def map_header(self, map_id: str) -> MapHeader | None:
-        with self._boundary(f"map_header of map {map_id}"):
+        with redis_errors(f"map_header of map {map_id}", self._where):
             stored = self.client.get(keys.header_key(map_id))
         return None if stored is None else _header_of(map_id, stored)
 

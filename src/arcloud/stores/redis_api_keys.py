@@ -6,12 +6,10 @@ from __future__ import annotations
 
 import json
 
-import redis
-
 from arcloud.access import ApiKey
-from arcloud.errors import StoreError, StoreUnavailable
 from arcloud.stores.keys import API_KEYS
-from arcloud.stores.redis import RedisClient, connect_redis
+from arcloud.stores.redis import RedisClient, connect_redis, where
+from arcloud.stores.redis_errors import redis_errors
 
 
 class RedisKeyStore:
@@ -26,12 +24,8 @@ class RedisKeyStore:
             self.client.close()
 
     def _call(self, doing: str, method: str, *args: object) -> object:
-        try:
+        with redis_errors(doing, lambda: where(self.client)):
             return getattr(self.client, method)(*args)
-        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
-            raise StoreUnavailable(f"cannot {doing}: Redis unreachable ({exc})") from exc
-        except redis.exceptions.RedisError as exc:
-            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
 
     def add(self, key: ApiKey) -> None:
         self._call("store the key", "hset", API_KEYS, key.id, json.dumps(key.to_record()))

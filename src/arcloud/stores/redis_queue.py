@@ -49,8 +49,8 @@ and ``max_dead_letter_bytes`` of payload (the oldest go first), the reason stayi
 Times are the callers' clocks (Unix seconds), as the heartbeats': the hosts' clocks must agree (NTP).
 
 ``fail`` leaves an entry pending (still counted): it is delivered again once claimed, until the worker
-dead-letters it. redis-py's connection errors and timeouts, and a Redis busy with a script (``BUSY``), become
-``StoreUnavailable`` at this boundary, other Redis errors ``StoreError``.
+dead-letters it. redis-py's exceptions become arcloud's at the adapters' one boundary, ``stores.redis_errors``
+(connection errors, timeouts, a Redis busy with a script: ``StoreUnavailable``).
 
 Recovery: a Redis restarted without its data has no consumer groups; the readers (``take``,
 ``claim_abandoned``) create them again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
@@ -71,21 +71,22 @@ import logging
 import re
 import time
 import zlib
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
 
 import redis
-from redis.exceptions import RedisClusterException
 
 from arcloud.core.types import Frame
-from arcloud.errors import InvalidInput, StoreError, StoreUnavailable
+from arcloud.errors import InvalidInput, StoreError
 from arcloud.ports import (
     LATENCY_BUCKETS_S,
     RECORDS_SWEPT_PER_CALL,
+    WAIT_BUCKETS_S,
     FailedFrame,
     FrameStatus,
+    FrameTimings,
+    Histogram,
     QueuedFrame,
     QueueFull,
     QueueLimits,
@@ -94,7 +95,8 @@ from arcloud.ports import (
     not_retriable,
 )
 from arcloud.stores import keys
-from arcloud.stores.redis import RedisClient, connect_redis, is_busy, is_unreachable_cluster, lua_source
+from arcloud.stores.redis import RedisClient, connect_redis, lua_source, where
+from arcloud.stores.redis_errors import redis_errors
 from arcloud.stores.stream_frames import decode_frame, encode_frame
 
 log = logging.getLogger(__name__)
@@ -102,13 +104,22 @@ log = logging.getLogger(__name__)
 #: XREADGROUP's reply (bytes: no decode_responses): [(stream, [(entry id, fields), ...])], None when nothing came.
 _ReadReply = list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]] | None
 
-#: The stats HASH's counters (``QueueStats`` fields), beside ``latency_le_<bound>`` and ``latency_sum_s``.
+#: The stats HASH's counters (``QueueStats`` fields), beside ``latency_le_<bound>`` and ``latency_sum_s``,
+#: and the wait histograms' ``<name>_le_<bound>`` and ``<name>_sum_s`` (``WAIT_HISTOGRAMS``).
 STAT_FIELDS = ("accepted", "duplicates", "processed", "redelivered", "failed", "claimed", "retried")
+#: The ``QueueStats`` histograms of waits, by the name their fields in the stats HASH start with.
+WAIT_HISTOGRAMS = ("queue_wait", "lock_wait")
 
 
 def latency_field(bucket: int) -> str:
     """The stats HASH's field counting the steps of latency bucket ``bucket``."""
     return f"latency_le_{LATENCY_BUCKETS_S[bucket]:g}" if bucket < len(LATENCY_BUCKETS_S) else "latency_le_inf"
+
+
+def histogram_field(name: str, histogram: Histogram, bucket: int) -> str:
+    """The stats HASH's field counting bucket ``bucket`` of the histogram ``name`` (``WAIT_HISTOGRAMS``)."""
+    bounds = histogram.bounds_s
+    return f"{name}_le_{bounds[bucket]:g}" if bucket < len(bounds) else f"{name}_le_inf"
 
 
 def parse_stats(raw: Mapping[bytes | str, bytes | str]) -> QueueStats:
@@ -118,11 +129,23 @@ def parse_stats(raw: Mapping[bytes | str, bytes | str]) -> QueueStats:
     stats = QueueStats(**counts)
     stats.latency_counts = [int(values.get(latency_field(b), 0)) for b in range(len(LATENCY_BUCKETS_S) + 1)]
     stats.latency_sum_s = float(values.get("latency_sum_s", 0.0))
+    for name in WAIT_HISTOGRAMS:
+        histogram: Histogram = getattr(stats, name)
+        histogram.counts = [int(values.get(histogram_field(name, histogram, b), 0)) for b in range(len(histogram.counts))]
+        histogram.sum_s = float(values.get(f"{name}_sum_s", 0.0))
     return stats
 
 
 def _text(value: bytes | str | None) -> str:
     return value.decode(errors="replace") if isinstance(value, bytes) else (value or "")
+
+
+def _seconds(value: bytes | None) -> float | None:
+    """An entry's time field (Unix seconds) as a float; None when absent or not a number."""
+    try:
+        return None if value is None else float(value)
+    except ValueError:
+        return None
 
 
 _ENTRY_ID = re.compile(r"\d+-\d+")
@@ -236,21 +259,8 @@ class RedisFrameQueue:
     def _tag_of(self, map_id: str) -> str:
         return self._tags[self.shard_of(map_id)]
 
-    @contextmanager
-    def _boundary(self, doing: str) -> Iterator[None]:
-        """Map redis-py's exceptions to arcloud's."""
-        try:
-            yield
-        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
-            raise StoreUnavailable(f"cannot {doing}: Redis unreachable ({exc})") from exc
-        except redis.exceptions.ResponseError as exc:
-            if is_busy(exc):
-                raise StoreUnavailable(f"cannot {doing}: Redis busy ({exc})") from exc
-            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
-        except (redis.exceptions.RedisError, RedisClusterException) as exc:
-            if is_unreachable_cluster(exc):
-                raise StoreUnavailable(f"cannot {doing}: Redis Cluster unreachable ({exc})") from exc
-            raise StoreError(f"cannot {doing}: Redis failed ({exc})") from exc
+    def _where(self) -> str:
+        return where(self.client)
 
     def _recreate_group(self, exc: redis.exceptions.ResponseError, shard: int) -> None:
         """Re-raise ``exc`` unless it says the consumer group is gone (``NOGROUP``: Redis restarted
@@ -274,7 +284,7 @@ class RedisFrameQueue:
         shard = self.shard_of(map_id)
         tag = self._tags[shard]
         limits = self._shard_limits
-        with self._boundary("queue the frame"):
+        with redis_errors("queue the frame", self._where):
             reply = self._accept(
                 keys=[
                     keys.ingest_status_key(tag, map_id),
@@ -307,12 +317,12 @@ class RedisFrameQueue:
         return bool(reply != 0)  # the new entry id, or 0 for a duplicate
 
     def map_counts(self, map_id: str) -> tuple[int, int]:
-        with self._boundary("read the map's counts"):
+        with redis_errors("read the map's counts", self._where):
             accepted, failed = self.client.hmget(keys.ingest_counts_key(self._tag_of(map_id), map_id), ["accepted", "failed"])
         return int(accepted or 0), int(failed or 0)
 
     def known_map(self, map_id: str) -> bool:
-        with self._boundary("look the map up"):
+        with redis_errors("look the map up", self._where):
             return bool(self.client.exists(keys.ingest_counts_key(self._tag_of(map_id), map_id)))
 
     def _record(self, map_id: str, frame_key: str) -> FrameRecord | None:
@@ -329,7 +339,7 @@ class RedisFrameQueue:
         """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
         (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown"."""
         stream = keys.ingest_stream(self._tag_of(map_id))
-        with self._boundary("read the frame's status"):
+        with redis_errors("read the frame's status", self._where):
             record = self._record(map_id, frame_key)
             if record is None:
                 return None
@@ -351,7 +361,7 @@ class RedisFrameQueue:
     def failed_frames(self, map_id: str, limit: int) -> list[FailedFrame]:
         """Reads the map's whole status HASH (an operator's command: O(the map's kept records))."""
         tag = self._tag_of(map_id)
-        with self._boundary("list the map's failed frames"):
+        with redis_errors("list the map's failed frames", self._where):
             records = [
                 (_text(key), FrameRecord.parse(_text(value)))
                 for key, value in self.client.hscan_iter(keys.ingest_status_key(tag, map_id), count=1000)
@@ -370,7 +380,7 @@ class RedisFrameQueue:
     def retry_failed(self, map_id: str, frame_key: str) -> bool:
         """Reads the frame's dead letter and accepts its payload again (``lua/accept_frame.lua``: a frame
         posted again since is a duplicate, False)."""
-        with self._boundary("read the frame's dead letter"):
+        with redis_errors("read the frame's dead letter", self._where):
             record = self._record(map_id, frame_key)
             if record is None or record.status != "failed":
                 raise not_retriable(map_id, frame_key, None if record is None else record.status)
@@ -386,14 +396,14 @@ class RedisFrameQueue:
 
     def forget_map(self, map_id: str) -> None:
         tag = self._tag_of(map_id)
-        with self._boundary("forget the map"):
+        with redis_errors("forget the map", self._where):
             self.client.delete(
                 keys.ingest_status_key(tag, map_id), keys.ingest_sweep_key(tag, map_id), keys.ingest_counts_key(tag, map_id)
             )
 
     def stats(self) -> QueueStats:
         """Every shard's counters summed (one pipelined round trip; on a Cluster one per node)."""
-        with self._boundary("read the ingest counters"):
+        with redis_errors("read the ingest counters", self._where):
             pipe = self.client.pipeline(transaction=False)
             for tag in self._tags:
                 pipe.hgetall(keys.ingest_stats(tag))
@@ -408,7 +418,7 @@ class RedisFrameQueue:
                 totals[_text(field)] = totals.get(_text(field), 0.0) + float(value)
             depth += int(shard_depth)
             queued_bytes += int(shard_bytes or 0)
-        stats = parse_stats({field: repr(v) if field == "latency_sum_s" else str(int(v)) for field, v in totals.items()})
+        stats = parse_stats({field: repr(v) if field.endswith("_sum_s") else str(int(v)) for field, v in totals.items()})
         stats.queue_depth = depth
         stats.queued_bytes = queued_bytes
         return stats
@@ -439,10 +449,10 @@ class RedisFrameQueue:
         number is), and create each shard's consumer group (and stream) unless it exists. A group starts
         at its stream's beginning so that frames queued before any worker started are read. Warns of frames
         left in the one stream of the layout before shards."""
-        with self._boundary("create the consumer groups"):
+        with redis_errors("create the consumer groups", self._where):
             self.client.set(keys.INGEST_SHARDS, self.shards, nx=True)
         self.check_shards()
-        with self._boundary("create the consumer groups"):
+        with redis_errors("create the consumer groups", self._where):
             for tag in self._tags:
                 try:
                     self.client.xgroup_create(keys.ingest_stream(tag), self.group, id="0", mkstream=True)
@@ -461,7 +471,7 @@ class RedisFrameQueue:
     def check_shards(self) -> None:
         """``InvalidInput`` naming ``ingest_shards`` when this Redis's queue has another number of shards
         than this one (``prepare`` writes it); reads only."""
-        with self._boundary("read the number of ingest shards"):
+        with redis_errors("read the number of ingest shards", self._where):
             pinned = self.client.get(keys.INGEST_SHARDS)
         if pinned is not None and int(pinned) != self.shards:
             raise InvalidInput(
@@ -496,7 +506,7 @@ class RedisFrameQueue:
         def read() -> _ReadReply:
             return cast(_ReadReply, self.client.xreadgroup(self.group, consumer, {stream: ">"}, count=1, block=block_ms))
 
-        with self._boundary("read the ingest stream"):
+        with redis_errors("read the ingest stream", self._where):
             try:
                 reply = read()
             except redis.exceptions.ResponseError as exc:
@@ -519,7 +529,7 @@ class RedisFrameQueue:
     def _claim(self, shard: int, consumer: str, min_idle_ms: int) -> QueuedFrame | None:
         stream = keys.ingest_stream(self._tags[shard])
         cursor = (consumer, shard)
-        with self._boundary("claim an abandoned entry"):
+        with redis_errors("claim an abandoned entry", self._where):
             try:
                 next_cursor, entries, *_deleted = self.client.xautoclaim(
                     stream, self.group, consumer, min_idle_ms, start_id=self._claim_cursors.get(cursor, "0-0"), count=1
@@ -556,19 +566,27 @@ class RedisFrameQueue:
             deliveries,
             frame,
             undecodable,
+            accepted_at_s=_seconds(fields.get(b"accepted_at_s")),
             receipt=receipt,
         )
 
-    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, elapsed_s: float = 0.0) -> None:
+    def ack(self, item: QueuedFrame, *, redelivered: bool, retries: int = 0, timings: FrameTimings | None = None) -> None:
+        timings = timings or FrameTimings()
         add = {"retried": retries} if retries else {}
-        counters: dict[str, Any] = {"add": add}
+        sums: dict[str, float] = {}
+        counters: dict[str, Any] = {"add": add, "sums": sums}
         if redelivered:
             add["redelivered"] = 1
         else:
             add["processed"] = 1
-            add[latency_field(latency_bucket(elapsed_s))] = 1
-            counters["latency_sum_s"] = elapsed_s
-        with self._boundary("acknowledge the entry"):
+            add[latency_field(latency_bucket(timings.step_s))] = 1
+            sums["latency_sum_s"] = timings.step_s
+            for name, seconds in (("queue_wait", timings.queue_wait_s), ("lock_wait", timings.lock_wait_s)):
+                if seconds is not None:
+                    histogram = Histogram.empty(WAIT_BUCKETS_S)
+                    add[histogram_field(name, histogram, histogram.bucket(seconds))] = 1
+                    sums[f"{name}_sum_s"] = seconds
+        with redis_errors("acknowledge the entry", self._where):
             self._settle_entry(item, counters, ["processed"])
 
     def fail(self, item: QueuedFrame, reason: str) -> None:
@@ -577,7 +595,7 @@ class RedisFrameQueue:
     def dead_letter(self, item: QueuedFrame, reason: str) -> None:
         """Move the entry to its shard's dead-letter stream (with the reason), record its frame as failed."""
         limits = self._shard_limits
-        with self._boundary("dead-letter the entry"):
+        with redis_errors("dead-letter the entry", self._where):
             self._settle_entry(
                 item,
                 {"add": {"failed": 1}},
@@ -616,7 +634,7 @@ class RedisFrameQueue:
     def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
         """Write the heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to its own
         consumer: no new delivery) so that a long step is never taken for an abandoned one."""
-        with self._boundary("write the heartbeat"):
+        with redis_errors("write the heartbeat", self._where):
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
             if in_hand is not None:
                 shard, entry_id, _fields = cast(Receipt, in_hand.receipt)
@@ -628,11 +646,11 @@ class RedisFrameQueue:
                     # The group went with Redis's data, and the entry with it: nothing left to keep fresh.
 
     def leave(self, consumer: str) -> None:
-        with self._boundary("remove the heartbeat"):
+        with redis_errors("remove the heartbeat", self._where):
             self.client.hdel(keys.INGEST_WORKERS, consumer)
 
     def live_consumers(self, max_age_s: float) -> list[str]:
         now = time.time()
-        with self._boundary("read the heartbeats"):
+        with redis_errors("read the heartbeats", self._where):
             beats = self.client.hgetall(keys.INGEST_WORKERS)
         return sorted(_text(name) for name, seen in beats.items() if now - float(seen) <= max_age_s)

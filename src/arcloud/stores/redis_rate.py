@@ -3,11 +3,9 @@
 
 from __future__ import annotations
 
-import redis
-
-from arcloud.errors import StoreError, StoreUnavailable
 from arcloud.stores.keys import rate_key
-from arcloud.stores.redis import RedisClient, connect_redis, lua_source
+from arcloud.stores.redis import RedisClient, connect_redis, lua_source, where
+from arcloud.stores.redis_errors import redis_errors
 
 
 class RedisRateLimiter:
@@ -23,10 +21,6 @@ class RedisRateLimiter:
             self.client.close()
 
     def take(self, bucket: str, *, rate_per_s: float, burst: int) -> float:
-        try:
+        with redis_errors(f"take from rate bucket {bucket}", lambda: where(self.client)):
             wait = self._script(keys=[rate_key(bucket)], args=[repr(float(rate_per_s)), int(burst)])
-        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as exc:
-            raise StoreUnavailable(f"cannot check the rate limit: Redis unreachable ({exc})") from exc
-        except redis.exceptions.RedisError as exc:
-            raise StoreError(f"cannot check the rate limit: Redis failed ({exc})") from exc
         return float(wait)

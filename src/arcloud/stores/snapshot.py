@@ -15,11 +15,16 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import re
 import zipfile
 import zlib
 
+import numpy as np
+
+from arcloud.core.checks import check_finite_number, check_id, describe
 from arcloud.core.header import MapHeader, check_header
-from arcloud.core.types import MapObject, Params
+from arcloud.core.types import AABB, MapObject, Params
+from arcloud.core.voxels import keys_bounds
 from arcloud.errors import InvalidInput, MapMismatch, StoreError
 from arcloud.ports import ObjectStore
 from arcloud.stores import codec
@@ -27,6 +32,11 @@ from arcloud.stores import codec
 FORMAT = "arcloud.snapshot.v1"
 RESTORE_BATCH = 256  # objects per commit
 MAX_UNPACKED_BYTES = 2**30  # a snapshot whose members unpack to more is refused (zip bombs); a real map is a few MB
+#: The largest object id restored: what a JSON number carries exactly (the viewer reads ids as doubles).
+MAX_OBJECT_ID = 2**53 - 1
+#: How far ``bounds`` may differ from its voxels' box: float rounding, never a voxel.
+BOUNDS_TOLERANCE_M = 1e-6
+_META_MEMBER = re.compile(r"objects/(.*)\.meta")
 # What reading a malformed file raises: zipfile's own errors, a corrupt deflate stream (zlib.error), a member
 # name outside objects/ (IndexError), an encrypted or oddly compressed member (RuntimeError, NotImplementedError),
 # JSON nested too deep (RecursionError), a blob the codec refuses (StoreError: here the file's fault, not a store's).
@@ -82,15 +92,114 @@ def read_snapshot(data: bytes) -> tuple[dict[str, object], MapHeader, list[MapOb
                     "snapshot", f"a {FORMAT} file", f"format {document.get('format') if isinstance(document, dict) else None!r}"
                 )
             header = MapHeader.from_record(document["header"])
-            ids = sorted(int(name.split("/")[1].removesuffix(".meta")) for name in archive.namelist() if name.endswith(".meta"))
+            ids = sorted(_object_id(name) for name in archive.namelist() if name.endswith(".meta"))
             objects = [
                 codec.decode_object(i, archive.read(f"objects/{i}.meta"), archive.read(f"objects/{i}.voxels")) for i in ids
             ]
+    except InvalidInput:
+        raise  # what is wrong is named already
     except UNREADABLE as exc:
         raise InvalidInput("snapshot", f"a {FORMAT} zip file", f"one that cannot be read ({type(exc).__name__}: {exc})") from exc
     if len(objects) != document.get("objects"):
         raise InvalidInput("snapshot", f"{document.get('objects')} objects, as it says", f"{len(objects)}")
+    for obj in objects:
+        check_object(obj, header)
     return document, header, objects
+
+
+def _object_id(member: str) -> int:
+    """The id a metadata member's name gives (``objects/<id>.meta``); ``InvalidInput`` naming it otherwise."""
+    found = _META_MEMBER.fullmatch(member)
+    if found is None:
+        raise InvalidInput("snapshot", "metadata members objects/<id>.meta", f"member {describe(member)}")
+    text = found.group(1)
+    if not (text.isascii() and text.isdigit() and len(text) <= 16 and text[0] != "0" and int(text) <= MAX_OBJECT_ID):
+        raise InvalidInput(f"objects/{text[:40]}.id", f"an object id from 1 to {MAX_OBJECT_ID}", describe(text))
+    return int(text)
+
+
+def check_object(obj: MapObject, header: MapHeader) -> None:
+    """``InvalidInput`` naming ``objects/<id>.<field>`` unless ``obj`` is what the step could have stored in a map
+    of ``header`` (the module docstring lists the checks)."""
+    where = f"objects/{obj.id}"
+    if not 1 <= obj.id <= MAX_OBJECT_ID:
+        raise InvalidInput(f"{where}.id", f"an object id from 1 to {MAX_OBJECT_ID}", obj.id)
+    if obj.label not in header.classes:
+        raise InvalidInput(f"{where}.label", f"one of the map's classes {', '.join(header.classes)}", describe(obj.label))
+    for name in ("score", "label_purity"):
+        value = check_finite_number(f"{where}.{name}", getattr(obj, name))
+        if not 0.0 <= value <= 1.0:
+            raise InvalidInput(f"{where}.{name}", "a number from 0 to 1", describe(value))
+    for name in ("score_sum", "created_at_s", "updated_at_s", "n_frames"):
+        if check_finite_number(f"{where}.{name}", getattr(obj, name)) < 0:
+            raise InvalidInput(f"{where}.{name}", "a number >= 0", describe(getattr(obj, name)))
+    for device in sorted(obj.devices):
+        check_id(f"{where}.devices", device)
+    if any(count < 0 for count in obj.floor_votes.values()):
+        raise InvalidInput(f"{where}.floor_votes", "counts >= 0", describe(obj.floor_votes))
+    if obj.keys.size == 0:
+        raise InvalidInput(f"{where}.voxels", "at least one voxel", "none")
+    for name in ("weights", "seen", "votes"):
+        values = getattr(obj, name)
+        if values is not None and not (np.all(np.isfinite(values)) and np.all(values >= 0)):
+            raise InvalidInput(f"{where}.{name}", "finite numbers >= 0", "a negative or non-finite value")
+    voxels_lo, voxels_hi = keys_bounds(obj.keys, header.voxel_size_m)
+    bounds = _finite_box(f"{where}.bounds", obj.bounds)
+    outside = np.any(bounds.min > voxels_lo + BOUNDS_TOLERANCE_M) or np.any(bounds.max < voxels_hi - BOUNDS_TOLERANCE_M)
+    slack_m = header.voxel_size_m + BOUNDS_TOLERANCE_M
+    if outside or np.any(bounds.min < voxels_lo - slack_m) or np.any(bounds.max > voxels_hi + slack_m):
+        raise InvalidInput(
+            f"{where}.bounds",
+            f"the box of its voxels, {_corners(voxels_lo, voxels_hi)} (within a voxel)",
+            _corners(bounds.min, bounds.max),
+        )
+    aabb = _finite_box(f"{where}.aabb", obj.aabb)
+    aabb_lo, aabb_hi = aabb.min, aabb.max
+    if header.world2aligned is not None:  # the aabb is in the aligned frame: its corners back in the world
+        aligned2world = np.linalg.inv(np.asarray(header.world2aligned, np.float64))
+        corners = np.array(
+            [[x, y, z] for x in (aabb_lo[0], aabb_hi[0]) for y in (aabb_lo[1], aabb_hi[1]) for z in (aabb_lo[2], aabb_hi[2])]
+        )
+        world = corners @ aligned2world[:3, :3].T + aligned2world[:3, 3]
+        aabb_lo, aabb_hi = world.min(axis=0), world.max(axis=0)
+    if not _meets(aabb_lo, aabb_hi, bounds):
+        raise InvalidInput(
+            f"{where}.aabb", f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}", _corners(aabb.min, aabb.max)
+        )
+    obb = obj.obb
+    if obb is None:
+        raise InvalidInput(f"{where}.obb", "a box (an object with voxels has one)", "none")
+    parts = (np.asarray(obb.center, np.float64), np.asarray(obb.size, np.float64), np.asarray(obb.rotation, np.float64))
+    if not (all(np.all(np.isfinite(p)) for p in parts) and np.isfinite(obb.yaw_rad)) or np.any(parts[1] < 0):
+        raise InvalidInput(
+            f"{where}.obb", "a finite centre, rotation and yaw and sizes >= 0", "a non-finite value or a negative size"
+        )
+    reach = np.abs(parts[2]) @ parts[1] / 2  # half the extent of the oriented box along each world axis
+    if not _meets(parts[0] - reach, parts[0] + reach, bounds):
+        raise InvalidInput(
+            f"{where}.obb",
+            f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}",
+            f"centre {parts[0].round(3).tolist()}",
+        )
+
+
+def _finite_box(field: str, box: AABB | None) -> AABB:
+    """``box`` when it has finite corners, min <= max; else ``InvalidInput`` naming ``field``."""
+    if box is None:
+        raise InvalidInput(field, "a box (an object with voxels has one)", "none")
+    lo, hi = np.asarray(box.min, np.float64), np.asarray(box.max, np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(lo > hi):
+        raise InvalidInput(field, "finite corners min <= max", _corners(lo, hi))
+    return AABB(lo, hi)
+
+
+def _meets(lo: np.ndarray, hi: np.ndarray, box: AABB) -> bool:
+    """Whether [lo, hi] and ``box`` share a point (touching counts)."""
+    return bool(np.all(lo <= box.max + BOUNDS_TOLERANCE_M) and np.all(box.min <= hi + BOUNDS_TOLERANCE_M))
+
+
+def _corners(lo: np.ndarray, hi: np.ndarray) -> str:
+    return f"min {np.round(np.asarray(lo, np.float64), 4).tolist()} max {np.round(np.asarray(hi, np.float64), 4).tolist()}"
 
 
 def restore_bytes(store: ObjectStore, map_id: str, data: bytes, *, replace: bool = False, params: Params | None = None) -> int:

@@ -6,6 +6,7 @@
 - ``worker``: ``python -m arcloud.tools.worker``, one ingest worker (the containers' entry point).
 - ``service_cli``: the ``arcloud serve | worker | replay`` commands.
 - ``frames_cli``: the ``arcloud frames failed | retry`` commands (operators, on the Redis queue).
+- ``models_cli``: the ``arcloud models list | pull | verify | path`` commands (the model catalogue and cache).
 - ``replay``: stream a simulated room through a running service and score the map.
 
 Layers point one way: core <- ports <- adapters (stores, detectors, events) <- service <- tools.

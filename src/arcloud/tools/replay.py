@@ -22,10 +22,15 @@ Results JSON::
      "ground_truth": [{"label", "aabb_min", "aabb_max"}],
      "frames": {"sent", "accepted", "duplicate", "processed", "failed", "lost"}, ...}
 
+The map is kept as it is, so that a device key (which may upload, not delete) can replay into its map;
+``fresh`` (``--fresh``, an admin key) deletes it first, so that no earlier frame counts in the scores. The
+frame counts are those of the frames replay sent, whatever else the map holds (the SDK's
+``wait_until_processed`` asks each frame's status).
+
 The client tries every request again through an outage of the service or its store (``RetryPolicy``:
 ``REPLAY_RETRIES`` times, up to 10 s apart): a frame sent twice is answered ``duplicate``. Frames the
-store lost (Redis restarted without its data) are counted ``lost``: the wait ends when every frame the
-map still has is done.
+store lost (Redis restarted without its data) are counted ``lost``: the wait ends when every frame sent
+is processed, failed or lost.
 """
 
 from __future__ import annotations
@@ -61,11 +66,11 @@ def replay(
     height: int = 480,
     timeout_s: float = 1800.0,
     show_progress: bool = True,
-    keep_map: bool = False,
+    fresh: bool = False,
     token: str | None = None,
 ) -> dict[str, Any]:
-    """Replay and score; writes the results JSON to ``out`` (unless None) and returns it. The map is
-    deleted first (unless ``keep_map``) so that earlier frames do not count."""
+    """Replay and score; writes the results JSON to ``out`` (unless None) and returns it. ``fresh``: delete
+    the map first (an admin key's), so that earlier frames do not count."""
     from arcloud.core.types import Intrinsics
     from arcloud.eval.metrics import evaluate, precision_recall
     from arcloud.eval.protocol import user_streams
@@ -83,8 +88,8 @@ def replay(
     rendered_s = time.perf_counter() - started
 
     sent_at = time.perf_counter()
-    sent, answers, stats, served, every = asyncio.run(
-        _stream(url, map_id, frames, streams, timeout_s, show_progress, keep_map, token)
+    sent, answers, done, served, every = asyncio.run(
+        _stream(url, map_id, frames, streams, timeout_s, show_progress, fresh, token)
     )
     processed_s = time.perf_counter() - sent_at
 
@@ -127,9 +132,9 @@ def replay(
             "sent": sent,
             "accepted": sum(1 for a in answers if a == "queued"),
             "duplicate": sum(1 for a in answers if a == "duplicate"),
-            "processed": stats["frames"]["processed"],
-            "failed": stats["frames"]["failed"],
-            "lost": max(0, sent - stats["frames"]["accepted"]),
+            "processed": done["processed"],
+            "failed": done["failed"],
+            "lost": done["lost"],
         },
         "evaluation": scores.to_dict(),
         "scene": {"seed": seed, "frames": n_frames, "width": width, "height": height, "objects": len(ground_truth)},
@@ -171,16 +176,16 @@ async def _stream(
     streams: list[list[int]],
     timeout_s: float,
     show_progress: bool,
-    keep_map: bool,
+    fresh: bool,
     token: str | None = None,
-) -> tuple[int, list[str], dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
-    """Upload every user's frames, wait until they are processed; returns (frames sent, answers, the
-    map's stats, the served objects (a plain GET), every object)."""
+) -> tuple[int, list[str], dict[str, int], list[dict[str, Any]], list[dict[str, Any]]]:
+    """Upload every user's frames, wait until they are done; returns (frames sent, answers, the frames
+    sent by outcome (processed, failed, lost), the served objects (a plain GET), every object)."""
     from tqdm import tqdm
 
     answers: list[str] = []
     async with AsyncArcloudClient(url, max_retries=REPLAY_RETRIES, token=token) as client:
-        if not keep_map:
+        if fresh:
             try:
                 await client.delete_map(map_id)
             except ServiceError as exc:
@@ -199,48 +204,11 @@ async def _stream(
                     bar.update(1)
 
             await asyncio.gather(*(user(k, indices) for k, indices in enumerate(streams)))
-        stats = await _wait_until_settled(client, map_id, len(frames), timeout_s)
-        if stats["frames"]["accepted"] == 0:  # the store lost the whole map
-            return len(frames), answers, stats, [], []
+        done = (await client.wait_until_processed(map_id, timeout_s=timeout_s))["frames"]
+        if done["lost"]:
+            log.warning("map %s: %d of %d frames sent are lost (the store lost its data?)", map_id, done["lost"], len(frames))
+        if done["lost"] == done["sent"]:  # the store lost the whole map
+            return len(frames), answers, done, [], []
         served = await client.list_objects(map_id)
         every = await client.list_objects(map_id, include_tentative=True)
-    return len(frames), answers, stats, served, every
-
-
-async def _wait_until_settled(
-    client: AsyncArcloudClient, map_id: str, n_frames: int, timeout_s: float, poll_s: float = 0.25
-) -> dict[str, Any]:
-    """The map's stats once ``n_frames`` frames are processed or failed, or once every frame the map
-    still has is (fewer than ``n_frames`` accepted: the store lost some; logged). Called once every frame
-    was answered 202, so a map unknown (404) lost every frame: zero counts. ``TimeoutError`` after
-    ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    stats: dict[str, Any] = {}
-    while True:
-        try:
-            stats = await client.stats(map_id)
-            frames = stats["frames"]
-            if frames["processed"] + frames["failed"] >= n_frames:
-                return stats
-            if frames["accepted"] < n_frames and frames["pending"] == 0:
-                log.warning(
-                    "map %s: %d of %d frames sent are lost (the store lost its data?)",
-                    map_id,
-                    n_frames - frames["accepted"],
-                    n_frames,
-                )
-                return stats
-        except ServiceError as exc:
-            if exc.status != 404:
-                raise
-            log.warning("map %s: all %d frames sent are lost (the store lost its data?)", map_id, n_frames)
-            return {
-                "map_id": map_id,
-                "frames": dict.fromkeys(("accepted", "processed", "failed", "pending"), 0),
-                "objects": {"confirmed": 0, "tentative": 0},
-            }
-        if time.monotonic() >= deadline:
-            raise TimeoutError(
-                f"map {map_id}: {n_frames} frames not processed within {timeout_s} s (last: {stats.get('frames')})"
-            )
-        await asyncio.sleep(poll_s)
+    return len(frames), answers, done, served, every

@@ -3,8 +3,9 @@
 
     arcloud serve                                        # embedded: one process, in-memory store, loopback only
     arcloud serve --redis redis://127.0.0.1:6379/0 --workers 4 --detector sim:0   # API keys required
+    arcloud serve --redis redis://127.0.0.1:6379/0 --workers 14 --api-processes 2  # two API processes on one port
     arcloud worker --redis redis://redis:6379/0          # one more worker process (e.g. in a container)
-    arcloud replay --url http://127.0.0.1:8000 --map room0 --users 10 --seed 0 --out results.json --token TOKEN
+    arcloud replay --url http://127.0.0.1:8000 --map kitchen --users 10 --seed 0 --out results.json --token TOKEN
 
 Options left out come from ``ARCLOUD_*`` environment variables (``service.settings``).
 """
@@ -53,6 +54,13 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument(
         "--workers", type=non_negative_int, help="worker threads (embedded) or processes (Redis); default $ARCLOUD_WORKERS or 2"
     )
+    serve.add_argument(
+        "--api-processes",
+        type=positive_int,
+        default=1,
+        help="API processes sharing the port (Redis only: the API is stateless there); default 1. One decodes about 130 "
+        "VGA frames/s on a core of its own",
+    )
     _store_options(serve)
     serve.set_defaults(handler=run_serve)
 
@@ -68,10 +76,14 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
         "replay",
         help="stream a simulated room through a running service as K users and score the map",
         description="The service must run `--detector sim:SEED` with the same seed. Writes mAP of every object (Table 1), "
-        "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes.",
+        "precision, recall and mAP of the served objects (a plain GET), and the room's ground-truth boxes. The map is "
+        "kept as it is (a device key may replay into it); --fresh deletes it first (an admin key).",
     )
     replay.add_argument("--url", default="http://127.0.0.1:8000", help="service URL (default http://127.0.0.1:8000)")
-    replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>); deleted first")
+    replay.add_argument("--map", dest="map_id", default=None, help="map id (default room<SEED>)")
+    replay.add_argument(
+        "--fresh", action="store_true", help="delete the map first, so that no earlier frame counts (needs an admin key)"
+    )
     replay.add_argument("--users", type=positive_int, default=10, help="concurrent users K (default 10)")
     replay.add_argument("--seed", type=non_negative_int, default=0, help="room, walk and detector seed (default 0)")
     replay.add_argument("--frames", type=positive_int, default=300, help="frames in the walk (default 300)")
@@ -83,7 +95,7 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
     replay.add_argument(
         "--token",
         default=None,
-        help="API key token (default $ARCLOUD_TOKEN): an admin key of the map (replay deletes the map first)",
+        help="API key token (default $ARCLOUD_TOKEN): a device key of the map (an admin key with --fresh)",
     )
     replay.add_argument("--no-progress", action="store_true", help="no progress bar")
     replay.set_defaults(handler=run_replay_command)
@@ -156,24 +168,29 @@ def _detector_from_env() -> str:
 def run_serve(args: argparse.Namespace) -> int:
     from uvicorn.config import LOGGING_CONFIG
 
+    from arcloud.errors import ArcloudError
     from arcloud.service.logs import configure_logging
-    from arcloud.tools.http_server import run_server
+    from arcloud.tools.http_server import run_server, run_servers
     from arcloud.tools.wiring import check_model_file, check_zenoh_config, create_app
 
     settings = settings_from_args(args)
     configure_logging(settings.log_level, settings.log_format)
     check_exposure(settings, args.host)
     check_zenoh_config(settings)
+    if args.api_processes > 1 and settings.embedded:
+        raise ArcloudError("--api-processes N needs --redis: the embedded store and queue live in one process")
     if settings.embedded or settings.workers > 0:
         check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
-    app = create_app(settings)
-    run_server(
-        app,
-        host=args.host,
-        port=args.port,
-        log_level=settings.log_level.lower(),
-        log_config=LOGGING_CONFIG if settings.log_format == "text" else None,  # None: its lines go through ours (JSON)
-    )
+    server = {
+        "host": args.host,
+        "port": args.port,
+        "log_level": settings.log_level.lower(),
+        "log_config": LOGGING_CONFIG if settings.log_format == "text" else None,  # None: its lines go through ours (JSON)
+    }
+    if args.api_processes > 1:
+        run_servers(settings, args.api_processes, **server)
+    else:
+        run_server(create_app(settings), **server)
     return 0
 
 
@@ -227,6 +244,7 @@ def run_replay_command(args: argparse.Namespace) -> int:
         height=height,
         timeout_s=args.timeout,
         show_progress=not args.no_progress,
+        fresh=args.fresh,
         token=args.token,
     )
     row = results["table1"][0]

@@ -175,8 +175,8 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
 
 
 def build_key_store(settings: Settings, store: ObjectStore | None = None) -> KeyStore | None:
-    """The API keys: ``keys_file``, else Redis's (on ``store``'s connections when it is a ``RedisStore``);
-    None with auth none."""
+    """The API keys: ``keys_file``, else ``keys_store``'s Redis, else the store's (on ``store``'s connections
+    when it is a ``RedisStore``); None with auth none."""
     if settings.auth_mode == "none":
         return None
     if settings.keys_file:
@@ -186,14 +186,17 @@ def build_key_store(settings: Settings, store: ObjectStore | None = None) -> Key
     from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_api_keys import RedisKeyStore
 
+    if settings.keys_store:
+        return RedisKeyStore(settings.keys_store, reply_timeout_s=settings.api_redis_timeout_s)
     if isinstance(store, RedisStore):
         return RedisKeyStore(client=store.client)
     return RedisKeyStore(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
 
 
 def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> RateLimiter | None:
-    """In memory (embedded) or on Redis (shared by every API process); None when both limits are off."""
-    if settings.key_rate_per_s <= 0 and settings.map_frame_rate_per_s <= 0:
+    """In memory (embedded) or on Redis (shared by every API process); None when every limit is off."""
+    failures_limited = settings.auth_mode == "keys" and settings.auth_failure_rate_per_s > 0
+    if settings.key_rate_per_s <= 0 and settings.map_frame_rate_per_s <= 0 and not failures_limited:
         return None
     if settings.embedded:
         from arcloud.stores.memory_rate import MemoryRateLimiter

@@ -9,9 +9,10 @@
 -- ARGV[1] the consumer group, ARGV[2] the entry id, ARGV[3] the map id, ARGV[4] the frame key (both
 -- as the entry carries them), ARGV[5] the entry's 'bytes' ('' when it has none: accepted before the
 -- backlog was counted), ARGV[6] now (Unix s), ARGV[7] frame_record_retention_s, ARGV[8] records
--- looked at by the sweep, ARGV[9] JSON {"add": {stats field: integer}, "latency_sum_s": seconds or
--- absent}, ARGV[10] 'processed', or 'failed' followed by ARGV[11] the reason, ARGV[12] deliveries,
--- ARGV[13] the consumer, ARGV[14] max_dead_letters, ARGV[15] max_dead_letter_bytes (the shard's shares).
+-- looked at by the sweep, ARGV[9] JSON {"add": {stats field: integer}, "sums": {stats field: seconds}}
+-- (counters, the histograms' buckets and sums), ARGV[10] 'processed', or 'failed' followed by ARGV[11]
+-- the reason, ARGV[12] deliveries, ARGV[13] the consumer, ARGV[14] max_dead_letters,
+-- ARGV[15] max_dead_letter_bytes (the shard's shares).
 -- A frame's record is written only where it is still kept (not when its map was forgotten meanwhile).
 -- Returns 1 when this call settled the entry, 0 when it was settled before.
 local stream, stats, backlog = KEYS[1], KEYS[2], KEYS[3]
@@ -24,8 +25,8 @@ local counters = cjson.decode(ARGV[9])
 for name, n in pairs(counters.add) do
   redis.call('HINCRBY', stats, name, n)
 end
-if counters.latency_sum_s then
-  redis.call('HINCRBYFLOAT', stats, 'latency_sum_s', counters.latency_sum_s)
+for name, seconds in pairs(counters.sums or {}) do
+  redis.call('HINCRBYFLOAT', stats, name, seconds)
 end
 
 local dead = {}

@@ -1,0 +1,171 @@
+"""Any posed RGB-D recording as an evaluation reads it, whatever its layout: a ScanNet scene, a 7-Scenes
+sequence or a TUM RGB-D recording, in a folder of any name.
+
+``load_recording`` detects the layout (``detect_layout``), parses the folder with its reader and gives
+one ``Recording``: the frames (by name, read on demand), the ground truth (``gt_boxes``, else the
+folder's ``gt-boxes.json``, else a ScanNet scene's mesh annotation), the frame maps are boxed and
+exported in (``ExportFrame``: the ground truth's aligned frame when there is one) and how up was chosen.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from arcloud.errors import DatasetError
+
+if TYPE_CHECKING:
+    from arcloud.core.types import Frame, Intrinsics
+    from arcloud.datasets.export import ExportFrame
+    from arcloud.datasets.frames import ColourCamera
+    from arcloud.datasets.gravity import UpChoice
+    from arcloud.datasets.gt_boxes import GroundTruthBoxes
+
+#: The layouts ``load_recording`` reads (importing this module is light: the CLI's parser takes them).
+LAYOUTS = ("scannet", "7scenes", "tum")
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A parsed recording: ``layout`` (one of ``LAYOUTS``), ``name`` (a map id), ``frame_names`` in
+    order and ``load_frame(name)``; ``ground_truth`` (None without); ``export_frame``: the frame maps
+    are boxed and exported in (``world2export``: ``Params.world2aligned``); ``gravity``: up in the pose
+    frame and its source; ``facts``: what else the layout's reader says, for the results."""
+
+    layout: str
+    name: str
+    root: Path
+    frame_names: tuple[str, ...]
+    load_frame: Callable[[str], Frame]
+    ground_truth: GroundTruthBoxes | None
+    export_frame: ExportFrame
+    gravity: UpChoice
+    facts: Mapping[str, Any] = field(default_factory=dict)
+
+
+def detect_layout(root: Path) -> str:
+    """``tum`` (``rgb.txt`` and ``depth.txt``), ``7scenes`` (``frame-*.pose.txt``, or ``seq-*`` folders of
+    them) or ``scannet`` (a scene folder with ``pose/``, or a ``<name>.txt``)."""
+    from arcloud.datasets.scannet import is_scene_dir
+    from arcloud.datasets.tum import is_tum_recording
+
+    if not root.is_dir():
+        raise DatasetError(f"{root}: expected a recording folder, got no such folder")
+    if is_tum_recording(root):
+        return "tum"
+    if any(root.glob("frame-*.pose.txt")) or any(root.glob("seq*/frame-*.pose.txt")):
+        return "7scenes"
+    if is_scene_dir(root):
+        return "scannet"
+    raise DatasetError(
+        f"{root}: expected a recording (TUM: rgb.txt and depth.txt; 7-Scenes: frame-*.pose.txt; ScanNet: pose/), got none of them"
+    )
+
+
+def load_recording(
+    root: str | Path,
+    *,
+    layout: str = "auto",
+    gt_boxes: str | Path | None = None,
+    up: object = None,
+    intrinsics: Intrinsics | None = None,
+    depth_factor: float | None = None,
+    pose_time_offset_s: float = 0.0,
+    colour: ColourCamera | None = None,
+    estimate_up: bool = True,
+) -> Recording:
+    """Parse the recording in ``root`` (``layout`` ``"auto"``: ``detect_layout``). 7-Scenes and TUM worlds
+    are gravity-aligned (up: ``up``, ``gravity-direction.txt``, the ground truth's, else estimated when
+    ``estimate_up``); ScanNet's are z-up by the layout's convention (``up`` is refused).
+    ``intrinsics``, ``depth_factor`` and ``pose_time_offset_s`` are the TUM reader's; ``colour`` the
+    7-Scenes reader's; other layouts refuse them."""
+    base = Path(root)
+    chosen = detect_layout(base) if layout == "auto" else layout
+    if chosen not in LAYOUTS:
+        raise DatasetError(f"layout: expected auto or one of {LAYOUTS}, got {layout!r}")
+    refused = {
+        "--up": up is not None and chosen == "scannet",
+        "--intrinsics": intrinsics is not None and chosen != "tum",
+        "--depth-factor": depth_factor is not None and chosen != "tum",
+        "--pose-time-offset-s": pose_time_offset_s != 0.0 and chosen != "tum",
+        "--colour-camera": colour is not None and chosen != "7scenes",
+    }
+    if any(refused.values()):
+        raise DatasetError(f"{', '.join(k for k, v in refused.items() if v)}: not used by the {chosen} layout ({base})")
+    if chosen == "tum":
+        return _tum(base, gt_boxes, up, intrinsics, depth_factor, pose_time_offset_s, estimate_up)
+    if chosen == "7scenes":
+        return _seven_scenes(base, gt_boxes, up, colour, estimate_up)
+    return _scannet(base, gt_boxes)
+
+
+def _tum(
+    base: Path,
+    gt_boxes: str | Path | None,
+    up: object,
+    intrinsics: Intrinsics | None,
+    depth_factor: float | None,
+    pose_time_offset_s: float,
+    estimate_up: bool,
+) -> Recording:
+    from arcloud.datasets.export import tum_export_frame
+    from arcloud.datasets.gravity import UpChoice
+    from arcloud.datasets.tum import DEPTH_FACTOR, load_tum
+
+    sequence = load_tum(
+        base, intrinsics=intrinsics, depth_factor=DEPTH_FACTOR if depth_factor is None else depth_factor,
+        pose_time_offset_s=pose_time_offset_s, gt_boxes=gt_boxes, up=up, estimate_up=estimate_up,
+    )  # fmt: skip
+    facts = {
+        "intrinsics": [sequence.intrinsics.fx, sequence.intrinsics.fy, sequence.intrinsics.cx, sequence.intrinsics.cy],
+        "intrinsics_source": sequence.intrinsics_source,
+        "depth_factor": sequence.depth_factor,
+        "pose_time_offset_s": pose_time_offset_s,
+        "dropped_frames": len(sequence.dropped_frames),
+    }
+    return Recording(
+        "tum", sequence.name, base, sequence.frame_names, sequence.load_frame, sequence.ground_truth,
+        tum_export_frame(sequence), UpChoice(sequence.up_file, sequence.up_source), facts,
+    )  # fmt: skip
+
+
+def _seven_scenes(
+    base: Path, gt_boxes: str | Path | None, up: object, colour: ColourCamera | None, estimate_up: bool
+) -> Recording:
+    from arcloud.datasets.export import seven_scenes_export_frame
+    from arcloud.datasets.gravity import UpChoice
+    from arcloud.datasets.sevenscenes import load_seven_scenes
+
+    sequence = load_seven_scenes(base, align_gravity=True, colour=colour, gt_boxes=gt_boxes, up=up, estimate_up=estimate_up)
+    facts = {"skipped_frames": len(sequence.skipped_frames), "colour_camera": sequence.colour is not None}
+    return Recording(
+        "7scenes", sequence.name, base, sequence.frame_names, sequence.load_frame, sequence.ground_truth,
+        seven_scenes_export_frame(sequence), UpChoice(sequence.up_file, sequence.up_source), facts,
+    )  # fmt: skip
+
+
+def _scannet(base: Path, gt_boxes: str | Path | None) -> Recording:
+    import numpy as np
+
+    from arcloud.datasets.export import scannet_export_frame
+    from arcloud.datasets.files import map_id_of
+    from arcloud.datasets.gravity import UpChoice
+    from arcloud.datasets.gt_boxes import load_ground_truth
+    from arcloud.datasets.scannet import load_scannet_scene
+
+    scene = load_scannet_scene(base)
+    if not scene.frame_names:
+        raise DatasetError(f"{base}: expected pose/N.txt files with finite poses, got none")
+    ground_truth = load_ground_truth(gt_boxes) if gt_boxes is not None else scene.ground_truth()
+    export_frame = scannet_export_frame(scene, ground_truth if gt_boxes is not None else None)
+    up_file = np.linalg.inv(scene.scan2aligned)[:3, 2]
+    facts = {"skipped_frames": len(scene.skipped_frames), "annotation": scene.annotation}
+    return Recording(
+        "scannet", map_id_of(scene.scene_id), base, scene.frame_names, scene.load_frame,
+        ground_truth, export_frame, UpChoice(up_file, "ScanNet axis-aligned frame: z up"), facts,
+    )  # fmt: skip
+
+
+__all__ = ["LAYOUTS", "Recording", "detect_layout", "load_recording"]

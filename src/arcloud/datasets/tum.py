@@ -1,0 +1,405 @@
+"""TUM RGB-D recordings (and any folder in the same layout), parsed once into a dataclass.
+
+A recording folder holds ``rgb.txt`` and ``depth.txt`` (lines ``timestamp path``, the path relative to
+the folder; ``#`` starts a comment), the images they list (colour; depth as uint16 PNG, ``depth_factor``
+units a metre: 5000 in TUM, 0 = invalid; registered to colour, pixel for pixel) and ``groundtruth.txt``
+(lines ``timestamp tx ty tz qx qy qz qw``: camera-to-world, OpenCV camera axes, metres, seconds).
+
+Frames are made as TUM's ``associate.py`` pairs images: every depth image with the colour image nearest
+in time, within ``MAX_RGB_DEPTH_DIFFERENCE_S`` (closest pairs first, each image used once). A frame's
+pose is the trajectory at its depth timestamp plus ``pose_time_offset_s``: interpolated between the two
+poses around it (position linearly, rotation by slerp); where one of them lies more than
+``MAX_POSE_GAP_S`` away (a gap in the tracking, the ends of the trajectory) the nearest pose within
+``MAX_POSE_GAP_S`` is taken as it is, and a frame with none is dropped (logged with a count).
+
+Intrinsics: given, else ``camera-intrinsics.txt`` or ``intrinsics.txt`` in the folder (4 numbers
+``fx fy cx cy``, or a 3x3 or 4x4 camera matrix), else TUM's published ones by the folder's name
+(``freiburg1``/``2``/``3``), else the generic 525, 525, 319.5, 239.5 with a warning.
+
+TUM's world is not known to be gravity-aligned: up in the pose frame is chosen by
+``arcloud.datasets.gravity.choose_up`` (given, ``gravity-direction.txt``, the ground truth's, else
+estimated from the depth), and with ``align_gravity`` the poses are turned into a world whose +z is up.
+Optional ground truth (``gt-boxes.json`` or the file given) is ``arcloud.datasets.gt_boxes``'s, its
+world the frame of ``groundtruth.txt``.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from arcloud.core.checks import make_frame
+from arcloud.core.types import Frame, Intrinsics
+from arcloud.datasets.files import map_id_of, read_png_u16, read_rgb
+from arcloud.datasets.frames import LazyFrames
+from arcloud.datasets.gravity import GRAVITY_FILE, choose_up, estimate_up_from_frames, gravity_world2file
+from arcloud.datasets.gt_boxes import GT_BOXES_FILE, GroundTruthBoxes, load_ground_truth
+from arcloud.errors import DatasetError
+
+logger = logging.getLogger(__name__)
+
+RGB_LIST, DEPTH_LIST, TRAJECTORY = "rgb.txt", "depth.txt", "groundtruth.txt"
+INTRINSICS_FILES = ("camera-intrinsics.txt", "intrinsics.txt")
+#: TUM's depth PNG units a metre.
+DEPTH_FACTOR = 5000.0
+#: Largest time between a depth image and the colour image it is paired with (TUM's associate.py).
+MAX_RGB_DEPTH_DIFFERENCE_S = 0.02
+#: Largest time between a frame and a pose it takes.
+MAX_POSE_GAP_S = 0.05
+#: TUM's published colour intrinsics (depth is registered to colour) by camera.
+PUBLISHED_INTRINSICS = {
+    "freiburg1": Intrinsics(517.3, 516.5, 318.6, 255.3),
+    "freiburg2": Intrinsics(520.9, 521.0, 325.1, 249.7),
+    "freiburg3": Intrinsics(535.4, 539.2, 320.1, 247.6),
+}
+GENERIC_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
+_CAMERA_IN_NAME = re.compile(r"^(?:rgbd_dataset_)?(freiburg[123])(?:_|$)")
+
+
+@dataclass(frozen=True, eq=False)
+class TumSequence:
+    """A parsed recording. ``frame_names``: the depth timestamps as written in ``depth.txt``.
+    ``cam2world``: (N, 4, 4) their poses in the output world (the pose frame, or the gravity-aligned
+    one when ``world2file`` is not the identity). ``timestamps_s``: (N,) depth timestamps;
+    ``rgb_paths``/``depth_paths``: the images of each frame. ``dropped_frames``: depth images without a
+    colour image or a pose.
+
+    up_file: (3,) unit up in the pose frame, None when unknown; ``up_source`` says where it came from.
+    world2file: (4, 4) maps output-world points to the pose frame (identity unless gravity-aligned).
+    ground_truth: ``gt-boxes.json`` parsed (the folder's, or the one given), or None."""
+
+    name: str
+    root: Path
+    intrinsics: Intrinsics
+    intrinsics_source: str
+    frame_names: tuple[str, ...]
+    timestamps_s: np.ndarray
+    rgb_paths: tuple[Path, ...]
+    depth_paths: tuple[Path, ...]
+    cam2world: np.ndarray
+    dropped_frames: tuple[str, ...]
+    up_file: np.ndarray | None
+    world2file: np.ndarray
+    depth_factor: float = DEPTH_FACTOR
+    ground_truth: GroundTruthBoxes | None = None
+    up_source: str = "none"
+    device_id: str = "user-0"
+
+    @cached_property
+    def _index(self) -> dict[str, int]:
+        return {name: i for i, name in enumerate(self.frame_names)}
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_names)
+
+    @property
+    def up(self) -> tuple[float, float, float]:
+        """Up in the output world, for ``Params.up`` (+z once gravity-aligned; +z when unknown)."""
+        if self.up_file is None:
+            return (0.0, 0.0, 1.0)
+        up = self.world2file[:3, :3].T @ self.up_file
+        x, y, z = up / np.linalg.norm(up)
+        return float(x), float(y), float(z)
+
+    @property
+    def world2gt(self) -> np.ndarray | None:
+        """(4, 4) maps output-world points to the ground truth's aligned frame (None without ground truth)."""
+        if self.ground_truth is None:
+            return None
+        return self.ground_truth.file2aligned @ self.world2file
+
+    def load_frame(self, name: str, *, device_id: str | None = None) -> Frame:
+        """The frame ``name`` (a depth timestamp): colour resized to the depth size if they differ."""
+        if name not in self._index:
+            raise DatasetError(f"{self.root}: expected a frame named {name!r} with a colour image and a pose, got none")
+        index = self._index[name]
+        depth = read_png_u16(self.depth_paths[index])
+        rgb = read_rgb(self.rgb_paths[index], (depth.shape[1], depth.shape[0]))
+        return make_frame(
+            rgb,
+            depth,
+            self.intrinsics,
+            self.cam2world[index],
+            timestamp_s=float(self.timestamps_s[index] - self.timestamps_s[0]),
+            map_id=self.name,
+            device_id=device_id or self.device_id,
+            frame_id=name,
+            depth_scale=self.depth_factor,
+        )
+
+    def frames(self, *, stride: int = 1, limit: int | None = None) -> Iterator[Frame]:
+        for name in self.frame_names[:: max(1, int(stride))][:limit]:
+            yield self.load_frame(name)
+
+
+@dataclass(frozen=True)
+class _Listing:
+    """A parsed list file: ``texts`` as written, ``times_s`` (N,) and the other ``fields`` of each line."""
+
+    texts: tuple[str, ...]
+    times_s: np.ndarray
+    fields: tuple[tuple[str, ...], ...]
+
+
+def _read_listing(path: Path, n_fields: int, form: str) -> _Listing:
+    """Lines of ``n_fields`` whitespace-separated fields, the first a timestamp in seconds; ``#`` comments."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise DatasetError(f"{path}: expected a readable {path.name} ({exc})") from exc
+    texts, times, fields = [], [], []
+    for number, line in enumerate(lines, 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        if len(words) != n_fields:
+            raise DatasetError(f"{path}:{number}: expected '{form}' ({n_fields} fields), got {line.strip()!r}")
+        try:
+            time_s = float(words[0])
+        except ValueError:
+            time_s = float("nan")
+        if not np.isfinite(time_s):
+            raise DatasetError(f"{path}:{number}: expected a timestamp in seconds first, got {words[0]!r}")
+        texts.append(words[0])
+        times.append(time_s)
+        fields.append(tuple(words[1:]))
+    if not texts:
+        raise DatasetError(f"{path}: expected lines '{form}', got none")
+    return _Listing(tuple(texts), np.asarray(times), tuple(fields))
+
+
+def associate(
+    first_s: Sequence[float] | np.ndarray,
+    second_s: Sequence[float] | np.ndarray,
+    *,
+    max_difference_s: float = MAX_RGB_DEPTH_DIFFERENCE_S,
+) -> list[tuple[int, int]]:
+    """Pairs (i, j) of timestamps ``first_s[i]`` and ``second_s[j]`` less than ``max_difference_s``
+    apart, as TUM's ``associate.py`` makes them: closest pairs first, each timestamp used once. Sorted by i."""
+    first, second = np.asarray(first_s, np.float64), np.asarray(second_s, np.float64)
+    order = np.argsort(second, kind="stable")
+    ordered = second[order]
+    lo = np.searchsorted(ordered, first - max_difference_s, side="left")
+    hi = np.searchsorted(ordered, first + max_difference_s, side="right")
+    candidates = [
+        (abs(first[i] - ordered[k]), i, int(order[k]))
+        for i in range(len(first))
+        for k in range(lo[i], hi[i])
+        if abs(first[i] - ordered[k]) < max_difference_s
+    ]
+    used_first: set[int] = set()
+    used_second: set[int] = set()
+    pairs = []
+    for _, i, j in sorted(candidates):
+        if i not in used_first and j not in used_second:
+            used_first.add(i)
+            used_second.add(j)
+            pairs.append((i, j))
+    return sorted(pairs)
+
+
+def interpolate_poses(
+    times_s: np.ndarray,
+    positions: np.ndarray,
+    quaternions_xyzw: np.ndarray,
+    query_s: np.ndarray,
+    *,
+    max_gap_s: float = MAX_POSE_GAP_S,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses at ``query_s`` (M,) from a trajectory: ``times_s`` (N,) increasing, ``positions`` (N, 3),
+    unit ``quaternions_xyzw`` (N, 4). Between two poses both within ``max_gap_s``: position linear,
+    rotation slerp; else the nearest pose within ``max_gap_s``. Returns (M, 4, 4) poses and (M,) bool,
+    False where no pose lies within ``max_gap_s`` (those poses are NaN)."""
+    from scipy.spatial.transform import Rotation
+
+    times, query = np.asarray(times_s, np.float64), np.asarray(query_s, np.float64)
+    if len(query) == 0 or len(times) == 0:
+        return np.full((len(query), 4, 4), np.nan), np.zeros(len(query), bool)
+    rotations = Rotation.from_quat(np.asarray(quaternions_xyzw, np.float64))
+    after = np.clip(np.searchsorted(times, query, side="right"), 1, max(len(times) - 1, 1))
+    before = after - 1
+    if len(times) == 1:
+        before = after = np.zeros(len(query), int)
+    gap_before, gap_after = np.abs(query - times[before]), np.abs(times[after] - query)
+    between = (times[before] <= query) & (query <= times[after]) & (gap_before <= max_gap_s) & (gap_after <= max_gap_s)
+    span = times[after] - times[before]
+    alpha = np.where(between & (span > 0), (query - times[before]) / np.where(span > 0, span, 1.0), 0.0)
+    nearest = np.where(gap_after < gap_before, after, before)
+    valid = between | (np.minimum(gap_before, gap_after) <= max_gap_s)
+    start = np.where(between, before, nearest)
+    end = np.where(between, after, nearest)
+    alpha = np.where(between, alpha, 0.0)
+    turn = (rotations[start].inv() * rotations[end]).as_rotvec()
+    rotation = rotations[start] * Rotation.from_rotvec(alpha[:, None] * turn)
+    poses = np.tile(np.eye(4), (len(query), 1, 1))
+    poses[:, :3, :3] = rotation.as_matrix()
+    poses[:, :3, 3] = (1 - alpha[:, None]) * positions[start] + alpha[:, None] * positions[end]
+    poses[~valid] = np.nan
+    return poses, valid
+
+
+def _read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``groundtruth.txt`` -> times (N,) increasing, positions (N, 3), unit quaternions xyzw (N, 4)."""
+    listing = _read_listing(path, 8, "timestamp tx ty tz qx qy qz qw")
+    try:
+        values = np.asarray(listing.fields, dtype=np.float64)
+    except ValueError as exc:
+        raise DatasetError(f"{path}: expected numbers 'timestamp tx ty tz qx qy qz qw', got {exc}") from exc
+    bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
+    if len(bad):
+        raise DatasetError(f"{path}: expected finite poses, got {listing.fields[bad[0]]} at time {listing.texts[bad[0]]}")
+    norms = np.linalg.norm(values[:, 3:], axis=1)
+    off = np.flatnonzero(np.abs(norms - 1.0) > 0.01)
+    if len(off):
+        raise DatasetError(
+            f"{path}: expected unit quaternions qx qy qz qw, got norm {norms[off[0]]:.4f} at time {listing.texts[off[0]]}"
+        )
+    order = np.argsort(listing.times_s, kind="stable")
+    times = listing.times_s[order]
+    repeated = np.flatnonzero(np.diff(times) == 0)
+    if len(repeated):
+        raise DatasetError(f"{path}: expected one pose per timestamp, got two at {listing.texts[order[repeated[0]]]}")
+    return times, values[order, :3], values[order, 3:] / norms[order, None]
+
+
+def read_intrinsics_file(path: Path) -> Intrinsics:
+    """``fx fy cx cy`` (4 numbers), or a 3x3 or 4x4 camera matrix (row-major), whitespace-separated."""
+    try:
+        values = np.array(path.read_text().replace(",", " ").split(), dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: expected 4, 9 or 16 numbers (fx fy cx cy, or a camera matrix), got {exc}") from exc
+    if values.size == 4:
+        fx, fy, cx, cy = values
+    elif values.size in (9, 16):
+        k = values.reshape(3, 3) if values.size == 9 else values.reshape(4, 4)[:3, :3]
+        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    else:
+        raise DatasetError(f"{path}: expected 4, 9 or 16 numbers (fx fy cx cy, or a camera matrix), got {values.size}")
+    if not np.all(np.isfinite([fx, fy, cx, cy])) or fx <= 0 or fy <= 0:
+        raise DatasetError(f"{path}: expected finite intrinsics with positive focal lengths, got {[fx, fy, cx, cy]}")
+    return Intrinsics(float(fx), float(fy), float(cx), float(cy))
+
+
+def choose_intrinsics(root: Path, given: Intrinsics | None = None) -> tuple[Intrinsics, str]:
+    """The recording's intrinsics and where they came from (see the module docstring)."""
+    if given is not None:
+        return given, "given (--intrinsics)"
+    for name in INTRINSICS_FILES:
+        if (root / name).is_file():
+            return read_intrinsics_file(root / name), str(root / name)
+    camera = _CAMERA_IN_NAME.match(root.name)
+    if camera is not None:
+        return PUBLISHED_INTRINSICS[camera.group(1)], f"TUM {camera.group(1)} (by the folder's name)"
+    logger.warning(
+        "%s: no intrinsics file and no freiburg1/2/3 in the folder's name; using the generic %s", root, GENERIC_INTRINSICS
+    )
+    return GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"
+
+
+def is_tum_recording(root: Path) -> bool:
+    return (root / RGB_LIST).is_file() and (root / DEPTH_LIST).is_file()
+
+
+def load_tum(
+    root: str | Path,
+    *,
+    align_gravity: bool = True,
+    name: str | None = None,
+    intrinsics: Intrinsics | None = None,
+    depth_factor: float = DEPTH_FACTOR,
+    pose_time_offset_s: float = 0.0,
+    gt_boxes: str | Path | None = None,
+    up: object = None,
+    estimate_up: bool = True,
+) -> TumSequence:
+    """Parse a TUM RGB-D recording (see the module docstring), with ``gt_boxes`` (a ground-truth file)
+    or else the folder's ``gt-boxes.json`` when it has one. ``name`` (default: the folder's name, as a
+    map id) names the maps. Up in the pose frame: ``up`` (3 numbers), else ``gravity-direction.txt``,
+    else the ground truth's, else (with ``estimate_up``) an estimate from the depth."""
+    base = Path(root)
+    if not base.is_dir():
+        raise DatasetError(f"{base}: expected a TUM RGB-D folder, got no such folder")
+    for listed in (RGB_LIST, DEPTH_LIST, TRAJECTORY):
+        if not (base / listed).is_file():
+            raise DatasetError(f"{base}: expected {listed} (TUM RGB-D layout), got no such file")
+    if not (np.isfinite(depth_factor) and depth_factor > 0):
+        raise DatasetError(f"depth factor: expected a positive number of depth units a metre, got {depth_factor}")
+    if not np.isfinite(pose_time_offset_s):
+        raise DatasetError(f"pose time offset: expected a finite number of seconds, got {pose_time_offset_s}")
+    chosen_intrinsics, intrinsics_source = choose_intrinsics(base, intrinsics)
+    rgb = _read_listing(base / RGB_LIST, 2, "timestamp path")
+    depth = _read_listing(base / DEPTH_LIST, 2, "timestamp path")
+    if len(set(depth.texts)) != len(depth.texts):
+        raise DatasetError(f"{base / DEPTH_LIST}: expected one image per timestamp, got repeated timestamps")
+    times, positions, quaternions = _read_trajectory(base / TRAJECTORY)
+
+    pairs = sorted(associate(depth.times_s, rgb.times_s), key=lambda pair: depth.times_s[pair[0]])
+    paired = np.array([i for i, _ in pairs], int)
+    cam2file, posed = interpolate_poses(times, positions, quaternions, depth.times_s[paired] + pose_time_offset_s)
+    kept = [(i, j) for (i, j), ok in zip(pairs, posed, strict=True) if ok]
+    without_rgb, without_pose = len(depth.texts) - len(pairs), int(np.sum(~posed))
+    if without_rgb or without_pose:
+        logger.warning("%s: dropped %d of %d depth images: %d without a colour image within %g s, %d without a pose within %g s",
+                       base, without_rgb + without_pose, len(depth.texts), without_rgb, MAX_RGB_DEPTH_DIFFERENCE_S,
+                       without_pose, MAX_POSE_GAP_S)  # fmt: skip
+    if not kept:
+        raise DatasetError(f"{base}: expected depth images with a colour image and a pose, got none of {len(depth.texts)}")
+    kept_depth = {i for i, _ in kept}
+    gt_path = Path(gt_boxes) if gt_boxes is not None else base / GT_BOXES_FILE
+    ground_truth = load_ground_truth(gt_path) if gt_boxes is not None or gt_path.is_file() else None
+    in_file_world = TumSequence(
+        name=name or map_id_of(base.name),
+        root=base,
+        intrinsics=chosen_intrinsics,
+        intrinsics_source=intrinsics_source,
+        frame_names=tuple(depth.texts[i] for i, _ in kept),
+        timestamps_s=depth.times_s[[i for i, _ in kept]],
+        rgb_paths=tuple(base / rgb.fields[j][0] for _, j in kept),
+        depth_paths=tuple(base / depth.fields[i][0] for i, _ in kept),
+        cam2world=cam2file[posed],
+        dropped_frames=tuple(text for i, text in enumerate(depth.texts) if i not in kept_depth),
+        up_file=None,
+        world2file=np.eye(4),
+        depth_factor=float(depth_factor),
+        ground_truth=ground_truth,
+    )
+    choice = choose_up(
+        given=up,
+        gravity_file=base / GRAVITY_FILE,
+        ground_truth=ground_truth,
+        estimate=(lambda: estimate_up_from_frames(LazyFrames(in_file_world.frame_names, in_file_world.load_frame, cache=False)))
+        if estimate_up else None,
+        where=base,
+    )  # fmt: skip
+    world2file = gravity_world2file(choice.up_file) if align_gravity else np.eye(4)
+    logger.info("%s: %d frames, intrinsics %s", base, in_file_world.n_frames, intrinsics_source)
+    return replace(
+        in_file_world,
+        cam2world=np.einsum("ij,njk->nik", np.linalg.inv(world2file), in_file_world.cam2world),
+        up_file=choice.up_file,
+        up_source=choice.source,
+        world2file=world2file,
+    )
+
+
+__all__ = [
+    "DEPTH_FACTOR",
+    "GENERIC_INTRINSICS",
+    "MAX_POSE_GAP_S",
+    "MAX_RGB_DEPTH_DIFFERENCE_S",
+    "PUBLISHED_INTRINSICS",
+    "TumSequence",
+    "associate",
+    "choose_intrinsics",
+    "interpolate_poses",
+    "is_tum_recording",
+    "load_tum",
+    "read_intrinsics_file",
+]

@@ -1,0 +1,149 @@
+"""Evaluating any recording: the layout is found from the files, folders may have any name, and ``eval
+recording`` reports through the one path ``eval 7scenes`` takes (agreement, accuracy on all objects and
+the served set, per class, pictures): on a TUM-layout copy of real 7-Scenes frames with the real model
+against the 7-Scenes ground truth, and on a rendered ScanNet scene; ``eval scannet --gt-boxes`` on a scene
+folder of any name."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from datasets_builders import (
+    ALIGNMENT,
+    ROOM_PARTS,
+    build_room_scene,
+    build_seven_scenes,
+    build_tum_from_seven_scenes,
+    circle_walk,
+)
+
+from arcloud.accuracy.cli import add_eval_commands
+from arcloud.core.types import Intrinsics
+from arcloud.datasets.recording import detect_layout, load_recording
+from arcloud.datasets.render_scannet import render_scannet
+from arcloud.datasets.scannet import load_scannet_scene
+from arcloud.errors import DatasetError
+
+
+def parser() -> argparse.ArgumentParser:
+    root = argparse.ArgumentParser(prog="arcloud")
+    add_eval_commands(root.add_subparsers(dest="command", required=True))
+    return root
+
+
+def test_the_layout_comes_from_the_files(tmp_path: Path) -> None:
+    seven = build_seven_scenes(tmp_path / "any name", n_frames=2)
+    assert detect_layout(seven) == "7scenes"
+    assert detect_layout(build_seven_scenes(tmp_path / "scene", n_frames=2, sequences=2)) == "7scenes"
+    (tmp_path / "tum").mkdir()
+    for name in ("rgb.txt", "depth.txt"):
+        (tmp_path / "tum" / name).write_text("")
+    assert detect_layout(tmp_path / "tum") == "tum"
+    (tmp_path / "my scan" / "pose").mkdir(parents=True)
+    assert detect_layout(tmp_path / "my scan") == "scannet"
+    with pytest.raises(
+        DatasetError, match=r"expected a recording \(TUM: rgb.txt and depth.txt; 7-Scenes: frame-\*.pose.txt; ScanNet: pose/\)"
+    ):
+        detect_layout(tmp_path / "tum" / "..")
+    with pytest.raises(DatasetError, match="--intrinsics, --depth-factor: not used by the 7scenes layout"):
+        load_recording(seven, intrinsics=Intrinsics(1.0, 1.0, 1.0, 1.0), depth_factor=1000.0)
+    with pytest.raises(DatasetError, match="--up: not used by the scannet layout"):
+        load_recording(tmp_path / "my scan", up=(0.0, 0.0, 1.0))
+
+
+@pytest.mark.shared
+@pytest.mark.slow
+def test_eval_recording_on_a_tum_recording_against_the_7scenes_ground_truth(
+    shared: type, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    seven = shared.path("data/7scenes-redkitchen/gt-boxes.json").parent
+    model = shared.path("models/yolo11n-seg-fp32-640.onnx")
+    root = build_tum_from_seven_scenes(seven, tmp_path / "my kitchen (TUM)", list(range(0, 1000, 60)))
+    out = tmp_path / "out" / "tum.json"
+    args = parser().parse_args(["eval", "recording", "--root", str(root), "--gt-boxes", str(seven / "gt-boxes.json"),
+                                "--detector", f"onnx:{model}", "--users", "1,3", "--runs", "1", "--stride", "2",
+                                "--out", str(out), "--no-progress", "--workers", "2"])  # fmt: skip
+    assert args.handler(args) == 0
+    results = json.loads(out.read_text())
+    assert (results["dataset"], results["sequence"], results["frames"]) == ("tum", "my_kitchen__TUM_", 9)
+    assert results["recording"]["dropped_frames"] == 1 and results["recording"]["depth_factor"] == 5000.0
+    assert results["gravity"]["source"].endswith("gt-boxes.json (up_axis_world)")
+    assert "gt-boxes.json aligned frame" in results["frame"]
+    rows = results["accuracy"]
+    assert [(r["approach"], r["users"], r["boxes"]) for r in rows] == [
+        ("centralized", 1, "observed"), ("centralized", 1, "amodal"), ("distributed", 3, "observed"), ("distributed", 3, "amodal")
+    ]  # fmt: skip
+    for row in rows:
+        assert all(math.isfinite(row[key]) for key in ("map25_mean", "map50_mean", "served_map25", "served_precision25"))
+        assert row["n_gt"] == 9 and {k for k, v in row["ap25_per_class"].items() if v is not None} == {"chair", "table", "tv"}
+    assert rows[0]["map25_mean"] > 0.0  # the frames, poses and ground truth line up: something matched
+    assert results["agreement"][0]["users"] == 3 and all(Path(p).is_file() for p in results["pictures"])
+    printed = capsys.readouterr().out
+    assert f"Accuracy against {seven / 'gt-boxes.json'} (observed boxes)" in printed
+    assert f"AP per class against {seven / 'gt-boxes.json'} (amodal boxes), IoU 0.25 / 0.5" in printed
+    assert f"wrote {out}" in printed
+
+
+#: The ground truth file of the rendered scene: its aligned frame is the scene's turned 90 degrees about z
+#: and moved; its world is the scan frame of the scene's poses.
+SCAN_ALIGNED2GT = np.array([[0.0, -1.0, 0.0, 0.3], [1.0, 0.0, 0.0, -0.2], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def write_scene_gt(path: Path) -> Path:
+    objects = []
+    for label in ("chair", "table"):
+        lo, hi = ROOM_PARTS[label]
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        moved = corners @ SCAN_ALIGNED2GT[:3, :3].T + SCAN_ALIGNED2GT[:3, 3]
+        box = {"aabb_observed_min": moved.min(0).tolist(), "aabb_observed_max": moved.max(0).tolist()}
+        objects.append({"id": label, "label": label, "visible_frames": [0, 15], **box,
+                        "aabb_min": box["aabb_observed_min"], "aabb_max": box["aabb_observed_max"]})  # fmt: skip
+    payload = {"gravity_aligned": {"world_to_aligned": (SCAN_ALIGNED2GT @ ALIGNMENT).tolist(), "objects": objects}}
+    path.write_text(json.dumps(payload))
+    return path
+
+
+@pytest.fixture
+def rendered_scene(tmp_path: Path) -> Path:
+    """A rendered ScanNet-layout scene (2 users x 8 frames) in a folder named 'my room'."""
+    scene = load_scannet_scene(build_room_scene(tmp_path / "mesh"))
+    render_scannet(scene, tmp_path / "data", users=2, frames_per_user=8, seed=0, width=160, height=120,
+                   intrinsics=Intrinsics(120.0, 120.0, 79.5, 59.5), walk=circle_walk)  # fmt: skip
+    (folder,) = [p for p in (tmp_path / "data").iterdir() if p.is_dir()]
+    return folder.rename(folder.parent / "my room")
+
+
+def test_eval_scannet_takes_a_scene_folder_of_any_name_and_a_ground_truth_file(rendered_scene: Path, tmp_path: Path) -> None:
+    gt = write_scene_gt(tmp_path / "room-gt.json")
+    out = tmp_path / "out" / "scannet.json"
+    args = parser().parse_args(["eval", "scannet", "--root", str(rendered_scene), "--gt-boxes", str(gt), "--detector", "gt-masks",
+                                "--users", "1,2", "--runs", "1", "--out", str(out), "--export", str(tmp_path / "exp"),
+                                "--no-progress", "--workers", "2"])  # fmt: skip
+    assert args.handler(args) == 0
+    results = json.loads(out.read_text())
+    assert results["table1"][0]["map25_mean"] == pytest.approx(1.0)
+    assert results["ground_truth"] == {"file": str(gt), "objects": ["chair", "table"], "boxes": "observed"}
+    (export,) = [json.loads(p.read_text()) for p in (tmp_path / "exp").glob("*_1_0.json")]
+    assert export["frame"].startswith("room-gt.json aligned frame")
+    np.testing.assert_allclose(export["world_from_export"], np.linalg.inv(SCAN_ALIGNED2GT @ ALIGNMENT), atol=1e-12)
+
+
+def test_eval_recording_on_a_scannet_scene_scores_against_its_annotation(
+    rendered_scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out" / "room.json"
+    args = parser().parse_args(["eval", "recording", "--root", str(rendered_scene), "--detector", f"gt-masks:{rendered_scene}",
+                                "--users", "1,2", "--runs", "1", "--out", str(out), "--no-progress", "--workers", "2"])  # fmt: skip
+    assert args.handler(args) == 0
+    results = json.loads(out.read_text())
+    assert results["dataset"] == "scannet" and results["ground_truth"]["box_kinds"] == ["observed"]
+    assert [(r["users"], r["boxes"]) for r in results["accuracy"]] == [(1, "observed"), (2, "observed")]
+    assert results["accuracy"][0]["map25_mean"] == pytest.approx(1.0)
+    assert results["accuracy"][0]["ap25_per_class"]["chair"] == pytest.approx(1.0)
+    assert "ScanNet axis-aligned frame" in results["frame"]
+    assert "(observed boxes)" in capsys.readouterr().out

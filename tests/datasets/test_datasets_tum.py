@@ -1,0 +1,214 @@
+"""The TUM RGB-D reader: a recording written from real 7-Scenes frames reads back as the 7-Scenes reader
+reads them; colour/depth association and pose interpolation at their edges; intrinsics and up, each from
+where it should come; malformed files named with what was expected."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from datasets_builders import TUM_RGB_DELAY_S, build_tum_from_seven_scenes, tum_time
+from scipy.spatial.transform import Rotation
+
+from arcloud.core.types import Intrinsics
+from arcloud.datasets.sevenscenes import load_seven_scenes
+from arcloud.datasets.tum import GENERIC_INTRINSICS, PUBLISHED_INTRINSICS, associate, interpolate_poses, load_tum
+from arcloud.errors import DatasetError
+
+SEVEN_SCENES = "data/7scenes-redkitchen"
+FRAMES = [0, 1, 2, 30, 300, 600]
+
+
+@pytest.fixture
+def seven_root(shared: type) -> Path:
+    return shared.path(f"{SEVEN_SCENES}/gt-boxes.json").parent
+
+
+# ---------------------------------------------------------------- association and interpolation
+
+
+def test_association_pairs_closest_first_within_the_limit() -> None:
+    assert associate([0.0, 1.0], [0.015, 1.03]) == [(0, 0)]  # 30 ms apart: no pair
+    assert associate([0.0, 0.01], [0.008]) == [(1, 0)]  # the closer one takes it
+    assert associate([0.0, 0.01, 0.5], [0.009, 0.003, 0.49]) == [(0, 1), (1, 0), (2, 2)]  # each used once
+    assert associate([0.0], [0.02]) == []  # less than 20 ms, as associate.py: 20 ms is out
+    assert associate([0.0, 0.01], [0.0, 0.01], max_difference_s=0.05) == [(0, 0), (1, 1)]
+    assert associate([], [0.0]) == [] and associate([0.0], []) == []
+
+
+def turn_z(degrees: float) -> np.ndarray:
+    return Rotation.from_euler("z", degrees, degrees=True).as_quat()
+
+
+def test_poses_are_interpolated_linearly_and_by_slerp() -> None:
+    times = np.array([10.00, 10.04])
+    positions = np.array([[0.0, 0.0, 0.0], [0.4, -0.8, 0.0]])
+    quaternions = np.array([turn_z(0.0), -turn_z(90.0)])  # the sign of a quaternion is no turn
+    poses, valid = interpolate_poses(times, positions, quaternions, np.array([10.01, 10.00, 10.04]))
+    assert valid.tolist() == [True, True, True]
+    np.testing.assert_allclose(poses[0, :3, 3], [0.1, -0.2, 0.0], atol=1e-9)
+    np.testing.assert_allclose(poses[0, :3, :3], Rotation.from_euler("z", 22.5, degrees=True).as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(poses[1, :3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(poses[2, :3, 3], positions[1], atol=1e-12)
+    np.testing.assert_allclose(poses[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))
+
+
+def test_across_a_gap_or_beyond_the_ends_the_nearest_pose_within_50_ms_or_none() -> None:
+    times = np.array([0.0, 1.0])
+    positions = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    quaternions = np.array([turn_z(0.0), turn_z(40.0)])
+    query = np.array([0.03, 0.5, 0.98, -0.04, -0.06, 1.04, 1.06])
+    poses, valid = interpolate_poses(times, positions, quaternions, query)
+    assert valid.tolist() == [True, False, True, True, False, True, False]
+    np.testing.assert_allclose(poses[[0, 3], :3, 3], [[0.0, 0, 0], [0.0, 0, 0]])  # no extrapolation, no blending
+    np.testing.assert_allclose(poses[[2, 5], :3, 3], [[1.0, 0, 0], [1.0, 0, 0]])
+    assert np.all(np.isnan(poses[~valid]))
+    one, ok = interpolate_poses(times[:1], positions[:1], quaternions[:1], np.array([0.01, 0.2]))
+    assert ok.tolist() == [True, False] and np.allclose(one[0], np.eye(4))
+
+
+# ---------------------------------------------------------------- a recording from real frames
+
+
+@pytest.mark.shared
+def test_a_recording_reads_back_as_the_7scenes_frames_it_was_made_of(
+    seven_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen (TUM copy)", FRAMES)
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
+        tum = load_tum(root, align_gravity=False, estimate_up=False)
+    assert "dropped 1 of 7 depth images: 0 without a colour image within 0.02 s, 1 without a pose within 0.05 s" in caplog.text
+    seven = load_seven_scenes(seven_root)
+    assert tum.name == "kitchen__TUM_copy_" and tum.frame_names == tuple(tum_time(n) for n in FRAMES)
+    assert tum.dropped_frames == (f"{float(tum_time(FRAMES[-1])) + 1.0:.6f}",)
+    assert tum.intrinsics == seven.intrinsics and tum.up_file is None and tum.world2gt is None
+    assert [p.name for p in tum.rgb_paths[:2]] == [f"{float(tum_time(n)) + TUM_RGB_DELAY_S:.6f}.png" for n in FRAMES[:2]]
+    for name, number in zip(tum.frame_names, FRAMES, strict=True):
+        ours, theirs = tum.load_frame(name), seven.load_frame(f"{number:06d}")
+        np.testing.assert_allclose(ours.depth_m, theirs.depth_m, atol=1e-6)
+        np.testing.assert_array_equal(ours.rgb, theirs.rgb)
+        # 7-Scenes rotations are orthonormal to about 1e-4; a quaternion is exactly a rotation
+        np.testing.assert_allclose(ours.cam2world, theirs.cam2world, atol=2e-4)
+        assert ours.frame_id == name and ours.map_id == tum.name and ours.registered
+    assert tum.load_frame(tum.frame_names[3]).timestamp_s == pytest.approx(1.0)
+
+
+@pytest.mark.shared
+def test_the_pose_time_offset_moves_each_frame_along_the_trajectory(seven_root: Path, tmp_path: Path) -> None:
+    root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen", [0, 1, 2])
+    plain = load_tum(root, align_gravity=False, estimate_up=False)
+    shifted = load_tum(root, align_gravity=False, estimate_up=False, pose_time_offset_s=1 / 60)  # half a frame later
+    assert shifted.frame_names == plain.frame_names
+    halfway = (plain.cam2world[0, :3, 3] + plain.cam2world[1, :3, 3]) / 2
+    np.testing.assert_allclose(shifted.cam2world[0, :3, 3], halfway, atol=1e-9)
+    np.testing.assert_allclose(shifted.cam2world[2], plain.cam2world[2], atol=1e-9)  # the last pose, 17 ms away
+
+
+@pytest.mark.shared
+def test_up_comes_from_the_first_source_there(seven_root: Path, tmp_path: Path) -> None:
+    root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen", list(range(0, 1000, 50)))
+    truth = np.asarray(json.loads((seven_root / "gt-boxes.json").read_text())["up_axis_world"])
+    estimated = load_tum(root)
+    assert estimated.up_source.startswith("estimated from") and estimated.up == pytest.approx((0.0, 0.0, 1.0))
+    assert np.degrees(np.arccos(estimated.up_file @ truth / np.linalg.norm(truth))) < 3.0
+    # the gravity-aligned world: a camera's pose turned, its position's height along up kept
+    np.testing.assert_allclose(
+        estimated.cam2world[0, 2, 3],
+        estimated.up_file @ load_tum(root, align_gravity=False, estimate_up=False).cam2world[0, :3, 3],
+    )
+    from_truth = load_tum(root, gt_boxes=seven_root / "gt-boxes.json")
+    assert from_truth.up_source.endswith("(up_axis_world)") and from_truth.ground_truth is not None
+    np.testing.assert_allclose(from_truth.up_file, truth / np.linalg.norm(truth), atol=1e-12)
+    np.savetxt(root / "gravity-direction.txt", [0.0, 1.0, 0.0])
+    assert load_tum(root, gt_boxes=seven_root / "gt-boxes.json").up_file.tolist() == [0.0, -1.0, 0.0]
+    given = load_tum(root, up=(0.0, 0.0, 2.0))
+    assert given.up_source == "given (--up)" and given.up_file.tolist() == [0.0, 0.0, 1.0]
+    np.testing.assert_allclose(given.world2file, np.eye(4))
+
+
+# ---------------------------------------------------------------- intrinsics and malformed files
+
+
+def write_tiny_tum(root: Path, *, n_frames: int = 3) -> Path:
+    """``n_frames`` 64x48 frames 1/30 s apart (colour 5 ms after depth), a camera moving 1 cm a frame."""
+    import cv2
+
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    rgb, depth, poses = [], [], []
+    for i in range(n_frames):
+        t = 100.0 + i / 30
+        cv2.imwrite(str(root / "rgb" / f"{i}.png"), np.full((48, 64, 3), 80, np.uint8))
+        cv2.imwrite(str(root / "depth" / f"{i}.png"), np.full((48, 64), 10000, np.uint16))
+        rgb.append(f"{t + 0.005:.6f} rgb/{i}.png")
+        depth.append(f"{t:.6f} depth/{i}.png")
+        poses.append(f"{t:.6f} {i * 0.01} 0 0 0 0 0 1")
+    (root / "rgb.txt").write_text("# colour\n" + "\n".join(rgb) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth) + "\n")
+    (root / "groundtruth.txt").write_text("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(poses) + "\n")
+    return root
+
+
+def test_intrinsics_given_from_a_file_by_the_folder_name_or_generic(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    fr3 = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg3_long_office_household"), estimate_up=False)
+    assert fr3.intrinsics == PUBLISHED_INTRINSICS["freiburg3"] == Intrinsics(535.4, 539.2, 320.1, 247.6)
+    assert load_tum(write_tiny_tum(tmp_path / "freiburg2_desk"), estimate_up=False).intrinsics.fx == 520.9
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
+        plain = load_tum(write_tiny_tum(tmp_path / "my room"), estimate_up=False)
+    assert plain.intrinsics == GENERIC_INTRINSICS and "using the generic" in caplog.text
+    (tmp_path / "my room" / "intrinsics.txt").write_text("500 501 320 240\n")
+    assert load_tum(tmp_path / "my room", estimate_up=False).intrinsics == Intrinsics(500.0, 501.0, 320.0, 240.0)
+    given = Intrinsics(1.0, 2.0, 3.0, 4.0)
+    assert load_tum(tmp_path / "my room", intrinsics=given, estimate_up=False).intrinsics == given
+    frame = plain.load_frame(plain.frame_names[1])
+    np.testing.assert_allclose(frame.depth_m, 2.0)  # 10000 / 5000
+    np.testing.assert_allclose(frame.cam2world[:3, 3], [0.01, 0.0, 0.0])
+    half = load_tum(tmp_path / "my room", depth_factor=10000.0, estimate_up=False)
+    np.testing.assert_allclose(half.load_frame(half.frame_names[0]).depth_m, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("file", "text", "message"),
+    [
+        ("rgb.txt", "1.0 rgb/0.png extra\n", r"rgb.txt:1: expected 'timestamp path' \(2 fields\), got '1.0 rgb/0.png extra'"),
+        ("depth.txt", "# only comments\n", r"depth.txt: expected lines 'timestamp path', got none"),
+        ("depth.txt", "noon depth/0.png\n", r"depth.txt:1: expected a timestamp in seconds first, got 'noon'"),
+        ("groundtruth.txt", "100.0 0 0 0 0 0 0\n", r"groundtruth.txt:1: expected 'timestamp tx ty tz qx qy qz qw' \(8 fields\)"),
+        ("groundtruth.txt", "100.0 0 0 0 0 0 0 2\n", r"expected unit quaternions qx qy qz qw, got norm 2.0000 at time 100.0"),
+        ("groundtruth.txt", "100.0 0 0 nan 0 0 0 1\n", r"expected finite poses"),
+        ("groundtruth.txt", "100.0 0 0 0 0 0 0 1\n100.0 1 0 0 0 0 0 1\n", "expected one pose per timestamp, got two at 100.0"),
+        ("groundtruth.txt", "500.0 0 0 0 0 0 0 1\n", "expected depth images with a colour image and a pose, got none of 3"),
+        (
+            "intrinsics.txt",
+            "1 2 3 4 5\n",
+            r"intrinsics.txt: expected 4, 9 or 16 numbers \(fx fy cx cy, or a camera matrix\), got 5",
+        ),
+        ("intrinsics.txt", "-1 2 3 4\n", "expected finite intrinsics with positive focal lengths"),
+        (
+            "gravity-direction.txt",
+            "0 0 0\n",
+            r"gravity-direction.txt: expected 3 finite numbers, not all 0, got \[0.0, 0.0, 0.0\]",
+        ),
+    ],
+)
+def test_malformed_files_are_named(tmp_path: Path, file: str, text: str, message: str) -> None:
+    root = write_tiny_tum(tmp_path / "room")
+    (root / file).write_text(text)
+    with pytest.raises(DatasetError, match=message):
+        load_tum(root, estimate_up=False)
+
+
+def test_missing_files_and_options_are_named(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="expected a TUM RGB-D folder, got no such folder"):
+        load_tum(tmp_path / "nowhere")
+    root = write_tiny_tum(tmp_path / "room")
+    with pytest.raises(DatasetError, match="depth factor: expected a positive number of depth units a metre, got 0.0"):
+        load_tum(root, depth_factor=0.0)
+    (root / "groundtruth.txt").unlink()
+    with pytest.raises(DatasetError, match=r"expected groundtruth.txt \(TUM RGB-D layout\), got no such file"):
+        load_tum(root)
+    with pytest.raises(DatasetError, match="gt.json: expected a readable ground-truth file"):
+        load_tum(write_tiny_tum(tmp_path / "other"), gt_boxes=tmp_path / "gt.json", estimate_up=False)
