@@ -345,7 +345,7 @@ class Params:
     confirm_min_frames: int = 3
     confirm_min_detection_rate: float = 0.4
     confirm_min_score: float = 0.2
-    confirm_evidence_frames: int = 20  # detected in this many frames: the score need not reach confirm_min_score (0: off)
+    confirm_evidence_frames: int = 15  # detected in this many frames: the score need not reach confirm_min_score (0: off)
     # Phantoms (core.confirm.is_phantom): seen in this many frames, detected in fewer than this share (0: never): deleted
     discard_min_sightings: int = 50
     discard_max_detection_rate: float = 0.1
@@ -364,7 +364,7 @@ class Params:
     floor_min_votes: int = 2
     floor_min_vote_share: float = 0.25
     floor_clearance_m: float = 0.04
-    floor_ring_margin_m: float = 0.1  # a frame votes for the floor under an object when it sees the floor beside it:
+    floor_ring_margin_m: float = 0.12  # a frame votes for the floor under an object when it sees the floor beside it:
     floor_ring_min_seen: int = 1  # this many of 8 points around its footprint, this far outside (0: no check)
     floor_standing: tuple[str, ...] = ("chair", "table", "couch")
     floor_reach_max_m: float = 1.0
