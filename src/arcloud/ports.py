@@ -81,6 +81,7 @@ class ObjectMeta:
     confirmed: bool = False
     floor_votes: dict[int, int] = field(default_factory=dict)
     label_purity: float = 0.0
+    apart: dict[int, int] = field(default_factory=dict)
 
     @property
     def n_devices(self) -> int:

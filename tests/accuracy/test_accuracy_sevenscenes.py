@@ -30,7 +30,7 @@ def test_without_the_sequence_the_suite_says_where_it_looked(tmp_path: Path) -> 
 @pytest.mark.slow
 def test_quick_suite_on_the_real_sequence(shared: type, tmp_path: Path) -> None:
     root = shared.path("data/7scenes-redkitchen/gt-boxes.json").parent
-    shared.path("models/yolov8n-seg-fp32-640.onnx")
+    shared.path("models/yolo11n-seg-fp32-640.onnx")
     result = run_suite(quick=True, out_dir=tmp_path, shared=shared.root)
     _check_record(result, tmp_path)
     _check_figures(result)

@@ -1,5 +1,7 @@
 """Two objects of one class side by side stay two: a mask that spans both (a detector's merged
-instance) is shared out between them instead of welding them (core.fusion.split_detection)."""
+instance) is shared out between them instead of welding them (core.fusion.split_detection), and two
+objects that frames detected apart are never merged (core.fusion.seen_apart); one object seen in parts,
+never two at once, becomes one."""
 
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ def frames(n, first=0):
 
 @pytest.mark.parametrize("split", [True, False])
 def test_a_mask_spanning_two_tvs_does_not_weld_them(split):
-    params = PARAMS if split else PARAMS.replace(split_min_frames=10**9)  # no rival is ever established
+    # Without the split rule (no rival is ever established) nor the apart rule: welded, as it once was.
+    params = PARAMS if split else PARAMS.replace(split_min_frames=10**9, apart_min_frames=0)
     store = MemoryStore()
     for frame, instance in frames(4):  # seen apart first
         integrate_frame(frame, [Detection("tv", 0.9, instance == 0), Detection("tv", 0.9, instance == 1)], store, params)
@@ -40,19 +43,46 @@ def test_a_mask_spanning_two_tvs_does_not_weld_them(split):
         assert obj.n_frames == 10  # the merged masks counted as a view of each
 
 
+def couch_frame(i, halves):
+    eye = (0.3 * np.sin(i), 0.0, 1.3)
+    return scene_frame(look_down_pose(eye, (0.0, 2.0, 0.4)), halves, floor_z=None, frame_id=f"f{i}")
+
+
+HALVES = [((-0.9, 1.6, 0.0), (0.0, 2.4, 0.8)), ((0.0, 1.6, 0.0), (0.9, 2.4, 0.8))]
+
+
 def test_a_couch_seen_in_parts_is_joined_by_a_mask_that_spans_them():
-    # A couch's two halves first seen apart (two objects), then whole: large objects are seen in parts
-    # more often than side by side, so the spanning mask is not shared out and the merge pass joins them.
-    halves = [((-0.9, 1.6, 0.0), (0.0, 2.4, 0.8)), ((0.0, 1.6, 0.0), (0.9, 2.4, 0.8))]
+    # A couch's two halves first seen in turn (two objects: never two masks in one frame), then whole:
+    # the spanning mask is not shared out and the merge pass joins them.
     store = MemoryStore()
     for i in range(4):
-        eye = (0.3 * np.sin(i), 0.0, 1.3)
-        frame, instance = scene_frame(look_down_pose(eye, (0.0, 2.0, 0.4)), halves, floor_z=None, frame_id=f"f{i}")
-        integrate_frame(frame, [Detection("couch", 0.9, instance == 0), Detection("couch", 0.9, instance == 1)], store, PARAMS)
+        frame, instance = couch_frame(i, HALVES)
+        integrate_frame(frame, [Detection("couch", 0.9, instance == i % 2)], store, PARAMS)
     assert len(store.list_objects("m")) == 2
     for i in range(4, 10):
-        eye = (0.3 * np.sin(i), 0.0, 1.3)
-        frame, instance = scene_frame(look_down_pose(eye, (0.0, 2.0, 0.4)), halves, floor_z=None, frame_id=f"f{i}")
+        frame, instance = couch_frame(i, HALVES)
         integrate_frame(frame, [Detection("couch", 0.9, instance >= 0)], store, PARAMS)
     (couch,) = store.list_objects("m")
     assert couch.aabb.size[0] > 1.4  # both halves (each 0.9 m)
+
+
+@pytest.mark.parametrize("frames_apart", [2, 3])
+def test_two_couches_detected_apart_in_enough_frames_stay_two(frames_apart):
+    # Two couches pushed together (no class the split rule covers) detected as two masks in one frame:
+    # from apart_min_frames (3) such frames on, a mask spanning both is shared out and they are never merged.
+    store = MemoryStore()
+    for i in range(frames_apart):
+        frame, instance = couch_frame(i, HALVES)
+        integrate_frame(frame, [Detection("couch", 0.9, instance == 0), Detection("couch", 0.9, instance == 1)], store, PARAMS)
+    for i in range(frames_apart, 10):
+        frame, instance = couch_frame(i, HALVES)
+        integrate_frame(frame, [Detection("couch", 0.9, instance >= 0)], store, PARAMS)
+    objects = sorted(store.list_objects("m"), key=lambda o: o.aabb.min[0])
+    if frames_apart < PARAMS.apart_min_frames:
+        assert len(objects) == 1 and objects[0].aabb.size[0] > 1.4
+        return
+    assert len(objects) == 2
+    for obj, (lo, hi) in zip(objects, HALVES):
+        assert obj.aabb.min[0] == pytest.approx(lo[0], abs=0.15) and obj.aabb.max[0] == pytest.approx(hi[0], abs=0.15)
+    left, right = objects
+    assert left.apart.get(right.id, 0) >= frames_apart or right.apart.get(left.id, 0) >= frames_apart

@@ -28,7 +28,16 @@ from arcloud.eval.protocol import object_boxes
 
 SPLITS = ("tune", "report")
 #: Figures of a run that ``summarise`` reports (mean and worst); higher is better for all of them.
-FIGURES = ("map25", "map50", "served_map25", "served_precision25", "served_recall25", "served_precision50", "served_recall50")
+FIGURES = (
+    "map25",
+    "map50",
+    "served_map25",
+    "served_map50",
+    "served_precision25",
+    "served_recall25",
+    "served_precision50",
+    "served_recall50",
+)
 
 
 def score_run(objects: Sequence[MapObject], ground_truth: Sequence[LabelledBox], *, scene: str = "scene") -> dict[str, Any]:

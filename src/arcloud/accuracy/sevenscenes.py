@@ -1,5 +1,5 @@
-"""The 7-Scenes suite: the real redkitchen sequence (1000 frames, Kinect v1) through the real
-YOLOv8n-seg model, scored against its hand-checked boxes (``gt-boxes.json``: 1 table, 6 chairs, 2 TVs).
+"""The 7-Scenes suite: the real redkitchen sequence (1000 frames, Kinect v1) through a real model
+(YOLO11n-seg by default, YOLOv8n-seg beside it: ``MODELS_REL``), scored against its hand-checked boxes (``gt-boxes.json``: 1 table, 6 chairs, 2 TVs).
 
 Boxes are fitted and scored in the ground truth's aligned frame (z up, floor at z = 0, x along the
 walls): ``Params.world2aligned`` is the sequence's ``world2gt``, as ScanNet scores in its axis-aligned
@@ -44,7 +44,8 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 SEQUENCE_REL = "data/7scenes-redkitchen"
-MODEL_REL = "models/yolov8n-seg-fp32-640.onnx"
+#: The models the suite runs, by name (the first is the default): YOLO11n-seg, and YOLOv8n-seg beside it.
+MODELS_REL = {"yolo11n": "models/yolo11n-seg-fp32-640.onnx", "yolov8n": "models/yolov8n-seg-fp32-640.onnx"}
 USERS = 10
 RUNS = 3
 QUICK_RUNS = 1
@@ -96,8 +97,10 @@ def run_suite(
     runs: int | None = None,
     stride: int | None = None,
     workers: int = 2,
+    model: str = next(iter(MODELS_REL)),
 ) -> dict[str, Any]:
-    """Map and score every case (see the module docstring): ``runs`` distributed runs per case (default
+    """Map and score every case (see the module docstring) with the detector ``model`` (a name of
+    ``MODELS_REL``): ``runs`` distributed runs per case (default
     ``QUICK_RUNS`` when ``quick``, else ``RUNS``) on every ``stride``-th frame (default ``QUICK_STRIDE``
     when ``quick``, else 1). Returns ``{"suite": "7scenes", "cases": [...], "summary": summarise(cases),
     "summary_amodal": ..., ...}`` (see ``arcloud.accuracy.common``). ``shared``: the folder holding
@@ -110,17 +113,20 @@ def run_suite(
 
     started = time.perf_counter()
     shared_dir = Path(shared if shared is not None else default_shared_dir())
-    root, model = shared_dir / SEQUENCE_REL, shared_dir / MODEL_REL
+    if model not in MODELS_REL:
+        raise DatasetError(f"model: expected one of {list(MODELS_REL)}, got {model!r}")
+    model_name, model_path = model, shared_dir / MODELS_REL[model]
+    root = shared_dir / SEQUENCE_REL
     if not (root / "gt-boxes.json").is_file():
         raise DatasetError(f"{root}: expected the 7-Scenes redkitchen sequence with gt-boxes.json, got no gt-boxes.json there")
-    if not model.is_file():
-        raise DatasetError(f"{model}: expected the YOLOv8n-seg ONNX model, got no such file")
+    if not model_path.is_file():
+        raise DatasetError(f"{model_path}: expected the {model_name} ONNX model, got no such file")
     n_runs = runs if runs is not None else (QUICK_RUNS if quick else RUNS)
     step = stride if stride is not None else (QUICK_STRIDE if quick else 1)
     sequence = load_seven_scenes(root, align_gravity=True)
     frame = seven_scenes_export_frame(sequence)
     params = frame.params(params if params is not None else Params())
-    detector = CachedDetector(make_detector(f"onnx:{model}"))
+    detector = CachedDetector(make_detector(f"onnx:{model_path}"))
     out_dir = Path(out_dir)
     records = [
         evaluate_case(sequence, case, detector, params, frame, runs=n_runs, stride=step, workers=workers, out_dir=out_dir)
@@ -131,7 +137,7 @@ def run_suite(
         "suite": "7scenes",
         "quick": quick,
         "sequence": sequence.name,
-        "model": model.name,
+        "model": model_path.name,
         "ground_truth": str(root / "gt-boxes.json"),
         "primary_boxes": "observed",
         "frame": frame.description,

@@ -178,9 +178,10 @@ def hungarian_match(cost: np.ndarray) -> list[tuple[int, int]]:
 class Association:
     """pairs: (detection index, object index). unmatched: detection indices without an object, in
     order. rivals: matched detection index -> other objects of its label that it also covers (a mask
-    spanning two TVs side by side): fusing all of it into its match would weld them together. Only for
-    ``split_classes``: chairs, TVs and laptops stand side by side in rooms, while a table or a couch
-    that a detection spans with another of its kind is more often one object first seen in parts."""
+    spanning two TVs side by side): fusing all of it into its match would weld them together. For
+    ``split_classes`` (chairs, TVs and laptops stand side by side in rooms, while a table or a couch
+    that a detection spans with another of its kind is more often one object first seen in parts), and
+    for any class when frames saw the two apart (``core.fusion.seen_apart``: two desks pushed together)."""
 
     pairs: list[tuple[int, int]]
     unmatched: list[int]
@@ -196,10 +197,12 @@ def associate(
     *,
     object_bounds: Sequence[np.ndarray | None] | None = None,
     object_frames: Sequence[int] | None = None,
+    seen_apart: np.ndarray | None = None,
 ) -> Association:
     """Match detections to objects. ``object_bounds``: known (2, 3) voxel-index bounds (see
     overlap_matrix). ``object_frames``: how many frames each object was seen in; only objects seen in
-    at least ``split_min_frames`` are rivals (a younger one is more likely a fragment to merge)."""
+    at least ``split_min_frames`` are rivals (a younger one is more likely a fragment to merge).
+    ``seen_apart``: (O, O) bool, pairs of objects that frames saw apart: rivals whatever their class."""
     overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels, bounds_b=object_bounds)
     pairs = hungarian_match(association_cost(overlap, detection_labels, object_labels, params))
     matched = {d for d, _ in pairs}
@@ -210,9 +213,13 @@ def associate(
     rivals: dict[int, list[int]] = {}
     splittable = {CLASS_INDEX[name] for name in params.split_classes}
     for d, o in pairs:
-        if detection_labels[d] not in splittable:
+        apart = None if seen_apart is None or not seen_apart[o].any() else seen_apart[o]
+        if detection_labels[d] not in splittable and apart is None:
             continue
-        covered = np.flatnonzero((overlap[d] >= params.association_min_overlap) & (labels == detection_labels[d]) & established)
+        rival = established if detection_labels[d] in splittable else np.zeros(len(object_keys), bool)
+        if apart is not None:
+            rival = rival | apart
+        covered = np.flatnonzero((overlap[d] >= params.association_min_overlap) & (labels == detection_labels[d]) & rival)
         others = [int(j) for j in covered if j != o]
         if others:
             rivals[d] = others

@@ -13,7 +13,10 @@ score = mean detection score x purity x (1 - exp(-n_frames / score_support_frame
 times ``implausible_score_factor`` for a box no object of its class has. It ranks objects for AP.
 
 Confirmed: at least ``confirm_min_frames`` frames, a detection rate of at least
-``confirm_min_detection_rate``, a plausible box and a score of at least ``confirm_min_score``. The rule
+``confirm_min_detection_rate``, a plausible box and a score of at least ``confirm_min_score`` — or, in
+place of the score, detections in at least ``confirm_evidence_frames`` frames: a model may score a class
+low (a desk seen in parts, a dark screen) and still find it in most of the frames that see it, which a
+phantom never does for long. The rule
 is evaluated at every refinement and whenever a frame misses the object, so a confirmed object whose
 evidence weakens (it was carried out of the room, or it was a phantom seen long enough) becomes
 tentative again. The number of devices is not evidence: in the multi-user protocol it reflects how the
@@ -97,7 +100,7 @@ def evidence(obj: MapObject, params: Params, *, n_missed: int | None = None) -> 
         obj.n_frames >= params.confirm_min_frames
         and rate >= params.confirm_min_detection_rate
         and is_plausible
-        and score >= params.confirm_min_score
+        and (score >= params.confirm_min_score or obj.n_frames >= params.confirm_evidence_frames > 0)
     )
     return score, confirmed
 

@@ -8,7 +8,11 @@ frame that sees only a table top or a seat offers no floor rather than a wrong o
 of the whole view, not of the spot under an object: a coffee table often hides the floor right under
 it, seldom the floor of the whole view.
 
-Every object seen in a frame takes one vote for the frame's floor, when it lies below the object. An
+Every object seen in a frame takes one vote for the frame's floor, when it lies below the object and the
+frame does not see the floor beside it hidden (``floor_beside_seen``: of the points around its footprint at
+floor height, ``floor_ring_margin_m`` outside it, fewer than ``floor_ring_min_seen`` show the floor and the
+others something in front of it): a chair pushed under a table, whose legs no frame sees, gets no vote,
+and its box stays what was seen of it (the observed box, which ScanNet's ground truth and ours score). An
 object's floor is the lowest height its votes support: the lowest bin with at least
 ``floor_min_votes`` votes and ``floor_min_vote_share`` of the most-voted bin's (frames that saw only a
 table top vote higher, never lower). Votes add up, so an object's floor does not depend on the order in
@@ -30,11 +34,13 @@ FLOOR_GRID_COLUMNS = 80  # depth samples for normals: about 80 across (a VGA fra
 
 @dataclass(frozen=True, eq=False, slots=True)
 class FrameFloor:
-    """A frame's floor: its height (metres along up; None: this frame offers none), and the rotation
-    that gives ground coordinates (x, y) and height (z) of a world point: ``world2gravity @ p``."""
+    """A frame's floor: its height (metres along up; None: this frame offers none), the rotation that
+    gives ground coordinates (x, y) and height (z) of a world point (``world2gravity @ p``), and the
+    frame whose depth tells whether the floor beside an object is in view (None: not checked)."""
 
     height_m: float | None
     world2gravity: np.ndarray
+    frame: Frame | None = None
 
     def vote_for(self, points_xyz: np.ndarray, params: Params) -> int | None:
         """The height bin this frame votes for as the floor under an object of points (N, 3) in world
@@ -44,7 +50,38 @@ class FrameFloor:
         lowest = float((np.asarray(points_xyz, np.float64).reshape(-1, 3) @ self.world2gravity[2]).min())
         if self.height_m > lowest + params.floor_bin_m:
             return None
+        if self.frame is not None and not floor_beside_seen(self.frame, points_xyz, self.height_m, self.world2gravity, params):
+            return None
         return height_bin(self.height_m, params)
+
+
+#: Where around a footprint the floor is looked at: its rectangle's corners and side midpoints, as unit offsets.
+_RING = np.array([[-1, -1], [0, -1], [1, -1], [1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0]], np.float64)
+
+
+def floor_beside_seen(frame: Frame, points_xyz: np.ndarray, floor_m: float, world2gravity: np.ndarray, params: Params) -> bool:
+    """Whether the frame may see the floor beside an object of points (N, 3): of 8 points at height
+    ``floor_m`` around the ground rectangle of the points (corners and side midpoints, each
+    ``floor_ring_margin_m`` outside it), at least ``floor_ring_min_seen`` land in the image where nothing
+    stands in front of them (the depth measured is not ``visibility_tolerance_m`` nearer), or too few land
+    where depth was measured to tell (a large table whose surroundings are out of view)."""
+    ground = np.asarray(points_xyz, np.float64).reshape(-1, 3) @ world2gravity[:2].T
+    lo, hi = ground.min(axis=0), ground.max(axis=0)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2 + params.floor_ring_margin_m
+    ring = np.column_stack([centre + _RING * half, np.full(len(_RING), floor_m)]) @ world2gravity  # gravity -> world
+    rotation, origin = frame.cam2world[:3, :3], frame.cam2world[:3, 3]
+    cam = (ring - origin) @ rotation
+    z = cam[:, 2]
+    intr = frame.intrinsics
+    height, width = frame.depth_m.shape
+    ahead = z > params.depth_min_m
+    u = np.floor(cam[ahead, 0] * intr.fx / z[ahead] + intr.cx + 0.5)
+    v = np.floor(cam[ahead, 1] * intr.fy / z[ahead] + intr.cy + 0.5)
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    measured = frame.depth_m[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+    hidden = (measured > 0) & (measured < z[ahead][inside] - params.visibility_tolerance_m)
+    n_seen = int(np.count_nonzero((measured > 0) & ~hidden))
+    return n_seen >= params.floor_ring_min_seen or n_seen + int(np.count_nonzero(hidden)) < params.floor_ring_min_seen
 
 
 def height_bin(height_m: float, params: Params) -> int:
@@ -90,7 +127,7 @@ def frame_floor(frame: Frame, params: Params) -> FrameFloor:
         dense &= camera_height - centres >= params.floor_min_below_camera_m
         if dense.any():
             floor = float(centres[np.flatnonzero(dense)[0]])
-    return FrameFloor(floor, rotation)
+    return FrameFloor(floor, rotation, frame if params.floor_ring_min_seen else None)
 
 
 def floor_height(votes: Mapping[int, int], params: Params) -> float | None:

@@ -10,7 +10,7 @@ import numpy as np
 from arcloud.core.associate import index_bounds_of_sets, overlap_matrix, stored_index_bounds_of
 from arcloud.core.floor import add_votes
 from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
-from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, mean_colors, sorted_unique
+from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, keys_extent, mean_colors, sorted_unique, unpack_keys
 
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
@@ -94,12 +94,12 @@ def fuse_detection(
     obj: MapObject, det: VoxelDetection, device_id: str, visible: np.ndarray | None = None, floor_vote: int | None = None
 ) -> MapObject:
     """The object with one more observation: each voxel the detection covers gains weight 1, a vote
-    of the detection's score (``vote_of``) for its label and the detection's colour into its mean; every voxel
+    of the detection's score times its view weight (``vote_of``) for its label and the detection's colour into its mean; every voxel
     covered or ``visible`` ((N,) bool over the object's voxels: in view and not occluded in this frame)
     is counted as seen once more. Seen again, it has not been seen gone since (``n_gone`` 0).
     ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
     det_votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
-    det_votes[:, det.label_index] = vote_of(det.score)
+    det_votes[:, det.label_index] = max(vote_of(det.score * det.view_weight), np.float32(VOTE_STEP))
     ones = np.ones(det.keys.size, np.float32)
     keys, weights, seen, votes, colors, at_obj, at_det = _union_arrays(obj, det.keys, ones, ones, det_votes, det.colors)
     if visible is not None and visible.any():
@@ -124,7 +124,8 @@ def fuse_detection(
 def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: int) -> list[VoxelDetection]:
     """The detection's voxels shared out among objects (``owners``: their keys; the first is the one it
     was matched to): a voxel goes to a later owner when its coarse voxel (``factor`` times coarser) is
-    that owner's and not the first's; every other voxel goes to the first. One part per owner, in order
+    that owner's and not the first's; a voxel in no owner's coarse voxels goes to the owner whose voxel
+    bounds are nearest (the first on ties); the rest go to the first. One part per owner, in order
     (possibly empty)."""
     coarse = coarsen_keys_unsorted(det.keys, factor)
     owner = np.zeros(det.keys.size, np.int64)
@@ -133,8 +134,22 @@ def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: i
         mine = ~taken & np.isin(coarse, coarsen_keys(keys, factor))
         owner[mine] = i
         taken |= mine
+    if not taken.all():
+        free = np.flatnonzero(~taken)
+        ijk = unpack_keys(det.keys[free])
+        gaps = []
+        for keys in owners:
+            if keys.size == 0:
+                gaps.append(np.full(free.size, np.inf))
+                continue
+            lo, hi = keys_extent(keys)
+            gaps.append(np.linalg.norm(np.maximum(lo - ijk, 0) + np.maximum(ijk - hi, 0), axis=1))
+        owner[free] = np.argmin(np.stack(gaps), axis=0)
     parts = [owner == i for i in range(len(owners))]
-    return [VoxelDetection(det.label_index, det.score, det.keys[p], None if det.colors is None else det.colors[p]) for p in parts]
+    return [
+        VoxelDetection(det.label_index, det.score, det.keys[p], None if det.colors is None else det.colors[p], det.view_weight)
+        for p in parts
+    ]
 
 
 def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float, floor_vote: int | None = None) -> MapObject:
@@ -154,6 +169,7 @@ def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,
         created_at_s=min(keep.created_at_s, absorbed.created_at_s),
+        apart={i: n for i, n in add_votes(keep.apart, absorbed.apart).items() if i not in (keep.id, absorbed.id)},
     )
 
 
@@ -182,9 +198,17 @@ def current_label_index(obj: MapObject, changed: bool = True) -> int:
     return object_label_index(obj)
 
 
+def seen_apart(a: MapObject, b: MapObject, params: Params) -> bool:
+    """Whether frames detected ``a`` and ``b`` as two instances in one view (``core.step.mark_apart``)
+    often enough (``apart_min_frames``; 0: never) to keep them two."""
+    frames = max(a.apart.get(b.id, 0), b.apart.get(a.id, 0))
+    return params.apart_min_frames > 0 and frames >= params.apart_min_frames
+
+
 def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Sequence[bool] | None = None) -> list[tuple[int, int]]:
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
-    overlap >= ``merge_min_overlap``. Chains resolve to one keeper per group (the most observed).
+    overlap >= ``merge_min_overlap``, unless frames saw them apart (``seen_apart``). Chains resolve to one
+    keeper per group (the most observed), and a chain never joins two objects seen apart.
     With ``changed``, only pairs with at least one changed object are considered (the others were
     checked when they last changed)."""
     if len(objects) < 2:
@@ -218,8 +242,13 @@ def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Seque
             i = parent[i]
         return i
 
+    members_of = {i: [i] for i in range(len(objects))}
     for i, j in zip(*np.nonzero(np.triu(same))):
-        parent[root(int(i))] = root(int(j))
+        ri, rj = root(int(i)), root(int(j))
+        if ri == rj or any(seen_apart(objects[a], objects[b], params) for a in members_of[ri] for b in members_of[rj]):
+            continue
+        parent[ri] = rj
+        members_of[rj] += members_of.pop(ri)
     groups: dict[int, list[int]] = {}
     for i in range(len(objects)):
         groups.setdefault(root(i), []).append(i)

@@ -28,13 +28,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arcloud.core.associate import associate, stored_index_bounds_of
+from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.checks import check_detections
 from arcloud.core.confirm import evidence, is_phantom
 from arcloud.core.errors import LockTimeout, TooManyCells
-from arcloud.core.floor import FrameFloor, frame_floor
+from arcloud.core.floor import FrameFloor, add_votes, frame_floor
 from arcloud.core.fusion import (
     current_label_index,
     find_duplicates,
@@ -42,11 +42,20 @@ from arcloud.core.fusion import (
     merge_objects,
     new_object,
     resolve_conflicts,
+    seen_apart,
     split_detection,
 )
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
-from arcloud.core.voxels import center_rays, free_voxels, key_centers, keys_bounds, visible_voxels_of_sets, voxelize_detections
+from arcloud.core.voxels import (
+    center_rays,
+    free_voxels,
+    key_centers,
+    keys_bounds,
+    keys_extent,
+    visible_voxels_of_sets,
+    voxelize_detections,
+)
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +128,7 @@ def integrate_frame(
         # What changed is tracked by id: ``voxels_changed`` objects are refined before they are written,
         # ``rescored`` ones (a miss moved their score) are written as they are, the rest are left alone.
         stored = {o.id: o for o in store.get(frame.map_id, visible_ids)}
-        objects, unmatched, voxels_changed = fuse_matches(list(stored.values()), observations, params, frame, floor)
+        objects, unmatched, voxels_changed, taken = fuse_matches(list(stored.values()), observations, params, frame, floor)
         misses = count_misses(objects, voxels_changed, frame, params)
         objects, rescored = misses.objects, misses.rescored
         result.matched = len(observations) - len(unmatched)
@@ -127,13 +136,15 @@ def integrate_frame(
         leases: list[Lease] = [lease]
         try:
             if unmatched:
-                claims, late, late_and_new, late_changed = create_under_claim(
+                claims, late, late_and_new, late_changed, late_taken = create_under_claim(
                     store, frame, unmatched, visible_ids, params, now_s, floor
                 )
                 leases += claims
                 stored.update({o.id: o for o in late})
                 objects += late_and_new
                 voxels_changed |= late_changed
+                taken += late_taken
+            objects = mark_apart(objects, taken, params)
             objects, absorbed_into = merge_duplicates(objects, voxels_changed, params)
             objects, trimmed = resolve_shared_voxels(objects)
             voxels_changed |= set(absorbed_into.values()) | trimmed
@@ -205,12 +216,12 @@ def fuse_matches(
     params: Params,
     frame: Frame,
     floor: FrameFloor | None = None,
-) -> tuple[list[MapObject], list[VoxelDetection], set[int]]:
+) -> tuple[list[MapObject], list[VoxelDetection], set[int], list[tuple[VoxelDetection, int]]]:
     """Associate observations with objects (Hungarian) and fuse the pairs, counting which voxels of a
     matched object the frame saw; returns the objects (fused ones replaced), the observations left
-    unmatched and the ids of the fused objects."""
+    unmatched, the ids of the fused objects and the matched pairs (observation, object id)."""
     if not observations:
-        return objects, [], set()
+        return objects, [], set(), []
     association = associate(
         [o.keys for o in observations],
         [o.label_index for o in observations],
@@ -219,6 +230,7 @@ def fuse_matches(
         params,
         object_bounds=stored_index_bounds_of(objects, params.voxel_size_m),
         object_frames=[o.n_frames for o in objects],
+        seen_apart=apart_matrix(objects, params),
     )
     matched = {o for _, o in association.pairs}
     views: dict[int, VoxelDetection] = {}
@@ -241,7 +253,63 @@ def fuse_matches(
     for (o, view), visible_of_o in zip(viewed, visible):
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
-    return fused, [observations[d] for d in association.unmatched], fused_ids
+    taken = [(observations[d], objects[o].id) for d, o in association.pairs]
+    return fused, [observations[d] for d in association.unmatched], fused_ids, taken
+
+
+def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | None:
+    """(O, O) bool: the pairs of ``objects`` that frames saw apart (``seen_apart``); None when there is none."""
+    if not any(o.apart for o in objects):
+        return None
+    index = {o.id: i for i, o in enumerate(objects)}
+    out = np.zeros((len(objects), len(objects)), bool)
+    for i, obj in enumerate(objects):
+        for other in obj.apart:
+            j = index.get(other)
+            if j is not None and seen_apart(obj, objects[j], params):
+                out[i, j] = out[j, i] = True
+    return out
+
+
+def mark_apart(objects: list[MapObject], taken: Sequence[tuple[VoxelDetection, int]], params: Params) -> list[MapObject]:
+    """Two detections of one class in this frame that share few voxels (coarse overlap below
+    ``association_min_overlap``) are two instances the frame saw apart: the objects that took them
+    (``taken``: (observation, object id) of every observation fused into an object or made one), when not
+    the same, count one more frame apart from each other (``MapObject.apart``; ``core.fusion.seen_apart``
+    keeps them from being merged, and a later mask spanning both is shared out between them)."""
+    if params.apart_min_frames == 0:
+        return objects
+    by_label: dict[int, list[tuple[VoxelDetection, int]]] = {}
+    for observation, object_id in taken:
+        by_label.setdefault(observation.label_index, []).append((observation, object_id))
+    pairs: set[tuple[int, int]] = set()
+    for group in by_label.values():
+        if len({object_id for _, object_id in group}) < 2:
+            continue
+        keys = [observation.keys for observation, _ in group]
+        extents = [keys_extent(k) for k in keys]
+        margin = params.association_tolerance_voxels + 1
+        overlap = None
+        for a, (_, id_a) in enumerate(group):
+            for b in range(a + 1, len(group)):
+                id_b = group[b][1]
+                if id_a == id_b:
+                    continue
+                (lo_a, hi_a), (lo_b, hi_b) = extents[a], extents[b]
+                if bool(np.any(lo_a > hi_b + margin) or np.any(lo_b > hi_a + margin)):  # apart in space: nothing shared
+                    pairs.add((min(id_a, id_b), max(id_a, id_b)))
+                    continue
+                if overlap is None:
+                    overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels)
+                if overlap[a, b] < params.association_min_overlap:
+                    pairs.add((min(id_a, id_b), max(id_a, id_b)))
+    if not pairs:
+        return objects
+    seen_with: dict[int, dict[int, int]] = {}
+    for a, b in pairs:
+        seen_with.setdefault(a, {})[b] = 1
+        seen_with.setdefault(b, {})[a] = 1
+    return [o.replace(apart=add_votes(o.apart, seen_with[o.id])) if o.id in seen_with else o for o in objects]
 
 
 @dataclass(slots=True)
@@ -396,11 +464,12 @@ def create_under_claim(
     params: Params,
     now_s: float,
     floor: FrameFloor | None = None,
-) -> tuple[list[Lease], list[MapObject], list[MapObject], set[int]]:
+) -> tuple[list[Lease], list[MapObject], list[MapObject], set[int], list[tuple[VoxelDetection, int]]]:
     """Claim the space of the unmatched observations; fuse them into objects that appeared there since
     the frustum query (when their locks are free), create objects for the rest. Returns the claim and
     the leases on the late objects, the late objects as read, the late (fused) plus new objects, and
-    the ids of those whose voxels changed (fused or new)."""
+    the ids of those whose voxels changed (fused or new), and which object took each observation
+    (observation, object id)."""
     cells, lo, hi = claim_cells(unmatched, params)
     claim = store.claim(frame.map_id, cells, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s)
     late_leases: list[Lease] = []
@@ -408,8 +477,9 @@ def create_under_claim(
         late_ids = sorted(set(store.query_region(frame.map_id, lo, hi)) - set(held_ids))
         late_leases = try_lock(store, frame.map_id, late_ids, params)
         late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
-        fused_late, still_unmatched, fused_ids = fuse_matches(late, unmatched, params, frame, floor)
+        fused_late, still_unmatched, fused_ids, taken = fuse_matches(late, unmatched, params, frame, floor)
         new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
+        taken += list(zip(still_unmatched, new_ids))
         created = [
             new_object(i, o, frame.device_id, now_s, floor_vote(floor, o, params)) for i, o in zip(new_ids, still_unmatched)
         ]
@@ -417,7 +487,7 @@ def create_under_claim(
         for lease in [claim, *late_leases]:
             lease.release()
         raise
-    return [claim, *late_leases], late, fused_late + created, fused_ids | set(new_ids)
+    return [claim, *late_leases], late, fused_late + created, fused_ids | set(new_ids), taken
 
 
 def try_lock(store: MapStore, map_id: str, ids: Sequence[int], params: Params) -> list[Lease]:

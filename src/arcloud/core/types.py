@@ -94,12 +94,15 @@ class Detection:
 @dataclass(frozen=True, eq=False, slots=True)
 class VoxelDetection:
     """A detection back-projected into the world: sorted unique packed voxel keys (int64), and
-    ``colors`` (N, 3) uint8 aligned with them: the mean RGB of the samples in each voxel (None: unknown)."""
+    ``colors`` (N, 3) uint8 aligned with them: the mean RGB of the samples in each voxel (None: unknown).
+    ``view_weight`` in (0, 1]: how well the frame saw it (``core.voxels.view_weight``); its label vote
+    is its score times this."""
 
     label_index: int
     score: float
     keys: np.ndarray
     colors: np.ndarray | None = None
+    view_weight: float = 1.0
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -235,6 +238,8 @@ class MapObject:
     n_missed: int = 0  # frames that saw it in view, unoccluded, and detected nothing there
     n_gone: int = 0  # frames that saw its place empty since it was last seen there (core.step.count_misses)
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
+    # id -> frames that detected that object of its class apart from it, in the same frame (core.step.mark_apart)
+    apart: dict[int, int] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for array in (self.keys, self.weights, self.votes, self.seen, self.colors):
@@ -319,6 +324,12 @@ class Params:
     class_mismatch_min_overlap: float = 0.8
     split_min_frames: int = 3
     split_classes: tuple[str, ...] = ("chair", "laptop", "tv")  # see core.associate.Association
+    apart_min_frames: int = 3  # two objects detected apart in this many frames stay two (core.fusion.seen_apart; 0: off)
+    # Label votes weighted by how well each view saw the object (core.voxels.view_weight)
+    view_truncated_weight: float = 0.5  # a mask touching the image border (the object is cut off)
+    view_full_mask_share: float = 0.01  # a mask covering less of the image weighs in proportion
+    view_far_m: float = 3.0  # a view from farther weighs in proportion (view_far_m / median depth)
+    view_oblique_min: float = 0.3  # a flat object seen edge-on weighs this (face-on 1; 1: no angle weighting)
     # Fusion and refinement
     visibility_tolerance_m: float = 0.1
     prune_min_seen: float = 10.0
@@ -334,6 +345,7 @@ class Params:
     confirm_min_frames: int = 3
     confirm_min_detection_rate: float = 0.4
     confirm_min_score: float = 0.2
+    confirm_evidence_frames: int = 15  # detected in this many frames: the score need not reach confirm_min_score (0: off)
     # Phantoms (core.confirm.is_phantom): seen in this many frames, detected in fewer than this share (0: never): deleted
     discard_min_sightings: int = 50
     discard_max_detection_rate: float = 0.1
@@ -352,6 +364,8 @@ class Params:
     floor_min_votes: int = 2
     floor_min_vote_share: float = 0.25
     floor_clearance_m: float = 0.04
+    floor_ring_margin_m: float = 0.12  # a frame votes for the floor under an object when it sees the floor beside it:
+    floor_ring_min_seen: int = 1  # this many of 8 points around its footprint, this far outside (0: no check)
     floor_standing: tuple[str, ...] = ("chair", "table", "couch")
     floor_reach_max_m: float = 1.0
     # Boxes: voxel centres, grown by this many voxels per side (0: centre to centre, which is unbiased
@@ -415,6 +429,8 @@ _PARAM_KINDS: dict[str, str] = {
             "prune_min_seen",
             "floor_min_below_camera_m",
             "floor_clearance_m",
+            "floor_ring_margin_m",
+            "view_far_m",
             "floor_reach_max_m",
             "box_pad_voxels",
             "lock_timeout_s",
@@ -442,6 +458,9 @@ _PARAM_KINDS: dict[str, str] = {
             "gone_min_free",
             "floor_min_share",
             "floor_min_vote_share",
+            "view_truncated_weight",
+            "view_full_mask_share",
+            "view_oblique_min",
         ),
         "fraction",
     ),
@@ -451,11 +470,14 @@ _PARAM_KINDS: dict[str, str] = {
             "min_voxels_per_detection",
             "association_tolerance_voxels",
             "split_min_frames",
+            "apart_min_frames",
+            "confirm_evidence_frames",
             "confirm_min_frames",
             "discard_min_sightings",
             "retire_min_gone_frames",
             "floor_min_samples",
             "floor_min_votes",
+            "floor_ring_min_seen",
         ),
         "count",
     ),

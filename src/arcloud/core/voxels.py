@@ -483,8 +483,44 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
         keys = sorted_unique(sample_keys)
         if keys.size >= params.min_voxels_per_detection:
             colors = voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0))
-            voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors))
+            weight = view_weight(frame, det.mask, points, params, stride)
+            voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors, weight))
     return voxelized
+
+
+def view_weight(frame: Frame, mask: np.ndarray, points: np.ndarray, params: Params, stride_px: int = 1) -> float:
+    """How well a frame saw a detected object, in (0, 1]: the product of
+    - ``view_truncated_weight`` when the mask touches the image border (the object is cut off: its mask
+      often takes in what lies beyond the cut, and a part looks like another class);
+    - the share of the image its samples cover (each ``stride_px`` squared pixels) over
+      ``view_full_mask_share``, at most 1 (a few pixels);
+    - ``view_far_m`` over the mean distance of its points, at most 1 (far views are coarse);
+    - for a flat object (its points' smallest spread well below the middle one), the cosine between its
+      normal and the line of sight, scaled into [``view_oblique_min``, 1]: a screen seen edge-on looks
+      like a laptop.
+    ``points``: (N, 3) world points of the mask's samples (N > 0), taken every ``stride_px``-th row and column."""
+    weight = 1.0
+    if mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+        weight *= params.view_truncated_weight
+    share = len(points) * stride_px * stride_px / mask.size
+    if params.view_full_mask_share > 0:
+        weight *= min(1.0, share / params.view_full_mask_share)
+    eye = frame.cam2world[:3, 3]
+    sample = points[:: max(1, len(points) // 256)] - eye  # from the eye
+    distance_m = float(np.sqrt(np.einsum("ij,ij->i", sample, sample)).mean())
+    if distance_m > params.view_far_m:
+        weight *= params.view_far_m / distance_m
+    if params.view_oblique_min < 1 and len(sample) >= 16:
+        mean = sample.mean(axis=0)
+        centred = sample - mean
+        spreads, axes = np.linalg.eigh(centred.T @ centred)  # ascending
+        if spreads[1] > 0:
+            flatness = 1.0 - float(np.sqrt(max(spreads[0], 0.0) / spreads[1]))
+            sight = mean
+            cosine = abs(float(axes[:, 0] @ sight)) / max(float(np.linalg.norm(sight)), 1e-9)
+            facing = params.view_oblique_min + (1 - params.view_oblique_min) * cosine
+            weight *= 1.0 - flatness * (1.0 - facing)
+    return max(weight, 1e-3)
 
 
 def project_centers(

@@ -439,6 +439,7 @@ def meta_of(obj: MapObject) -> ObjectMeta:
         confirmed=obj.confirmed,
         floor_votes=obj.floor_votes,
         label_purity=obj.label_purity,
+        apart=obj.apart,
     )
 
 
@@ -469,6 +470,8 @@ def encode_meta(obj: MapObject) -> bytes:
 
 
 def _meta_json(obj: MapObject) -> bytes:
+    # left out when empty: the blobs of objects without it are the bytes they were
+    apart = {"apart": {str(k): int(v) for k, v in sorted(obj.apart.items())}} if obj.apart else {}
     return json.dumps(
         {
             "label": obj.label,
@@ -486,6 +489,7 @@ def _meta_json(obj: MapObject) -> bytes:
             "confirmed": bool(obj.confirmed),
             "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
             "label_purity": float(obj.label_purity),
+            **apart,
         },
         separators=(",", ":"),
     ).encode()
@@ -562,6 +566,7 @@ def _meta(object_id: int, fields: dict[str, Any]) -> ObjectMeta:
         confirmed=bool(fields.get("confirmed", False)),
         floor_votes={int(k): int(v) for k, v in fields.get("floor_votes", {}).items()},
         label_purity=float(fields.get("label_purity", 0.0)),
+        apart={int(k): int(v) for k, v in fields.get("apart", {}).items()},
     )
 
 
@@ -596,4 +601,5 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_mis
         n_missed=n_missed,
         n_gone=n_gone,
         label_purity=meta.label_purity,
+        apart=meta.apart,
     )
