@@ -1,4 +1,4 @@
-"""The layers of the whole package point one way, as the README draws them:
+"""The layers of the whole package point one way, as docs/method.md draws them:
 
     core  <-  errors, argtypes, allocator, access  <-  ports, proto  <-  stores, detectors, events  <-  service, client
           <-  virtual_camera  <-  sim, datasets, eval  <-  accuracy, tools  <-  demo  <-  cli
