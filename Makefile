@@ -26,7 +26,8 @@ test: $(STAMP) lint
 	@{ command -v redis-server && command -v chromium; } >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Every benchmark behind the README's "Measured" table -> bench/results/*.json (about 30 min; accuracy apart).
+# Every benchmark behind the README's "Measured" table -> bench/results/*.json (about 30 min, and bench_scaling 549 s on 2
+# loaded cores; accuracy apart).
 bench: $(STAMP)
 	$(BIN)/python bench/bench_step.py
 	$(BIN)/python bench/bench_detector.py

@@ -324,8 +324,12 @@ class Deployment:
         self.queue = RedisFrameQueue(redis.url)
         deadline = time.time() + 60 + 15 * workers
         while len(self.queue.live_consumers(5.0)) < workers:
-            if time.time() > deadline:
-                raise SystemExit(f"only {len(self.queue.live_consumers(5.0))} of {workers} workers started")
+            if time.time() > deadline or self.pool.alive() < workers:
+                self.stop()
+                raise SystemExit(
+                    f"{len(self.queue.live_consumers(5.0))} of {workers} workers took frames, {self.pool.alive()} alive "
+                    "(a worker's error is logged above)"
+                )
             time.sleep(0.2)
 
     def worker_pids(self) -> list[int]:
