@@ -64,7 +64,7 @@ def test_oblique_views_do_not_rename_a_screen(weighted):
     assert screen.label == ("tv" if weighted else "laptop")
 
 
-COUNTER = ((-0.8, -0.5, 0.0), (0.8, 0.5, 0.9))  # a solid counter (a desk with a front panel)
+COUNTER = ((-1.5, -0.5, 0.0), (1.5, 0.5, 0.9))  # a long solid counter (a desk with a front panel)
 CHAIR_BEHIND = ((-0.25, 0.6, 0.45), (0.25, 1.0, 1.1))  # a chair behind it: only its back shows above it
 
 

@@ -33,7 +33,7 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from types import MappingProxyType
-from typing import Any, Literal
+from typing import Any, Literal, TextIO
 
 LogFormat = Literal["text", "json"]
 
@@ -176,13 +176,27 @@ def make_formatter(log_format: LogFormat) -> logging.Formatter:
     raise ValueError(f"log format: expected text or json, got {log_format!r}")
 
 
+class StderrHandler(logging.StreamHandler):
+    """A ``StreamHandler`` on ``sys.stderr`` as it is when each record is written, not when the handler was
+    made: where stderr is replaced (a test's capture that later closes, a daemon's redirection), lines go
+    to the current one instead of failing on a closed stream."""
+
+    @property
+    def stream(self) -> TextIO:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value: object) -> None:  # StreamHandler.__init__ sets it; the property ignores that
+        pass
+
+
 def configure_logging(level: str, log_format: LogFormat = "text") -> None:
     """This process's logging: one handler on the root logger, writing ``log_format`` to stderr with the
     log context; ``arcloud``'s loggers at ``level`` (the root's level, for other libraries, is left as it
     is). With JSON, uvicorn's loggers that have handlers of their own write through the root's instead, so
     that every line of the process is JSON. Every line is scrubbed of secrets (``SecretFilter`` on the handler
     and on uvicorn's loggers). Calling it again replaces what it did."""
-    handler = logging.StreamHandler(sys.stderr)
+    handler = StderrHandler()
     handler.setFormatter(make_formatter(log_format))
     handler.addFilter(LogContextFilter())
     handler.addFilter(SECRET_FILTER)  # after the context: its fields are scrubbed too
