@@ -26,7 +26,7 @@ from arcloud.tools.wiring import create_app
 
 pytestmark = pytest.mark.fuzz
 
-MAX_EXAMPLES = 200
+MAX_EXAMPLES = 100
 CONFIG = schemathesis.Config.from_dict(
     {
         "seed": 20261123,
