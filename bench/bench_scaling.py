@@ -481,6 +481,12 @@ def main() -> None:
     parser.add_argument("--model", type=Path, default=MODEL)
     parser.add_argument("--ceiling-s", type=float, default=8.0, help="seconds each ceiling run (default 8)")
     parser.add_argument(
+        "--ceiling-processes", type=int_list, default=None, help="P for the ceiling (default 1, 2, 4, ... cores, and each W)"
+    )
+    parser.add_argument(
+        "--ceiling-from", type=Path, metavar="JSON", help="take the ceiling from an earlier result file (a run in parts)"
+    )
+    parser.add_argument(
         "--workers", type=int_list, default=powers_of_two_to(n_cores), help="W for the service (default 1, 2, 4, ... cores)"
     )
     parser.add_argument(
@@ -536,8 +542,11 @@ def main() -> None:
         },
     }
     if "ceiling" in parts:
-        result["ceiling"] = bench_ceiling(frames, powers_of_two_to(n_cores), args.ceiling_s, args.model)
-    session_ms = result["ceiling"]["rows"][0]["session_ms_median"] if "ceiling" in parts else None
+        processes = sorted(set(args.ceiling_processes or [*powers_of_two_to(n_cores), *args.workers]))
+        result["ceiling"] = bench_ceiling(frames, processes, args.ceiling_s, args.model)
+    elif args.ceiling_from:
+        result["ceiling"] = json.loads(args.ceiling_from.read_text())["ceiling"]
+    session_ms = result["ceiling"]["rows"][0]["session_ms_median"] if "ceiling" in result else None
     redis = Redis()
     result["redis_server"] = redis.version
     bodies = Bodies(frames)

@@ -6,8 +6,10 @@
 #                                          about 40 MB: the model, 60 frames, cp312 wheels, redis-server)
 #   bench/scaling_device.sh run [ARGS]     there, from the repository root (the `run` tool with carry
 #                                          [".device"]): installs the wheels into /tmp/site, runs
-#                                          bench_scaling.py with the many-core arguments (ARGS replace or add
-#                                          to them) and writes $OUT/scaling.json (bench/results/ without $OUT)
+#                                          bench_scaling.py in three parts (ceiling, service, wait; ARGS are
+#                                          added to the last two) and writes $OUT/scaling-{ceiling,service,
+#                                          wait}.json (bench/results/ without $OUT); WORKERS, WAIT_WORKERS and
+#                                          CEILING_S, SERVICE_S, WAIT_S (each part's limit) change the defaults
 #
 # Plot it here afterwards: .venv/bin/python bench/bench_scaling.py --plot FILE.json (matplotlib is not carried).
 set -euo pipefail
@@ -21,6 +23,8 @@ STRIDE=10
 # What the machine there lacks (DEVICE.md); versions from constraints.txt.
 WHEELS="fastapi starlette uvicorn pydantic pydantic_core pydantic-settings python-dotenv python-multipart redis
 annotated-types typing-inspection annotated-doc httptools opentelemetry-api"
+# Pure-Python requirements of those that the machine had; carried anyway, so a machine without them runs too.
+WHEELS="$WHEELS typing_extensions importlib_metadata zipp click h11 anyio idna"
 
 prepare() {
     rm -rf "$DEVICE"
@@ -49,13 +53,23 @@ prepare() {
 
 run() {
     local python=${PYTHON:-python3}
-    "$python" -m pip install -q --no-index --no-deps --target /tmp/site "$DEVICE"/wheels/*.whl
+    [[ -n ${NO_INSTALL:-} ]] || "$python" -m pip install -q --no-index --no-deps --target /tmp/site "$DEVICE"/wheels/*.whl
     export PATH="$PWD/$DEVICE/bin:$PATH" LD_LIBRARY_PATH="$PWD/$DEVICE/lib" PYTHONPATH="/tmp/site:$PWD/src"
     export ARCLOUD_SHARED="$PWD/$DEVICE/shared"
-    local out=${OUT:-bench/results}
-    nproc
-    "$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 \
-        --workers 1,2,4,8,15 --wait-workers 1,2,4,8,16,32 --wait-phase-s 2 --out "$out/scaling.json" "$@"
+    local out=${OUT:-bench/results} cores
+    cores=$(nproc)
+    echo "cores $cores"
+    # Fail in seconds, not after the ceiling, when something the service imports is missing.
+    "$python" -c "import arcloud.service.app, arcloud.service.worker, fastapi, uvicorn, redis, onnxruntime"
+    redis-server --version
+    # In parts, each with its own limit and file, so that a part that runs long leaves the others' results.
+    local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2)
+    timeout "${CEILING_S:-100}" "${bench[@]}" --parts ceiling --ceiling-processes "1,4,8,$((cores - 1)),$cores" \
+        --out "$out/scaling-ceiling.json" || echo "ceiling part failed or ran out of time"
+    timeout "${SERVICE_S:-330}" "${bench[@]}" --parts service --ceiling-from "$out/scaling-ceiling.json" \
+        --workers "${WORKERS:-1,4,8,$((cores - 1))}" --out "$out/scaling-service.json" "$@" || echo "service part failed or ran out of time"
+    timeout "${WAIT_S:-120}" "${bench[@]}" --parts wait --ceiling-from "$out/scaling-ceiling.json" \
+        --wait-workers "${WAIT_WORKERS:-1,4,16}" --wait-phase-s 2 --out "$out/scaling-wait.json" "$@" || echo "wait part failed or ran out of time"
 }
 
 case "${1:-}" in
