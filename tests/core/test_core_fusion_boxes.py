@@ -124,6 +124,21 @@ def test_small_disconnected_part_is_not_in_the_box():
     assert mask.sum() == body.size
 
 
+def test_a_part_one_voxel_short_of_the_body_stays_in_the_box():
+    # A screen's body and its back, one layer of voxels between them that the occupancy rule left out:
+    # the box takes both, whichever voxel a frame order happened to leave short.
+    body = block((0, 0, 0), (10, 10, 4))
+    back = block((0, 0, 5), (10, 10, 6))  # one empty layer between: a quarter of the body's voxels
+    obj = new_object(1, det("tv", np.union1d(body, back)), "a", 0.0)
+    part = box_voxel_mask(obj, Params(min_component_fraction=0.5))
+    assert part.sum() == body.size + back.size
+    assert box_voxel_mask(obj, Params(min_component_fraction=0.5, component_gap_voxels=0)).sum() == body.size
+    # Three empty layers between them is apart (each part grown by one voxel still leaves one).
+    far_back = block((0, 0, 7), (10, 10, 8))
+    apart = new_object(2, det("tv", np.union1d(body, far_back)), "a", 0.0)
+    assert box_voxel_mask(apart, Params(min_component_fraction=0.5)).sum() == body.size
+
+
 def test_gravity_obb_recovers_a_rotated_box():
     rng = np.random.default_rng(4)
     yaw = 0.4

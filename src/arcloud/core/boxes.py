@@ -35,7 +35,8 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     """(N,) bool: the voxels the boxes are fitted to. Keeps voxels that were mostly covered when
     visible (occupancy weights / seen >= ``box_min_occupancy``) and not hit too rarely compared with
     the object's well-observed voxels (``box_rel_weight`` of the 90th percentile weight), then drops
-    connected parts (26-neighbourhood) smaller than ``min_component_fraction`` of the largest."""
+    connected parts (26-neighbourhood, each voxel grown by ``component_gap_voxels`` first: parts up to
+    twice that apart are one) smaller than ``min_component_fraction`` of the largest."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
     return _box_voxel_mask(obj, params, unpack_keys(obj.keys))
@@ -58,9 +59,12 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
     shape = (top - origin + 1).tolist()
     if math.prod(shape) > MAX_COMPONENT_GRID_CELLS:
         return keep
-    grid = np.zeros(shape, bool)
-    local = ijk - origin
+    gap = params.component_gap_voxels
+    grid = np.zeros([n + 2 * gap for n in shape], bool)
+    local = ijk - origin + gap
     grid[local[:, 0], local[:, 1], local[:, 2]] = True
+    if gap:  # a voxel or two short of the occupancy rule (which the frames' order decides) splits nothing
+        grid = ndimage.binary_dilation(grid, structure=_CONNECTIVITY_26, iterations=gap)
     labelled, n_parts = ndimage.label(grid, structure=_CONNECTIVITY_26)
     if n_parts > 1:
         part = labelled[local[:, 0], local[:, 1], local[:, 2]]

@@ -337,6 +337,7 @@ class Params:
     box_rel_weight: float = 0.05
     box_min_occupancy: float = 0.4
     min_component_fraction: float = 0.2
+    component_gap_voxels: int = 1  # parts grown by this many voxels before they are found: up to twice as far apart is one part
     merge_min_overlap: float = 0.3
     merge_min_box_containment: float = 0.6
     score_support_frames: float = 3.0
@@ -346,6 +347,7 @@ class Params:
     confirm_min_detection_rate: float = 0.4
     confirm_min_score: float = 0.2
     confirm_evidence_frames: int = 15  # detected in this many frames: the score need not reach confirm_min_score (0: off)
+    confirm_evidence_min_rate: float = 0.5  # ... when detected in at least this share of the frames that saw it
     # Phantoms (core.confirm.is_phantom): seen in this many frames, detected in fewer than this share (0: never): deleted
     discard_min_sightings: int = 50
     discard_max_detection_rate: float = 0.1
@@ -451,6 +453,7 @@ _PARAM_KINDS: dict[str, str] = {
             "merge_min_box_containment",
             "implausible_score_factor",
             "confirm_min_detection_rate",
+            "confirm_evidence_min_rate",
             "confirm_min_score",
             "discard_max_detection_rate",
             "miss_min_visible",
@@ -478,6 +481,7 @@ _PARAM_KINDS: dict[str, str] = {
             "floor_min_samples",
             "floor_min_votes",
             "floor_ring_min_seen",
+            "component_gap_voxels",
         ),
         "count",
     ),
