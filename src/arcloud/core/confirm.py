@@ -100,10 +100,7 @@ def evidence(obj: MapObject, params: Params, *, n_missed: int | None = None) -> 
         obj.n_frames >= params.confirm_min_frames
         and rate >= params.confirm_min_detection_rate
         and is_plausible
-        and (
-            score >= params.confirm_min_score
-            or (obj.n_frames >= params.confirm_evidence_frames > 0 and rate >= params.confirm_evidence_min_rate)
-        )
+        and (score >= params.confirm_min_score or obj.n_frames >= params.confirm_evidence_frames > 0)
     )
     return score, confirmed
 

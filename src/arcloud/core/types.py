@@ -347,7 +347,6 @@ class Params:
     confirm_min_detection_rate: float = 0.4
     confirm_min_score: float = 0.2
     confirm_evidence_frames: int = 15  # detected in this many frames: the score need not reach confirm_min_score (0: off)
-    confirm_evidence_min_rate: float = 0.5  # ... when detected in at least this share of the frames that saw it
     # Phantoms (core.confirm.is_phantom): seen in this many frames, detected in fewer than this share (0: never): deleted
     discard_min_sightings: int = 50
     discard_max_detection_rate: float = 0.1
@@ -453,7 +452,6 @@ _PARAM_KINDS: dict[str, str] = {
             "merge_min_box_containment",
             "implausible_score_factor",
             "confirm_min_detection_rate",
-            "confirm_evidence_min_rate",
             "confirm_min_score",
             "discard_max_detection_rate",
             "miss_min_visible",
