@@ -38,8 +38,8 @@ def test_environment_is_read_and_parsed(monkeypatch: pytest.MonkeyPatch) -> None
         ({"store": "postgres://db"}, "expected `memory` or a URL"),
         ({"detector": ":x"}, "PREFIX"),
         ({"workers": 0}, "workers: expected >= 1 with the memory store"),
-        ({"params": {"voxel": 0.1}}, "unknown parameter 'voxel'"),
-        ({"params": {"erode_px": 1.5}}, "expected an integer"),
+        ({"params": {"voxel": 0.1}}, r"params: expected fields of Params \(.*\), got 'voxel'"),
+        ({"params": {"erode_px": 1.5}}, r"params.erode_px: expected an integer >= 0, got 1.5"),
         ({"params": {"lock_ttl_s": 3}}, "ARCLOUD_LOCK_TTL_S"),  # a setting of its own
         ({"zenoh_mode": "client"}, "needs at least one endpoint"),
         ({"zenoh_frames": True}, "needs zenoh_mode"),
