@@ -75,20 +75,9 @@ def params_from_environment() -> dict[str, Any]:
         raise InvalidInput(PARAMS_ENV, 'a JSON object like {"voxel_size_m": 0.04}', repr(text)) from exc
 
 
-def make_params(overrides: dict[str, Any]) -> Params:
-    """``Params`` with these fields set (JSON lists become tuples); ``InvalidInput`` naming an unknown field
-    or a bad value (``Params`` checks its fields)."""
-    import dataclasses
+def params_given(overrides: dict[str, Any] | None) -> Params:
+    """The command's ``Params``: ``--params`` if given, else ``$ARCLOUD_PARAMS``, read by
+    ``core.types.params_from_json`` as the service reads its ``params`` setting."""
+    from arcloud.core.types import params_from_json
 
-    from arcloud.core.errors import InvalidInput
-    from arcloud.core.types import Params
-
-    known = {f.name for f in dataclasses.fields(Params)}
-    for name in overrides:
-        if name not in known:
-            raise InvalidInput("params", f"fields of Params ({', '.join(sorted(known))})", repr(name))
-    return Params(**{name: _tuples(value) for name, value in overrides.items()})
-
-
-def _tuples(value: Any) -> Any:
-    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+    return params_from_json(overrides if overrides is not None else params_from_environment())

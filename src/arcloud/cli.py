@@ -37,10 +37,10 @@ def add_demo_command(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_demo_command(args: argparse.Namespace) -> int:
-    from arcloud.argtypes import make_params, params_from_environment
+    from arcloud.argtypes import params_given
     from arcloud.demo import format_table1, run_demo
 
-    params = make_params(args.params if args.params is not None else params_from_environment())
+    params = params_given(args.params)
     results = run_demo(
         args.out,
         seed=args.seed,

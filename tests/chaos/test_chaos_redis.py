@@ -43,6 +43,12 @@ def connect_blob_workers(settings: Settings, on_frame: FrameHandler) -> Adapters
 class Serving:
     redis: RedisServer
     url: str
+    app: Any = None
+
+    def in_flight(self) -> float:
+        """HTTP requests the API has taken and not yet answered (its gauge alone: the whole registry reads Redis)."""
+        (gauge,) = self.app.state.metrics_registry.restricted_registry(["http_requests_in_flight"]).collect()
+        return float(gauge.samples[0].value)
 
     def client(self) -> ArcloudClient:
         return ArcloudClient(self.url, max_retries=10, backoff_s=0.1, max_backoff_s=1.0, seed=0)
@@ -57,7 +63,8 @@ def serving() -> Iterator[Serving]:
     settings = Settings(store=server.url, auth="none", workers=2, read_block_s=0.2, claim_interval_s=0.5)
     deployment = Serving(server, "")
     try:
-        with UvicornThread(service_app.create_app(settings, connect_blob_workers)) as api:
+        deployment.app = service_app.create_app(settings, connect_blob_workers)
+        with UvicornThread(deployment.app) as api:
             deployment.url = api.url
             wait_until(deployment.ready, 90, "the service ready (2 workers reading)", 0.2)
             yield deployment
@@ -129,7 +136,7 @@ def test_a_hung_redis_gives_503_quickly_and_healthz_answers(serving: Serving) ->
         refused_s = time.monotonic() - started
         with ThreadPoolExecutor(60) as pool:  # more than the API's worker threads (40): every one waits on Redis
             flood = [pool.submit(http.get, objects) for _ in range(60)]
-            time.sleep(0.5)
+            wait_until(lambda: serving.in_flight() >= 60, 10, "the 60 requests taken by the API", 0.01)
             started = time.monotonic()
             health = http.get(f"{serving.url}/healthz")
             healthz_s = time.monotonic() - started

@@ -11,9 +11,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from svc_helpers import BlobDetector, UvicornThread, free_port, make_test_frame
+from svc_helpers import BlobDetector, UvicornThread, free_port, make_test_frame, wait_for_subscriber
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient, ServiceError
+from arcloud.events.zenoh import object_key, tentative_key
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.service.settings import Settings
 from arcloud.tools.wiring import create_app
@@ -46,12 +47,11 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
     served, everything = Events(), Events()
 
     with ArcloudClient(url) as client:
-        subscriptions = [
-            client.subscribe("c1", served, [endpoint]),
-            client.subscribe("c1", everything, [endpoint], include_tentative=True),
-        ]
-        try:
-            time.sleep(0.5)
+        subscriptions = [client.subscribe("c1", served, [endpoint])]
+        try:  # each known to the service's peer before the next (a key tells of all before)
+            wait_for_subscriber(object_key("c1", 0), endpoint=endpoint)
+            subscriptions.append(client.subscribe("c1", everything, [endpoint], include_tentative=True))
+            wait_for_subscriber(tentative_key("c1", 0), endpoint=endpoint)
             first = client.send_frame(make_test_frame(0, map_id="c1", level=True))
             assert first == {"map_id": "c1", "device_id": "d", "frame_id": "f000000", "status": "queued"}
             frame = make_test_frame(1, map_id="c1", level=True)

@@ -7,10 +7,11 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import ExitStack
 
 import numpy as np
 import pytest
-from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, free_port, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, free_port, make_test_frame, wait_for_subscriber, wait_until
 
 from arcloud.core.types import N_CLASSES, MapObject, ObjectEvent
 from arcloud.events.zenoh import (
@@ -75,11 +76,11 @@ def test_default_subscribers_see_the_served_map_and_are_told_when_an_object_leav
         wait_until(lambda: store.count_frames("z") == index + 1, 20, f"frame {index} processed")
 
     served, everything = Collector(), Collector()
-    with (
-        subscribe_objects("z", served, connect=[endpoint]),
-        subscribe_objects("z", everything, connect=[endpoint], include_tentative=True),
-    ):
-        time.sleep(0.5)  # the subscriptions reach the service's peer
+    with ExitStack() as subscriptions:  # each known to the service's peer before the next (a key tells of all before)
+        subscriptions.enter_context(subscribe_objects("z", served, connect=[endpoint]))
+        wait_for_subscriber(object_key("z", 0), endpoint=endpoint)
+        subscriptions.enter_context(subscribe_objects("z", everything, connect=[endpoint], include_tentative=True))
+        wait_for_subscriber(tentative_key("z", 0), endpoint=endpoint)
         for i in range(6):  # an upright chair seen in six frames: confirmed on the way
             send(i)
         (chair,) = store.list_objects("z")
@@ -124,7 +125,7 @@ def test_frames_published_over_zenoh_are_ingested(service: tuple[AppClient, str,
     api, endpoint, store, _ = service
     session = open_session("peer", connect=[endpoint])
     try:
-        time.sleep(0.5)
+        wait_for_subscriber(frames_key("zf", "d"), session=session)  # the service's subscriber of frames
         for i in range(2):
             session.put(frames_key("zf", "d"), frame_to_proto(make_test_frame(i, map_id="zf")).SerializeToString())
         session.put(frames_key("zf", "d"), b"not a frame")  # logged and dropped
@@ -209,12 +210,13 @@ def test_publisher_puts_each_event_on_its_key_space() -> None:
     served, everything = Collector(), Collector()
     session = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"])
     try:
-        raw = session.declare_subscriber("arcloud/p/**", on_sample)
-        with (
-            subscribe_objects("p", served, session=session),
-            subscribe_objects("p", everything, session=session, include_tentative=True),
-        ):
-            time.sleep(0.5)
+        with ExitStack() as subscriptions:  # each known to the publisher before the next (a key tells of all before)
+            subscriptions.enter_context(subscribe_objects("p", served, session=session))
+            wait_for_subscriber(object_key("p", 0), session=publisher.session)
+            subscriptions.enter_context(subscribe_objects("p", everything, session=session, include_tentative=True))
+            wait_for_subscriber(tentative_key("p", 0), session=publisher.session)
+            raw = session.declare_subscriber("arcloud/p/**", on_sample)
+            wait_for_subscriber("arcloud/p/raw", session=publisher.session)
             publisher.publish(
                 [
                     ObjectEvent("created", "p", 1, state(1, 1, False)),

@@ -234,3 +234,20 @@ def wait_until(predicate: Callable[[], object], timeout_s: float, what: str, int
             return
         time.sleep(interval_s)
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def wait_for_subscriber(key: str, *, endpoint: str = "", session: Any = None, timeout_s: float = 10.0) -> None:
+    """Wait until a Zenoh subscriber matching ``key`` is known where a put on ``key`` is routed: in ``session``,
+    or by the peer listening at ``endpoint`` (asked through a client session of our own, whose puts that peer
+    routes). From then on what is put on ``key`` there reaches the subscriber. A key that an earlier subscriber
+    matches too tells nothing of a later one: wait for each before declaring the next."""
+    from arcloud.events.zenoh import open_session
+
+    probe = session if session is not None else open_session("client", connect=[endpoint])
+    publisher = probe.declare_publisher(key)
+    try:
+        wait_until(lambda: publisher.matching_status.matching, timeout_s, f"a subscriber of {key}", 0.005)
+    finally:
+        publisher.undeclare()
+        if session is None:
+            probe.close()

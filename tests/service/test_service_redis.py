@@ -15,15 +15,16 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any
 
 import pytest
 import redis
 from redis_server import RedisServer
-from svc_helpers import LEFT, RIGHT, AppClient, free_port, make_blob_detector, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, AppClient, free_port, make_blob_detector, make_test_frame, wait_for_subscriber, wait_until
 
-from arcloud.events.zenoh import query_objects, subscribe_objects
+from arcloud.events.zenoh import object_key, query_objects, subscribe_objects, tentative_key
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.pool import WorkerPool
@@ -136,11 +137,12 @@ class Events:
 
 def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deployment: Deployment) -> None:
     served, everything = Events(), Events()
-    with (
-        subscribe_objects("r1", served, connect=[deployment.zenoh_endpoint]),
-        subscribe_objects("r1", everything, connect=[deployment.zenoh_endpoint], include_tentative=True),
-    ):
-        time.sleep(0.5)  # let the subscriptions propagate to the API's peer
+    endpoint = deployment.zenoh_endpoint
+    with ExitStack() as subscriptions:  # each known to the API's peer before the next (a key tells of all before)
+        subscriptions.enter_context(subscribe_objects("r1", served, connect=[endpoint]))
+        wait_for_subscriber(object_key("r1", 0), endpoint=endpoint)
+        subscriptions.enter_context(subscribe_objects("r1", everything, connect=[endpoint], include_tentative=True))
+        wait_for_subscriber(tentative_key("r1", 0), endpoint=endpoint)
         for i in range(10):
             deployment.post("r1", i, level=True)  # an upright chair: confirmed on the way
         wait_until(

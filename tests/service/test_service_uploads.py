@@ -216,7 +216,7 @@ FLOODER = textwrap.dedent(
     """
     import json, os, sys, threading, time
     import httpx
-    url, token, body_path, threads, on, off = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5], sys.argv[6]
+    url, token, body_path, threads, on, off, ready = sys.argv[1:4] + [int(sys.argv[4])] + sys.argv[5:8]
     body = open(body_path, "rb").read()
     headers = {"content-type": "application/x-protobuf", "authorization": "Bearer " + token}
     statuses = []
@@ -235,6 +235,7 @@ FLOODER = textwrap.dedent(
                     time.sleep(0.025)  # a client elsewhere waits a round trip at least; this one shares our cores
     workers = [threading.Thread(target=flood) for _ in range(threads)]
     for w in workers: w.start()
+    open(ready, "w").close()
     for w in workers: w.join()
     print(json.dumps({str(s): statuses.count(s) for s in set(statuses)}))
     """
@@ -316,21 +317,22 @@ def test_a_flood_on_one_map_leaves_another_maps_uploads_their_latency(api_alone:
     phases (under 8 s), 5 more while the p95s compared are over the bound (a loaded machine's noise), 15 at most."""
     url, calm_token, flood_token = api_alone
     calm_body = big_frame_body("calm", "calm-device")
-    flood_path, on, off = tmp_path / "flood.pb", tmp_path / "flood-on", tmp_path / "flood-off"
+    flood_path, on, off, ready = (tmp_path / name for name in ("flood.pb", "flood-on", "flood-off", "flood-ready"))
     flood_path.write_bytes(big_frame_body("flooded", "flood-device"))
     quiet: list[float] = []
     flooded: list[float] = []
     with httpx.Client(base_url=url, timeout=30) as http:
         posts_for(http, calm_body, calm_token, 0.5)  # warm up: the map opened, the connection made
         flooder = subprocess.Popen(
-            [sys.executable, "-c", FLOODER, url, flood_token, str(flood_path), "6", str(on), str(off)],
+            [sys.executable, "-c", FLOODER, url, flood_token, str(flood_path), "6", str(on), str(off), str(ready)],
             stdout=subprocess.PIPE,
             text=True,
             # The flooder's own CPU is this test's artifact (a real one runs elsewhere): it yields it to the service.
             preexec_fn=lambda: os.nice(10),
         )
         try:
-            time.sleep(0.5)  # its process started
+            wait_until(lambda: ready.exists() or flooder.poll() is not None, 60, "the flooder's threads started", 0.01)
+            assert flooder.poll() is None, "the flooder stopped at start"
             for _ in range(3):
                 for _ in range(5):
                     quiet += posts_for(http, calm_body, calm_token, 0.75, settle_s=0.25)  # the flood's last uploads end

@@ -96,9 +96,9 @@ def _workers(value: int | None) -> int:
 
 def _params(args: argparse.Namespace) -> Params:
     """``--params`` (default ``$ARCLOUD_PARAMS``), then ``--voxel-size-m`` on top."""
-    from arcloud.argtypes import make_params, params_from_environment
+    from arcloud.argtypes import params_given
 
-    params = make_params(args.params if getattr(args, "params", None) is not None else params_from_environment())
+    params = params_given(getattr(args, "params", None))
     if getattr(args, "voxel_size_m", None):
         params = params.replace(voxel_size_m=float(args.voxel_size_m))
     return params

@@ -5,6 +5,9 @@
     │   └── TooManyCells         a frame would make one store call take more index cells than ``MAX_CELLS_PER_CALL``
     ├── ModelError               a detector model cannot be loaded or does not fit its adapter
     ├── DatasetError             a dataset folder is missing files or holds malformed ones
+    ├── QueueFull                the frame queue (or a map's share of it) is full, or the service is stopping
+    │                            (``arcloud.ports``; HTTP 503)
+    ├── ServiceError             the service refused a client's request: its status and problem (``arcloud.client``)
     └── StoreError               the object store failed
         ├── LockTimeout          per-object locks or space claims not acquired in time
         ├── StaleLease           a write whose lock expired or whose object changed since it was read

@@ -13,6 +13,7 @@ import dataclasses
 import math
 import numbers
 import operator
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, TypeGuard
 
@@ -539,6 +540,41 @@ def check_params(params: Params) -> None:
         raise InvalidInput("Params.depth_max_m", f"more than depth_min_m ({params.depth_min_m})", repr(params.depth_max_m))
 
 
+def params_from_json(fields: Mapping[str, object], field: str = "params") -> Params:
+    """``Params`` with these fields set, as a decoded JSON object gives them (every command's ``--params``,
+    ``$ARCLOUD_PARAMS`` and the service's ``params`` setting): lists become tuples, integers become floats
+    where the field holds numbers, None stands for an optional field left unset. ``InvalidInput`` names the
+    first wrong field (``field.name``), what it expected and what came."""
+    known = {f.name for f in dataclasses.fields(Params)}
+    values: dict[str, Any] = {}
+    for name, value in fields.items():
+        if name not in known:
+            raise InvalidInput(field, f"fields of Params ({', '.join(sorted(known))})", repr(name))
+        kind = _PARAM_KINDS[name]
+        value = _tuples(value)
+        check_param_value(f"{field}.{name}", kind, value)
+        values[name] = _as_floats(value) if kind in _NUMBER_KINDS else value
+    try:
+        return Params(**values)
+    except InvalidInput as exc:  # a combination of fields (check_params): named as given here
+        raise InvalidInput(field + exc.field.removeprefix("Params"), exc.expected, exc.got) from None
+
+
+#: Kinds of ``Params`` field that hold numbers (or None): a JSON integer there is read as a float.
+_NUMBER_KINDS = frozenset(("positive", "non-negative", "optional non-negative", "fraction", "tilt", "up", "transform"))
+
+
+def _tuples(value: object) -> object:
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def _as_floats(value: Any) -> Any:
+    """None, a number or nested tuples of numbers, with every number a float."""
+    if value is None:
+        return None
+    return tuple(_as_floats(v) for v in value) if isinstance(value, tuple) else float(value)
+
+
 def empty_object(object_id: int) -> MapObject:
     """An object with no voxels yet."""
     return MapObject(
@@ -566,4 +602,5 @@ __all__ = [
     "Params",
     "VoxelDetection",
     "empty_object",
+    "params_from_json",
 ]

@@ -11,8 +11,6 @@ Secrets (a password in the Redis URL) are masked in ``repr``/``str`` and in ``re
 
 from __future__ import annotations
 
-import dataclasses
-import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit, urlunsplit
@@ -20,7 +18,7 @@ from urllib.parse import urlsplit, urlunsplit
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from arcloud.core.types import Params
+from arcloud.core.types import Params, params_from_json
 from arcloud.ports import DEFAULT_FRAME_RECORD_RETENTION_S, DEFAULT_RETIRED_HISTORY_S, QueueLimits
 from arcloud.service.logs import LogFormat
 
@@ -35,9 +33,8 @@ EMBEDDED_BYTES_PER_PIXEL = 7
 
 _URLS = ("store", "keys_store")  # settings that may hold a password (redacted)
 
-# Params fields that the settings set themselves (or that are not plain numbers/flags).
-_PARAMS_OWN = {"lock_ttl_s", "lock_timeout_s"}
-_PARAMS_TYPES = {f.name: f.type for f in dataclasses.fields(Params)}
+# Params fields that are settings of their own here (ARCLOUD_LOCK_TTL_S, ...), not in ``params``.
+_PARAMS_OWN = ("lock_ttl_s", "lock_timeout_s")
 
 
 def redact_url(url: str) -> str:
@@ -319,16 +316,13 @@ class Settings(BaseSettings):
     @field_validator("params")
     @classmethod
     def _check_params(cls, value: dict[str, Any]) -> dict[str, Any]:
-        checked: dict[str, Any] = {}
-        for name, item in value.items():
-            if name in _PARAMS_OWN:
-                raise ValueError(f"parameter {name}: set it as its own setting (ARCLOUD_{name.upper()}), not in params")
-            if name not in _PARAMS_TYPES:
-                known = sorted(set(_PARAMS_TYPES) - _PARAMS_OWN)
-                raise ValueError(f"unknown parameter {name!r}; expected one of {', '.join(known)}")
-            checked[name] = _coerce_param(name, item)
-        Params(**checked)  # construct once so a bad combination fails here
-        return checked
+        """Read as every command reads ``--params`` (``core.types.params_from_json``), less the fields that are
+        settings of their own here; kept as read (tuples, floats)."""
+        for name in _PARAMS_OWN:
+            if name in value:
+                raise ValueError(f"params.{name}: set it as its own setting (ARCLOUD_{name.upper()}), not in params")
+        params = params_from_json(value)
+        return {name: getattr(params, name) for name in value}
 
     @model_validator(mode="after")
     def _check_combination(self) -> Settings:
@@ -399,7 +393,7 @@ class Settings(BaseSettings):
 
     def make_params(self) -> Params:
         """The frozen algorithm parameters these settings describe."""
-        return Params(**self.params, lock_ttl_s=self.lock_ttl_s, lock_timeout_s=self.lock_timeout_s)
+        return params_from_json({**self.params, "lock_ttl_s": self.lock_ttl_s, "lock_timeout_s": self.lock_timeout_s})
 
     def redacted(self) -> dict[str, Any]:
         """The settings as a dict, safe to log (the store URL's password masked)."""
@@ -411,34 +405,6 @@ class Settings(BaseSettings):
     def __repr_args__(self) -> Any:
         for name, value in super().__repr_args__():
             yield name, (redact_url(value) if name in _URLS and value else value)
-
-
-def _coerce_param(name: str, value: object) -> object:
-    """A Params override checked against the field's type: numbers, flags, (3,) tuples."""
-    annotation = _PARAMS_TYPES[name]
-    text = str(annotation)
-    if text == "bool":
-        if not isinstance(value, bool):
-            raise ValueError(f"parameter {name}: expected true or false, got {value!r}")
-        return value
-    if text == "int":
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"parameter {name}: expected an integer, got {value!r}")
-        return value
-    if text == "float":
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"parameter {name}: expected a number, got {value!r}")
-        return float(value)
-    if text.startswith("tuple[float, float, float]"):
-        if not isinstance(value, (list, tuple)) or len(value) != 3:
-            raise ValueError(f"parameter {name}: expected 3 numbers, got {value!r}")
-        return tuple(float(v) for v in value)
-    if "tuple[tuple" in text:
-        if value is None:
-            return None
-        rows = typing.cast(list, value)
-        return tuple(tuple(float(v) for v in row) for row in rows)
-    raise ValueError(f"parameter {name}: cannot be set from settings")
 
 
 __all__ = ["AuthMode", "Settings", "redact_url"]

@@ -5,6 +5,8 @@ Lua scripts touch one slot) while many maps spread over a cluster. Map ids are c
 ``arcloud.core.checks.check_map_id`` (letters, digits, '.', '_', '-'), and ``map_pattern`` escapes glob
 characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and nothing else.
 
+    arcloud:{m}:header              STRING  the map's header (``core.header.MapHeader``, JSON): the settings its data
+                                            is written under; set once, by the map's first ``open_map`` (SET NX)
     arcloud:{m}:ids                 STRING  object id counter (INCRBY)
     arcloud:{m}:processed           HASH    processed frame key ("<device_id>/<frame_id>") -> when its commit was
                                             written (Unix s); kept ``frame_record_retention_s`` (``RedisStore``)

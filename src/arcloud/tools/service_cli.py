@@ -152,7 +152,8 @@ def validation_problems(exc: Any) -> list[str]:
     problems = []
     for error in exc.errors():
         where = ".".join(str(p) for p in error["loc"]) or "settings"
-        problems.append(f"{where}: {error['msg'].removeprefix('Value error, ').removeprefix(f'{where}: ')}")
+        message = error["msg"].removeprefix("Value error, ")
+        problems.append(message if message.startswith((f"{where}:", f"{where}.")) else f"{where}: {message}")
     return problems
 
 

@@ -1,0 +1,123 @@
+"""The tables written by hand beside the code they describe hold what the code holds: every setting in the
+settings table of docs/service.md, every port in its ports table (with adapters that exist), every exception
+of the project in the tree of ``arcloud.core.errors``, every Redis key in the key table of
+``arcloud.stores.keys``. Each reads sources or small modules only, so that the file runs in well under 2 s."""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import re
+from pathlib import Path
+
+import arcloud.core.errors
+import arcloud.core.ports
+import arcloud.ports
+import arcloud.stores.keys as keys
+from arcloud.service.settings import Settings
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src" / "arcloud"
+SERVICE_MD = (ROOT / "docs" / "service.md").read_text()
+
+
+def table_after(heading: str) -> list[list[str]]:
+    """The cells of the first table after ``heading`` in docs/service.md, header and rule left out."""
+    text = SERVICE_MD[SERVICE_MD.index(heading) :]
+    rows = []
+    for line in text.splitlines()[1:]:
+        if line.startswith("|"):
+            rows.append([cell.strip() for cell in line.strip("|").split(" | ")])
+        elif rows:
+            break
+    return rows[2:]
+
+
+def first_names(rows: list[list[str]], pattern: str) -> list[str]:
+    """The names in backticks in each row's first cell that match ``pattern``."""
+    return [name for row in rows for name in re.findall(rf"`({pattern})`", row[0])]
+
+
+def differences(in_code: list[str], documented: list[str]) -> dict[str, list[str]]:
+    """What the table misses and what it lists that the code has not (or lists twice); both empty when tied."""
+    twice = sorted({name for name in documented if documented.count(name) > 1})
+    return {
+        "missing": sorted(set(in_code) - set(documented)),
+        "not in the code, or twice": sorted(set(documented) - set(in_code)) + twice,
+    }
+
+
+TIED: dict[str, list[str]] = {"missing": [], "not in the code, or twice": []}
+
+
+def test_the_settings_table_lists_every_setting_and_no_other() -> None:
+    documented = first_names(table_after("## Settings (`ARCLOUD_*`"), "[A-Z0-9_]+")
+    assert differences([name.upper() for name in Settings.model_fields], documented) == TIED
+
+
+def test_the_ports_table_lists_every_port_once_with_adapters_that_exist() -> None:
+    ports = {
+        name
+        for module in (arcloud.ports, arcloud.core.ports)
+        for name, cls in inspect.getmembers(module, inspect.isclass)
+        if cls.__module__ == module.__name__ and getattr(cls, "_is_protocol", False)
+    }
+    rows = table_after("## Ports and adapters")
+    named = [re.findall(r"`(\w+)`", row[0])[:1] for row in rows]  # each row's port: the first name in its first cell
+    assert differences(sorted(ports), [name for names in named for name in names]) == TIED and all(named)
+    adapters = {a for row in rows for cell in row[1:] for a in re.findall(r"`((?:stores|events)\.\w+)\.(\w+)`", cell)}
+    assert adapters, "no adapter named in the ports table"
+    for module, name in adapters:
+        source = (SRC / (module.replace(".", "/") + ".py")).read_text()
+        assert f"\nclass {name}" in source, f"docs/service.md names {module}.{name}, which src/arcloud does not define"
+
+
+def test_the_exception_tree_draws_every_exception_of_the_project() -> None:
+    """Every class of ``src/arcloud`` that derives from ``ArcloudError`` (read from the sources, so that no
+    adapter has to be imported), and nothing else, is in the tree."""
+    bases: dict[str, set[str]] = {}
+    for path in SRC.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef):
+                named = {
+                    b.id if isinstance(b, ast.Name) else b.attr for b in node.bases if isinstance(b, ast.Name | ast.Attribute)
+                }
+                bases.setdefault(node.name, set()).update(named)
+    errors = {"ArcloudError"}
+    while grown := {name for name, parents in bases.items() if parents & errors} - errors:
+        errors |= grown
+    tree = (arcloud.core.errors.__doc__ or "").split("\n\n")[1]
+    drawn = re.findall(r"^\s+(?:[│ ]*[├└]── )?([A-Z]\w+)", tree, re.MULTILINE)
+    assert differences(sorted(errors), drawn) == TIED
+
+
+# The keys' templates: arguments standing for the placeholders of the table, then the placeholders put back
+ARGUMENTS = {
+    "map_id": "m",
+    "tag": "t",
+    "object_id": 7,
+    "cell": (1, 2, 3),
+    "bucket": "<bucket>",
+    "lease_key": "<lock or claim key>",
+}
+PLACEHOLDERS = [(":7", ":<id>"), (":1:2:3", ":<i>:<j>:<k>"), (":map:m:", ":map:<m>:")]
+
+
+def test_the_key_table_lists_every_redis_key() -> None:
+    doc = keys.__doc__ or ""
+    documented = set(re.findall(r"^    (<[^>]+>\S*|\S+)\s+(?:STRING|HASH|SET|ZSET|LIST|STREAM)\s", doc, re.MULTILINE))
+    made = []
+    for name, function in inspect.getmembers(keys, inspect.isfunction):
+        if function.__module__ == keys.__name__ and (name.endswith("_key") or name.startswith("ingest_")):
+            key = function(*(ARGUMENTS[p] for p in inspect.signature(function).parameters))
+            for value, placeholder in PLACEHOLDERS:
+                key = key.replace(value, placeholder)
+            made.append(key)
+    service_wide = {name: value for name, value in vars(keys).items() if isinstance(value, str) and value.startswith("arcloud:")}
+    assert len(made) >= 20 and len(service_wide) >= 4
+    for name, value in service_wide.items():
+        if name.startswith("LEGACY_"):  # no longer written: named where the docstring says what was
+            assert f"``{value}``" in doc, name
+        else:
+            made.append(value)
+    assert differences(made, [key for key in documented if key in made]) == TIED  # the table may name keys of before
