@@ -259,7 +259,7 @@ def test_settled_frames_are_counted_per_map_and_per_worker_and_a_forgotten_map_s
 
 
 def test_heartbeats_tell_live_consumers(queue: FrameQueue) -> None:
-    queue.heartbeat("c1", None)
+    queue.heartbeat("c1", ())
     expected = [] if isinstance(queue, MemoryFrameQueue) else ["c1"]  # threads of one process need none
     assert queue.live_consumers(5.0) == expected
     queue.leave("c1")

@@ -225,6 +225,12 @@ class Settings(BaseSettings):
     claim_interval_s: float = Field(5.0, gt=0, description="how often a worker looks for abandoned frames")
     max_deliveries: int = Field(5, ge=1, description="deliveries before a frame goes to the dead-letter stream")
     read_block_s: float = Field(1.0, gt=0, description="how long a worker's XREADGROUP blocks")
+    worker_prefetch: bool = Field(
+        True,
+        description="each worker detects its next frame while it integrates the one before (query, locks, fusion, "
+        "commit): its detector never waits for the store or for other workers' locks; two frames in hand a worker. "
+        "Off: one frame at a time (docs/scaling.md)",
+    )
     api_redis_timeout_s: float = Field(
         2.0, gt=0, description="how long the API waits on a Redis reply before answering 503 (workers wait 30 s)"
     )

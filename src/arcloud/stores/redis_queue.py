@@ -75,7 +75,7 @@ import logging
 import re
 import time
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -712,19 +712,22 @@ class RedisFrameQueue:
             ],
         )
 
-    def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
-        """Write the heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to its own
-        consumer: no new delivery) so that a long step is never taken for an abandoned one."""
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
+        """Write the heartbeat, and reset the idle time of the entries in hand (XCLAIM JUSTID to its own
+        consumer: no new delivery; one call a shard) so that a long step is never taken for an abandoned one."""
+        by_shard: dict[int, list[bytes | str]] = {}
+        for item in in_hand:
+            shard, entry_id, _fields = cast(Receipt, item.receipt)
+            by_shard.setdefault(shard, []).append(entry_id)
         with redis_errors("write the heartbeat", self._where):
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
-            if in_hand is not None:
-                shard, entry_id, _fields = cast(Receipt, in_hand.receipt)
+            for shard, entry_ids in by_shard.items():
                 try:
-                    self.client.xclaim(keys.ingest_stream(self._tags[shard]), self.group, consumer, 0, [entry_id], justid=True)
+                    self.client.xclaim(keys.ingest_stream(self._tags[shard]), self.group, consumer, 0, [*entry_ids], justid=True)
                 except redis.exceptions.ResponseError as exc:
                     if not str(exc).startswith("NOGROUP"):
                         raise
-                    # The group went with Redis's data, and the entry with it: nothing left to keep fresh.
+                    # The group went with Redis's data, and the entries with it: nothing left to keep fresh.
 
     def leave(self, consumer: str) -> None:
         with redis_errors("remove the heartbeat", self._where):
