@@ -571,13 +571,16 @@ class RedisFrameQueue:
 
     def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
         """One look at each shard without waiting (one shard: a blocking read at once), then a wait of
-        ``block_s`` shared among the shards on the first of them."""
+        ``block_s`` shared among the shards on the first of them. ``block_s`` 0: no blocking read at all
+        (a blocked read times out on Redis's clock, every 1 / ``hz``: BLOCK 1 took 0-100 ms)."""
         order = self._turn(self._next_shard, consumer)
-        if self.shards > 1:
+        if self.shards > 1 or block_s <= 0:
             for shard in order:
                 item = self._read(shard, consumer, block_ms=None)
                 if item is not None:
                     return item
+            if block_s <= 0:
+                return None
         return self._read(order[0], consumer, block_ms=max(1, int(block_s * 1000 / self.shards)))
 
     def _read(self, shard: int, consumer: str, *, block_ms: int | None) -> QueuedFrame | None:
