@@ -507,7 +507,12 @@ def main() -> None:
     parser.add_argument("--maps", type=int, default=8, help="maps of the many_maps layout (default 8)")
     parser.add_argument("--api-processes", type=int, default=1, help="serve --api-processes (default 1)")
     parser.add_argument("--connections", type=int, default=8, help="keep-alive connections posting (default 8)")
-    parser.add_argument("--queued-images", choices=("decoded", "uploaded"), default="decoded", help="ARCLOUD_QUEUED_IMAGES")
+    parser.add_argument(
+        "--queued-images", choices=("decoded", "uploaded"), default=None, help="ARCLOUD_QUEUED_IMAGES (default: the service's)"
+    )
+    parser.add_argument(
+        "--worker-prefetch", choices=("on", "off"), default=None, help="ARCLOUD_WORKER_PREFETCH (default: the service's)"
+    )
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--plot", type=Path, metavar="JSON", help="only draw the plot of a result file, beside it")
     args = parser.parse_args()
@@ -524,7 +529,12 @@ def main() -> None:
     bench_started = time.perf_counter()
     load_start = os.getloadavg()
     frames = list(load_seven_scenes(SEQUENCE, align_gravity=True).frames(stride=args.stride, limit=args.frames))
-    env = {**BENCH_ENV, "ARCLOUD_QUEUED_IMAGES": args.queued_images}
+    from arcloud.service.settings import Settings
+
+    defaults = Settings()
+    queued_images = args.queued_images or defaults.queued_images
+    worker_prefetch = defaults.worker_prefetch if args.worker_prefetch is None else args.worker_prefetch == "on"
+    env = {**BENCH_ENV, "ARCLOUD_QUEUED_IMAGES": queued_images, "ARCLOUD_WORKER_PREFETCH": str(worker_prefetch).lower()}
     result: dict[str, Any] = {
         "benchmark": "scaling",
         **environment(("arcloud", "numpy", "onnxruntime", "fastapi", "uvicorn", "redis")),
@@ -537,7 +547,8 @@ def main() -> None:
             "maps_many": args.maps,
             "api_processes": args.api_processes,
             "connections": args.connections,
-            "queued_images": args.queued_images,
+            "queued_images": queued_images,
+            "worker_prefetch": worker_prefetch,
             "load_fraction": LOAD_FRACTION,
         },
     }

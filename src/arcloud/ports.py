@@ -481,8 +481,8 @@ class FrameQueue(Protocol):
         """Give the frame up (kept with ``reason`` where the queue keeps dead letters); counted failed."""
         ...
 
-    def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
-        """``consumer`` is alive, and ``in_hand`` is still being worked on (not abandoned)."""
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
+        """``consumer`` is alive, and the frames ``in_hand`` are still being worked on (not abandoned)."""
         ...
 
     def leave(self, consumer: str) -> None:

@@ -45,7 +45,7 @@ def test_the_readers_recreate_the_consumer_group_after_redis_lost_its_data(serve
         with server.client() as client:
             client.flushall()
         assert queue.health()["consumer_group"].startswith("missing")
-        queue.heartbeat("c1", in_hand)  # the entry in hand went with the data: no NOGROUP error
+        queue.heartbeat("c1", [in_hand])  # the entry in hand went with the data: no NOGROUP error
         assert queue.claim_abandoned("c2", min_idle_s=0.001) is None  # recreates the group: nothing pending in it
         assert queue.health()["consumer_group"] == "ok"
         with server.client() as client:

@@ -58,19 +58,22 @@ def test_wrong_settings_fail_at_once_naming_the_field(changes: dict, says: str) 
 
 
 def test_the_largest_frame_on_redis_depends_on_how_its_images_are_queued() -> None:
-    """At 1920 x 1440: decoded depth 2 bytes a pixel, depth as uploaded up to 4 (twice its pixels' size, the
-    bound on an upload's bytes), colour up to 6, each with 64 KiB for metadata."""
+    """At 1920 x 1440: decoded depth 2 bytes a pixel, depth as uploaded (the default) up to 4 (twice its
+    pixels' size, the bound on an upload's bytes), colour up to 6, each with 64 KiB for metadata."""
     pixels = 1920 * 1440
     on_redis = {"store": "redis://127.0.0.1:6379/0", "max_queued_bytes_per_map": 25 * 10**6}
-    assert Settings(**on_redis).largest_queued_frame() == 8 * pixels + 64 * 1024 < 25 * 10**6
+    assert Settings(**on_redis, queued_images="decoded").largest_queued_frame() == 8 * pixels + 64 * 1024 < 25 * 10**6
     with pytest.raises(ValidationError, match="max_queued_bytes_per_map: expected at least the largest frame"):
-        Settings(**on_redis, queued_images="uploaded")
+        Settings(**on_redis)
+    roomy = {**on_redis, "max_queued_bytes_per_map": 3 * 10**7}
+    assert Settings(**roomy).largest_queued_frame() == 10 * pixels + 128 * 1024 < 3 * 10**7
     assert Settings(store="memory").largest_queued_frame() == 7 * pixels
     # the API swaps PNGs for pixels only where a queue carries the message (embedded: the decoded frame)
-    assert [
-        Settings(**kw).queue_decoded_png
-        for kw in ({}, on_redis, {**on_redis, "max_queued_bytes_per_map": 3 * 10**7, "queued_images": "uploaded"})
-    ] == [False, True, False]
+    assert [Settings(**kw).queue_decoded_png for kw in ({}, {**on_redis, "queued_images": "decoded"}, roomy)] == [
+        False,
+        True,
+        False,
+    ]
 
 
 def test_queue_limits_default_a_map_to_a_quarter_of_the_queue(monkeypatch: pytest.MonkeyPatch) -> None:

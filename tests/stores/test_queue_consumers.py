@@ -57,7 +57,7 @@ def test_seven_restarts_leave_one_consumer_not_fourteen(url: str) -> None:
         for restart in range(7):  # each worker: starts (prepares), takes and settles a frame, stops (leaves)
             name = f"host-{100 + restart}"
             queue.prepare()
-            queue.heartbeat(name, None)
+            queue.heartbeat(name, ())
             queue.put(frame(restart))
             item = queue.take(name, block_s=1.0)
             assert item is not None
@@ -86,7 +86,7 @@ def test_a_consumer_holding_an_entry_or_beating_stays(url: str) -> None:
                 queue.ack(item, redelivered=False, timings=FrameTimings(step_s=0.01))
         queue.client.hset(keys.INGEST_WORKERS, "stopped", repr(time.time() - 3600))  # a heartbeat it left an hour ago
         time.sleep(STALE_S + 0.2)
-        queue.heartbeat("live-idle", None)  # alive, with nothing to do: idle in the group, but beating
+        queue.heartbeat("live-idle", ())  # alive, with nothing to do: idle in the group, but beating
         assert queue.remove_stale_consumers() == ["stopped"]
         assert consumers(queue) == {"died-holding": 1, "live-idle": 0}
         assert set(queue.client.hkeys(keys.INGEST_WORKERS)) == {b"live-idle"}  # the hour-old heartbeat went
@@ -96,7 +96,7 @@ def test_a_consumer_holding_an_entry_or_beating_stays(url: str) -> None:
         assert claimed is not None and claimed.consumer == "live-idle"
         queue.ack(claimed, redelivered=False, timings=FrameTimings(step_s=0.01))
         time.sleep(STALE_S + 0.2)
-        queue.heartbeat("live-idle", None)
+        queue.heartbeat("live-idle", ())
         assert queue.remove_stale_consumers() == ["died-holding"]
         assert consumers(queue) == {"live-idle": 0} and queue.stats().workers == {"live-idle": {"processed": 2}}
     finally:

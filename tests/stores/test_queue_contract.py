@@ -79,6 +79,17 @@ def queue(make_queue: MakeQueue) -> FrameQueue:
     return make_queue(max_queued_frames=3)
 
 
+def test_a_take_without_waiting_answers_at_once(queue: FrameQueue) -> None:
+    """``block_s=0`` (a prefetching worker with a frame in hand) never waits: on Redis a BLOCK 1 read timed
+    out on the server's clock, 0-100 ms later (50 ms of every frame's latency measured)."""
+    started = time.perf_counter()
+    assert all(queue.take("c1", block_s=0) is None for _ in range(10))
+    assert time.perf_counter() - started < 0.25
+    queue.put(frame(1))
+    item = queue.take("c1", block_s=0)
+    assert item is not None and item.frame_key == frame(1).key
+
+
 def test_a_frame_goes_through_once_and_is_counted(queue: FrameQueue) -> None:
     sent = frame(1)
     assert not queue.known_map(MAP)
@@ -259,7 +270,7 @@ def test_settled_frames_are_counted_per_map_and_per_worker_and_a_forgotten_map_s
 
 
 def test_heartbeats_tell_live_consumers(queue: FrameQueue) -> None:
-    queue.heartbeat("c1", None)
+    queue.heartbeat("c1", ())
     expected = [] if isinstance(queue, MemoryFrameQueue) else ["c1"]  # threads of one process need none
     assert queue.live_consumers(5.0) == expected
     queue.leave("c1")

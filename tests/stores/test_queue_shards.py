@@ -101,7 +101,7 @@ def test_an_abandoned_frame_is_claimed_from_whichever_shard_holds_it(make_queue:
     claimed = queue.claim_abandoned("c2", min_idle_s=0.01)
     assert claimed is not None and claimed.frame_key == second.frame_key and claimed.map_id == second.map_id
     assert claimed.deliveries == 2 and queue.claim_abandoned("c3", min_idle_s=0.01) is None
-    queue.heartbeat("c2", claimed)  # keeps the entry in its shard fresh
+    queue.heartbeat("c2", [claimed])  # keeps the entry in its shard fresh
     queue.dead_letter(claimed, "poison")
     assert queue.stats().claimed == 1 and queue.stats().failed == 1 and queue.stats().queue_depth == 0
     (failed,) = queue.failed_frames(claimed.map_id, 10)

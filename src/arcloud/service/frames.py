@@ -11,8 +11,8 @@ the frame's declared ``pose_convention`` and ``world_up``, and its ``device_from
 stored alignment, ``ports.DeviceAlignments``): the queue, the workers and the core see only that pose.
 
 The ingest queues the validated ``Frame`` with its message (a queue that serialises, such as the Redis
-one, carries the message rather than encoding the frame again: with its PNG images replaced by the pixels
-decoded here, unless ``Settings.queued_images`` says ``uploaded``).
+one, carries the message rather than encoding the frame again: its images as uploaded, or, when
+``Settings.queued_images`` says ``decoded``, its PNG images replaced by the pixels decoded here).
 """
 
 from __future__ import annotations

@@ -125,6 +125,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
                 max_deliveries=settings.max_deliveries,
                 heartbeat_s=None,
                 warm_up=True,
+                prefetch=settings.worker_prefetch,
             )
             for i in range(settings.workers)
         ]

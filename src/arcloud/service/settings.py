@@ -83,15 +83,15 @@ class Settings(BaseSettings):
         1920 * 1440,
         ge=1,
         description="largest image accepted, in pixels (read from its header before decoding); an encoded image "
-        "may take at most twice its pixels' size + 64 KiB, so a queued frame holds at most 8 bytes a pixel + 64 KiB "
-        "(`uploaded` images: 10 + 128 KiB; embedded: 7), 22 MB at the default",
+        "may take at most twice its pixels' size + 64 KiB, so a queued frame holds at most 10 bytes a pixel + 128 KiB "
+        "(`decoded` images: 8 + 64 KiB; embedded: 7), 28 MB at the default",
     )
     queued_images: QueuedImages = Field(
-        "decoded",
-        description="how a queue on Redis carries a frame's PNG images: `decoded`, the pixels the API decoded to "
-        "validate them (no worker decodes them again), or `uploaded`, as they came (a VGA frame: ~180 kB in the "
-        "stream instead of ~680 kB, 40 % less Redis CPU, 2.7 ms more of a worker's; worth it past a few hundred "
-        "devices: docs/scaling.md). JPEG travels as uploaded either way",
+        "uploaded",
+        description="how a queue on Redis carries a frame's PNG images: `uploaded`, as they came (a VGA frame: ~180 kB "
+        "into and out of Redis instead of ~680 kB, 40 % less Redis CPU), or `decoded`, the pixels the API decoded "
+        "to validate them (no worker decodes them again: 2.7 ms less of a worker's CPU a VGA frame, for 0.5 MB more "
+        "through Redis; docs/scaling.md). JPEG travels as uploaded either way",
     )
     max_queued_frames: int = Field(
         1000, ge=1, description="frames queued or in progress, all maps together, before ingest answers 503"
@@ -100,7 +100,7 @@ class Settings(BaseSettings):
     max_queued_bytes: int = Field(
         2**30,
         ge=1,
-        description="bytes of the frames queued or in progress (Redis: stream entries, up to 8 bytes a pixel + 64 KiB; "
+        description="bytes of the frames queued or in progress (Redis: stream entries, up to 10 bytes a pixel + 128 KiB; "
         "embedded: their arrays, 7 bytes a pixel) before ingest answers 503",
     )
     max_queued_frames_per_map: int | None = Field(
@@ -222,6 +222,12 @@ class Settings(BaseSettings):
     claim_interval_s: float = Field(5.0, gt=0, description="how often a worker looks for abandoned frames")
     max_deliveries: int = Field(5, ge=1, description="deliveries before a frame goes to the dead-letter stream")
     read_block_s: float = Field(1.0, gt=0, description="how long a worker's XREADGROUP blocks")
+    worker_prefetch: bool = Field(
+        True,
+        description="each worker detects its next frame while it integrates the one before (query, locks, fusion, "
+        "commit): its detector never waits for the store or for other workers' locks; two frames in hand a worker. "
+        "Off: one frame at a time (docs/scaling.md)",
+    )
     api_redis_timeout_s: float = Field(
         2.0, gt=0, description="how long the API waits on a Redis reply before answering 503 (workers wait 30 s)"
     )
@@ -350,7 +356,7 @@ class Settings(BaseSettings):
 
     def largest_queued_frame(self) -> int:
         """The most bytes one queued frame can take: embedded, its arrays; on Redis, its colour image as
-        uploaded and its depth as pixels (``queued_images=decoded``) or as uploaded, each image at most
+        uploaded and its depth as uploaded or as pixels (``queued_images=decoded``), each image at most
         ``frames.max_encoded_bytes`` (the protobuf's other fields: a few hundred bytes, in the slack)."""
         from arcloud.service.frames import max_encoded_bytes
 

@@ -11,16 +11,23 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
 1. Every ``claim_interval_s``: claim one frame another consumer took ``claim_min_idle_s`` ago without
    settling it (it died or hangs). Beyond ``max_deliveries`` it is a poison frame: dead-lettered (or,
    when a slow delivery did commit it meanwhile, acknowledged as redelivered). Otherwise processed here.
-2. Take one new frame (blocking ``read_block_s``), process it.
-3. Processing: an undecodable frame is dead-lettered at once; the map is opened (its header stored by
+2. Take one new frame (blocking ``read_block_s`` while no other frame is in hand), process it.
+3. Processing: an undecodable frame is dead-lettered at once; the frame is detected (holding nothing of
+   the store); one processed before is acknowledged as redelivered; the map is opened (its header stored by
    the first writer) and refused when its header says other settings than this worker's (``MapMismatch``:
-   ``fail``, logged as an error); ``process_frame`` is tried again in place
-   when locks time out or a lease went stale (nothing was written); then ``ack``. ``InvalidInput`` from
-   the step (the frame's own content is at fault, e.g. ``TooManyCells``: its detections span more index
-   cells than a store call takes) is dead-lettered at once with its reason: every delivery would fail
-   the same way. Any other error is
+   ``fail``, logged as an error); ``integrate_frame`` (the step after detection) is tried again in place
+   on the same detections when locks time out or a lease went stale (nothing was written); then ``ack``.
+   ``InvalidInput`` from the detector or the step (the frame's own content is at fault, e.g.
+   ``TooManyCells``: its detections span more index cells than a store call takes) is dead-lettered at
+   once with its reason: every delivery would fail the same way. Any other error is
    ``fail``: the queue delivers it again later (Redis, until ``max_deliveries``) or counts it failed
    (embedded).
+
+With ``prefetch`` (``ARCLOUD_WORKER_PREFETCH``, on by default) the worker is a pipeline one frame deep: once
+the detector is free it takes the next frame and detects it in a thread of its own while this thread
+integrates the frame before (query, locks, fusion, commit), so the detector never waits for the store,
+nor for other workers' locks on a hot map (onnxruntime releases the GIL while it runs). Two frames are in
+hand then, and the heartbeat keeps both fresh; a stop finishes both. Measured in docs/scaling.md.
 
 A frame delivered twice (a worker died after its commit but before its acknowledgement) is not counted
 twice: the store's commit records the frame key atomically and refuses a second one; it is acknowledged
@@ -35,15 +42,19 @@ the store's lock and claim calls (``LockTimer``); the queue counts them in the h
 
 from __future__ import annotations
 
+import contextvars
+import functools
 import logging
 import os
 import socket
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Literal
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
 
-from arcloud.core.types import Frame, MapObject, Params
+from arcloud.core.types import Detection, Frame, MapObject, Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
 from arcloud.ports import Detector, FrameQueue, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame, UpdatePublisher
 from arcloud.service.logs import log_context
@@ -51,6 +62,8 @@ from arcloud.service.map_header import open_map_checked
 
 if TYPE_CHECKING:
     import numpy as np
+
+    from arcloud.core.step import StepResult
 
 log = logging.getLogger(__name__)
 
@@ -147,25 +160,43 @@ class LockTimer:
 
 def run_step(
     frame: Frame,
-    detector: Detector,
+    detections: Sequence[Detection],
     store: MapStore,
     params: Params,
     publisher: UpdatePublisher | None,
     *,
     attempts: int,
-) -> tuple[Any, int]:
-    """``process_frame``, tried again (at most ``attempts`` times) when locks could not be taken or a
-    lease went stale: nothing was written then. Returns the step's result and how many retries it took."""
-    from arcloud.core.step import process_frame  # scipy: loaded with the first frame, not at import
+) -> tuple[StepResult, int]:
+    """``integrate_frame`` of the frame's detections, tried again (at most ``attempts`` times) when locks
+    could not be taken or a lease went stale: nothing was written then. Returns the step's result and how
+    many retries it took."""
+    from arcloud.core.step import integrate_frame  # scipy: loaded with the first frame, not at import
 
     for attempt in range(1, attempts + 1):
         try:
-            return process_frame(frame, detector, store, params, publisher), attempt - 1
+            return integrate_frame(frame, detections, store, params, publisher), attempt - 1
         except RETRYABLE as exc:
             if attempt == attempts:
                 raise
             log.warning("map %s frame %s: %s; trying again (%d/%d)", frame.map_id, frame.key, exc, attempt, attempts)
     raise AssertionError("unreachable")
+
+
+def timed_detect(detector: Detector, frame: Frame) -> tuple[list[Detection], float]:
+    """The frame's detections and the seconds they took."""
+    started = time.perf_counter()
+    detections = detector.detect(frame)
+    return detections, time.perf_counter() - started
+
+
+@dataclass(frozen=True, slots=True)
+class Started:
+    """A delivery whose detection runs (in the worker's detector thread) or ran, not yet integrated."""
+
+    item: QueuedFrame
+    frame: Frame
+    detections: Future[tuple[list[Detection], float]]  # ``timed_detect``'s
+    queue_wait_s: float | None  # its first delivery: from its acceptance until this worker took it
 
 
 def consumer_name(pid: int | None = None) -> str:
@@ -202,6 +233,7 @@ class FrameWorker:
         attempts: int = 3,
         heartbeat_s: float | None = HEARTBEAT_S,
         warm_up: bool = False,
+        prefetch: bool = False,
     ) -> None:
         self.queue = queue
         self.store = store
@@ -217,11 +249,14 @@ class FrameWorker:
         self.heartbeat_s = heartbeat_s
         self._warm_up = warm_up
         self._next_claim = 0.0
-        self._in_hand: QueuedFrame | None = None  # the frame being processed, kept fresh by the heartbeat
+        # prefetch: one thread detects the frame taken last while this one integrates the frame before
+        self._detector_thread = ThreadPoolExecutor(1, thread_name_prefix="arcloud-detect") if prefetch else None
+        self._started: Started | None = None  # prefetch: the frame taken last, detecting or detected
+        self._in_hand: tuple[QueuedFrame, ...] = ()  # taken, not settled: kept fresh by the heartbeat
         self._reading = True  # the last poll did not fail: the heartbeat may say so
 
     def run(self, stop: threading.Event) -> None:
-        """Work until ``stop`` is set; the frame in hand is finished first. Every line logged meanwhile in
+        """Work until ``stop`` is set; the frames in hand are finished first. Every line logged meanwhile in
         this thread carries ``worker`` (this consumer's name)."""
         with log_context(worker=self.consumer):
             self._run(stop)
@@ -254,6 +289,12 @@ class FrameWorker:
                     self._reading = False
                     stop.wait(1.0)
         finally:
+            try:
+                self.finish_started()
+            except Exception:  # the queue away: the frame stays pending, for another delivery
+                log.exception("worker %s: the prefetched frame was left for another delivery", self.consumer)
+            if self._detector_thread is not None:
+                self._detector_thread.shutdown()
             if heart is not None:
                 beating.set()
                 heart.join()
@@ -270,7 +311,7 @@ class FrameWorker:
         while True:
             try:
                 in_hand = self._in_hand
-                if self._reading or in_hand is not None:
+                if self._reading or in_hand:
                     self.queue.heartbeat(self.consumer, in_hand)
             except Exception:  # the queue away: the loop logs it; try again next beat
                 log.debug("worker %s: heartbeat failed", self.consumer, exc_info=True)
@@ -278,47 +319,102 @@ class FrameWorker:
                 return
 
     def poll_once(self) -> int:
-        """Claim one abandoned frame when due, else take one new frame (blocking). Returns how many
-        frames were handled."""
+        """Take a frame (an abandoned one when a claim is due, else a new one, blocking ``read_block_s``
+        while no other frame is in hand) and start it (``start``). Without prefetch it is then finished;
+        with prefetch its detection runs on while the frame started before it is finished here, once the
+        detector is free of that one. Returns how many frames were settled."""
+        earlier = self._started
+        if earlier is not None:
+            wait([earlier.detections])  # the detector is free: the next frame may start
+        try:
+            item = self._next_delivery(block_s=0.0 if earlier is not None else self.read_block_s)
+        except BaseException:
+            self.finish_started()  # the frame detected is not held through a queue outage
+            raise
+        later = None if item is None else self.start(item)
+        settled = 0
+        if isinstance(later, str):  # settled without a step
+            settled, later = 1, None
+        if self._detector_thread is None:  # no prefetch: the frame just started is finished now
+            earlier, later = later, None
+        self._started = later
+        if earlier is not None:
+            self.finish(earlier)
+            settled += 1
+        return settled
+
+    def finish_started(self) -> None:
+        """Finish the frame prefetched (taken and started by ``poll_once``), if any."""
+        started, self._started = self._started, None
+        if started is not None:
+            self.finish(started)
+
+    def _next_delivery(self, *, block_s: float) -> QueuedFrame | None:
+        """An abandoned frame when a claim is due and one is there, else a new frame (waiting ``block_s``)."""
         now = time.monotonic()
         if now >= self._next_claim:
             claimed = self.queue.claim_abandoned(self.consumer, min_idle_s=self.claim_min_idle_s)
             if claimed is not None:
-                self.handle(claimed)
-                return 1  # there may be more: look again next time round
+                return claimed  # there may be more: look again next time round
             self._next_claim = now + self.claim_interval_s
-        item = self.queue.take(self.consumer, block_s=self.read_block_s)
-        if item is None:
-            return 0
-        self.handle(item)
-        return 1
+        return self.queue.take(self.consumer, block_s=block_s)
 
     def handle(self, item: QueuedFrame) -> Outcome:
-        """Process one delivery; returns what became of it. Every line logged meanwhile (in the step, the
-        store, the detector) carries the frame's map, device and frame ids and its delivery count."""
-        with log_context(**frame_log_fields(item)):
-            return self._handle(item)
+        """Process one delivery now (``start``, then ``finish``); returns what became of it."""
+        started = self.start(item)
+        return started if isinstance(started, str) else self.finish(started)
 
-    def _handle(self, item: QueuedFrame) -> Outcome:
-        if item.deliveries > self.max_deliveries:
-            if item.map_id and item.frame_key and self.store.is_frame_done(item.map_id, item.frame_key):
-                # A slow delivery finished after the frame was claimed again: it counts once, as processed.
-                self.queue.ack(item, redelivered=True)
-                return "redelivered"
-            self._dead_letter(item, f"delivered {item.deliveries} times (max {self.max_deliveries})")
-            return "dead"
-        if item.frame is None:
-            self._dead_letter(item, f"undecodable: {item.undecodable}")
-            return "dead"
-        queue_wait_s = None
-        if item.deliveries == 1 and item.accepted_at_s is not None:  # a later delivery's wait holds the earlier ones
-            queue_wait_s = max(0.0, time.time() - item.accepted_at_s)
-        started = time.perf_counter()
-        self._in_hand = item
+    def start(self, item: QueuedFrame) -> Started | Outcome:
+        """Settle a delivery that needs no step (a poison or undecodable frame); start the detection of
+        any other (in the detector thread with prefetch, else now), the frame in hand from here until
+        ``finish``. Every line logged meanwhile (here and in the detector) carries the frame's map, device
+        and frame ids and its delivery count."""
+        with log_context(**frame_log_fields(item)):
+            if item.deliveries > self.max_deliveries:
+                if item.map_id and item.frame_key and self.store.is_frame_done(item.map_id, item.frame_key):
+                    # A slow delivery finished after the frame was claimed again: it counts once, as processed.
+                    self.queue.ack(item, redelivered=True)
+                    return "redelivered"
+                self._dead_letter(item, f"delivered {item.deliveries} times (max {self.max_deliveries})")
+                return "dead"
+            if item.frame is None:
+                self._dead_letter(item, f"undecodable: {item.undecodable}")
+                return "dead"
+            queue_wait_s = None
+            if item.deliveries == 1 and item.accepted_at_s is not None:  # a later delivery's wait holds the earlier ones
+                queue_wait_s = max(0.0, time.time() - item.accepted_at_s)
+            self._in_hand = (*self._in_hand, item)
+            detect = functools.partial(timed_detect, self.detector, item.frame)
+            if self._detector_thread is not None:
+                detections = self._detector_thread.submit(contextvars.copy_context().run, detect)
+            else:
+                detections = Future()
+                try:
+                    detections.set_result(detect())
+                except Exception as exc:  # noqa: BLE001 - settled as the step's errors are, in ``finish``
+                    detections.set_exception(exc)
+            return Started(item, item.frame, detections, queue_wait_s)
+
+    def finish(self, started: Started) -> Outcome:
+        """The rest of a started frame's step (waiting for its detection): integrate its detections into the
+        map, then settle it. Logged as ``start``."""
+        with log_context(**frame_log_fields(started.item)):
+            try:
+                return self._finish(started)
+            finally:
+                self._in_hand = tuple(i for i in self._in_hand if i is not started.item)
+
+    def _finish(self, started: Started) -> Outcome:
+        item, frame = started.item, started.frame
+        began = time.perf_counter()
         locks = LockTimer(self.store)
         try:
-            open_map_checked(self.store, item.frame.map_id, self.params)
-            result, retries = run_step(item.frame, self.detector, locks, self.params, self.publisher, attempts=self.attempts)
+            detections, detect_s = started.detections.result()
+            if self.store.is_frame_done(frame.map_id, frame.key):  # a delivery before this one committed it
+                self.queue.ack(item, redelivered=True)
+                return "redelivered"
+            open_map_checked(self.store, frame.map_id, self.params)
+            result, retries = run_step(frame, detections, locks, self.params, self.publisher, attempts=self.attempts)
         except MapMismatch as exc:  # this worker's settings are wrong for the map: leave the frame to others
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
@@ -332,19 +428,17 @@ class FrameWorker:
                 self.consumer,
                 item.map_id,
                 item.frame_key,
-                item.frame.device_id,
+                frame.device_id,
                 item.deliveries,
                 self.max_deliveries,
             )
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
-        finally:
-            self._in_hand = None
-        elapsed_s = time.perf_counter() - started
-        timings = FrameTimings(step_s=elapsed_s, queue_wait_s=queue_wait_s, lock_wait_s=locks.lock_wait_s)
+        step_s = detect_s + time.perf_counter() - began  # its own work: not its wait for the frame before
+        timings = FrameTimings(step_s=step_s, queue_wait_s=started.queue_wait_s, lock_wait_s=locks.lock_wait_s)
         self.queue.ack(item, redelivered=result.skipped, retries=retries, timings=timings)
         outcome: Outcome = "redelivered" if result.skipped else "processed"
-        log.debug("worker %s: map %s frame %s %s in %.3f s", self.consumer, item.map_id, item.frame_key, outcome, elapsed_s)
+        log.debug("worker %s: map %s frame %s %s in %.3f s", self.consumer, item.map_id, item.frame_key, outcome, step_s)
         return outcome
 
     def _dead_letter(self, item: QueuedFrame, reason: str) -> None:
@@ -354,4 +448,15 @@ class FrameWorker:
         self.queue.dead_letter(item, reason)
 
 
-__all__ = ["HEARTBEAT_S", "LIVE_WORKER_S", "FrameWorker", "LockTimer", "consumer_name", "frame_log_fields", "run_step", "warm_up"]
+__all__ = [
+    "HEARTBEAT_S",
+    "LIVE_WORKER_S",
+    "FrameWorker",
+    "LockTimer",
+    "Started",
+    "consumer_name",
+    "frame_log_fields",
+    "run_step",
+    "timed_detect",
+    "warm_up",
+]

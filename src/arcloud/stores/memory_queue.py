@@ -22,7 +22,7 @@ import itertools
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -326,7 +326,7 @@ class MemoryFrameQueue:
         if records is not None and frame_key in records.status:
             records.status[frame_key] = status
 
-    def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
         return None
 
     def leave(self, consumer: str) -> None:

@@ -75,7 +75,7 @@ import logging
 import re
 import time
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -571,13 +571,16 @@ class RedisFrameQueue:
 
     def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
         """One look at each shard without waiting (one shard: a blocking read at once), then a wait of
-        ``block_s`` shared among the shards on the first of them."""
+        ``block_s`` shared among the shards on the first of them. ``block_s`` 0: no blocking read at all
+        (a blocked read times out on Redis's clock, every 1 / ``hz``: BLOCK 1 took 0-100 ms)."""
         order = self._turn(self._next_shard, consumer)
-        if self.shards > 1:
+        if self.shards > 1 or block_s <= 0:
             for shard in order:
                 item = self._read(shard, consumer, block_ms=None)
                 if item is not None:
                     return item
+            if block_s <= 0:
+                return None
         return self._read(order[0], consumer, block_ms=max(1, int(block_s * 1000 / self.shards)))
 
     def _read(self, shard: int, consumer: str, *, block_ms: int | None) -> QueuedFrame | None:
@@ -712,19 +715,22 @@ class RedisFrameQueue:
             ],
         )
 
-    def heartbeat(self, consumer: str, in_hand: QueuedFrame | None) -> None:
-        """Write the heartbeat, and reset the idle time of the entry in hand (XCLAIM JUSTID to its own
-        consumer: no new delivery) so that a long step is never taken for an abandoned one."""
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
+        """Write the heartbeat, and reset the idle time of the entries in hand (XCLAIM JUSTID to its own
+        consumer: no new delivery; one call a shard) so that a long step is never taken for an abandoned one."""
+        by_shard: dict[int, list[bytes | str]] = {}
+        for item in in_hand:
+            shard, entry_id, _fields = cast(Receipt, item.receipt)
+            by_shard.setdefault(shard, []).append(entry_id)
         with redis_errors("write the heartbeat", self._where):
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
-            if in_hand is not None:
-                shard, entry_id, _fields = cast(Receipt, in_hand.receipt)
+            for shard, entry_ids in by_shard.items():
                 try:
-                    self.client.xclaim(keys.ingest_stream(self._tags[shard]), self.group, consumer, 0, [entry_id], justid=True)
+                    self.client.xclaim(keys.ingest_stream(self._tags[shard]), self.group, consumer, 0, [*entry_ids], justid=True)
                 except redis.exceptions.ResponseError as exc:
                     if not str(exc).startswith("NOGROUP"):
                         raise
-                    # The group went with Redis's data, and the entry with it: nothing left to keep fresh.
+                    # The group went with Redis's data, and the entries with it: nothing left to keep fresh.
 
     def leave(self, consumer: str) -> None:
         with redis_errors("remove the heartbeat", self._where):

@@ -1,8 +1,8 @@
 """How the Redis ingest stream carries a frame: the protobuf ``arcloud.v1.Frame`` as the API validated it.
-With ``ARCLOUD_QUEUED_IMAGES=decoded`` (the default) the API replaced its PNG images by the pixels it decoded
-to validate them (``frame_from_proto(lossless_to_raw=True)``), so that no worker decodes them again (a VGA
-PNG depth image: 2.7 ms; its pixels: 614 kB in the stream against ~120 kB); with ``uploaded`` they travel as
-they came. JPEG always travels as uploaded (lossy: never re-encoded). ``decode_frame`` turns the bytes back
+With ``ARCLOUD_QUEUED_IMAGES=uploaded`` (the default) its images travel as they came; with ``decoded`` the
+API replaced its PNG images by the pixels it decoded to validate them (``frame_from_proto(lossless_to_raw=True)``),
+so that no worker decodes them again (a VGA PNG depth image: 2.7 ms; its pixels: 614 kB in the stream against
+~120 kB). JPEG always travels as uploaded (lossy: never re-encoded). ``decode_frame`` turns the bytes back
 into the same ``Frame``, bit for bit.
 """
 

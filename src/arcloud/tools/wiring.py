@@ -396,6 +396,7 @@ def run_worker(
             max_deliveries=settings.max_deliveries,
             read_block_s=settings.read_block_s,
             warm_up=True,
+            prefetch=settings.worker_prefetch,
         ).run(stop)
     finally:
         close_all(owned)
