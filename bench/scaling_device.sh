@@ -6,10 +6,12 @@
 #                                          about 40 MB: the model, 60 frames, cp312 wheels, redis-server)
 #   bench/scaling_device.sh run [ARGS]     there, from the repository root (the `run` tool with carry
 #                                          [".device"]): installs the wheels into /tmp/site, runs
-#                                          bench_scaling.py in three parts (ceiling, service, wait; ARGS are
-#                                          added to the last two) and writes $OUT/scaling-{ceiling,service,
-#                                          wait}.json (bench/results/ without $OUT); WORKERS, WAIT_WORKERS and
-#                                          CEILING_S, SERVICE_S, WAIT_S (each part's limit) change the defaults
+#                                          bench_scaling.py in four parts (ceiling, service, wait, and the
+#                                          service at W = cores - 1 without the pipelined worker; ARGS are added
+#                                          to the last three) and writes $OUT/scaling-{ceiling,service,wait,
+#                                          service-no-prefetch}.json (bench/results/ without $OUT); WORKERS,
+#                                          WAIT_WORKERS and CEILING_S, SERVICE_S, WAIT_S, NO_PREFETCH_S (each
+#                                          part's limit) change the defaults
 #
 # Plot it here afterwards: .venv/bin/python bench/bench_scaling.py --plot FILE.json (matplotlib is not carried).
 set -euo pipefail
@@ -63,13 +65,17 @@ run() {
     "$python" -c "import arcloud.service.app, arcloud.service.worker, fastapi, uvicorn, redis, onnxruntime"
     redis-server --version
     # In parts, each with its own limit and file, so that a part that runs long leaves the others' results.
-    local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2)
-    timeout "${CEILING_S:-100}" "${bench[@]}" --parts ceiling --ceiling-processes "1,4,8,$((cores - 1)),$cores" \
+    local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 --service-frames 32)
+    timeout "${CEILING_S:-90}" "${bench[@]}" --parts ceiling --ceiling-processes "1,4,8,$((cores - 1)),$cores" \
         --out "$out/scaling-ceiling.json" || echo "ceiling part failed or ran out of time"
-    timeout "${SERVICE_S:-330}" "${bench[@]}" --parts service --ceiling-from "$out/scaling-ceiling.json" \
+    timeout "${SERVICE_S:-260}" "${bench[@]}" --parts service --ceiling-from "$out/scaling-ceiling.json" \
         --workers "${WORKERS:-1,4,8,$((cores - 1))}" --out "$out/scaling-service.json" "$@" || echo "service part failed or ran out of time"
-    timeout "${WAIT_S:-120}" "${bench[@]}" --parts wait --ceiling-from "$out/scaling-ceiling.json" \
+    timeout "${WAIT_S:-110}" "${bench[@]}" --parts wait --ceiling-from "$out/scaling-ceiling.json" \
         --wait-workers "${WAIT_WORKERS:-1,4,16}" --wait-phase-s 2 --out "$out/scaling-wait.json" "$@" || echo "wait part failed or ran out of time"
+    # The same service without the pipelined worker, at the most workers: what prefetching gives on real cores.
+    timeout "${NO_PREFETCH_S:-90}" "${bench[@]}" --parts service --ceiling-from "$out/scaling-ceiling.json" \
+        --workers "$((cores - 1))" --worker-prefetch off --out "$out/scaling-service-no-prefetch.json" "$@" \
+        || echo "no-prefetch part failed or ran out of time"
 }
 
 case "${1:-}" in
