@@ -41,7 +41,7 @@ EXTRAS = {"events", "server", "sim", "datasets", "all", "dev"}
 CLIENT_SCRIPT = """
 import sys
 at_start = set(sys.modules)
-import importlib, json
+import dataclasses, importlib, json
 import numpy as np
 from arcloud.client import ArcloudClient, frame_body, subscribe
 
@@ -62,9 +62,9 @@ frame_body(**frame, rgb_encoding="png")
 out = {"importable": importable}
 if sys.argv[1]:
     with ArcloudClient(sys.argv[1]) as client:
-        out["sent"] = client.send_frame(**frame)
+        out["sent"] = dataclasses.asdict(client.send_frame(**frame))
         out["frames"] = client.wait_until_processed("light", 1, timeout_s=30)["frames"]
-        out["objects"] = client.list_objects("light", include_tentative=True)
+        out["objects"] = [dataclasses.asdict(o) for o in client.list_objects("light", include_tentative=True)]
     try:
         subscribe("light", print, ["tcp/127.0.0.1:9"]).close()
     except ImportError as exc:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import socket
 import threading
@@ -13,6 +14,7 @@ import pytest
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient, ServiceError
 from arcloud.client.http import RetryPolicy, backoff_s
+from arcloud.client.results import MapStats
 
 STATS = {
     "map_id": "m",
@@ -69,17 +71,17 @@ def test_the_client_retries_dropped_connections_and_503() -> None:
         FlakyServer(drops=2, unavailable=1) as server,
         ArcloudClient(server.url, max_retries=3, backoff_s=0.01, seed=0) as client,
     ):
-        assert client.stats("m") == STATS
+        assert dataclasses.asdict(client.stats("m")) == STATS
     assert server.connections == 4
 
 
 def test_the_async_client_retries_dropped_connections() -> None:
-    async def stats(url: str) -> dict:
+    async def stats(url: str) -> MapStats:
         async with AsyncArcloudClient(url, max_retries=3, backoff_s=0.01, seed=0) as client:
             return await client.stats("m")
 
     with FlakyServer(drops=3) as server:
-        assert asyncio.run(stats(server.url)) == STATS
+        assert dataclasses.asdict(asyncio.run(stats(server.url))) == STATS
     assert server.connections == 4
 
 

@@ -115,7 +115,12 @@ def test_redis_restarted_empty_the_service_recovers_without_a_restart(serving: S
             wait_until(serving.ready, RECOVERY_BOUND_S, "/readyz ready again", 0.1)
             ready_s = time.monotonic() - back_at
     print(f"\nRedis back empty: new frame processed after {processed_s:.2f} s, /readyz ready after {ready_s:.2f} s")
-    assert answer["status"] == "queued" and stats["frames"] == {"accepted": 1, "processed": 1, "failed": 0, "pending": 0}
+    assert answer.status == "queued" and (
+        stats.frames.accepted,
+        stats.frames.processed,
+        stats.frames.failed,
+        stats.frames.pending,
+    ) == (1, 1, 0, 0)
     assert processed_s <= RECOVERY_BOUND_S
     statuses = [status for _, status, _ in watch.seen]
     assert statuses[0] == 200 and 503 in statuses, statuses

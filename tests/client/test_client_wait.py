@@ -11,6 +11,7 @@ import pytest
 from svc_helpers import BlobDetector, UvicornThread, make_test_frame
 
 from arcloud.client import ArcloudClient
+from arcloud.client.results import FrameCounts
 from arcloud.core.types import Detection, Frame
 from arcloud.service.settings import Settings
 from arcloud.tools.wiring import create_app
@@ -56,9 +57,9 @@ def test_a_client_waits_on_its_own_frames_on_a_map_that_had_others(service: tupl
         detector.gate.set()
         done = late.wait_until_processed("busy", timeout_s=20)
         assert done == {"map_id": "busy", "frames": {"sent": 3, "processed": 3, "failed": 0, "lost": 0}}
-        assert late.stats("busy")["frames"] == {"accepted": 9, "processed": 9, "failed": 0, "pending": 0}
-        assert [late.frame_status("busy", "late", f"f{i:06d}")["status"] for i in range(3)] == ["processed"] * 3
-        assert late.send_frame(make_test_frame(0, map_id="busy", device_id="late"))["status"] == "duplicate"
+        assert late.stats("busy").frames == FrameCounts(accepted=9, processed=9, failed=0, pending=0)
+        assert [late.frame_status("busy", "late", f"f{i:06d}").status for i in range(3)] == ["processed"] * 3
+        assert late.send_frame(make_test_frame(0, map_id="busy", device_id="late")).status == "duplicate"
         assert late.wait_until_processed("busy", timeout_s=5)["frames"] == {"sent": 4, "processed": 4, "failed": 0, "lost": 0}
 
 

@@ -28,6 +28,17 @@ def parser() -> argparse.ArgumentParser:
     return root
 
 
+def assert_charts(paths: list[str], names: list[str]) -> None:
+    """The charts are these PNGs, each a picture: hundreds of pixels a side, more than one colour."""
+    import cv2
+
+    assert sorted(Path(p).name for p in paths) == sorted(names)
+    for path in paths:
+        image = cv2.imread(path)
+        assert image is not None and image.shape[0] >= 300 and image.shape[1] >= 400, path
+        assert len(np.unique(image.reshape(-1, 3), axis=0)) > 10, f"{path}: nearly one colour"
+
+
 def test_parsing() -> None:
     args = parser().parse_args(["eval", "scannet", "--root", "r", "--detector", "gt-masks", "--out", "o.json", "--scenes", "a,b"])
     assert args.users == (1, 10, 50, 100) and args.runs == 10 and args.scenes == ("a", "b") and args.stride == 1
@@ -80,6 +91,9 @@ def test_eval_scannet_command(tmp_path: Path) -> None:
     assert results["table1"][0]["map25_mean"] == pytest.approx(1.0)
     assert results["scenes"] == [SCENE_ID] and results["frames"] == {SCENE_ID: 16}
     assert results["centralized"]["n_gt"]["chair"] == 1 and results["centralized"]["n_gt"]["table"] == 1
+    curves = results["centralized"]["curves"]["0.25"]
+    assert set(curves) == {"chair", "table"} and all(c["recall"][-1] == 1.0 for c in curves.values())
+    assert_charts(results["charts"], ["r_ap_per_class.png", "r_pr_curves.png", "r_map_vs_users.png"])
     exported = sorted(p.name for p in (tmp_path / "exp").iterdir())
     assert exported == [f"{SCENE_ID}_1_0.json", f"{SCENE_ID}_2_0.json", f"{SCENE_ID}_2_1.json"]
     payload = json.loads((tmp_path / "exp" / f"{SCENE_ID}_1_0.json").read_text())
@@ -261,6 +275,7 @@ def test_eval_7scenes_scores_against_ground_truth_in_its_frame(tmp_path: Path, m
     central = results["accuracy"][0]
     assert central["map25_mean"] == 1.0 and central["served_precision25"] == 1.0 and central["served_recall25"] == 1.0
     assert any(Path(p).name == "board_topdown_users1.png" for p in results["pictures"])
+    assert_charts(results["charts"], ["board_ap_per_class.png", "board_map_vs_users.png"])
 
     gt_file = json.loads((root / "gt-boxes.json").read_text())
     for row in (r for r in results["accuracy"] if r["boxes"] == "observed"):

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from arcloud.core.checks import make_frame
-from arcloud.core.types import Detection, Frame
+from arcloud.core.types import AABB, N_CLASSES, OBB, Detection, Frame, MapObject, Params
+from arcloud.core.voxels import keys_bounds, pack_keys
 
 HEIGHT, WIDTH = 120, 160
 INTRINSICS = (130.0, 130.0, 79.5, 59.5)
@@ -131,6 +132,29 @@ def make_blob_detector(
     return BlobDetector(delay_s=delay_s, crash_on=crash_on, slow_on=slow_on, miss_left_on=miss_left_on)
 
 
+def cube(object_id: int, n: int = 3) -> MapObject:
+    """An ``n``-voxel cube object (0.05 m voxels) at x = 0.5 m per id; every third tentative, every other a tv."""
+    voxel = Params().voxel_size_m
+    start = np.array([10 * object_id, 0, 0])
+    grid = np.stack(np.meshgrid(*(np.arange(s, s + n) for s in start), indexing="ij"), axis=-1).reshape(-1, 3)
+    keys = np.sort(pack_keys(grid))
+    lo, hi = keys_bounds(keys, voxel)
+    return MapObject(
+        id=object_id,
+        keys=keys,
+        weights=np.ones(keys.size, np.float32),
+        votes=np.zeros((keys.size, N_CLASSES), np.float32),
+        n_frames=3,
+        version=1,
+        label="tv" if object_id % 2 else "chair",
+        score=0.5 + (object_id % 5) / 10,
+        aabb=AABB(lo, hi),
+        obb=OBB(center=(lo + hi) / 2, size=hi - lo, rotation=np.eye(3), yaw_rad=0.0),
+        bounds=AABB(lo, hi),
+        confirmed=object_id % 3 != 0,
+    )
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
@@ -188,12 +212,12 @@ class AppClient:
 
 class UvicornThread:
     """A real uvicorn server for ``app`` on 127.0.0.1 in a background thread (lifespan on); ``http``: its HTTP
-    protocol (``serve``'s: ``arcloud.service.http_protocol.JsonProblemHTTP``)."""
+    protocol (``serve``'s: ``arcloud.service.http_protocol.JsonProblemHTTP``); ``port``: a given one (a restart)."""
 
-    def __init__(self, app: Any, http: Any = "auto") -> None:
+    def __init__(self, app: Any, http: Any = "auto", port: int | None = None) -> None:
         import uvicorn
 
-        self.port = free_port()
+        self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning", lifespan="on", ws="none", http=http)
         self.server = uvicorn.Server(config)

@@ -9,7 +9,6 @@ import random
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
@@ -298,12 +297,12 @@ def test_embedded_service_with_a_keys_file_and_the_sdk_token(
                 anonymous.stats("room")
             assert refused.value.status == 401 and refused.value.field == "authorization"
         with ArcloudClient(server.url, token=token) as client:
-            answer: dict[str, Any] = client.send_frame(make_test_frame(0, map_id="room"))
-            assert answer["status"] == "queued"
+            answer = client.send_frame(make_test_frame(0, map_id="room"))
+            assert answer.status == "queued"
             client.wait_until_processed("room", n_frames=1, timeout_s=30)
         monkeypatch.setenv("ARCLOUD_TOKEN", token)  # the SDK's default
         with ArcloudClient(server.url) as client:
-            assert client.stats("room")["frames"]["processed"] == 1
+            assert client.stats("room").frames.processed == 1
 
 
 def test_serve_refuses_to_expose_an_open_embedded_service() -> None:

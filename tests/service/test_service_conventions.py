@@ -305,9 +305,9 @@ def test_the_sdk_sends_ar_frames_and_manages_alignments_over_real_http() -> None
     with UvicornThread(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as server:
         with ArcloudClient(server.url, max_retries=0) as sdk:
             stored = sdk.set_device_alignment("sdk", "phone-2", DEVICE_FROM_MAP)
-            assert np.allclose(stored["device_from_map"], DEVICE_FROM_MAP)
-            assert sdk.device_alignment("sdk", "phone-2")["device_id"] == "phone-2"
-            assert [a["device_id"] for a in sdk.device_alignments("sdk")] == ["phone-2"]
+            assert np.allclose(stored.device_from_map, DEVICE_FROM_MAP)
+            assert sdk.device_alignment("sdk", "phone-2").device_id == "phone-2"
+            assert [a.device_id for a in sdk.device_alignments("sdk")] == ["phone-2"]
             for device, session, own in (("phone-1", None, None), ("phone-2", DEVICE_FROM_MAP, None), ("phone-3", DEVICE_FROM_MAP, DEVICE_FROM_MAP)):  # fmt: skip
                 sdk.send_frame(
                     map_id="sdk", rgb=frame.rgb, depth=frame.depth_m, intrinsics=frame.intrinsics, device_id=device,
@@ -315,18 +315,18 @@ def test_the_sdk_sends_ar_frames_and_manages_alignments_over_real_http() -> None
                 )  # fmt: skip
             sdk.wait_until_processed("sdk", timeout_s=30)
             objects = sdk.list_objects("sdk", include_tentative=True)
-            assert len(objects) == 1 and objects[0]["n_devices"] == 3  # three sessions, one place
+            assert len(objects) == 1 and objects[0].n_devices == 3  # three sessions, one place
             with pytest.raises(ServiceError) as refused:
                 sdk.set_device_alignment("sdk", "phone-2", np.diag([1.0, 1.0, -1.0, 1.0]))
             assert refused.value.status == 422 and refused.value.field == "device_from_map"
-            assert sdk.delete_device_alignment("sdk", "phone-2")["deleted"] is True
+            assert sdk.delete_device_alignment("sdk", "phone-2").deleted is True
 
         async def use_async() -> None:
             async with AsyncArcloudClient(server.url, max_retries=0) as client:
                 await client.set_device_alignment("sdk", "phone-4", DEVICE_FROM_MAP.reshape(16))
-                assert (await client.device_alignment("sdk", "phone-4"))["device_from_map"] == DEVICE_FROM_MAP.tolist()
+                assert np.array_equal((await client.device_alignment("sdk", "phone-4")).device_from_map, DEVICE_FROM_MAP)
                 assert len(await client.device_alignments("sdk")) == 1
-                assert (await client.delete_device_alignment("sdk", "phone-4"))["deleted"] is True
+                assert (await client.delete_device_alignment("sdk", "phone-4")).deleted is True
 
         asyncio.run(use_async())
 

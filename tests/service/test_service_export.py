@@ -4,6 +4,7 @@ for the ScanNet files), through the API and through `arcloud export` with a toke
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import zipfile
@@ -39,8 +40,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str,
     with UvicornThread(app) as server, ArcloudClient(server.url, token=device_token) as client:
         for index in range(6):
             client.send_frame(make_test_frame(index, map_id="room", boxes=(LEFT, RIGHT), level=True))
-        wait_until(lambda: client.stats("room")["frames"]["processed"] == 6, 30, "six frames processed")
-        objects = client.list_objects("room", include_tentative=True)
+        wait_until(lambda: client.stats("room").frames.processed == 6, 30, "six frames processed")
+        objects = [dataclasses.asdict(o) for o in client.list_objects("room", include_tentative=True)]  # as the export's JSON
         assert sum(o["status"] == "confirmed" for o in objects) == 2
         yield server.url, reader_token, objects
 
@@ -55,7 +56,9 @@ def test_ply_has_one_coloured_point_per_voxel_of_the_served_objects(
     with ArcloudClient(url, token=token) as client:
         path = tmp_path / "room.ply"
         path.write_bytes(client.export("room", "ply"))
-        voxels = {o["id"]: client.get_object("room", o["id"], voxels=True)["voxels"]["centers"] for o in confirmed}
+        voxels = {
+            o["id"]: dataclasses.asdict(client.get_object("room", o["id"], voxels=True))["voxels"]["centers"] for o in confirmed
+        }
     cloud = o3d.io.read_point_cloud(path)
     points, colors = np.asarray(cloud.points), np.round(np.asarray(cloud.colors) * 255).astype(int)
     assert len(points) == sum(o["n_voxels"] for o in confirmed) == sum(len(v) for v in voxels.values())
@@ -74,7 +77,7 @@ def test_ply_in_voxel_colours_reads_back_in_the_colour_the_frames_showed(
     with ArcloudClient(url, token=token) as client:
         path = tmp_path / "room-rgb.ply"
         path.write_bytes(client.export("room", "ply", color="rgb"))
-        voxels = [client.get_object("room", o["id"], voxels=True)["voxels"] for o in confirmed]
+        voxels = [dataclasses.asdict(client.get_object("room", o["id"], voxels=True))["voxels"] for o in confirmed]
     cloud = o3d.io.read_point_cloud(path)
     points, colors = np.asarray(cloud.points), np.round(np.asarray(cloud.colors) * 255).astype(int)
     assert cloud.has_colors() and len(points) == sum(len(v["colors"]) for v in voxels)

@@ -89,9 +89,9 @@ def test_a_key_lists_only_its_own_maps() -> None:
             assert client.get("/v1/maps").status_code == 401
         with UvicornThread(create_app(Settings(store=server.url, detector="sim:0", workers=0))) as http:
             with ArcloudClient(http.url, token=device_token) as sdk:
-                assert [m["map_id"] for m in sdk.list_maps(page_size=1)] == ["a"]
+                assert [m.map_id for m in sdk.list_maps(page_size=1)] == ["a"]
             with ArcloudClient(http.url, token=admin_token) as sdk:
-                assert [m["map_id"] for m in sdk.list_maps(page_size=1)] == ["a", "b"]  # two pages
+                assert [m.map_id for m in sdk.list_maps(page_size=1)] == ["a", "b"]  # two pages
     finally:
         server.stop()
 

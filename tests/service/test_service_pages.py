@@ -13,13 +13,11 @@ import math
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-import numpy as np
 import pytest
-from svc_helpers import AppClient, BlobDetector
+from svc_helpers import AppClient, BlobDetector, cube
 
 from arcloud.core.header import MapHeader
-from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import keys_bounds, pack_keys
+from arcloud.core.types import MapObject, Params
 from arcloud.ports import ObjectMeta
 from arcloud.service import exports
 from arcloud.service.settings import Settings
@@ -57,29 +55,6 @@ class CountingStore(MemoryStore):
     def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
         self.get_batches.append(len(ids))
         return super().get(map_id, ids)
-
-
-def cube(object_id: int, n: int = 3) -> MapObject:
-    """An ``n``-voxel cube object (0.05 m voxels) at x = 0.5 m per id; every third tentative, every other a tv."""
-    voxel = Params().voxel_size_m
-    start = np.array([10 * object_id, 0, 0])
-    grid = np.stack(np.meshgrid(*(np.arange(s, s + n) for s in start), indexing="ij"), axis=-1).reshape(-1, 3)
-    keys = np.sort(pack_keys(grid))
-    lo, hi = keys_bounds(keys, voxel)
-    return MapObject(
-        id=object_id,
-        keys=keys,
-        weights=np.ones(keys.size, np.float32),
-        votes=np.zeros((keys.size, N_CLASSES), np.float32),
-        n_frames=3,
-        version=1,
-        label="tv" if object_id % 2 else "chair",
-        score=0.5 + (object_id % 5) / 10,
-        aabb=AABB(lo, hi),
-        obb=OBB(center=(lo + hi) / 2, size=hi - lo, rotation=np.eye(3), yaw_rad=0.0),
-        bounds=AABB(lo, hi),
-        confirmed=object_id % 3 != 0,
-    )
 
 
 @pytest.fixture(scope="module")

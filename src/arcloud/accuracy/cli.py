@@ -170,6 +170,14 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
             "objects": [o.id for o in ground_truth.objects],
             "boxes": "observed",
         }
+    centralized = out.get("centralized")
+    out["charts"] = _write_charts(
+        Path(args.out),
+        title=", ".join(frame_counts),
+        rows=out["table1"],
+        ap_per_class=centralized["per_class"] if centralized else None,
+        curves=centralized["curves"] if centralized else None,
+    )
     _write_json(Path(args.out), out)
     source = ground_truth.path if ground_truth is not None else "each scene's annotation"
     print(f"Table 1: mAP against {source} ({len(frame_counts)} scenes, {sum(frame_counts.values())} frames)")
@@ -246,6 +254,15 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         "pictures": pictures,
         "wall_s": round(time.perf_counter() - started, 2),
     }
+    if ground_truth is not None:  # the charts of the primary boxes' rows; the centralized run's AP per class
+        primary = [r for r in out["accuracy"] if r["boxes"] == "observed"]
+        one_user = next((r for r in primary if r["users"] == 1), None)
+        out["charts"] = _write_charts(
+            out_path,
+            title=recording.name,
+            rows=primary,
+            ap_per_class=None if one_user is None else {"0.25": one_user["ap25_per_class"], "0.5": one_user["ap50_per_class"]},
+        )
     _write_json(out_path, out)
     print(
         f"Agreement of distributed maps with the centralized one ({recording.name}, {recording.layout} layout, {len(names)} frames)"
@@ -260,6 +277,23 @@ def run_eval_recording(args: argparse.Namespace) -> int:
             _print_per_class(chosen)
     print(f"\nwrote {out_path} and {len(pictures)} pictures beside it")
     return 0
+
+
+def _write_charts(out_path: Path, **figures: Any) -> list[str]:
+    """The charts of ``arcloud.eval.charts`` beside the results (``<out>_*.png``); none without matplotlib, said in
+    one line."""
+    from arcloud.eval.charts import write_charts
+
+    try:
+        paths = write_charts(out_path.with_suffix(""), **figures)
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] != "matplotlib":
+            raise
+        print("charts skipped: matplotlib is not installed (pip install matplotlib)")
+        return []
+    for path in paths:
+        logger.info("wrote %s", path)
+    return [str(p) for p in paths]
 
 
 def _write_json(path: Path, payload: dict[str, object]) -> None:

@@ -130,6 +130,7 @@ def evaluate_scenes(
         results = [evaluate(collector.boxes[(k, run)], ground_truth) for run in range(1 if k == 1 else runs)]
         if k == 1:
             centralized = results[0].to_dict()
+            centralized["curves"] = results[0].curves_dict()
         scores25, scores50 = [r.map_at(0.25) for r in results], [r.map_at(0.5) for r in results]
         logger.info("users %d: mAP@0.25 %s mAP@0.5 %s", k, np.round(scores25, 4), np.round(scores50, 4))
         rows.append(_row("centralized" if k == 1 else "distributed", k, scores25, scores50, collector.wall_s.get(k, 0.0)))

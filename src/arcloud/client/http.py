@@ -4,8 +4,15 @@
     with ArcloudClient("http://127.0.0.1:8000") as client:
         client.send_frame(frame)                       # a core Frame, or arrays (see send_frame)
         client.wait_until_processed("office", timeout_s=60)   # until this client's frames are done
-        for obj in client.list_objects("office", label="chair", min_score=0.5):
-            print(obj["id"], obj["aabb"])     # confirmed objects; include_tentative=True for every object
+        for obj in client.iter_objects("office", label="chair", min_score=0.5):   # a page at a time
+            print(obj.id, obj.aabb)     # confirmed objects (ObjectOut); include_tentative=True for every object
+        for event in client.events("office"):          # SnapshotEvent, then UpsertEvent, RemovedEvent, ...
+            ...
+
+Answers are typed (``arcloud.client.results``: frozen dataclasses named as the API's schemas, ``ObjectOut``,
+``MapStats``, ...). ``events`` follows the map's server-sent event stream and connects again when the connection
+drops or the service restarts; the service keeps no event ids (no ``Last-Event-ID``), so after each connection the
+stream starts again with a ``SnapshotEvent``: the map as it is then, to replace what the caller held.
 
 With API keys (``arcloud keys create``), give ``token=`` or set ``$ARCLOUD_TOKEN``: every request then
 carries ``Authorization: Bearer TOKEN``.
@@ -32,18 +39,36 @@ after the last try is httpx's exception, with a note saying how many attempts we
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import os
 import random
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import AsyncIterator, Callable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import httpx
 import numpy as np
 
+from arcloud.client.results import (
+    AlignmentDeleted,
+    DeviceAlignment,
+    FrameAccepted,
+    FrameCounts,
+    FrameState,
+    MapDeleted,
+    MapEvent,
+    MapRestored,
+    MapStats,
+    MapSummary,
+    ObjectCounts,
+    ObjectDetail,
+    ObjectOut,
+    from_json,
+    map_event,
+)
 from arcloud.core.types import Frame, Intrinsics
 from arcloud.errors import ArcloudError
 
@@ -58,7 +83,9 @@ log = logging.getLogger(__name__)
 PROTOBUF = "application/x-protobuf"
 TOKEN_ENV = "ARCLOUD_TOKEN"  # the API key token when none is given
 DEFAULT_TIMEOUT_S = 30.0
-MAPS_PAGE = 500  # maps a page of list_maps asks for
+MAPS_PAGE = 500  # maps a page of iter_maps asks for
+OBJECTS_PAGE = 500  # objects a page of iter_objects asks for
+STREAM_RETRY_S = 2.0  # an event stream connects again after this, until the service says otherwise (``retry:``)
 
 #: Answers worth trying again: rate limited, or the service (or a proxy before it) unavailable for now.
 RETRY_STATUSES = frozenset({429, 502, 503, 504})
@@ -161,10 +188,14 @@ def frame_body(
     return target, msg.SerializeToString()
 
 
+def include_query(include_tentative: bool) -> dict[str, str]:
+    return {"include": "tentative"} if include_tentative else {}
+
+
 def object_query(
     label: str | None, min_score: float | None, bbox: Sequence[float] | None, include_tentative: bool = False
 ) -> dict[str, str]:
-    params: dict[str, str] = {"include": "tentative"} if include_tentative else {}
+    params = include_query(include_tentative)
     if label is not None:
         params["label"] = label
     if min_score is not None:
@@ -180,7 +211,7 @@ def export_query(fmt: str, options: Mapping[str, str | bool]) -> dict[str, str]:
     return {"format": fmt, **{k: (str(v).lower() if isinstance(v, bool) else v) for k, v in options.items()}}
 
 
-def maps_query(page_size: int, cursor: str | None) -> dict[str, str]:
+def page_query(page_size: int, cursor: str | None) -> dict[str, str]:
     return {"limit": str(page_size), **({"cursor": cursor} if cursor is not None else {})}
 
 
@@ -277,9 +308,81 @@ def _next_wait_s(
     return wait_s
 
 
-def _map_done(stats: Mapping[str, Any], n_frames: int) -> bool:
-    frames = stats["frames"]
-    return bool(frames["processed"] + frames["failed"] >= n_frames)
+class EventStream:
+    """One map's event stream across its connections, shared by the blocking and the async client: reads the
+    server-sent events of each connection's lines (``feed``) and says how long to wait before the next
+    connection (``wait_s``). A connection that gave an event resets the count of failures; ``max_retries``
+    failures in a row (refusals 429, 502, 503, 504, transport errors, streams ended before an event) raise."""
+
+    def __init__(self, retry: RetryPolicy, path: str) -> None:
+        self.retry = retry
+        self.path = path
+        self.retry_s = STREAM_RETRY_S
+        self.failures = 0
+        self.started = time.monotonic()
+        self.connected()
+
+    def connected(self) -> None:
+        """A new connection: what the last one left half-read is dropped."""
+        self.name = ""
+        self.data: list[str] = []
+
+    def feed(self, line: str) -> MapEvent | None:
+        """Take one line of the stream; the event a blank line completes. A ``refused`` event (the key lost the
+        map) raises ``ServiceError`` 403."""
+        if line.startswith(":"):  # a comment: ``: keep-alive``
+            return None
+        if line:
+            field, _, value = line.partition(":")
+            value = value.removeprefix(" ")
+            if field == "event":
+                self.name = value
+            elif field == "data":
+                self.data.append(value)
+            elif field == "retry" and value.isdigit():
+                self.retry_s = int(value) / 1000
+            return None
+        name, text = self.name, "\n".join(self.data)
+        self.connected()
+        if not text:
+            return None
+        data = json.loads(text)
+        if name == "refused":
+            raise ServiceError(403, str(data.get("detail")), problem={"status": 403, **data})
+        event = map_event(name, data)
+        if event is not None:
+            self.failures = 0
+        return event
+
+    def wait_s(self, outcome: httpx.Response | Exception | None) -> float:
+        """Seconds to wait before connecting again after a connection ended with ``outcome``: a refusal (its
+        response), a transport error, or None (the service ended the stream: it restarts, or dropped us). Raises
+        ``ServiceError`` for a refusal not worth trying again, and the error after ``max_retries`` failures."""
+        attempt = self.failures
+        self.failures += 1
+        if isinstance(outcome, httpx.Response):
+            if outcome.status_code not in RETRY_STATUSES or attempt >= self.retry.max_retries:
+                raise service_error(outcome)
+            wait_s = self.retry.wait_s(attempt, outcome)
+        else:
+            if attempt >= self.retry.max_retries:
+                if outcome is not None:
+                    outcome.add_note(f"arcloud: GET {self.path}: {attempt + 1} connections failed in a row")
+                    raise outcome
+                raise ArcloudError(f"GET {self.path}: the service ended the stream {attempt + 1} times in a row")
+            wait_s = max(self.retry_s, self.retry.wait_s(attempt))
+        what = f"HTTP {outcome.status_code}" if isinstance(outcome, httpx.Response) else type(outcome).__name__
+        log.info("GET %s: the stream ended (%s); connecting again in %.2f s", self.path, what, wait_s)
+        return wait_s
+
+
+def unknown_map_stats(map_id: str) -> MapStats:
+    """The stats of a map the service does not know: nothing counted."""
+    return MapStats(map_id, FrameCounts(accepted=0, processed=0, failed=0, pending=0), ObjectCounts(confirmed=0, tentative=0))
+
+
+def _map_done(stats: MapStats, n_frames: int) -> bool:
+    return stats.frames.processed + stats.frames.failed >= n_frames
 
 
 #: A frame status (``GET .../frames/{device}/{frame}``) -> its outcome for ``wait_until_processed``; None: not done.
@@ -303,14 +406,14 @@ class SentFrames:
         self._counts: dict[str, dict[str, int]] = {}
         self._lock = threading.Lock()  # the blocking client may be shared by threads
 
-    def add(self, answer: Mapping[str, Any]) -> None:
+    def add(self, answer: FrameAccepted) -> None:
         """Record an upload's answer (``queued`` or ``duplicate``: both are the service's to process)."""
-        key = (str(answer["device_id"]), str(answer["frame_id"]))
+        key = (answer.device_id, answer.frame_id)
         with self._lock:
-            pending = self._pending.setdefault(answer["map_id"], {})
+            pending = self._pending.setdefault(answer.map_id, {})
             if key not in pending:
                 pending[key] = None
-                self._counts_of(answer["map_id"])["sent"] += 1
+                self._counts_of(answer.map_id)["sent"] += 1
 
     def pending(self, map_id: str) -> list[tuple[str, str]]:
         with self._lock:
@@ -351,7 +454,7 @@ def not_processed(
     sent: SentFrames,
     last: tuple[str, str, str] | None,
     n_frames: int | None,
-    stats: Mapping[str, Any] | None,
+    stats: MapStats | None,
     timeout_s: float,
 ) -> TimeoutError:
     """The ``TimeoutError`` of ``wait_until_processed``: what it was waiting for, and what it last saw."""
@@ -361,7 +464,7 @@ def not_processed(
         first = f" ({last[0]}/{last[1]}: {last[2]})" if last is not None else ""
         what.append(f"{len(pending)} of the {sent.summary(map_id)['frames']['sent']} frames this client sent{first}")
     if n_frames is not None:
-        frames = stats.get("frames") if stats else None
+        frames = stats.frames if stats else None
         what.append(f"{n_frames} frames of the map in all (last: {frames})")
     return TimeoutError(f"map {map_id}: not processed within {timeout_s} s: {'; '.join(what)}")
 
@@ -446,14 +549,19 @@ class ArcloudClient:
             time.sleep(wait_s)
         raise AssertionError("unreachable")
 
-    def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
+    def send_frame(self, frame: Frame | None = None, **arrays: Any) -> FrameAccepted:
         """Upload one frame: ``send_frame(frame)`` or ``send_frame(map_id=, rgb=, depth=, intrinsics=,
         cam2world=, timestamp_s=, device_id=, frame_id=, depth_scale=)`` (rgb (H, W, 3) uint8, depth
         (H, W) float32 metres or uint16 units), with ``pose_convention=``, ``world_up=``, ``device_from_map=``
-        for an AR app's pose (``frame_body``). Returns ``{"map_id", "device_id", "frame_id", "status"}``."""
+        for an AR app's pose (``frame_body``)."""
         map_id, body = frame_body(frame, **arrays)
-        answer = self._request(
-            "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
+        return self.send_encoded(map_id, body)
+
+    def send_encoded(self, map_id: str, body: bytes) -> FrameAccepted:
+        """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
+        answer = from_json(
+            FrameAccepted,
+            self._request("POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}),
         )
         self.sent.add(answer)
         return answer
@@ -466,28 +574,76 @@ class ArcloudClient:
         label: str | None = None,
         min_score: float | None = None,
         bbox: Sequence[float] | None = None,
-    ) -> list[dict[str, Any]]:
-        """The map's confirmed objects (``include_tentative``: tentative ones too), each with its ``status``."""
+    ) -> list[ObjectOut]:
+        """The map's confirmed objects (``include_tentative``: tentative ones too), each with its ``status``, in
+        one answer (``iter_objects``: a page at a time)."""
         params = object_query(label, min_score, bbox, include_tentative)
-        objects: list[dict[str, Any]] = self._request("GET", f"/v1/maps/{map_id}/objects", params=params)["objects"]
-        return objects
+        answer = self._request("GET", f"/v1/maps/{map_id}/objects", params=params)
+        return [from_json(ObjectOut, o) for o in answer["objects"]]
 
-    def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
+    def iter_objects(
+        self,
+        map_id: str,
+        *,
+        include_tentative: bool = False,
+        label: str | None = None,
+        min_score: float | None = None,
+        bbox: Sequence[float] | None = None,
+        page_size: int = OBJECTS_PAGE,
+    ) -> Iterator[ObjectOut]:
+        """The objects of ``list_objects``, in id order, ``page_size`` a request: each page is asked for when the
+        one before is used up (the service reads about what a page returns)."""
+        params = object_query(label, min_score, bbox, include_tentative)
+        cursor: str | None = None
+        while True:
+            page = self._request("GET", f"/v1/maps/{map_id}/objects", params={**params, **page_query(page_size, cursor)})
+            yield from (from_json(ObjectOut, o) for o in page["objects"])
+            if (cursor := page["next_cursor"]) is None:
+                return
+
+    def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> ObjectDetail:
         """Any object of the map, confirmed or tentative (its ``status`` says)."""
-        return self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
+        answer = self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
+        return from_json(ObjectDetail, answer)
 
-    def delete_map(self, map_id: str) -> dict[str, Any]:
-        answer = self._request("DELETE", f"/v1/maps/{map_id}")
+    def events(self, map_id: str, *, include_tentative: bool = False) -> Iterator[MapEvent]:
+        """The map's events as they come (``GET /v1/maps/{map}/events``): a ``SnapshotEvent``, then ``UpsertEvent``,
+        ``RemovedEvent``, ``DeviceEvent``, ``DeviceRemovedEvent``; confirmed objects unless ``include_tentative``.
+        Never ends by itself: connects again when the connection drops, the service restarts or a read waits
+        longer than the client's timeout (the service sends a keep-alive every 15 s), each time from a new
+        ``SnapshotEvent`` (the module's docstring); ``ServiceError`` when refused (403 when the key loses the map
+        during the stream), and after ``max_retries`` failed connections in a row. Leave the loop (or ``close()``
+        the iterator) to close the stream."""
+        path = f"/v1/maps/{map_id}/events"
+        stream = EventStream(self.retry, path)
+        while True:
+            outcome: httpx.Response | Exception | None = None
+            try:
+                with self.http.stream("GET", path, params=include_query(include_tentative), headers=self.headers) as response:
+                    stream.connected()
+                    if not response.is_success:
+                        response.read()
+                        outcome = response
+                    else:
+                        for line in response.iter_lines():
+                            if (event := stream.feed(line)) is not None:
+                                yield event
+            except RETRY_ERRORS as exc:
+                outcome = exc
+            time.sleep(stream.wait_s(outcome))
+
+    def delete_map(self, map_id: str) -> MapDeleted:
+        answer = from_json(MapDeleted, self._request("DELETE", f"/v1/maps/{map_id}"))
         self.sent.forget(map_id)
         return answer
 
-    def frame_status(self, map_id: str, device_id: str, frame_id: str) -> dict[str, Any]:
+    def frame_status(self, map_id: str, device_id: str, frame_id: str) -> FrameState:
         """Where an accepted frame is: ``status`` queued, processing, processed, failed (with ``reason``) or
         unknown (posting it again queues it); ``ServiceError`` 404 for a frame never accepted."""
-        return self._request("GET", frame_status_path(map_id, device_id, frame_id))
+        return from_json(FrameState, self._request("GET", frame_status_path(map_id, device_id, frame_id)))
 
-    def stats(self, map_id: str) -> dict[str, Any]:
-        return self._request("GET", f"/v1/maps/{map_id}/stats")
+    def stats(self, map_id: str) -> MapStats:
+        return from_json(MapStats, self._request("GET", f"/v1/maps/{map_id}/stats"))
 
     def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
         """The map as a file's bytes (``GET /v1/maps/{map}/export``): ``fmt`` json, ply, glb or scannet (a zip);
@@ -496,32 +652,33 @@ class ArcloudClient:
 
     def set_device_alignment(
         self, map_id: str, device_id: str, device_from_map: np.ndarray | Sequence[float] | Sequence[Sequence[float]]
-    ) -> dict[str, Any]:
+    ) -> DeviceAlignment:
         """Store where the device's session world stands in the map (an admin key's): ``device_from_map``, a rigid
         4x4 mapping map points to the device's world (``arcloud.core.conventions``), applied to every frame the
-        device sends from now on without one of its own. Returns ``{"map_id", "device_id", "device_from_map"}``."""
-        return self._request("PUT", alignment_path(map_id, device_id), idempotent=True, json=alignment_body(device_from_map))
+        device sends from now on without one of its own."""
+        answer = self._request("PUT", alignment_path(map_id, device_id), idempotent=True, json=alignment_body(device_from_map))
+        return from_json(DeviceAlignment, answer)
 
-    def device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
+    def device_alignment(self, map_id: str, device_id: str) -> DeviceAlignment:
         """The device's stored alignment; ``ServiceError`` 404 when it has none."""
-        return self._request("GET", alignment_path(map_id, device_id))
+        return from_json(DeviceAlignment, self._request("GET", alignment_path(map_id, device_id)))
 
-    def delete_device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
-        """Remove the device's alignment (an admin key's): ``{"map_id", "device_id", "deleted"}``."""
-        return self._request("DELETE", alignment_path(map_id, device_id))
+    def delete_device_alignment(self, map_id: str, device_id: str) -> AlignmentDeleted:
+        """Remove the device's alignment (an admin key's)."""
+        return from_json(AlignmentDeleted, self._request("DELETE", alignment_path(map_id, device_id)))
 
-    def device_alignments(self, map_id: str) -> list[dict[str, Any]]:
+    def device_alignments(self, map_id: str) -> list[DeviceAlignment]:
         """Every stored alignment of the map, by device id."""
-        found: list[dict[str, Any]] = self._request("GET", f"/v1/maps/{map_id}/alignments")["alignments"]
-        return found
+        answer = self._request("GET", f"/v1/maps/{map_id}/alignments")
+        return [from_json(DeviceAlignment, a) for a in answer["alignments"]]
 
     def snapshot(self, map_id: str) -> bytes:
         """The whole map as one file (an admin key's; ``GET /v1/maps/{map}/snapshot``)."""
         return checked_content(self._send("GET", f"/v1/maps/{map_id}/snapshot"))
 
-    def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> dict[str, Any]:
+    def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> MapRestored:
         """Restore a snapshot into the map (empty, or deleted first with ``replace``); an admin key's."""
-        return self._request(
+        answer = self._request(
             "PUT",
             f"/v1/maps/{map_id}/snapshot",
             idempotent=replace,  # into an empty map, a second try would find it full
@@ -529,17 +686,20 @@ class ArcloudClient:
             content=snapshot,
             headers={"content-type": "application/zip"},
         )
+        return from_json(MapRestored, answer)
 
-    def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[dict[str, Any]]:
+    def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[MapSummary]:
         """Every map the token may read, by id (``GET /v1/maps``, page after page)."""
-        maps: list[dict[str, Any]] = []
+        return list(self.iter_maps(page_size=page_size))
+
+    def iter_maps(self, *, page_size: int = MAPS_PAGE) -> Iterator[MapSummary]:
+        """The maps of ``list_maps``, each page asked for when the one before is used up."""
         cursor: str | None = None
         while True:
-            page = self._request("GET", "/v1/maps", params=maps_query(page_size, cursor))
-            maps += page["maps"]
-            cursor = page["next_cursor"]
-            if cursor is None:
-                return maps
+            page = self._request("GET", "/v1/maps", params=page_query(page_size, cursor))
+            yield from (from_json(MapSummary, m) for m in page["maps"])
+            if (cursor := page["next_cursor"]) is None:
+                return
 
     def wait_until_processed(
         self, map_id: str, n_frames: int | None = None, timeout_s: float = 60.0, *, poll_s: float = 0.1
@@ -551,7 +711,7 @@ class ArcloudClient:
         client waiting on others' frames). Raises ``TimeoutError`` saying what is still waited for."""
         deadline = time.monotonic() + timeout_s
         last: tuple[str, str, str] | None = None
-        stats: dict[str, Any] | None = None
+        stats: MapStats | None = None
         while True:
             for device_id, frame_id in self.sent.pending(map_id):
                 outcome, status = frame_outcome(self._send("GET", frame_status_path(map_id, device_id, frame_id)))
@@ -566,14 +726,14 @@ class ArcloudClient:
                 raise not_processed(map_id, self.sent, last, n_frames, stats, timeout_s)
             time.sleep(poll_s)
 
-    def _map_stats(self, map_id: str) -> dict[str, Any]:
+    def _map_stats(self, map_id: str) -> MapStats:
         """The map's stats; no frame counted for a map the service does not know (404)."""
         try:
             return self.stats(map_id)
         except ServiceError as exc:
             if exc.status != 404:
                 raise
-            return {"map_id": map_id, "frames": {"accepted": 0, "processed": 0, "failed": 0, "pending": 0}}
+            return unknown_map_stats(map_id)
 
     def subscribe(
         self,
@@ -640,15 +800,18 @@ class AsyncArcloudClient:
             await asyncio.sleep(wait_s)
         raise AssertionError("unreachable")
 
-    async def send_frame(self, frame: Frame | None = None, **arrays: Any) -> dict[str, Any]:
+    async def send_frame(self, frame: Frame | None = None, **arrays: Any) -> FrameAccepted:
         """As ``ArcloudClient.send_frame``; the encoding runs in a thread."""
         map_id, body = await asyncio.to_thread(frame_body, frame, **arrays)
         return await self.send_encoded(map_id, body)
 
-    async def send_encoded(self, map_id: str, body: bytes) -> dict[str, Any]:
+    async def send_encoded(self, map_id: str, body: bytes) -> FrameAccepted:
         """Upload protobuf ``Frame`` bytes made beforehand (``frame_body``)."""
-        answer = await self._request(
-            "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
+        answer = from_json(
+            FrameAccepted,
+            await self._request(
+                "POST", f"/v1/maps/{map_id}/frames", idempotent=True, content=body, headers={"content-type": PROTOBUF}
+            ),
         )
         self.sent.add(answer)
         return answer
@@ -661,52 +824,96 @@ class AsyncArcloudClient:
         label: str | None = None,
         min_score: float | None = None,
         bbox: Sequence[float] | None = None,
-    ) -> list[dict[str, Any]]:
+    ) -> list[ObjectOut]:
         params = object_query(label, min_score, bbox, include_tentative)
-        objects: list[dict[str, Any]] = (await self._request("GET", f"/v1/maps/{map_id}/objects", params=params))["objects"]
-        return objects
+        answer = await self._request("GET", f"/v1/maps/{map_id}/objects", params=params)
+        return [from_json(ObjectOut, o) for o in answer["objects"]]
 
-    async def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> dict[str, Any]:
-        return await self._request(
+    async def iter_objects(
+        self,
+        map_id: str,
+        *,
+        include_tentative: bool = False,
+        label: str | None = None,
+        min_score: float | None = None,
+        bbox: Sequence[float] | None = None,
+        page_size: int = OBJECTS_PAGE,
+    ) -> AsyncIterator[ObjectOut]:
+        """As ``ArcloudClient.iter_objects``: ``async for obj in client.iter_objects(map_id)``."""
+        params = object_query(label, min_score, bbox, include_tentative)
+        cursor: str | None = None
+        while True:
+            page = await self._request("GET", f"/v1/maps/{map_id}/objects", params={**params, **page_query(page_size, cursor)})
+            for o in page["objects"]:
+                yield from_json(ObjectOut, o)
+            if (cursor := page["next_cursor"]) is None:
+                return
+
+    async def get_object(self, map_id: str, object_id: int, *, voxels: bool = False) -> ObjectDetail:
+        answer = await self._request(
             "GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {}
         )
+        return from_json(ObjectDetail, answer)
 
-    async def delete_map(self, map_id: str) -> dict[str, Any]:
-        answer = await self._request("DELETE", f"/v1/maps/{map_id}")
+    async def events(self, map_id: str, *, include_tentative: bool = False) -> AsyncIterator[MapEvent]:
+        """As ``ArcloudClient.events``: ``async for event in client.events(map_id)``."""
+        path = f"/v1/maps/{map_id}/events"
+        stream = EventStream(self.retry, path)
+        while True:
+            outcome: httpx.Response | Exception | None = None
+            try:
+                async with self.http.stream(
+                    "GET", path, params=include_query(include_tentative), headers=self.headers
+                ) as response:
+                    stream.connected()
+                    if not response.is_success:
+                        await response.aread()
+                        outcome = response
+                    else:
+                        async for line in response.aiter_lines():
+                            if (event := stream.feed(line)) is not None:
+                                yield event
+            except RETRY_ERRORS as exc:
+                outcome = exc
+            await asyncio.sleep(stream.wait_s(outcome))
+
+    async def delete_map(self, map_id: str) -> MapDeleted:
+        answer = from_json(MapDeleted, await self._request("DELETE", f"/v1/maps/{map_id}"))
         self.sent.forget(map_id)
         return answer
 
-    async def frame_status(self, map_id: str, device_id: str, frame_id: str) -> dict[str, Any]:
-        return await self._request("GET", frame_status_path(map_id, device_id, frame_id))
+    async def frame_status(self, map_id: str, device_id: str, frame_id: str) -> FrameState:
+        return from_json(FrameState, await self._request("GET", frame_status_path(map_id, device_id, frame_id)))
 
-    async def stats(self, map_id: str) -> dict[str, Any]:
-        return await self._request("GET", f"/v1/maps/{map_id}/stats")
+    async def stats(self, map_id: str) -> MapStats:
+        return from_json(MapStats, await self._request("GET", f"/v1/maps/{map_id}/stats"))
 
     async def export(self, map_id: str, fmt: str = "json", **options: str | bool) -> bytes:
         return checked_content(await self._send("GET", f"/v1/maps/{map_id}/export", params=export_query(fmt, options)))
 
     async def set_device_alignment(
         self, map_id: str, device_id: str, device_from_map: np.ndarray | Sequence[float] | Sequence[Sequence[float]]
-    ) -> dict[str, Any]:
-        return await self._request(
+    ) -> DeviceAlignment:
+        answer = await self._request(
             "PUT", alignment_path(map_id, device_id), idempotent=True, json=alignment_body(device_from_map)
         )
+        return from_json(DeviceAlignment, answer)
 
-    async def device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
-        return await self._request("GET", alignment_path(map_id, device_id))
+    async def device_alignment(self, map_id: str, device_id: str) -> DeviceAlignment:
+        return from_json(DeviceAlignment, await self._request("GET", alignment_path(map_id, device_id)))
 
-    async def delete_device_alignment(self, map_id: str, device_id: str) -> dict[str, Any]:
-        return await self._request("DELETE", alignment_path(map_id, device_id))
+    async def delete_device_alignment(self, map_id: str, device_id: str) -> AlignmentDeleted:
+        return from_json(AlignmentDeleted, await self._request("DELETE", alignment_path(map_id, device_id)))
 
-    async def device_alignments(self, map_id: str) -> list[dict[str, Any]]:
-        found: list[dict[str, Any]] = (await self._request("GET", f"/v1/maps/{map_id}/alignments"))["alignments"]
-        return found
+    async def device_alignments(self, map_id: str) -> list[DeviceAlignment]:
+        answer = await self._request("GET", f"/v1/maps/{map_id}/alignments")
+        return [from_json(DeviceAlignment, a) for a in answer["alignments"]]
 
     async def snapshot(self, map_id: str) -> bytes:
         return checked_content(await self._send("GET", f"/v1/maps/{map_id}/snapshot"))
 
-    async def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> dict[str, Any]:
-        return await self._request(
+    async def restore(self, map_id: str, snapshot: bytes, *, replace: bool = False) -> MapRestored:
+        answer = await self._request(
             "PUT",
             f"/v1/maps/{map_id}/snapshot",
             idempotent=replace,
@@ -714,16 +921,19 @@ class AsyncArcloudClient:
             content=snapshot,
             headers={"content-type": "application/zip"},
         )
+        return from_json(MapRestored, answer)
 
-    async def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[dict[str, Any]]:
-        maps: list[dict[str, Any]] = []
+    async def list_maps(self, *, page_size: int = MAPS_PAGE) -> list[MapSummary]:
+        return [m async for m in self.iter_maps(page_size=page_size)]
+
+    async def iter_maps(self, *, page_size: int = MAPS_PAGE) -> AsyncIterator[MapSummary]:
         cursor: str | None = None
         while True:
-            page = await self._request("GET", "/v1/maps", params=maps_query(page_size, cursor))
-            maps += page["maps"]
-            cursor = page["next_cursor"]
-            if cursor is None:
-                return maps
+            page = await self._request("GET", "/v1/maps", params=page_query(page_size, cursor))
+            for m in page["maps"]:
+                yield from_json(MapSummary, m)
+            if (cursor := page["next_cursor"]) is None:
+                return
 
     async def wait_until_processed(
         self, map_id: str, n_frames: int | None = None, timeout_s: float = 60.0, *, poll_s: float = 0.1
@@ -731,7 +941,7 @@ class AsyncArcloudClient:
         """As ``ArcloudClient.wait_until_processed``."""
         deadline = time.monotonic() + timeout_s
         last: tuple[str, str, str] | None = None
-        stats: dict[str, Any] | None = None
+        stats: MapStats | None = None
         while True:
             for device_id, frame_id in self.sent.pending(map_id):
                 outcome, status = frame_outcome(await self._send("GET", frame_status_path(map_id, device_id, frame_id)))
@@ -746,13 +956,13 @@ class AsyncArcloudClient:
                 raise not_processed(map_id, self.sent, last, n_frames, stats, timeout_s)
             await asyncio.sleep(poll_s)
 
-    async def _map_stats(self, map_id: str) -> dict[str, Any]:
+    async def _map_stats(self, map_id: str) -> MapStats:
         try:
             return await self.stats(map_id)
         except ServiceError as exc:
             if exc.status != 404:
                 raise
-            return {"map_id": map_id, "frames": {"accepted": 0, "processed": 0, "failed": 0, "pending": 0}}
+            return unknown_map_stats(map_id)
 
     def subscribe(
         self,

@@ -136,6 +136,18 @@ class EvalResult:
         out["n_predictions"] = dict(self.n_predictions)
         return out
 
+    def curves_dict(self) -> dict[str, dict[str, dict[str, list[float]]]]:
+        """JSON-friendly precision-recall curves: per threshold (keyed as ``to_dict``'s), each class with ground
+        truth's ``{"recall": [...], "precision": [...]}`` along the ranked predictions (rounded to 4 places)."""
+        return {
+            _threshold_key(r.iou_threshold): {
+                name: {"recall": np.round(rec, 4).tolist(), "precision": np.round(prec, 4).tolist()}
+                for name, (rec, prec) in r.curves.items()
+                if r.ap.get(name) is not None
+            }
+            for r in self.thresholds
+        }
+
     def format_table(self) -> str:
         """A plain-text table: one row per class, AP per threshold, and the mean."""
         header = ["class", "n_gt", "n_pred"] + [f"AP@{r.iou_threshold:g}" for r in self.thresholds]

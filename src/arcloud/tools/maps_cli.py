@@ -30,13 +30,13 @@ class HttpPlace:
         self.client = ArcloudClient(url, token=token)
 
     def list_maps(self) -> list[dict[str, Any]]:
-        return self.client.list_maps()
+        return [{"map_id": m.map_id, "objects": m.objects, "updated_at": m.updated_at} for m in self.client.list_maps()]
 
     def snapshot(self, map_id: str) -> bytes:
         return self.client.snapshot(map_id)
 
     def restore(self, map_id: str, data: bytes, replace: bool) -> int:
-        return int(self.client.restore(map_id, data, replace=replace)["restored_objects"])
+        return self.client.restore(map_id, data, replace=replace).restored_objects
 
     def close(self) -> None:
         self.client.close()

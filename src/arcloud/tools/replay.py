@@ -48,6 +48,7 @@ import numpy as np
 
 from arcloud import __version__
 from arcloud.client.http import AsyncArcloudClient, ServiceError, frame_body
+from arcloud.client.results import ObjectOut
 
 log = logging.getLogger(__name__)
 
@@ -122,8 +123,8 @@ def replay(
             "matches": {iou: pr.to_dict() for iou, pr in matches.items()},
         },
         "objects": {
-            "confirmed": sum(1 for o in every if o["status"] == "confirmed"),
-            "tentative": sum(1 for o in every if o["status"] == "tentative"),
+            "confirmed": sum(1 for o in every if o.status == "confirmed"),
+            "tentative": sum(1 for o in every if o.status == "tentative"),
         },
         "ground_truth": [
             {"label": box.label, "aabb_min": box.min.tolist(), "aabb_max": box.max.tolist()} for box in ground_truth
@@ -158,14 +159,14 @@ def _finite(value: float) -> float | None:
     return None if not np.isfinite(value) else float(value)
 
 
-def _boxes(objects: list[dict[str, Any]]) -> list[Any]:
+def _boxes(objects: list[ObjectOut]) -> list[Any]:
     """The listed objects that have a box, as scored boxes."""
     from arcloud.core.types import LabelledBox
 
     return [
-        LabelledBox(o["label"], o["aabb"]["min"], o["aabb"]["max"], o["score"])
+        LabelledBox(o.label, np.array(o.aabb.min), np.array(o.aabb.max), o.score)
         for o in objects
-        if o["aabb"] is not None and o["label"]
+        if o.aabb is not None and o.label
     ]
 
 
@@ -178,7 +179,7 @@ async def _stream(
     show_progress: bool,
     fresh: bool,
     token: str | None = None,
-) -> tuple[int, list[str], dict[str, int], list[dict[str, Any]], list[dict[str, Any]]]:
+) -> tuple[int, list[str], dict[str, int], list[ObjectOut], list[ObjectOut]]:
     """Upload every user's frames, wait until they are done; returns (frames sent, answers, the frames
     sent by outcome (processed, failed, lost), the served objects (a plain GET), every object)."""
     from tqdm import tqdm
@@ -200,7 +201,7 @@ async def _stream(
                     frame = dataclasses.replace(frames[index], map_id=map_id, device_id=f"user-{k:03d}")
                     _, body = await asyncio.to_thread(frame_body, frame)
                     answer = await client.send_encoded(map_id, body)
-                    answers.append(answer["status"])
+                    answers.append(answer.status)
                     bar.update(1)
 
             await asyncio.gather(*(user(k, indices) for k, indices in enumerate(streams)))

@@ -1,0 +1,119 @@
+"""The SDK's iterators against a real uvicorn server: the objects of a map a page at a time (each page asked for when
+needed, every object once), and the event stream, which goes on through a restart of the service."""
+
+from __future__ import annotations
+
+import asyncio
+import queue
+import threading
+from collections.abc import Iterator
+
+import httpx
+import pytest
+from svc_helpers import BlobDetector, UvicornThread, cube, free_port, make_test_frame
+
+from arcloud.client import ArcloudClient, AsyncArcloudClient
+from arcloud.client.results import MapEvent, ObjectOut, SnapshotEvent, UpsertEvent
+from arcloud.core.header import MapHeader
+from arcloud.core.types import Params
+from arcloud.service.event_stream import close_event_streams
+from arcloud.service.settings import Settings
+from arcloud.stores.memory import MemoryStore
+from arcloud.tools.wiring import create_app
+
+MAP = "paged"
+N_OBJECTS = 23  # every third tentative (``cube``)
+SETTINGS = Settings(detector="sim:0", workers=1, key_rate_per_s=0, event_poll_s=0.05)
+
+
+@pytest.fixture(scope="module")
+def paged_url() -> Iterator[str]:
+    store = MemoryStore()
+    store.open_map(MAP, MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
+    store.commit(MAP, [], [cube(i) for i in range(1, N_OBJECTS + 1)], [])
+    with UvicornThread(create_app(SETTINGS, store=store, detector=BlobDetector())) as server:
+        yield server.url
+
+
+def test_iter_objects_yields_every_object_once_asking_for_each_page_when_needed(paged_url: str) -> None:
+    pages: list[httpx.URL] = []
+    http = httpx.Client(base_url=paged_url, event_hooks={"request": [lambda request: pages.append(request.url)]})
+    with http, ArcloudClient(paged_url, http=http) as client:
+        objects = client.iter_objects(MAP, include_tentative=True, page_size=5)
+        first = next(objects)
+        assert isinstance(first, ObjectOut) and first.id == 1 and len(pages) == 1  # one page asked for, not five
+        rest = list(objects)
+        assert [o.id for o in [first, *rest]] == list(range(1, N_OBJECTS + 1))
+        assert len(pages) == 5 and all(url.params["limit"] == "5" for url in pages)
+        confirmed = [o.id for o in client.iter_objects(MAP, page_size=4)]
+        assert confirmed == [i for i in range(1, N_OBJECTS + 1) if i % 3] and len(confirmed) == len(set(confirmed))
+        assert [o.id for o in client.iter_objects(MAP, label="tv", page_size=3, include_tentative=True)] == list(
+            range(1, N_OBJECTS + 1, 2)
+        )
+
+
+def test_async_iter_objects_and_maps(paged_url: str) -> None:
+    async def run() -> tuple[list[int], list[str]]:
+        async with AsyncArcloudClient(paged_url) as client:
+            ids = [o.id async for o in client.iter_objects(MAP, include_tentative=True, page_size=7)]
+            maps = [m.map_id async for m in client.iter_maps(page_size=1)]
+            return ids, maps
+
+    ids, maps = asyncio.run(run())
+    assert ids == list(range(1, N_OBJECTS + 1)) and maps == [MAP]
+
+
+class Follower:
+    """``client.events`` followed in a thread, each event (or the error that ended it) put in ``received``; stops
+    after the event that comes once ``stop`` is set."""
+
+    def __init__(self, client: ArcloudClient, map_id: str) -> None:
+        self.received: queue.Queue[MapEvent | Exception] = queue.Queue()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, args=(client, map_id), daemon=True)
+        self.thread.start()
+
+    def _run(self, client: ArcloudClient, map_id: str) -> None:
+        try:
+            for event in client.events(map_id, include_tentative=True):
+                self.received.put(event)
+                if self.stop.is_set():
+                    return
+        except Exception as exc:  # noqa: BLE001 - handed to the test, which fails with it
+            self.received.put(exc)
+
+    def next_of(self, kind: type, timeout_s: float = 20.0) -> MapEvent:
+        """The next event of type ``kind`` (skipping others, e.g. ``DeviceEvent``)."""
+        while True:
+            event = self.received.get(timeout=timeout_s)
+            if isinstance(event, Exception):
+                raise event
+            if isinstance(event, kind):
+                return event
+
+
+def test_events_yield_a_frame_processed_after_they_started_and_go_on_through_a_restart() -> None:
+    store = MemoryStore()  # the map outlives the service's restart (as on Redis)
+    port = free_port()
+    first_app = create_app(SETTINGS, store=store, detector=BlobDetector())
+    with ArcloudClient(f"http://127.0.0.1:{port}", max_retries=10, backoff_s=0.05) as client:
+        with UvicornThread(first_app, port=port):
+            client.send_frame(make_test_frame(0, map_id="live", level=True))
+            client.wait_until_processed("live", timeout_s=20)  # the map exists: its stream can open
+            follower = Follower(client, "live")
+            snapshot = follower.next_of(SnapshotEvent)
+            assert isinstance(snapshot, SnapshotEvent) and [o.version for o in snapshot.objects] == [1]
+            (obj,) = snapshot.objects
+            client.send_frame(make_test_frame(1, map_id="live", level=True))
+            upsert = follower.next_of(UpsertEvent)
+            assert isinstance(upsert, UpsertEvent) and upsert.object.id == obj.id and upsert.object.version == 2
+            close_event_streams(first_app)  # as `arcloud serve` does on shutdown: the service ends the stream
+        with UvicornThread(create_app(SETTINGS, store=store, detector=BlobDetector()), port=port):
+            again = follower.next_of(SnapshotEvent)  # connected again: the map as it is now
+            assert isinstance(again, SnapshotEvent) and [(o.id, o.version) for o in again.objects] == [(obj.id, 2)]
+            follower.stop.set()
+            client.send_frame(make_test_frame(2, map_id="live", level=True))
+            later = follower.next_of(UpsertEvent)
+            assert isinstance(later, UpsertEvent) and later.object.version == 3
+            follower.thread.join(10)
+            assert not follower.thread.is_alive()
