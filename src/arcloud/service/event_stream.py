@@ -22,7 +22,7 @@ Events, each ``event: NAME`` and one line of JSON ``data:``:
 
 and a ``: keep-alive`` comment when nothing was sent for ``event_heartbeat_s`` (15 s). Like the objects
 listing, a stream carries confirmed objects unless asked ``?include=tentative``. It needs a key that may
-read the map, looked at again every ``key_cache_s`` (1 s at least: a revoked key's streams end within
+read the map (or a viewer session's cookie, ``viewer_routes``), looked at again every ``key_cache_s`` (1 s at least: a revoked key's streams end within
 about twice that). Streams are shared fairly: at most ``max_event_streams`` are open in a process (503 beyond),
 ``max_event_streams_per_map`` of one map and ``max_event_streams_per_key`` of one key (with auth none: one client
 address; 429 beyond, both with ``Retry-After`` and the limit named), so that one key cannot take every place from
@@ -54,7 +54,7 @@ from starlette.concurrency import run_in_threadpool
 from arcloud.core.types import Params
 from arcloud.errors import ArcloudError
 from arcloud.ports import ObjectMeta, ObjectStore
-from arcloud.service.access import Caller, Refused, bearer_scheme, require
+from arcloud.service.access import VIEWER_COOKIE, Caller, Refused, bearer_scheme, require
 from arcloud.service.app import MapId, RuntimeDep, known_map
 from arcloud.service.devices import DevicePose, RecentDevices
 from arcloud.service.schemas import PROBLEM_RESPONSES, object_out
@@ -354,7 +354,8 @@ router = APIRouter(lifespan=lifespan)
     summary="The map's object events, live (server-sent events)",
     description="A `snapshot` of the map, then `upsert` and `removed` events as objects change (the fields of the "
     "objects listing), and `device` events with each device's last camera pose. Confirmed objects only, unless "
-    "`include=tentative`. Read with `fetch` and a stream reader (EventSource cannot send the Authorization header).",
+    "`include=tentative`. Needs the Authorization header, or a viewer session's cookie (POST "
+    "/v1/maps/{map_id}/viewer-session): EventSource cannot send headers, and a key never goes in a URL.",
 )
 async def map_events(
     map_id: MapId,
@@ -377,12 +378,13 @@ async def map_events(
         key=caller.bucket,
     )
     token = credentials.credentials if credentials is not None else None
+    viewer_session = request.cookies.get(VIEWER_COOKIE)
     address = request.client.host if request.client is not None else "unknown"
 
     async def still_allowed() -> str | None:
         """None while the key may read the map, else why not."""
         try:
-            caller = await run_in_threadpool(runtime.access.authenticate, token, address)
+            caller = await run_in_threadpool(runtime.access.authenticate, token, address, viewer_session)
             runtime.access.authorize(caller, "read", map_id)
         except Refused as exc:
             return exc.detail

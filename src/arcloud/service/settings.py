@@ -150,6 +150,18 @@ class Settings(BaseSettings):
     key_cache_s: float = Field(
         5.0, ge=0, description="how long the API reuses a key lookup: a created or revoked key takes effect within this"
     )
+    viewer_ticket_s: float = Field(
+        120.0,
+        gt=0,
+        le=3600,
+        description="how long a viewer ticket (POST /v1/maps/{map}/viewer-tickets) may be traded, once, for a viewer session",
+    )
+    viewer_session_s: float = Field(
+        12 * 3600.0,
+        gt=0,
+        le=7 * 86400,
+        description="how long a viewer session (its HttpOnly cookie) reads its map, while the key that drew its ticket may",
+    )
     key_rate_per_s: float = Field(
         50.0, ge=0, description="requests a second per key (per client address with auth none), any route; 0: no limit"
     )
