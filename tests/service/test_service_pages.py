@@ -13,13 +13,11 @@ import math
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-import numpy as np
 import pytest
-from svc_helpers import AppClient, BlobDetector
+from svc_helpers import AppClient, BlobDetector, cube
 
 from arcloud.core.header import MapHeader
-from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import keys_bounds, pack_keys
+from arcloud.core.types import MapObject, Params
 from arcloud.ports import ObjectMeta
 from arcloud.service import exports
 from arcloud.service.settings import Settings
@@ -28,6 +26,7 @@ from arcloud.tools.wiring import create_app
 
 MAP = "big"
 N_OBJECTS = 300
+STATS_CAP = 250
 
 
 class CountingStore(MemoryStore):
@@ -59,29 +58,6 @@ class CountingStore(MemoryStore):
         return super().get(map_id, ids)
 
 
-def cube(object_id: int, n: int = 3) -> MapObject:
-    """An ``n``-voxel cube object (0.05 m voxels) at x = 0.5 m per id; every third tentative, every other a tv."""
-    voxel = Params().voxel_size_m
-    start = np.array([10 * object_id, 0, 0])
-    grid = np.stack(np.meshgrid(*(np.arange(s, s + n) for s in start), indexing="ij"), axis=-1).reshape(-1, 3)
-    keys = np.sort(pack_keys(grid))
-    lo, hi = keys_bounds(keys, voxel)
-    return MapObject(
-        id=object_id,
-        keys=keys,
-        weights=np.ones(keys.size, np.float32),
-        votes=np.zeros((keys.size, N_CLASSES), np.float32),
-        n_frames=3,
-        version=1,
-        label="tv" if object_id % 2 else "chair",
-        score=0.5 + (object_id % 5) / 10,
-        aabb=AABB(lo, hi),
-        obb=OBB(center=(lo + hi) / 2, size=hi - lo, rotation=np.eye(3), yaw_rad=0.0),
-        bounds=AABB(lo, hi),
-        confirmed=object_id % 3 != 0,
-    )
-
-
 @pytest.fixture(scope="module")
 def served() -> Iterator[tuple[AppClient, CountingStore]]:
     store = CountingStore()
@@ -89,7 +65,14 @@ def served() -> Iterator[tuple[AppClient, CountingStore]]:
     objects = [cube(i) for i in range(1, N_OBJECTS + 1)]
     for first in range(0, N_OBJECTS, 50):
         store.commit(MAP, [], objects[first : first + 50], [])
-    settings = Settings(detector="sim:0", workers=1, key_rate_per_s=0, max_export_objects=250, max_export_voxels=5000)
+    settings = Settings(
+        detector="sim:0",
+        workers=1,
+        key_rate_per_s=0,
+        max_export_objects=250,
+        max_export_voxels=5000,
+        max_stats_objects=STATS_CAP,
+    )
     with AppClient(create_app(settings, store=store, detector=BlobDetector())) as client:
         yield client, store
 
@@ -184,3 +167,18 @@ def test_an_export_of_voxels_reads_and_encodes_its_objects_a_batch_at_a_time(ser
     read = list(exports.read_objects(store, MAP, list(range(1, 201))))
     assert [o.id for o in read] == list(range(1, 201))
     assert store.get_batches == [exports.READ_BATCH] * 3 + [200 - 3 * exports.READ_BATCH]
+
+
+def test_the_stats_of_a_map_over_the_cap_read_the_status_of_the_cap_and_say_so(served: tuple[AppClient, CountingStore]) -> None:
+    client, store = served
+    store.reset()
+    answer = client.get(f"/v1/maps/{MAP}/stats")
+    assert answer.status_code == 200, answer.text
+    first = range(1, STATS_CAP + 1)  # every third tentative (cube)
+    assert answer.json()["objects"] == {
+        "confirmed": sum(i % 3 != 0 for i in first),
+        "tentative": sum(i % 3 == 0 for i in first),
+        "total": N_OBJECTS,
+        "truncated": True,
+    }
+    assert store.whole_map_reads == 0 and store.meta_asked == STATS_CAP

@@ -3,10 +3,14 @@
 Why the API polls its store: the stream must work wherever the step runs, in worker threads of this
 process (embedded) or in worker processes elsewhere (Redis, Zenoh on or off), and the store is the one
 thing every deployment shares. While a map has streams open, one task of this process (``MapWatch``,
-shared by all of them) reads the map's ``ObjectStore.list_meta`` every ``event_poll_s`` (0.5 s) and diffs
-it with the last read by (version, status). Cost: one ``list_meta`` a tick per watched map however many
-viewers (on Redis one HGETALL of the map's metadata hash, a few hundred bytes an object: a 1000-object
-map is about 0.5 MB/s of reads per API process watching it), nothing for maps no one watches. A change
+shared by all of them) reads when the map last changed (``ObjectStore.map_updated_at``) every ``event_poll_s``
+(0.5 s), and only when that moved since its last read of the map, the map's ``list_meta``, which it diffs with
+that read by (version, status). Cost per watched map, however many viewers: one small read a tick (on Redis an
+HGET), plus, on a tick after the map changed, the whole map's metadata (an HGETALL of its metadata hash, a few
+hundred bytes an object: a 1000-object map changing every tick is about 0.5 MB/s of reads per API process
+watching it; the store keeps no per-object changed-since view to read less); nothing for maps no one watches.
+Exact, as the store writes the mark after the objects it stands for (two commits of one map stamped with the
+same float time in different processes would hide the second until the next change). A change
 reaches viewers within a tick; changes within one tick are coalesced (a slow viewer gets each object's
 latest state, so what a stream holds back is bounded by the map's size, and never goes back in time).
 
@@ -178,6 +182,7 @@ class MapWatch:
     objects: dict[int, ObjectMeta] = field(default_factory=dict)
     devices: dict[str, DevicePose] = field(default_factory=dict)
     ready: bool = False  # the map was read once
+    read_at_mark: float | None = None  # the map's ``map_updated_at`` before the last read of its objects
     task: asyncio.Task[None] | None = None
 
     async def run(self, on_idle: Callable[[MapWatch], None]) -> None:
@@ -186,7 +191,7 @@ class MapWatch:
         try:
             while self.subscribers:
                 try:
-                    metas = await run_in_threadpool(self.store.list_meta, self.map_id)
+                    metas = await run_in_threadpool(self.read_if_changed)
                 except ArcloudError as exc:  # the store is down: streams stay open, quiet, until it answers
                     if not failing:
                         log.warning("event stream of map %s: reading its objects failed: %s", self.map_id, exc)
@@ -206,11 +211,21 @@ class MapWatch:
         finally:
             on_idle(self)
 
-    def apply(self, metas: Sequence[ObjectMeta], devices: Sequence[DevicePose]) -> None:
-        """Take a new read of the map: tell every stream what changed."""
-        changed, removed = diff_objects(self.objects, metas)
+    def read_if_changed(self) -> list[ObjectMeta] | None:
+        """The map's objects, or None when it did not change since they were last read (blocking)."""
+        mark = self.store.map_updated_at(self.map_id)
+        if self.ready and mark is not None and mark == self.read_at_mark:
+            return None
+        metas = self.store.list_meta(self.map_id)
+        self.read_at_mark = mark
+        return metas
+
+    def apply(self, metas: Sequence[ObjectMeta] | None, devices: Sequence[DevicePose]) -> None:
+        """Take a new read of the map (None: unchanged) and of its devices: tell every stream what changed."""
+        changed, removed = diff_objects(self.objects, metas) if metas is not None else ([], [])
         moved, gone = diff_devices(self.devices, devices)
-        self.objects = {o.id: o for o in metas}
+        if metas is not None:
+            self.objects = {o.id: o for o in metas}
         self.devices = {d.device_id: d for d in devices}
         first = not self.ready
         self.ready = True

@@ -203,6 +203,12 @@ class Settings(BaseSettings):
         "is read (JSON takes about 9 us and 60 bytes a voxel, PLY 0.2 us and 19 bytes)",
     )
     max_export_objects: int = Field(100_000, ge=1, description="objects one export may carry, any format: 422 beyond")
+    max_stats_objects: int = Field(
+        10_000,
+        ge=1,
+        description="objects whose status a map's stats read at most: beyond, `total` stays exact and `confirmed` and "
+        "`tentative` count the first of them by id (`truncated`)",
+    )
     # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
     max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
     max_event_streams_per_key: int = Field(
