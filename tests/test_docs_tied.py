@@ -98,6 +98,7 @@ ARGUMENTS = {
     "object_id": 7,
     "cell": (1, 2, 3),
     "bucket": "<bucket>",
+    "digest": "<digest>",
     "lease_key": "<lock or claim key>",
 }
 PLACEHOLDERS = [(":7", ":<id>"), (":1:2:3", ":<i>:<j>:<k>"), (":map:m:", ":map:<m>:")]

@@ -5,6 +5,10 @@ list``; ``secret`` (43 URL-safe characters, 256 random bits) is printed once at 
 its SHA-256. A salted slow hash protects guessable passwords; a 256-bit random secret cannot be guessed,
 so one SHA-256 is enough, and comparing digests in constant time leaks nothing.
 
+A viewer pass (``ViewerGrant``) lets a browser read one map without the key in a URL: a key that may read the map
+draws a ticket (``new_viewer_pass(kind="ticket")``, minutes long, used once), and the viewer trades it for a session
+(an HttpOnly cookie, hours long). Only the pass's SHA-256 is stored, like a key's secret.
+
 Roles, each on its maps (a list of map ids, or ``*`` for every map):
 
     reader   read: objects, stats, frame status
@@ -83,6 +87,46 @@ class ApiKey:
         )
 
 
+ViewerPassKind = Literal["ticket", "session"]
+
+
+@dataclass(frozen=True, slots=True)
+class ViewerGrant:
+    """What a viewer pass lets its holder do: read map ``map_id`` while key ``key_id`` may, until ``expires_at_s``
+    (Unix s). A ``ticket`` is traded once for a ``session``; only a ``session`` opens map routes."""
+
+    kind: ViewerPassKind
+    map_id: str
+    key_id: str
+    expires_at_s: float
+
+    def to_record(self) -> dict[str, object]:
+        return {"kind": self.kind, "map_id": self.map_id, "key_id": self.key_id, "expires_at_s": self.expires_at_s}
+
+    @staticmethod
+    def from_record(record: dict[str, object]) -> ViewerGrant:
+        kind = str(record["kind"])
+        if kind not in ("ticket", "session"):
+            raise InvalidInput("kind", "ticket or session", repr(kind))
+        return ViewerGrant(
+            kind="ticket" if kind == "ticket" else "session",
+            map_id=str(record["map_id"]),
+            key_id=str(record["key_id"]),
+            expires_at_s=float(cast(float, record["expires_at_s"])),
+        )
+
+
+def new_viewer_pass(kind: ViewerPassKind, map_id: str, key_id: str, *, now_s: float, ttl_s: float) -> tuple[ViewerGrant, str]:
+    """A new viewer pass and its secret (256 random bits, shown once; stored as ``secret_digest``)."""
+    return ViewerGrant(kind, map_id, key_id, now_s + ttl_s), secrets.token_urlsafe(32)
+
+
+def viewer_key(key: ApiKey, map_id: str) -> ApiKey:
+    """What a viewer session of ``key`` may do: read ``map_id`` (if the key may), nothing else."""
+    maps = (map_id,) if key.allows("read", map_id) else ()
+    return ApiKey(key.id, "reader", maps, key.created_at_s, key.secret_sha256, f"viewer session of key {key.id}")
+
+
 def parse_maps(text: str) -> tuple[str, ...]:
     """``M1,M2`` or ``*`` -> the key's maps, each a valid map id (``InvalidInput`` otherwise)."""
     names = tuple(part.strip() for part in text.split(",") if part.strip())
@@ -133,9 +177,13 @@ __all__ = [
     "Action",
     "ApiKey",
     "Role",
+    "ViewerGrant",
+    "ViewerPassKind",
     "new_key",
+    "new_viewer_pass",
     "parse_maps",
     "secret_digest",
     "split_token",
     "verify",
+    "viewer_key",
 ]

@@ -9,6 +9,8 @@
 - ``KeyStore``: the API keys (``arcloud.access.ApiKey``), hashed (a JSON file ``stores.file_api_keys``,
   Redis ``stores.redis_api_keys``).
 - ``RateLimiter``: token buckets shared by every API process (``stores.memory_rate``, ``stores.redis_rate``).
+- ``ViewerPasses``: the viewer's tickets and sessions (``arcloud.access.ViewerGrant``), hashed, each kept until it
+  expires (``stores.memory_viewer_passes``, ``stores.redis_viewer_passes``).
 - ``MapArchive``: a map as one file and back, on any ``ObjectStore`` (``stores.snapshot``).
 - ``DeviceAlignments``: each device's ``device_from_map`` per map (``core.conventions``), shared by every API
   process (``stores.memory_alignments``, ``stores.redis_alignments``).
@@ -26,7 +28,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from arcloud.access import ApiKey
+from arcloud.access import ApiKey, ViewerGrant
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
 from arcloud.core.types import AABB, OBB, Frame, MapObject, Params
@@ -55,6 +57,7 @@ __all__ = [
     "RateLimiter",
     "RetiredObject",
     "UpdatePublisher",
+    "ViewerPasses",
     "WAIT_BUCKETS_S",
     "latency_bucket",
 ]
@@ -158,6 +161,11 @@ class ObjectStore(MapStore, Protocol):
 
     def count_objects(self, map_id: str) -> int:
         """How many objects the map holds (0 for an unknown map)."""
+        ...
+
+    def map_updated_at(self, map_id: str) -> float | None:
+        """``list_maps()[map_id]`` alone (None: not listed), one small read: written after the objects it stands
+        for, so a reader that finds it unchanged since a read of the map's objects has seen every change since."""
         ...
 
     def retired_objects(self, map_id: str) -> list[RetiredObject]:
@@ -523,6 +531,23 @@ class RateLimiter(Protocol):
 
     def take(self, bucket: str, *, rate_per_s: float, burst: int) -> float:
         """Spend one token of ``bucket``: 0.0 when allowed, else the seconds until one is (nothing spent)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class ViewerPasses(Protocol):
+    """Viewer tickets and sessions by the SHA-256 of their secret (``access.secret_digest``), each kept until its
+    ``expires_at_s`` at least (the caller checks expiry). Shared by every API process using the same store."""
+
+    def put(self, digest: str, grant: ViewerGrant) -> None: ...
+
+    def find(self, digest: str) -> ViewerGrant | None:
+        """The pass; None when there is none (never issued, taken, or dropped once expired)."""
+        ...
+
+    def take(self, digest: str) -> ViewerGrant | None:
+        """``find`` and remove, at once: of two callers taking one ticket, one gets it."""
         ...
 
     def close(self) -> None: ...

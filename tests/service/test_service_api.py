@@ -69,7 +69,7 @@ def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -
     assert stats == {
         "map_id": "m",
         "frames": {"accepted": 8, "processed": 8, "failed": 0, "pending": 0},
-        "objects": {"confirmed": 0, "tentative": 1},
+        "objects": {"confirmed": 0, "tentative": 1, "total": 1, "truncated": False},
     }
     assert client.get("/v1/maps/m/objects").json()["objects"] == []  # lying flat: no chair has that box
     (obj,) = client.get("/v1/maps/m/objects", params=TENTATIVE).json()["objects"]
@@ -139,13 +139,23 @@ def test_the_served_map_holds_confirmed_objects_and_loses_those_that_turn_tentat
         ((chair, status),) = listed(**TENTATIVE).items()
         assert status == "tentative" and listed() == {}
         assert client.get(f"/v1/maps/s/objects/{chair}").json()["status"] == "tentative"
-        assert client.get("/v1/maps/s/stats").json()["objects"] == {"confirmed": 0, "tentative": 1}
+        assert client.get("/v1/maps/s/stats").json()["objects"] == {
+            "confirmed": 0,
+            "tentative": 1,
+            "total": 1,
+            "truncated": False,
+        }
 
         for i in range(1, 6):  # seen upright in six frames: confirmed, served
             send(i)
         assert listed() == listed(**TENTATIVE) == {chair: "confirmed"}
         assert client.get(f"/v1/maps/s/objects/{chair}").json()["status"] == "confirmed"
-        assert client.get("/v1/maps/s/stats").json()["objects"] == {"confirmed": 1, "tentative": 0}
+        assert client.get("/v1/maps/s/stats").json()["objects"] == {
+            "confirmed": 1,
+            "tentative": 0,
+            "total": 1,
+            "truncated": False,
+        }
 
         # The chair stays in view but the detector stops finding it: misses count until it is tentative again.
         detector.miss_left_on.update(f"f{i:06d}" for i in range(6, 60))
@@ -162,6 +172,8 @@ def test_the_served_map_holds_confirmed_objects_and_loses_those_that_turn_tentat
         assert counts == {
             "confirmed": sum(s == "confirmed" for s in everything.values()),
             "tentative": sum(s == "tentative" for s in everything.values()),
+            "total": len(everything),
+            "truncated": False,
         }
         assert listed() == {i: s for i, s in everything.items() if s == "confirmed"}
 
@@ -416,7 +428,7 @@ def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
         and "status" in schemas["ObjectOut"]["required"]
     )
     assert schemas["ObjectOut"]["examples"][0]["status"] == "confirmed"
-    assert schemas["MapStats"]["examples"][0]["objects"] == {"confirmed": 14, "tentative": 31}
+    assert schemas["MapStats"]["examples"][0]["objects"] == {"confirmed": 14, "tentative": 31, "total": 45, "truncated": False}
 
 
 def test_real_uvicorn_server_and_shared_store() -> None:

@@ -304,7 +304,8 @@ def test_arcloud_serve_writes_no_token_to_its_logs(tmp_path: Path, log_format: s
         serve = ServeProcess(tmp_path, (*SERVE, "--redis", server.url, "--workers", "0"), environment)
         try:
             wait_until(alive, 60, "arcloud serve to answer", interval_s=0.2)
-            assert httpx.get(f"{serve.url}/viewer?map=m&token=arc_secret1", timeout=5.0).status_code == 200
+            viewer = httpx.get(f"{serve.url}/viewer?map=m&token=arc_secret1", timeout=5.0)
+            assert viewer.status_code == 400  # refused, and logged scrubbed
             refused = httpx.get(
                 f"{serve.url}/v1/maps/m/stats?token=arc_secret2",
                 headers={"authorization": f"Bearer {SECRET_TOKEN}"},

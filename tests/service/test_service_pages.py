@@ -26,6 +26,7 @@ from arcloud.tools.wiring import create_app
 
 MAP = "big"
 N_OBJECTS = 300
+STATS_CAP = 250
 
 
 class CountingStore(MemoryStore):
@@ -64,7 +65,14 @@ def served() -> Iterator[tuple[AppClient, CountingStore]]:
     objects = [cube(i) for i in range(1, N_OBJECTS + 1)]
     for first in range(0, N_OBJECTS, 50):
         store.commit(MAP, [], objects[first : first + 50], [])
-    settings = Settings(detector="sim:0", workers=1, key_rate_per_s=0, max_export_objects=250, max_export_voxels=5000)
+    settings = Settings(
+        detector="sim:0",
+        workers=1,
+        key_rate_per_s=0,
+        max_export_objects=250,
+        max_export_voxels=5000,
+        max_stats_objects=STATS_CAP,
+    )
     with AppClient(create_app(settings, store=store, detector=BlobDetector())) as client:
         yield client, store
 
@@ -159,3 +167,18 @@ def test_an_export_of_voxels_reads_and_encodes_its_objects_a_batch_at_a_time(ser
     read = list(exports.read_objects(store, MAP, list(range(1, 201))))
     assert [o.id for o in read] == list(range(1, 201))
     assert store.get_batches == [exports.READ_BATCH] * 3 + [200 - 3 * exports.READ_BATCH]
+
+
+def test_the_stats_of_a_map_over_the_cap_read_the_status_of_the_cap_and_say_so(served: tuple[AppClient, CountingStore]) -> None:
+    client, store = served
+    store.reset()
+    answer = client.get(f"/v1/maps/{MAP}/stats")
+    assert answer.status_code == 200, answer.text
+    first = range(1, STATS_CAP + 1)  # every third tentative (cube)
+    assert answer.json()["objects"] == {
+        "confirmed": sum(i % 3 != 0 for i in first),
+        "tentative": sum(i % 3 == 0 for i in first),
+        "total": N_OBJECTS,
+        "truncated": True,
+    }
+    assert store.whole_map_reads == 0 and store.meta_asked == STATS_CAP

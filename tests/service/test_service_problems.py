@@ -27,6 +27,7 @@ from arcloud.tools.wiring import create_app
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "service.md"
 PROTOBUF = {"content-type": "application/x-protobuf"}
 OPEN = {"/healthz", "/readyz", "/healthz/workers", "/metrics", "/problems/{name}"}  # no token asked
+TICKETED = {"/v1/maps/{map_id}/viewer-session"}  # a viewer ticket in the body, not a token
 #: A value refused for each path parameter, and the status it gets (map ids are checked before anything else).
 BAD_PATH_VALUES = {"map_id": ("bad id", 422), "name": ("no-such-type", 404)}
 
@@ -90,10 +91,10 @@ def test_every_operation_of_the_schema_answers_its_4xx_as_a_problem(keyed: tuple
             continue
         # Map routes: no token, 401 (with WWW-Authenticate); a reader key of another map, 403.
         concrete = re.sub(r"\{\w+\}", "room", path).replace("/objects/room", "/objects/1")
-        unauthenticated = api.request(method, concrete)
+        unauthenticated = api.request(method, concrete, json={"ticket": "A" * 43} if path in TICKETED else None)
         assert_problem(unauthenticated, 401, "authorization")
         assert unauthenticated.headers["www-authenticate"].startswith("Bearer"), path
-        if "{map_id}" in path:
+        if "{map_id}" in path and path not in TICKETED:
             assert_problem(api.request(method, concrete, headers=bearer(tokens["reader"])), 403, "authorization")
         assert problem["type"].startswith("/problems/"), problem
     assert walked == {(m, p) for m, p, _ in operations(spec)}

@@ -154,7 +154,7 @@ def test_every_frame_is_processed_once_and_events_reach_a_zenoh_subscriber(deplo
 
     stats = deployment.api.get("/v1/maps/r1/stats").json()
     assert stats["frames"] == {"accepted": 10, "processed": 10, "failed": 0, "pending": 0}
-    assert stats["objects"] == {"confirmed": 1, "tentative": 0}
+    assert stats["objects"] == {"confirmed": 1, "tentative": 0, "total": 1, "truncated": False}
     assert deployment.idle()  # acknowledged and deleted: the stream holds only the backlog
     (obj,) = deployment.api.get("/v1/maps/r1/objects").json()["objects"]
     assert obj["n_frames"] == 10 and obj["label"] == "chair" and obj["status"] == "confirmed" and obj["version"] == 10
@@ -188,7 +188,7 @@ def test_the_served_map_loses_an_object_that_turns_tentative(deployment: Deploym
     post(0)
     (chair,) = api.get("/v1/maps/r6/objects", params=TENTATIVE).json()["objects"]
     assert chair["status"] == "tentative" and api.get("/v1/maps/r6/objects").json()["objects"] == []
-    assert api.get("/v1/maps/r6/stats").json()["objects"] == {"confirmed": 0, "tentative": 1}
+    assert api.get("/v1/maps/r6/stats").json()["objects"] == {"confirmed": 0, "tentative": 1, "total": 1, "truncated": False}
     for i in range(1, 6):
         post(i)
     assert [(o["id"], o["status"]) for o in api.get("/v1/maps/r6/objects").json()["objects"]] == [(chair["id"], "confirmed")]
@@ -201,7 +201,13 @@ def test_the_served_map_loses_an_object_that_turns_tentative(deployment: Deploym
     every = {o["id"]: o["status"] for o in api.get("/v1/maps/r6/objects", params=TENTATIVE).json()["objects"]}
     assert every[chair["id"]] == "tentative" and deployment.store.get("r6", [chair["id"]])[0].n_missed > 0
     counts = api.get("/v1/maps/r6/stats").json()["objects"]
-    assert counts == {"confirmed": list(every.values()).count("confirmed"), "tentative": list(every.values()).count("tentative")}
+    statuses = list(every.values())
+    assert counts == {
+        "confirmed": statuses.count("confirmed"),
+        "tentative": statuses.count("tentative"),
+        "total": len(statuses),
+        "truncated": False,
+    }
 
 
 def test_health_checks_see_the_workers_heartbeats(deployment: Deployment, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -6,19 +6,23 @@ from __future__ import annotations
 import json
 import stat
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from redis_server import empty_redis_url
 
-from arcloud.access import new_key
+from arcloud.access import new_key, new_viewer_pass, secret_digest
 from arcloud.errors import StoreError
-from arcloud.ports import KeyStore, RateLimiter
+from arcloud.ports import KeyStore, RateLimiter, ViewerPasses
 from arcloud.stores.file_api_keys import FileKeyStore
+from arcloud.stores.keys import viewer_pass_key
 from arcloud.stores.memory_rate import MemoryRateLimiter
+from arcloud.stores.memory_viewer_passes import MemoryViewerPasses
 from arcloud.stores.redis_api_keys import RedisKeyStore
 from arcloud.stores.redis_rate import RedisRateLimiter
+from arcloud.stores.redis_viewer_passes import RedisViewerPasses
 
 REDIS = [pytest.param("redis", marks=pytest.mark.redis), pytest.param("cluster", marks=pytest.mark.redis)]
 
@@ -117,3 +121,40 @@ def test_redis_limiter_is_shared_by_every_client(emptied_redis_url: str) -> None
     finally:
         first.close()
         second.close()
+
+
+# --- viewer passes (memory, Redis) ---------------------------------------------------------------------
+@pytest.fixture(params=["memory", *REDIS])
+def viewer_passes(request: pytest.FixtureRequest) -> Iterator[ViewerPasses]:
+    if request.param == "memory":
+        yield MemoryViewerPasses()
+        return
+    passes = RedisViewerPasses(empty_redis_url(request))
+    yield passes
+    passes.close()
+
+
+def test_a_viewer_pass_is_found_until_taken_and_taken_once(viewer_passes: ViewerPasses) -> None:
+    grant, secret = new_viewer_pass("ticket", "room", "0123456789ab", now_s=time.time(), ttl_s=60)
+    digest = secret_digest(secret)
+    assert viewer_passes.find(digest) is None
+    viewer_passes.put(digest, grant)
+    assert viewer_passes.find(digest) == grant
+    taken = []
+    threads = [threading.Thread(target=lambda: taken.append(viewer_passes.take(digest))) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(taken, key=lambda g: g is not None) == [None, None, None, grant]  # one of four takers got it
+    assert viewer_passes.find(digest) is None
+
+
+@pytest.mark.redis
+def test_redis_drops_a_viewer_pass_when_it_expires(redis_url: str) -> None:
+    passes = RedisViewerPasses(redis_url)
+    grant, secret = new_viewer_pass("session", "room", "0123456789ab", now_s=time.time(), ttl_s=60)
+    passes.put(secret_digest(secret), grant)
+    ttl_ms = passes.client.pttl(viewer_pass_key(secret_digest(secret)))
+    assert 55_000 < ttl_ms <= 60_000  # the secret itself is nowhere: the key is its digest
+    passes.close()

@@ -12,13 +12,17 @@ from typing import Any
 
 import httpx
 import pytest
-from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, free_port, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, cube, free_port, make_test_frame, wait_until
 from viewer_helpers import EventStream, bearer, make_keys
 
+from arcloud.core.header import MapHeader
+from arcloud.core.types import Params
+from arcloud.ports import ObjectMeta
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.event_stream import EventStreams
 from arcloud.service.settings import Settings
 from arcloud.stores.file_api_keys import FileKeyStore
+from arcloud.stores.memory import MemoryStore
 from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
@@ -243,3 +247,37 @@ def test_on_redis_a_stream_sees_what_workers_elsewhere_write() -> None:
             thread.join(10)
             queue.close()
             store.close()
+
+
+class CountingStore(MemoryStore):
+    """The embedded store, counting whole-map reads and reads of when a map last changed."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.whole_map_reads = 0
+        self.mark_reads = 0
+
+    def list_meta(self, map_id: str) -> list[ObjectMeta]:
+        self.whole_map_reads += 1
+        return super().list_meta(map_id)
+
+    def map_updated_at(self, map_id: str) -> float | None:
+        self.mark_reads += 1
+        return super().map_updated_at(map_id)
+
+
+def test_a_watched_map_is_read_again_only_after_it_changed() -> None:
+    store = CountingStore()
+    store.open_map("quiet", MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
+    store.commit("quiet", [], [cube(1)], [])
+    settings = Settings(detector="sim:0", workers=1, event_poll_s=0.02)
+    with (
+        UvicornThread(create_app(settings, store=store, detector=BlobDetector())) as server,
+        EventStream(server.url, "quiet", tentative=True) as stream,
+    ):
+        assert [o["id"] for o in stream.next_event("snapshot")[1]["objects"]] == [1]
+        wait_until(lambda: store.mark_reads >= 10, 10, "ten polls")
+        assert store.whole_map_reads == 1  # the snapshot's read; nine polls found the map unchanged
+        store.commit("quiet", [], [cube(2)], [])
+        assert stream.next_event("upsert")[1]["id"] == 2
+        assert store.whole_map_reads == 2

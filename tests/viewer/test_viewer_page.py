@@ -1,5 +1,5 @@
 """The viewer in a real browser: headless Chromium (Debian's ``chromium``, driven by Playwright) opens
-``/viewer?map=M&token=T`` on a real uvicorn server running the embedded service with keys. The page sets
+a viewer ticket's ``/viewer?map=M#ticket=T`` on a real uvicorn server running the embedded service with keys. The page sets
 ``<body data-objects>`` to the number of boxes it draws; the tests read that count and the screenshot's
 pixels (the class colours of viewer.js), and post frames while the page is open.
 
@@ -92,14 +92,19 @@ def page(browser: Any) -> Iterator[Any]:
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
+    page.requests = []  # (url, Authorization header) of every request the page makes
+    page.on("request", lambda request: page.requests.append((request.url, request.headers.get("authorization"))))
     page.set_default_timeout(WAIT_MS)
     yield page
     context.close()
     assert not errors, f"the page raised: {errors}"
 
 
-def open_viewer(page: Any, service: Service, map_id: str, *, token: str | None = None) -> None:
-    page.goto(f"{service.url}/viewer?map={map_id}&token={token or service.tokens['reader']}")
+def open_viewer(page: Any, service: Service, map_id: str) -> None:
+    """Open the viewer as a viewer ticket's link says."""
+    drawn = httpx.post(f"{service.url}/v1/maps/{map_id}/viewer-tickets", headers=bearer(service.tokens["reader"]))
+    assert drawn.status_code == 201, drawn.text
+    page.goto(service.url + drawn.json()["viewer_url"])
     page.wait_for_function("document.body.dataset.state === 'live'")
 
 
@@ -128,8 +133,23 @@ def test_the_page_draws_the_maps_boxes_in_their_class_colours(page: Any, service
     assert pixels["chair"] > 100 and pixels["tv"] > 100, pixels
     labels = page.locator(".label:not(.device)").all_inner_texts()
     assert sorted(text.split()[0] for text in labels) == ["chair", "tv"]
-    assert "token" not in page.url  # it moved to sessionStorage
-    assert page.evaluate("sessionStorage.getItem('arcloud.token')") == service.tokens["reader"]
+    assert page.url == f"{service.url}/viewer?map=room"  # the used ticket left the address bar
+    assert page.evaluate("document.cookie") == ""  # the session's cookie is HttpOnly
+    assert [auth for _, auth in page.requests] == [None] * len(page.requests)  # the cookie authenticates
+
+
+def test_a_key_typed_into_the_form_draws_a_ticket_and_goes_in_no_url(page: Any, service: Service) -> None:
+    key = service.tokens["reader"]
+    page.goto(f"{service.url}/viewer?map=room")
+    page.fill("#key", key)
+    page.click("button[type=submit]")
+    page.wait_for_function("document.body.dataset.state === 'live'")
+    wait_drawn(page, 2)
+    assert page.input_value("#key") == ""  # forgotten
+    assert page.evaluate("sessionStorage.length + localStorage.length") == 0
+    assert all(key not in url for url, _ in page.requests), page.requests
+    sent = [url.removeprefix(service.url) for url, auth in page.requests if auth is not None]
+    assert sent == ["/v1/maps/room/viewer-tickets"]  # the key's one request
 
 
 def test_an_empty_map_draws_no_box(page: Any, service: Service) -> None:
@@ -188,7 +208,10 @@ def test_class_filter_score_slider_tentative_toggle_and_voxels(page: Any, servic
 
 def test_a_key_of_another_map_or_a_wrong_token_is_refused_on_the_page(page: Any, service: Service) -> None:
     for token in (service.tokens["stranger"], service.tokens["reader"][:-2] + "xx"):
-        page.goto(f"{service.url}/viewer?map=room&token={token}")
+        page.goto(f"{service.url}/viewer?map=room")
+        page.context.clear_cookies()  # no session from a test before
+        page.fill("#key", token)
+        page.click("button[type=submit]")
         page.wait_for_function("document.body.dataset.state === 'error'")
         assert page.inner_text("#status").startswith("Refused: authorization:")
         assert page.evaluate("document.body.dataset.objects") == "0"

@@ -52,8 +52,16 @@ def bearer(token: str) -> dict[str, str]:
 class EventStream:
     """``GET /v1/maps/{map}/events`` over real HTTP, read event by event; every wait bounded."""
 
-    def __init__(self, base_url: str, map_id: str, token: str | None = None, *, tentative: bool = False) -> None:
-        self.client = httpx.Client(base_url=base_url, timeout=httpx.Timeout(10.0, read=5.0))
+    def __init__(
+        self,
+        base_url: str,
+        map_id: str,
+        token: str | None = None,
+        *,
+        tentative: bool = False,
+        cookies: dict[str, str] | None = None,
+    ) -> None:
+        self.client = httpx.Client(base_url=base_url, timeout=httpx.Timeout(10.0, read=5.0), cookies=cookies)
         params = {"include": "tentative"} if tentative else {}
         self._cm = self.client.stream("GET", f"/v1/maps/{map_id}/events", params=params, headers=bearer(token) if token else {})
         self.response = self._cm.__enter__()

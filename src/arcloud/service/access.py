@@ -12,6 +12,10 @@ In order, so that each answer tells no more than the caller may know:
 4. 429 with ``Retry-After`` when the key (with auth ``none``: the client's address) is over
    ``key_rate_per_s``, or, for an upload, the map is over ``map_frame_rate_per_s``.
 
+A browser viewer authenticates with a viewer session instead (``VIEWER_COOKIE``, an HttpOnly cookie holding a pass
+of ``Access.open_viewer_session``): it reads its one map while the key that drew its ticket may, as a reader key of
+that map alone (``arcloud.access.viewer_key``); a session unknown or expired is a 401 like a wrong token.
+
 The body of a request is read only after all four passed. Keys are looked up through a small cache
 (``Settings.key_cache_s``, 5 s): a key created or revoked takes effect within that time in every API process.
 
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -33,16 +38,33 @@ from typing import Annotated
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from arcloud.access import ROLE_ACTIONS, Action, ApiKey, split_token, verify
+from arcloud.access import (
+    ROLE_ACTIONS,
+    Action,
+    ApiKey,
+    ViewerGrant,
+    ViewerPassKind,
+    new_viewer_pass,
+    secret_digest,
+    split_token,
+    verify,
+    viewer_key,
+)
 from arcloud.core.checks import check_map_id
 from arcloud.errors import ArcloudError
-from arcloud.ports import KeyStore, RateLimiter
+from arcloud.ports import KeyStore, RateLimiter, ViewerPasses
 from arcloud.service.settings import Settings
 
 log = logging.getLogger(__name__)
 
 KEY_CACHE_ENTRIES = 10_000  # lookups kept at most (cleared when full)
 BARRED_ADDRESSES = 10_000  # addresses refused for failed authentications, kept at most (cleared when full)
+
+#: The cookie of a viewer session (its path: the map's routes, ``/v1/maps/<map>``).
+VIEWER_COOKIE = "arcloud_viewer"
+#: What a viewer pass's secret looks like (``secrets.token_urlsafe(32)``); anything else is unknown, unlooked-up.
+VIEWER_PASS = re.compile(r"[A-Za-z0-9_-]{43}")
+HOW_TO_VIEW = "draw a viewer ticket (POST /v1/maps/{map}/viewer-tickets with the key) and open the viewer with it"
 
 #: In the OpenAPI schema: the bearer token scheme (the check itself is ``require``'s).
 bearer_scheme = HTTPBearer(auto_error=False, description="a token from `arcloud keys create` (auth keys)")
@@ -102,13 +124,16 @@ class KeyCache:
 
 @dataclass(eq=False)
 class Access:
-    """What ``require`` checks against: the keys (None: auth none), the rate limiter (None: no limits).
-    ``clock``: monotonic seconds (how long an address stays barred)."""
+    """What ``require`` checks against: the keys (None: auth none), the rate limiter (None: no limits), the viewer
+    passes (None: none, as with auth none). ``clock``: monotonic seconds (how long an address stays barred);
+    ``wall_clock``: Unix seconds (when viewer passes expire)."""
 
     settings: Settings
     keys: KeyCache | None
     limiter: RateLimiter | None
+    passes: ViewerPasses | None = None
     clock: Callable[[], float] = time.monotonic
+    wall_clock: Callable[[], float] = time.time
     _barred: dict[str, float] = field(default_factory=dict)  # address -> until when (clock) it is refused at once
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _keys_seen: int = 0  # the most keys this process saw in the key store (1: a lookup found one)
@@ -140,10 +165,19 @@ class Access:
             log.error("API keys %s", detail)
         return detail
 
-    def authenticate(self, token: str | None, address: str) -> Caller:
+    def authenticate(self, token: str | None, address: str, viewer_session: str | None = None) -> Caller:
+        """Who sends ``token`` (a bearer token), or else ``viewer_session`` (the viewer's cookie)."""
         if self.keys is None:
             return Caller(None, address)
         self._refuse_if_barred(address)
+        if token is None and viewer_session is not None:
+            grant = self._viewer_pass(viewer_session, "session")
+            if grant is None:
+                raise self._failed(address, f"authorization: the viewer session is unknown or expired: {HOW_TO_VIEW}")
+            key = self.keys.find(grant.key_id)
+            if key is None:
+                raise self._failed(address, f"authorization: the key of this viewer session was revoked: {HOW_TO_VIEW}")
+            return Caller(viewer_key(key, grant.map_id), address)
         if token is None:
             raise self._failed(
                 address, "authorization: expected `Authorization: Bearer TOKEN` (a token from `arcloud keys create`)"
@@ -155,6 +189,52 @@ class Access:
         if not self._keys_seen:
             self._keys_seen = 1
         return Caller(key, address)
+
+    def issue_viewer_ticket(self, caller: Caller, map_id: str) -> tuple[str, ViewerGrant]:
+        """(a new ticket's secret, its grant): one viewer session of ``map_id``, for the caller's key (which may read
+        it: ``require("read")`` checked), within ``viewer_ticket_s``. 404 with auth none (no ticket needed)."""
+        if self.passes is None or caller.key is None:
+            raise _no_viewer_passes(map_id)
+        grant, secret = new_viewer_pass(
+            "ticket", map_id, caller.key.id, now_s=self.wall_clock(), ttl_s=self.settings.viewer_ticket_s
+        )
+        self.passes.put(secret_digest(secret), grant)
+        return secret, grant
+
+    def open_viewer_session(self, ticket: str, map_id: str, address: str) -> tuple[str, ViewerGrant]:
+        """(a new session's secret, its grant) for a ticket of ``map_id``, which it uses up: 401 (counted as a
+        failed authentication) for a ticket unknown, used or expired, or whose key was revoked; 403 for a ticket of
+        another map."""
+        if self.passes is None or self.keys is None:
+            raise _no_viewer_passes(map_id)
+        self._refuse_if_barred(address)
+        grant = self._viewer_pass(ticket, "ticket", take=True)
+        if grant is None:
+            raise self._failed(
+                address,
+                f"viewer ticket: unknown, used or expired (each opens one session, within {self.settings.viewer_ticket_s:g} s "
+                f"of being drawn): {HOW_TO_VIEW}",
+            )
+        if grant.map_id != map_id:
+            raise Refused(403, f"viewer ticket: it is for map {grant.map_id!r}, not {map_id!r}", "ticket")
+        key = self.keys.find(grant.key_id)
+        if key is None or not key.allows("read", map_id):
+            raise self._failed(address, f"viewer ticket: the key that drew it was revoked: {HOW_TO_VIEW}")
+        session, secret = new_viewer_pass(
+            "session", map_id, key.id, now_s=self.wall_clock(), ttl_s=self.settings.viewer_session_s
+        )
+        self.passes.put(secret_digest(secret), session)
+        return secret, session
+
+    def _viewer_pass(self, secret: str, kind: ViewerPassKind, *, take: bool = False) -> ViewerGrant | None:
+        """The live pass of this kind whose secret this is; None for anything else."""
+        if self.passes is None or not VIEWER_PASS.fullmatch(secret):
+            return None
+        digest = secret_digest(secret)
+        grant = self.passes.take(digest) if take else self.passes.find(digest)
+        if grant is None or grant.kind != kind or grant.expires_at_s <= self.wall_clock():
+            return None
+        return grant
 
     def _failed(self, address: str, detail: str) -> Refused:
         """A failed authentication from ``address``: 401, or 429 once the address is over its limit (then
@@ -220,6 +300,12 @@ class Access:
                 )
 
 
+def _no_viewer_passes(map_id: str) -> Refused:
+    return Refused(
+        404, f"viewer tickets: none with auth none (the viewer needs none): open /viewer?map={map_id}", "authorization"
+    )
+
+
 def _unauthorized(detail: str) -> Refused:
     return Refused(401, detail, "authorization", {"WWW-Authenticate": "Bearer"})
 
@@ -235,7 +321,8 @@ def require(action: Action, *, listing: bool = False) -> Callable[..., Caller]:
     def check(request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)]) -> Caller:
         access: Access = request.app.state.runtime.access
         address = request.client.host if request.client is not None else "unknown"
-        caller = access.authenticate(credentials.credentials if credentials is not None else None, address)
+        token = credentials.credentials if credentials is not None else None
+        caller = access.authenticate(token, address, request.cookies.get(VIEWER_COOKIE))
         map_id = request.path_params.get("map_id")
         if map_id is not None:
             check_map_id("map_id", map_id)
@@ -246,4 +333,4 @@ def require(action: Action, *, listing: bool = False) -> Callable[..., Caller]:
     return check
 
 
-__all__ = ["Access", "Caller", "KeyCache", "Refused", "bearer_scheme", "require"]
+__all__ = ["VIEWER_COOKIE", "Access", "Caller", "KeyCache", "Refused", "bearer_scheme", "require"]

@@ -559,8 +559,9 @@ def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
 def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     known_map(runtime, map_id)
     counts = runtime.ingest.counts(map_id)
-    objects = runtime.store.list_meta(map_id)
-    confirmed = sum(1 for o in objects if o.confirmed)
+    total = runtime.store.count_objects(map_id)
+    counted = runtime.store.object_ids(map_id)[: runtime.settings.max_stats_objects]  # a bounded read: ids are small
+    confirmed = sum(1 for o in runtime.store.object_meta(map_id, counted) if o.confirmed)
     return {
         "map_id": map_id,
         "frames": {
@@ -569,7 +570,12 @@ def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
             "failed": counts.failed,
             "pending": counts.pending,
         },
-        "objects": {"confirmed": confirmed, "tentative": len(objects) - confirmed},
+        "objects": {
+            "confirmed": confirmed,
+            "tentative": len(counted) - confirmed,
+            "total": total,
+            "truncated": total > len(counted),
+        },
     }
 
 

@@ -3,10 +3,14 @@
 Why the API polls its store: the stream must work wherever the step runs, in worker threads of this
 process (embedded) or in worker processes elsewhere (Redis, Zenoh on or off), and the store is the one
 thing every deployment shares. While a map has streams open, one task of this process (``MapWatch``,
-shared by all of them) reads the map's ``ObjectStore.list_meta`` every ``event_poll_s`` (0.5 s) and diffs
-it with the last read by (version, status). Cost: one ``list_meta`` a tick per watched map however many
-viewers (on Redis one HGETALL of the map's metadata hash, a few hundred bytes an object: a 1000-object
-map is about 0.5 MB/s of reads per API process watching it), nothing for maps no one watches. A change
+shared by all of them) reads when the map last changed (``ObjectStore.map_updated_at``) every ``event_poll_s``
+(0.5 s), and only when that moved since its last read of the map, the map's ``list_meta``, which it diffs with
+that read by (version, status). Cost per watched map, however many viewers: one small read a tick (on Redis an
+HGET), plus, on a tick after the map changed, the whole map's metadata (an HGETALL of its metadata hash, a few
+hundred bytes an object: a 1000-object map changing every tick is about 0.5 MB/s of reads per API process
+watching it; the store keeps no per-object changed-since view to read less); nothing for maps no one watches.
+Exact, as the store writes the mark after the objects it stands for (two commits of one map stamped with the
+same float time in different processes would hide the second until the next change). A change
 reaches viewers within a tick; changes within one tick are coalesced (a slow viewer gets each object's
 latest state, so what a stream holds back is bounded by the map's size, and never goes back in time).
 
@@ -22,7 +26,7 @@ Events, each ``event: NAME`` and one line of JSON ``data:``:
 
 and a ``: keep-alive`` comment when nothing was sent for ``event_heartbeat_s`` (15 s). Like the objects
 listing, a stream carries confirmed objects unless asked ``?include=tentative``. It needs a key that may
-read the map, looked at again every ``key_cache_s`` (1 s at least: a revoked key's streams end within
+read the map (or a viewer session's cookie, ``viewer_routes``), looked at again every ``key_cache_s`` (1 s at least: a revoked key's streams end within
 about twice that). Streams are shared fairly: at most ``max_event_streams`` are open in a process (503 beyond),
 ``max_event_streams_per_map`` of one map and ``max_event_streams_per_key`` of one key (with auth none: one client
 address; 429 beyond, both with ``Retry-After`` and the limit named), so that one key cannot take every place from
@@ -54,7 +58,7 @@ from starlette.concurrency import run_in_threadpool
 from arcloud.core.types import Params
 from arcloud.errors import ArcloudError
 from arcloud.ports import ObjectMeta, ObjectStore
-from arcloud.service.access import Caller, Refused, bearer_scheme, require
+from arcloud.service.access import VIEWER_COOKIE, Caller, Refused, bearer_scheme, require
 from arcloud.service.app import MapId, RuntimeDep, known_map
 from arcloud.service.devices import DevicePose, RecentDevices
 from arcloud.service.schemas import PROBLEM_RESPONSES, object_out
@@ -178,6 +182,7 @@ class MapWatch:
     objects: dict[int, ObjectMeta] = field(default_factory=dict)
     devices: dict[str, DevicePose] = field(default_factory=dict)
     ready: bool = False  # the map was read once
+    read_at_mark: float | None = None  # the map's ``map_updated_at`` before the last read of its objects
     task: asyncio.Task[None] | None = None
 
     async def run(self, on_idle: Callable[[MapWatch], None]) -> None:
@@ -186,7 +191,7 @@ class MapWatch:
         try:
             while self.subscribers:
                 try:
-                    metas = await run_in_threadpool(self.store.list_meta, self.map_id)
+                    metas = await run_in_threadpool(self.read_if_changed)
                 except ArcloudError as exc:  # the store is down: streams stay open, quiet, until it answers
                     if not failing:
                         log.warning("event stream of map %s: reading its objects failed: %s", self.map_id, exc)
@@ -206,11 +211,21 @@ class MapWatch:
         finally:
             on_idle(self)
 
-    def apply(self, metas: Sequence[ObjectMeta], devices: Sequence[DevicePose]) -> None:
-        """Take a new read of the map: tell every stream what changed."""
-        changed, removed = diff_objects(self.objects, metas)
+    def read_if_changed(self) -> list[ObjectMeta] | None:
+        """The map's objects, or None when it did not change since they were last read (blocking)."""
+        mark = self.store.map_updated_at(self.map_id)
+        if self.ready and mark is not None and mark == self.read_at_mark:
+            return None
+        metas = self.store.list_meta(self.map_id)
+        self.read_at_mark = mark
+        return metas
+
+    def apply(self, metas: Sequence[ObjectMeta] | None, devices: Sequence[DevicePose]) -> None:
+        """Take a new read of the map (None: unchanged) and of its devices: tell every stream what changed."""
+        changed, removed = diff_objects(self.objects, metas) if metas is not None else ([], [])
         moved, gone = diff_devices(self.devices, devices)
-        self.objects = {o.id: o for o in metas}
+        if metas is not None:
+            self.objects = {o.id: o for o in metas}
         self.devices = {d.device_id: d for d in devices}
         first = not self.ready
         self.ready = True
@@ -354,7 +369,8 @@ router = APIRouter(lifespan=lifespan)
     summary="The map's object events, live (server-sent events)",
     description="A `snapshot` of the map, then `upsert` and `removed` events as objects change (the fields of the "
     "objects listing), and `device` events with each device's last camera pose. Confirmed objects only, unless "
-    "`include=tentative`. Read with `fetch` and a stream reader (EventSource cannot send the Authorization header).",
+    "`include=tentative`. Needs the Authorization header, or a viewer session's cookie (POST "
+    "/v1/maps/{map_id}/viewer-session): EventSource cannot send headers, and a key never goes in a URL.",
 )
 async def map_events(
     map_id: MapId,
@@ -377,12 +393,13 @@ async def map_events(
         key=caller.bucket,
     )
     token = credentials.credentials if credentials is not None else None
+    viewer_session = request.cookies.get(VIEWER_COOKIE)
     address = request.client.host if request.client is not None else "unknown"
 
     async def still_allowed() -> str | None:
         """None while the key may read the map, else why not."""
         try:
-            caller = await run_in_threadpool(runtime.access.authenticate, token, address)
+            caller = await run_in_threadpool(runtime.access.authenticate, token, address, viewer_session)
             runtime.access.authorize(caller, "read", map_id)
         except Refused as exc:
             return exc.detail

@@ -17,8 +17,8 @@ plus the fields a call passed as ``extra=``, ``exception`` (the traceback, as on
 one, and ``client``, ``method``, ``path``, ``status`` on uvicorn's access lines.
 
 No line carries a secret: ``SecretFilter``, on uvicorn's loggers and on the handler, rewrites each record
-(message, arguments, fields, traceback) with ``scrub``: a ``token=`` value in a URL (the viewer's documented
-``/viewer?map=M&token=T``, written in clear by the access log before), an ``Authorization`` header's value and
+(message, arguments, fields, traceback) with ``scrub``: a ``token=`` value in a URL (the viewer's
+``/viewer?map=M&token=T`` of before, written in clear by the access log then; now refused), an ``Authorization`` header's value and
 an API token anywhere become ``***`` (a token keeps its key id, which names the key in ``keys list``).
 """
 

@@ -25,6 +25,7 @@ from arcloud.ports import (
     ObjectStore,
     RateLimiter,
     UpdatePublisher,
+    ViewerPasses,
 )
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Access, KeyCache
@@ -53,7 +54,8 @@ class Adapters:
     threads of this process (None: workers run elsewhere); ``pool``: worker processes to start and stop
     with the app; ``keys``: the API keys (None: auth none); ``limiter``: the rate limits (None: none);
     ``archive``: map snapshots (None: no snapshot routes); ``owned``: closed on shutdown, last first;
-    ``alignments``: the devices' stored alignments (None: no alignment routes, frames bring their own)."""
+    ``alignments``: the devices' stored alignments (None: no alignment routes, frames bring their own);
+    ``viewer_passes``: the viewer's tickets and sessions (None: no viewer passes, as with auth none)."""
 
     store: ObjectStore
     queue: FrameQueue
@@ -65,6 +67,7 @@ class Adapters:
     archive: MapArchive | None = None
     owned: list[Closeable] = field(default_factory=list)
     alignments: DeviceAlignments | None = None
+    viewer_passes: ViewerPasses | None = None
 
 
 Connect = Callable[[Settings, FrameHandler], Adapters]
@@ -103,6 +106,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         settings,
         KeyCache(adapters.keys, settings.key_cache_s) if settings.auth_mode == "keys" and adapters.keys else None,
         adapters.limiter,
+        adapters.viewer_passes,
     )
     if access.keys is None:
         log.warning("auth none: anyone who reaches this service may read, write and delete every map")

@@ -230,8 +230,12 @@ class MapList(BaseModel):
 
 
 class ObjectCounts(BaseModel):
-    confirmed: int = Field(description="objects served by default")
-    tentative: int = Field(description="objects shown only with ?include=tentative")
+    confirmed: int = Field(description="objects served by default (of the first max_stats_objects, when truncated)")
+    tentative: int = Field(description="objects shown only with ?include=tentative (idem)")
+    total: int = Field(description="objects of the map, counted exactly")
+    truncated: bool = Field(
+        description="the map has more than max_stats_objects objects: confirmed and tentative count the first of them by id"
+    )
 
 
 class FrameState(BaseModel):
@@ -267,7 +271,7 @@ class MapStats(BaseModel):
                 {
                     "map_id": "office",
                     "frames": {"accepted": 120, "processed": 118, "failed": 0, "pending": 2},
-                    "objects": {"confirmed": 14, "tentative": 31},
+                    "objects": {"confirmed": 14, "tentative": 31, "total": 45, "truncated": False},
                 }
             ]
         }

@@ -150,6 +150,18 @@ class Settings(BaseSettings):
     key_cache_s: float = Field(
         5.0, ge=0, description="how long the API reuses a key lookup: a created or revoked key takes effect within this"
     )
+    viewer_ticket_s: float = Field(
+        120.0,
+        gt=0,
+        le=3600,
+        description="how long a viewer ticket (POST /v1/maps/{map}/viewer-tickets) may be traded, once, for a viewer session",
+    )
+    viewer_session_s: float = Field(
+        12 * 3600.0,
+        gt=0,
+        le=7 * 86400,
+        description="how long a viewer session (its HttpOnly cookie) reads its map, while the key that drew its ticket may",
+    )
     key_rate_per_s: float = Field(
         50.0, ge=0, description="requests a second per key (per client address with auth none), any route; 0: no limit"
     )
@@ -191,6 +203,12 @@ class Settings(BaseSettings):
         "is read (JSON takes about 9 us and 60 bytes a voxel, PLY 0.2 us and 19 bytes)",
     )
     max_export_objects: int = Field(100_000, ge=1, description="objects one export may carry, any format: 422 beyond")
+    max_stats_objects: int = Field(
+        10_000,
+        ge=1,
+        description="objects whose status a map's stats read at most: beyond, `total` stays exact and `confirmed` and "
+        "`tentative` count the first of them by id (`truncated`)",
+    )
     # object events over HTTP (GET /v1/maps/{map}/events, service.event_stream) and the viewer
     max_event_streams: int = Field(100, ge=1, description="event streams open at once in one API process (503 beyond)")
     max_event_streams_per_key: int = Field(

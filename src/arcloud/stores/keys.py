@@ -58,6 +58,8 @@ Service-wide keys (no tag: single-key commands only):
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
     arcloud:maps                    HASH    map id -> when its objects last changed (Unix s); written by open_map, commit
     arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
+    arcloud:viewer:<digest>         STRING  a viewer ticket or session (``ViewerGrant`` JSON) by its secret's SHA-256
+                                            (``redis_viewer_passes``, PX until it expires)
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
 ``RedisStore.delete_map`` removes every key matching ``map_pattern``; the queue's ``forget_map`` removes the
@@ -257,6 +259,11 @@ INGEST_WORKERS = f"{PREFIX}:ingest:workers"
 LEGACY_INGEST_STREAM = f"{PREFIX}:ingest"
 API_KEYS = f"{PREFIX}:keys"
 MAPS = f"{PREFIX}:maps"
+
+
+def viewer_pass_key(digest: str) -> str:
+    """A viewer ticket or session, by the SHA-256 (hex) of its secret."""
+    return f"{PREFIX}:viewer:{digest}"
 
 
 def rate_key(bucket: str) -> str:

@@ -36,6 +36,7 @@ from arcloud.ports import (
     ObjectStore,
     RateLimiter,
     UpdatePublisher,
+    ViewerPasses,
 )
 from arcloud.service import app as service_app
 from arcloud.service.logs import configure_logging
@@ -202,6 +203,26 @@ def build_key_store(settings: Settings, store: ObjectStore | None = None) -> Key
     return RedisKeyStore(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
 
 
+def build_viewer_passes(settings: Settings, store: ObjectStore | None = None) -> ViewerPasses | None:
+    """The viewer's tickets and sessions: in memory (embedded), else beside the keys in Redis (``keys_store``'s, or
+    the store's, on ``store``'s connections when it is a ``RedisStore``), shared by every API process; None with
+    auth none (the viewer needs no pass)."""
+    if settings.auth_mode == "none":
+        return None
+    if settings.embedded:
+        from arcloud.stores.memory_viewer_passes import MemoryViewerPasses
+
+        return MemoryViewerPasses()
+    from arcloud.stores.redis import RedisStore
+    from arcloud.stores.redis_viewer_passes import RedisViewerPasses
+
+    if settings.keys_store:
+        return RedisViewerPasses(settings.keys_store, reply_timeout_s=settings.api_redis_timeout_s)
+    if isinstance(store, RedisStore):
+        return RedisViewerPasses(client=store.client)
+    return RedisViewerPasses(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+
+
 def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> RateLimiter | None:
     """In memory (embedded) or on Redis (shared by every API process); None when every limit is off."""
     failures_limited = settings.auth_mode == "keys" and settings.auth_failure_rate_per_s > 0
@@ -306,6 +327,8 @@ def connect(
         _own(owned, keys)
         limiter = build_rate_limiter(settings, store)
         _own(owned, limiter)
+        viewer_passes = build_viewer_passes(settings, store)
+        _own(owned, viewer_passes)
         alignments = build_alignments(settings, store)
         _own(owned, alignments)
         pool = None
@@ -319,7 +342,7 @@ def connect(
         raise
     from arcloud.stores.snapshot import ZipMapArchive
 
-    return Adapters(store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned, alignments)
+    return Adapters(store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned, alignments, viewer_passes)
 
 
 def _own(owned: list[Closeable], thing: Any) -> None:

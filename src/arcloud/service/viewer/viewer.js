@@ -1,13 +1,14 @@
 // The arcloud viewer: one map's objects, live. It reads GET v1/maps/{map}/events (server-sent events, read
-// with fetch so that the token travels in the Authorization header, never in a URL) and draws each object
+// with fetch) and draws each object
 // as its oriented box, coloured by class, with the devices' last cameras. <body data-objects> is the
 // number of boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets).
-// See docs/service.md, "Web viewer".
+// No key goes in a URL or in the page's storage: a viewer session's HttpOnly cookie authenticates every read. A
+// ticket (from the URL's fragment, #ticket=T, which no server sees; or drawn with a key typed into the form, then
+// forgotten) is traded once for that cookie. See docs/service.md, "Web viewer".
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/OrbitControls.js";
 import { CSS2DObject, CSS2DRenderer } from "three/addons/CSS2DRenderer.js";
 
-const TOKEN_KEY = "arcloud.token"; // sessionStorage: the token lives as long as the tab
 const CLASS_COLOURS = { chair: "#ff5a36", table: "#2f9bff", laptop: "#ffd21f", couch: "#34d399", tv: "#c86bff" };
 const OTHER_COLOURS = ["#f472b6", "#a3e635", "#fb923c", "#22d3ee", "#e879f9"];
 const DEVICE_COLOUR = "#7dd3fc";
@@ -22,7 +23,6 @@ const $ = (id) => document.getElementById(id);
 // --- what the page knows -------------------------------------------------------------------------------
 const state = {
   map: "",
-  token: "",
   objects: new Map(), // id -> object (every status: the tentative toggle filters)
   devices: new Map(), // device id -> its last frame
   hidden: new Set(), // classes unticked in the legend
@@ -298,10 +298,7 @@ async function loadVoxels(o) {
   voxelState.set(o.id, { ...previous, version: o.version, loading: true });
   voxelFetches += 1;
   try {
-    const response = await fetch(`v1/maps/${encodeURIComponent(state.map)}/objects/${o.id}?voxels=true`, {
-      headers: authHeaders(),
-      cache: "no-store",
-    });
+    const response = await fetch(`v1/maps/${encodeURIComponent(state.map)}/objects/${o.id}?voxels=true`, { cache: "no-store" });
     if (response.status === 429) {
       const wait_s = Number(response.headers.get("Retry-After")) || 1;
       voxelPauseUntil = Date.now() + wait_s * 1000;
@@ -345,8 +342,31 @@ class HttpError extends Error {
   }
 }
 
-function authHeaders() {
-  return state.token ? { Authorization: `Bearer ${state.token}` } : {};
+async function refusal(response) {
+  let detail = `HTTP ${response.status}`;
+  try {
+    detail = (await response.json()).detail || detail;
+  } catch {}
+  return new HttpError(response.status, detail);
+}
+
+// A viewer session of the map: a ticket drawn with `key` (if typed), or `ticket`, traded for its cookie.
+async function openSession(key, ticket) {
+  const base = `v1/maps/${encodeURIComponent(state.map)}`;
+  if (key) {
+    const drawn = await fetch(`${base}/viewer-tickets`, { method: "POST", headers: { Authorization: `Bearer ${key}` }, cache: "no-store" });
+    if (drawn.status === 404) return; // auth none: no ticket needed
+    if (!drawn.ok) throw await refusal(drawn);
+    ticket = (await drawn.json()).ticket;
+  }
+  if (!ticket) return; // a session's cookie from before, or auth none
+  const traded = await fetch(`${base}/viewer-session`, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ ticket }),
+    cache: "no-store",
+  });
+  if (!traded.ok) throw await refusal(traded);
 }
 
 function setStatus(text, kind) {
@@ -382,14 +402,8 @@ function handle(name, data) {
 // Reads one stream until it ends; calls handle(name, data) for each event. Returns the server's retry (ms).
 async function readStream(signal) {
   const url = `v1/maps/${encodeURIComponent(state.map)}/events?include=tentative`;
-  const response = await fetch(url, { headers: authHeaders(), signal, cache: "no-store" });
-  if (!response.ok) {
-    let detail = `HTTP ${response.status}`;
-    try {
-      detail = (await response.json()).detail || detail;
-    } catch {}
-    throw new HttpError(response.status, detail);
-  }
+  const response = await fetch(url, { signal, cache: "no-store" });
+  if (!response.ok) throw await refusal(response);
   setStatus(`Live: map ${state.map}`, "live");
   const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
   let buffer = "";
@@ -436,7 +450,7 @@ async function connect() {
     } catch (error) {
       if (controller.signal.aborted) return;
       if (error.status === 401 || error.status === 403) {
-        setStatus(`Refused: ${error.message}. Enter a token that may read map ${state.map}.`, "error");
+        refused(error);
         return;
       }
       if (error.status === 404) wait = MISSING_MAP_RETRY_MS;
@@ -444,6 +458,10 @@ async function connect() {
     }
     await new Promise((done) => setTimeout(done, wait));
   }
+}
+
+function refused(error) {
+  setStatus(`Refused: ${error.message}. Enter a key that may read map ${state.map}, or open a new viewer link.`, "error");
 }
 
 // --- controls --------------------------------------------------------------------------------------------
@@ -471,25 +489,30 @@ function bindControls() {
   });
   $("connect").addEventListener("submit", (event) => {
     event.preventDefault();
-    openMap($("map").value.trim(), $("token").value.trim());
+    openMap($("map").value.trim(), $("key").value.trim(), "");
   });
 }
 
-function openMap(map, token) {
+async function openMap(map, key, ticket) {
+  state.connection?.abort();
   state.map = map;
-  state.token = token;
-  if (token) sessionStorage.setItem(TOKEN_KEY, token);
-  else sessionStorage.removeItem(TOKEN_KEY);
   const url = new URL(window.location.href);
-  url.search = map ? `?map=${encodeURIComponent(map)}` : ""; // the token never stays in the address bar
+  url.search = map ? `?map=${encodeURIComponent(map)}` : "";
+  url.hash = ""; // a used ticket is worth nothing, but leaves the address bar and history anyway
   history.replaceState(null, "", url);
   $("map").value = map;
-  $("token").value = token;
-  if (map) connect();
-  else setStatus("Enter a map id.", "error");
+  $("key").value = ""; // forgotten once it drew its ticket
+  if (!map) return setStatus("Enter a map id.", "error");
+  setStatus(`Opening map ${map}…`, "connecting");
+  try {
+    await openSession(key, ticket);
+  } catch (error) {
+    return refused(error);
+  }
+  connect();
 }
 
 bindControls();
 resize();
 const params = new URLSearchParams(window.location.search);
-openMap(params.get("map") || "", params.get("token") || sessionStorage.getItem(TOKEN_KEY) || "");
+openMap(params.get("map") || "", "", new URLSearchParams(window.location.hash.slice(1)).get("ticket") || "");
