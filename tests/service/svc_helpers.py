@@ -275,26 +275,3 @@ def wait_for_subscriber(key: str, *, endpoint: str = "", session: Any = None, ti
         publisher.undeclare()
         if session is None:
             probe.close()
-
-
-def cube(object_id: int, n: int = 3) -> MapObject:
-    """An ``n``-voxel cube object (0.05 m voxels) at x = 0.5 m per id; every third tentative, every other a tv."""
-    voxel = Params().voxel_size_m
-    start = np.array([10 * object_id, 0, 0])
-    grid = np.stack(np.meshgrid(*(np.arange(s, s + n) for s in start), indexing="ij"), axis=-1).reshape(-1, 3)
-    keys = np.sort(pack_keys(grid))
-    lo, hi = keys_bounds(keys, voxel)
-    return MapObject(
-        id=object_id,
-        keys=keys,
-        weights=np.ones(keys.size, np.float32),
-        votes=np.zeros((keys.size, N_CLASSES), np.float32),
-        n_frames=3,
-        version=1,
-        label="tv" if object_id % 2 else "chair",
-        score=0.5 + (object_id % 5) / 10,
-        aabb=AABB(lo, hi),
-        obb=OBB(center=(lo + hi) / 2, size=hi - lo, rotation=np.eye(3), yaw_rad=0.0),
-        bounds=AABB(lo, hi),
-        confirmed=object_id % 3 != 0,
-    )
