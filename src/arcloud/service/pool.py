@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 log = logging.getLogger(__name__)
@@ -22,13 +23,15 @@ log = logging.getLogger(__name__)
 #: long each time (up to ``RESTART_MAX_DELAY_S``).
 QUICK_EXIT_S = 10.0
 RESTART_MAX_DELAY_S = 60.0
+_SPAWNING = threading.Lock()  # one spawn at a time changes the environment it passes on
 
 
 class WorkerPool:
     """``size`` processes running ``target(*args)`` (a picklable top-level function). ``claim_after_s``:
     how long the frames of a dead worker wait before another claims them (for the log). ``kind``: what
     the processes are, in their names (``arcloud-<kind>-<i>``) and the log (``serve --api-processes``
-    runs its API processes in a pool of kind ``api``)."""
+    runs its API processes in a pool of kind ``api``). ``env``: variables the processes start with besides
+    this one's environment."""
 
     def __init__(
         self,
@@ -39,8 +42,10 @@ class WorkerPool:
         claim_after_s: float = 60.0,
         restart: bool = True,
         kind: str = "worker",
+        env: Mapping[str, str] | None = None,
     ) -> None:
         self.size = size
+        self.env = dict(env or {})
         self.kind = kind
         self.target = target
         self.args = args
@@ -56,7 +61,17 @@ class WorkerPool:
 
     def _spawn(self, index: int) -> multiprocessing.process.BaseProcess:
         process = self._context.Process(target=self.target, args=self.args, name=f"arcloud-{self.kind}-{index}", daemon=False)
-        process.start()
+        with _SPAWNING:  # a spawned process starts with this one's environment, ``env`` added
+            saved = {name: os.environ.get(name) for name in self.env}
+            os.environ.update(self.env)
+            try:
+                process.start()
+            finally:
+                for name, value in saved.items():
+                    if value is None:
+                        os.environ.pop(name, None)
+                    else:
+                        os.environ[name] = value
         return process
 
     def start(self) -> None:

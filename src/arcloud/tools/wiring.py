@@ -111,6 +111,11 @@ def check_zenoh_config(settings: Settings) -> None:
         load_config_file(settings.zenoh_config)
 
 
+#: What sizes the thread pools of numpy's BLAS (the masks' matrix product) and of OpenMP; read once, when
+#: the library loads, so a worker process must start with them (``worker_pool``).
+LIBRARY_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def threads_per_process(processes: int) -> int:
     """This machine's cores (those this process may run on) shared among ``processes`` worker
     processes: at least one each, so that N workers do not each start a thread per core."""
@@ -400,10 +405,14 @@ def run_worker(
             retired_history_s=settings.retired_history_s,
         )
         _own(owned, store)
+        threads = settings.detector_threads or threads_per_process(processes)
+        import cv2
+
+        cv2.setNumThreads(threads)  # its resizes and colour conversions: this process's share of the cores, as the rest
         if detector_factory is not None:
             detector = detector_factory()
         else:
-            detector = build_detector(settings.detector, threads=settings.detector_threads or threads_per_process(processes))
+            detector = build_detector(settings.detector, threads=threads)
         publisher = worker_publisher(settings)
         _own(owned, publisher)
         queue = build_queue(settings, read_block_s=settings.read_block_s)
@@ -436,8 +445,14 @@ def worker_pool(
 ) -> WorkerPool:
     """``size`` worker processes on the settings' queue. ``detector_factory``: a picklable callable
     building each worker's detector (default: the settings' spec)."""
+    threads = str(settings.detector_threads or threads_per_process(size))
     return WorkerPool(
-        size, worker_process, (settings, detector_factory, size), claim_after_s=settings.claim_min_idle_s, restart=restart
+        size,
+        worker_process,
+        (settings, detector_factory, size),
+        claim_after_s=settings.claim_min_idle_s,
+        restart=restart,
+        env=dict.fromkeys(LIBRARY_THREAD_VARIABLES, threads),
     )
 
 
