@@ -159,5 +159,9 @@ def test_async_client_with_concurrent_users(server: tuple[str, str]) -> None:
 
     answers, stats, objects = asyncio.run(run())
     assert [a.status for a in answers] == ["queued"] * 9
-    assert stats.frames.processed == 9 and stats.frames.failed == 1 and stats.objects == ObjectCounts(confirmed=0, tentative=1)
+    assert (
+        stats.frames.processed == 9
+        and stats.frames.failed == 1
+        and stats.objects == ObjectCounts(confirmed=0, tentative=1, total=1, truncated=False)
+    )
     assert len(objects) == 1 and objects[0].n_devices == 3 and objects[0].status == "tentative"

@@ -378,7 +378,11 @@ class EventStream:
 
 def unknown_map_stats(map_id: str) -> MapStats:
     """The stats of a map the service does not know: nothing counted."""
-    return MapStats(map_id, FrameCounts(accepted=0, processed=0, failed=0, pending=0), ObjectCounts(confirmed=0, tentative=0))
+    return MapStats(
+        map_id,
+        FrameCounts(accepted=0, processed=0, failed=0, pending=0),
+        ObjectCounts(confirmed=0, tentative=0, total=0, truncated=False),
+    )
 
 
 def _map_done(stats: MapStats, n_frames: int) -> bool:

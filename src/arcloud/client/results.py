@@ -78,8 +78,12 @@ class FrameCounts:
 
 @dataclass(frozen=True, slots=True)
 class ObjectCounts:
+    """Confirmed and tentative of the first ``max_stats_objects`` objects when ``truncated``; ``total`` exact."""
+
     confirmed: int
     tentative: int
+    total: int
+    truncated: bool
 
 
 @dataclass(frozen=True, slots=True)

@@ -29,7 +29,7 @@ from starlette.concurrency import run_in_threadpool
 from arcloud.core.checks import check_map_id
 from arcloud.service.access import VIEWER_COOKIE, Caller, Refused, bearer_scheme, require
 from arcloud.service.app import MapId, RuntimeDep
-from arcloud.service.schemas import PROBLEM_RESPONSES
+from arcloud.service.schemas import PROBLEM_RESPONSES, Problem
 
 VIEWER_PACKAGE = "arcloud.service"
 VIEWER_FOLDER = "viewer"
@@ -98,7 +98,7 @@ def checked_map_id(map_id: MapId) -> None:
     "/v1/maps/{map_id}/viewer-session",
     status_code=204,
     dependencies=[Depends(checked_map_id)],
-    responses=PROBLEM_RESPONSES,
+    responses={**PROBLEM_RESPONSES, 400: {"model": Problem, "description": "a body that is not JSON"}},
     summary="Trade a viewer ticket for a viewer session (an HttpOnly cookie that reads the map)",
     description="Uses the ticket up. The cookie (SameSite=Strict, path /v1/maps/{map_id}) opens the map's reads, "
     "the event stream included, for viewer_session_s, while the key that drew the ticket may read the map.",
