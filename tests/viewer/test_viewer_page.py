@@ -215,3 +215,33 @@ def test_a_key_of_another_map_or_a_wrong_token_is_refused_on_the_page(page: Any,
         page.wait_for_function("document.body.dataset.state === 'error'")
         assert page.inner_text("#status").startswith("Refused: authorization:")
         assert page.evaluate("document.body.dataset.objects") == "0"
+
+
+def details(page: Any) -> dict[str, str]:
+    """The details panel: id, label and its fields by name."""
+    fields = page.eval_on_selector_all("#details dd", "rows => rows.map(row => [row.dataset.field, row.textContent])")
+    return {"id": page.inner_text("#details-id"), "label": page.inner_text("#details-label"), **dict(fields)}
+
+
+def test_a_click_on_a_box_or_its_label_shows_the_objects_details(page: Any, service: Service) -> None:
+    by_label = {o["label"]: o for o in service.objects("room")}
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    assert page.is_hidden("#details")
+
+    chair = page.locator(".label[data-id='{}']".format(by_label["chair"]["id"])).bounding_box()
+    page.mouse.click(chair["x"] + chair["width"] / 2, chair["y"] + chair["height"] + 25)  # on the box, under its label
+    page.wait_for_function(f"document.body.dataset.selected === '{by_label['chair']['id']}'")
+    shown = details(page)
+    assert (shown["id"], shown["label"]) == (f"#{by_label['chair']['id']}", "chair")
+    assert shown["score"] == f"{by_label['chair']['score']:.2f}" and shown["frames"] == str(by_label["chair"]["n_frames"])
+
+    page.click(".label[data-id='{}']".format(by_label["tv"]["id"]))
+    page.wait_for_function(f"document.body.dataset.selected === '{by_label['tv']['id']}'")
+    assert details(page)["label"] == "tv"
+
+    page.mouse.click(PANEL_PX + 5, 710)  # the scene's corner: nothing there
+    page.wait_for_function("document.body.dataset.selected === ''")
+    assert page.is_hidden("#details")
+    assert page.evaluate(f"window.arcloudViewer.select({by_label['chair']['id']})") is True
+    assert details(page)["label"] == "chair"

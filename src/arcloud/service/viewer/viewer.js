@@ -1,7 +1,9 @@
 // The arcloud viewer: one map's objects, live. It reads GET v1/maps/{map}/events (server-sent events, read
 // with fetch) and draws each object
-// as its oriented box, coloured by class, with the devices' last cameras. <body data-objects> is the
-// number of boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets).
+// as its oriented box, coloured by class, with the devices' last cameras. A click on a box or its label shows
+// the object's details (window.arcloudViewer.select(id) does the same). <body data-objects> is the number of
+// boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets, data-selected
+// is the id whose details show).
 // No key goes in a URL or in the page's storage: a viewer session's HttpOnly cookie authenticates every read. A
 // ticket (from the URL's fragment, #ticket=T, which no server sees; or drawn with a key typed into the form, then
 // forgotten) is traded once for that cookie. See docs/service.md, "Web viewer".
@@ -17,6 +19,8 @@ const DEVICE_OLD_S = 30; // a device silent this long is drawn faded
 const RETRY_MS = 2000; // between reconnections (the stream's `retry:` overrides it)
 const MISSING_MAP_RETRY_MS = 5000; // a map with no frame yet: ask again this often
 const VOXEL_FETCHES = 4; // voxel requests in flight at once
+const CLICK_SLOP_PX = 4; // a pointer that moved further between down and up dragged the view: no pick
+const FACE_OPACITY = { confirmed: 0.2, tentative: 0.08, selected: 0.45 };
 
 const $ = (id) => document.getElementById(id);
 
@@ -31,6 +35,7 @@ const state = {
   showLabels: true,
   showVoxels: false,
   showCameras: true,
+  selected: null, // id of the object whose details show
   userMoved: false, // the view follows the map until the user moves it
   connection: null, // AbortController of the open stream
 };
@@ -118,22 +123,24 @@ function clearGroup(group) {
   }
 }
 
+// {center, size, yaw} of the object's OBB, or of its AABB (yaw 0); null for an object with neither.
+function boxShape(o) {
+  if (o.obb) return { center: o.obb.center, size: o.obb.size, yaw: o.obb.yaw_rad };
+  if (!o.aabb) return null;
+  const { min, max } = o.aabb;
+  return { center: min.map((v, i) => (v + max[i]) / 2), size: min.map((v, i) => max[i] - v), yaw: 0 };
+}
+
 // A box: faint faces and solid edges (dashed when tentative), centred on the OBB, turned by its yaw about up.
 function boxObject(o) {
   const colour = new THREE.Color(classColour(o.label));
   const tentative = o.status !== "confirmed";
-  let center, size, yaw;
-  if (o.obb) ({ center, size, yaw_rad: yaw } = o.obb);
-  else {
-    center = o.aabb.min.map((v, i) => (v + o.aabb.max[i]) / 2);
-    size = o.aabb.min.map((v, i) => o.aabb.max[i] - v);
-    yaw = 0;
-  }
+  const { center, size, yaw } = boxShape(o);
   const geometry = new THREE.BoxGeometry(...size);
   const group = new THREE.Group();
   const faces = new THREE.Mesh(
     geometry,
-    new THREE.MeshBasicMaterial({ color: colour, transparent: true, opacity: tentative ? 0.08 : 0.2, depthWrite: false }),
+    new THREE.MeshBasicMaterial({ color: colour, transparent: true, opacity: FACE_OPACITY[o.status], depthWrite: false }),
   );
   const edgeMaterial = tentative
     ? new THREE.LineDashedMaterial({ color: colour, dashSize: 0.05, gapSize: 0.04 })
@@ -147,12 +154,14 @@ function boxObject(o) {
   group.quaternion.copy(world.quaternion).invert().multiply(yawTurn);
   const text = document.createElement("div");
   text.className = tentative ? "label tentative" : "label";
+  text.dataset.id = o.id; // a click on the label picks the object
   text.textContent = `${o.label} ${o.score.toFixed(2)}${tentative ? " (tentative)" : ""}`;
   const label = new CSS2DObject(text);
   label.position.set(0, 0, size[2] / 2);
   label.visible = state.showLabels;
   group.add(label);
-  group.userData = { id: o.id, version: o.version };
+  group.userData = { id: o.id, version: o.version, status: o.status, faces, label };
+  markSelected(group);
   return group;
 }
 
@@ -210,6 +219,7 @@ function refresh() {
   $("drawn").textContent = boxes.children.length;
   $("known").textContent = state.objects.size;
   renderLegend();
+  showDetails();
   syncVoxels();
   if (!state.userMoved) fitView();
   requestRender();
@@ -265,6 +275,73 @@ function fitView() {
   controls.target.copy(centre);
   controls.update();
 }
+
+// --- the selected object: its details, from the events (the fields of GET v1/maps/{map}/objects/{id}) ------
+function select(id) {
+  state.selected = state.objects.has(id) ? id : null;
+  for (const group of boxes.children) markSelected(group);
+  showDetails();
+  requestRender();
+  return state.selected !== null;
+}
+
+function markSelected(group) {
+  const { id, status, faces, label } = group.userData;
+  faces.material.opacity = FACE_OPACITY[id === state.selected ? "selected" : status];
+  label.element.classList.toggle("selected", id === state.selected);
+}
+
+function showDetails() {
+  if (!state.objects.has(state.selected)) state.selected = null; // removed, or another map
+  const o = state.objects.get(state.selected);
+  document.body.dataset.selected = o ? String(o.id) : "";
+  $("details").hidden = !o;
+  if (!o) return;
+  $("details-label").textContent = o.label;
+  $("details-id").textContent = `#${o.id}`;
+  const size = boxShape(o)?.size;
+  const fields = [
+    ["score", o.score.toFixed(2)],
+    ["status", o.status],
+    ["frames", o.n_frames],
+    ["devices", o.n_devices],
+    ["voxels", o.n_voxels],
+    ["box (m)", size ? size.map((v) => v.toFixed(2)).join(" × ") : "none"],
+    ["version", o.version],
+    ["updated", o.updated_at ?? "unknown"],
+  ];
+  $("details-fields").replaceChildren(
+    ...fields.flatMap(([name, value]) => {
+      const term = document.createElement("dt");
+      term.textContent = name;
+      const text = document.createElement("dd");
+      text.textContent = value;
+      text.dataset.field = name;
+      return [term, text];
+    }),
+  );
+}
+
+// A click (a pointer that went down and up in place) on a label picks its object, else the nearest box face
+// under it; on nothing, it clears the selection. OrbitControls captures the pointer, so the label is the
+// target of pointerdown, not of pointerup.
+const raycaster = new THREE.Raycaster();
+let pointerDown = null;
+labelRenderer.domElement.addEventListener("pointerdown", (event) => {
+  pointerDown = { x: event.clientX, y: event.clientY, target: event.target };
+});
+labelRenderer.domElement.addEventListener("pointerup", (event) => {
+  const down = pointerDown;
+  pointerDown = null;
+  if (!down || Math.hypot(event.clientX - down.x, event.clientY - down.y) > CLICK_SLOP_PX) return;
+  const label = down.target.closest?.(".label[data-id]");
+  if (label) return select(Number(label.dataset.id));
+  const rect = labelRenderer.domElement.getBoundingClientRect();
+  const pointer = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1, 1 - ((event.clientY - rect.top) / rect.height) * 2);
+  raycaster.setFromCamera(pointer, camera);
+  const [hit] = raycaster.intersectObjects(boxes.children.map((group) => group.userData.faces), false);
+  select(hit ? hit.object.parent.userData.id : null);
+});
 
 // --- voxels (GET v1/maps/{map}/objects/{id}?voxels=true, drawn as points) ---------------------------------
 const voxelState = new Map(); // id -> {version, points} drawn, {version, loading: true} or {version, failed: true}
@@ -482,6 +559,7 @@ function bindControls() {
       refresh();
     });
   }
+  $("details-close").addEventListener("click", () => select(null));
   $("fit").addEventListener("click", () => {
     state.userMoved = false;
     fitView();
@@ -514,5 +592,6 @@ async function openMap(map, key, ticket) {
 
 bindControls();
 resize();
+window.arcloudViewer = { select }; // for tests and the console: the click's own code path
 const params = new URLSearchParams(window.location.search);
 openMap(params.get("map") || "", "", new URLSearchParams(window.location.hash.slice(1)).get("ticket") || "");
