@@ -245,3 +245,32 @@ def test_a_click_on_a_box_or_its_label_shows_the_objects_details(page: Any, serv
     assert page.is_hidden("#details")
     assert page.evaluate(f"window.arcloudViewer.select({by_label['chair']['id']})") is True
     assert details(page)["label"] == "chair"
+
+
+def object_labels(page: Any) -> list[dict[str, Any]]:
+    """The objects' labels in view (CSS2DRenderer shows them): rectangle and whether decluttering hid it."""
+    return page.eval_on_selector_all(  # type: ignore[no-any-return]  # Playwright's JSON is Any
+        ".label[data-id]",
+        """labels => labels.filter(label => label.style.display !== 'none').map(label => {
+             const r = label.getBoundingClientRect();
+             return {left: r.left, right: r.right, top: r.top, bottom: r.bottom, hidden: label.classList.contains('overlapped')};
+           })""",
+    )
+
+
+def test_labels_that_would_overlap_show_one_of_them(page: Any, service: Service) -> None:
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    page.uncheck("#cameras")  # only the objects' labels
+    assert [label["hidden"] for label in object_labels(page)] == [False, False]
+    page.mouse.move(800, 400)
+    for _ in range(20):  # zoom out until the two labels meet on the screen
+        page.mouse.wheel(0, 400)
+        page.wait_for_timeout(50)
+        labels = object_labels(page)
+        if len(labels) == 2 and any(label["hidden"] for label in labels):
+            break
+    assert [label["hidden"] for label in labels] in ([False, True], [True, False]), labels  # in view, one hidden
+    shown, hidden = sorted(labels, key=lambda label: label["hidden"])
+    assert hidden["left"] < shown["right"] and shown["left"] < hidden["right"], labels  # the hidden one overlaps it
+    assert hidden["top"] < shown["bottom"] and shown["top"] < hidden["bottom"], labels

@@ -6,7 +6,7 @@
 // is the id whose details show).
 // No key goes in a URL or in the page's storage: a viewer session's HttpOnly cookie authenticates every read. A
 // ticket (from the URL's fragment, #ticket=T, which no server sees; or drawn with a key typed into the form, then
-// forgotten) is traded once for that cookie. See docs/service.md, "Web viewer".
+// forgotten) is traded once for that cookie. Labels that would overlap a nearer one are hidden. See docs/service.md, "Web viewer".
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/OrbitControls.js";
 import { CSS2DObject, CSS2DRenderer } from "three/addons/CSS2DRenderer.js";
@@ -78,7 +78,35 @@ function requestRender() {
     if (controls.update()) requestRender(); // still easing
     renderer.render(scene, camera);
     labelRenderer.render(scene, camera);
+    declutterLabels();
   });
+}
+
+// A label whose screen rectangle meets a label kept before it is hidden (class "overlapped"); the selected
+// object's label is kept first, then the nearer to the camera. The rectangles are all read before any is
+// hidden: one layout a render.
+function declutterLabels() {
+  const labels = [];
+  for (const group of [boxes, cameras]) {
+    for (const child of group.children) {
+      const label = child.userData.label;
+      if (label?.visible && label.element.style.display !== "none") labels.push(label); // CSS2DRenderer hides those out of view
+    }
+  }
+  const at = new THREE.Vector3();
+  const order = labels.map((label) => ({
+    label,
+    first: label.parent.userData.id === state.selected && state.selected !== null,
+    distance: label.getWorldPosition(at).distanceToSquared(camera.position),
+    rect: label.element.getBoundingClientRect(),
+  }));
+  order.sort((a, b) => b.first - a.first || a.distance - b.distance);
+  const kept = [];
+  for (const { label, rect } of order) {
+    const overlaps = kept.some((k) => rect.left < k.right && k.left < rect.right && rect.top < k.bottom && k.top < rect.bottom);
+    label.element.classList.toggle("overlapped", overlaps);
+    if (!overlaps) kept.push(rect);
+  }
 }
 
 function resize() {
@@ -188,6 +216,7 @@ function deviceObject(d) {
   const label = new CSS2DObject(text);
   label.visible = state.showLabels;
   group.add(label);
+  group.userData = { label };
   return group;
 }
 
