@@ -112,12 +112,17 @@ def wait_drawn(page: Any, n: int) -> None:
     page.wait_for_function(f"document.body.dataset.objects === '{n}'")
 
 
-def class_pixels(page: Any) -> dict[str, int]:
-    """Pixels of the scene (right of the panel) within a small distance of each class colour."""
+def scene_pixels(page: Any) -> np.ndarray:
+    """(H, W, 3) int32 RGB of the scene (right of the panel), from a screenshot."""
     import cv2
 
     png = page.screenshot()
-    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, PANEL_PX:, ::-1].astype(np.int32)
+    return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, PANEL_PX:, ::-1].astype(np.int32)  # type: ignore[no-any-return]  # cv2's arrays are Any
+
+
+def class_pixels(page: Any) -> dict[str, int]:
+    """Pixels of the scene (right of the panel) within a small distance of each class colour."""
+    image = scene_pixels(page)
     return {
         name: int((np.linalg.norm(image - np.array(rgb), axis=2) < 60).sum())
         for name, rgb in (("chair", CHAIR_RGB), ("tv", TV_RGB))
@@ -178,13 +183,16 @@ def set_min_score(page: Any, value: float) -> None:
     )
 
 
-def test_class_filter_score_slider_tentative_toggle_and_voxels(page: Any, service: Service) -> None:
+def test_class_filter_score_slider_tentative_toggle_and_room_points(page: Any, service: Service) -> None:
     service.post("mixed", 4, level=True, boxes=(LEFT, RIGHT))
     service.post("mixed", 1, boxes=(LEFT,))  # a flat box: tentative (never a chair's shape)
     every = service.objects("mixed", include="tentative")
     assert len(every) == 3 and len(service.objects("mixed")) == 2
     open_viewer(page, service, "mixed")
     wait_drawn(page, 2)
+    page.wait_for_function("document.body.dataset.voxels === '3'")  # the room's points: every object's, whatever shows
+    page.uncheck("#voxels")  # the class pixels below: their colour is near the chair's
+    page.wait_for_function("document.body.dataset.voxels === '0' && document.body.dataset.points === '0'")
 
     page.check("#tentative")
     wait_drawn(page, 3)
@@ -202,8 +210,8 @@ def test_class_filter_score_slider_tentative_toggle_and_voxels(page: Any, servic
     set_min_score(page, 0.0)
     wait_drawn(page, 2)
 
-    page.check("#voxels")  # each drawn box's voxels, fetched with the token
-    page.wait_for_function("document.body.dataset.voxels === '2'")
+    page.check("#voxels")
+    page.wait_for_function("document.body.dataset.voxels === '3'")
 
 
 def test_a_key_of_another_map_or_a_wrong_token_is_refused_on_the_page(page: Any, service: Service) -> None:
@@ -274,3 +282,19 @@ def test_labels_that_would_overlap_show_one_of_them(page: Any, service: Service)
     shown, hidden = sorted(labels, key=lambda label: label["hidden"])
     assert hidden["left"] < shown["right"] and shown["left"] < hidden["right"], labels  # the hidden one overlaps it
     assert hidden["top"] < shown["bottom"] and shown["top"] < hidden["bottom"], labels
+
+
+def test_the_rooms_points_are_drawn_behind_the_boxes_in_their_voxels_colours(page: Any, service: Service) -> None:
+    objects = service.objects("room")
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    n_voxels = sum(o["n_voxels"] for o in objects)
+    assert n_voxels > 0
+    page.wait_for_function(f"document.body.dataset.points === '{n_voxels}'")  # every voxel: under the cap
+    with_points = scene_pixels(page)
+    page.uncheck("#voxels")
+    page.wait_for_function("document.body.dataset.points === '0'")
+    changed = np.abs(with_points - scene_pixels(page)).max(axis=2) > 30
+    assert changed.sum() > 100, changed.sum()
+    red, _, blue = with_points[changed].T  # the frames' rectangles' colour, VOXEL_RGB, under the faint box faces
+    assert (blue > red).mean() < 0.05, np.median(with_points[changed], axis=0)  # none in the tv's class colour (purple)

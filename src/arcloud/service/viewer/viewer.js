@@ -2,8 +2,9 @@
 // with fetch) and draws each object
 // as its oriented box, coloured by class, with the devices' last cameras. A click on a box or its label shows
 // the object's details (window.arcloudViewer.select(id) does the same). <body data-objects> is the number of
-// boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets, data-selected
-// is the id whose details show).
+// boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets, data-points the
+// points drawn, data-selected the id whose details show). Behind the boxes, the room: every object's voxels
+// (tentative ones and those the filters hide included) as points in their mean colour.
 // No key goes in a URL or in the page's storage: a viewer session's HttpOnly cookie authenticates every read. A
 // ticket (from the URL's fragment, #ticket=T, which no server sees; or drawn with a key typed into the form, then
 // forgotten) is traded once for that cookie. Labels that would overlap a nearer one are hidden. See docs/service.md, "Web viewer".
@@ -19,6 +20,8 @@ const DEVICE_OLD_S = 30; // a device silent this long is drawn faded
 const RETRY_MS = 2000; // between reconnections (the stream's `retry:` overrides it)
 const MISSING_MAP_RETRY_MS = 5000; // a map with no frame yet: ask again this often
 const VOXEL_FETCHES = 4; // voxel requests in flight at once
+const MAX_POINTS = 200_000; // the room's points drawn in all: objects fetched past it are left out
+const POINTS_PER_OBJECT = 20_000; // an object with more voxels is drawn with an even sample of them
 const CLICK_SLOP_PX = 4; // a pointer that moved further between down and up dragged the view: no pick
 const FACE_OPACITY = { confirmed: 0.2, tentative: 0.08, selected: 0.45 };
 
@@ -244,7 +247,7 @@ function redrawDevices() {
 function refresh() {
   document.body.dataset.objects = String(boxes.children.length);
   document.body.dataset.devices = String(cameras.children.length);
-  document.body.dataset.voxels = String(voxels.children.length);
+  countPoints();
   $("drawn").textContent = boxes.children.length;
   $("known").textContent = state.objects.size;
   renderLegend();
@@ -372,13 +375,46 @@ labelRenderer.domElement.addEventListener("pointerup", (event) => {
   select(hit ? hit.object.parent.userData.id : null);
 });
 
-// --- voxels (GET v1/maps/{map}/objects/{id}?voxels=true, drawn as points) ---------------------------------
+// --- the room's points: each object's voxels (GET v1/maps/{map}/objects/{id}?voxels=true, once a version) ---
 const voxelState = new Map(); // id -> {version, points} drawn, {version, loading: true} or {version, failed: true}
 let voxelFetches = 0;
 let voxelPauseUntil = 0; // after a 429: no voxel request before this (ms), as Retry-After says
+let pointCount = 0; // points drawn, of every object
+
+// 0-255 sRGB -> the renderer's linear working space (vertex colours are taken as linear).
+const LINEAR = Float32Array.from({ length: 256 }, (_, v) => new THREE.Color().setRGB(v / 255, v / 255, v / 255, THREE.SRGBColorSpace).r);
+
+function countPoints() {
+  pointCount = 0;
+  for (const points of voxels.children) pointCount += points.geometry.getAttribute("position").count;
+  document.body.dataset.voxels = String(voxels.children.length);
+  document.body.dataset.points = String(pointCount);
+}
+
+// An object's voxels (ObjectDetail.voxels) as at most `budget` points, each in its voxel's mean colour (the
+// class colour where the object has none); null when the budget is spent.
+function pointsObject(detail, budget) {
+  const { centers, colors, voxel_size_m } = detail.voxels;
+  const n = Math.min(centers.length, POINTS_PER_OBJECT, budget);
+  if (n <= 0) return null;
+  const step = centers.length / n; // an even sample when the object has more voxels than it may draw
+  const positions = new Float32Array(n * 3);
+  const rgb = new Float32Array(n * 3);
+  const flat = new THREE.Color(classColour(detail.label));
+  for (let i = 0; i < n; i++) {
+    const j = Math.floor(i * step);
+    positions.set(centers[j], i * 3);
+    if (colors) rgb.set([LINEAR[colors[j][0]], LINEAR[colors[j][1]], LINEAR[colors[j][2]]], i * 3);
+    else rgb.set([flat.r, flat.g, flat.b], i * 3);
+  }
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
+  geometry.setAttribute("color", new THREE.BufferAttribute(rgb, 3));
+  return new THREE.Points(geometry, new THREE.PointsMaterial({ vertexColors: true, size: voxel_size_m * 0.8, sizeAttenuation: true }));
+}
 
 function syncVoxels() {
-  const wanted = state.showVoxels ? [...state.objects.values()].filter(shown) : [];
+  const wanted = state.showVoxels ? [...state.objects.values()] : [];
   const wantedIds = new Set(wanted.map((o) => o.id));
   for (const [id, entry] of voxelState) {
     if (!wantedIds.has(id)) {
@@ -389,12 +425,13 @@ function syncVoxels() {
       voxelState.delete(id);
     }
   }
-  document.body.dataset.voxels = String(voxels.children.length);
+  countPoints();
   if (Date.now() < voxelPauseUntil) return;
   for (const o of wanted) {
     const entry = voxelState.get(o.id);
     if (voxelFetches >= VOXEL_FETCHES) break;
     if (entry && (entry.loading || entry.version === o.version)) continue; // in flight, drawn, or failed at this version
+    if (pointCount >= MAX_POINTS && !entry?.points) continue; // no room left for another object's points
     loadVoxels(o);
   }
 }
@@ -419,17 +456,12 @@ async function loadVoxels(o) {
     if (entry.points) {
       voxels.remove(entry.points);
       disposeTree(entry.points);
+      countPoints();
     }
-    const positions = new Float32Array(detail.voxels.centers.flat());
-    const geometry = new THREE.BufferGeometry();
-    geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
-    const points = new THREE.Points(
-      geometry,
-      new THREE.PointsMaterial({ color: classColour(detail.label), size: detail.voxels.voxel_size_m * 0.8, sizeAttenuation: true }),
-    );
-    voxels.add(points);
+    const points = pointsObject(detail, MAX_POINTS - pointCount);
+    if (points) voxels.add(points);
     voxelState.set(o.id, { version: detail.version, points });
-    document.body.dataset.voxels = String(voxels.children.length);
+    countPoints();
   } catch (error) {
     console.warn(error);
     if (voxelState.has(o.id)) voxelState.set(o.id, { ...voxelState.get(o.id), loading: false, failed: true }); // not asked again until it changes
