@@ -64,7 +64,7 @@ class Service:
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     keys_file = tmp_path_factory.mktemp("keys") / "keys.json"
     tokens = make_keys(
-        keys_file, device=("device", "*"), reader=("reader", "room,empty,grows,mixed"), stranger=("reader", "elsewhere")
+        keys_file, device=("device", "*"), reader=("reader", "room,empty,grows,mixed,picked"), stranger=("reader", "elsewhere")
     )
     settings = Settings(detector="sim:0", workers=1, keys_file=str(keys_file), key_rate_per_s=0, event_poll_s=0.2)
     with UvicornThread(create_app(settings, detector=SidedDetector())) as server:
@@ -298,3 +298,15 @@ def test_the_rooms_points_are_drawn_behind_the_boxes_in_their_voxels_colours(pag
     assert changed.sum() > 100, changed.sum()
     red, _, blue = with_points[changed].T  # the frames' rectangles' colour, VOXEL_RGB, under the faint box faces
     assert (blue > red).mean() < 0.05, np.median(with_points[changed], axis=0)  # none in the tv's class colour (purple)
+
+
+def test_the_details_follow_the_selected_objects_updates(page: Any, service: Service) -> None:
+    service.post("picked", 4, level=True, boxes=(LEFT,))
+    [chair] = service.objects("picked")
+    open_viewer(page, service, "picked")
+    wait_drawn(page, 1)
+    assert page.evaluate(f"window.arcloudViewer.select({chair['id']})") is True
+    assert details(page)["frames"] == str(chair["n_frames"])
+    service.post("picked", 1, level=True, boxes=(LEFT,))  # an upsert event of the selected object
+    page.wait_for_function(f"document.querySelector('#details dd[data-field=frames]').textContent === '{chair['n_frames'] + 1}'")
+    assert page.evaluate("document.body.dataset.selected") == str(chair["id"])
