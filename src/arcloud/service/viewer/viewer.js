@@ -7,7 +7,8 @@
 // (tentative ones and those the filters hide included) as points in their mean colour.
 // No key goes in a URL or in the page's storage: a viewer session's HttpOnly cookie authenticates every read. A
 // ticket (from the URL's fragment, #ticket=T, which no server sees; or drawn with a key typed into the form, then
-// forgotten) is traded once for that cookie. Labels that would overlap a nearer one are hidden. See docs/service.md, "Web viewer".
+// forgotten) is traded once for that cookie. A label that would overlap a nearer one is hidden.
+// See docs/service.md, "Web viewer".
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/OrbitControls.js";
 import { CSS2DObject, CSS2DRenderer } from "three/addons/CSS2DRenderer.js";
@@ -36,7 +37,7 @@ const state = {
   minScore: 0,
   showTentative: false,
   showLabels: true,
-  showVoxels: false,
+  showVoxels: true, // the room's points
   showCameras: true,
   selected: null, // id of the object whose details show
   userMoved: false, // the view follows the map until the user moves it
@@ -99,7 +100,7 @@ function declutterLabels() {
   const at = new THREE.Vector3();
   const order = labels.map((label) => ({
     label,
-    first: label.parent.userData.id === state.selected && state.selected !== null,
+    first: label.parent.userData.id === state.selected, // a device's group has no id
     distance: label.getWorldPosition(at).distanceToSquared(camera.position),
     rect: label.element.getBoundingClientRect(),
   }));
