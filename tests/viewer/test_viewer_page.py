@@ -64,7 +64,7 @@ class Service:
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     keys_file = tmp_path_factory.mktemp("keys") / "keys.json"
     tokens = make_keys(
-        keys_file, device=("device", "*"), reader=("reader", "room,empty,grows,mixed"), stranger=("reader", "elsewhere")
+        keys_file, device=("device", "*"), reader=("reader", "room,empty,grows,mixed,picked"), stranger=("reader", "elsewhere")
     )
     settings = Settings(detector="sim:0", workers=1, keys_file=str(keys_file), key_rate_per_s=0, event_poll_s=0.2)
     with UvicornThread(create_app(settings, detector=SidedDetector())) as server:
@@ -112,12 +112,17 @@ def wait_drawn(page: Any, n: int) -> None:
     page.wait_for_function(f"document.body.dataset.objects === '{n}'")
 
 
-def class_pixels(page: Any) -> dict[str, int]:
-    """Pixels of the scene (right of the panel) within a small distance of each class colour."""
+def scene_pixels(page: Any) -> np.ndarray:
+    """(H, W, 3) int32 RGB of the scene (right of the panel), from a screenshot."""
     import cv2
 
     png = page.screenshot()
-    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, PANEL_PX:, ::-1].astype(np.int32)
+    return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, PANEL_PX:, ::-1].astype(np.int32)  # type: ignore[no-any-return]  # cv2's arrays are Any
+
+
+def class_pixels(page: Any) -> dict[str, int]:
+    """Pixels of the scene (right of the panel) within a small distance of each class colour."""
+    image = scene_pixels(page)
     return {
         name: int((np.linalg.norm(image - np.array(rgb), axis=2) < 60).sum())
         for name, rgb in (("chair", CHAIR_RGB), ("tv", TV_RGB))
@@ -178,13 +183,16 @@ def set_min_score(page: Any, value: float) -> None:
     )
 
 
-def test_class_filter_score_slider_tentative_toggle_and_voxels(page: Any, service: Service) -> None:
+def test_class_filter_score_slider_tentative_toggle_and_room_points(page: Any, service: Service) -> None:
     service.post("mixed", 4, level=True, boxes=(LEFT, RIGHT))
     service.post("mixed", 1, boxes=(LEFT,))  # a flat box: tentative (never a chair's shape)
     every = service.objects("mixed", include="tentative")
     assert len(every) == 3 and len(service.objects("mixed")) == 2
     open_viewer(page, service, "mixed")
     wait_drawn(page, 2)
+    page.wait_for_function("document.body.dataset.voxels === '3'")  # the room's points: every object's, whatever shows
+    page.uncheck("#voxels")  # the class pixels below: their colour is near the chair's
+    page.wait_for_function("document.body.dataset.voxels === '0' && document.body.dataset.points === '0'")
 
     page.check("#tentative")
     wait_drawn(page, 3)
@@ -202,8 +210,8 @@ def test_class_filter_score_slider_tentative_toggle_and_voxels(page: Any, servic
     set_min_score(page, 0.0)
     wait_drawn(page, 2)
 
-    page.check("#voxels")  # each drawn box's voxels, fetched with the token
-    page.wait_for_function("document.body.dataset.voxels === '2'")
+    page.check("#voxels")
+    page.wait_for_function("document.body.dataset.voxels === '3'")
 
 
 def test_a_key_of_another_map_or_a_wrong_token_is_refused_on_the_page(page: Any, service: Service) -> None:
@@ -215,3 +223,90 @@ def test_a_key_of_another_map_or_a_wrong_token_is_refused_on_the_page(page: Any,
         page.wait_for_function("document.body.dataset.state === 'error'")
         assert page.inner_text("#status").startswith("Refused: authorization:")
         assert page.evaluate("document.body.dataset.objects") == "0"
+
+
+def details(page: Any) -> dict[str, str]:
+    """The details panel: id, label and its fields by name."""
+    fields = page.eval_on_selector_all("#details dd", "rows => rows.map(row => [row.dataset.field, row.textContent])")
+    return {"id": page.inner_text("#details-id"), "label": page.inner_text("#details-label"), **dict(fields)}
+
+
+def test_a_click_on_a_box_or_its_label_shows_the_objects_details(page: Any, service: Service) -> None:
+    by_label = {o["label"]: o for o in service.objects("room")}
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    assert page.is_hidden("#details")
+
+    chair = page.locator(".label[data-id='{}']".format(by_label["chair"]["id"])).bounding_box()
+    page.mouse.click(chair["x"] + chair["width"] / 2, chair["y"] + chair["height"] + 25)  # on the box, under its label
+    page.wait_for_function(f"document.body.dataset.selected === '{by_label['chair']['id']}'")
+    shown = details(page)
+    assert (shown["id"], shown["label"]) == (f"#{by_label['chair']['id']}", "chair")
+    assert shown["score"] == f"{by_label['chair']['score']:.2f}" and shown["frames"] == str(by_label["chair"]["n_frames"])
+
+    page.click(".label[data-id='{}']".format(by_label["tv"]["id"]))
+    page.wait_for_function(f"document.body.dataset.selected === '{by_label['tv']['id']}'")
+    assert details(page)["label"] == "tv"
+
+    page.mouse.click(PANEL_PX + 5, 710)  # the scene's corner: nothing there
+    page.wait_for_function("document.body.dataset.selected === ''")
+    assert page.is_hidden("#details")
+    assert page.evaluate(f"window.arcloudViewer.select({by_label['chair']['id']})") is True
+    assert details(page)["label"] == "chair"
+
+
+def object_labels(page: Any) -> list[dict[str, Any]]:
+    """The objects' labels in view (CSS2DRenderer shows them): rectangle and whether decluttering hid it."""
+    return page.eval_on_selector_all(  # type: ignore[no-any-return]  # Playwright's JSON is Any
+        ".label[data-id]",
+        """labels => labels.filter(label => label.style.display !== 'none').map(label => {
+             const r = label.getBoundingClientRect();
+             return {left: r.left, right: r.right, top: r.top, bottom: r.bottom, hidden: label.classList.contains('overlapped')};
+           })""",
+    )
+
+
+def test_labels_that_would_overlap_show_one_of_them(page: Any, service: Service) -> None:
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    page.uncheck("#cameras")  # only the objects' labels
+    assert [label["hidden"] for label in object_labels(page)] == [False, False]
+    page.mouse.move(800, 400)
+    for _ in range(20):  # zoom out until the two labels meet on the screen
+        page.mouse.wheel(0, 400)
+        page.wait_for_timeout(50)
+        labels = object_labels(page)
+        if len(labels) == 2 and any(label["hidden"] for label in labels):
+            break
+    assert [label["hidden"] for label in labels] in ([False, True], [True, False]), labels  # in view, one hidden
+    shown, hidden = sorted(labels, key=lambda label: label["hidden"])
+    assert hidden["left"] < shown["right"] and shown["left"] < hidden["right"], labels  # the hidden one overlaps it
+    assert hidden["top"] < shown["bottom"] and shown["top"] < hidden["bottom"], labels
+
+
+def test_the_rooms_points_are_drawn_behind_the_boxes_in_their_voxels_colours(page: Any, service: Service) -> None:
+    objects = service.objects("room")
+    open_viewer(page, service, "room")
+    wait_drawn(page, 2)
+    n_voxels = sum(o["n_voxels"] for o in objects)
+    assert n_voxels > 0
+    page.wait_for_function(f"document.body.dataset.points === '{n_voxels}'")  # every voxel: under the cap
+    with_points = scene_pixels(page)
+    page.uncheck("#voxels")
+    page.wait_for_function("document.body.dataset.points === '0'")
+    changed = np.abs(with_points - scene_pixels(page)).max(axis=2) > 30
+    assert changed.sum() > 100, changed.sum()
+    red, _, blue = with_points[changed].T  # the frames' rectangles' colour, VOXEL_RGB, under the faint box faces
+    assert (blue > red).mean() < 0.05, np.median(with_points[changed], axis=0)  # none in the tv's class colour (purple)
+
+
+def test_the_details_follow_the_selected_objects_updates(page: Any, service: Service) -> None:
+    service.post("picked", 4, level=True, boxes=(LEFT,))
+    [chair] = service.objects("picked")
+    open_viewer(page, service, "picked")
+    wait_drawn(page, 1)
+    assert page.evaluate(f"window.arcloudViewer.select({chair['id']})") is True
+    assert details(page)["frames"] == str(chair["n_frames"])
+    service.post("picked", 1, level=True, boxes=(LEFT,))  # an upsert event of the selected object
+    page.wait_for_function(f"document.querySelector('#details dd[data-field=frames]').textContent === '{chair['n_frames'] + 1}'")
+    assert page.evaluate("document.body.dataset.selected") == str(chair["id"])

@@ -1,10 +1,14 @@
 // The arcloud viewer: one map's objects, live. It reads GET v1/maps/{map}/events (server-sent events, read
 // with fetch) and draws each object
-// as its oriented box, coloured by class, with the devices' last cameras. <body data-objects> is the
-// number of boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets).
+// as its oriented box, coloured by class, with the devices' last cameras. A click on a box or its label shows
+// the object's details (window.arcloudViewer.select(id) does the same). <body data-objects> is the number of
+// boxes drawn (what the tests read; data-devices and data-voxels count cameras and point sets, data-points the
+// points drawn, data-selected the id whose details show). Behind the boxes, the room: every object's voxels
+// (tentative ones and those the filters hide included) as points in their mean colour.
 // No key goes in a URL or in the page's storage: a viewer session's HttpOnly cookie authenticates every read. A
 // ticket (from the URL's fragment, #ticket=T, which no server sees; or drawn with a key typed into the form, then
-// forgotten) is traded once for that cookie. See docs/service.md, "Web viewer".
+// forgotten) is traded once for that cookie. A label that would overlap a nearer one is hidden.
+// See docs/service.md, "Web viewer".
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/OrbitControls.js";
 import { CSS2DObject, CSS2DRenderer } from "three/addons/CSS2DRenderer.js";
@@ -17,6 +21,10 @@ const DEVICE_OLD_S = 30; // a device silent this long is drawn faded
 const RETRY_MS = 2000; // between reconnections (the stream's `retry:` overrides it)
 const MISSING_MAP_RETRY_MS = 5000; // a map with no frame yet: ask again this often
 const VOXEL_FETCHES = 4; // voxel requests in flight at once
+const MAX_POINTS = 200_000; // the room's points drawn in all: objects fetched past it are left out
+const POINTS_PER_OBJECT = 20_000; // an object with more voxels is drawn with an even sample of them
+const CLICK_SLOP_PX = 4; // a pointer that moved further between down and up dragged the view: no pick
+const FACE_OPACITY = { confirmed: 0.2, tentative: 0.08, selected: 0.45 };
 
 const $ = (id) => document.getElementById(id);
 
@@ -29,8 +37,9 @@ const state = {
   minScore: 0,
   showTentative: false,
   showLabels: true,
-  showVoxels: false,
+  showVoxels: true, // the room's points
   showCameras: true,
+  selected: null, // id of the object whose details show
   userMoved: false, // the view follows the map until the user moves it
   connection: null, // AbortController of the open stream
 };
@@ -73,7 +82,35 @@ function requestRender() {
     if (controls.update()) requestRender(); // still easing
     renderer.render(scene, camera);
     labelRenderer.render(scene, camera);
+    declutterLabels();
   });
+}
+
+// A label whose screen rectangle meets a label kept before it is hidden (class "overlapped"); the selected
+// object's label is kept first, then the nearer to the camera. The rectangles are all read before any is
+// hidden: one layout a render.
+function declutterLabels() {
+  const labels = [];
+  for (const group of [boxes, cameras]) {
+    for (const child of group.children) {
+      const label = child.userData.label;
+      if (label?.visible && label.element.style.display !== "none") labels.push(label); // CSS2DRenderer hides those out of view
+    }
+  }
+  const at = new THREE.Vector3();
+  const order = labels.map((label) => ({
+    label,
+    first: label.parent.userData.id === state.selected, // a device's group has no id
+    distance: label.getWorldPosition(at).distanceToSquared(camera.position),
+    rect: label.element.getBoundingClientRect(),
+  }));
+  order.sort((a, b) => b.first - a.first || a.distance - b.distance);
+  const kept = [];
+  for (const { label, rect } of order) {
+    const overlaps = kept.some((k) => rect.left < k.right && k.left < rect.right && rect.top < k.bottom && k.top < rect.bottom);
+    label.element.classList.toggle("overlapped", overlaps);
+    if (!overlaps) kept.push(rect);
+  }
 }
 
 function resize() {
@@ -118,22 +155,24 @@ function clearGroup(group) {
   }
 }
 
+// {center, size, yaw} of the object's OBB, or of its AABB (yaw 0); null for an object with neither.
+function boxShape(o) {
+  if (o.obb) return { center: o.obb.center, size: o.obb.size, yaw: o.obb.yaw_rad };
+  if (!o.aabb) return null;
+  const { min, max } = o.aabb;
+  return { center: min.map((v, i) => (v + max[i]) / 2), size: min.map((v, i) => max[i] - v), yaw: 0 };
+}
+
 // A box: faint faces and solid edges (dashed when tentative), centred on the OBB, turned by its yaw about up.
 function boxObject(o) {
   const colour = new THREE.Color(classColour(o.label));
   const tentative = o.status !== "confirmed";
-  let center, size, yaw;
-  if (o.obb) ({ center, size, yaw_rad: yaw } = o.obb);
-  else {
-    center = o.aabb.min.map((v, i) => (v + o.aabb.max[i]) / 2);
-    size = o.aabb.min.map((v, i) => o.aabb.max[i] - v);
-    yaw = 0;
-  }
+  const { center, size, yaw } = boxShape(o);
   const geometry = new THREE.BoxGeometry(...size);
   const group = new THREE.Group();
   const faces = new THREE.Mesh(
     geometry,
-    new THREE.MeshBasicMaterial({ color: colour, transparent: true, opacity: tentative ? 0.08 : 0.2, depthWrite: false }),
+    new THREE.MeshBasicMaterial({ color: colour, transparent: true, opacity: FACE_OPACITY[o.status], depthWrite: false }),
   );
   const edgeMaterial = tentative
     ? new THREE.LineDashedMaterial({ color: colour, dashSize: 0.05, gapSize: 0.04 })
@@ -147,12 +186,14 @@ function boxObject(o) {
   group.quaternion.copy(world.quaternion).invert().multiply(yawTurn);
   const text = document.createElement("div");
   text.className = tentative ? "label tentative" : "label";
+  text.dataset.id = o.id; // a click on the label picks the object
   text.textContent = `${o.label} ${o.score.toFixed(2)}${tentative ? " (tentative)" : ""}`;
   const label = new CSS2DObject(text);
   label.position.set(0, 0, size[2] / 2);
   label.visible = state.showLabels;
   group.add(label);
-  group.userData = { id: o.id, version: o.version };
+  group.userData = { id: o.id, version: o.version, status: o.status, faces, label };
+  markSelected(group);
   return group;
 }
 
@@ -179,6 +220,7 @@ function deviceObject(d) {
   const label = new CSS2DObject(text);
   label.visible = state.showLabels;
   group.add(label);
+  group.userData = { label };
   return group;
 }
 
@@ -206,10 +248,11 @@ function redrawDevices() {
 function refresh() {
   document.body.dataset.objects = String(boxes.children.length);
   document.body.dataset.devices = String(cameras.children.length);
-  document.body.dataset.voxels = String(voxels.children.length);
+  countPoints();
   $("drawn").textContent = boxes.children.length;
   $("known").textContent = state.objects.size;
   renderLegend();
+  showDetails();
   syncVoxels();
   if (!state.userMoved) fitView();
   requestRender();
@@ -266,13 +309,113 @@ function fitView() {
   controls.update();
 }
 
-// --- voxels (GET v1/maps/{map}/objects/{id}?voxels=true, drawn as points) ---------------------------------
+// --- the selected object: its details, from the events (the fields of GET v1/maps/{map}/objects/{id}) ------
+function select(id) {
+  state.selected = state.objects.has(id) ? id : null;
+  for (const group of boxes.children) markSelected(group);
+  showDetails();
+  requestRender();
+  return state.selected !== null;
+}
+
+function markSelected(group) {
+  const { id, status, faces, label } = group.userData;
+  faces.material.opacity = FACE_OPACITY[id === state.selected ? "selected" : status];
+  label.element.classList.toggle("selected", id === state.selected);
+}
+
+function showDetails() {
+  if (!state.objects.has(state.selected)) state.selected = null; // removed, or another map
+  const o = state.objects.get(state.selected);
+  document.body.dataset.selected = o ? String(o.id) : "";
+  $("details").hidden = !o;
+  if (!o) return;
+  $("details-label").textContent = o.label;
+  $("details-id").textContent = `#${o.id}`;
+  const size = boxShape(o)?.size;
+  const fields = [
+    ["score", o.score.toFixed(2)],
+    ["status", o.status],
+    ["frames", o.n_frames],
+    ["devices", o.n_devices],
+    ["voxels", o.n_voxels],
+    ["box (m)", size ? size.map((v) => v.toFixed(2)).join(" × ") : "none"],
+    ["version", o.version],
+    ["updated", o.updated_at ?? "unknown"],
+  ];
+  $("details-fields").replaceChildren(
+    ...fields.flatMap(([name, value]) => {
+      const term = document.createElement("dt");
+      term.textContent = name;
+      const text = document.createElement("dd");
+      text.textContent = value;
+      text.dataset.field = name;
+      return [term, text];
+    }),
+  );
+}
+
+// A click (a pointer that went down and up in place) on a label picks its object, else the nearest box face
+// under it; on nothing, it clears the selection. OrbitControls captures the pointer, so the label is the
+// target of pointerdown, not of pointerup.
+const raycaster = new THREE.Raycaster();
+let pointerDown = null;
+labelRenderer.domElement.addEventListener("pointerdown", (event) => {
+  pointerDown = { x: event.clientX, y: event.clientY, target: event.target };
+});
+labelRenderer.domElement.addEventListener("pointerup", (event) => {
+  const down = pointerDown;
+  pointerDown = null;
+  if (!down || Math.hypot(event.clientX - down.x, event.clientY - down.y) > CLICK_SLOP_PX) return;
+  const label = down.target.closest?.(".label[data-id]");
+  if (label) return select(Number(label.dataset.id));
+  const rect = labelRenderer.domElement.getBoundingClientRect();
+  const pointer = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1, 1 - ((event.clientY - rect.top) / rect.height) * 2);
+  raycaster.setFromCamera(pointer, camera);
+  const [hit] = raycaster.intersectObjects(boxes.children.map((group) => group.userData.faces), false);
+  select(hit ? hit.object.parent.userData.id : null);
+});
+
+// --- the room's points: each object's voxels (GET v1/maps/{map}/objects/{id}?voxels=true, once a version) ---
 const voxelState = new Map(); // id -> {version, points} drawn, {version, loading: true} or {version, failed: true}
 let voxelFetches = 0;
 let voxelPauseUntil = 0; // after a 429: no voxel request before this (ms), as Retry-After says
+let pointCount = 0; // points drawn, of every object
+
+// 0-255 sRGB -> the renderer's linear working space (vertex colours are taken as linear).
+const LINEAR = Float32Array.from({ length: 256 }, (_, v) => new THREE.Color().setRGB(v / 255, v / 255, v / 255, THREE.SRGBColorSpace).r);
+
+function countPoints() {
+  pointCount = 0;
+  for (const points of voxels.children) pointCount += points.geometry.getAttribute("position").count;
+  document.body.dataset.voxels = String(voxels.children.length);
+  document.body.dataset.points = String(pointCount);
+}
+
+// An object's voxels (ObjectDetail.voxels) as at most `budget` points, each in its voxel's mean colour (the
+// class colour where the object has none); null when the budget is spent.
+function pointsObject(detail, budget) {
+  const { centers, colors, voxel_size_m } = detail.voxels;
+  const n = Math.min(centers.length, POINTS_PER_OBJECT, budget);
+  if (n <= 0) return null;
+  const step = centers.length / n; // an even sample when the object has more voxels than it may draw
+  const positions = new Float32Array(n * 3);
+  const rgb = new Float32Array(n * 3);
+  const flat = new THREE.Color(classColour(detail.label));
+  for (let i = 0; i < n; i++) {
+    const j = Math.floor(i * step);
+    positions.set(centers[j], i * 3);
+    if (colors) rgb.set([LINEAR[colors[j][0]], LINEAR[colors[j][1]], LINEAR[colors[j][2]]], i * 3);
+    else rgb.set([flat.r, flat.g, flat.b], i * 3);
+  }
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
+  geometry.setAttribute("color", new THREE.BufferAttribute(rgb, 3));
+  return new THREE.Points(geometry, new THREE.PointsMaterial({ vertexColors: true, size: voxel_size_m * 0.8, sizeAttenuation: true }));
+}
 
 function syncVoxels() {
-  const wanted = state.showVoxels ? [...state.objects.values()].filter(shown) : [];
+  const wanted = state.showVoxels ? [...state.objects.values()] : [];
   const wantedIds = new Set(wanted.map((o) => o.id));
   for (const [id, entry] of voxelState) {
     if (!wantedIds.has(id)) {
@@ -283,12 +426,13 @@ function syncVoxels() {
       voxelState.delete(id);
     }
   }
-  document.body.dataset.voxels = String(voxels.children.length);
+  countPoints();
   if (Date.now() < voxelPauseUntil) return;
   for (const o of wanted) {
     const entry = voxelState.get(o.id);
     if (voxelFetches >= VOXEL_FETCHES) break;
     if (entry && (entry.loading || entry.version === o.version)) continue; // in flight, drawn, or failed at this version
+    if (pointCount >= MAX_POINTS && !entry?.points) continue; // no room left for another object's points
     loadVoxels(o);
   }
 }
@@ -313,17 +457,12 @@ async function loadVoxels(o) {
     if (entry.points) {
       voxels.remove(entry.points);
       disposeTree(entry.points);
+      countPoints();
     }
-    const positions = new Float32Array(detail.voxels.centers.flat());
-    const geometry = new THREE.BufferGeometry();
-    geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
-    const points = new THREE.Points(
-      geometry,
-      new THREE.PointsMaterial({ color: classColour(detail.label), size: detail.voxels.voxel_size_m * 0.8, sizeAttenuation: true }),
-    );
-    voxels.add(points);
+    const points = pointsObject(detail, MAX_POINTS - pointCount);
+    if (points) voxels.add(points);
     voxelState.set(o.id, { version: detail.version, points });
-    document.body.dataset.voxels = String(voxels.children.length);
+    countPoints();
   } catch (error) {
     console.warn(error);
     if (voxelState.has(o.id)) voxelState.set(o.id, { ...voxelState.get(o.id), loading: false, failed: true }); // not asked again until it changes
@@ -482,6 +621,7 @@ function bindControls() {
       refresh();
     });
   }
+  $("details-close").addEventListener("click", () => select(null));
   $("fit").addEventListener("click", () => {
     state.userMoved = false;
     fitView();
@@ -514,5 +654,6 @@ async function openMap(map, key, ticket) {
 
 bindControls();
 resize();
+window.arcloudViewer = { select }; // for tests and the console: the click's own code path
 const params = new URLSearchParams(window.location.search);
 openMap(params.get("map") || "", "", new URLSearchParams(window.location.hash.slice(1)).get("ticket") || "");
