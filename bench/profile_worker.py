@@ -21,7 +21,7 @@ timed in this process's CPU seconds, the session's CPU seconds taken off: what t
 spends a frame besides the model, Redis client, codec, logging and queue included (Redis's own CPU not).
 
 Prints a table of milliseconds a frame (median, mean) and writes JSON (``--out``); ``--cprofile FILE`` also
-writes the cProfile of the whole run (parts not timed apart show up there).
+writes the cProfile of the whole run in thread CPU seconds (parts not timed apart show up there; waits on Redis do not).
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 PYTHONPATH=src .venv/bin/python bench/profile_worker.py [--frames 50]
 """
@@ -175,7 +175,7 @@ def main() -> None:
     run_once(payloads[0])  # warm-up
     times.clear()
     n_detections.clear()
-    profiler = cProfile.Profile() if args.cprofile else None
+    profiler = cProfile.Profile(time.thread_time) if args.cprofile else None
     for _ in range(args.repeats):
         for payload in payloads:
             if profiler is not None:
@@ -256,7 +256,7 @@ def profile_redis_worker(args: argparse.Namespace) -> None:
                 message = frame_to_proto(dataclasses.replace(frame, device_id=f"profile-{repeat}"), map_id=f"profile-{repeat}")
                 queue.put(validate_message(message, message.map_id, queue_decoded_png=False), message)
         cpu_ms, session_ms = [], []
-        profiler = cProfile.Profile() if args.cprofile else None
+        profiler = cProfile.Profile(time.thread_time) if args.cprofile else None
         for i in range(len(frames) * (args.repeats + 1)):
             if profiler is not None and i >= len(frames):
                 profiler.enable()
