@@ -62,6 +62,16 @@ def test_letterbox_image_places_the_frame_where_the_geometry_says() -> None:
     tensor = letterbox_tensor(rgb, box)
     assert tensor.shape == (1, 3, 64, 64) and tensor.dtype == np.float32
     np.testing.assert_allclose(tensor[0].transpose(1, 2, 0), image / 255.0, atol=1e-6)
+    assert tensor.flags.c_contiguous  # onnxruntime would copy a strided input
+
+
+@pytest.mark.parametrize("frame_shape", [(48, 64), (64, 48), (30, 64), (64, 64), (17, 31)])
+@pytest.mark.parametrize("size_px", [64, 96, 33])
+def test_letterbox_tensor_is_the_letterboxed_image_times_a_255th_bit_for_bit(frame_shape: tuple[int, int], size_px: int) -> None:
+    rgb = np.random.default_rng(7).integers(0, 256, (*frame_shape, 3), dtype=np.uint8)
+    box = Letterbox.fit(frame_shape, size_px)
+    plain = np.multiply(box.image(rgb).transpose(2, 0, 1)[None], np.float32(1 / 255), dtype=np.float32)
+    assert letterbox_tensor(rgb, box).tobytes() == np.ascontiguousarray(plain).tobytes()
 
 
 # --- NMS ----------------------------------------------------------------------------------------------

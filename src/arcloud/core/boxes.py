@@ -64,7 +64,7 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
     local = ijk - origin + gap
     grid[local[:, 0], local[:, 1], local[:, 2]] = True
     if gap:  # a voxel or two short of the occupancy rule (which the frames' order decides) splits nothing
-        grid = ndimage.binary_dilation(grid, structure=_CONNECTIVITY_26, iterations=gap)
+        grid = dilate_cube(grid, gap)
     labelled, n_parts = ndimage.label(grid, structure=_CONNECTIVITY_26)
     if n_parts > 1:
         part = labelled[local[:, 0], local[:, 1], local[:, 2]]
@@ -74,6 +74,24 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
         kept_idx = np.flatnonzero(keep)
         keep[kept_idx[~large[part]]] = False
     return keep
+
+
+def dilate_cube(grid: np.ndarray, radius: int) -> np.ndarray:
+    """A bool grid (any dimensions) dilated by the cube of side ``2 * radius + 1`` (outside the grid counts
+    as empty): ``ndimage.binary_dilation`` with the full 3 x ... x 3 structure and ``iterations=radius`` (its
+    plain version; a test holds them equal). The cube is separable, so it is an OR of shifted slices along
+    one axis, then the next: a fraction of the plain version's cost (0.13 ms against 2 ms on a 42 x 38 x 30
+    grid), which visits every cell's whole neighbourhood."""
+    out = grid
+    for axis in range(grid.ndim):
+        src, out = out, out.copy()
+        n = src.shape[axis]
+        for shift in range(1, min(radius, n - 1) + 1):
+            before = (slice(None),) * axis + (slice(0, n - shift),)
+            after = (slice(None),) * axis + (slice(shift, n),)
+            out[before] |= src[after]
+            out[after] |= src[before]
+    return out
 
 
 def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
