@@ -19,7 +19,7 @@ from arcloud.client.results import MapStats
 STATS = {
     "map_id": "m",
     "frames": {"accepted": 1, "processed": 1, "failed": 0, "pending": 0},
-    "objects": {"confirmed": 0, "tentative": 0},
+    "objects": {"confirmed": 0, "tentative": 0, "total": 0, "truncated": False},
 }
 
 
