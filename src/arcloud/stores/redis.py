@@ -188,6 +188,28 @@ def where(client: RedisClient) -> str:
     return f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}/{kwargs.get('db', 0)}"
 
 
+class RedisSideStore:
+    """What a small store beside the objects (API keys, viewer passes, alignments, rate buckets) holds on
+    Redis: ``client`` (shared with the object store, not closed here), else its own connection to ``url``;
+    ``_call`` runs one command behind the one Redis error boundary (``redis_errors``)."""
+
+    REPLY_TIMEOUT_S = 2.0  # of its own connection, unless given
+
+    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float | None = None) -> None:
+        self._owns_client = client is None
+        if client is None:
+            client = connect_redis(url, reply_timeout_s=self.REPLY_TIMEOUT_S if reply_timeout_s is None else reply_timeout_s)
+        self.client = client
+
+    def close(self) -> None:
+        if self._owns_client:
+            self.client.close()
+
+    def _call(self, doing: str, method: str, *args: object, **options: object) -> object:
+        with redis_errors(doing, lambda: where(self.client)):
+            return getattr(self.client, method)(*args, **options)
+
+
 @cache
 def lua_source(name: str) -> str:
     """The text of ``stores/lua/<name>.lua``."""

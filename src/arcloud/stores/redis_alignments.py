@@ -11,24 +11,11 @@ import numpy as np
 
 from arcloud.errors import StoreError
 from arcloud.stores.keys import alignments_key
-from arcloud.stores.redis import RedisClient, connect_redis, where
-from arcloud.stores.redis_errors import redis_errors
+from arcloud.stores.redis import RedisSideStore
 
 
-class RedisDeviceAlignments:
+class RedisDeviceAlignments(RedisSideStore):
     """``DeviceAlignments`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
-
-    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 2.0) -> None:
-        self._owns_client = client is None
-        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
-
-    def close(self) -> None:
-        if self._owns_client:
-            self.client.close()
-
-    def _call(self, doing: str, method: str, *args: object) -> object:
-        with redis_errors(doing, lambda: where(self.client)):
-            return getattr(self.client, method)(*args)
 
     def get(self, map_id: str, device_id: str) -> np.ndarray | None:
         raw = self._call(f"read the alignment of device {device_id}", "hget", alignments_key(map_id), device_id)

@@ -8,24 +8,13 @@ import json
 
 from arcloud.access import ApiKey
 from arcloud.stores.keys import API_KEYS
-from arcloud.stores.redis import RedisClient, connect_redis, where
-from arcloud.stores.redis_errors import redis_errors
+from arcloud.stores.redis import RedisSideStore
 
 
-class RedisKeyStore:
+class RedisKeyStore(RedisSideStore):
     """``KeyStore`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
 
-    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 5.0) -> None:
-        self._owns_client = client is None
-        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
-
-    def close(self) -> None:
-        if self._owns_client:
-            self.client.close()
-
-    def _call(self, doing: str, method: str, *args: object) -> object:
-        with redis_errors(doing, lambda: where(self.client)):
-            return getattr(self.client, method)(*args)
+    REPLY_TIMEOUT_S = 5.0
 
     def add(self, key: ApiKey) -> None:
         self._call("store the key", "hset", API_KEYS, key.id, json.dumps(key.to_record()))

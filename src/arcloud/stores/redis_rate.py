@@ -4,21 +4,16 @@
 from __future__ import annotations
 
 from arcloud.stores.keys import rate_key
-from arcloud.stores.redis import RedisClient, connect_redis, lua_source, where
+from arcloud.stores.redis import RedisClient, RedisSideStore, lua_source, where
 from arcloud.stores.redis_errors import redis_errors
 
 
-class RedisRateLimiter:
+class RedisRateLimiter(RedisSideStore):
     """``RateLimiter`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
 
-    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 2.0) -> None:
-        self._owns_client = client is None
-        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
+    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float | None = None) -> None:
+        super().__init__(url, client=client, reply_timeout_s=reply_timeout_s)
         self._script = self.client.register_script(lua_source("rate_limit"))
-
-    def close(self) -> None:
-        if self._owns_client:
-            self.client.close()
 
     def take(self, bucket: str, *, rate_per_s: float, burst: int) -> float:
         with redis_errors(f"take from rate bucket {bucket}", lambda: where(self.client)):

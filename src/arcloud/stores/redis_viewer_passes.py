@@ -9,24 +9,13 @@ import time
 
 from arcloud.access import ViewerGrant
 from arcloud.stores.keys import viewer_pass_key
-from arcloud.stores.redis import RedisClient, connect_redis, where
-from arcloud.stores.redis_errors import redis_errors
+from arcloud.stores.redis import RedisSideStore
 
 
-class RedisViewerPasses:
+class RedisViewerPasses(RedisSideStore):
     """``ViewerPasses`` on Redis: on ``client`` (shared, not closed here), else on a new connection to ``url``."""
 
-    def __init__(self, url: str = "", *, client: RedisClient | None = None, reply_timeout_s: float = 5.0) -> None:
-        self._owns_client = client is None
-        self.client = client if client is not None else connect_redis(url, reply_timeout_s=reply_timeout_s)
-
-    def close(self) -> None:
-        if self._owns_client:
-            self.client.close()
-
-    def _call(self, doing: str, method: str, *args: object, **options: object) -> object:
-        with redis_errors(doing, lambda: where(self.client)):
-            return getattr(self.client, method)(*args, **options)
+    REPLY_TIMEOUT_S = 5.0
 
     def put(self, digest: str, grant: ViewerGrant) -> None:
         ttl_ms = max(1, math.ceil((grant.expires_at_s - time.time()) * 1000))

@@ -22,7 +22,7 @@ import signal
 import threading
 from collections.abc import Callable
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from fastapi import FastAPI
 
@@ -50,6 +50,10 @@ log = logging.getLogger(__name__)
 SIM_PREFIX = "sim"
 
 DetectorFactory = Callable[[], Detector]
+
+if TYPE_CHECKING:
+    from arcloud.stores.redis import RedisSideStore
+Side = TypeVar("Side", bound="RedisSideStore")
 
 
 # --- detectors ---------------------------------------------------------------------------------------
@@ -189,6 +193,16 @@ def build_queue(settings: Settings, *, store: ObjectStore | None = None, read_bl
     )
 
 
+def on_redis(kind: type[Side], settings: Settings, store: ObjectStore | None, url: str | None = None) -> Side:
+    """A side store of ``kind`` on its own Redis ``url`` when given, else on ``store``'s connections when it is a
+    ``RedisStore``, else on the settings' store URL (connections of its own: the API's reply timeout)."""
+    from arcloud.stores.redis import RedisStore
+
+    if not url and isinstance(store, RedisStore):
+        return kind(client=store.client)
+    return kind(url or settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+
+
 def build_key_store(settings: Settings, store: ObjectStore | None = None) -> KeyStore | None:
     """The API keys: ``keys_file``, else ``keys_store``'s Redis, else the store's (on ``store``'s connections
     when it is a ``RedisStore``); None with auth none."""
@@ -198,14 +212,9 @@ def build_key_store(settings: Settings, store: ObjectStore | None = None) -> Key
         from arcloud.stores.file_api_keys import FileKeyStore
 
         return FileKeyStore(settings.keys_file)
-    from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_api_keys import RedisKeyStore
 
-    if settings.keys_store:
-        return RedisKeyStore(settings.keys_store, reply_timeout_s=settings.api_redis_timeout_s)
-    if isinstance(store, RedisStore):
-        return RedisKeyStore(client=store.client)
-    return RedisKeyStore(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+    return on_redis(RedisKeyStore, settings, store, settings.keys_store)
 
 
 def build_viewer_passes(settings: Settings, store: ObjectStore | None = None) -> ViewerPasses | None:
@@ -218,14 +227,9 @@ def build_viewer_passes(settings: Settings, store: ObjectStore | None = None) ->
         from arcloud.stores.memory_viewer_passes import MemoryViewerPasses
 
         return MemoryViewerPasses()
-    from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_viewer_passes import RedisViewerPasses
 
-    if settings.keys_store:
-        return RedisViewerPasses(settings.keys_store, reply_timeout_s=settings.api_redis_timeout_s)
-    if isinstance(store, RedisStore):
-        return RedisViewerPasses(client=store.client)
-    return RedisViewerPasses(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+    return on_redis(RedisViewerPasses, settings, store, settings.keys_store)
 
 
 def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> RateLimiter | None:
@@ -237,12 +241,9 @@ def build_rate_limiter(settings: Settings, store: ObjectStore | None = None) -> 
         from arcloud.stores.memory_rate import MemoryRateLimiter
 
         return MemoryRateLimiter()
-    from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_rate import RedisRateLimiter
 
-    if isinstance(store, RedisStore):
-        return RedisRateLimiter(client=store.client)
-    return RedisRateLimiter(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+    return on_redis(RedisRateLimiter, settings, store)
 
 
 def build_alignments(settings: Settings, store: ObjectStore | None = None) -> DeviceAlignments:
@@ -252,12 +253,9 @@ def build_alignments(settings: Settings, store: ObjectStore | None = None) -> De
         from arcloud.stores.memory_alignments import MemoryDeviceAlignments
 
         return MemoryDeviceAlignments()
-    from arcloud.stores.redis import RedisStore
     from arcloud.stores.redis_alignments import RedisDeviceAlignments
 
-    if isinstance(store, RedisStore):
-        return RedisDeviceAlignments(client=store.client)
-    return RedisDeviceAlignments(settings.store, reply_timeout_s=settings.api_redis_timeout_s)
+    return on_redis(RedisDeviceAlignments, settings, store)
 
 
 def build_publisher(settings: Settings, store: ObjectStore, on_frame: FrameHandler | None) -> UpdatePublisher | None:
