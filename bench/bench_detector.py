@@ -22,12 +22,10 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import environment, summary_ms, write_json
+from common import SHARED, environment, summary_ms, write_json
 
 from arcloud.detectors.onnx_yolo import YoloSegDetector
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-SHARED = PROJECT_ROOT.parent / "shared"
 MODELS = {
     "yolov8n-seg-fp32-640": SHARED / "models/yolov8n-seg-fp32-640.onnx",
     "yolov8n-seg-int8-320": SHARED / "models/yolov8n-seg-int8-320.onnx",

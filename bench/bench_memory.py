@@ -35,7 +35,6 @@ TSDF integration are recorded (single run, 2-core machine: context, not a timing
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import sys
 import tempfile
@@ -47,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import Redis, environment, write_json
+from common import SHARED, Redis, environment, write_json
 
 from arcloud.argtypes import positive_int
 from arcloud.core.types import Frame, MapObject, Params
@@ -59,8 +58,6 @@ if TYPE_CHECKING:
 
     from arcloud.datasets.sevenscenes import SevenScenesSequence
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("ARCLOUD_SHARED", PROJECT_ROOT.parent / "shared"))
 SEQUENCE_DIR = SHARED / "data/7scenes-redkitchen"
 MODEL = SHARED / "models/yolov8n-seg-fp32-640.onnx"
 DENSE_VOXEL_SIZE_M = 0.01  # a typical dense-mesh voxel, besides the pipeline's own

@@ -53,10 +53,8 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import INGEST_ONLY_ENV, FramePoster, Redis, ServeProcess, ServiceMeter, cores, environment, write_json
+from common import INGEST_ONLY_ENV, SHARED, FramePoster, Redis, ServeProcess, ServiceMeter, cores, environment, write_json
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("ARCLOUD_SHARED", PROJECT_ROOT.parent / "shared"))
 SEQUENCE = SHARED / "data/7scenes-redkitchen"
 MODEL = SHARED / "models/yolo11n-seg-fp32-640.onnx"
 OUT = Path(__file__).parent / "results" / "scaling.json"

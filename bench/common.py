@@ -19,6 +19,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+#: The real models and data (never in the repository): ``$ARCLOUD_SHARED``, else ``shared/`` beside the project.
+SHARED = Path(os.environ.get("ARCLOUD_SHARED", Path(__file__).resolve().parents[2] / "shared"))
+
 
 def pin_to_one_core() -> int | None:
     """Run this process on one CPU core (Linux); returns the core or None when not possible."""

@@ -44,10 +44,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402 - after the thread variables above: OpenBLAS reads them as it loads
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import environment, write_json  # noqa: E402 - bench/ put on the path just above
+from common import SHARED, environment, write_json  # noqa: E402 - bench/ put on the path just above
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("ARCLOUD_SHARED", PROJECT_ROOT.parent / "shared"))
 SEQUENCE = SHARED / "data/7scenes-redkitchen"
 MODEL = SHARED / "models/yolo11n-seg-fp32-640.onnx"
 PARTS = (
