@@ -410,7 +410,9 @@ class FrameWorker:
         locks = LockTimer(self.store)
         try:
             detections, detect_s = started.detections.result()
-            if self.store.is_frame_done(frame.map_id, frame.key):  # a delivery before this one committed it
+            # A delivery before this one may have committed it; a first delivery is left to the commit, which
+            # refuses a frame recorded already (one Redis call a frame fewer).
+            if item.deliveries > 1 and self.store.is_frame_done(frame.map_id, frame.key):
                 self.queue.ack(item, redelivered=True)
                 return "redelivered"
             open_map_checked(self.store, frame.map_id, self.params)
