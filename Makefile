@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
 
-.PHONY: demo test lint bench accuracy proto lock web-vendor clean
+.PHONY: demo test lint bench accuracy measurements proto lock web-vendor clean
 
 $(STAMP): pyproject.toml constraints.txt scripts/bootstrap.sh
 	VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh
@@ -26,7 +26,7 @@ test: $(STAMP) lint
 	@{ command -v redis-server && command -v chromium; } >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Every benchmark behind the README's "Measured" table -> bench/results/*.json (about 30 min, and bench_scaling 549 s on 2
+# Every benchmark -> bench/results/*.json (keep a run the docs quote in a dated subfolder: bench/measurements.py) (about 30 min, and bench_scaling 549 s on 2
 # loaded cores; accuracy apart).
 bench: $(STAMP)
 	$(BIN)/python bench/bench_step.py
@@ -47,6 +47,10 @@ bench: $(STAMP)
 # ACCURACY_ARGS=--quick for the short versions, --suites sim for one suite.
 accuracy: $(STAMP)
 	$(BIN)/python bench/bench_accuracy.py $(ACCURACY_ARGS)
+
+# README.md's and docs/measurements.md's measured tables, from the results files kept in bench/results/<dated folder>
+measurements: $(STAMP)
+	$(BIN)/python bench/measurements.py
 
 proto: $(STAMP)
 	$(BIN)/python -m grpc_tools.protoc -Iproto --python_out=src/arcloud/proto --pyi_out=src/arcloud/proto proto/arcloud/v1/*.proto

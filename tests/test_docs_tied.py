@@ -1,14 +1,24 @@
 """The tables written by hand beside the code they describe hold what the code holds: every setting in the
 settings table of docs/service.md, every port in its ports table (with adapters that exist), every exception
 of the project in the tree of ``arcloud.core.errors``, every Redis key in the key table of
-``arcloud.stores.keys``. Each reads sources or small modules only, so that the file runs in well under 2 s."""
+``arcloud.stores.keys``; and the measured figures of README.md and docs/measurements.md are what
+``bench/measurements.py`` writes from the results files kept in the repository, each README figure found in its file.
+Each reads sources or small modules only, so that the file runs in well under 2 s."""
 
 from __future__ import annotations
 
 import ast
+import copy
+import importlib.util
 import inspect
 import re
+import shutil
+import subprocess
+import sys
 from pathlib import Path
+from types import ModuleType
+
+import pytest
 
 import arcloud.core.errors
 import arcloud.core.ports
@@ -122,3 +132,74 @@ def test_the_key_table_lists_every_redis_key() -> None:
         else:
             made.append(value)
     assert differences(made, [key for key in documented if key in made]) == TIED  # the table may name keys of before
+
+
+def load_measurements() -> ModuleType:
+    """``bench/measurements.py`` (bench is no package)."""
+    spec = importlib.util.spec_from_file_location("measurements", ROOT / "bench" / "measurements.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclass looks its module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+measurements = load_measurements()
+README = (ROOT / "README.md").read_text()
+MEASURED = README[README.index("## Measured\n") :]
+MEASURED = MEASURED[: MEASURED.index("\n## ", 1)]
+# A figure: a number not part of a name (mAP@0.25, v1, p99); thousands with commas
+FIGURE = re.compile(r"(?<![@\w.,])\d[\d,]*(?:\.\d+)?")
+
+
+def generated(text: str) -> str:
+    return text[text.index(measurements.BEGIN) + len(measurements.BEGIN) : text.index(measurements.END)].strip("\n")
+
+
+def test_the_measured_tables_are_what_the_results_files_give() -> None:
+    results = measurements.load()
+    assert generated(README) == measurements.readme_table(results), "run `make measurements`"
+    docs = (ROOT / "docs" / "measurements.md").read_text()
+    assert generated(docs) == measurements.measurements_table(results), "run `make measurements`"
+
+
+def test_a_changed_results_file_changes_the_readme_table() -> None:
+    results = measurements.load()
+    changed = copy.deepcopy(results)
+    summary = changed[f"{measurements.ACCURACY}/sim.json"]["suites"]["sim"]["summary"]["report"]["centralized"]
+    summary["map25"]["mean"] = 0.5
+    assert measurements.readme_table(changed) != measurements.readme_table(results)
+    assert "mAP@0.25 0.500" in measurements.readme_table(changed)
+
+
+def test_every_figure_of_the_readme_is_in_its_results_file() -> None:
+    """Each number of the README table's measured cells is a value of the file its row links to, as shown (at the
+    decimals shown), or bytes of it shown in kB."""
+    rows = [[cell.strip() for cell in line.strip("|").split(" | ")] for line in generated(README).splitlines()[2:]]
+    assert len(rows) >= 4
+    for what, measured, _, source in rows:
+        (path,) = re.findall(r"\]\((bench/results/[^)]+\.json)\)", source)
+        values = [
+            v
+            for _, v in measurements.leaves(measurements.load_json(ROOT / path))
+            if isinstance(v, int | float) and not isinstance(v, bool)
+        ]
+        figures = FIGURE.findall(measured)
+        assert figures, what
+        for figure in figures:
+            decimals = len(figure.partition(".")[2])
+            shown = {f"{v:,.{decimals}f}" for v in values} | {f"{v / 1000:,.{decimals}f}" for v in values}
+            assert figure in shown, f"README, {what}: {figure} is not in {path}"
+
+
+def test_the_readme_measured_section_has_no_figure_outside_the_written_table() -> None:
+    around = MEASURED.replace(generated(README), "")
+    assert FIGURE.findall(around) == []
+
+
+@pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="not a git checkout")
+def test_the_results_files_behind_the_figures_are_not_git_ignored() -> None:
+    for figure in measurements.FIGURES:
+        assert (ROOT / figure.source).is_file(), figure.source
+        ignored = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "-q", figure.source], check=False)
+        assert ignored.returncode == 1, f"{figure.source} is git-ignored: the README would quote a file it does not ship"
