@@ -26,8 +26,8 @@ test: $(STAMP) lint
 	@{ command -v redis-server && command -v chromium; } >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Every benchmark -> bench/results/*.json (keep a run the docs quote in a dated subfolder: bench/measurements.py) (about 30 min, and bench_scaling 549 s on 2
-# loaded cores; accuracy apart).
+# Every benchmark -> bench/results/*.json (about 30 min, and bench_scaling 549 s on 2 loaded cores; accuracy apart).
+# A run the docs quote is kept in a dated subfolder of bench/results and named in bench/measurements.py.
 bench: $(STAMP)
 	$(BIN)/python bench/bench_step.py
 	$(BIN)/python bench/bench_detector.py
