@@ -6,6 +6,7 @@ from arcloud.core.fusion import (
     VOTE_STEP,
     find_duplicates,
     fuse_detection,
+    label_votes,
     merge_objects,
     new_object,
     object_label_index,
@@ -13,7 +14,7 @@ from arcloud.core.fusion import (
     vote_of,
 )
 from arcloud.core.gravity import Gravity, up_rotation
-from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection
+from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection, empty_object
 from arcloud.core.voxels import pack_keys
 
 
@@ -35,6 +36,17 @@ def test_fusion_adds_weights_and_votes_and_label_is_the_mode():
     assert obj.weights.max() == 3 and obj.weights.min() == 2
     assert object_label_index(obj) == CLASS_INDEX["chair"]
     assert obj.score_sum == pytest.approx(2.3)
+
+
+def test_label_votes_sum_each_class_over_the_voxels_most_first_without_empty_classes():
+    keys = block((0, 0, 0), (4, 4, 4))  # 64 voxels
+    obj = new_object(1, det("couch", keys, 0.5), "a", 0.0)
+    obj = fuse_detection(obj, det("chair", keys), "b")
+    obj = fuse_detection(obj, det("chair", keys[:32]), "b")
+    votes = label_votes(obj)
+    assert list(votes) == ["chair", "couch"]  # most first, not in the order first voted
+    assert votes == {"chair": 96 * float(vote_of(0.9)), "couch": 64 * float(vote_of(0.5))}
+    assert label_votes(empty_object(2)) == {}  # no voxel, no vote
 
 
 def test_votes_come_in_steps_so_their_sums_do_not_depend_on_the_order_of_frames():

@@ -28,6 +28,8 @@ from svc_helpers import (
     wait_until,
 )
 
+from arcloud.client.results import ObjectDetail, from_json
+from arcloud.core.types import Detection, Frame
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
 from arcloud.stores.memory import MemoryStore
@@ -85,6 +87,34 @@ def test_frames_by_protobuf_and_multipart_become_one_object(client: AppClient) -
     assert centers.shape == (obj["n_voxels"], 3) and len(detail["voxels"]["weights"]) == obj["n_voxels"]
     assert np.all(centers >= np.array(obj["aabb"]["min"]) - 0.05) and np.all(centers <= np.array(obj["aabb"]["max"]) + 0.05)
     assert client.get(f"/v1/maps/m/objects/{obj['id']}").json() == {**detail, "voxels": None}  # the same object, no voxels
+
+
+class SometimesTable(BlobDetector):
+    """``BlobDetector``'s chair, called a table in the frames of ``table_on``."""
+
+    def __init__(self, table_on: set[str]) -> None:
+        super().__init__()
+        self.table_on = table_on
+
+    def detect(self, frame: Frame) -> list[Detection]:
+        found = super().detect(frame)
+        return [Detection("table", d.score, d.mask) for d in found] if frame.frame_id in self.table_on else found
+
+
+def test_one_object_shows_the_votes_for_each_label_behind_its_label() -> None:
+    detector = SometimesTable({"f000006", "f000007"})
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=detector)) as client:
+        for i in range(8):  # 6 frames call it a chair, 2 a table
+            assert client.post("/v1/maps/v/frames", files=multipart_parts(make_test_frame(i, map_id="v"))).status_code == 202
+        wait_until(lambda: processed(client, "v") == 8, 20, "8 frames processed")
+        (obj,) = client.get("/v1/maps/v/objects", params=TENTATIVE).json()["objects"]
+        assert obj["n_frames"] == 8 and "label_votes" not in obj  # a list's objects are read without their voxels
+        detail = client.get(f"/v1/maps/v/objects/{obj['id']}").json()
+    votes = detail["label_votes"]
+    assert detail["label"] == "chair" and list(votes) == ["chair", "table"]  # most first; no other class voted
+    assert 2 * votes["table"] < votes["chair"] < 4 * votes["table"]  # three times the frames, about the same voxels
+    typed = from_json(ObjectDetail, detail)  # the SDK's result
+    assert typed.label_votes == votes and typed.label == "chair"
 
 
 def test_meta_may_be_a_text_field(client: AppClient) -> None:

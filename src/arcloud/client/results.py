@@ -12,7 +12,7 @@ from __future__ import annotations
 import types
 import typing
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Literal, TypeVar
 
 from arcloud.errors import ArcloudError
@@ -64,6 +64,8 @@ class ObjectOut:
 class ObjectDetail(ObjectOut):
     """One object (``GET /v1/maps/{map}/objects/{id}``); ``voxels`` with ``voxels=True``."""
 
+    # class -> its detections' votes summed over the voxels, most first (empty from a service before label votes)
+    label_votes: Mapping[str, float] = field(default_factory=dict)
     voxels: Voxels | None = None
 
 

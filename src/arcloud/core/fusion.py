@@ -9,7 +9,7 @@ import numpy as np
 
 from arcloud.core.associate import index_bounds_of_sets, overlap_matrix, stored_index_bounds_of
 from arcloud.core.floor import add_votes
-from arcloud.core.types import CLASS_INDEX, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
+from arcloud.core.types import CLASS_INDEX, CLASSES, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
 from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, keys_extent, mean_colors, sorted_unique, unpack_keys
 
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
@@ -188,6 +188,16 @@ def object_label_index(obj: MapObject, voxel_labels: np.ndarray | None = None) -
     if voxel_labels is None:
         voxel_labels = obj.votes.argmax(axis=1)
     return int(np.bincount(voxel_labels, weights=obj.weights, minlength=N_CLASSES).argmax())
+
+
+def label_votes(obj: MapObject) -> dict[str, float]:
+    """The object's label votes summed over its voxels, by class name, most first (ties in ``CLASSES`` order);
+    classes without a vote left out. Each detection voted its score (times how well its view saw the object) in
+    every voxel it covered. The label is the class most of the object's occupancy votes for, voxel by voxel
+    (``object_label_index``): usually, not always, the first class here."""
+    totals = obj.votes.sum(axis=0, dtype=np.float64)
+    order = sorted(range(N_CLASSES), key=lambda i: -totals[i])
+    return {CLASSES[i]: float(totals[i]) for i in order if totals[i] > 0}
 
 
 def current_label_index(obj: MapObject, changed: bool = True) -> int:

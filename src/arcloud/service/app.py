@@ -55,6 +55,7 @@ from starlette.routing import Match, Route
 
 from arcloud import __version__
 from arcloud.core.checks import MAX_COORDINATE_M, check_id, check_map_id
+from arcloud.core.fusion import label_votes
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
@@ -354,8 +355,8 @@ def list_objects(
     responses=PROBLEM_RESPONSES,
     tags=["objects"],
     summary="One object",
-    description="Any object of the map, confirmed or tentative (see its `status`): an id a client holds keeps answering "
-    "while the object exists.",
+    description="Any object of the map, confirmed or tentative (see its `status`), with the votes for each label behind "
+    "its `label`: an id a client holds keeps answering while the object exists.",
 )
 def get_object(
     map_id: MapId,
@@ -364,11 +365,11 @@ def get_object(
     voxels: Annotated[bool, Query(description="add voxel centres (m), occupancy weights and mean colours")] = False,
 ) -> dict[str, Any]:
     known_map(runtime, map_id)
-    found: list[Any] = runtime.store.get(map_id, [object_id]) if voxels else runtime.store.object_meta(map_id, [object_id])
+    found = runtime.store.get(map_id, [object_id])  # with its voxels: the label votes are theirs
     if not found:
         raise HTTPException(404, f"object {object_id} not found in map {map_id!r}")
     obj = found[0]
-    out = object_out(obj)
+    out = object_out(obj) | {"label_votes": label_votes(obj)}
     if voxels:
         size = runtime.params.voxel_size_m
         out["voxels"] = {

@@ -152,26 +152,24 @@ class Voxels(BaseModel):
     )
 
 
+#: An object as the API writes it: ObjectOut's example, and ObjectDetail's with its label votes
+OBJECT_EXAMPLE: dict[str, Any] = {
+    "id": 7,
+    "label": "chair",
+    "score": 0.83,
+    "aabb": {"min": [1.2, 0.4, 0.0], "max": [1.7, 0.95, 0.92]},
+    "obb": {"center": [1.45, 0.67, 0.46], "size": [0.5, 0.52, 0.92], "yaw_rad": 0.31},
+    "version": 12,
+    "updated_at": "2025-01-01T12:00:00.250000Z",
+    "n_voxels": 1380,
+    "n_frames": 11,
+    "n_devices": 2,
+    "status": "confirmed",
+}
+
+
 class ObjectOut(BaseModel):
-    model_config = ConfigDict(
-        json_schema_extra={
-            "examples": [
-                {
-                    "id": 7,
-                    "label": "chair",
-                    "score": 0.83,
-                    "aabb": {"min": [1.2, 0.4, 0.0], "max": [1.7, 0.95, 0.92]},
-                    "obb": {"center": [1.45, 0.67, 0.46], "size": [0.5, 0.52, 0.92], "yaw_rad": 0.31},
-                    "version": 12,
-                    "updated_at": "2025-01-01T12:00:00.250000Z",
-                    "n_voxels": 1380,
-                    "n_frames": 11,
-                    "n_devices": 2,
-                    "status": "confirmed",
-                }
-            ]
-        }
-    )
+    model_config = ConfigDict(json_schema_extra={"examples": [OBJECT_EXAMPLE]})
 
     id: int
     label: str
@@ -190,6 +188,24 @@ class ObjectOut(BaseModel):
 
 
 class ObjectDetail(ObjectOut):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    **OBJECT_EXAMPLE,
+                    "label_votes": {"chair": 412.5, "table": 38.25},
+                    "voxels": None,
+                }
+            ]
+        }
+    )
+
+    label_votes: dict[str, float] = Field(
+        description="the evidence for each label: the detections' label votes (score times how well the view saw the "
+        "object, in every voxel a detection covered) summed over the object's voxels, most first; classes without "
+        "votes left out. The label is the class most of the object's occupancy votes for, voxel by voxel: usually, "
+        "not always, the first here"
+    )
     voxels: Voxels | None = Field(None, description="present with ?voxels=true")
 
 
