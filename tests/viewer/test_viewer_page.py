@@ -307,6 +307,10 @@ def test_the_details_follow_the_selected_objects_updates(page: Any, service: Ser
     wait_drawn(page, 1)
     assert page.evaluate(f"window.arcloudViewer.select({chair['id']})") is True
     assert details(page)["frames"] == str(chair["n_frames"])
+    votes = service.http.get(f"/v1/maps/picked/objects/{chair['id']}").json()["label_votes"]
+    assert list(votes) == ["chair"] and votes["chair"] > 0  # SidedDetector: a chair left of the centre, every frame
+    page.wait_for_function("document.querySelector('#details dd[data-field=votes]').textContent === 'chair 1.00'")
     service.post("picked", 1, level=True, boxes=(LEFT,))  # an upsert event of the selected object
     page.wait_for_function(f"document.querySelector('#details dd[data-field=frames]').textContent === '{chair['n_frames'] + 1}'")
+    page.wait_for_function("document.querySelector('#details dd[data-field=votes]').textContent === 'chair 1.00'")
     assert page.evaluate("document.body.dataset.selected") == str(chair["id"])

@@ -40,6 +40,7 @@ const state = {
   showVoxels: true, // the room's points
   showCameras: true,
   selected: null, // id of the object whose details show
+  labelVotes: new Map(), // id -> { asked, version, votes } of GET .../objects/{id}: the selected object's label votes
   userMoved: false, // the view follows the map until the user moves it
   connection: null, // AbortController of the open stream
 };
@@ -309,7 +310,8 @@ function fitView() {
   controls.update();
 }
 
-// --- the selected object: its details, from the events (the fields of GET v1/maps/{map}/objects/{id}) ------
+// --- the selected object: its details, from the events (the fields of GET v1/maps/{map}/objects/{id}), and its
+// label votes, which the events do not carry: read from that route for each version the details show -----------
 function select(id) {
   state.selected = state.objects.has(id) ? id : null;
   for (const group of boxes.children) markSelected(group);
@@ -340,6 +342,7 @@ function showDetails() {
     ["devices", o.n_devices],
     ["voxels", o.n_voxels],
     ["box (m)", size ? size.map((v) => v.toFixed(2)).join(" × ") : "none"],
+    ["votes", labelVotesText(o)],
     ["version", o.version],
     ["updated", o.updated_at ?? "unknown"],
   ];
@@ -353,6 +356,31 @@ function showDetails() {
       return [term, text];
     }),
   );
+}
+
+// Each class's share of the object's label votes, most first ("chair 0.92, table 0.08"); "…" while they are read.
+function labelVotesText(o) {
+  const entry = state.labelVotes.get(o.id);
+  if (!entry || (entry.version < o.version && !(entry.loading && entry.asked === o.version))) loadLabelVotes(o);
+  if (!entry?.votes) return entry?.failed ? "unavailable" : "…";
+  const total = Object.values(entry.votes).reduce((sum, v) => sum + v, 0);
+  const shares = Object.entries(entry.votes).map(([name, v]) => `${name} ${(v / total).toFixed(2)}`);
+  return shares.join(", ") || "none";
+}
+
+async function loadLabelVotes(o) {
+  const previous = state.labelVotes.get(o.id);
+  state.labelVotes.set(o.id, { ...previous, asked: o.version, version: previous?.version ?? -1, loading: true });
+  try {
+    const response = await fetch(`v1/maps/${encodeURIComponent(state.map)}/objects/${o.id}`, { cache: "no-store" });
+    if (!response.ok) throw new Error(`label votes of object ${o.id}: HTTP ${response.status}`);
+    const detail = await response.json(); // its version may be newer than the events' yet: kept until they catch up
+    state.labelVotes.set(o.id, { asked: o.version, version: detail.version, votes: detail.label_votes });
+  } catch (error) {
+    console.warn(error);
+    state.labelVotes.set(o.id, { asked: o.version, version: o.version, failed: true }); // asked again when it changes
+  }
+  if (state.selected === o.id) showDetails();
 }
 
 // A click (a pointer that went down and up in place) on a label picks its object, else the nearest box face
@@ -525,6 +553,7 @@ function handle(name, data) {
     redrawObject(data);
   } else if (name === "removed") {
     state.objects.delete(data.id);
+    state.labelVotes.delete(data.id);
     redrawObject({ id: data.id });
   } else if (name === "device") {
     state.devices.set(data.device_id, data);
@@ -578,6 +607,7 @@ async function connect() {
   state.connection = controller;
   state.objects.clear();
   state.devices.clear();
+  state.labelVotes.clear();
   redrawAll();
   refresh();
   while (!controller.signal.aborted) {
