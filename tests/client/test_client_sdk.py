@@ -102,6 +102,7 @@ def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
         assert obj.aabb is not None and client.list_objects("c1", bbox=(*obj.aabb.min, *obj.aabb.max))[0].id == obj.id
         detail = client.get_object("c1", obj.id, voxels=True)
         assert detail.voxels is not None and len(detail.voxels.centers) == obj.n_voxels
+        assert list(detail.label_votes) == ["chair"] and detail.label_votes["chair"] > 0  # every frame a chair
 
         with pytest.raises(ServiceError) as refused:
             client.send_frame(make_test_frame(2, map_id="other"), map_id="c1")  # body and path disagree
