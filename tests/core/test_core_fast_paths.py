@@ -16,7 +16,6 @@ from arcloud.core.boxes import (
     at_least,
     at_least_floats,
     convex_hull_2d,
-    dilate_cube,
     fit_aabb,
     fit_gravity_obb,
     fit_voxels_aabb,
@@ -130,16 +129,6 @@ def test_erode_is_binary_erosion_with_background_outside():
         radius = int(rng.integers(0, 4))
         plain = ndimage.binary_erosion(mask, np.ones((2 * radius + 1,) * 2, bool), border_value=0) if radius else mask
         assert np.array_equal(erode(mask, radius), plain)
-
-
-def test_dilate_cube_is_binary_dilation_with_the_full_structure_repeated():
-    rng = np.random.default_rng(21)
-    for _ in range(CASES):
-        shape = tuple(int(n) for n in rng.integers(1, 12, size=int(rng.integers(2, 4))))
-        grid = rng.random(shape) < rng.uniform(0.01, 0.3)
-        radius = int(rng.integers(1, 4))
-        plain = ndimage.binary_dilation(grid, structure=np.ones((3,) * grid.ndim, bool), iterations=radius)
-        assert np.array_equal(dilate_cube(grid, radius), plain)
 
 
 def test_erode_sampled_is_erode_then_sampled():

@@ -35,8 +35,8 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     """(N,) bool: the voxels the boxes are fitted to. Keeps voxels that were mostly covered when
     visible (occupancy weights / seen >= ``box_min_occupancy``) and not hit too rarely compared with
     the object's well-observed voxels (``box_rel_weight`` of the 90th percentile weight), then drops
-    connected parts (26-neighbourhood, each voxel grown by ``component_gap_voxels`` first: parts up to
-    twice that apart are one) smaller than ``min_component_fraction`` of the largest."""
+    connected parts smaller than ``min_component_fraction`` of the largest (26-neighbourhood, connected
+    through any of the object's voxels, kept or not; sizes count kept voxels)."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
     return _box_voxel_mask(obj, params, unpack_keys(obj.keys))
@@ -59,12 +59,13 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
     shape = (top - origin + 1).tolist()
     if math.prod(shape) > MAX_COMPONENT_GRID_CELLS:
         return keep
-    gap = params.component_gap_voxels
-    grid = np.zeros([n + 2 * gap for n in shape], bool)
-    local = ijk - origin + gap
-    grid[local[:, 0], local[:, 1], local[:, 2]] = True
-    if gap:  # a voxel or two short of the occupancy rule (which the frames' order decides) splits nothing
-        grid = dilate_cube(grid, gap)
+    # Parts are found over all the object's voxels in that extent: a voxel short of the occupancy rule (which
+    # the frames' order decides) still joins the parts it touches; empty space does not.
+    grid = np.zeros(shape, bool)
+    local_all = ijk_all - origin
+    inside = np.all((local_all >= 0) & (local_all < np.array(shape)), axis=1)
+    grid[tuple(local_all[inside].T)] = True
+    local = ijk - origin
     labelled, n_parts = ndimage.label(grid, structure=_CONNECTIVITY_26)
     if n_parts > 1:
         part = labelled[local[:, 0], local[:, 1], local[:, 2]]
@@ -74,24 +75,6 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
         kept_idx = np.flatnonzero(keep)
         keep[kept_idx[~large[part]]] = False
     return keep
-
-
-def dilate_cube(grid: np.ndarray, radius: int) -> np.ndarray:
-    """A bool grid (any dimensions) dilated by the cube of side ``2 * radius + 1`` (outside the grid counts
-    as empty): ``ndimage.binary_dilation`` with the full 3 x ... x 3 structure and ``iterations=radius`` (its
-    plain version; a test holds them equal). The cube is separable, so it is an OR of shifted slices along
-    one axis, then the next: a fraction of the plain version's cost (0.13 ms against 2 ms on a 42 x 38 x 30
-    grid), which visits every cell's whole neighbourhood."""
-    out = grid
-    for axis in range(grid.ndim):
-        src, out = out, out.copy()
-        n = src.shape[axis]
-        for shift in range(1, min(radius, n - 1) + 1):
-            before = (slice(None),) * axis + (slice(0, n - shift),)
-            after = (slice(None),) * axis + (slice(shift, n),)
-            out[before] |= src[after]
-            out[after] |= src[before]
-    return out
 
 
 def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:

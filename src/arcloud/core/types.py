@@ -338,7 +338,6 @@ class Params:
     box_rel_weight: float = 0.05
     box_min_occupancy: float = 0.4
     min_component_fraction: float = 0.2
-    component_gap_voxels: int = 1  # parts grown by this many voxels before they are found: up to twice as far apart is one part
     merge_min_overlap: float = 0.3
     merge_min_box_containment: float = 0.6
     score_support_frames: float = 3.0
@@ -480,7 +479,6 @@ _PARAM_KINDS: dict[str, str] = {
             "floor_min_samples",
             "floor_min_votes",
             "floor_ring_min_seen",
-            "component_gap_voxels",
         ),
         "count",
     ),
