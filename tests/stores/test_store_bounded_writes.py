@@ -10,13 +10,12 @@ from __future__ import annotations
 import io
 import json
 import logging
-import threading
 import time
 import zipfile
 
 import numpy as np
 import pytest
-import redis
+from ping_watch import PING_BOUND_S, PingWatch
 from redis_server import RedisServer
 from store_cases import MAP, VOXEL_M, make_object
 
@@ -30,7 +29,6 @@ from arcloud.stores.cells import MAX_LOCKS_PER_CALL, MAX_OBJECT_CELLS, MAX_SCRIP
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.snapshot import FORMAT, restore_batches, restore_bytes
 
-PING_BOUND_S = 0.1
 EDGE = round(MAX_OBJECT_CELLS ** (1 / 3))  # cells along each axis of an object at the limit: 16
 
 
@@ -135,40 +133,6 @@ def test_a_restore_commits_in_batches_bounded_in_objects_cells_and_voxels() -> N
 
 
 # --- Redis: another client is answered throughout ------------------------------------------------------------------
-class PingWatch:
-    """Another client's PING every 5 ms in a thread, each round trip timed: ``max_s`` is the longest."""
-
-    def __init__(self, url: str) -> None:
-        self.client = redis.Redis.from_url(url, socket_timeout=30)
-        self.client.ping()
-        self.client.config_set("slowlog-log-slower-than", 10_000)  # and Redis's own account: commands of 10 ms and more
-        self.client.slowlog_reset()
-        self.times_s: list[float] = []
-        self.longest_command_s = 0.0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._watch, name="ping-watch", daemon=True)
-
-    def _watch(self) -> None:
-        while not self._stop.wait(0.005):
-            sent = time.perf_counter()
-            self.client.ping()
-            self.times_s.append(time.perf_counter() - sent)
-
-    def __enter__(self) -> PingWatch:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(60)
-        self.longest_command_s = max((e["duration"] / 1e6 for e in self.client.slowlog_get(1000)), default=0.0)
-        self.client.close()
-
-    @property
-    def max_s(self) -> float:
-        return max(self.times_s)
-
-
 @pytest.mark.redis
 @pytest.mark.slow
 def test_a_large_restore_and_deleting_its_map_never_hold_redis(
