@@ -32,7 +32,7 @@ from arcloud.access import ApiKey, ViewerGrant
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
 from arcloud.core.types import AABB, OBB, Frame, MapObject, Params
-from arcloud.errors import ArcloudError, InvalidInput
+from arcloud.errors import ArcloudError, InvalidInput, StoreError
 
 __all__ = [
     "LATENCY_BUCKETS_S",
@@ -44,6 +44,8 @@ __all__ = [
     "Histogram",
     "KeyStore",
     "MapArchive",
+    "MapBeingDeleted",
+    "MapDeletion",
     "Lease",
     "MapStore",
     "NullPublisher",
@@ -106,6 +108,41 @@ class RetiredObject:
     retired_at_s: float
 
 
+#: How long a store keeps the record of a map's deletion after its last progress (``ObjectStore.map_deletion``):
+#: a client polling it sees it end, and a deletion whose process died stops refusing the map's frames after it.
+DELETION_KEPT_S = 86400.0
+
+
+@dataclass(frozen=True, slots=True)
+class MapDeletion:
+    """A map's deletion as the store records it while ``ObjectStore.delete_map`` runs and ``DELETION_KEPT_S``
+    after: the objects the map held when it began, how many of them and how many store keys are gone (keys:
+    Redis's objects, index cells, leases; 0 embedded), when it began, last went on and ended (Unix s)."""
+
+    map_id: str
+    objects: int
+    objects_removed: int
+    keys_removed: int
+    started_at_s: float
+    updated_at_s: float
+    finished_at_s: float | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.finished_at_s is not None
+
+
+class MapBeingDeleted(StoreError):
+    """The map is being deleted (``deletion`` says how far it got): its frames and reads are refused until
+    it is done (HTTP 409)."""
+
+    def __init__(self, deletion: MapDeletion) -> None:
+        self.deletion = deletion
+        super().__init__(
+            f"map {deletion.map_id} is being deleted: {deletion.objects_removed} of {deletion.objects} objects removed"
+        )
+
+
 class ObjectStore(MapStore, Protocol):
     """A ``MapStore`` with what a service needs beside the step: listing, counting, deleting, health.
 
@@ -128,7 +165,13 @@ class ObjectStore(MapStore, Protocol):
         ...
 
     def delete_map(self, map_id: str) -> int:
-        """Remove a map and everything under it; returns the number of objects removed."""
+        """Remove a map and everything under it; returns the number of objects removed. The map leaves the
+        list and loses its header first, then its objects go a bounded batch at a time, the progress recorded
+        (``map_deletion``); called again on a map whose deletion stopped half way, it goes on."""
+        ...
+
+    def map_deletion(self, map_id: str) -> MapDeletion | None:
+        """The map's deletion, going on or ended within ``DELETION_KEPT_S``; None when there is none."""
         ...
 
     def count_frames(self, map_id: str) -> int:

@@ -433,6 +433,17 @@ def test_delete_map_removes_only_that_map(store) -> None:
     assert store.delete_map("never-made") == 0
 
 
+def test_a_deletion_is_recorded_as_done_with_the_objects_it_removed(store) -> None:
+    store.commit(MAP, [], [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2, 3)], [], frame_key="dev/f1")
+    assert store.map_deletion(MAP) is None
+    assert store.delete_map(MAP) == 3
+    deletion = store.map_deletion(MAP)
+    assert deletion is not None and deletion.done and deletion.map_id == MAP
+    assert (deletion.objects, deletion.objects_removed) == (3, 3)
+    assert deletion.started_at_s <= deletion.updated_at_s == deletion.finished_at_s
+    assert store.map_deletion("map-b") is None
+
+
 def test_the_first_header_of_a_map_stays_until_the_map_is_deleted(store) -> None:
     first = MapHeader.from_params(Params(), codec_version=2, created_at_s=1.0)
     other = MapHeader.from_params(Params(voxel_size_m=0.04), codec_version=2, created_at_s=2.0)

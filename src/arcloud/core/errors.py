@@ -13,7 +13,8 @@
         ├── StaleLease           a write whose lock expired or whose object changed since it was read
         │                        (fencing): nothing was written
         ├── StoreUnavailable     the store's server cannot be reached
-        └── MapMismatch          a map was built with other settings (voxel size, up, ...) than ours
+        ├── MapMismatch          a map was built with other settings (voxel size, up, ...) than ours
+        └── MapBeingDeleted      the map's deletion is under way (``arcloud.ports``; HTTP 409)
 
 Adapters map their library's exceptions to these at the boundary (``raise StoreUnavailable(...) from exc``).
 """

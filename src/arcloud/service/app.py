@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from contextlib import asynccontextmanager
 from functools import partial
@@ -59,12 +60,12 @@ from arcloud.core.fusion import label_votes
 from arcloud.core.types import CLASSES
 from arcloud.core.voxels import key_centers
 from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
-from arcloud.ports import MapArchive, ObjectMeta, QueueFull
+from arcloud.ports import MapArchive, MapBeingDeleted, MapDeletion, ObjectMeta, QueueFull
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
 from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_from_store, voxel_colors_out
 from arcloud.service.logs import bind_log_context
-from arcloud.service.map_header import check_map_header
+from arcloud.service.map_header import check_map_header, check_not_being_deleted
 from arcloud.service.pages import object_page, parse_cursor
 from arcloud.service.problems import PROBLEM_TYPES, TYPE_PREFIX, problem_openapi, problem_response
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
@@ -75,6 +76,7 @@ from arcloud.service.schemas import (
     FrameState,
     Health,
     MapDeleted,
+    MapDeletionProgress,
     MapList,
     MapRestored,
     MapStats,
@@ -165,6 +167,7 @@ def known_map(runtime: Runtime, map_id: str, *, same_settings: bool = True) -> s
     (else 409; not asked when deleting: removing a map reads none of its data)."""
     check_map_id("map_id", map_id)
     if not runtime.ingest.known_map(map_id) and runtime.store.map_header(map_id) is None:
+        check_not_being_deleted(runtime.store, map_id)  # 409 rather than 404 while its deletion goes on
         raise HTTPException(404, f"map {map_id!r} not found (no frame of it was accepted, nothing restored into it)")
     if same_settings:
         check_map_header(runtime.store, map_id, runtime.params)
@@ -531,6 +534,10 @@ def retired_objects(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     }
 
 
+#: A deletion without progress this long stopped (its process died): DELETE goes on with it instead of 409.
+DELETION_STALE_S = 60.0
+
+
 @router.delete(
     "/v1/maps/{map_id}",
     response_model=MapDeleted,
@@ -538,15 +545,51 @@ def retired_objects(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
     responses=PROBLEM_RESPONSES,
     tags=["maps"],
     summary="Delete a map, its counts and its devices' alignments",
+    description="In bounded steps, each recorded: `GET .../deletion` follows it (from another client too). The map's "
+    "frames and reads answer 409 (`/problems/map-deleting`) from its start until it is done.",
 )
 def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
-    known_map(runtime, map_id, same_settings=False)
+    check_map_id("map_id", map_id)
+    going = runtime.store.map_deletion(map_id)
+    stopped = going is not None and not going.done and time.time() - going.updated_at_s > DELETION_STALE_S
+    if not stopped:  # a stopped deletion goes on whatever is left of the map
+        known_map(runtime, map_id, same_settings=False)  # 409 while another deletion of it goes on
+    runtime.ingest.forget_map(map_id)  # first: the map is unknown to reads (409) while its objects go
     removed = runtime.store.delete_map(map_id)
-    runtime.ingest.forget_map(map_id)
     if runtime.alignments is not None:
         runtime.alignments.forget_map(map_id)
     log.info("map %s deleted (%d objects)", map_id, removed)
     return MapDeleted(map_id=map_id, deleted_objects=removed)
+
+
+@router.get(
+    "/v1/maps/{map_id}/deletion",
+    response_model=MapDeletionProgress,
+    dependencies=[Depends(require("admin"))],
+    responses=PROBLEM_RESPONSES,
+    tags=["maps"],
+    summary="How far the map's deletion got",
+    description="The map's deletion, going on (`deleting`) or ended in the last day (`deleted`); 404 when there is none.",
+)
+def map_deletion(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
+    check_map_id("map_id", map_id)
+    deletion = runtime.store.map_deletion(map_id)
+    if deletion is None:
+        raise HTTPException(404, f"map {map_id!r}: no deletion going on or ended in the last day")
+    return deletion_out(deletion)
+
+
+def deletion_out(deletion: MapDeletion) -> dict[str, Any]:
+    return {
+        "map_id": deletion.map_id,
+        "state": "deleted" if deletion.done else "deleting",
+        "objects": deletion.objects,
+        "objects_removed": deletion.objects_removed,
+        "keys_removed": deletion.keys_removed,
+        "started_at": iso_time(deletion.started_at_s),
+        "updated_at": iso_time(deletion.updated_at_s),
+        "finished_at": iso_time(deletion.finished_at_s) if deletion.finished_at_s is not None else None,
+    }
 
 
 @router.get(
@@ -732,6 +775,15 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     @app.exception_handler(MapMismatch)
     async def map_mismatch(request: Request, exc: MapMismatch) -> Response:
         return problem(request, 409, str(exc), "map_id")
+
+    @app.exception_handler(MapBeingDeleted)
+    async def map_being_deleted(request: Request, exc: MapBeingDeleted) -> Response:
+        going = exc.deletion
+        detail = (
+            f"{exc} (began {iso_time(going.started_at_s)}, last progress {iso_time(going.updated_at_s)}): its frames "
+            f"and reads are refused until GET /v1/maps/{going.map_id}/deletion says deleted"
+        )
+        return problem(request, 409, detail, "map_id", kind="map-deleting")
 
     @app.exception_handler(StoreUnavailable)
     async def store_down(request: Request, exc: StoreUnavailable) -> Response:

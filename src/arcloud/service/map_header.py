@@ -2,7 +2,7 @@
 to write, so the first writer stores the settings the map's data means something under; the API checks
 the header of a map a request reads or writes. Both refuse a map written under other settings with
 ``MapMismatch`` (the API answers 409), so that processes started with different ``Params`` never
-write or read one map two ways."""
+write or read one map two ways; the API refuses a map whose deletion goes on with ``MapBeingDeleted`` (409)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import time
 
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.types import Params
-from arcloud.ports import ObjectStore
+from arcloud.ports import MapBeingDeleted, ObjectStore
 
 
 def open_map_checked(store: ObjectStore, map_id: str, params: Params) -> None:
@@ -25,8 +25,18 @@ def check_map_header(store: ObjectStore, map_id: str, params: Params, *, open_ne
     header = store.map_header(map_id)
     if header is not None:
         check_store_header(store, header, params, map_id)
-    elif open_new:
+        return
+    check_not_being_deleted(store, map_id)
+    if open_new:
         open_map_checked(store, map_id, params)
+
+
+def check_not_being_deleted(store: ObjectStore, map_id: str) -> None:
+    """``MapBeingDeleted`` while the map's deletion goes on. Asked of maps without a header only: a deletion
+    takes the header away first, so a map that has one is not being deleted (no extra read on the common path)."""
+    deletion = store.map_deletion(map_id)
+    if deletion is not None and not deletion.done:
+        raise MapBeingDeleted(deletion)
 
 
 def check_store_header(store: ObjectStore, header: MapHeader, params: Params, map_id: str) -> None:
@@ -41,4 +51,4 @@ def check_store_header(store: ObjectStore, header: MapHeader, params: Params, ma
     )
 
 
-__all__ = ["check_map_header", "open_map_checked"]
+__all__ = ["check_map_header", "check_not_being_deleted", "open_map_checked"]

@@ -82,6 +82,14 @@ PROBLEM_TYPES: dict[str, ProblemType] = {
             "something else here.",
         ),
         ProblemType(
+            "map-deleting",
+            "Map being deleted",
+            (409,),
+            "The map's deletion is under way: its frames and reads are refused until it is done. GET "
+            "/v1/maps/{map_id}/deletion says how far it got (admin keys); a deletion long without progress stopped "
+            "half way, and DELETE goes on with it.",
+        ),
+        ProblemType(
             "too-large",
             "Body too large",
             (413,),

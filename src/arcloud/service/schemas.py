@@ -308,6 +308,19 @@ class MapDeleted(BaseModel):
     deleted_objects: int
 
 
+class MapDeletionProgress(BaseModel):
+    """``GET /v1/maps/{map}/deletion``: a map's deletion, going on (``deleting``) or ended (``deleted``)."""
+
+    map_id: str
+    state: Literal["deleting", "deleted"]
+    objects: int = Field(description="objects the map held when its deletion began")
+    objects_removed: int
+    keys_removed: int = Field(description="store keys removed so far (Redis: objects, index cells, leases; 0 embedded)")
+    started_at: str
+    updated_at: str = Field(description="when it last went on: a `deleting` one long unchanged stopped (DELETE goes on)")
+    finished_at: str | None
+
+
 class Problem(BaseModel):
     """Every 4xx/5xx body: an RFC 9457 problem, ``application/problem+json`` (``service.problems``): its ``type``
     (a URI reference: ``GET`` it for the type's description) and ``title``, the ``status``, what was wrong

@@ -30,6 +30,8 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:alignments:{m}          HASH    device id -> its ``device_from_map`` (JSON, 16 numbers row-major;
                                             ``redis_alignments``): outside ``map_pattern``, so that deleting the
                                             map's objects leaves it (the API's map deletion forgets it)
+    arcloud:deletion:{m}            STRING  the map's deletion (``ports.MapDeletion`` JSON) while ``delete_map`` runs,
+                                            then ``DELETION_KEPT_S`` (EX, renewed as it goes on): outside ``map_pattern``
 
 Ingest shards (``arcloud.stores.redis_queue``): the frame queue is ``n`` shards (the setting ``ingest_shards``,
 pinned in Redis), a map's frames going to shard ``k = shard_of(map_id, n)``. Every key of shard ``k`` carries
@@ -152,6 +154,16 @@ def header_key(map_id: str) -> str:
 def alignments_key(map_id: str) -> str:
     """The map's device alignments (``stores.redis_alignments``): the map's hash tag, not its prefix."""
     return f"{PREFIX}:alignments:{{{map_id}}}"
+
+
+def deletion_key(map_id: str) -> str:
+    """The map's deletion record (``RedisStore.delete_map``): the map's hash tag, not its prefix."""
+    return f"{PREFIX}:deletion:{{{map_id}}}"
+
+
+def cell_keys_listed(map_id: str, cells_field: str) -> list[str]:
+    """The index cell keys an object hash's ``cells`` field names (\"i:j:k i:j:k ...\")."""
+    return [f"{map_prefix(map_id)}:{CELL}:{name}" for name in cells_field.split()]
 
 
 def object_key(map_id: str, object_id: int) -> str:

@@ -27,8 +27,10 @@ from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
 from arcloud.ports import (
     DEFAULT_FRAME_RECORD_RETENTION_S,
     DEFAULT_RETIRED_HISTORY_S,
+    DELETION_KEPT_S,
     RECORDS_SWEPT_PER_CALL,
     RETIRED_HISTORY_MAX_PER_MAP,
+    MapDeletion,
     ObjectMeta,
     RetiredObject,
 )
@@ -108,6 +110,7 @@ class MemoryStore:
         self._maps: dict[str, _MapState] = {}
         self._headers: dict[str, MapHeader] = {}
         self._updated: dict[str, float] = {}  # map id -> when its objects last changed (Unix s)
+        self._deletions: dict[str, MapDeletion] = {}  # map id -> its deletion, ended at once, kept DELETION_KEPT_S
         self._maps_lock = threading.Lock()
 
     def _map(self, map_id: str) -> _MapState:
@@ -340,11 +343,21 @@ class MemoryStore:
             return sorted(state.objects)
 
     def delete_map(self, map_id: str) -> int:
+        now_s = self._clock()
         with self._maps_lock:
             state = self._maps.pop(map_id, None)
             self._headers.pop(map_id, None)
             self._updated.pop(map_id, None)
-        return 0 if state is None else len(state.objects)
+            n_objects = 0 if state is None else len(state.objects)
+            for old in [m for m, d in self._deletions.items() if d.updated_at_s < now_s - DELETION_KEPT_S]:
+                del self._deletions[old]
+            self._deletions[map_id] = MapDeletion(map_id, n_objects, n_objects, 0, now_s, now_s, finished_at_s=now_s)
+        return n_objects
+
+    def map_deletion(self, map_id: str) -> MapDeletion | None:
+        with self._maps_lock:
+            found = self._deletions.get(map_id)
+        return found if found is not None and found.updated_at_s >= self._clock() - DELETION_KEPT_S else None
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         state = self._map(map_id)

@@ -38,13 +38,15 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   ``RECORDS_SWEPT_PER_CALL`` marks on from where the last one stopped (HSCAN, ``lua/records.lua``) and
   drops the expired ones, so the HASH holds about a retention's frames.
 - ``new_ids``: INCRBY on the map's counter, unique across processes.
-- ``delete_map``: takes the map off the list and unlinks its registries (header, bounds, metadata, id counter,
-  frame marks, history: readers see an empty map at once; large values are freed in Redis's background
-  thread), then SCANs ``arcloud:{map}:*`` (on every primary of a cluster) and unlinks what it finds
-  (objects, index cells, leases) ``DELETE_BATCH`` keys a call, logging its progress every
-  ``PROGRESS_LOG_S``: Redis answers others between calls whatever the map holds (one script deleting a
-  map of 5 million index cells held Redis 9 s). Not atomic against writers of the same map that run at the
-  same time.
+- ``delete_map``: records the deletion (``arcloud:deletion:{map}``, ``map_deletion`` reads it), takes the map off
+  the list and unlinks its header (the map is unknown from then on, and the API refuses its frames), then
+  deletes its objects ``DELETE_OBJECTS`` at a time (HSCAN of the bounds registry: each object's hash and the
+  index cells it lists, ``DELETE_BATCH`` keys a call, then its registry fields), recording how far it got after
+  each step, then unlinks the registries and SCANs ``arcloud:{map}:*`` (on every primary of a cluster) for what
+  is left (frame marks, leases, what writers added meanwhile), logging its progress every ``PROGRESS_LOG_S``:
+  Redis answers others between calls whatever the map holds (one script deleting a map of 5 million index cells
+  held Redis 9 s). Not atomic against writers of the same map that run at the same time; called again after a
+  deletion stopped half way (its process died), it goes on from what is left.
 
 How long a call may take: ``reply_timeout_s`` bounds each wait for a reply or a connection (workers
 30 s; the API ``api_redis_timeout_s``, 2 s, so that a hung Redis answers ``StoreUnavailable`` within
@@ -75,6 +77,7 @@ import math
 import time
 import uuid
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import replace
 from functools import cache
 from importlib import resources
 from typing import Any, cast
@@ -93,8 +96,10 @@ from arcloud.errors import InvalidInput, LockTimeout, StoreError, TooManyCells
 from arcloud.ports import (
     DEFAULT_FRAME_RECORD_RETENTION_S,
     DEFAULT_RETIRED_HISTORY_S,
+    DELETION_KEPT_S,
     RECORDS_SWEPT_PER_CALL,
     RETIRED_HISTORY_MAX_PER_MAP,
+    MapDeletion,
     ObjectMeta,
     RetiredObject,
 )
@@ -111,7 +116,9 @@ WAKE_MAX_S = 0.05  # the longest a lock waiter blocks before trying again (a wak
 GET_BATCH = 256  # objects per pipeline when reading many
 SCAN_COUNT = 1000
 DELETE_BATCH = 1000  # keys a call when deleting a map
+DELETE_OBJECTS = 64  # objects a step of a map's deletion (their hashes and index cells, DELETE_BATCH keys a call)
 PROGRESS_LOG_S = 5.0  # a long deletion says how far it got this often
+DELETION_FIELDS = ("objects", "objects_removed", "keys_removed", "started_at_s", "updated_at_s", "finished_at_s")
 
 
 #: URL schemes of a Redis Cluster: ``redis+cluster://[[user]:password@]host:port[,host:port...][/0]`` (any node of
@@ -532,42 +539,94 @@ class RedisStore:
         return [RetiredObject(meta, at) for meta, (_, at, _) in zip(decoded, kept)]
 
     def delete_map(self, map_id: str) -> int:
-        registries = [
-            keys.header_key(map_id),
-            keys.bounds_key(map_id),
-            keys.meta_key(map_id),
-            keys.ids_key(map_id),
-            keys.processed_key(map_id),
-            keys.processed_count_key(map_id),
-            keys.processed_sweep_key(map_id),
-            keys.retired_key(map_id),
-            keys.retired_at_key(map_id),
-        ]
         started = last_log = time.monotonic()
-        removed_keys = 0
         with redis_errors(f"delete_map {map_id}", self._where):
             n_objects = int(self.client.hlen(keys.bounds_key(map_id)))
+            going = self._record_deletion(MapDeletion(map_id, n_objects, 0, 0, self._clock(), self._clock()))
             self.client.hdel(keys.MAPS, map_id)
-            removed_keys += int(self.client.unlink(*registries))  # one slot: the map's tag
+            self.client.unlink(keys.header_key(map_id))  # from here the map is unknown and its deletion refuses frames
+            ids: list[bytes] = []
+            for object_id, _ in self.client.hscan_iter(keys.bounds_key(map_id), count=DELETE_OBJECTS):
+                ids.append(object_id)
+                if len(ids) == DELETE_OBJECTS:
+                    going, ids = self._delete_objects(going, ids), []
+                    if time.monotonic() - last_log >= PROGRESS_LOG_S:
+                        last_log = time.monotonic()
+                        log.info(
+                            "map %s: deleting, %d of %d objects removed (%d keys) in %.0f s",
+                            map_id,
+                            going.objects_removed,
+                            n_objects,
+                            going.keys_removed,
+                            last_log - started,
+                        )
+            if ids:
+                going = self._delete_objects(going, ids)
+            # What is left: the registries, then by SCAN frame marks, leases and what writers added meanwhile.
+            registries = [
+                keys.bounds_key(map_id),
+                keys.meta_key(map_id),
+                keys.ids_key(map_id),
+                keys.processed_key(map_id),
+                keys.processed_count_key(map_id),
+                keys.processed_sweep_key(map_id),
+                keys.retired_key(map_id),
+                keys.retired_at_key(map_id),
+            ]
+            removed_keys = int(self.client.unlink(*registries))  # one slot: the map's tag
             batch: list[bytes] = []
             for key in self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT):
                 batch.append(key)
                 if len(batch) == DELETE_BATCH:
                     removed_keys += int(self.client.unlink(*batch))
                     batch = []
-                    if time.monotonic() - last_log >= PROGRESS_LOG_S:
-                        last_log = time.monotonic()
-                        log.info(
-                            "map %s: deleting, %d keys removed in %.0f s (%d objects)",
-                            map_id,
-                            removed_keys,
-                            last_log - started,
-                            n_objects,
-                        )
+                    going = self._record_deletion(replace(going, keys_removed=going.keys_removed + removed_keys))
+                    removed_keys = 0
             if batch:
                 removed_keys += int(self.client.unlink(*batch))
-        log.info("map %s deleted: %d objects, %d keys in %.1f s", map_id, n_objects, removed_keys, time.monotonic() - started)
+            going = self._record_deletion(replace(going, keys_removed=going.keys_removed + removed_keys), done=True)
+        log.info(
+            "map %s deleted: %d objects, %d keys in %.1f s", map_id, n_objects, going.keys_removed, time.monotonic() - started
+        )
         return n_objects
+
+    def _delete_objects(self, going: MapDeletion, ids: list[bytes]) -> MapDeletion:
+        """One step of a deletion: these objects' hashes and the index cells they list (``DELETE_BATCH`` keys a
+        call), then their registry fields; the deletion recorded as gone that far."""
+        map_id = going.map_id
+        pipe = self.client.pipeline(transaction=False)
+        for object_id in ids:
+            pipe.hget(keys.object_key(map_id, int(object_id)), "cells")
+        doomed = [keys.object_key(map_id, int(object_id)) for object_id in ids]
+        for cells in pipe.execute():
+            if cells:
+                doomed += keys.cell_keys_listed(map_id, cells.decode() if isinstance(cells, bytes) else cells)
+        removed = sum(int(self.client.unlink(*doomed[at : at + DELETE_BATCH])) for at in range(0, len(doomed), DELETE_BATCH))
+        pipe = self.client.pipeline(transaction=False)
+        pipe.hdel(keys.bounds_key(map_id), *ids)
+        pipe.hdel(keys.meta_key(map_id), *ids)
+        pipe.execute()
+        return self._record_deletion(
+            replace(going, objects_removed=going.objects_removed + len(ids), keys_removed=going.keys_removed + removed)
+        )
+
+    def _record_deletion(self, deletion: MapDeletion, *, done: bool = False) -> MapDeletion:
+        """Store ``deletion`` as of now (``done``: ended now) for ``DELETION_KEPT_S``; returns what it stored."""
+        now_s = self._clock()
+        stored = replace(deletion, updated_at_s=now_s, finished_at_s=now_s if done else None)
+        record = {name: getattr(stored, name) for name in DELETION_FIELDS}
+        self.client.set(keys.deletion_key(stored.map_id), json.dumps(record), ex=int(DELETION_KEPT_S))
+        return stored
+
+    def map_deletion(self, map_id: str) -> MapDeletion | None:
+        with redis_errors(f"read the deletion of map {map_id}", self._where):
+            raw = self.client.get(keys.deletion_key(map_id))
+        if raw is None:
+            return None
+        try:
+            return MapDeletion(map_id, **{name: json.loads(raw)[name] for name in DELETION_FIELDS})
+        except (ValueError, KeyError, TypeError) as exc:
+            raise StoreError(f"map {map_id}: the deletion record is not one ({exc})") from exc
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         with redis_errors(f"is_frame_done on map {map_id}", self._where):
