@@ -1,18 +1,27 @@
-"""Objects, frames and thread runners shared by the store tests (and by the child processes they start)."""
+"""Objects, frames, snapshot files and thread runners shared by the store tests (and by the child processes they start,
+and the chaos tests)."""
 
 from __future__ import annotations
 
+import io
+import json
 import threading
+import zipfile
 
 import numpy as np
 
 from arcloud.core.checks import make_frame
+from arcloud.core.header import MapHeader
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import AABB, N_CLASSES, OBB, Detection, MapObject, Params
 from arcloud.core.voxels import keys_bounds, pack_keys
+from arcloud.stores import codec
+from arcloud.stores.cells import MAX_OBJECT_CELLS
+from arcloud.stores.snapshot import FORMAT
 
 VOXEL_M = 0.05
 MAP = "map-a"
+EDGE = round(MAX_OBJECT_CELLS ** (1 / 3))  # index cells along each axis of an object at the limit: 16
 
 
 class Clock:
@@ -141,3 +150,39 @@ def run_steps_in_threads(store, jobs_per_thread: list[list[tuple]], params: Para
         t.join(timeout=45)
     assert not any(t.is_alive() for t in threads), "deadlock: a step did not finish"
     assert errors == []
+
+
+def spread_object(object_id: int, lo_m: tuple[float, float, float], cells_per_axis: int, *, version: int = 1) -> MapObject:
+    """An object of two voxels at opposite corners of a box touching ``cells_per_axis`` ** 3 index cells of 1 m
+    (``lo_m`` on a cell's corner): as small as an object gets in bytes, as large as it gets in index cells."""
+    base = make_object(object_id, lo_m, version=version, seed=object_id)
+    first = np.floor(np.asarray(lo_m) / VOXEL_M).astype(np.int64)
+    last = first + round(cells_per_axis / VOXEL_M) - 2  # its upper corner a voxel short of the last cell's end
+    keys_ = np.sort(pack_keys(np.stack([first, last])))
+    lo, hi = keys_bounds(keys_, VOXEL_M)
+    return base.replace(
+        keys=keys_,
+        weights=base.weights[:2],
+        votes=base.votes[:2],
+        seen=base.seen[:2],
+        colors=base.colors[:2] if base.colors is not None else None,
+        bounds=AABB(lo, hi),
+        aabb=AABB(lo, hi),
+        obb=OBB(center=(lo + hi) / 2, size=hi - lo, rotation=np.eye(3), yaw_rad=0.0),
+    )
+
+
+def snapshot_of(objects: list[MapObject]) -> bytes:
+    """A snapshot file holding ``objects`` as they are (a store would refuse some of them: a crafted file)."""
+    archive = io.BytesIO()
+    header = MapHeader.from_params(Params(), codec_version=codec.FORMAT_VERSION, created_at_s=1.0)
+    with zipfile.ZipFile(archive, "w") as out:
+        document = {"format": FORMAT, "map_id": MAP, "header": header.to_record(), "objects": len(objects)}
+        out.writestr("snapshot.json", json.dumps(document))
+        for obj in objects:
+            out.writestr(f"objects/{obj.id}.meta", codec.encode_meta(obj))
+            out.writestr(
+                f"objects/{obj.id}.voxels",
+                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors),
+            )
+    return archive.getvalue()

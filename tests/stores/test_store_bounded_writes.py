@@ -7,49 +7,22 @@ deleting that map held it 9.0 s again."""
 
 from __future__ import annotations
 
-import io
-import json
 import logging
 import time
-import zipfile
 
 import numpy as np
 import pytest
 from ping_watch import PING_BOUND_S, PingWatch
 from redis_server import RedisServer
-from store_cases import MAP, VOXEL_M, make_object
+from store_cases import EDGE, MAP, make_object, snapshot_of, spread_object
 
-from arcloud.core.header import MapHeader
-from arcloud.core.types import AABB, OBB, MapObject, Params
-from arcloud.core.voxels import keys_bounds, pack_keys
+from arcloud.core.types import Params
 from arcloud.errors import InvalidInput, TooManyCells
-from arcloud.stores import codec, keys, snapshot
+from arcloud.stores import keys, snapshot
 from arcloud.stores import redis as redis_store_module
 from arcloud.stores.cells import MAX_LOCKS_PER_CALL, MAX_OBJECT_CELLS, MAX_SCRIPT_CELLS, count_cells
 from arcloud.stores.redis import RedisStore
-from arcloud.stores.snapshot import FORMAT, restore_batches, restore_bytes
-
-EDGE = round(MAX_OBJECT_CELLS ** (1 / 3))  # cells along each axis of an object at the limit: 16
-
-
-def spread_object(object_id: int, lo_m: tuple[float, float, float], cells_per_axis: int, *, version: int = 1) -> MapObject:
-    """An object of two voxels at opposite corners of a box touching ``cells_per_axis`` ** 3 index cells of 1 m
-    (``lo_m`` on a cell's corner): as small as an object gets in bytes, as large as it gets in index cells."""
-    base = make_object(object_id, lo_m, version=version, seed=object_id)
-    first = np.floor(np.asarray(lo_m) / VOXEL_M).astype(np.int64)
-    last = first + round(cells_per_axis / VOXEL_M) - 2  # its upper corner a voxel short of the last cell's end
-    keys_ = np.sort(pack_keys(np.stack([first, last])))
-    lo, hi = keys_bounds(keys_, VOXEL_M)
-    return base.replace(
-        keys=keys_,
-        weights=base.weights[:2],
-        votes=base.votes[:2],
-        seen=base.seen[:2],
-        colors=base.colors[:2] if base.colors is not None else None,
-        bounds=AABB(lo, hi),
-        aabb=AABB(lo, hi),
-        obb=OBB(center=(lo + hi) / 2, size=hi - lo, rotation=np.eye(3), yaw_rad=0.0),
-    )
+from arcloud.stores.snapshot import restore_batches, restore_bytes
 
 
 def test_the_test_objects_cover_the_cells_they_say() -> None:
@@ -89,22 +62,6 @@ def test_a_lock_of_more_objects_than_one_call_takes_is_refused(store) -> None:
     assert refused.value.field == "ids"
     with store.lock(MAP, range(1, 11), ttl_s=10, timeout_s=0) as lease:
         assert lease.ids == tuple(range(1, 11))
-
-
-def snapshot_of(objects: list[MapObject]) -> bytes:
-    """A snapshot file holding ``objects`` as they are (a store would refuse some of them: a crafted file)."""
-    archive = io.BytesIO()
-    header = MapHeader.from_params(Params(), codec_version=codec.FORMAT_VERSION, created_at_s=1.0)
-    with zipfile.ZipFile(archive, "w") as out:
-        document = {"format": FORMAT, "map_id": MAP, "header": header.to_record(), "objects": len(objects)}
-        out.writestr("snapshot.json", json.dumps(document))
-        for obj in objects:
-            out.writestr(f"objects/{obj.id}.meta", codec.encode_meta(obj))
-            out.writestr(
-                f"objects/{obj.id}.voxels",
-                codec.encode_voxels(obj.keys, obj.weights, obj.votes, seen=obj.seen, colors=obj.colors),
-            )
-    return archive.getvalue()
 
 
 def test_a_snapshot_holding_an_object_over_the_cell_limit_is_refused_naming_it(store) -> None:
