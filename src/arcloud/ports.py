@@ -3,6 +3,8 @@
 
 - ``ObjectStore``: a ``MapStore`` that also lists (with or without voxels), counts, deletes and answers a
   health check (embedded ``stores.memory``, ``stores.redis``).
+- ``ChangeLog``: each map's change log, written by the commit, read by the event stream and the Zenoh feed
+  (both object stores).
 - ``FrameQueue``: validated frames from the API to the workers that run the step, with per-map frame
   counts and service-wide counters (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``),
   bounded by ``QueueLimits`` (frames and bytes, overall and per map; how long settled frames are remembered).
@@ -29,12 +31,15 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from arcloud.access import ApiKey, ViewerGrant
+from arcloud.core.change import ChangesSince
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
-from arcloud.core.types import AABB, OBB, Frame, MapObject, Params
+from arcloud.core.types import Frame, MapObject, ObjectMeta, Params
 from arcloud.errors import ArcloudError, InvalidInput
 
 __all__ = [
+    "DEFAULT_CHANGE_LOG_ENTRIES",
+    "ChangeLog",
     "LATENCY_BUCKETS_S",
     "Detector",
     "DeviceAlignments",
@@ -63,34 +68,31 @@ __all__ = [
 ]
 
 
+# --- the change log ----------------------------------------------------------------------------------
+#: How many entries a map's change log keeps by default (the oldest leave first; Redis trims about as many).
+DEFAULT_CHANGE_LOG_ENTRIES = 10_000
+
+
+class ChangeLog(Protocol):
+    """Each map's change log (``core.change``): the events of every commit, appended by the commit itself
+    (``MapStore.commit``), numbered by the map's version, the latest ``change_log_entries`` kept; and how far
+    the log was announced over Zenoh (``service.change_feed``). Both object stores are one."""
+
+    def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
+        """The entries after version ``after``, oldest first, at most ``limit``; ``complete`` False when some
+        of those are no longer kept (the reader re-reads the map)."""
+        ...
+
+    def published_version(self, map_id: str) -> int:
+        """The version up to which the map's log was published (0: none)."""
+        ...
+
+    def mark_published(self, map_id: str, version: int) -> None:
+        """Record that the log was published up to ``version`` (never lowered: a lower one is ignored)."""
+        ...
+
+
 # --- the object store --------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False, slots=True)
-class ObjectMeta:
-    """An object without its voxels: what listing the map needs (a ``MapObject`` has the same fields)."""
-
-    id: int
-    label: str
-    score: float
-    version: int
-    n_voxels: int
-    n_frames: int
-    devices: frozenset[str]
-    score_sum: float
-    created_at_s: float
-    updated_at_s: float
-    aabb: AABB | None
-    obb: OBB | None
-    bounds: AABB | None
-    confirmed: bool = False
-    floor_votes: dict[int, int] = field(default_factory=dict)
-    label_purity: float = 0.0
-    apart: dict[int, int] = field(default_factory=dict)
-
-    @property
-    def n_devices(self) -> int:
-        return len(self.devices)
-
-
 #: How long a map's history keeps a retired object by default (``ObjectStore.retired_objects``): a week.
 DEFAULT_RETIRED_HISTORY_S = 7 * 86400.0
 #: The most retired objects a map's history keeps (the oldest leave first), whatever their age.
@@ -106,8 +108,9 @@ class RetiredObject:
     retired_at_s: float
 
 
-class ObjectStore(MapStore, Protocol):
-    """A ``MapStore`` with what a service needs beside the step: listing, counting, deleting, health.
+class ObjectStore(MapStore, ChangeLog, Protocol):
+    """A ``MapStore`` with what a service needs beside the step: its maps' change logs (``ChangeLog``: what
+    the commits wrote), listing, counting, deleting, health.
 
     Every method is safe to call from many threads (and, for a shared store, many processes)."""
 

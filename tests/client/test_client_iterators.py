@@ -14,6 +14,7 @@ from svc_helpers import BlobDetector, UvicornThread, cube, free_port, make_test_
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient
 from arcloud.client.results import MapEvent, ObjectOut, SnapshotEvent, UpsertEvent
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import Params
 from arcloud.service.event_stream import close_event_streams
@@ -30,7 +31,7 @@ SETTINGS = Settings(detector="sim:0", workers=1, key_rate_per_s=0, event_poll_s=
 def paged_url() -> Iterator[str]:
     store = MemoryStore()
     store.open_map(MAP, MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
-    store.commit(MAP, [], [cube(i) for i in range(1, N_OBJECTS + 1)], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [cube(i) for i in range(1, N_OBJECTS + 1)]))
     with UvicornThread(create_app(SETTINGS, store=store, detector=BlobDetector())) as server:
         yield server.url
 

@@ -182,9 +182,9 @@ def test_router_sends_each_event_to_one_key_space() -> None:
         (ObjectEvent("deleted", "m", 2), "tentative"),  # never served: the served map's subscribers never had it
         (ObjectEvent("deleted", "m", 3, was_confirmed=True), "served"),
         (ObjectEvent("created", "m", 4, state(4, 1, True)), "served"),
-        (ObjectEvent("removed", "m", 4, was_confirmed=True), "served"),  # seen gone: whoever had it is told
+        (ObjectEvent("retired", "m", 4, was_confirmed=True), "served"),  # seen gone: whoever had it is told
         (ObjectEvent("updated", "m", 4, state(4, 2, True)), None),  # nothing of a removed object is newer
-        (ObjectEvent("removed", "m", 5), "tentative"),
+        (ObjectEvent("retired", "m", 5), "tentative"),
         (ObjectEvent("created", "other", 1, state(1, 1, True)), "served"),  # maps are apart
     ]
     assert [router.route(event) for event, _ in steps] == [where for _, where in steps]

@@ -15,6 +15,7 @@ import pytest
 from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, cube, free_port, make_test_frame, wait_until
 from viewer_helpers import EventStream, bearer, make_keys
 
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import Params
 from arcloud.ports import ObjectMeta
@@ -269,7 +270,7 @@ class CountingStore(MemoryStore):
 def test_a_watched_map_is_read_again_only_after_it_changed() -> None:
     store = CountingStore()
     store.open_map("quiet", MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
-    store.commit("quiet", [], [cube(1)], [])
+    store.commit("quiet", [], MapChange.writing("quiet", [cube(1)]))
     settings = Settings(detector="sim:0", workers=1, event_poll_s=0.02)
     with (
         UvicornThread(create_app(settings, store=store, detector=BlobDetector())) as server,
@@ -278,6 +279,6 @@ def test_a_watched_map_is_read_again_only_after_it_changed() -> None:
         assert [o["id"] for o in stream.next_event("snapshot")[1]["objects"]] == [1]
         wait_until(lambda: store.mark_reads >= 10, 10, "ten polls")
         assert store.whole_map_reads == 1  # the snapshot's read; nine polls found the map unchanged
-        store.commit("quiet", [], [cube(2)], [])
+        store.commit("quiet", [], MapChange.writing("quiet", [cube(2)]))
         assert stream.next_event("upsert")[1]["id"] == 2
         assert store.whole_map_reads == 2

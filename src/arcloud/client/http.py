@@ -485,7 +485,7 @@ def subscribe(
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
     By default the served map's: confirmed objects, and an event when one leaves it (a tentative
-    state, MERGED, DELETED or REMOVED); ``include_tentative``: tentative objects' events too. ``config_file``: a
+    state, MERGED, DELETED or RETIRED); ``include_tentative``: tentative objects' events too. ``config_file``: a
     Zenoh config file the session starts from, e.g. this device's user and password for a router with
     access control (``transport/auth/usrpwd``). Needs Zenoh: ``pip install 'arcloud[events]'`` (the
     base install has no Zenoh)."""
