@@ -166,11 +166,6 @@ class ObjectStore(MapStore, ChangeLog, Protocol):
         """How many objects the map holds (0 for an unknown map)."""
         ...
 
-    def map_updated_at(self, map_id: str) -> float | None:
-        """``list_maps()[map_id]`` alone (None: not listed), one small read: written after the objects it stands
-        for, so a reader that finds it unchanged since a read of the map's objects has seen every change since."""
-        ...
-
     def retired_objects(self, map_id: str) -> list[RetiredObject]:
         """The map's history: the objects retired (``commit(retired=...)``) within the store's
         ``retired_history_s`` (at most ``RETIRED_HISTORY_MAX_PER_MAP``), latest first. ``delete_map``

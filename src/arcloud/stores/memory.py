@@ -390,10 +390,6 @@ class MemoryStore:
         with self._maps_lock:
             return {m: self._updated.get(m, 0.0) for m in self._headers}
 
-    def map_updated_at(self, map_id: str) -> float | None:
-        with self._maps_lock:
-            return self._updated.get(map_id, 0.0) if map_id in self._headers else None
-
     def count_objects(self, map_id: str) -> int:
         with self._maps_lock:
             state = self._maps.get(map_id)

@@ -636,11 +636,6 @@ class RedisStore:
             raw = self.client.hgetall(keys.MAPS)
         return {(m.decode() if isinstance(m, bytes) else m): float(t) for m, t in raw.items()}
 
-    def map_updated_at(self, map_id: str) -> float | None:
-        with redis_errors(f"read when map {map_id} last changed", self._where):
-            raw = self.client.hget(keys.MAPS, map_id)
-        return float(raw) if raw is not None else None
-
     def count_objects(self, map_id: str) -> int:
         with redis_errors(f"count the objects of map {map_id}", self._where):
             return int(self.client.hlen(keys.meta_key(map_id)))
