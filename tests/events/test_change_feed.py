@@ -4,13 +4,12 @@ the feed (the API's sweep) still delivers them to a subscriber, once."""
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator
 
 import pytest
 from redis_server import RedisServer
-from svc_helpers import AppClient, cube, free_port, wait_for_subscriber, wait_until
+from svc_helpers import AppClient, EventCollector, cube, free_port, wait_for_subscriber, wait_until
 
 from arcloud.core.change import MapChange
 from arcloud.events.zenoh import ZenohPublisher, object_key, subscribe_objects, tentative_key
@@ -23,19 +22,9 @@ from arcloud.tools.wiring import create_app
 pytestmark = pytest.mark.redis
 
 
-class Received:
-    def __init__(self) -> None:
-        self.events: list[pb.ObjectEvent] = []
-        self._lock = threading.Lock()
-
-    def __call__(self, event: pb.ObjectEvent) -> None:
-        with self._lock:
-            self.events.append(event)
-
-    def of(self, map_id: str) -> list[tuple[int, int, int]]:
-        """(kind, object id, version) of each event of the map, in arrival order."""
-        with self._lock:
-            return [(e.kind, e.object_id, e.object.version) for e in self.events if e.map_id == map_id]
+def of_map(received: EventCollector, map_id: str) -> list[tuple[int, int, int]]:
+    """(kind, object id, version) of each event of the map, in arrival order."""
+    return [(e.kind, e.object_id, e.object.version) for e in list(received.events) if e.map_id == map_id]
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +46,7 @@ def test_a_feed_started_after_a_worker_died_publishes_what_it_committed_once(red
     committed_and_never_published(store, "crash")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     publisher = ZenohPublisher(mode="peer", listen=[endpoint])
-    received = Received()
+    received = EventCollector()
     try:
         with subscribe_objects("crash", received, connect=[endpoint], include_tentative=True):
             wait_for_subscriber(object_key("crash", 0), session=publisher.session)
@@ -65,14 +54,14 @@ def test_a_feed_started_after_a_worker_died_publishes_what_it_committed_once(red
             assert store.published_version("crash") == 0
             feed = ChangeFeed(store, publisher)
             assert feed.sweep(["crash"]) == 3
-            wait_until(lambda: len(received.of("crash")) == 3, 10, "the three events")
+            wait_until(lambda: len(of_map(received, "crash")) == 3, 10, "the three events")
             assert feed.sweep(["crash"]) == 0  # published up to version 2: nothing again
             time.sleep(0.2)
     finally:
         publisher.close()
         store.close()
     created, updated = pb.ObjectEvent.KIND_CREATED, pb.ObjectEvent.KIND_UPDATED
-    assert received.of("crash") == [(created, 1, 1), (created, 3, 1), (updated, 1, 2)]
+    assert of_map(received, "crash") == [(created, 1, 1), (created, 3, 1), (updated, 1, 2)]
 
 
 def test_the_api_sweeps_the_logs_no_worker_published(redis_url: str) -> None:
@@ -81,7 +70,7 @@ def test_the_api_sweeps_the_logs_no_worker_published(redis_url: str) -> None:
     store = RedisStore(redis_url)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(store=redis_url, auth="none", detector="sim:0", workers=0, zenoh_mode="peer", zenoh_listen=[endpoint])
-    received = Received()
+    received = EventCollector()
     try:
         with (
             AppClient(create_app(settings)),
@@ -90,8 +79,8 @@ def test_the_api_sweeps_the_logs_no_worker_published(redis_url: str) -> None:
             wait_for_subscriber(object_key("swept", 0), endpoint=endpoint)
             wait_for_subscriber(tentative_key("swept", 0), endpoint=endpoint)
             committed_and_never_published(store, "swept")
-            wait_until(lambda: len(received.of("swept")) == 3, 15, "the swept events")
+            wait_until(lambda: len(of_map(received, "swept")) == 3, 15, "the swept events")
             assert store.published_version("swept") == 2
     finally:
         store.close()
-    assert [object_id for _, object_id, _ in received.of("swept")] == [1, 3, 1]
+    assert [object_id for _, object_id, _ in of_map(received, "swept")] == [1, 3, 1]
