@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING, Literal
 from arcloud.core.change import MapChange
 from arcloud.core.types import Detection, Frame, MapObject, Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
-from arcloud.ports import Detector, FrameQueue, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame
+from arcloud.ports import Detector, FrameConsumer, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame
 from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.logs import log_context
 from arcloud.service.map_header import open_map_checked
@@ -209,7 +209,7 @@ class FrameWorker:
 
     def __init__(
         self,
-        queue: FrameQueue,
+        queue: FrameConsumer,
         store: ObjectStore,
         detector: Detector,
         params: Params,
