@@ -87,7 +87,7 @@ class ChangeLog(Protocol):
 
     def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
         """The entries after version ``after``, oldest first, at most ``limit``; ``complete`` False when some
-        of those are no longer kept (the reader re-reads the map)."""
+        of those are no longer kept (the reader re-reads the map). ``limit`` 0 reads the map's version alone."""
         ...
 
     def published_version(self, map_id: str) -> int:

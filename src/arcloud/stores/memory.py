@@ -302,7 +302,12 @@ class MemoryStore:
     def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
         state = self._map(map_id)
         with state.changed:
-            return changes_after(list(state.log), state.version, int(after), limit)
+            # versions are consecutive: the entries after ``after`` are the last ``version - after`` (those kept),
+            # indexed from the right end of the ring buffer, where a reader that keeps up reads
+            kept = max(0, min(len(state.log), state.version - int(after)))
+            start = len(state.log) - kept
+            entries = [state.log[i] for i in range(start, min(len(state.log), start + max(0, limit)))]
+            return changes_after(entries, state.version, int(after), limit)
 
     def published_version(self, map_id: str) -> int:
         state = self._map(map_id)
