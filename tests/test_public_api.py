@@ -32,6 +32,7 @@ PUBLIC = {
         "ObjectOut",
         "OrientedBox",
         "RemovedEvent",
+        "ResetEvent",
         "SnapshotEvent",
         "UpsertEvent",
         "Voxels",

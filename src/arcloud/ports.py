@@ -1,11 +1,15 @@
 """The ports: the interfaces adapters implement. The step's own (``Detector``, ``MapStore``, ``Lease``,
 ``UpdatePublisher``) are defined in ``arcloud.core.ports``; a service needs more:
 
-- ``ObjectStore``: a ``MapStore`` that also lists (with or without voxels), counts, deletes and answers a
-  health check (embedded ``stores.memory``, ``stores.redis``).
-- ``FrameQueue``: validated frames from the API to the workers that run the step, with per-map frame
-  counts and service-wide counters (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``),
-  bounded by ``QueueLimits`` (frames and bytes, overall and per map; how long settled frames are remembered).
+- ``ObjectStore`` (embedded ``stores.memory``, ``stores.redis``), made of narrow ports: the step's ``MapStore``;
+  ``ChangeLog``, each map's change log, written by the commit, read by the event stream and the Zenoh feed;
+  ``MapReader``, listing and counting a map's objects; ``MapCatalog``, the maps, their headers, deleting one,
+  the health check.
+- ``FrameQueue`` (embedded ``stores.memory_queue``, Redis Streams ``stores.redis_queue``): validated frames from
+  the API to the workers that run the step, bounded by ``QueueLimits`` (frames and bytes, overall and per map;
+  how long settled frames are remembered), made of ``FrameIntake`` (the API's side: put, records, per-map
+  counts), ``FrameConsumer`` (the workers' side: take, claim, settle, heartbeats) and ``QueueMonitor`` (counters,
+  health, live consumers).
 - ``KeyStore``: the API keys (``arcloud.access.ApiKey``), hashed (a JSON file ``stores.file_api_keys``,
   Redis ``stores.redis_api_keys``).
 - ``RateLimiter``: token buckets shared by every API process (``stores.memory_rate``, ``stores.redis_rate``).
@@ -29,70 +33,75 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from arcloud.access import ApiKey, ViewerGrant
+from arcloud.core.change import ChangesSince
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
-from arcloud.core.types import AABB, OBB, Frame, MapObject, Params
+from arcloud.core.types import Frame, MapObject, ObjectMeta, Params
 from arcloud.errors import ArcloudError, InvalidInput, StoreError
 
 __all__ = [
+    "DEFAULT_CHANGE_LOG_ENTRIES",
     "LATENCY_BUCKETS_S",
+    "SETTLED_OUTCOMES",
+    "WAIT_BUCKETS_S",
+    "ChangeLog",
     "Detector",
     "DeviceAlignments",
     "FailedFrame",
+    "FrameConsumer",
+    "FrameIntake",
     "FrameQueue",
     "FrameTimings",
     "Histogram",
     "KeyStore",
+    "Lease",
     "MapArchive",
     "MapBeingDeleted",
+    "MapCatalog",
     "MapDeletion",
-    "Lease",
+    "MapReader",
     "MapStore",
     "NullPublisher",
     "ObjectMeta",
     "ObjectStore",
     "QueueFull",
     "QueueLimits",
+    "QueueMonitor",
     "QueueStats",
-    "SETTLED_OUTCOMES",
     "QueuedFrame",
     "RateLimiter",
     "RetiredObject",
     "UpdatePublisher",
     "ViewerPasses",
-    "WAIT_BUCKETS_S",
     "latency_bucket",
 ]
 
 
+# --- the change log ----------------------------------------------------------------------------------
+#: How many entries a map's change log keeps by default (the oldest leave first; Redis trims about as many).
+DEFAULT_CHANGE_LOG_ENTRIES = 10_000
+
+
+class ChangeLog(Protocol):
+    """Each map's change log (``core.change``): the events of every commit, appended by the commit itself
+    (``MapStore.commit``), numbered by the map's version, the latest ``change_log_entries`` kept; and how far
+    the log was announced over Zenoh (``service.change_feed``). Both object stores are one."""
+
+    def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
+        """The entries after version ``after``, oldest first, at most ``limit``; ``complete`` False when some
+        of those are no longer kept (the reader re-reads the map). ``limit`` 0 reads the map's version alone."""
+        ...
+
+    def published_version(self, map_id: str) -> int:
+        """The version up to which the map's log was published (0: none)."""
+        ...
+
+    def mark_published(self, map_id: str, version: int) -> None:
+        """Record that the log was published up to ``version`` (never lowered: a lower one is ignored)."""
+        ...
+
+
 # --- the object store --------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False, slots=True)
-class ObjectMeta:
-    """An object without its voxels: what listing the map needs (a ``MapObject`` has the same fields)."""
-
-    id: int
-    label: str
-    score: float
-    version: int
-    n_voxels: int
-    n_frames: int
-    devices: frozenset[str]
-    score_sum: float
-    created_at_s: float
-    updated_at_s: float
-    aabb: AABB | None
-    obb: OBB | None
-    bounds: AABB | None
-    confirmed: bool = False
-    floor_votes: dict[int, int] = field(default_factory=dict)
-    label_purity: float = 0.0
-    apart: dict[int, int] = field(default_factory=dict)
-
-    @property
-    def n_devices(self) -> int:
-        return len(self.devices)
-
-
 #: How long a map's history keeps a retired object by default (``ObjectStore.retired_objects``): a week.
 DEFAULT_RETIRED_HISTORY_S = 7 * 86400.0
 #: The most retired objects a map's history keeps (the oldest leave first), whatever their age.
@@ -143,10 +152,8 @@ class MapBeingDeleted(StoreError):
         )
 
 
-class ObjectStore(MapStore, Protocol):
-    """A ``MapStore`` with what a service needs beside the step: listing, counting, deleting, health.
-
-    Every method is safe to call from many threads (and, for a shared store, many processes)."""
+class MapReader(Protocol):
+    """A map's objects as they are, read for listing, counting and exporting (no locks, no writes)."""
 
     def list_objects(self, map_id: str) -> list[MapObject]:
         """Every object of the map, by id."""
@@ -164,29 +171,30 @@ class ObjectStore(MapStore, Protocol):
         """The ids of the map's objects, sorted: a page of a listing reads these, then only its own objects."""
         ...
 
-    def delete_map(self, map_id: str) -> int:
-        """Remove a map and everything under it; returns the number of objects removed. The map leaves the
-        list and loses its header first, then its objects go a bounded batch at a time, the progress recorded
-        (``map_deletion``); called again on a map whose deletion stopped half way, it goes on."""
-        ...
-
-    def map_deletion(self, map_id: str) -> MapDeletion | None:
-        """The map's deletion, going on or ended within ``DELETION_KEPT_S``; None when there is none."""
+    def count_objects(self, map_id: str) -> int:
+        """How many objects the map holds (0 for an unknown map)."""
         ...
 
     def count_frames(self, map_id: str) -> int:
         """How many frames were recorded as processed in this map (a counter: records expiring do not lower it)."""
         ...
 
+    def retired_objects(self, map_id: str) -> list[RetiredObject]:
+        """The map's history: the objects retired (a ``MapChange``'s ``retired``) within the store's
+        ``retired_history_s`` (at most ``RETIRED_HISTORY_MAX_PER_MAP``), latest first. ``delete_map``
+        removes it."""
+        ...
+
+
+class MapCatalog(Protocol):
+    """The maps a store holds: each one's header (the settings its data is written under), the list of them,
+    deleting one, and whether the store answers."""
+
     #: The blob format this store writes (``stores.codec.FORMAT_VERSION``), part of a map's header.
     codec_version: int
     #: The blob formats this store reads (``stores.codec.READABLE_VERSIONS``): a map created under any
     #: of them opens (``core.header.check_header``); its objects are rewritten in ``codec_version``.
     readable_codec_versions: tuple[int, ...]
-
-    def ping(self) -> None:
-        """Return when the store answers; raise ``StoreUnavailable`` otherwise."""
-        ...
 
     def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
         """The map's header: the one stored, or ``header``, written now when the map has none (atomically:
@@ -202,20 +210,28 @@ class ObjectStore(MapStore, Protocol):
         was opened, before any)."""
         ...
 
-    def count_objects(self, map_id: str) -> int:
-        """How many objects the map holds (0 for an unknown map)."""
+    def delete_map(self, map_id: str) -> int:
+        """Remove a map and everything under it (objects, header, change log, history); returns the number of
+        objects removed. The map leaves the list and loses its header first, then its objects go a bounded batch
+        at a time, the progress recorded (``map_deletion``); called again on a map whose deletion stopped half
+        way, it goes on."""
         ...
 
-    def map_updated_at(self, map_id: str) -> float | None:
-        """``list_maps()[map_id]`` alone (None: not listed), one small read: written after the objects it stands
-        for, so a reader that finds it unchanged since a read of the map's objects has seen every change since."""
+    def map_deletion(self, map_id: str) -> MapDeletion | None:
+        """The map's deletion, going on or ended within ``DELETION_KEPT_S``; None when there is none."""
         ...
 
-    def retired_objects(self, map_id: str) -> list[RetiredObject]:
-        """The map's history: the objects retired (``commit(retired=...)``) within the store's
-        ``retired_history_s`` (at most ``RETIRED_HISTORY_MAX_PER_MAP``), latest first. ``delete_map``
-        removes it."""
+    def ping(self) -> None:
+        """Return when the store answers; raise ``StoreUnavailable`` otherwise."""
         ...
+
+
+class ObjectStore(MapStore, ChangeLog, MapReader, MapCatalog, Protocol):
+    """Everything an object store is, for the composition root: the step's ``MapStore``, the maps' change logs
+    (``ChangeLog``), reading (``MapReader``) and the maps themselves (``MapCatalog``). A part of the service
+    that needs less names the narrow port.
+
+    Every method is safe to call from many threads (and, for a shared store, many processes)."""
 
 
 # --- the frame queue ---------------------------------------------------------------------------------
@@ -449,20 +465,11 @@ class QueuedFrame:
     receipt: Any = field(default=None, repr=False)
 
 
-class FrameQueue(Protocol):
-    """Validated frames from the API to the consumers that run the step, at least once.
+class FrameIntake(Protocol):
+    """The API's side of the frame queue: ``put`` (deduplicated per map: a frame accepted before is not queued
+    again while it is queued, in hand or processed; one that failed or was lost is; bounded by ``QueueLimits``),
+    the frames' records and per-map counts, and the operators' ``failed_frames`` and ``retry_failed``."""
 
-    Producer side (the API): ``put`` (deduplicated per map: a frame accepted before is not queued again
-    while it is queued, in hand or processed; one that failed or was lost is), per-map counts, service-wide
-    ``stats``; bounded by ``QueueLimits``. Operators: ``failed_frames``, ``retry_failed``. Consumer side
-    (workers): ``take`` a new frame or ``claim_abandoned`` one whose consumer stopped answering, then exactly one of ``ack``
-    (the step ran, or the frame had been processed before), ``fail`` (the step raised) or
-    ``dead_letter`` (given up on: counted as failed). A queue that redelivers (Redis) leaves a failed
-    frame for a later delivery; one that does not (embedded) counts it failed at once.
-
-    Every method is safe to call from many threads; a shared queue's state is every process's."""
-
-    # producer
     def put(self, frame: Frame, message: Any = None) -> bool:
         """Queue a validated frame; False (nothing queued) when it was accepted before and is queued, in hand
         or processed (a frame that failed, or was accepted but has none of these outcomes, is queued again).
@@ -500,17 +507,18 @@ class FrameQueue(Protocol):
         """Drop the map's frame counts (after its objects were deleted)."""
         ...
 
-    def stats(self) -> QueueStats: ...
 
-    def health(self) -> dict[str, str]:
-        """Check name -> "ok" or what is wrong, for what the queue itself depends on (never raises)."""
-        ...
+class FrameConsumer(Protocol):
+    """A worker's side of the frame queue: ``take`` a new frame or ``claim_abandoned`` one whose consumer stopped
+    answering, then exactly one of ``ack`` (the step ran, or the frame had been processed before), ``fail``
+    (the step raised) or ``dead_letter`` (given up on: counted as failed); heartbeats keep a consumer's frames
+    its own. A queue that redelivers (Redis) leaves a failed frame for a later delivery; one that does not
+    (embedded) counts it failed at once."""
 
     def prepare(self) -> None:
         """Create what the queue needs before frames flow (idempotent)."""
         ...
 
-    # consumer
     def take(self, consumer: str, *, block_s: float) -> QueuedFrame | None:
         """A new frame for ``consumer``, waiting up to ``block_s``; None when there was none."""
         ...
@@ -540,9 +548,27 @@ class FrameQueue(Protocol):
         """``consumer`` stops (its heartbeat is removed)."""
         ...
 
+
+class QueueMonitor(Protocol):
+    """How the frame queue is doing, for metrics and health: its counters, its dependencies, its live consumers."""
+
+    def stats(self) -> QueueStats: ...
+
+    def health(self) -> dict[str, str]:
+        """Check name -> "ok" or what is wrong, for what the queue itself depends on (never raises)."""
+        ...
+
     def live_consumers(self, max_age_s: float) -> list[str]:
         """Consumers whose heartbeat is at most ``max_age_s`` old, sorted."""
         ...
+
+
+class FrameQueue(FrameIntake, FrameConsumer, QueueMonitor, Protocol):
+    """Validated frames from the API to the consumers that run the step, at least once: the intake, the
+    consumers' side and the monitor of one queue, for the composition root (a part of the service that needs
+    less names the narrow port).
+
+    Every method is safe to call from many threads; a shared queue's state is every process's."""
 
 
 # --- access ------------------------------------------------------------------------------------------

@@ -119,8 +119,8 @@ def test_quick_suite_on_the_real_scan(shared: type, tmp_path: Path) -> None:
         assert independent_map(every, gt, 0.5) == pytest.approx(figures["map50"], abs=0.01)
         assert independent_map(export["objects"], gt, 0.25) == pytest.approx(figures["served_map25"], abs=0.01)
 
-    # a second run reuses the render and gives the same centralized map
-    again = run_suite(quick=True, out_dir=tmp_path, shared=shared.root)
+    # a second run reuses the render and gives the same centralized map (one distributed run: none is compared)
+    again = run_suite(quick=True, out_dir=tmp_path, shared=shared.root, runs=1)
     (case_again,) = again["cases"]
     assert case_again["render_s"] == 0.0 and case_again["frames"] == case["frames"]
     assert case_again["centralized"]["map25"] == central["map25"] and case_again["centralized"]["map50"] == central["map50"]

@@ -32,6 +32,7 @@ from store_cases import EDGE, make_object, snapshot_of, spread_object
 from svc_helpers import UvicornThread, cube, make_test_frame
 
 from arcloud.access import new_key
+from arcloud.core.change import MapChange
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
 from arcloud.stores.redis import RedisStore
@@ -149,7 +150,7 @@ def test_the_big_export_and_pages_of_many_readers(served: Served) -> None:
             posted = http.post("/v1/maps/big/frames", content=frame_body("big", 0), headers={**PROTOBUF, **served.auth("device")})
             assert posted.status_code == 202, posted.text
         for start in range(1, 2001, 100):
-            store.commit("big", [], [cube(i) for i in range(start, start + 100)], [])
+            store.commit("big", [], MapChange.writing("big", [cube(i) for i in range(start, start + 100)]))
     finally:
         store.close()
     reads = [

@@ -13,7 +13,8 @@ import pytest
 from svc_helpers import BlobDetector, UvicornThread, cube, free_port, make_test_frame
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient
-from arcloud.client.results import MapEvent, ObjectOut, SnapshotEvent, UpsertEvent
+from arcloud.client.results import MapEvent, ObjectOut, ResetEvent, SnapshotEvent, UpsertEvent
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import Params
 from arcloud.service.event_stream import close_event_streams
@@ -30,7 +31,7 @@ SETTINGS = Settings(detector="sim:0", workers=1, key_rate_per_s=0, event_poll_s=
 def paged_url() -> Iterator[str]:
     store = MemoryStore()
     store.open_map(MAP, MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
-    store.commit(MAP, [], [cube(i) for i in range(1, N_OBJECTS + 1)], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [cube(i) for i in range(1, N_OBJECTS + 1)]))
     with UvicornThread(create_app(SETTINGS, store=store, detector=BlobDetector())) as server:
         yield server.url
 
@@ -82,18 +83,20 @@ class Follower:
         except Exception as exc:  # noqa: BLE001 - handed to the test, which fails with it
             self.received.put(exc)
 
-    def next_of(self, kind: type, timeout_s: float = 20.0) -> MapEvent:
-        """The next event of type ``kind`` (skipping others, e.g. ``DeviceEvent``)."""
+    def next_of(self, *kinds: type, timeout_s: float = 20.0) -> MapEvent:
+        """The next event of one of ``kinds`` (skipping others, e.g. ``DeviceEvent``)."""
         while True:
             event = self.received.get(timeout=timeout_s)
             if isinstance(event, Exception):
                 raise event
-            if isinstance(event, kind):
+            if isinstance(event, kinds):
                 return event
 
 
-def test_events_yield_a_frame_processed_after_they_started_and_go_on_through_a_restart() -> None:
-    store = MemoryStore()  # the map outlives the service's restart (as on Redis)
+def test_events_yield_a_frame_processed_after_they_started_and_resume_after_a_restart_missing_nothing() -> None:
+    """The service restarts; meanwhile a worker elsewhere commits (as on Redis, the map outlives the service): the
+    client connects again with ``Last-Event-ID`` and gets that change, no snapshot."""
+    store = MemoryStore()
     port = free_port()
     first_app = create_app(SETTINGS, store=store, detector=BlobDetector())
     with ArcloudClient(f"http://127.0.0.1:{port}", max_retries=10, backoff_s=0.05) as client:
@@ -103,17 +106,21 @@ def test_events_yield_a_frame_processed_after_they_started_and_go_on_through_a_r
             follower = Follower(client, "live")
             snapshot = follower.next_of(SnapshotEvent)
             assert isinstance(snapshot, SnapshotEvent) and [o.version for o in snapshot.objects] == [1]
+            assert snapshot.version == 1  # the map's change log: one entry
             (obj,) = snapshot.objects
             client.send_frame(make_test_frame(1, map_id="live", level=True))
             upsert = follower.next_of(UpsertEvent)
             assert isinstance(upsert, UpsertEvent) and upsert.object.id == obj.id and upsert.object.version == 2
             close_event_streams(first_app)  # as `arcloud serve` does on shutdown: the service ends the stream
+        with store.lock("live", [obj.id], ttl_s=5, timeout_s=1) as lease:  # the service is down: a worker writes
+            (stored,) = store.get("live", [obj.id])
+            assert store.commit("live", [lease], MapChange.writing("live", [stored.replace(version=3)]))
         with UvicornThread(create_app(SETTINGS, store=store, detector=BlobDetector()), port=port):
-            again = follower.next_of(SnapshotEvent)  # connected again: the map as it is now
-            assert isinstance(again, SnapshotEvent) and [(o.id, o.version) for o in again.objects] == [(obj.id, 2)]
+            resumed = follower.next_of(UpsertEvent, SnapshotEvent, ResetEvent)  # connected again: after version 2
+            assert isinstance(resumed, UpsertEvent) and (resumed.object.id, resumed.object.version) == (obj.id, 3)
             follower.stop.set()
             client.send_frame(make_test_frame(2, map_id="live", level=True))
             later = follower.next_of(UpsertEvent)
-            assert isinstance(later, UpsertEvent) and later.object.version == 3
+            assert isinstance(later, UpsertEvent) and later.object.version == 4
             follower.thread.join(10)
             assert not follower.thread.is_alive()

@@ -19,7 +19,7 @@ from arcloud.service.devices import DevicePose
 from arcloud.service.event_stream import device_out
 
 #: Dataclasses of the stream's events, which have no pydantic model (``service.event_stream`` writes them).
-EVENT_TYPES = {"DeviceOut", "SnapshotEvent", "UpsertEvent", "RemovedEvent", "DeviceEvent", "DeviceRemovedEvent"}
+EVENT_TYPES = {"DeviceOut", "SnapshotEvent", "ResetEvent", "UpsertEvent", "RemovedEvent", "DeviceEvent", "DeviceRemovedEvent"}
 TYPES = {name: cls for name, cls in inspect.getmembers(results, dataclasses.is_dataclass) if name not in EVENT_TYPES}
 
 

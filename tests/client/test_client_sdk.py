@@ -4,14 +4,13 @@ the served map (confirmed objects) against every object, and the Zenoh subscript
 from __future__ import annotations
 
 import asyncio
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from svc_helpers import BlobDetector, UvicornThread, free_port, make_test_frame, wait_for_subscriber
+from svc_helpers import BlobDetector, EventCollector, UvicornThread, free_port, make_test_frame, wait_for_subscriber
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient, ServiceError
 from arcloud.client.results import FrameAccepted, FrameCounts, FrameState, MapDeleted, ObjectCounts
@@ -29,23 +28,9 @@ def server() -> Iterator[tuple[str, str]]:
         yield running.url, endpoint
 
 
-class Events:
-    def __init__(self) -> None:
-        self.events: list[pb.ObjectEvent] = []
-        self._lock = threading.Lock()
-
-    def __call__(self, event: pb.ObjectEvent) -> None:
-        with self._lock:
-            self.events.append(event)
-
-    def states(self) -> list[tuple[int, int]]:
-        with self._lock:
-            return [(e.object.version, e.object.status) for e in self.events]
-
-
 def test_blocking_client_round_trip(server: tuple[str, str]) -> None:
     url, endpoint = server
-    served, everything = Events(), Events()
+    served, everything = EventCollector(), EventCollector()
 
     with ArcloudClient(url) as client:
         subscriptions = [client.subscribe("c1", served, [endpoint])]

@@ -1,7 +1,7 @@
 """Change over time (core.step.count_misses, core.voxels.free_voxels): a frame that sees an object's
 place empty (depth behind it) counts it *gone*, one that sees it there and detects nothing counts a
 plain miss; an object seen gone in ``retire_min_gone_frames`` frames since it was last seen is retired
-(event ``removed``, kept in the store's history); one missed in nearly every frame that saw it is deleted
+(event ``retired``, kept in the store's history); one missed in nearly every frame that saw it is deleted
 as a phantom (event ``deleted``). Hand-made frames: exact boxes, exact depth."""
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def test_an_undetected_object_still_there_is_missed_never_retired() -> None:
         events += integrate_frame(frame, [], store, PARAMS).events
     (chair,) = store.list_objects("m")
     assert chair.n_missed >= 25 and chair.n_gone == 0
-    assert not any(e.kind == "removed" for e in events) and store.retired_objects("m") == []
+    assert not any(e.kind == "retired" for e in events) and store.retired_objects("m") == []
 
 
 def test_an_object_missed_in_nearly_every_frame_that_sees_it_is_deleted_as_a_phantom() -> None:
@@ -91,7 +91,7 @@ def test_an_object_missed_in_nearly_every_frame_that_sees_it_is_deleted_as_a_pha
         misses.append(store.list_objects("m")[0].n_missed)
     # Kept at 40 sightings (4 detected, 36 missed: a rate of 0.1); the 37th miss (4 / 41 < 0.1) deletes it.
     assert before.n_missed == 36 and misses[-1] == 36 and len(misses) >= 36
-    assert last is not None and last.removed == [chair.id] and last.retired == []
+    assert last is not None and last.left == [chair.id] and last.retired == []
     (event,) = last.events
     assert (event.kind, event.object_id, event.was_confirmed) == ("deleted", chair.id, before.confirmed)
     assert store.retired_objects("m") == []  # not kept in the history of things taken away
@@ -129,9 +129,9 @@ def test_an_object_seen_gone_is_retired_after_the_stated_frames() -> None:
         gone_counts.append([o.n_gone for o in store.list_objects("m")])
     assert gone_counts == [[1], [2], []]  # one more each frame; the third retires it
     assert last.n_missed == 2 and last.score < chair.score  # seen gone counts as missed: it lost support on the way
-    assert result.retired == [chair.id] and result.removed == [chair.id]
+    assert result.retired == [chair.id] and result.left == [chair.id]
     (event,) = result.events
-    assert event.kind == "removed" and event.object_id == chair.id and event.object is None
+    assert event.kind == "retired" and event.object_id == chair.id and event.object is None
     assert event.was_confirmed == last.confirmed
     (record,) = store.retired_objects("m")
     assert record.meta.id == chair.id and record.meta.label == "chair" and record.meta.version == last.version

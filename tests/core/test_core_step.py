@@ -13,14 +13,6 @@ from arcloud.stores.memory import MemoryStore
 PARAMS = Params(voxel_size_m=0.05)
 
 
-class Recorder:
-    def __init__(self):
-        self.events = []
-
-    def publish(self, events):
-        self.events.extend(events)
-
-
 class FixedDetector:
     def __init__(self, detections):
         self.detections = detections
@@ -29,16 +21,19 @@ class FixedDetector:
         return self.detections
 
 
-def test_frames_of_one_scene_build_two_objects_and_events():
-    store, recorder = MemoryStore(), Recorder()
+def test_frames_of_one_scene_build_two_objects_and_events_in_the_change_log():
+    store = MemoryStore()
     for i in range(4):
         frame, detections = two_box_frame(f"f{i}", shift_m=0.01 * i)
-        result = process_frame(frame, FixedDetector(detections), store, PARAMS, recorder)
+        result = process_frame(frame, FixedDetector(detections), store, PARAMS)
         assert result.n_detections == 2
     objects = store.list_objects("m")
     assert sorted(o.label for o in objects) == ["chair", "table"]
     assert all(o.n_frames == 4 and o.version == 4 for o in objects)
-    kinds = [e.kind for e in recorder.events]
+    log = store.changes_since("m", 0, 100)
+    assert log.complete and [e.version for e in log.entries] == [1, 2, 3, 4] and log.version == 4
+    assert [e.frame_key for e in log.entries] == [f"dev/f{i}" for i in range(4)]
+    kinds = [e.kind for entry in log.entries for e in entry.events]
     assert kinds.count("created") == 2 and kinds.count("updated") == 6
     chair = next(o for o in objects if o.label == "chair")
     # The chair patch: rows 10..30, cols 10..30 at 1.5 m, f=100, c=(40, 30) -> x in [-0.45, -0.15].

@@ -11,7 +11,17 @@ from contextlib import ExitStack
 
 import numpy as np
 import pytest
-from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, free_port, make_test_frame, wait_for_subscriber, wait_until
+from svc_helpers import (
+    LEFT,
+    RIGHT,
+    AppClient,
+    BlobDetector,
+    EventCollector,
+    free_port,
+    make_test_frame,
+    wait_for_subscriber,
+    wait_until,
+)
 
 from arcloud.core.types import N_CLASSES, MapObject, ObjectEvent
 from arcloud.events.zenoh import (
@@ -36,25 +46,6 @@ PROTOBUF = {"content-type": "application/x-protobuf"}
 CONFIRMED, TENTATIVE = pb.Object.STATUS_CONFIRMED, pb.Object.STATUS_TENTATIVE
 
 
-class Collector:
-    def __init__(self) -> None:
-        self.events: list[pb.ObjectEvent] = []
-        self._lock = threading.Lock()
-
-    def __call__(self, event: pb.ObjectEvent) -> None:
-        with self._lock:
-            self.events.append(event)
-
-    def kinds(self) -> list[int]:
-        with self._lock:
-            return [e.kind for e in self.events]
-
-    def of(self, object_id: int) -> list[tuple[int, int]]:
-        """(version, status) of each event of the object that carries its state, in arrival order."""
-        with self._lock:
-            return [(e.object.version, e.object.status) for e in self.events if e.object_id == object_id and e.HasField("object")]
-
-
 @pytest.fixture
 def service() -> Iterator[tuple[AppClient, str, MemoryStore, BlobDetector]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -75,7 +66,7 @@ def test_default_subscribers_see_the_served_map_and_are_told_when_an_object_leav
         assert api.post("/v1/maps/z/frames", content=body, headers=PROTOBUF).status_code == 202
         wait_until(lambda: store.count_frames("z") == index + 1, 20, f"frame {index} processed")
 
-    served, everything = Collector(), Collector()
+    served, everything = EventCollector(), EventCollector()
     with ExitStack() as subscriptions:  # each known to the service's peer before the next (a key tells of all before)
         subscriptions.enter_context(subscribe_objects("z", served, connect=[endpoint]))
         wait_for_subscriber(object_key("z", 0), endpoint=endpoint)
@@ -182,9 +173,9 @@ def test_router_sends_each_event_to_one_key_space() -> None:
         (ObjectEvent("deleted", "m", 2), "tentative"),  # never served: the served map's subscribers never had it
         (ObjectEvent("deleted", "m", 3, was_confirmed=True), "served"),
         (ObjectEvent("created", "m", 4, state(4, 1, True)), "served"),
-        (ObjectEvent("removed", "m", 4, was_confirmed=True), "served"),  # seen gone: whoever had it is told
+        (ObjectEvent("retired", "m", 4, was_confirmed=True), "served"),  # seen gone: whoever had it is told
         (ObjectEvent("updated", "m", 4, state(4, 2, True)), None),  # nothing of a removed object is newer
-        (ObjectEvent("removed", "m", 5), "tentative"),
+        (ObjectEvent("retired", "m", 5), "tentative"),
         (ObjectEvent("created", "other", 1, state(1, 1, True)), "served"),  # maps are apart
     ]
     assert [router.route(event) for event, _ in steps] == [where for _, where in steps]
@@ -207,7 +198,7 @@ def test_publisher_puts_each_event_on_its_key_space() -> None:
         with lock:
             received.append((str(sample.key_expr), pb.ObjectEvent.FromString(sample.payload.to_bytes())))  # type: ignore[attr-defined]  # sample: a zenoh.Sample typed as object
 
-    served, everything = Collector(), Collector()
+    served, everything = EventCollector(), EventCollector()
     session = open_session("peer", connect=[f"tcp/127.0.0.1:{port}"])
     try:
         with ExitStack() as subscriptions:  # each known to the publisher before the next (a key tells of all before)

@@ -21,6 +21,7 @@ from pydantic import ValidationError
 from svc_helpers import free_port, wait_until
 
 from arcloud.client import ArcloudClient
+from arcloud.core.change import MapChange
 from arcloud.core.types import AABB, N_CLASSES, MapObject, ObjectEvent
 from arcloud.core.voxels import keys_bounds, pack_keys
 from arcloud.errors import ArcloudError, InvalidInput
@@ -117,7 +118,9 @@ def chair(object_id: int, version: int = 1) -> MapObject:
 
 def test_a_device_gets_its_maps_events_and_objects_and_nothing_of_another_map(router: ZenohRouter) -> None:
     store = MemoryStore()
-    assert store.commit(MAP, [], [chair(1)], []) and store.commit("lab", [], [chair(2)], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [chair(1)])) and store.commit(
+        "lab", [], MapChange.writing("lab", [chair(2)])
+    )
     service = ZenohPublisher(mode="client", connect=[router.endpoint], store=store, config_file=router.credentials("arcloud"))
     phone = router.credentials("office-phone-1")
     events, lab_events = Received[pb.ObjectEvent](), Received[pb.ObjectEvent]()
@@ -220,7 +223,7 @@ def test_the_api_and_workers_connect_with_the_zenoh_config_file(router: ZenohRou
         detector="sim:0", zenoh_mode="client", zenoh_connect=[router.endpoint], zenoh_config=str(router.credentials("arcloud"))
     )
     store = MemoryStore()
-    assert store.commit(MAP, [], [chair(1)], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [chair(1)]))
     events = Received[pb.ObjectEvent]()
     api = build_publisher(settings, store, None)
     worker = worker_publisher(settings)

@@ -244,7 +244,7 @@ def test_events() -> None:
     assert not merged.HasField("object")
     deleted = event_to_proto(ObjectEvent("deleted", "lab", 9))
     assert deleted.kind == pb.ObjectEvent.KIND_DELETED and deleted.time_s > 1.6e9  # now
-    removed = pb.ObjectEvent.FromString(event_to_proto(ObjectEvent("removed", "lab", 9), time_s=400.0).SerializeToString())
-    assert (removed.kind, removed.object_id, removed.time_s) == (pb.ObjectEvent.KIND_REMOVED, 9, 400.0)
-    assert not removed.HasField("object") and not removed.HasField("merged_into")
+    retired = pb.ObjectEvent.FromString(event_to_proto(ObjectEvent("retired", "lab", 9), time_s=400.0).SerializeToString())
+    assert (retired.kind, retired.object_id, retired.time_s) == (pb.ObjectEvent.KIND_RETIRED, 9, 400.0)
+    assert not retired.HasField("object") and not retired.HasField("merged_into")
     assert event_to_proto(ObjectEvent("updated", "lab", 7, obj)).kind == pb.ObjectEvent.KIND_UPDATED

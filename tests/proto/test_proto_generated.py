@@ -107,7 +107,7 @@ def test_field_numbers_never_change() -> None:
         "KIND_UPDATED": 2,
         "KIND_MERGED": 3,
         "KIND_DELETED": 4,
-        "KIND_REMOVED": 5,
+        "KIND_RETIRED": 5,
     }
 
 

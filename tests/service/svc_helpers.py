@@ -275,3 +275,29 @@ def wait_for_subscriber(key: str, *, endpoint: str = "", session: Any = None, ti
         publisher.undeclare()
         if session is None:
             probe.close()
+
+
+class EventCollector:
+    """A Zenoh subscriber's callback keeping every ``arcloud.v1.ObjectEvent`` it is given (Zenoh threads call it)."""
+
+    def __init__(self) -> None:
+        self.events: list[Any] = []  # arcloud_pb2.ObjectEvent: the generated module is loaded by the tests that use it
+        self._lock = threading.Lock()
+
+    def __call__(self, event: Any) -> None:
+        with self._lock:
+            self.events.append(event)
+
+    def kinds(self) -> list[int]:
+        with self._lock:
+            return [e.kind for e in self.events]
+
+    def states(self) -> list[tuple[int, int]]:
+        """(version, status) of each event that carries its object's state, in arrival order."""
+        with self._lock:
+            return [(e.object.version, e.object.status) for e in self.events if e.HasField("object")]
+
+    def of(self, object_id: int) -> list[tuple[int, int]]:
+        """``states`` of one object."""
+        with self._lock:
+            return [(e.object.version, e.object.status) for e in self.events if e.object_id == object_id and e.HasField("object")]

@@ -17,6 +17,7 @@ from redis_server import RedisServer
 from svc_helpers import AppClient, BlobDetector, UvicornThread, assert_problem, cube, make_test_frame, wait_until
 
 from arcloud.access import new_key
+from arcloud.core.change import MapChange
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
 from arcloud.stores import redis as redis_store_module
@@ -64,7 +65,7 @@ def test_a_large_maps_deletion_is_followed_by_another_client_and_refuses_the_map
                 posted = http.post(f"/v1/maps/{big}/frames", content=frame_body(big), headers={**PROTOBUF, **as_admin})
                 assert posted.status_code == 202, posted.text
                 for start in range(1, N_OBJECTS + 1, 100):
-                    store.commit(big, [], [cube(i) for i in range(start, start + 100)], [])
+                    store.commit(big, [], MapChange.writing(big, [cube(i) for i in range(start, start + 100)]))
                 assert store.count_objects(big) == N_OBJECTS
                 answers: dict[str, httpx.Response] = {}
 

@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 from svc_helpers import AppClient, BlobDetector, cube
 
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import MapObject, Params
 from arcloud.ports import ObjectMeta
@@ -64,7 +65,7 @@ def served() -> Iterator[tuple[AppClient, CountingStore]]:
     store.open_map(MAP, MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
     objects = [cube(i) for i in range(1, N_OBJECTS + 1)]
     for first in range(0, N_OBJECTS, 50):
-        store.commit(MAP, [], objects[first : first + 50], [])
+        store.commit(MAP, [], MapChange.writing(MAP, objects[first : first + 50]))
     settings = Settings(
         detector="sim:0",
         workers=1,

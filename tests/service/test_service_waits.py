@@ -57,7 +57,9 @@ def test_the_lock_timer_counts_the_time_another_holder_kept_the_objects() -> Non
     store = MemoryStore(cell_m=1.0)
     timer = LockTimer(store)
     held = store.lock("m", [1, 2], ttl_s=10, timeout_s=0)
-    releaser = threading.Timer(0.2, held.release)
+    # Held 0.3 s from before the timed call: at least 0.2 s of it is waited inside the call, unless the waiting
+    # thread is held back over 0.1 s before it starts (the 0.2 s hold it had measured 0.196 s on a loaded machine).
+    releaser = threading.Timer(0.3, held.release)
     releaser.start()
     started = time.perf_counter()
     with timer.lock("m", [2, 3], ttl_s=10, timeout_s=5):

@@ -17,6 +17,7 @@ from redis_server import RedisServer
 from svc_helpers import BlobDetector, make_test_frame, wait_until
 
 from arcloud.core.types import Frame, ObjectEvent, Params
+from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.worker import FrameWorker
 from arcloud.stores import keys
 from arcloud.stores.redis import RedisStore
@@ -113,11 +114,16 @@ class SlowPublisher:
 
 
 def test_the_heartbeat_keeps_both_frames_in_hand_fresh(server: RedisServer) -> None:
-    """Integrating a frame takes 1.5 s (its publisher), detecting one 0.3 s: the prefetched frame waits
+    """Integrating a frame takes 1.5 s (publishing its change log), detecting one 0.3 s: the prefetched frame waits
     1.2 s in hand beside it, yet no entry of the worker idles past a few heartbeats (0.1 s), and another
     consumer claims none of them."""
     slow = worker(
-        server, BlobDetector(delay_s=0.3), prefetch=True, consumer="slow", heartbeat_s=0.1, publisher=SlowPublisher(1.5)
+        server,
+        BlobDetector(delay_s=0.3),
+        prefetch=True,
+        consumer="slow",
+        heartbeat_s=0.1,
+        feed=ChangeFeed(RedisStore(server.url), SlowPublisher(1.5)),
     )
     for frame in walk("beat", 4):
         slow.queue.put(frame)

@@ -15,6 +15,7 @@ from redis_server import LocalCluster, RedisServer, free_port
 from store_cases import MAP, make_object, step_frame
 from test_queue_contract import frame
 
+from arcloud.core.change import MapChange
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import Params
 from arcloud.errors import InvalidInput, StoreUnavailable
@@ -54,7 +55,7 @@ def test_the_shards_of_a_queue_sit_on_every_primary_and_a_map_on_one(redis_clust
         assert isinstance(client, redis.cluster.RedisCluster)
         homes = {client.get_node_from_key(keys.ingest_stream(queue.shard_tag(k))).name for k in range(3)}
         assert len(homes) == 3  # shard_tag spreads the shards' slots over the equal ranges of the primaries
-        store.commit(MAP, [], [make_object(1, (0.1, 0.1, 0.1)), make_object(2, (3.0, 0.0, 0.0))], [])
+        store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.1, 0.1, 0.1)), make_object(2, (3.0, 0.0, 0.0))]))
         map_keys = [k for node in redis_cluster.nodes for k in node.client().keys(f"arcloud:{{{MAP}}}:*")]
         assert len(map_keys) > 5 and len({client.get_node_from_key(k).name for k in map_keys}) == 1
         assert "cluster 127.0.0.1:" in repr(store)
@@ -114,7 +115,7 @@ def test_every_script_touches_keys_of_one_slot_only(redis_server: RedisServer) -
         store.query_region(MAP, np.full(3, -1.0), np.full(3, 4.0))
         (first, *_) = store.list_objects(MAP)
         with store.lock(MAP, [first.id], ttl_s=5, timeout_s=1) as lease:
-            store.commit(MAP, [lease], [], [first], frame_key="d/x")
+            store.commit(MAP, [lease], MapChange.writing(MAP, [], [first]), frame_key="d/x")
         with store.claim(MAP, [(0, 0, 0), (0, 1, 0)], ttl_s=5, timeout_s=1):
             pass
         for index, map_id in enumerate(("a", "walk", "b", "b")):

@@ -16,6 +16,7 @@ from ping_watch import PING_BOUND_S, PingWatch
 from redis_server import RedisServer
 from store_cases import EDGE, MAP, make_object, snapshot_of, spread_object
 
+from arcloud.core.change import MapChange
 from arcloud.core.types import Params
 from arcloud.errors import InvalidInput, TooManyCells
 from arcloud.stores import keys, snapshot
@@ -34,23 +35,30 @@ def test_the_test_objects_cover_the_cells_they_say() -> None:
 # --- every store: what one write may touch -----------------------------------------------------------------------
 def test_an_object_over_the_cell_limit_is_refused_and_nothing_written(store) -> None:
     with pytest.raises(InvalidInput, match="at most 4096 index cells") as refused:
-        store.commit(MAP, [], [make_object(1, (0.0, 0, 0)), spread_object(2, (20.0, 0, 0), EDGE + 1)], [], frame_key="d/f")
+        store.commit(
+            MAP,
+            [],
+            MapChange.writing(MAP, [make_object(1, (0.0, 0, 0)), spread_object(2, (20.0, 0, 0), EDGE + 1)]),
+            frame_key="d/f",
+        )
     assert refused.value.field == "object 2.bounds"
     assert store.list_objects(MAP) == [] and not store.is_frame_done(MAP, "d/f")
 
 
 def test_a_commit_adding_and_removing_more_cells_than_one_write_takes_is_refused(store) -> None:
-    store.commit(MAP, [], [spread_object(1, (0.0, 0, 0), EDGE)], [])  # at the limit: written
+    store.commit(MAP, [], MapChange.writing(MAP, [spread_object(1, (0.0, 0, 0), EDGE)]))  # at the limit: written
     moved = spread_object(1, (40.0, 0, 0), EDGE, version=2)  # its cells out, as many in
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
         # 4096 out + 4096 in + 1: the store counts what it would remove before it writes anything
         with pytest.raises(TooManyCells) as refused:
-            store.commit(MAP, [lease], [moved, make_object(2, (80.0, 0, 0), size_m=0.05)], [], frame_key="d/f")
+            store.commit(
+                MAP, [lease], MapChange.writing(MAP, [moved, make_object(2, (80.0, 0, 0), size_m=0.05)]), frame_key="d/f"
+            )
         assert refused.value.field == "commit" and refused.value.n_cells == 2 * MAX_OBJECT_CELLS + 1
         assert refused.value.limit == MAX_SCRIPT_CELLS
         [kept] = store.list_objects(MAP)
         assert kept.version == 1 and not store.is_frame_done(MAP, "d/f")
-        assert store.commit(MAP, [lease], [moved], [], frame_key="d/f")  # exactly the bound: written
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [moved]), frame_key="d/f")  # exactly the bound: written
     [written] = store.list_objects(MAP)
     assert written.version == 2 and store.query_region(MAP, np.zeros(3), np.ones(3)) == {}
     assert list(store.query_region(MAP, np.array([41.0, 1, 1]), np.array([42.0, 2, 2]))) == [1]

@@ -22,6 +22,7 @@ from store_cases import (
 
 import arcloud.stores.memory
 import arcloud.stores.redis
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.step import integrate_frame
@@ -36,7 +37,7 @@ def test_query_region_finds_objects_by_bounds(store) -> None:
     a = make_object(1, (0.1, 0.1, 0.1))  # bounds [0.1, 0.4]^3 (in cell 0,0,0)
     b = make_object(2, (3.0, 3.0, 0.0))  # [3.0, 3.3] x [3.0, 3.3] x [0, 0.3]
     c = make_object(3, (0.9, 0.9, 0.9), size_m=1.3)  # [0.9, 2.2]^3: spans 27 cells
-    assert store.commit(MAP, [], [a, b, c], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a, b, c]))
 
     found = store.query_region(MAP, np.array([0.0, 0.0, 0.0]), np.array([0.5, 0.5, 0.5]))
     assert set(found) == {1}
@@ -57,16 +58,16 @@ def test_query_region_finds_objects_by_bounds(store) -> None:
 def test_query_region_follows_moves_and_deletes(store) -> None:
     a = make_object(1, (0.1, 0.1, 0.1))
     b = make_object(2, (3.0, 3.0, 0.0))
-    store.commit(MAP, [], [a, b], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [a, b]))
     here, there = (np.zeros(3), np.full(3, 0.5)), (np.full(3, 5.0), np.full(3, 5.6))
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
         a2 = moved(a, (5.1, 5.1, 5.1))
-        assert store.commit(MAP, [lease], [a2], [])
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [a2]))
     assert store.query_region(MAP, *here) == {}
     assert set(store.query_region(MAP, *there)) == {1}
     np.testing.assert_allclose(store.query_region(MAP, *there)[1][0], a2.bounds.min)
     with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=1) as lease:
-        assert store.commit(MAP, [lease], [], [a2])
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [], [a2]))
     assert store.query_region(MAP, np.full(3, -10.0), np.full(3, 10.0)).keys() == {2}
     assert [o.id for o in store.list_objects(MAP)] == [2]
 
@@ -147,7 +148,7 @@ def test_a_claim_takes_at_most_max_cells_per_call(store) -> None:
 # --- objects and commits -----------------------------------------------------------------------------
 def test_commit_and_get_round_trip(store) -> None:
     objects = [make_object(i, (i * 1.0, 0.0, 0.0), seed=i) for i in (3, 1, 2)]
-    assert store.commit(MAP, [], objects, [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, objects))
     got = store.get(MAP, [2, 99, 3])
     assert [o.id for o in got] == [2, 3]
     assert_same_object(got[0], objects[2])
@@ -162,7 +163,7 @@ def test_commit_and_get_round_trip(store) -> None:
 def test_voxel_colours_round_trip_and_unknown_ones_stay_unknown(store) -> None:
     coloured, unknown = make_object(1, (0.0, 0.0, 0.0), seed=1), make_object(2, (2.0, 0.0, 0.0), seed=2).replace(colors=None)
     assert coloured.colors is not None and len({tuple(c) for c in coloured.colors}) > 1
-    assert store.commit(MAP, [], [coloured, unknown], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [coloured, unknown]))
     got_coloured, got_unknown = store.get(MAP, [1, 2])
     assert_same_object(got_coloured, coloured)
     assert_same_object(got_unknown, unknown)  # None: unknown, not a colour
@@ -197,55 +198,55 @@ def test_a_map_created_under_an_older_codec_version_opens_and_a_newer_one_is_ref
 
 def test_commit_fences_versions_and_locks(store) -> None:
     a = make_object(1, (0.0, 0.0, 0.0))
-    store.commit(MAP, [], [a], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [a]))
     with pytest.raises(StaleLease):  # an existing object written without its lock
-        store.commit(MAP, [], [moved(a, (1.0, 0, 0))], [])
+        store.commit(MAP, [], MapChange.writing(MAP, [moved(a, (1.0, 0, 0))]))
     with pytest.raises(StaleLease):  # a "new" object that already exists
-        store.commit(MAP, [], [make_object(1, (2.0, 0, 0))], [])
+        store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (2.0, 0, 0))]))
     with pytest.raises(StaleLease):  # version 2 of an object that does not exist
-        store.commit(MAP, [], [make_object(9, (2.0, 0, 0), version=2)], [])
+        store.commit(MAP, [], MapChange.writing(MAP, [make_object(9, (2.0, 0, 0), version=2)]))
     with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
         with pytest.raises(StaleLease):  # skips a version
-            store.commit(MAP, [lease], [make_object(1, (1.0, 0, 0), version=3)], [])
+            store.commit(MAP, [lease], MapChange.writing(MAP, [make_object(1, (1.0, 0, 0), version=3)]))
         with pytest.raises(StaleLease):  # deleted at a stale version
-            store.commit(MAP, [lease], [], [make_object(1, (0.0, 0, 0), version=0)])
-        assert store.commit(MAP, [lease], [moved(a, (1.0, 0, 0))], [])
+            store.commit(MAP, [lease], MapChange.writing(MAP, [], [make_object(1, (0.0, 0, 0), version=0)]))
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [moved(a, (1.0, 0, 0))]))
     assert store.get(MAP, [1])[0].version == 2
 
 
 def test_expired_holder_cannot_overwrite_newer_data(store) -> None:
     a = make_object(1, (0.0, 0.0, 0.0))
-    store.commit(MAP, [], [a], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [a]))
     slow = store.lock(MAP, [1], ttl_s=0.1, timeout_s=0)
     slow_read = store.get(MAP, [1])[0]
     time.sleep(0.15)  # the slow worker's lock expires
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as fast:
         newer = moved(slow_read, (2.0, 0, 0), seed=11)
-        assert store.commit(MAP, [fast], [newer], [], frame_key="dev/fast")
+        assert store.commit(MAP, [fast], MapChange.writing(MAP, [newer]), frame_key="dev/fast")
     with pytest.raises(StaleLease):
-        store.commit(MAP, [slow], [moved(slow_read, (4.0, 0, 0), seed=12)], [], frame_key="dev/slow")
+        store.commit(MAP, [slow], MapChange.writing(MAP, [moved(slow_read, (4.0, 0, 0), seed=12)]), frame_key="dev/slow")
     assert_same_object(store.get(MAP, [1])[0], newer)
     assert not store.is_frame_done(MAP, "dev/slow")
     # even with a fresh lock, a write based on the old version is refused
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as again, pytest.raises(StaleLease):
-        store.commit(MAP, [again], [moved(slow_read, (4.0, 0, 0))], [])
+        store.commit(MAP, [again], MapChange.writing(MAP, [moved(slow_read, (4.0, 0, 0))]))
     assert_same_object(store.get(MAP, [1])[0], newer)
 
 
 def test_failed_commit_writes_nothing(store) -> None:
     a = make_object(1, (0.0, 0.0, 0.0))
     b = make_object(2, (1.0, 0.0, 0.0))
-    store.commit(MAP, [], [a, b], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [a, b]))
     claim = store.claim(MAP, [(3, 0, 0)], ttl_s=0.1, timeout_s=0)
     with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0) as lease:
         fresh = make_object(3, (3.0, 0, 0))
         good_update = moved(a, (5.0, 0, 0))
         stale_delete = b.replace(version=7)
         with pytest.raises(StaleLease):
-            store.commit(MAP, [lease], [fresh, good_update], [stale_delete], frame_key="dev/f1")
+            store.commit(MAP, [lease], MapChange.writing(MAP, [fresh, good_update], [stale_delete]), frame_key="dev/f1")
         time.sleep(0.15)  # the claim expires: the whole commit is refused
         with pytest.raises(StaleLease):
-            store.commit(MAP, [lease, claim], [fresh, good_update], [b], frame_key="dev/f1")
+            store.commit(MAP, [lease, claim], MapChange.writing(MAP, [fresh, good_update], [b]), frame_key="dev/f1")
     assert [o.id for o in store.list_objects(MAP)] == [1, 2]
     assert_same_object(store.get(MAP, [1])[0], a)
     assert store.query_region(MAP, np.full(3, 2.9), np.full(3, 6.0)) == {}
@@ -255,13 +256,13 @@ def test_failed_commit_writes_nothing(store) -> None:
 
 def test_frame_is_recorded_once(store) -> None:
     assert not store.is_frame_done(MAP, "dev/f1")
-    assert store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [], frame_key="dev/f1")
+    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]), frame_key="dev/f1")
     assert store.is_frame_done(MAP, "dev/f1")
     assert not store.is_frame_done("map-b", "dev/f1")
-    assert store.commit(MAP, [], [make_object(2, (1.0, 0, 0))], [], frame_key="dev/f1") is False
+    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(2, (1.0, 0, 0))]), frame_key="dev/f1") is False
     assert [o.id for o in store.list_objects(MAP)] == [1]
-    assert store.commit(MAP, [], [], [], frame_key="dev/f2")
-    assert store.commit(MAP, [], [], [])  # no frame: always writes
+    assert store.commit(MAP, [], MapChange(), frame_key="dev/f2")
+    assert store.commit(MAP, [], MapChange())  # no frame: always writes
     assert store.count_frames(MAP) == 2
     assert store.count_frames("map-b") == 0
 
@@ -270,7 +271,7 @@ def test_processed_frames_are_remembered_for_the_retention_and_counted_for_ever(
     clock = Clock()
     store = make_store(frame_record_retention_s=10.0, clock=clock)
     for i in range(300):
-        assert store.commit(MAP, [], [], [], frame_key=f"dev/f{i}")
+        assert store.commit(MAP, [], MapChange(), frame_key=f"dev/f{i}")
         clock.now_s += 1.0
     assert store.count_frames(MAP) == 300
     if isinstance(store, RedisStore):
@@ -279,46 +280,46 @@ def test_processed_frames_are_remembered_for_the_retention_and_counted_for_ever(
         marks = len(store._map(MAP).frames)
     assert marks <= 11  # the frames of the last 10 s, not 300
     assert store.is_frame_done(MAP, "dev/f299") and not store.is_frame_done(MAP, "dev/f0")
-    assert store.commit(MAP, [], [], [], frame_key="dev/f299") is False  # redelivered within the retention: once
-    assert store.commit(MAP, [], [], [], frame_key="dev/f0")  # past it: as a new frame
+    assert store.commit(MAP, [], MapChange(), frame_key="dev/f299") is False  # redelivered within the retention: once
+    assert store.commit(MAP, [], MapChange(), frame_key="dev/f0")  # past it: as a new frame
     assert store.count_frames(MAP) == 301
     clock.now_s += 10.5  # every mark past the retention, none dropped yet: none counts
     assert not store.is_frame_done(MAP, "dev/f299")
-    assert store.commit(MAP, [], [], [], frame_key="dev/f299")
+    assert store.commit(MAP, [], MapChange(), frame_key="dev/f299")
 
 
 def test_misses_are_counted_under_the_lock_once_per_frame_without_a_new_version(store) -> None:
     a = make_object(1, (0.1, 0.1, 0.1))
-    assert store.commit(MAP, [], [a], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a]))
     with pytest.raises(StaleLease):
-        store.commit(MAP, [], [], [], frame_key="f1", misses={1: 1})  # not held
+        store.commit(MAP, [], MapChange(misses={1: 1}), frame_key="f1")  # not held
     assert store.get(MAP, [1])[0].n_missed == 0
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
-        assert store.commit(MAP, [lease], [], [], frame_key="f1", misses={1: 1})
-        assert not store.commit(MAP, [lease], [], [], frame_key="f1", misses={1: 2})  # re-delivered: nothing
+        assert store.commit(MAP, [lease], MapChange(misses={1: 1}), frame_key="f1")
+        assert not store.commit(MAP, [lease], MapChange(misses={1: 2}), frame_key="f1")  # re-delivered: nothing
     stored = store.get(MAP, [1])[0]
     assert (stored.n_missed, stored.version) == (1, a.version)
     assert_same_object(stored.replace(n_missed=0), a)
     # A rewrite carries the object's own count.
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
-        assert store.commit(MAP, [lease], [stored.replace(version=stored.version + 1, n_missed=7)], [])
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [stored.replace(version=stored.version + 1, n_missed=7)]))
     assert store.get(MAP, [1])[0].n_missed == 7
     assert store.list_objects(MAP)[0].n_missed == 7
 
 
 def test_gone_counts_are_kept_like_misses(store) -> None:
     a = make_object(1, (0.1, 0.1, 0.1))
-    assert store.commit(MAP, [], [a], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a]))
     with pytest.raises(StaleLease):
-        store.commit(MAP, [], [], [], frame_key="f1", gone={1: 1})  # not held
+        store.commit(MAP, [], MapChange(gone={1: 1}), frame_key="f1")  # not held
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
-        assert store.commit(MAP, [lease], [], [], frame_key="f1", misses={1: 1}, gone={1: 1})
-        assert not store.commit(MAP, [lease], [], [], frame_key="f1", gone={1: 2})  # re-delivered: nothing
-        assert store.commit(MAP, [lease], [], [], frame_key="f2", misses={1: 2}, gone={1: 2})
+        assert store.commit(MAP, [lease], MapChange(misses={1: 1}, gone={1: 1}), frame_key="f1")
+        assert not store.commit(MAP, [lease], MapChange(gone={1: 2}), frame_key="f1")  # re-delivered: nothing
+        assert store.commit(MAP, [lease], MapChange(misses={1: 2}, gone={1: 2}), frame_key="f2")
     stored = store.get(MAP, [1])[0]
     assert (stored.n_missed, stored.n_gone, stored.version) == (2, 2, a.version)
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:  # a rewrite carries the object's own counts
-        assert store.commit(MAP, [lease], [stored.replace(version=stored.version + 1, n_gone=0)], [])
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [stored.replace(version=stored.version + 1, n_gone=0)]))
     assert store.list_objects(MAP)[0].n_gone == 0 and store.list_objects(MAP)[0].n_missed == 2
 
 
@@ -326,16 +327,16 @@ def test_retired_objects_leave_the_map_for_its_history(make_store) -> None:
     clock = Clock()
     store = make_store(retired_history_s=100.0, clock=clock)
     a, b, c = make_object(1, (0.1, 0.1, 0.1)), make_object(2, (3.0, 3.0, 0.0)), make_object(3, (5.0, 0.0, 0.0))
-    assert store.commit(MAP, [], [a, b, c], [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a, b, c]))
     assert store.retired_objects(MAP) == []
     with pytest.raises(StaleLease):
-        store.commit(MAP, [], [], [], retired=[a])  # not held
+        store.commit(MAP, [], MapChange(retired=tuple([a])))  # not held
     with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=1) as lease:
         with pytest.raises(StaleLease):
-            store.commit(MAP, [lease], [], [], retired=[a.replace(version=a.version + 1)])  # not the stored version
-        assert store.commit(MAP, [lease], [], [], frame_key="f1", retired=[a])
+            store.commit(MAP, [lease], MapChange(retired=tuple([a.replace(version=a.version + 1)])))  # not the stored version
+        assert store.commit(MAP, [lease], MapChange(retired=tuple([a])), frame_key="f1")
         clock.now_s += 10.0
-        assert store.commit(MAP, [lease], [], [], frame_key="f2", retired=[b])
+        assert store.commit(MAP, [lease], MapChange(retired=tuple([b])), frame_key="f2")
     assert [o.id for o in store.list_objects(MAP)] == [3]
     assert store.query_region(MAP, np.full(3, -1.0), np.full(3, 4.0)) == {}
     history = store.retired_objects(MAP)
@@ -344,7 +345,7 @@ def test_retired_objects_leave_the_map_for_its_history(make_store) -> None:
     assert store.retired_objects("map-b") == []
     clock.now_s += 95.0  # a retired 105 s ago, b 95 s ago
     assert [r.meta.id for r in store.retired_objects(MAP)] == [2]
-    assert store.commit(MAP, [], [], [], frame_key="f3")  # a commit trims the history
+    assert store.commit(MAP, [], MapChange(), frame_key="f3")  # a commit trims the history
     assert [r.meta.id for r in store.retired_objects(MAP)] == [2]
     assert history_size(store) == 1
     store.delete_map(MAP)
@@ -357,11 +358,11 @@ def test_the_history_keeps_at_most_its_number_of_objects(make_store, monkeypatch
     clock = Clock()
     store = make_store(clock=clock)
     objects = [make_object(i, (i * 1.0, 0.0, 0.0)) for i in (1, 2, 3, 4)]
-    assert store.commit(MAP, [], objects, [])
+    assert store.commit(MAP, [], MapChange.writing(MAP, objects))
     with store.lock(MAP, [1, 2, 3, 4], ttl_s=10, timeout_s=1) as lease:
         for obj in objects[:3]:
             clock.now_s += 1.0
-            assert store.commit(MAP, [lease], [], [], retired=[obj])
+            assert store.commit(MAP, [lease], MapChange(retired=tuple([obj])))
     assert [r.meta.id for r in store.retired_objects(MAP)] == [3, 2] and history_size(store) == 2  # the oldest left
 
 
@@ -374,11 +375,13 @@ def history_size(store) -> int:
 
 def test_delete_needs_the_lock_and_removes_the_object(store) -> None:
     a, b = make_object(1, (0.0, 0, 0)), make_object(2, (0.2, 0, 0))
-    store.commit(MAP, [], [a, b], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [a, b]))
     with pytest.raises(StaleLease):
-        store.commit(MAP, [], [], [a])
+        store.commit(MAP, [], MapChange.writing(MAP, [], [a]))
     with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
-        assert store.commit(MAP, [lease], [], [a, make_object(42, (9.0, 9, 9))])  # unknown ids are skipped
+        assert store.commit(
+            MAP, [lease], MapChange.writing(MAP, [], [a, make_object(42, (9.0, 9, 9))])
+        )  # unknown ids are skipped
     assert store.get(MAP, [1, 2])[0].id == 2
     assert set(store.query_region(MAP, np.zeros(3), np.ones(3))) == {2}
 
@@ -420,8 +423,8 @@ def test_new_ids_cost_the_same_for_any_number(store) -> None:
 
 
 def test_delete_map_removes_only_that_map(store) -> None:
-    store.commit(MAP, [], [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2, 3)], [], frame_key="dev/f1")
-    store.commit("map-b", [], [make_object(1, (0.0, 0, 0))], [], frame_key="dev/f1")
+    store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2, 3)]), frame_key="dev/f1")
+    store.commit("map-b", [], MapChange.writing("map-b", [make_object(1, (0.0, 0, 0))]), frame_key="dev/f1")
     store.new_ids(MAP, 5)
     assert store.delete_map(MAP) == 3
     assert store.list_objects(MAP) == []
@@ -434,7 +437,7 @@ def test_delete_map_removes_only_that_map(store) -> None:
 
 
 def test_a_deletion_is_recorded_as_done_with_the_objects_it_removed(store) -> None:
-    store.commit(MAP, [], [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2, 3)], [], frame_key="dev/f1")
+    store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2, 3)]), frame_key="dev/f1")
     assert store.map_deletion(MAP) is None
     assert store.delete_map(MAP) == 3
     deletion = store.map_deletion(MAP)
@@ -499,7 +502,7 @@ def test_concurrent_steps_lose_no_update_and_leave_no_duplicate(store) -> None:
 # --- what the service reads --------------------------------------------------------------------------
 def test_metadata_listing_matches_the_objects(store) -> None:
     objects = [make_object(i, (i * 1.0, 0, 0), seed=i) for i in (4, 2)]
-    store.commit(MAP, [], objects, [])
+    store.commit(MAP, [], MapChange.writing(MAP, objects))
     metas = store.list_meta(MAP)
     assert [m.id for m in metas] == [2, 4]
     for meta, obj in zip(metas, objects[::-1]):
@@ -519,10 +522,10 @@ def test_metadata_listing_matches_the_objects(store) -> None:
 
 def test_object_ids_are_the_maps_ids_in_order_and_follow_its_changes(store) -> None:
     objects = [make_object(i, (i * 1.0, 0, 0), seed=i) for i in (12, 3, 7)]
-    store.commit(MAP, [], objects, [])
+    store.commit(MAP, [], MapChange.writing(MAP, objects))
     assert store.object_ids(MAP) == [3, 7, 12] and store.object_ids("empty-map") == []
     with store.lock(MAP, [7], ttl_s=10, timeout_s=1) as lease:
-        store.commit(MAP, [lease], [], [objects[2]])
+        store.commit(MAP, [lease], MapChange.writing(MAP, [], [objects[2]]))
     assert store.object_ids(MAP) == [3, 12]
 
 
@@ -536,16 +539,13 @@ def test_opened_maps_are_listed_with_their_last_change_until_deleted(store) -> N
     store.open_map(MAP, header)
     store.open_map("map-b", header)
     assert store.list_maps() == {MAP: 1000.0, "map-b": 1000.0}  # opened, nothing written yet
-    assert store.map_updated_at(MAP) == 1000.0 and store.map_updated_at("never-made") is None
     assert store.count_objects(MAP) == 0 and store.count_objects("never-made") == 0
     before = time.time()
-    store.commit(MAP, [], [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2)], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0)) for i in (1, 2)]))
     listed = store.list_maps()
     assert before <= listed[MAP] <= time.time() and listed["map-b"] == 1000.0
-    assert store.map_updated_at(MAP) == listed[MAP]
     assert store.count_objects(MAP) == 2
     store.open_map(MAP, header)  # opening again changes nothing
     assert store.list_maps()[MAP] == listed[MAP]
     store.delete_map(MAP)
     assert store.list_maps() == {"map-b": 1000.0} and store.count_objects(MAP) == 0
-    assert store.map_updated_at(MAP) is None

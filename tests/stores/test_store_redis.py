@@ -16,6 +16,7 @@ from redis.crc import key_slot
 from redis_server import free_port
 from store_cases import MAP, Clock, assert_same_object, make_object, step_frame
 
+from arcloud.core.change import MapChange
 from arcloud.core.checks import make_frame
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import AABB, Params
@@ -35,7 +36,9 @@ def all_keys(store: RedisStore) -> set[str]:
 
 def test_every_key_of_a_map_shares_its_hash_tag(redis_store: RedisStore) -> None:
     store = redis_store
-    store.commit(MAP, [], [make_object(1, (0.0, 0, 0)), make_object(2, (1.5, -2.0, 0))], [], frame_key="dev/f1")
+    store.commit(
+        MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0)), make_object(2, (1.5, -2.0, 0))]), frame_key="dev/f1"
+    )
     store.new_ids(MAP, 3)
     lease = store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0)
     claim = store.claim(MAP, [(0, 0, 0)], ttl_s=10, timeout_s=0)
@@ -62,7 +65,7 @@ def test_objects_written_before_colours_read_with_colours_unknown_and_are_rewrit
 ) -> None:
     store = redis_store
     obj = make_object(1, (0.0, 0.0, 0.0))
-    store.commit(MAP, [], [obj], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [obj]))
     # The object's voxels as codec version 2 wrote them (its layout, spelled out here): no colours.
     payload = b"".join(
         (np.diff(obj.keys, prepend=0).astype("<i8").tobytes(), obj.weights.tobytes(), obj.seen.tobytes(), obj.votes.tobytes())
@@ -73,7 +76,7 @@ def test_objects_written_before_colours_read_with_colours_unknown_and_are_rewrit
     assert read.colors is None
     assert_same_object(read, obj.replace(colors=None))
     with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
-        assert store.commit(MAP, [lease], [read.replace(version=2)], [])
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [read.replace(version=2)]))
     rewritten = store.client.hget(keys.object_key(MAP, 1), "voxels")
     assert rewritten[4] == codec.FORMAT_VERSION == 5 and not rewritten[5] & codec.FLAG_COLORS
     assert store.get(MAP, [1])[0].colors is None
@@ -82,10 +85,10 @@ def test_objects_written_before_colours_read_with_colours_unknown_and_are_rewrit
 def test_delete_map_removes_every_key_of_the_map_and_no_other(redis_store: RedisStore) -> None:
     store = redis_store
     other = MAP + "2"  # a map id that starts with the other one: patterns must not mix them up
-    store.commit(other, [], [make_object(1, (0.0, 0, 0))], [], frame_key="dev/f1")
+    store.commit(other, [], MapChange.writing(other, [make_object(1, (0.0, 0, 0))]), frame_key="dev/f1")
     store.client.set("unrelated", b"1")
     kept = all_keys(store)
-    store.commit(MAP, [], [make_object(i, (i * 0.7, 0, 0)) for i in (1, 2, 3)], [], frame_key="dev/f1")
+    store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 0.7, 0, 0)) for i in (1, 2, 3)]), frame_key="dev/f1")
     store.new_ids(MAP, 4)
     store.lock(MAP, [1], ttl_s=60, timeout_s=0)  # a lease still alive
     store.claim(MAP, [(9, 9, 9)], ttl_s=60, timeout_s=0)
@@ -144,7 +147,7 @@ def test_a_server_that_is_down_raises_store_unavailable() -> None:
     with pytest.raises(StoreUnavailable):
         store.query_region(MAP, np.zeros(3), np.ones(3))
     with pytest.raises(StoreUnavailable):
-        store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [])
+        store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]))
     with pytest.raises(StoreUnavailable):
         store.lock(MAP, [1], ttl_s=1, timeout_s=0)
     store.close()
@@ -160,7 +163,7 @@ def test_large_boxes_read_the_bounds_instead_of_cells(redis_server) -> None:
     reference = MemoryStore(cell_m=0.5)
     objects = [make_object(i, tuple(rng.uniform(-4, 4, 3)), size_m=float(rng.uniform(0.05, 1.5)), seed=i) for i in range(1, 40)]
     for store in (small, reference):
-        store.commit(MAP, [], objects, [])
+        store.commit(MAP, [], MapChange.writing(MAP, objects))
     for _ in range(60):
         lo = rng.uniform(-5, 5, 3)
         hi = lo + rng.uniform(0, 3, 3)
@@ -178,25 +181,25 @@ def test_large_boxes_read_the_bounds_instead_of_cells(redis_server) -> None:
 def test_commit_checks_leases_belong_to_the_map(redis_store: RedisStore) -> None:
     lease = redis_store.lock("map-b", [1], ttl_s=10, timeout_s=0)
     with pytest.raises(InvalidInput, match="leases"):
-        redis_store.commit(MAP, [lease], [], [])
+        redis_store.commit(MAP, [lease], MapChange())
     lease.release()
     with pytest.raises(InvalidInput, match="bounds"):
-        redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0)).replace(bounds=None)], [])
+        redis_store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0)).replace(bounds=None)]))
     huge = make_object(1, (0.0, 0, 0)).replace(bounds=AABB(np.zeros(3), np.full(3, 1000.0)))  # a stray voxel 1 km away
     with pytest.raises(InvalidInput, match="index cells"):
-        redis_store.commit(MAP, [], [huge], [])
+        redis_store.commit(MAP, [], MapChange.writing(MAP, [huge]))
     assert redis_store.list_objects(MAP) == []
 
 
 def test_stale_errors_say_what_failed(redis_store: RedisStore) -> None:
-    redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [])
+    redis_store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]))
     with pytest.raises(StaleLease, match=r"object 1 written without its lock; nothing written"):
-        redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0), version=2)], [])
+        redis_store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0), version=2)]))
 
 
 def test_scripts_are_reloaded_after_a_script_flush(redis_store: RedisStore) -> None:
     redis_store.client.script_flush()
-    assert redis_store.commit(MAP, [], [make_object(1, (0.0, 0, 0))], [])
+    assert redis_store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]))
     with redis_store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
         # a retried acquire (its reply lost) with the same token succeeds instead of waiting for itself
         assert list(redis_store._scripts["acquire"](keys=lease.keys, args=[lease.token, 10_000])) == [0]
@@ -279,7 +282,7 @@ def test_two_processes_share_one_map(redis_store: RedisStore, redis_server) -> N
 def test_index_cells_hold_exactly_the_current_objects(redis_store: RedisStore) -> None:
     store = redis_store
     a, b = make_object(1, (0.1, 0.1, 0.1)), make_object(2, (0.9, 0.9, 0.0))  # b spans 8 cells
-    store.commit(MAP, [], [a, b], [])
+    store.commit(MAP, [], MapChange.writing(MAP, [a, b]))
 
     def index() -> dict[str, set[int]]:
         cells = store.client.scan_iter(match=keys.cell_key(MAP, (0, 0, 0)).rsplit(":", 3)[0] + ":*")
@@ -287,7 +290,9 @@ def test_index_cells_hold_exactly_the_current_objects(redis_store: RedisStore) -
 
     assert index() == {"0:0:0": {1, 2}, "1:0:0": {2}, "0:1:0": {2}, "1:1:0": {2}}
     with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0) as lease:
-        store.commit(MAP, [lease], [make_object(1, (-0.2, 0.1, 0.1), version=2)], [b])  # now spans x = -0.2..0.1
+        store.commit(
+            MAP, [lease], MapChange.writing(MAP, [make_object(1, (-0.2, 0.1, 0.1), version=2)], [b])
+        )  # now spans x = -0.2..0.1
     assert index() == {"-1:0:0": {1}, "0:0:0": {1}}
     assert store.client.hkeys(keys.bounds_key(MAP)) == [b"1"] and store.client.hkeys(keys.meta_key(MAP)) == [b"1"]
 
@@ -319,7 +324,7 @@ def test_a_maps_frame_records_stay_bounded_in_redis_memory(redis_store: RedisSto
             )
             item = queue.take("c1", block_s=1.0)
             assert item is not None
-            assert store.commit(MAP, [], [], [], frame_key=item.frame_key)
+            assert store.commit(MAP, [], MapChange(), frame_key=item.frame_key)
             queue.ack(item, redelivered=False)
             clock.now_s += 1.0
 

@@ -13,6 +13,7 @@ import pytest
 from snapshot_edits import with_object_changed, with_object_renamed
 from store_cases import MAP, assert_same_object, make_object
 
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import AABB, OBB, MapObject, Params
 from arcloud.errors import InvalidInput, MapMismatch
@@ -45,7 +46,7 @@ def test_a_snapshot_carries_the_voxel_colours(store) -> None:
     source = MemoryStore()
     source.open_map(MAP, MapHeader.from_params(Params(), codec_version=source.codec_version, created_at_s=1.0))
     objects = [make_object(1, (0.0, 0.0, 0.0), seed=1), make_object(2, (2.0, 0.0, 0.0), seed=2).replace(colors=None)]
-    source.commit(MAP, [], objects, [])
+    source.commit(MAP, [], MapChange.writing(MAP, objects))
     assert restore_bytes(store, "copy", snapshot_bytes(source, MAP), params=Params()) == 2
     for got, want in zip(store.list_objects("copy"), objects, strict=True):
         assert_same_object(got, want.replace(version=1))
@@ -98,7 +99,7 @@ def valid_snapshot() -> tuple[bytes, MapObject]:
     source = MemoryStore()
     source.open_map(MAP, MapHeader.from_params(Params(), codec_version=source.codec_version, created_at_s=1.0))
     objects = [make_object(1, (0.0, 0.0, 0.0), seed=1), make_object(2, (2.0, 0.0, 0.0), seed=2)]
-    source.commit(MAP, [], objects, [])
+    source.commit(MAP, [], MapChange.writing(MAP, objects))
     return snapshot_bytes(source, MAP), objects[0]
 
 

@@ -15,6 +15,7 @@ import pytest
 from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, cube, free_port, make_test_frame, wait_until
 from viewer_helpers import EventStream, bearer, make_keys
 
+from arcloud.core.change import ChangesSince, MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import Params
 from arcloud.ports import ObjectMeta
@@ -133,8 +134,10 @@ def test_a_stream_sends_the_map_then_each_change_as_frames_are_processed(service
 
         deleted = service.http.delete("/v1/maps/ev-b", headers=bearer(service.tokens["admin"]))
         assert deleted.status_code == 200, deleted.text
-        assert served.next_event("removed") == ("removed", {"id": listed["id"]})
-        assert every.next_event("removed") == ("removed", {"id": listed["id"]})
+        for stream in (served, every):  # the map's change log starts over: the streams start over with it
+            assert stream.next_event("reset")[1]["version"] == 0
+            _, empty = stream.next_event("snapshot")
+            assert empty["objects"] == [] and empty["version"] == 0 and stream.objects == {}
     wait_until(lambda: service.streams.open_streams == 0, 5, "both streams closed once their client went")
     wait_until(lambda: not service.streams.watches, 5, "the map's poller stopped")
 
@@ -250,34 +253,68 @@ def test_on_redis_a_stream_sees_what_workers_elsewhere_write() -> None:
 
 
 class CountingStore(MemoryStore):
-    """The embedded store, counting whole-map reads and reads of when a map last changed."""
+    """The embedded store, counting whole-map reads and reads of the change log."""
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
         self.whole_map_reads = 0
-        self.mark_reads = 0
+        self.log_reads = 0
 
     def list_meta(self, map_id: str) -> list[ObjectMeta]:
         self.whole_map_reads += 1
         return super().list_meta(map_id)
 
-    def map_updated_at(self, map_id: str) -> float | None:
-        self.mark_reads += 1
-        return super().map_updated_at(map_id)
+    def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
+        self.log_reads += 1
+        return super().changes_since(map_id, after, limit)
 
 
-def test_a_watched_map_is_read_again_only_after_it_changed() -> None:
-    store = CountingStore()
+def quiet_map(store: MemoryStore, *ids: int) -> None:
     store.open_map("quiet", MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
-    store.commit("quiet", [], [cube(1)], [])
+    store.commit("quiet", [], MapChange.writing("quiet", [cube(i) for i in ids]))
+
+
+def test_a_watched_map_is_read_whole_only_for_a_snapshot_then_its_change_log_is_tailed() -> None:
+    store = CountingStore()
+    quiet_map(store, 1)
     settings = Settings(detector="sim:0", workers=1, event_poll_s=0.02)
     with (
         UvicornThread(create_app(settings, store=store, detector=BlobDetector())) as server,
         EventStream(server.url, "quiet", tentative=True) as stream,
     ):
         assert [o["id"] for o in stream.next_event("snapshot")[1]["objects"]] == [1]
-        wait_until(lambda: store.mark_reads >= 10, 10, "ten polls")
-        assert store.whole_map_reads == 1  # the snapshot's read; nine polls found the map unchanged
-        store.commit("quiet", [], [cube(2)], [])
-        assert stream.next_event("upsert")[1]["id"] == 2
-        assert store.whole_map_reads == 2
+        assert stream.last_id == "1"
+        wait_until(lambda: store.log_reads >= 10, 10, "ten reads of the log")
+        assert store.whole_map_reads == 1  # the snapshot's read; the log had nothing new
+        store.commit("quiet", [], MapChange.writing("quiet", [cube(2)]))
+        assert stream.next_event("upsert")[1]["id"] == 2 and stream.last_id == "2"
+        assert store.whole_map_reads == 1
+
+
+def test_a_client_back_with_last_event_id_gets_what_it_missed_and_one_too_far_behind_a_reset() -> None:
+    """The log keeps 3 entries: a client away for 2 commits resumes with no snapshot and no gap; one away for
+    more is told ``reset`` and sent the map as it is; an id not of this map's log (ahead of it) too."""
+    store = MemoryStore(change_log_entries=3)
+    quiet_map(store, 1)
+    settings = Settings(detector="sim:0", workers=1, event_poll_s=0.02)
+    with UvicornThread(create_app(settings, store=store, detector=BlobDetector())) as server:
+        with EventStream(server.url, "quiet", tentative=True) as first:
+            first.next_event("snapshot")
+            left_at = first.last_id
+        assert left_at == "1"
+        store.commit("quiet", [], MapChange.writing("quiet", [cube(2)]))  # versions 2 and 3, while it was away
+        with store.lock("quiet", [1], ttl_s=5, timeout_s=1) as lease:
+            store.commit("quiet", [lease], MapChange.writing("quiet", [], [cube(1)]))
+        with EventStream(server.url, "quiet", tentative=True, last_event_id=left_at) as back:
+            back.objects = {1: {"id": 1}}  # what it held
+            back.read_until(lambda s: s.last_id == "3", "the changes after version 1")
+            assert [(name, data["id"]) for name, data in back.log] == [("removed", 1), ("upsert", 2)]  # by id, no snapshot
+            assert set(back.objects) == {2}
+        for i in range(3, 8):  # versions 4 to 8: the log keeps 6 to 8
+            store.commit("quiet", [], MapChange.writing("quiet", [cube(i)]))
+        for stale in ("3", "99"):
+            with EventStream(server.url, "quiet", tentative=True, last_event_id=stale) as behind:
+                _, reset = behind.next_event("reset")
+                _, snapshot = behind.next_event("snapshot")
+                assert reset["version"] == snapshot["version"] == 8 and behind.last_id == "8"
+                assert sorted(o["id"] for o in snapshot["objects"]) == [2, 3, 4, 5, 6, 7]

@@ -1,5 +1,4 @@
-"""The pure parts of the event stream and the devices record: what changed between two reads of a map, what
-one stream tells its client, the bounds of the record. No server."""
+"""The pure parts of the event stream and the devices record: what one stream tells its client, the bounds of the record. No server."""
 
 from __future__ import annotations
 
@@ -10,41 +9,45 @@ from svc_helpers import make_test_frame
 
 from arcloud.ports import ObjectMeta
 from arcloud.service.devices import RecentDevices
-from arcloud.service.event_stream import diff_devices, diff_objects, object_event, sse
+from arcloud.service.event_stream import Shown, diff_devices, last_event_id, object_event, sse
 
 
 def meta(object_id: int, version: int = 1, *, confirmed: bool = True) -> ObjectMeta:
     return ObjectMeta(object_id, "chair", 0.8, version, 10, 2, frozenset({"d"}), 1.6, 0.0, 1.0, None, None, None, confirmed)
 
 
-def test_a_change_is_a_new_object_a_new_version_or_a_new_status() -> None:
-    before = {1: meta(1), 2: meta(2), 3: meta(3)}
-    after = [meta(1), meta(2, version=2), meta(3, confirmed=False), meta(4)]
-    changed, removed = diff_objects(before, after)
-    assert [o.id for o in changed] == [2, 3, 4] and removed == []
-    assert diff_objects(before, [meta(2)]) == ([], [1, 3])
-    assert diff_objects({}, []) == ([], [])
-
-
 def test_a_stream_of_the_served_map_removes_an_object_that_becomes_tentative() -> None:
-    shown: set[int] = set()
+    shown = Shown()
     assert object_event(1, meta(1, confirmed=False), shown, include_tentative=False) is None  # never shown: nothing
     name, data = object_event(1, meta(1, 2), shown, include_tentative=False) or ("", {})
-    assert (name, data["id"], data["status"]) == ("upsert", 1, "confirmed") and shown == {1}
+    assert (name, data["id"], data["status"]) == ("upsert", 1, "confirmed") and shown.versions == {1: 2}
+    assert object_event(1, meta(1, 2), shown, include_tentative=False) is None  # that state was sent
     assert object_event(1, meta(1, 3, confirmed=False), shown, include_tentative=False) == ("removed", {"id": 1})
-    assert shown == set()
+    assert shown.versions == {}
     assert object_event(1, None, shown, include_tentative=False) is None  # gone, and not shown: nothing
 
 
 def test_a_stream_with_tentative_objects_shows_them_and_removes_only_what_is_gone() -> None:
-    shown: set[int] = set()
+    shown = Shown()
     assert (object_event(1, meta(1, confirmed=False), shown, include_tentative=True) or ("",))[0] == "upsert"
     assert object_event(1, None, shown, include_tentative=True) == ("removed", {"id": 1})
 
 
-def test_an_event_is_one_data_line_of_json() -> None:
+def test_a_resumed_stream_that_does_not_know_what_its_client_shows_removes_each_hidden_object_once() -> None:
+    shown = Shown(known=False)
+    assert object_event(1, meta(1, 4, confirmed=False), shown, include_tentative=False) == ("removed", {"id": 1})
+    assert object_event(1, meta(1, 5, confirmed=False), shown, include_tentative=False) is None
+    assert object_event(2, None, shown, include_tentative=False) == ("removed", {"id": 2})
+
+
+def test_last_event_id_names_a_version_or_nothing() -> None:
+    assert [last_event_id(h) for h in ("42", " 7 ", None, "", "abc", "-1", "1-0")] == [42, 7, None, None, None, None, None]
+
+
+def test_an_event_is_one_data_line_of_json_with_its_id_when_given() -> None:
     text = sse("upsert", {"label": "two\nlines", "score": 0.5})
     assert text == 'event: upsert\ndata: {"label":"two\\nlines","score":0.5}\n\n'
+    assert sse("removed", {"id": 3}, 12) == 'id: 12\nevent: removed\ndata: {"id":3}\n\n'
 
 
 def test_the_devices_record_keeps_each_devices_last_pose_bounded() -> None:

@@ -60,15 +60,18 @@ class EventStream:
         *,
         tentative: bool = False,
         cookies: dict[str, str] | None = None,
+        last_event_id: str | None = None,
     ) -> None:
         self.client = httpx.Client(base_url=base_url, timeout=httpx.Timeout(10.0, read=5.0), cookies=cookies)
         params = {"include": "tentative"} if tentative else {}
-        self._cm = self.client.stream("GET", f"/v1/maps/{map_id}/events", params=params, headers=bearer(token) if token else {})
+        headers = {**(bearer(token) if token else {}), **({"last-event-id": last_event_id} if last_event_id else {})}
+        self._cm = self.client.stream("GET", f"/v1/maps/{map_id}/events", params=params, headers=headers)
         self.response = self._cm.__enter__()
         self._lines = self.response.iter_lines()
         self.objects: dict[int, dict[str, Any]] = {}
         self.devices: dict[str, dict[str, Any]] = {}
         self.log: list[tuple[str, Any]] = []
+        self.last_id: str | None = None  # the last event id taken (a browser's ``lastEventId``)
 
     def __enter__(self) -> EventStream:
         return self
@@ -83,13 +86,15 @@ class EventStream:
     def events(self) -> Iterator[tuple[str, Any]]:
         """(name, data) of each event, applied to ``objects`` and ``devices``; comments as (":", text); ends
         with the stream."""
-        name, data = "message", []
+        name, data, event_id = "message", [], None
         for line in self._lines:
             if not line:
+                if event_id is not None:
+                    self.last_id = event_id
                 if data:
                     self._apply(name, json.loads("\n".join(data)))
                     yield self.log[-1]
-                name, data = "message", []
+                name, data, event_id = "message", [], None
             elif line.startswith(":"):
                 yield ":", line[1:].strip()
             else:
@@ -99,6 +104,8 @@ class EventStream:
                     name = value
                 elif field == "data":
                     data.append(value)
+                elif field == "id":
+                    event_id = value
 
     def read_until(self, done: Callable[[EventStream], bool], what: str, timeout_s: float = 15.0) -> None:
         """Read events until ``done(self)`` (on ``objects`` and ``devices``, which they keep up to date)."""

@@ -11,8 +11,9 @@
 
 Answers are typed (``arcloud.client.results``: frozen dataclasses named as the API's schemas, ``ObjectOut``,
 ``MapStats``, ...). ``events`` follows the map's server-sent event stream and connects again when the connection
-drops or the service restarts; the service keeps no event ids (no ``Last-Event-ID``), so after each connection the
-stream starts again with a ``SnapshotEvent``: the map as it is then, to replace what the caller held.
+drops or the service restarts, sending the id of the last event it had (``Last-Event-ID``: the map's version), so
+the stream goes on from there with nothing missed; when the service can no longer resume it (its change log no
+longer holds what followed), a ``ResetEvent`` and a new ``SnapshotEvent`` come, to replace what the caller held.
 
 With API keys (``arcloud keys create``), give ``token=`` or set ``$ARCLOUD_TOKEN``: every request then
 carries ``Authorization: Bearer TOKEN``.
@@ -320,12 +321,18 @@ class EventStream:
         self.retry_s = STREAM_RETRY_S
         self.failures = 0
         self.started = time.monotonic()
+        self.last_event_id: str | None = None  # the id of the last event taken: where a new connection resumes
         self.connected()
 
     def connected(self) -> None:
         """A new connection: what the last one left half-read is dropped."""
         self.name = ""
         self.data: list[str] = []
+        self.event_id: str | None = None
+
+    def resume_headers(self) -> dict[str, str]:
+        """``Last-Event-ID`` of the last event taken, when there is one."""
+        return {"Last-Event-ID": self.last_event_id} if self.last_event_id is not None else {}
 
     def feed(self, line: str) -> MapEvent | None:
         """Take one line of the stream; the event a blank line completes. A ``refused`` event (the key lost the
@@ -339,10 +346,14 @@ class EventStream:
                 self.name = value
             elif field == "data":
                 self.data.append(value)
+            elif field == "id" and "\0" not in value:
+                self.event_id = value
             elif field == "retry" and value.isdigit():
                 self.retry_s = int(value) / 1000
             return None
         name, text = self.name, "\n".join(self.data)
+        if self.event_id is not None:  # taken with its event (a bare id too: the client's place moved)
+            self.last_event_id = self.event_id
         self.connected()
         if not text:
             return None
@@ -485,7 +496,7 @@ def subscribe(
     """Receive the map's object events (``arcloud.v1.ObjectEvent``) over Zenoh from ``endpoints``
     (the service's or a router's, e.g. ``["tcp/127.0.0.1:7447"]``); ``close()`` the result to stop.
     By default the served map's: confirmed objects, and an event when one leaves it (a tentative
-    state, MERGED, DELETED or REMOVED); ``include_tentative``: tentative objects' events too. ``config_file``: a
+    state, MERGED, DELETED or RETIRED); ``include_tentative``: tentative objects' events too. ``config_file``: a
     Zenoh config file the session starts from, e.g. this device's user and password for a router with
     access control (``transport/auth/usrpwd``). Needs Zenoh: ``pip install 'arcloud[events]'`` (the
     base install has no Zenoh)."""
@@ -614,8 +625,8 @@ class ArcloudClient:
         """The map's events as they come (``GET /v1/maps/{map}/events``): a ``SnapshotEvent``, then ``UpsertEvent``,
         ``RemovedEvent``, ``DeviceEvent``, ``DeviceRemovedEvent``; confirmed objects unless ``include_tentative``.
         Never ends by itself: connects again when the connection drops, the service restarts or a read waits
-        longer than the client's timeout (the service sends a keep-alive every 15 s), each time from a new
-        ``SnapshotEvent`` (the module's docstring); ``ServiceError`` when refused (403 when the key loses the map
+        longer than the client's timeout (the service sends a keep-alive every 15 s), resuming after the last
+        event it had (``Last-Event-ID``; a ``ResetEvent`` and a ``SnapshotEvent`` when it cannot: the module's docstring); ``ServiceError`` when refused (403 when the key loses the map
         during the stream), and after ``max_retries`` failed connections in a row. Leave the loop (or ``close()``
         the iterator) to close the stream."""
         path = f"/v1/maps/{map_id}/events"
@@ -623,7 +634,9 @@ class ArcloudClient:
         while True:
             outcome: httpx.Response | Exception | None = None
             try:
-                with self.http.stream("GET", path, params=include_query(include_tentative), headers=self.headers) as response:
+                with self.http.stream(
+                    "GET", path, params=include_query(include_tentative), headers={**self.headers, **stream.resume_headers()}
+                ) as response:
                     stream.connected()
                     if not response.is_success:
                         response.read()
@@ -867,7 +880,7 @@ class AsyncArcloudClient:
             outcome: httpx.Response | Exception | None = None
             try:
                 async with self.http.stream(
-                    "GET", path, params=include_query(include_tentative), headers=self.headers
+                    "GET", path, params=include_query(include_tentative), headers={**self.headers, **stream.resume_headers()}
                 ) as response:
                     stream.connected()
                     if not response.is_success:

@@ -168,11 +168,21 @@ class DeviceOut:
 
 @dataclass(frozen=True, slots=True)
 class SnapshotEvent:
-    """The map as it is when the stream (re)connects: replaces whatever a viewer held."""
+    """The map as it is when the stream starts (or after a ``ResetEvent``): replaces whatever a viewer held."""
 
     objects: tuple[ObjectOut, ...]
     devices: tuple[DeviceOut, ...]
     world2gravity: tuple[float, ...]  # 3x3 row-major: the map's up to +z
+    version: int = 0  # the map's version it shows (its change log's entry)
+
+
+@dataclass(frozen=True, slots=True)
+class ResetEvent:
+    """The stream could not resume where the client was (the map's change log no longer holds what followed, or
+    the map was made again): drop what you hold; a ``SnapshotEvent`` follows."""
+
+    reason: str
+    version: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,7 +192,7 @@ class UpsertEvent:
 
 @dataclass(frozen=True, slots=True)
 class RemovedEvent:
-    id: int  # merged, deleted, or no longer shown (no longer confirmed, without include_tentative)
+    id: int  # left the stream's view: merged, deleted, retired, or no longer confirmed (without include_tentative)
 
 
 @dataclass(frozen=True, slots=True)
@@ -195,7 +205,7 @@ class DeviceRemovedEvent:
     device_id: str
 
 
-MapEvent = SnapshotEvent | UpsertEvent | RemovedEvent | DeviceEvent | DeviceRemovedEvent
+MapEvent = SnapshotEvent | ResetEvent | UpsertEvent | RemovedEvent | DeviceEvent | DeviceRemovedEvent
 
 
 def map_event(name: str, data: Mapping[str, Any]) -> MapEvent | None:
@@ -203,6 +213,8 @@ def map_event(name: str, data: Mapping[str, Any]) -> MapEvent | None:
     (a newer service's). ``refused`` is no event: the stream's caller raises it."""
     if name == "snapshot":
         return from_json(SnapshotEvent, data)
+    if name == "reset":
+        return from_json(ResetEvent, data)
     if name == "upsert":
         return UpsertEvent(from_json(ObjectOut, data))
     if name == "removed":
@@ -274,6 +286,7 @@ __all__ = [
     "ObjectOut",
     "OrientedBox",
     "RemovedEvent",
+    "ResetEvent",
     "SnapshotEvent",
     "UpsertEvent",
     "Voxels",

@@ -9,11 +9,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from arcloud.core.change import MapChange
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent
 
 #: The most index cells one store call takes: a space claim of more raises ``TooManyCells``; a region
@@ -76,34 +77,17 @@ class MapStore(Protocol):
         a ``range``, so that moving the counter past restored ids costs the same for any ``n``)."""
         ...
 
-    def commit(
-        self,
-        map_id: str,
-        leases: Sequence[Lease],
-        upserts: Sequence[MapObject],
-        deletes: Sequence[MapObject],
-        *,
-        frame_key: str | None = None,
-        misses: Mapping[int, int] | None = None,
-        gone: Mapping[int, int] | None = None,
-        retired: Sequence[MapObject] = (),
-    ) -> bool:
-        """Write atomically, and record ``frame_key`` as processed in the same step.
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
+        """Write ``change`` atomically, append its events to the map's change log (``core.change``: one entry,
+        the map's version + 1, when it has events) and record ``frame_key`` as processed, in the same step.
 
-        Every existing object written or deleted must be held by one of ``leases`` (new objects need
-        none) and be at version ``obj.version - 1`` in the store (for deletes: at ``obj.version``);
-        otherwise nothing is written and ``StaleLease`` is raised (fencing). Returns False, writing
-        nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
+        Every existing object written, deleted or counted must be held by one of ``leases`` (new objects need
+        none) and be at version ``obj.version - 1`` in the store (deletes and retired: at ``obj.version``);
+        otherwise nothing is written, nor logged, and ``StaleLease`` is raised (fencing). Returns False,
+        writing nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
         forget a record after a retention far longer than any redelivery (a day by default); the frame
-        then counts as not processed.
-
-        ``misses``: object id -> its new ``n_missed``, and ``gone``: object id -> its new ``n_gone``, for
-        held objects that are not rewritten (the frame saw them, or saw their place empty, and detected
-        nothing there): counters, so no new version. Written objects carry their own.
-
-        ``retired``: held objects seen gone (``core.step.count_misses``), deleted like ``deletes`` (at
-        ``obj.version``) and kept in the map's history of retired objects, with the commit's time, for
-        the store's retention (``ObjectStore.retired_objects``)."""
+        then counts as not processed. Retired objects are kept in the map's history, with the commit's
+        time, for the store's retention (``ObjectStore.retired_objects``)."""
         ...
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:

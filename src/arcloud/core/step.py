@@ -3,9 +3,11 @@
 detect -> voxelize (masks cleaned with depth) -> find visible objects -> lock -> associate -> fuse (and
 judge each visible object nothing was detected on by the depth at its voxels: a miss when its surface is
 there, *seen gone* when the rays pass through where it was; one seen gone in enough frames is retired:
-removed, event ``removed``; one missed in nearly all the frames that saw it is a phantom: deleted) ->
+event ``retired``; one missed in nearly all the frames that saw it is a phantom: deleted) ->
 create -> refine (boxes reach the floor the frames saw; score and confirmation from the evidence) ->
-write -> unlock -> publish.
+commit what changed as one ``MapChange`` -> unlock. The change's events go to the map's change log in the
+same atomic write; whoever announces them (server-sent events, Zenoh) reads the log (``core.change``), so
+no event is lost to a worker that dies after its commit.
 
 Creation is where two workers that see the same new object at the same moment would make it twice
 (locks only protect objects that exist). So new objects are created under a *space claim* on the index
@@ -31,6 +33,7 @@ import numpy as np
 from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
 from arcloud.core.boxes import refine
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
+from arcloud.core.change import MapChange
 from arcloud.core.checks import check_detections
 from arcloud.core.confirm import evidence, is_phantom
 from arcloud.core.errors import LockTimeout, TooManyCells
@@ -45,7 +48,7 @@ from arcloud.core.fusion import (
     seen_apart,
     split_detection,
 )
-from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, UpdatePublisher
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import (
     center_rays,
@@ -73,8 +76,8 @@ class StepResult:
     matched: int = 0
     created: list[int] = field(default_factory=list)
     updated: list[int] = field(default_factory=list)
-    removed: list[int] = field(default_factory=list)  # merged, deleted or retired
-    retired: list[int] = field(default_factory=list)  # seen gone: removed, kept in the map's history
+    left: list[int] = field(default_factory=list)  # ids that left the map: merged, deleted or retired
+    retired: list[int] = field(default_factory=list)  # seen gone: left the map, kept in its history
     events: list[ObjectEvent] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
 
@@ -84,14 +87,13 @@ def process_frame(
     detector: Detector,
     store: MapStore,
     params: Params,
-    publisher: UpdatePublisher | None = None,
 ) -> StepResult:
     """Detect (holding no lock), then integrate the detections into the map."""
     if store.is_frame_done(frame.map_id, frame.key):
         return StepResult(frame.key, skipped=True)
     started = time.perf_counter()
     detections = detector.detect(frame)
-    result = integrate_frame(frame, detections, store, params, publisher)
+    result = integrate_frame(frame, detections, store, params)
     result.timings_s["detect"] = time.perf_counter() - started - sum(result.timings_s.values())
     return result
 
@@ -101,12 +103,11 @@ def integrate_frame(
     detections: Sequence[Detection],
     store: MapStore,
     params: Params,
-    publisher: UpdatePublisher | None = None,
     *,
     now_s: float | None = None,
 ) -> StepResult:
     """Everything after detection: voxelize, find visible objects, lock, associate, fuse, create,
-    refine, write, unlock, publish."""
+    refine, commit (the map's change log with it), unlock."""
     now_s = time.time() if now_s is None else now_s
     result = StepResult(frame.key)
     clock = _Clock(result.timings_s)
@@ -118,7 +119,7 @@ def integrate_frame(
     result.n_visible = len(visible_ids)
     clock.lap("query")
     if not observations and not visible_ids:  # nothing to fuse, nothing to miss: only record the frame
-        result.skipped = not store.commit(frame.map_id, [], [], [], frame_key=frame.key)
+        result.skipped = not store.commit(frame.map_id, [], MapChange(), frame_key=frame.key)
         return result
 
     floor = frame_floor(frame, params) if observations else None  # only fused objects take its vote
@@ -150,23 +151,20 @@ def integrate_frame(
             voxels_changed |= set(absorbed_into.values()) | trimmed
             to_write = refine_changed(objects, voxels_changed, rescored, params)
             upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
-            events += [ObjectEvent("removed", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
+            events += [ObjectEvent("retired", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
             events += [ObjectEvent("deleted", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.phantoms]
             removed += misses.phantoms
             written = {o.id for o in upserts} | {o.id for o in removed}
-            n_missed = {i: n for i, n in misses.n_missed.items() if i not in written}
-            n_gone = {i: n for i, n in misses.n_gone.items() if i not in written}
+            change = MapChange(
+                upserts=tuple(upserts),
+                deletes=tuple(removed),
+                retired=tuple(misses.retired),
+                misses={i: n for i, n in misses.n_missed.items() if i not in written},
+                gone={i: n for i, n in misses.n_gone.items() if i not in written},
+                events=tuple(events),
+            )
             clock.lap("create_refine")
-            if not store.commit(
-                frame.map_id,
-                leases,
-                upserts,
-                removed,
-                frame_key=frame.key,
-                misses=n_missed,
-                gone=n_gone,
-                retired=misses.retired,
-            ):
+            if not store.commit(frame.map_id, leases, change, frame_key=frame.key):
                 return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
             clock.lap("write")
         finally:
@@ -175,21 +173,18 @@ def integrate_frame(
 
     result.created = [e.object_id for e in events if e.kind == "created"]
     result.updated = [e.object_id for e in events if e.kind == "updated"]
-    result.removed = [e.object_id for e in events if e.kind in ("merged", "deleted", "removed")]
-    result.retired = [e.object_id for e in events if e.kind == "removed"]
+    result.left = [e.object_id for e in events if e.kind in ("merged", "deleted", "retired")]
+    result.retired = [e.object_id for e in events if e.kind == "retired"]
     result.events = events
-    if publisher is not None and events:
-        publisher.publish(events)
-    clock.lap("publish")
     log.debug(
-        "frame %s/%s: %d detections, %d visible, %d matched, %d created, %d removed (%d retired)",
+        "frame %s/%s: %d detections, %d visible, %d matched, %d created, %d left (%d retired)",
         frame.map_id,
         frame.key,
         result.n_detections,
         result.n_visible,
         result.matched,
         len(result.created),
-        len(result.removed),
+        len(result.left),
         len(result.retired),
     )
     return result

@@ -275,21 +275,51 @@ _SET_MAP_OBJECT_FIELDS = tuple(MapObject.__dict__[f.name].__set__ for f in datac
 _VOXEL_ARRAYS = frozenset(("keys", "weights", "votes", "seen", "colors"))
 
 
-EventKind = Literal["created", "updated", "merged", "deleted", "removed"]
+@dataclass(frozen=True, eq=False, slots=True)
+class ObjectMeta:
+    """An object without its voxels: what listing the map needs (a ``MapObject`` has the same fields)."""
+
+    id: int
+    label: str
+    score: float
+    version: int
+    n_voxels: int
+    n_frames: int
+    devices: frozenset[str]
+    score_sum: float
+    created_at_s: float
+    updated_at_s: float
+    aabb: AABB | None
+    obb: OBB | None
+    bounds: AABB | None
+    confirmed: bool = False
+    floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)
+    label_purity: float = 0.0
+    apart: dict[int, int] = dataclasses.field(default_factory=dict)
+
+    @property
+    def n_devices(self) -> int:
+        return len(self.devices)
+
+
+#: What a change does to one object: ``created``, ``updated`` (a new state), ``merged`` (into another object),
+#: ``deleted`` (gone without a trace: a phantom, or refined to nothing), ``retired`` (seen gone: it left the
+#: room, and the map's history keeps it for a while).
+EventKind = Literal["created", "updated", "merged", "deleted", "retired"]
 
 
 @dataclass(frozen=True, eq=False, slots=True)
 class ObjectEvent:
-    """A change to the map. ``object`` is the new state (None for deleted, merged and removed); a merged
-    object names the one it was merged into in ``merged_into``; a removed one was seen to be gone (it
-    left the room: ``core.step.count_misses``) and is kept in the map's history for a while.
+    """A change to one object of the map (``EventKind``). ``object`` is the new state (None for merged,
+    deleted and retired): the whole ``MapObject`` as the step made it, or its ``ObjectMeta`` as a change
+    log gives it back; a merged object names the one it was merged into in ``merged_into``.
     ``was_confirmed``: whether the object was confirmed (served) before this change, so that a listener
     to the served map can tell an object leaving it from one it never had."""
 
     kind: EventKind
     map_id: str
     object_id: int
-    object: MapObject | None = None
+    object: MapObject | ObjectMeta | None = None
     merged_into: int | None = None
     was_confirmed: bool = False
 
@@ -597,6 +627,7 @@ __all__ = [
     "N_CLASSES",
     "OBB",
     "ObjectEvent",
+    "ObjectMeta",
     "Params",
     "VoxelDetection",
     "empty_object",

@@ -11,11 +11,11 @@ be published and are logged):
 
 Each event goes to exactly one key. The served key space carries every state of a confirmed object
 and every change that takes one out of the served map (its first tentative state: ``Object.status``
-TENTATIVE; MERGED, DELETED or REMOVED of an object that was served: the step's events say whether the
+TENTATIVE; MERGED, DELETED or RETIRED of an object that was served: the step's events say whether the
 object was confirmed before, ``ObjectEvent.was_confirmed``); the tentative key space carries the rest.
-REMOVED: the object was seen to be gone (it left the room) and was retired (the store keeps it in the
+RETIRED: the object was seen to be gone (it left the room) (the store keeps it in the
 map's history for a while). A viewer of the served map subscribes to ``arcloud/<map_id>/objects/*`` and
-drops an object on a tentative state, MERGED, DELETED or REMOVED; one that wants every object
+drops an object on a tentative state, MERGED, DELETED or RETIRED; one that wants every object
 subscribes to ``arcloud/<map_id>/objects/**`` (one subscriber: events arrive in the order they were published).
 
 Sessions: the API's session runs in peer mode (``listen`` and/or ``connect`` endpoints, e.g.
@@ -161,7 +161,7 @@ def connectable(endpoints: Sequence[str]) -> list[str]:
 
 
 Route = Literal["served", "tentative"]
-_GONE = sys.maxsize  # the version remembered for a merged, deleted or removed object: nothing of it is newer
+_GONE = sys.maxsize  # the version remembered for a merged, deleted or retired object: nothing of it is newer
 
 
 class ServedRouter:
@@ -179,7 +179,7 @@ class ServedRouter:
 
     def route(self, event: ObjectEvent) -> Route | None:
         key = (event.map_id, int(event.object_id))
-        if event.object is None:  # merged, deleted or removed: whoever had it is told
+        if event.object is None:  # merged, deleted or retired: whoever had it is told
             self._remember(key, _GONE)
             return "served" if event.was_confirmed else "tentative"
         version = int(event.object.version)

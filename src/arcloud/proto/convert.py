@@ -52,7 +52,7 @@ EVENT_KINDS: dict[str, pb.ObjectEvent.Kind] = {
     "updated": pb.ObjectEvent.KIND_UPDATED,
     "merged": pb.ObjectEvent.KIND_MERGED,
     "deleted": pb.ObjectEvent.KIND_DELETED,
-    "removed": pb.ObjectEvent.KIND_REMOVED,
+    "retired": pb.ObjectEvent.KIND_RETIRED,
 }
 DEFAULT_DEPTH_SCALE = 1000.0  # depth units per metre for uint16 encodings: millimetres
 UINT16_MAX = 65535

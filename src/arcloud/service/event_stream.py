@@ -1,25 +1,28 @@
 """A map's object events over HTTP: ``GET /v1/maps/{map_id}/events``, a server-sent event stream.
 
-Why the API polls its store: the stream must work wherever the step runs, in worker threads of this
-process (embedded) or in worker processes elsewhere (Redis, Zenoh on or off), and the store is the one
-thing every deployment shares. While a map has streams open, one task of this process (``MapWatch``,
-shared by all of them) reads when the map last changed (``ObjectStore.map_updated_at``) every ``event_poll_s``
-(0.5 s), and only when that moved since its last read of the map, the map's ``list_meta``, which it diffs with
-that read by (version, status). Cost per watched map, however many viewers: one small read a tick (on Redis an
-HGET), plus, on a tick after the map changed, the whole map's metadata (an HGETALL of its metadata hash, a few
-hundred bytes an object: a 1000-object map changing every tick is about 0.5 MB/s of reads per API process
-watching it; the store keeps no per-object changed-since view to read less); nothing for maps no one watches.
-Exact, as the store writes the mark after the objects it stands for (two commits of one map stamped with the
-same float time in different processes would hide the second until the next change). A change
-reaches viewers within a tick; changes within one tick are coalesced (a slow viewer gets each object's
-latest state, so what a stream holds back is bounded by the map's size, and never goes back in time).
+The stream tails the map's change log (``core.change``, the store's ``ChangeLog``): every commit appends its
+events there in the same atomic write, numbered by the map's version, wherever the step runs (worker threads of
+this process, worker processes elsewhere), so the stream needs nothing but the store. While a map has streams
+open, one task of this process (``MapWatch``, shared by all of them) reads the log after the version its streams
+have every ``event_poll_s`` (0.5 s): on Redis one GET and one XRANGE a tick, however many viewers, and nothing for
+maps no one watches. A stream's events carry the map's version as their SSE ``id`` (the last event of each
+read; a bare ``id:`` when a read moved the version but showed this stream nothing), so a client that connects
+again with ``Last-Event-ID`` resumes where it was: the entries after that version, no snapshot, no gap. When the
+log no longer holds them (trimmed: the store keeps its latest ``change_log_entries``; or the id is not of this
+map's log, which starts over when the map is deleted and made again) the stream says ``reset`` and sends the map
+as it is. Changes within one tick are coalesced per object (its latest state), and a state never older than one
+the stream sent goes out.
 
 Events, each ``event: NAME`` and one line of JSON ``data:``:
 
-    snapshot        {"objects": [...], "devices": [...], "world2gravity": [9 numbers]}: first, the map as it
-                    is, and the rotation taking the map's up (``Params.up``) to +z (row-major 3x3)
+    snapshot        {"objects": [...], "devices": [...], "world2gravity": [9 numbers], "version": V}: first (unless
+                    resumed), the map as it is at version V (its id), and the rotation taking the map's up
+                    (``Params.up``) to +z (row-major 3x3)
+    reset           {"reason": ..., "version": V}: ``Last-Event-ID`` (or the stream) is behind what the log keeps,
+                    or not of this map's log: drop what you hold; a ``snapshot`` follows
     upsert          an object, with the fields of ``GET /v1/maps/{map}/objects`` (``schemas.object_out``)
-    removed         {"id": N}: merged, deleted, or (without ``?include=tentative``) no longer confirmed
+    removed         {"id": N}: the object left this stream's view: merged, deleted, retired, or (without
+                    ``?include=tentative``) no longer confirmed
     device          a device's last accepted frame (``device_out``): for drawing its camera
     device_removed  {"device_id": D}: nothing from it in ``DEVICE_RECENT_S``
     refused         {"detail": ...}: the key was revoked or lost the map; the stream ends
@@ -55,9 +58,10 @@ from fastapi.responses import StreamingResponse
 from fastapi.security import HTTPAuthorizationCredentials
 from starlette.concurrency import run_in_threadpool
 
-from arcloud.core.types import Params
+from arcloud.core.change import ChangesSince
+from arcloud.core.types import ObjectMeta, Params
 from arcloud.errors import ArcloudError
-from arcloud.ports import ObjectMeta, ObjectStore
+from arcloud.ports import ObjectStore
 from arcloud.service.access import VIEWER_COOKIE, Caller, Refused, bearer_scheme, require
 from arcloud.service.app import MapId, RuntimeDep, known_map
 from arcloud.service.devices import DevicePose, RecentDevices
@@ -70,19 +74,13 @@ MIN_ACCESS_RECHECK_S = 1.0  # an open stream's key is looked at again every key_
 RETRY_MS = 2000  # what the stream tells clients to wait before reconnecting
 REFUSED_RETRY_AFTER_S = 5  # a stream refused for a limit: ask again in this many seconds
 
+#: Log entries one read of a map's change log takes (a stream further behind catches up over the next ticks).
+ENTRIES_PER_READ = 1000
+
 Event = tuple[str, dict[str, Any]]  # (name, data)
 
 
-# --- pure: what changed, and what one stream is told -------------------------------------------------
-def diff_objects(before: Mapping[int, ObjectMeta], after: Iterable[ObjectMeta]) -> tuple[list[ObjectMeta], list[int]]:
-    """(objects new or changed in ``after``, ids gone from it): a change is a new version or status."""
-    now = {o.id: o for o in after}
-    changed = [
-        o for o in now.values() if (old := before.get(o.id)) is None or old.version != o.version or old.confirmed != o.confirmed
-    ]
-    return changed, sorted(set(before) - set(now))
-
-
+# --- pure: what one stream is told -------------------------------------------------------------------
 def diff_devices(before: Mapping[str, DevicePose], after: Iterable[DevicePose]) -> tuple[list[DevicePose], list[str]]:
     """(devices with a new last frame, device ids no longer recent)."""
     now = {d.device_id: d for d in after}
@@ -104,74 +102,150 @@ def device_out(pose: DevicePose) -> dict[str, Any]:
     }
 
 
-def object_event(object_id: int, meta: ObjectMeta | None, shown: set[int], include_tentative: bool) -> Event | None:
-    """What a stream that has told its client about ``shown`` says of an object now ``meta`` (None: gone):
-    ``upsert`` when the stream shows it, ``removed`` when it showed it and no longer does, else nothing.
-    Updates ``shown``."""
+@dataclass(slots=True)
+class Shown:
+    """What a stream told its client of the objects: the version of each it shows, and whether it knows that
+    (a stream resumed from ``Last-Event-ID`` does not: its client's view came from an earlier connection)."""
+
+    versions: dict[int, int] = field(default_factory=dict)  # object id -> version shown
+    known: bool = True
+    hidden: set[int] = field(default_factory=set)  # not known: ids told removed since (told once)
+
+
+def object_event(object_id: int, meta: ObjectMeta | None, shown: Shown, include_tentative: bool) -> Event | None:
+    """What a stream that has told its client ``shown`` says of an object now ``meta`` (None: gone): ``upsert``
+    when the stream shows it (a state newer than the one shown), ``removed`` when it may have shown it and no
+    longer does, else nothing. Updates ``shown``."""
     if meta is not None and (include_tentative or meta.confirmed):
-        shown.add(object_id)
+        if shown.versions.get(object_id, -1) >= meta.version:
+            return None  # a state the stream sent already (a snapshot read after the entry)
+        shown.versions[object_id] = meta.version
+        shown.hidden.discard(object_id)
         return "upsert", object_out(meta)
-    if object_id in shown:
-        shown.discard(object_id)
+    if shown.versions.pop(object_id, None) is not None or (not shown.known and object_id not in shown.hidden):
+        if not shown.known:
+            shown.hidden.add(object_id)
         return "removed", {"id": object_id}
     return None
 
 
-def sse(name: str, data: Mapping[str, Any]) -> str:
-    """One server-sent event (the JSON holds no newline, so one ``data:`` line)."""
-    return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+def sse(name: str, data: Mapping[str, Any], event_id: int | None = None) -> str:
+    """One server-sent event (the JSON holds no newline, so one ``data:`` line), with its ``id`` when given."""
+    head = f"id: {event_id}\n" if event_id is not None else ""
+    return f"{head}event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+
+
+def last_event_id(header: str | None) -> int | None:
+    """The version a client's ``Last-Event-ID`` names; None when it names none (absent, or not one of ours)."""
+    if header is None or not header.strip().isdigit():
+        return None
+    return int(header.strip())
 
 
 # --- one stream, one watched map, every stream of the process ----------------------------------------
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """The map as one read found it: its version, then its objects (read after: they may hold later changes)."""
+
+    version: int
+    objects: dict[int, ObjectMeta]
+
+
 @dataclass(eq=False)
 class Subscriber:
-    """One open stream: what it still has to tell its client (coalesced per object and device)."""
+    """One open stream: where its client is in the map's change log, and what it still has to tell it
+    (coalesced per object and device)."""
 
     include_tentative: bool
     key: str = ""  # whose stream it is (``Caller.bucket``): the per-key limit counts it
+    position: int | None = None  # the map's version its client has; None: it needs a snapshot
     wake: asyncio.Event = field(default_factory=asyncio.Event)
-    needs_snapshot: bool = True
-    shown: set[int] = field(default_factory=set)
+    shown: Shown = field(default_factory=Shown)
+    reset: dict[str, Any] | None = None  # the ``reset`` to send before its next snapshot
+    snapshot: Snapshot | None = None  # the snapshot to send (taken by ``take``)
+    sent_id: int | None = None  # the last id sent
     pending: dict[int, ObjectMeta | None] = field(default_factory=dict)  # object id -> latest state (None: gone)
     pending_devices: dict[str, DevicePose | None] = field(default_factory=dict)
     closed: bool = False
 
-    def offer(
-        self, changed: Sequence[ObjectMeta], removed: Sequence[int], devices: Sequence[DevicePose], gone: Sequence[str]
-    ) -> None:
-        if self.needs_snapshot:
-            return  # its snapshot will be the map as it is then
-        self.pending.update({o.id: o for o in changed})
-        self.pending.update(dict.fromkeys(removed))
+    def resume(self, version: int) -> None:
+        """Its client has the map up to ``version`` (``Last-Event-ID``), from an earlier connection."""
+        self.position = self.sent_id = version
+        self.shown = Shown(known=False)
+
+    def start_over(self, snapshot: Snapshot, reason: str | None) -> None:
+        """Send ``snapshot`` next (after a ``reset`` saying ``reason``, when one is given)."""
+        if reason is not None:
+            self.reset = {"reason": reason, "version": snapshot.version}
+        self.snapshot = snapshot
+        self.position = snapshot.version
+        self.shown = Shown()
+        self.pending.clear()
+        self.pending_devices.clear()
+        self.wake.set()
+
+    def offer(self, got: ChangesSince, devices: Sequence[DevicePose], gone: Sequence[str]) -> None:
+        """Take what the log holds after its position, and what changed of the devices."""
+        for entry in got.entries:
+            for event in entry.events:
+                self.pending[event.object_id] = event.object if isinstance(event.object, ObjectMeta) else None
+        if got.entries:
+            self.position = got.entries[-1].version
         self.pending_devices.update({d.device_id: d for d in devices})
         self.pending_devices.update(dict.fromkeys(gone))
-        if changed or removed or devices or gone:
+        if got.entries or devices or gone:
             self.wake.set()
 
-    def take(self, watch: MapWatch) -> list[Event]:
-        """The events to send now: the snapshot first (once the map was read), then what changed."""
-        if self.needs_snapshot:
-            if not watch.ready:
-                return []
-            self.needs_snapshot = False
-            shown = [o for o in watch.objects.values() if self.include_tentative or o.confirmed]
-            self.shown = {o.id for o in shown}
-            objects = [object_out(o) for o in sorted(shown, key=lambda o: o.id)]
-            devices = [device_out(d) for d in watch.devices.values()]
-            return [("snapshot", {"objects": objects, "devices": devices, "world2gravity": list(watch.world2gravity)})]
+    def take(self, watch: MapWatch) -> list[str]:
+        """The server-sent events to send now: a reset and a snapshot when due, then what changed, the
+        last object event carrying the map's version as its id."""
+        out: list[str] = []
+        if self.reset is not None:
+            out.append(sse("reset", self.reset))
+            self.reset = None
+        if self.snapshot is not None:
+            snapshot, self.snapshot = self.snapshot, None
+            shown = [o for o in snapshot.objects.values() if self.include_tentative or o.confirmed]
+            self.shown = Shown({o.id: o.version for o in shown})
+            data = {
+                "objects": [object_out(o) for o in sorted(shown, key=lambda o: o.id)],
+                "devices": [device_out(d) for d in watch.devices.values()],
+                "world2gravity": list(watch.world2gravity),
+                "version": snapshot.version,
+            }
+            out.append(sse("snapshot", data, snapshot.version))
+            self.sent_id = snapshot.version
         events = [
             e for i, meta in sorted(self.pending.items()) if (e := object_event(i, meta, self.shown, self.include_tentative))
         ]
-        for device_id, pose in sorted(self.pending_devices.items()):
-            events.append(("device", device_out(pose)) if pose is not None else ("device_removed", {"device_id": device_id}))
         self.pending.clear()
+        if self.position is not None and self.position != self.sent_id:
+            if events:
+                out += [sse(name, data) for name, data in events[:-1]]
+                out.append(sse(*events[-1], self.position))
+            else:
+                out.append(f"id: {self.position}\n\n")  # the client's place moves: nothing of it shows here
+            self.sent_id = self.position
+        else:
+            out += [sse(name, data) for name, data in events]
+        for device_id, pose in sorted(self.pending_devices.items()):
+            out.append(sse("device", device_out(pose)) if pose is not None else sse("device_removed", {"device_id": device_id}))
         self.pending_devices.clear()
-        return events
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class LogRead:
+    """One tick's read of a map: the log after each position its streams are at, and the map itself when a
+    stream needs a snapshot (a new one, or one the log cannot take further)."""
+
+    logs: dict[int, ChangesSince]
+    snapshot: Snapshot | None
 
 
 @dataclass(eq=False)
 class MapWatch:
-    """One map's poller and its streams: reads the map every ``poll_s`` while it has streams."""
+    """One map's reader of its change log and its streams: reads every ``poll_s`` while it has streams."""
 
     map_id: str
     store: ObjectStore
@@ -179,28 +253,26 @@ class MapWatch:
     poll_s: float
     world2gravity: tuple[float, ...]  # 9 numbers, row-major: the map's up to +z
     subscribers: set[Subscriber] = field(default_factory=set)
-    objects: dict[int, ObjectMeta] = field(default_factory=dict)
     devices: dict[str, DevicePose] = field(default_factory=dict)
-    ready: bool = False  # the map was read once
-    read_at_mark: float | None = None  # the map's ``map_updated_at`` before the last read of its objects
     task: asyncio.Task[None] | None = None
 
     async def run(self, on_idle: Callable[[MapWatch], None]) -> None:
-        """Poll until no stream is left (then ``on_idle(self)``, in the same step as the check)."""
+        """Read until no stream is left (then ``on_idle(self)``, in the same step as the check)."""
         failing = False
         try:
             while self.subscribers:
+                positions = {sub.position for sub in self.subscribers}
                 try:
-                    metas = await run_in_threadpool(self.read_if_changed)
+                    read = await run_in_threadpool(self.read, positions)
                 except ArcloudError as exc:  # the store is down: streams stay open, quiet, until it answers
                     if not failing:
-                        log.warning("event stream of map %s: reading its objects failed: %s", self.map_id, exc)
+                        log.warning("event stream of map %s: reading its change log failed: %s", self.map_id, exc)
                     failing = True
                 else:
                     if failing:
-                        log.info("event stream of map %s: reading its objects again", self.map_id)
+                        log.info("event stream of map %s: reading its change log again", self.map_id)
                     failing = False
-                    self.apply(metas, self.devices_of.of_map(self.map_id, within_s=DEVICE_RECENT_S))
+                    self.apply(read, self.devices_of.of_map(self.map_id, within_s=DEVICE_RECENT_S))
                 if self.subscribers:
                     await asyncio.sleep(self.poll_s)
         except Exception:
@@ -211,28 +283,29 @@ class MapWatch:
         finally:
             on_idle(self)
 
-    def read_if_changed(self) -> list[ObjectMeta] | None:
-        """The map's objects, or None when it did not change since they were last read (blocking)."""
-        mark = self.store.map_updated_at(self.map_id)
-        if self.ready and mark is not None and mark == self.read_at_mark:
-            return None
-        metas = self.store.list_meta(self.map_id)
-        self.read_at_mark = mark
-        return metas
+    def read(self, positions: set[int | None]) -> LogRead:
+        """The log after each of ``positions`` (None: a stream that needs a snapshot), and the map when a stream
+        needs it (blocking)."""
+        logs = {p: self.store.changes_since(self.map_id, p, ENTRIES_PER_READ) for p in positions if p is not None}
+        snapshot = None
+        if None in positions or not all(got.complete for got in logs.values()):
+            version = self.store.changes_since(self.map_id, 0, 0).version  # first: the objects read after hold it
+            snapshot = Snapshot(version, {o.id: o for o in self.store.list_meta(self.map_id)})
+        return LogRead(logs, snapshot)
 
-    def apply(self, metas: Sequence[ObjectMeta] | None, devices: Sequence[DevicePose]) -> None:
-        """Take a new read of the map (None: unchanged) and of its devices: tell every stream what changed."""
-        changed, removed = diff_objects(self.objects, metas) if metas is not None else ([], [])
+    def apply(self, read: LogRead, devices: Sequence[DevicePose]) -> None:
+        """Take one tick's read: tell every stream what changed since its position (or start it over)."""
         moved, gone = diff_devices(self.devices, devices)
-        if metas is not None:
-            self.objects = {o.id: o for o in metas}
         self.devices = {d.device_id: d for d in devices}
-        first = not self.ready
-        self.ready = True
         for sub in self.subscribers:
-            if first:
-                sub.wake.set()  # its snapshot can go now
-            sub.offer(changed, removed, moved, gone)
+            got = read.logs.get(sub.position) if sub.position is not None else None
+            if got is not None and got.complete:
+                sub.offer(got, moved, gone)
+            elif read.snapshot is not None and (sub.position is None or got is not None):  # not one that came since
+                behind = "the change log no longer holds the changes after the stream's version"
+                unknown = "the version is not of this map's change log (the map was made again)"
+                reason = None if sub.position is None else unknown if sub.position > read.snapshot.version else behind
+                sub.start_over(read.snapshot, reason)
 
 
 class EventStreams:
@@ -267,8 +340,10 @@ class EventStreams:
         *,
         include_tentative: bool,
         key: str = "",
+        after: int | None = None,
     ) -> tuple[MapWatch, Subscriber]:
-        """A new stream of ``map_id`` for ``key``; ``HTTPException`` 503 when the process has its maximum open or
+        """A new stream of ``map_id`` for ``key`` (``after``: the map's version its client has, from
+        ``Last-Event-ID``; None: it starts from a snapshot); ``HTTPException`` 503 when the process has its maximum open or
         stops, 429 when the map or the key has its maximum open (each naming the limit, with Retry-After)."""
         retry = {"Retry-After": str(REFUSED_RETRY_AFTER_S)}
         if self.closing:
@@ -297,12 +372,12 @@ class EventStreams:
             world2gravity = tuple(float(v) for v in params.gravity.world2gravity.reshape(9))
             watch = self.watches[map_id] = MapWatch(map_id, store, devices, self.poll_s, world2gravity)
         sub = Subscriber(include_tentative, key)
+        if after is not None:
+            sub.resume(after)
         watch.subscribers.add(sub)
         self.by_key[key] += 1
         if watch.task is None:
             watch.task = asyncio.create_task(watch.run(self._forget), name=f"arcloud-events-{map_id}")
-        elif watch.ready:
-            sub.wake.set()
         self.open_streams += 1
         return watch, sub
 
@@ -368,7 +443,9 @@ router = APIRouter(lifespan=lifespan)
     tags=["objects"],
     summary="The map's object events, live (server-sent events)",
     description="A `snapshot` of the map, then `upsert` and `removed` events as objects change (the fields of the "
-    "objects listing), and `device` events with each device's last camera pose. Confirmed objects only, unless "
+    "objects listing), and `device` events with each device's last camera pose. Events carry the map's version as "
+    "their `id`: a client that connects again with `Last-Event-ID` resumes after it (or is sent `reset` and a new "
+    "`snapshot` when the map's change log no longer holds what followed). Confirmed objects only, unless "
     "`include=tentative`. Needs the Authorization header, or a viewer session's cookie (POST "
     "/v1/maps/{map_id}/viewer-session): EventSource cannot send headers, and a key never goes in a URL.",
 )
@@ -391,6 +468,7 @@ async def map_events(
         runtime.params,
         include_tentative=include == "tentative",
         key=caller.bucket,
+        after=last_event_id(request.headers.get("last-event-id")),
     )
     token = credentials.credentials if credentials is not None else None
     viewer_session = request.cookies.get(VIEWER_COOKIE)
@@ -429,8 +507,8 @@ async def map_events(
                     yield sse("refused", {"detail": refused})
                     return
             sent = sub.take(watch)
-            for name, data in sent:
-                yield sse(name, data)
+            for text in sent:
+                yield text
             if sent:
                 last_sent = now
             elif now - last_sent >= streams.heartbeat_s:
@@ -461,11 +539,13 @@ __all__ = [
     "EventStreamResponse",
     "EventStreams",
     "MapWatch",
+    "Shown",
+    "Snapshot",
     "Subscriber",
     "close_event_streams",
     "device_out",
     "diff_devices",
-    "diff_objects",
+    "last_event_id",
     "object_event",
     "router",
     "sse",

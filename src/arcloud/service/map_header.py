@@ -10,16 +10,16 @@ import time
 
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.types import Params
-from arcloud.ports import MapBeingDeleted, ObjectStore
+from arcloud.ports import MapBeingDeleted, MapCatalog
 
 
-def open_map_checked(store: ObjectStore, map_id: str, params: Params) -> None:
+def open_map_checked(store: MapCatalog, map_id: str, params: Params) -> None:
     """Store our header if the map has none; ``MapMismatch`` if its header says other settings."""
     ours = MapHeader.from_params(params, store.codec_version, time.time())
     check_store_header(store, store.open_map(map_id, ours), params, map_id)
 
 
-def check_map_header(store: ObjectStore, map_id: str, params: Params, *, open_new: bool = False) -> None:
+def check_map_header(store: MapCatalog, map_id: str, params: Params, *, open_new: bool = False) -> None:
     """``MapMismatch`` if the map's stored header says other settings than ours; none stored: fine, and
     with ``open_new`` ours is stored (the map's first frame: one read a call otherwise, as a check)."""
     header = store.map_header(map_id)
@@ -31,7 +31,7 @@ def check_map_header(store: ObjectStore, map_id: str, params: Params, *, open_ne
         open_map_checked(store, map_id, params)
 
 
-def check_not_being_deleted(store: ObjectStore, map_id: str) -> None:
+def check_not_being_deleted(store: MapCatalog, map_id: str) -> None:
     """``MapBeingDeleted`` while the map's deletion goes on. Asked of maps without a header only: a deletion
     takes the header away first, so a map that has one is not being deleted (no extra read on the common path)."""
     deletion = store.map_deletion(map_id)
@@ -39,7 +39,7 @@ def check_not_being_deleted(store: ObjectStore, map_id: str) -> None:
         raise MapBeingDeleted(deletion)
 
 
-def check_store_header(store: ObjectStore, header: MapHeader, params: Params, map_id: str) -> None:
+def check_store_header(store: MapCatalog, header: MapHeader, params: Params, map_id: str) -> None:
     """``check_header`` against ``params`` and the blob formats ``store`` writes and reads: a map
     created under an older codec version the store still reads is accepted."""
     check_header(

@@ -1,7 +1,7 @@
 """A page of a map's objects (``GET /v1/maps/{map}/objects?limit=&cursor=``) reads what it returns, not the map.
 
 Before, every page read and decoded the metadata of every object of the map (on a 1,500-object map about 100 ms a
-page, whatever ``limit``). Now a page reads the map's object ids (``ObjectStore.object_ids``: on Redis the bounds
+page, whatever ``limit``). Now a page reads the map's object ids (``MapReader.object_ids``: on Redis the bounds
 HASH's field names, a few bytes an object), or those a ``bbox`` finds through the spatial index, takes those after
 the cursor in id order, and reads the metadata of ``limit + 1`` of them, then, while filters leave the page short,
 about as many more as the share they kept says will fill it (at most ``MAX_READ_BATCH`` a read): with filters that
@@ -15,7 +15,7 @@ import math
 from collections.abc import Callable, Sequence
 
 from arcloud.errors import InvalidInput
-from arcloud.ports import ObjectMeta, ObjectStore
+from arcloud.ports import MapReader, ObjectMeta
 
 READ_BATCH = 256  # object metadata read at a time without a limit
 MAX_READ_BATCH = 4096
@@ -32,7 +32,7 @@ def parse_cursor(cursor: str | None) -> int:
 
 
 def object_page(
-    store: ObjectStore,
+    store: MapReader,
     map_id: str,
     ids: Sequence[int],
     keep: Callable[[ObjectMeta], bool],

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -29,6 +30,7 @@ from arcloud.ports import (
 )
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Access, KeyCache
+from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.ingest import Ingest
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
@@ -38,6 +40,8 @@ log = logging.getLogger(__name__)
 
 #: How long an idle worker thread of the API waits for a frame before it looks at its stop flag.
 IN_PROCESS_READ_BLOCK_S = 0.1
+#: How often the API publishes the change log entries no worker published (``service.change_feed``).
+FEED_SWEEP_S = 2.0
 
 FrameHandler = Callable[[str, bytes], None]  # (map id, protobuf Frame bytes) published by a device
 
@@ -87,6 +91,7 @@ class Runtime:
     archive: MapArchive | None = None
     owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
     alignments: DeviceAlignments | None = None
+    feed_stop: threading.Event = field(default_factory=threading.Event)  # ends the feed's sweeps (with a publisher)
 
 
 def start_runtime(settings: Settings, connect: Connect) -> Runtime:
@@ -112,6 +117,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         log.warning("auth none: anyone who reaches this service may read, write and delete every map")
     else:
         access.keys_health()  # counts the keys there are now: losing them later is then seen
+    feed = ChangeFeed(adapters.store, adapters.publisher) if adapters.publisher is not None else None
     threads = []
     if adapters.detector is not None:
         threads = [
@@ -120,7 +126,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
                 adapters.store,
                 adapters.detector,
                 params,
-                adapters.publisher,
+                feed,
                 consumer=f"{consumer_name()}-{i}",
                 read_block_s=IN_PROCESS_READ_BLOCK_S,
                 attempts=settings.max_deliveries,
@@ -140,7 +146,7 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         close_all(adapters.owned)
         raise
     log.info("arcloud service started: %s", json.dumps(settings.redacted(), default=str))
-    return Runtime(
+    runtime = Runtime(
         settings,
         params,
         adapters.store,
@@ -152,9 +158,18 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
         adapters.owned,
         adapters.alignments,
     )
+    if feed is not None:  # publishes what workers committed and did not publish (they died, or failed to)
+        threading.Thread(
+            target=feed.run,
+            args=(runtime.feed_stop, lambda: list(adapters.store.list_maps()), FEED_SWEEP_S),
+            name="arcloud-change-feed",
+            daemon=True,
+        ).start()
+    return runtime
 
 
 def stop_runtime(runtime: Runtime) -> None:
+    runtime.feed_stop.set()
     runtime.ingest.stop()
     close_all(runtime.owned)
     log.info("arcloud service stopped")

@@ -221,7 +221,7 @@ class Settings(BaseSettings):
         50, ge=1, description="event streams of one map open at once in one API process (429 beyond)"
     )
     event_poll_s: float = Field(
-        0.5, gt=0, le=60, description="how often the API reads a streamed map's objects to find what changed"
+        0.5, gt=0, le=60, description="how often the API reads a streamed map's change log for what changed"
     )
     event_heartbeat_s: float = Field(
         15.0, gt=0, le=300, description="an idle event stream sends a comment this often (keeps proxies from closing it)"

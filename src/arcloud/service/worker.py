@@ -49,14 +49,16 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
+from arcloud.core.change import MapChange
 from arcloud.core.types import Detection, Frame, MapObject, Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
-from arcloud.ports import Detector, FrameQueue, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame, UpdatePublisher
+from arcloud.ports import Detector, FrameConsumer, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame
+from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.logs import log_context
 from arcloud.service.map_header import open_map_checked
 
@@ -140,19 +142,8 @@ class LockTimer:
     def new_ids(self, map_id: str, n: int) -> Sequence[int]:
         return self.store.new_ids(map_id, n)
 
-    def commit(
-        self,
-        map_id: str,
-        leases: Sequence[Lease],
-        upserts: Sequence[MapObject],
-        deletes: Sequence[MapObject],
-        *,
-        frame_key: str | None = None,
-        misses: Mapping[int, int] | None = None,
-        gone: Mapping[int, int] | None = None,
-        retired: Sequence[MapObject] = (),
-    ) -> bool:
-        return self.store.commit(map_id, leases, upserts, deletes, frame_key=frame_key, misses=misses, gone=gone, retired=retired)
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
+        return self.store.commit(map_id, leases, change, frame_key=frame_key)
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         return self.store.is_frame_done(map_id, frame_key)
@@ -163,7 +154,6 @@ def run_step(
     detections: Sequence[Detection],
     store: MapStore,
     params: Params,
-    publisher: UpdatePublisher | None,
     *,
     attempts: int,
 ) -> tuple[StepResult, int]:
@@ -174,7 +164,7 @@ def run_step(
 
     for attempt in range(1, attempts + 1):
         try:
-            return integrate_frame(frame, detections, store, params, publisher), attempt - 1
+            return integrate_frame(frame, detections, store, params), attempt - 1
         except RETRYABLE as exc:
             if attempt == attempts:
                 raise
@@ -219,11 +209,11 @@ class FrameWorker:
 
     def __init__(
         self,
-        queue: FrameQueue,
+        queue: FrameConsumer,
         store: ObjectStore,
         detector: Detector,
         params: Params,
-        publisher: UpdatePublisher | None = None,
+        feed: ChangeFeed | None = None,
         *,
         consumer: str | None = None,
         claim_min_idle_s: float = 60.0,
@@ -239,7 +229,7 @@ class FrameWorker:
         self.store = store
         self.detector = detector
         self.params = params
-        self.publisher = publisher
+        self.feed = feed
         self.consumer = consumer or consumer_name()
         self.claim_min_idle_s = claim_min_idle_s
         self.claim_interval_s = claim_interval_s
@@ -416,7 +406,7 @@ class FrameWorker:
                 self.queue.ack(item, redelivered=True)
                 return "redelivered"
             open_map_checked(self.store, frame.map_id, self.params)
-            result, retries = run_step(frame, detections, locks, self.params, self.publisher, attempts=self.attempts)
+            result, retries = run_step(frame, detections, locks, self.params, attempts=self.attempts)
         except MapMismatch as exc:  # this worker's settings are wrong for the map: leave the frame to others
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
@@ -438,10 +428,23 @@ class FrameWorker:
             return "failed"
         step_s = detect_s + time.perf_counter() - began  # its own work: not its wait for the frame before
         timings = FrameTimings(step_s=step_s, queue_wait_s=started.queue_wait_s, lock_wait_s=locks.lock_wait_s)
+        if self.feed is not None and result.events:
+            self._publish(frame.map_id)
         self.queue.ack(item, redelivered=result.skipped, retries=retries, timings=timings)
         outcome: Outcome = "redelivered" if result.skipped else "processed"
         log.debug("worker %s: map %s frame %s %s in %.3f s", self.consumer, item.map_id, item.frame_key, outcome, step_s)
         return outcome
+
+    def _publish(self, map_id: str) -> None:
+        """Publish the map's change log up to this commit (and whatever an earlier worker left); a failure is
+        logged, not the frame's: the API's sweep publishes it later (``service.change_feed``)."""
+        assert self.feed is not None
+        try:
+            self.feed.publish_pending(map_id)
+        except Exception:
+            log.warning(
+                "worker %s: map %s: publishing its change log failed; the next sweep does", self.consumer, map_id, exc_info=True
+            )
 
     def _dead_letter(self, item: QueuedFrame, reason: str) -> None:
         log.error(

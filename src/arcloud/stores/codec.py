@@ -53,19 +53,19 @@ Bounds: 6 little-endian float64 (min xyz, max xyz), the spatial index's entry of
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import struct
 import zlib
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast, get_args
 
 import numpy as np
 
 from arcloud.core.fusion import VOTE_STEP
-from arcloud.core.types import AABB, N_CLASSES, OBB, MapObject
+from arcloud.core.types import AABB, N_CLASSES, OBB, EventKind, MapObject, ObjectEvent, ObjectMeta
 from arcloud.core.voxels import KEY_BITS, KEY_MASK, KEY_OFFSET, pack_keys, unpack_keys
 from arcloud.errors import InvalidInput, StoreError
-from arcloud.ports import ObjectMeta
 
 MAGIC = b"ARCV"
 FORMAT_VERSION = 5
@@ -469,30 +469,31 @@ def encode_meta(obj: MapObject) -> bytes:
     return compressor.compress(_meta_json(obj)) + compressor.flush()
 
 
-def _meta_json(obj: MapObject) -> bytes:
+def _meta_json(obj: MapObject | ObjectMeta) -> bytes:
+    return json.dumps(_meta_fields(obj), separators=(",", ":")).encode()
+
+
+def _meta_fields(obj: MapObject | ObjectMeta) -> dict[str, Any]:
     # left out when empty: the blobs of objects without it are the bytes they were
     apart = {"apart": {str(k): int(v) for k, v in sorted(obj.apart.items())}} if obj.apart else {}
-    return json.dumps(
-        {
-            "label": obj.label,
-            "score": float(obj.score),
-            "version": int(obj.version),
-            "n_voxels": obj.n_voxels,
-            "n_frames": int(obj.n_frames),
-            "devices": sorted(obj.devices),
-            "score_sum": float(obj.score_sum),
-            "created_at_s": float(obj.created_at_s),
-            "updated_at_s": float(obj.updated_at_s),
-            "aabb": None if obj.aabb is None else _box_list(obj.aabb),
-            "obb": None if obj.obb is None else _obb_list(obj.obb),
-            "bounds": None if obj.bounds is None else _box_list(obj.bounds),
-            "confirmed": bool(obj.confirmed),
-            "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
-            "label_purity": float(obj.label_purity),
-            **apart,
-        },
-        separators=(",", ":"),
-    ).encode()
+    return {
+        "label": obj.label,
+        "score": float(obj.score),
+        "version": int(obj.version),
+        "n_voxels": obj.n_voxels,
+        "n_frames": int(obj.n_frames),
+        "devices": sorted(obj.devices),
+        "score_sum": float(obj.score_sum),
+        "created_at_s": float(obj.created_at_s),
+        "updated_at_s": float(obj.updated_at_s),
+        "aabb": None if obj.aabb is None else _box_list(obj.aabb),
+        "obb": None if obj.obb is None else _obb_list(obj.obb),
+        "bounds": None if obj.bounds is None else _box_list(obj.bounds),
+        "confirmed": bool(obj.confirmed),
+        "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
+        "label_purity": float(obj.label_purity),
+        **apart,
+    }
 
 
 def _box_list(box: AABB) -> list[float]:
@@ -603,3 +604,55 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_mis
         label_purity=meta.label_purity,
         apart=meta.apart,
     )
+
+
+# --- change log entries (``core.change``) ------------------------------------------------------------
+def logged_events(events: Sequence[ObjectEvent]) -> tuple[ObjectEvent, ...]:
+    """The events as a change log keeps them: each object's state as its ``ObjectMeta`` (no voxels)."""
+    return tuple(dataclasses.replace(e, object=meta_of(e.object)) if isinstance(e.object, MapObject) else e for e in events)
+
+
+def encode_events(events: Sequence[ObjectEvent]) -> bytes:
+    """A change log entry's events as JSON (the map id is the log's): ``[{"kind", "id", "into", "was_confirmed",
+    "meta"}, ...]``, ``into`` the object merged into (or null), ``meta`` the state's fields as ``encode_meta``
+    writes them (or null)."""
+    return json.dumps(
+        [
+            {
+                "kind": e.kind,
+                "id": int(e.object_id),
+                "into": None if e.merged_into is None else int(e.merged_into),
+                "was_confirmed": bool(e.was_confirmed),
+                "meta": None if e.object is None else _meta_fields(e.object),
+            }
+            for e in events
+        ],
+        separators=(",", ":"),
+    ).encode()
+
+
+def decode_events(map_id: str, blob: bytes) -> tuple[ObjectEvent, ...]:
+    """``encode_events``'s JSON -> the events, each state an ``ObjectMeta``; ``StoreError`` when it is not that."""
+    try:
+        return tuple(
+            ObjectEvent(
+                kind=check_event_kind(e["kind"]),
+                map_id=map_id,
+                object_id=int(e["id"]),
+                object=None if e["meta"] is None else _meta(int(e["id"]), e["meta"]),
+                merged_into=None if e["into"] is None else int(e["into"]),
+                was_confirmed=bool(e["was_confirmed"]),
+            )
+            for e in json.loads(blob)
+        )
+    except (ValueError, KeyError, TypeError) as exc:
+        raise StoreError(f"map {map_id}: corrupt change log entry ({type(exc).__name__}: {exc})") from exc
+
+
+def check_event_kind(kind: object) -> EventKind:
+    if kind not in EVENT_KINDS:
+        raise ValueError(f"event kind {kind!r}, expected one of {EVENT_KINDS}")
+    return cast("EventKind", kind)
+
+
+EVENT_KINDS: tuple[str, ...] = get_args(EventKind)

@@ -20,6 +20,11 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:retired             HASH    retired object id -> its metadata JSON when it left: the map's history
     arcloud:{m}:retired:at          ZSET    retired object id, scored by when it left (Unix s); kept
                                             ``retired_history_s``, at most ``RETIRED_HISTORY_MAX_PER_MAP``
+    arcloud:{m}:changes             STREAM  the map's change log (``core.change``): entry ``<version>-0`` per commit with
+                                            events (``at``, ``frame``, ``events``: ``codec.encode_events``), appended
+                                            by the commit script; ``MAXLEN ~`` the store's ``change_log_entries``
+    arcloud:{m}:changes:version     STRING  the map's version: the change log's last entry (set by the commit)
+    arcloud:{m}:changes:published   STRING  the version up to which the log was published over Zenoh (only raised)
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
@@ -95,6 +100,7 @@ LOCK = "lock"
 CLAIM = "claim"
 WAKE = "wake"
 RETIRED = "retired"
+CHANGES = "changes"
 
 
 def map_prefix(map_id: str) -> str:
@@ -144,6 +150,21 @@ def retired_key(map_id: str) -> str:
 def retired_at_key(map_id: str) -> str:
     """When each retired object of the history left the map: a ZSET id -> Unix seconds."""
     return f"{map_prefix(map_id)}:{RETIRED}:at"
+
+
+def changes_key(map_id: str) -> str:
+    """The map's change log (a STREAM, ``core.change``)."""
+    return f"{map_prefix(map_id)}:{CHANGES}"
+
+
+def version_key(map_id: str) -> str:
+    """The map's version: the id of its change log's last entry."""
+    return f"{map_prefix(map_id)}:{CHANGES}:version"
+
+
+def published_key(map_id: str) -> str:
+    """The version up to which the map's change log was published (``service.change_feed``)."""
+    return f"{map_prefix(map_id)}:{CHANGES}:published"
 
 
 def header_key(map_id: str) -> str:

@@ -4,7 +4,8 @@ It keeps the semantics of the Redis store so that one contract suite tests both:
 carry a token and a TTL (an expired lease's write is refused), writes are compare-and-set on the
 object version (fencing), frames are recorded once (a processed frame's mark kept
 ``frame_record_retention_s``, as on Redis), retired objects stay in the map's history for
-``retired_history_s``. Locks are taken all-or-nothing under one condition variable
+``retired_history_s``, each map's change log (``core.change``) keeps its latest ``change_log_entries`` in a
+ring buffer, appended under the same lock as the commit's writes. Locks are taken all-or-nothing under one condition variable
 per map, so a thread never holds some locks while waiting for others.
 """
 
@@ -14,17 +15,20 @@ import itertools
 import threading
 import time
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
 import numpy as np
 
+from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
 from arcloud.ports import (
+    DEFAULT_CHANGE_LOG_ENTRIES,
     DEFAULT_FRAME_RECORD_RETENTION_S,
     DEFAULT_RETIRED_HISTORY_S,
     DELETION_KEPT_S,
@@ -36,7 +40,7 @@ from arcloud.ports import (
 )
 from arcloud.stores import codec
 from arcloud.stores.cells import check_lock_ids, check_object_cells, check_script_cells
-from arcloud.stores.codec import meta_of
+from arcloud.stores.codec import logged_events, meta_of
 
 _Name = tuple[str, Any]  # what a lease holds: ("object", id) or ("cell", (i, j, k))
 
@@ -58,6 +62,9 @@ class _MapState:
     n_frames: int = 0  # frames processed (marks expiring do not lower it)
     retired: dict[int, RetiredObject] = field(default_factory=dict)  # the history, oldest first
     next_id: int = 1
+    version: int = 0  # the map's version: the last entry of its change log
+    log: deque[LoggedChange] = field(default_factory=deque)  # the change log's latest entries, oldest first
+    published: int = 0  # the version its log was published up to
     changed: threading.Condition = field(default_factory=threading.Condition)
 
 
@@ -84,7 +91,8 @@ class MemoryLease:
 class MemoryStore:
     """In-process ``ObjectStore``. ``cell_m`` is the size of the spatial index's cubic cells;
     ``frame_record_retention_s``: how long a processed frame's mark is kept; ``retired_history_s``: how
-    long a retired object stays in its map's history; ``clock``: Unix seconds."""
+    long a retired object stays in its map's history; ``change_log_entries``: how many entries each map's
+    change log keeps; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION  # objects are kept as they are, but a map's header names the format
     readable_codec_versions = codec.READABLE_VERSIONS
@@ -95,10 +103,14 @@ class MemoryStore:
         cell_m: float = 1.0,
         frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
         retired_history_s: float = DEFAULT_RETIRED_HISTORY_S,
+        change_log_entries: int = DEFAULT_CHANGE_LOG_ENTRIES,
         clock: Callable[[], float] = time.time,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
+        if change_log_entries < 1:
+            raise InvalidInput("change_log_entries", ">= 1", change_log_entries)
+        self.change_log_entries = int(change_log_entries)
         if not frame_record_retention_s > 0:
             raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
         if not retired_history_s > 0:
@@ -117,7 +129,7 @@ class MemoryStore:
         with self._maps_lock:
             state = self._maps.get(map_id)
             if state is None:
-                state = self._maps[map_id] = _MapState()
+                state = self._maps[map_id] = _MapState(log=deque(maxlen=self.change_log_entries))
             return state
 
     # --- spatial index -----------------------------------------------------------------------------
@@ -200,19 +212,9 @@ class MemoryStore:
             first, state.next_id = state.next_id, state.next_id + n
         return range(first, first + n)
 
-    def commit(
-        self,
-        map_id: str,
-        leases: Sequence[Lease],
-        upserts: Sequence[MapObject],
-        deletes: Sequence[MapObject],
-        *,
-        frame_key: str | None = None,
-        misses: Mapping[int, int] | None = None,
-        gone: Mapping[int, int] | None = None,
-        retired: Sequence[MapObject] = (),
-    ) -> bool:
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
         own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
+        upserts, deletes, retired, misses, gone = change.upserts, change.deletes, change.retired, change.misses, change.gone
         state = self._map(map_id)
         with state.changed:
             if frame_key is not None and self._recorded(state, frame_key):
@@ -252,13 +254,13 @@ class MemoryStore:
                     continue
                 if obj.id not in held or current.version != obj.version:
                     raise StaleLease(f"map {map_id}: object {obj.id} deleted without its lock or at a stale version")
-            for object_id in [*(misses or {}), *(gone or {})]:
+            for object_id in [*misses, *gone]:
                 if object_id in state.objects and object_id not in held:
                     raise StaleLease(f"map {map_id}: object {object_id} counted as missed without its lock")
-            for object_id, count in (misses or {}).items():
+            for object_id, count in misses.items():
                 if object_id in state.objects:
                     state.objects[object_id] = state.objects[object_id].replace(n_missed=int(count))
-            for object_id, count in (gone or {}).items():
+            for object_id, count in gone.items():
                 if object_id in state.objects:
                     state.objects[object_id] = state.objects[object_id].replace(n_gone=int(count))
             now_s = self._clock()
@@ -291,10 +293,34 @@ class MemoryStore:
             ):
                 del state.frames[expired]
             self._trim_history(state)
+            if change.events:
+                state.version += 1
+                state.log.append(LoggedChange(state.version, self._clock(), frame_key or "", logged_events(change.events)))
             if upserts or deletes or retired:
                 with self._maps_lock:
                     self._updated[map_id] = time.time()
             return True
+
+    # --- the change log ------------------------------------------------------------------------------
+    def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
+        state = self._map(map_id)
+        with state.changed:
+            # versions are consecutive: the entries after ``after`` are the last ``version - after`` (those kept),
+            # indexed from the right end of the ring buffer, where a reader that keeps up reads
+            kept = max(0, min(len(state.log), state.version - int(after)))
+            start = len(state.log) - kept
+            entries = [state.log[i] for i in range(start, min(len(state.log), start + max(0, limit)))]
+            return changes_after(entries, state.version, int(after), limit)
+
+    def published_version(self, map_id: str) -> int:
+        state = self._map(map_id)
+        with state.changed:
+            return state.published
+
+    def mark_published(self, map_id: str, version: int) -> None:
+        state = self._map(map_id)
+        with state.changed:
+            state.published = max(state.published, int(version))
 
     def _trim_history(self, state: _MapState) -> None:
         """Under the map's lock: drop the retired objects past ``retired_history_s``, and the oldest
@@ -381,10 +407,6 @@ class MemoryStore:
     def list_maps(self) -> dict[str, float]:
         with self._maps_lock:
             return {m: self._updated.get(m, 0.0) for m in self._headers}
-
-    def map_updated_at(self, map_id: str) -> float | None:
-        with self._maps_lock:
-            return self._updated.get(map_id, 0.0) if map_id in self._headers else None
 
     def count_objects(self, map_id: str) -> int:
         with self._maps_lock:

@@ -28,7 +28,12 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   covers at most ``cells.MAX_OBJECT_CELLS``; the script counts the cells it would remove before it writes) and
   one lock call takes at most ``cells.MAX_LOCKS_PER_CALL`` objects: a few tens of milliseconds whatever a
   request holds (``TooManyCells`` / ``InvalidInput`` beyond, nothing written).
-- Retired objects (``commit(retired=...)``): deleted like others, their metadata JSON kept in the map's
+- The change log (``core.change``): a STREAM per map, appended by the commit script (``XADD`` with the id
+  ``<version>-0``, the map's version kept beside it: consecutive, so a reader knows what it missed), before
+  the script writes anything and after every check (a refused commit appends nothing), trimmed as it goes
+  (``MAXLEN ~ change_log_entries``). ``changes_since`` reads it (``XRANGE`` from a version); how far it was
+  published over Zenoh is one more STRING (``mark_published``: only raised, by ``lua/mark_published.lua``).
+- Retired objects (the change's ``retired``): deleted like others, their metadata JSON kept in the map's
   history (a HASH, and a ZSET of when each left), trimmed by each commit to ``retired_history_s`` and
   ``RETIRED_HISTORY_MAX_PER_MAP``; ``retired_objects`` reads it.
 - Processed frames: a HASH frame key -> when its commit was written, and a counter (``count_frames``).
@@ -76,7 +81,7 @@ import logging
 import math
 import time
 import uuid
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from functools import cache
 from importlib import resources
@@ -89,11 +94,13 @@ from redis.backoff import ExponentialWithJitterBackoff
 from redis.cluster import ClusterNode, RedisCluster
 from redis.retry import Retry
 
+from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StoreError, TooManyCells
 from arcloud.ports import (
+    DEFAULT_CHANGE_LOG_ENTRIES,
     DEFAULT_FRAME_RECORD_RETENTION_S,
     DEFAULT_RETIRED_HISTORY_S,
     DELETION_KEPT_S,
@@ -253,7 +260,9 @@ class RedisStore:
     responses, i.e. ``decode_responses=False``) instead of connecting to ``url`` (``connect_redis`` with
     ``reply_timeout_s``, ``retries``).
     ``frame_record_retention_s``: how long a processed frame's mark is kept; ``retired_history_s``: how
-    long a retired object stays in its map's history; ``clock``: Unix seconds."""
+    long a retired object stays in its map's history; ``change_log_entries``: about how many entries each
+    map's change log keeps (``XADD MAXLEN ~``: Redis trims whole nodes of the stream, so it keeps this many
+    or up to about a hundred more); ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION
     readable_codec_versions = codec.READABLE_VERSIONS
@@ -269,10 +278,14 @@ class RedisStore:
         retries: int = 1,
         frame_record_retention_s: float = DEFAULT_FRAME_RECORD_RETENTION_S,
         retired_history_s: float = DEFAULT_RETIRED_HISTORY_S,
+        change_log_entries: int = DEFAULT_CHANGE_LOG_ENTRIES,
         clock: Callable[[], float] = time.time,
     ) -> None:
         if not cell_m > 0:
             raise InvalidInput("cell_m", "> 0", cell_m)
+        if change_log_entries < 1:
+            raise InvalidInput("change_log_entries", ">= 1", change_log_entries)
+        self.change_log_entries = int(change_log_entries)
         if not frame_record_retention_s > 0:
             raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
         if not retired_history_s > 0:
@@ -290,7 +303,9 @@ class RedisStore:
         if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
-        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query")}
+        self._scripts = {
+            name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "mark_published")
+        }
         self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("commit"))
 
     @classmethod
@@ -448,22 +463,12 @@ class RedisStore:
             last = int(self.client.incrby(keys.ids_key(map_id), n))
         return range(last - n + 1, last + 1)
 
-    def commit(
-        self,
-        map_id: str,
-        leases: Sequence[Lease],
-        upserts: Sequence[MapObject],
-        deletes: Sequence[MapObject],
-        *,
-        frame_key: str | None = None,
-        misses: Mapping[int, int] | None = None,
-        gone: Mapping[int, int] | None = None,
-        retired: Sequence[MapObject] = (),
-    ) -> bool:
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
         own = cast("Sequence[RedisLease]", leases)  # the port's Lease: here always one this store handed out
         for lease in own:
             if lease.map_id != map_id:
                 raise InvalidInput("leases", f"leases of map {map_id}", f"a lease of map {lease.map_id}")
+        upserts, deletes, retired = change.upserts, change.deletes, change.retired
         new_cells = 0
         for obj in upserts:
             if obj.bounds is None:
@@ -479,15 +484,16 @@ class RedisStore:
             "held": [str(i) for lease in own for i in lease.ids],
             "upserts": [],
             "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
-            "misses": [{"id": str(int(i)), "count": str(int(n))} for i, n in (misses or {}).items()],
-            "gone": [{"id": str(int(i)), "count": str(int(n))} for i, n in (gone or {}).items()],
+            "misses": [{"id": str(int(i)), "count": str(int(n))} for i, n in change.misses.items()],
+            "gone": [{"id": str(int(i)), "count": str(int(n))} for i, n in change.gone.items()],
             "retired": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in retired],
             "history_s": self.retired_history_s,
             "history_max": RETIRED_HISTORY_MAX_PER_MAP,
             "new_cells": new_cells,
             "max_cells": MAX_SCRIPT_CELLS,
+            "log_max": self.change_log_entries,
         }
-        payload: list[bytes] = []
+        payload: list[bytes] = [codec.encode_events(change.events) if change.events else b""]
         for obj in upserts:
             assert obj.bounds is not None
             cells = " ".join(keys.cell_name(c) for c in self.cells_of(obj.bounds.min, obj.bounds.max))
@@ -515,6 +521,8 @@ class RedisStore:
                     keys.processed_sweep_key(map_id),
                     keys.retired_key(map_id),
                     keys.retired_at_key(map_id),
+                    keys.changes_key(map_id),
+                    keys.version_key(map_id),
                 ],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
@@ -523,6 +531,37 @@ class RedisStore:
         if int(written) < 0:  # the cells it would remove and add, over the bound: nothing written
             check_script_cells(-int(written))
         return int(written) == 1
+
+    # --- the change log ------------------------------------------------------------------------------
+    def changes_since(self, map_id: str, after: int, limit: int) -> ChangesSince:
+        after = int(after)
+        with redis_errors(f"changes_since on map {map_id}", self._where):
+            pipe = self.client.pipeline(transaction=True)  # the version and the entries of one moment
+            pipe.get(keys.version_key(map_id))
+            if limit > 0:
+                pipe.xrange(keys.changes_key(map_id), f"{after + 1}-0", "+", count=int(limit))
+            version, *read = pipe.execute()
+        entries = []
+        for entry_id, raw in read[0] if read else []:
+            # a cluster's pipeline leaves the fields a flat list: name, value, ...
+            fields = raw if isinstance(raw, dict) else dict(zip(raw[::2], raw[1::2]))
+            entries.append(
+                LoggedChange(
+                    int(entry_id.split(b"-")[0]),
+                    float(fields[b"at"]),
+                    fields[b"frame"].decode(),
+                    codec.decode_events(map_id, fields[b"events"]),
+                )
+            )
+        return changes_after(entries, int(version or 0), after, limit)
+
+    def published_version(self, map_id: str) -> int:
+        with redis_errors(f"published_version of map {map_id}", self._where):
+            return int(self.client.get(keys.published_key(map_id)) or 0)
+
+    def mark_published(self, map_id: str, version: int) -> None:
+        with redis_errors(f"mark_published on map {map_id}", self._where):
+            self._scripts["mark_published"](keys=[keys.published_key(map_id)], args=[int(version)])
 
     def list_objects(self, map_id: str) -> list[MapObject]:
         return self.get(map_id, self.object_ids(map_id))
@@ -572,6 +611,9 @@ class RedisStore:
                 keys.processed_sweep_key(map_id),
                 keys.retired_key(map_id),
                 keys.retired_at_key(map_id),
+                keys.changes_key(map_id),
+                keys.version_key(map_id),
+                keys.published_key(map_id),
             ]
             removed_keys = int(self.client.unlink(*registries))  # one slot: the map's tag
             batch: list[bytes] = []
@@ -652,11 +694,6 @@ class RedisStore:
         with redis_errors("list the maps", self._where):
             raw = self.client.hgetall(keys.MAPS)
         return {(m.decode() if isinstance(m, bytes) else m): float(t) for m, t in raw.items()}
-
-    def map_updated_at(self, map_id: str) -> float | None:
-        with redis_errors(f"read when map {map_id} last changed", self._where):
-            raw = self.client.hget(keys.MAPS, map_id)
-        return float(raw) if raw is not None else None
 
     def count_objects(self, map_id: str) -> int:
         with redis_errors(f"count the objects of map {map_id}", self._where):

@@ -29,6 +29,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
+from arcloud.core.change import MapChange
 from arcloud.core.checks import check_finite_number, check_id, describe
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.types import AABB, MapObject, Params
@@ -242,7 +243,7 @@ def restore_bytes(store: ObjectStore, map_id: str, data: bytes, *, replace: bool
     started = last_log = time.monotonic()
     written = 0
     for batch in restore_batches(objects, header.index_cell_m):
-        store.commit(map_id, [], [o.replace(version=1) for o in batch], [])
+        store.commit(map_id, [], MapChange.writing(map_id, [o.replace(version=1) for o in batch]))
         written += len(batch)
         if time.monotonic() - last_log >= PROGRESS_LOG_S:
             last_log = time.monotonic()

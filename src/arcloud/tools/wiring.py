@@ -39,6 +39,7 @@ from arcloud.ports import (
     ViewerPasses,
 )
 from arcloud.service import app as service_app
+from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.logs import configure_logging
 from arcloud.service.pool import WorkerPool
 from arcloud.service.runtime import Adapters, Closeable, FrameHandler, close_all
@@ -420,7 +421,7 @@ def run_worker(
             store,
             detector,
             params,
-            publisher,
+            ChangeFeed(store, publisher) if publisher is not None else None,
             claim_min_idle_s=settings.claim_min_idle_s,
             claim_interval_s=settings.claim_interval_s,
             max_deliveries=settings.max_deliveries,

@@ -2,11 +2,13 @@
 -- Needs records.lua before it.
 -- KEYS[1]: the map's processed-frames HASH, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH,
 -- KEYS[4]: the processed-frames counter, KEYS[5]: the processed-frames sweep cursor,
--- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET).
+-- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET),
+-- KEYS[8]: the map's change log (STREAM), KEYS[9]: the map's version (STRING: the log's last entry).
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
 -- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
---          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells}
+--          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells,
+--          log_max}
 --          (ids, versions and counts as decimal strings; frame "" for none; cells: "i:j:k i:j:k ..." the
 --          index cells of the object's bounds; upserts also carry missed and gone, the object's counters,
 --          kept in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago
@@ -14,11 +16,15 @@
 --          objects are deleted like deletes and their metadata kept in the history, which keeps those
 --          retired within history_s, at most history_max; new_cells: how many index cells the upserts add,
 --          max_cells: the most cells one commit may add and remove together, counted before anything is written).
--- ARGV[3..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
+--          log_max: about how many entries the change log keeps (XADD MAXLEN ~).
+-- ARGV[3]: the change's events (``codec.encode_events``), "" for none: appended to the change log as the entry
+--          "<version>-0" (the map's version + 1) with fields at (now), frame, events, after every check and
+--          before any write, so that a refused commit appends nothing and a failed append writes nothing.
+-- ARGV[4..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
 -- Returns 1 (written), 0 (the frame was recorded before: nothing written), -N (the commit would add and remove
 -- N > max_cells index cells: nothing written), or an error "STALE ..." (a fence failed: nothing written).
 local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
-local history_key, history_at_key = KEYS[6], KEYS[7]
+local history_key, history_at_key, log_key, version_key = KEYS[6], KEYS[7], KEYS[8], KEYS[9]
 local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
 local cutoff = tonumber(req.now) - tonumber(req.retention_s)
@@ -93,6 +99,12 @@ if touched > tonumber(req.max_cells) then
   return -touched
 end
 
+if ARGV[3] ~= '' then
+  local version = tonumber(redis.call('GET', version_key) or '0') + 1
+  redis.call('XADD', log_key, 'MAXLEN', '~', req.log_max, version .. '-0', 'at', req.now, 'frame', req.frame, 'events', ARGV[3])
+  redis.call('SET', version_key, version)
+end
+
 local function unindex(id)
   local cells = redis.call('HGET', object_key(id), 'cells')
   if cells then
@@ -117,7 +129,7 @@ for _, deleted in ipairs({req.deletes, req.retired}) do
     redis.call('DEL', object_key(d.id))
   end
 end
-local at = 3
+local at = 4
 for _, u in ipairs(req.upserts) do
   local key = object_key(u.id)
   unindex(u.id)

@@ -165,13 +165,13 @@ class ObjectEvent(_message.Message):
         KIND_UPDATED: _ClassVar[ObjectEvent.Kind]
         KIND_MERGED: _ClassVar[ObjectEvent.Kind]
         KIND_DELETED: _ClassVar[ObjectEvent.Kind]
-        KIND_REMOVED: _ClassVar[ObjectEvent.Kind]
+        KIND_RETIRED: _ClassVar[ObjectEvent.Kind]
     KIND_UNSPECIFIED: ObjectEvent.Kind
     KIND_CREATED: ObjectEvent.Kind
     KIND_UPDATED: ObjectEvent.Kind
     KIND_MERGED: ObjectEvent.Kind
     KIND_DELETED: ObjectEvent.Kind
-    KIND_REMOVED: ObjectEvent.Kind
+    KIND_RETIRED: ObjectEvent.Kind
     KIND_FIELD_NUMBER: _ClassVar[int]
     MAP_ID_FIELD_NUMBER: _ClassVar[int]
     OBJECT_ID_FIELD_NUMBER: _ClassVar[int]
