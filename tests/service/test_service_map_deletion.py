@@ -18,7 +18,9 @@ from svc_helpers import AppClient, BlobDetector, UvicornThread, assert_problem, 
 
 from arcloud.access import new_key
 from arcloud.core.change import MapChange
+from arcloud.errors import StoreUnavailable
 from arcloud.proto.convert import frame_to_proto
+from arcloud.service import app as app_module
 from arcloud.service.settings import Settings
 from arcloud.stores import redis as redis_store_module
 from arcloud.stores.redis import RedisStore
@@ -133,3 +135,48 @@ def test_the_embedded_store_deletes_at_once_and_says_so() -> None:
         assert done["state"] == "deleted" and done["objects"] == done["objects_removed"] == n_objects
         assert done["keys_removed"] == 0 and done["finished_at"] == done["updated_at"]
         assert api.get("/v1/maps/m/stats").status_code == 404  # done: the map is simply gone
+
+
+@pytest.mark.redis
+def test_a_deletion_whose_process_died_refuses_the_map_until_a_delete_goes_on_with_it(
+    redis_server: RedisServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A deletion stopped after its first step (here: the store failing under it) keeps the map refused (409), and a
+    second DELETE answers 409 while the deletion is fresh; once it made no progress for ``DELETION_STALE_S`` a
+    DELETE goes on from what is left and ends it."""
+    monkeypatch.setattr(redis_store_module, "DELETE_OBJECTS", STEP_OBJECTS)
+    settings = Settings(store=redis_server.url, detector="sim:0", workers=0, auth="none")
+    store = RedisStore(redis_server.url)
+    steps = 0
+    delete_objects = RedisStore._delete_objects
+
+    def dying(self: RedisStore, going: Any, ids: list[bytes]) -> Any:
+        nonlocal steps
+        steps += 1
+        if steps > 1:
+            raise StoreUnavailable("the process died here")
+        return delete_objects(self, going, ids)
+
+    try:
+        with AppClient(create_app(settings)) as api:
+            assert api.post("/v1/maps/died/frames", content=frame_body("died"), headers=PROTOBUF).status_code == 202
+            store.commit("died", [], MapChange.writing("died", [cube(i) for i in range(1, 21)]))
+            monkeypatch.setattr(RedisStore, "_delete_objects", dying)
+            assert api.delete("/v1/maps/died").status_code == 503
+            monkeypatch.setattr(RedisStore, "_delete_objects", delete_objects)
+            stopped = api.get("/v1/maps/died/deletion").json()
+            assert stopped["state"] == "deleting" and (stopped["objects"], stopped["objects_removed"]) == (20, STEP_OBJECTS)
+            for refused in (
+                api.post("/v1/maps/died/frames", content=frame_body("died", 1), headers=PROTOBUF),
+                api.get("/v1/maps/died/stats"),
+                api.delete("/v1/maps/died"),  # fresh: another process may be deleting it
+            ):
+                assert assert_problem(refused, 409, "map_id")["type"] == "/problems/map-deleting"
+            monkeypatch.setattr(app_module, "DELETION_STALE_S", 0.0)
+            assert api.delete("/v1/maps/died").json() == {"map_id": "died", "deleted_objects": 20 - STEP_OBJECTS}
+            done = api.get("/v1/maps/died/deletion").json()
+            assert done["state"] == "deleted" and done["objects"] == done["objects_removed"] == 20 - STEP_OBJECTS
+            assert store.count_objects("died") == 0 and not list(store.client.scan_iter(match="arcloud:{died}:*"))
+            assert api.post("/v1/maps/died/frames", content=frame_body("died", 2), headers=PROTOBUF).status_code == 202
+    finally:
+        store.close()
