@@ -18,13 +18,17 @@ from svc_helpers import AppClient, BlobDetector, UvicornThread, assert_problem, 
 
 from arcloud.access import new_key
 from arcloud.core.change import MapChange
+from arcloud.core.types import Params
 from arcloud.errors import StoreUnavailable
 from arcloud.proto.convert import frame_to_proto
 from arcloud.service import app as app_module
 from arcloud.service.settings import Settings
+from arcloud.service.worker import FrameWorker
+from arcloud.stores import keys
 from arcloud.stores import redis as redis_store_module
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_api_keys import RedisKeyStore
+from arcloud.stores.redis_queue import RedisFrameQueue
 from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
@@ -180,3 +184,47 @@ def test_a_deletion_whose_process_died_refuses_the_map_until_a_delete_goes_on_wi
             assert api.post("/v1/maps/died/frames", content=frame_body("died", 2), headers=PROTOBUF).status_code == 202
     finally:
         store.close()
+
+
+@pytest.mark.redis
+def test_a_frame_queued_before_its_maps_deletion_is_dead_lettered_and_does_not_bring_the_map_back(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A worker takes a frame of a map whose deletion is under way (here stopped after its first step): the frame
+    is dead-lettered with the reason, and the map gets no header or object back."""
+    monkeypatch.setattr(redis_store_module, "DELETE_OBJECTS", STEP_OBJECTS)
+    redis_server = RedisServer.start()  # its own: the module's server holds other tests' queued frames
+    store = RedisStore(redis_server.url)
+    queue = RedisFrameQueue(redis_server.url)
+    worker = FrameWorker(queue, store, BlobDetector(), Params(voxel_size_m=0.04), consumer="late", read_block_s=0.1)
+    delete_objects = RedisStore._delete_objects
+    steps = 0
+
+    def dying(self: RedisStore, going: Any, ids: list[bytes]) -> Any:
+        nonlocal steps
+        steps += 1
+        if steps > 1:
+            raise StoreUnavailable("the process died here")
+        return delete_objects(self, going, ids)
+
+    try:
+        store.commit("late", [], MapChange.writing("late", [cube(i) for i in range(1, 21)]))
+        dead_letters = keys.ingest_dead_letter_stream(keys.shard_tag(0, 1))
+        before = redis_server.client().xlen(dead_letters)
+        assert queue.put(make_test_frame(0, map_id="late"))
+        monkeypatch.setattr(RedisStore, "_delete_objects", dying)
+        with pytest.raises(StoreUnavailable):
+            store.delete_map("late")
+        monkeypatch.setattr(RedisStore, "_delete_objects", delete_objects)
+        deletion = store.map_deletion("late")
+        assert deletion is not None and not deletion.done
+        remaining = store.count_objects("late")
+        assert worker.poll_once() == 1
+        assert redis_server.client().xlen(dead_letters) == before + 1
+        [(_, dead)] = redis_server.client().xrevrange(dead_letters, count=1)
+        assert dead[b"reason"].startswith(b"MapBeingDeleted: map late is being deleted"), dead
+        assert store.map_header("late") is None and store.count_objects("late") == remaining
+    finally:
+        queue.close()
+        store.close()
+        redis_server.stop()

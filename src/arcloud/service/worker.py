@@ -57,10 +57,10 @@ from typing import TYPE_CHECKING, Literal
 from arcloud.core.change import MapChange
 from arcloud.core.types import Detection, Frame, MapObject, Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
-from arcloud.ports import Detector, FrameConsumer, FrameTimings, Lease, MapStore, ObjectStore, QueuedFrame
+from arcloud.ports import Detector, FrameConsumer, FrameTimings, Lease, MapBeingDeleted, MapStore, ObjectStore, QueuedFrame
 from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.logs import log_context
-from arcloud.service.map_header import open_map_checked
+from arcloud.service.map_header import check_map_header
 
 if TYPE_CHECKING:
     import numpy as np
@@ -405,13 +405,15 @@ class FrameWorker:
             if item.deliveries > 1 and self.store.is_frame_done(frame.map_id, frame.key):
                 self.queue.ack(item, redelivered=True)
                 return "redelivered"
-            open_map_checked(self.store, frame.map_id, self.params)
+            # The header read (ours stored on the map's first frame); a map without one is checked for a
+            # deletion under way, so a frame queued before its DELETE does not bring the map back.
+            check_map_header(self.store, frame.map_id, self.params, open_new=True)
             result, retries = run_step(frame, detections, locks, self.params, attempts=self.attempts)
         except MapMismatch as exc:  # this worker's settings are wrong for the map: leave the frame to others
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
-        except InvalidInput as exc:  # the frame itself is at fault: every delivery would fail the same way
+        except (InvalidInput, MapBeingDeleted) as exc:  # every delivery would fail the same way
             self._dead_letter(item, f"{type(exc).__name__}: {exc}")
             return "dead"
         except Exception as exc:  # the queue decides: delivered again later, or failed
