@@ -42,6 +42,21 @@ def redis_server() -> Iterator[RedisServer]:
         yield server
 
 
+def dying_after_one_step() -> Any:
+    """A ``RedisStore._delete_objects`` that deletes one step's objects, then fails as a dying process would."""
+    delete_objects = RedisStore._delete_objects
+    steps = 0
+
+    def dying(self: RedisStore, going: Any, ids: list[bytes]) -> Any:
+        nonlocal steps
+        steps += 1
+        if steps > 1:
+            raise StoreUnavailable("the process died here")
+        return delete_objects(self, going, ids)
+
+    return dying
+
+
 def frame_body(map_id: str, index: int = 0) -> bytes:
     return frame_to_proto(make_test_frame(index, map_id=map_id)).SerializeToString()
 
@@ -151,15 +166,8 @@ def test_a_deletion_whose_process_died_refuses_the_map_until_a_delete_goes_on_wi
     monkeypatch.setattr(redis_store_module, "DELETE_OBJECTS", STEP_OBJECTS)
     settings = Settings(store=redis_server.url, detector="sim:0", workers=0, auth="none")
     store = RedisStore(redis_server.url)
-    steps = 0
     delete_objects = RedisStore._delete_objects
-
-    def dying(self: RedisStore, going: Any, ids: list[bytes]) -> Any:
-        nonlocal steps
-        steps += 1
-        if steps > 1:
-            raise StoreUnavailable("the process died here")
-        return delete_objects(self, going, ids)
+    dying = dying_after_one_step()
 
     try:
         with AppClient(create_app(settings)) as api:
@@ -198,14 +206,7 @@ def test_a_frame_queued_before_its_maps_deletion_is_dead_lettered_and_does_not_b
     queue = RedisFrameQueue(redis_server.url)
     worker = FrameWorker(queue, store, BlobDetector(), Params(voxel_size_m=0.04), consumer="late", read_block_s=0.1)
     delete_objects = RedisStore._delete_objects
-    steps = 0
-
-    def dying(self: RedisStore, going: Any, ids: list[bytes]) -> Any:
-        nonlocal steps
-        steps += 1
-        if steps > 1:
-            raise StoreUnavailable("the process died here")
-        return delete_objects(self, going, ids)
+    dying = dying_after_one_step()
 
     try:
         store.commit("late", [], MapChange.writing("late", [cube(i) for i in range(1, 21)]))
