@@ -181,7 +181,8 @@ def evaluate_case(
     export_dir: Path | None = None,
     render_s: float = 0.0,
 ) -> dict[str, Any]:
-    """The case's record: its centralized map and ``runs`` maps of K = ``case.users`` users, scored
+    """The case's record: its centralized map and ``runs`` maps of K = ``USERS`` users (whoever walked the
+    render: one user's walk is shared out among them as a recording would be), scored
     against the render's ground truth (``arcloud.accuracy.common.case_record``)."""
     from arcloud.datasets.export import export_payload, scannet_export_frame
     from arcloud.datasets.frames import LazyFrames
@@ -227,16 +228,16 @@ def evaluate_case(
         return score_run(objects, ground_truth, scene=scene.scene_id)
 
     centralized = build(1, 0)
-    distributed = [build(case.users, run) for run in range(runs)]
+    distributed = [build(USERS, run) for run in range(runs)]
     render = json.loads((scene_dir / "render.json").read_text())
     record = case_record(
-        case.name, case.split, centralized, distributed, users=case.users,
+        case.name, case.split, centralized, distributed, users=USERS, walkers=case.users,
         seed=case.seed, style=case.style, annotation=scene.annotation, frames=len(frames), dropped_frames=render.get("dropped", 0),
         walk_styles=render.get("walk_styles"), render_s=round(render_s, 2), eval_s=round(time.perf_counter() - started, 2),
     )  # fmt: skip
     mean = record["distributed"]["mean"]
     logger.info("case %s: centralized mAP@0.25 %.3f @0.5 %.3f; K=%d mean %.3f / %.3f", case.name,
-                centralized["map25"] or 0.0, centralized["map50"] or 0.0, case.users, mean.get("map25", 0.0), mean.get("map50", 0.0))  # fmt: skip
+                centralized["map25"] or 0.0, centralized["map50"] or 0.0, USERS, mean.get("map25", 0.0), mean.get("map50", 0.0))  # fmt: skip
     return record
 
 
