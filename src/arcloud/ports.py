@@ -190,11 +190,8 @@ class MapCatalog(Protocol):
     """The maps a store holds: each one's header (the settings its data is written under), the list of them,
     deleting one, and whether the store answers."""
 
-    #: The blob format this store writes (``stores.codec.FORMAT_VERSION``), part of a map's header.
+    #: The blob format this store writes and reads (``stores.codec.FORMAT_VERSION``), part of a map's header.
     codec_version: int
-    #: The blob formats this store reads (``stores.codec.READABLE_VERSIONS``): a map created under any
-    #: of them opens (``core.header.check_header``); its objects are rewritten in ``codec_version``.
-    readable_codec_versions: tuple[int, ...]
 
     def open_map(self, map_id: str, header: MapHeader) -> MapHeader:
         """The map's header: the one stored, or ``header``, written now when the map has none (atomically:

@@ -132,13 +132,8 @@ def test_another_number_of_shards_is_refused_at_start(make_queue: MakeQueue) -> 
         other.prepare()
 
 
-def test_frames_left_in_the_stream_of_before_shards_are_warned_of(
-    make_queue: MakeQueue, caplog: pytest.LogCaptureFixture
-) -> None:
+def test_a_missing_group_is_reported_by_health(make_queue: MakeQueue, caplog: pytest.LogCaptureFixture) -> None:
     queue = make_queue(shards=1)
     assert queue.health() == {"redis": "ok", "consumer_group": "ok"} and not caplog.records
-    queue.client.xadd(keys.LEGACY_INGEST_STREAM, {"map_id": "a", "frame_key": "d/f0", "frame": b""})
-    queue.prepare()  # as the API and every worker do at start
-    assert "1 frames left in arcloud:ingest, the stream of before ingest shards" in caplog.text
     queue.client.delete(keys.ingest_stream(queue.shard_tag(0)))  # its group with it
     assert queue.health() == {"redis": "ok", "consumer_group": "missing: no group shards on arcloud:ingest:{s0.0}"}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import zlib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,7 +24,6 @@ def random_voxels(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 HEADER_BYTES = 21  # format 5 without a grid: 12 bytes, then the plane kinds, the vote count and the prediction
-DATA = Path(__file__).parent / "data"
 
 
 def random_colors(n: int, seed: int) -> np.ndarray:
@@ -102,58 +100,6 @@ def test_counts_and_votes_in_steps_are_stored_as_integers_and_other_values_as_fl
     np.testing.assert_array_equal(got_odd.view(np.uint32), odd.view(np.uint32))
     np.testing.assert_array_equal(got_odd_votes, odd_votes)
     assert len(blob) > len(codec.encode_voxels(keys, counts, votes)) + keys.size  # integers: over a byte a voxel less
-
-
-@pytest.mark.parametrize(("f16", "compressed"), [(False, False), (False, True), (True, True)])
-def test_format_3_blobs_read(f16: bool, compressed: bool) -> None:
-    """A blob as version 3 wrote it (the layout of this test, not the encoder's): float32 arrays, votes
-    float16 with ``FLAG_VOTES_F16``, colours."""
-    keys, weights, votes = random_voxels(60, seed=10)
-    seen, colors = weights + 1, random_colors(keys.size, seed=10)
-    votes_bytes = votes.astype("<f2" if f16 else "<f4").tobytes()
-    payload = b"".join(
-        (np.diff(keys, prepend=0).astype("<i8").tobytes(), weights.tobytes(), seen.tobytes(), votes_bytes, colors.T.tobytes())
-    )
-    flags = codec.FLAG_COLORS | (codec.FLAG_VOTES_F16 if f16 else 0) | (codec.FLAG_ZLIB if compressed else 0)
-    blob = codec._HEADER.pack(b"ARCV", 3, flags, N_CLASSES, keys.size) + (zlib.compress(payload) if compressed else payload)
-    got_keys, got_weights, got_votes, got_seen, got_colors = codec.decode_voxels(blob)
-    np.testing.assert_array_equal(got_keys, keys)
-    np.testing.assert_array_equal(got_weights, weights)
-    np.testing.assert_array_equal(got_seen, seen)
-    np.testing.assert_array_equal(got_votes, votes.astype(np.float16).astype(np.float32) if f16 else votes)
-    np.testing.assert_array_equal(got_colors, colors)
-
-
-def test_format_1_blobs_read_with_seen_equal_to_weights() -> None:
-    keys, weights, votes = random_voxels(5, seed=4)
-    payload = b"".join((np.diff(keys, prepend=0).astype("<i8").tobytes(), weights.tobytes(), votes.tobytes()))
-    blob = codec._HEADER.pack(codec.MAGIC, 1, 0, N_CLASSES, keys.size) + payload
-    got_keys, _got_weights, got_votes, got_seen, got_colors = codec.decode_voxels(blob)
-    np.testing.assert_array_equal(got_keys, keys)
-    np.testing.assert_array_equal(got_votes, votes)
-    np.testing.assert_array_equal(got_seen, weights)
-    assert got_colors is None
-
-
-@pytest.mark.parametrize("compressed", [False, True])
-def test_format_2_blobs_read_with_colours_unknown(compressed: bool) -> None:
-    """A blob as version 2 wrote it (the layout of this test, not the encoder's): what maps stored
-    before colours hold."""
-    keys, weights, votes = random_voxels(40, seed=9)
-    seen = weights * 2
-    payload = b"".join((np.diff(keys, prepend=0).astype("<i8").tobytes(), weights.tobytes(), seen.tobytes(), votes.tobytes()))
-    flags = codec.FLAG_ZLIB if compressed else 0
-    blob = codec._HEADER.pack(b"ARCV", 2, flags, N_CLASSES, keys.size) + (zlib.compress(payload) if compressed else payload)
-    got_keys, got_weights, got_votes, got_seen, got_colors = codec.decode_voxels(blob)
-    np.testing.assert_array_equal(got_keys, keys)
-    np.testing.assert_array_equal(got_weights, weights)
-    np.testing.assert_array_equal(got_seen, seen)
-    np.testing.assert_array_equal(got_votes, votes)
-    assert got_colors is None
-    meta = codec.encode_meta(MapObject(id=3, keys=keys, weights=weights, votes=votes))
-    assert codec.decode_object(3, meta, blob).colors is None
-    with pytest.raises(StoreError, match="bytes"):  # a version 2 blob holds no colours, whatever its flags say
-        codec.decode_voxels(codec._HEADER.pack(b"ARCV", 2, codec.FLAG_COLORS, N_CLASSES, keys.size) + payload + bytes(120))
 
 
 def test_encode_rejects_malformed_voxels() -> None:
@@ -241,21 +187,28 @@ def test_object_round_trips_through_metadata_and_voxels() -> None:
     np.testing.assert_array_equal(bounds, [[-2, 0, 0, 2, 3, 4], [*obj.aabb.min, *obj.aabb.max]])
 
 
-def test_metadata_is_compressed_json_and_plain_json_of_older_formats_reads_alike() -> None:
+def dictionary_compressed(json_bytes: bytes) -> bytes:
+    compressor = zlib.compressobj(zdict=codec.META_DICTIONARY)
+    return compressor.compress(json_bytes) + compressor.flush()
+
+
+def test_metadata_is_json_compressed_against_the_dictionary() -> None:
     keys, weights, votes = random_voxels(3, seed=7)
     obj = MapObject(id=4, keys=keys, weights=weights, votes=votes, label="chair", score=0.5, devices=frozenset({"d1"}))
     blob = codec.encode_meta(obj)
     unpacker = zlib.decompressobj(zdict=codec.META_DICTIONARY)
     plain = unpacker.decompress(blob)
     assert plain.startswith(b'{"label":"chair"') and len(blob) < len(plain)
-    format_4 = zlib.compress(plain)  # compressed without a dictionary
-    assert len(blob) < len(format_4) - 40  # the dictionary spells the field names
-    got = codec.decode_metas([4, 4, 4], [blob, format_4, plain])
-    assert [repr(m) for m in got] == [repr(codec.meta_of(obj))] * 3
+    assert len(blob) < len(zlib.compress(plain)) - 40  # the dictionary spells the field names
+    got = codec.decode_metas([4, 4], [blob, blob])
+    assert [repr(m) for m in got] == [repr(codec.meta_of(obj))] * 2
+    for without_dictionary in (plain, zlib.compress(plain)):  # what no writer writes
+        with pytest.raises(StoreError, match="dictionary"):  # none, or none known
+            codec.decode_meta(4, without_dictionary)
     unknown = zlib.compressobj(zdict=b"another dictionary")
     with pytest.raises(StoreError, match="unknown dictionary"):
         codec.decode_meta(4, unknown.compress(plain) + unknown.flush())
-    bomb = zlib.compress(b'{"label":"' + b"x" * (codec.MAX_META_BYTES + 10) + b'"}')
+    bomb = dictionary_compressed(b'{"label":"' + b"x" * (codec.MAX_META_BYTES + 10) + b'"}')
     with pytest.raises(StoreError, match="more than"):
         codec.decode_meta(4, bomb)
 
@@ -271,7 +224,7 @@ def test_corrupt_metadata_is_a_store_error() -> None:
     keys, weights, votes = random_voxels(3, seed=6)
     meta = codec.encode_meta(MapObject(id=1, keys=keys, weights=weights, votes=votes))
     with pytest.raises(StoreError, match="corrupt metadata"):
-        codec.decode_meta(1, b'{"version": "not a number"}')
+        codec.decode_meta(1, dictionary_compressed(b'{"version": "not a number"}'))
     with pytest.raises(StoreError, match="corrupt metadata"):
         codec.decode_meta(1, b"\x00garbage")
     with pytest.raises(StoreError, match="voxels"):  # metadata and voxels of different writes
@@ -289,32 +242,6 @@ def test_a_blob_cannot_unpack_beyond_what_its_header_announces() -> None:
     too_many = codec._HEADER.pack(codec.MAGIC, codec.FORMAT_VERSION, codec.FLAG_ZLIB, N_CLASSES, codec.MAX_BLOB_VOXELS + 1)
     with pytest.raises(StoreError, match="at most"):
         codec.decode_voxels(too_many + bomb)
-
-
-def format_4_counts_voxels() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """What ``data/voxels-format4-counts.bin`` holds (written by the format 4 encoder of 74f0e52)."""
-    keys, _, _ = random_voxels(300, seed=40)
-    rng = np.random.default_rng(40)
-    counts = rng.integers(0, 700, keys.size).astype(np.float32)
-    votes = np.zeros((keys.size, N_CLASSES), np.float32)
-    votes[np.arange(keys.size), rng.integers(0, N_CLASSES, keys.size)] = rng.integers(1, 6400, keys.size) * np.float32(VOTE_STEP)
-    return keys, counts, votes, counts + 3, random_colors(keys.size, seed=40)
-
-
-def test_format_4_blobs_read() -> None:
-    """Blobs the format 4 encoder wrote (kept as files): integer planes, colours, zlib; and float planes, raw."""
-    blob = (DATA / "voxels-format4-counts.bin").read_bytes()
-    assert blob[4:6] == bytes([4, codec.FLAG_ZLIB | codec.FLAG_COLORS])
-    for got, expected in zip(codec.decode_voxels(blob), format_4_counts_voxels(), strict=True):
-        np.testing.assert_array_equal(got, expected)
-    raw = (DATA / "voxels-format4-raw.bin").read_bytes()
-    keys, weights, votes = random_voxels(300, seed=40)
-    got_keys, got_weights, got_votes, got_seen, got_colors = codec.decode_voxels(raw)
-    np.testing.assert_array_equal(got_keys, keys[:3])
-    np.testing.assert_array_equal(got_weights, weights[:3])
-    np.testing.assert_array_equal(got_seen, weights[:3])
-    np.testing.assert_array_equal(got_votes, votes[:3])
-    assert got_colors is None
 
 
 def compact_object(seed: int, n_labels: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ import pytest
 import redis
 from redis.crc import key_slot
 from redis_server import free_port
-from store_cases import MAP, Clock, assert_same_object, make_object, step_frame
+from store_cases import MAP, Clock, make_object, step_frame
 
 from arcloud.core.change import MapChange
 from arcloud.core.checks import make_frame
@@ -22,7 +22,7 @@ from arcloud.core.step import integrate_frame
 from arcloud.core.types import AABB, Params
 from arcloud.errors import InvalidInput, StaleLease, StoreUnavailable
 from arcloud.ports import QueueLimits
-from arcloud.stores import codec, keys
+from arcloud.stores import keys
 from arcloud.stores.memory import MemoryStore
 from arcloud.stores.redis import RedisStore
 from arcloud.stores.redis_queue import FrameRecord, RedisFrameQueue
@@ -58,28 +58,6 @@ def test_every_key_of_a_map_shares_its_hash_tag(redis_store: RedisStore) -> None
     assert {key_slot(k.encode()) for k in found} == {key_slot(keys.map_prefix(MAP).encode())}
     lease.release()
     claim.release()
-
-
-def test_objects_written_before_colours_read_with_colours_unknown_and_are_rewritten_in_the_new_format(
-    redis_store: RedisStore,
-) -> None:
-    store = redis_store
-    obj = make_object(1, (0.0, 0.0, 0.0))
-    store.commit(MAP, [], MapChange.writing(MAP, [obj]))
-    # The object's voxels as codec version 2 wrote them (its layout, spelled out here): no colours.
-    payload = b"".join(
-        (np.diff(obj.keys, prepend=0).astype("<i8").tobytes(), obj.weights.tobytes(), obj.seen.tobytes(), obj.votes.tobytes())
-    )
-    old_blob = codec._HEADER.pack(b"ARCV", 2, 0, obj.votes.shape[1], obj.keys.size) + payload
-    store.client.hset(keys.object_key(MAP, 1), "voxels", old_blob)
-    (read,) = store.get(MAP, [1])
-    assert read.colors is None
-    assert_same_object(read, obj.replace(colors=None))
-    with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
-        assert store.commit(MAP, [lease], MapChange.writing(MAP, [read.replace(version=2)]))
-    rewritten = store.client.hget(keys.object_key(MAP, 1), "voxels")
-    assert rewritten[4] == codec.FORMAT_VERSION == 5 and not rewritten[5] & codec.FLAG_COLORS
-    assert store.get(MAP, [1])[0].colors is None
 
 
 def test_delete_map_removes_every_key_of_the_map_and_no_other(redis_store: RedisStore) -> None:
@@ -121,7 +99,7 @@ def test_key_templates() -> None:
     )
     assert len(set(shard_keys)) == 8 and {keys.hash_tag(k) for k in shard_keys} == {tag}  # one slot: the scripts' keys
     assert not any(k.startswith(keys.map_prefix("")) for k in shard_keys)
-    service_wide = (keys.INGEST_SHARDS, keys.INGEST_WORKERS, keys.MAPS, keys.API_KEYS, keys.LEGACY_INGEST_STREAM)
+    service_wide = (keys.INGEST_SHARDS, keys.INGEST_WORKERS, keys.MAPS, keys.API_KEYS)
     assert {keys.hash_tag(k) for k in service_wide} == set(service_wide)  # no tag: single-key commands only
 
 

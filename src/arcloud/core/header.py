@@ -2,7 +2,7 @@
 
 A map's voxel keys are indices at one voxel size; its index cells have one size; its floor votes are
 height bins of one size along one up; its label votes are columns in one class order; its boxes are in
-one aligned frame; its blobs are in one codec version (or later ones that read it). Read with other
+one aligned frame; its blobs are in one codec version. Read with other
 settings, the same bytes mean something else, silently. So a map carries a ``MapHeader`` written when it is created, and whoever
 opens it with ``Params`` checks them against it (``check_header``) and refuses a mismatch by name.
 
@@ -11,7 +11,7 @@ Pure: the stores write and read the record (``MapHeader.to_record``/``from_recor
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from arcloud.core.checks import check_finite_number, describe
@@ -29,8 +29,7 @@ class MapHeader:
     voxel_size_m: voxel keys' size. index_cell_m: spatial index cells' size. floor_bin_m: the height
     bins of objects' floor votes. up: (3,) world up. world2aligned: (4, 4) rows, the frame axis-aligned
     boxes are in (None: the world). classes: the label order of the voxels' votes. codec_version: the
-    stores' blob format when the map was created (its blobs are in that format or a later one that
-    reads it: see ``differences``). created_at_s: when the map was created (Unix seconds; not compared)."""
+    stores' blob format its blobs are in. created_at_s: when the map was created (Unix seconds; not compared)."""
 
     voxel_size_m: float
     index_cell_m: float
@@ -55,14 +54,10 @@ class MapHeader:
             created_at_s=check_finite_number("MapHeader.created_at_s", created_at_s),
         )
 
-    def differences(
-        self, params: Params, codec_version: int | None = None, readable_codec_versions: Collection[int] = ()
-    ) -> list[tuple[str, object, object]]:
+    def differences(self, params: Params, codec_version: int | None = None) -> list[tuple[str, object, object]]:
         """(setting, the map's value, ours) for each setting in which ``params`` (and ``codec_version``,
-        when given) read this map otherwise than it was written; empty when they agree. A map written in
-        another codec version that we still read (one of ``readable_codec_versions``: older blobs, each
-        read by the version it names) does not differ in it."""
-        if codec_version is None or self.codec_version in readable_codec_versions:
+        when given) read this map otherwise than it was written; empty when they agree."""
+        if codec_version is None:
             codec_version = self.codec_version
         ours = MapHeader.from_params(params, codec_version, self.created_at_s)
         names = (*HEADER_SETTINGS, "classes", "codec_version")
@@ -113,13 +108,11 @@ def check_header(
     params: Params,
     *,
     codec_version: int | None = None,
-    readable_codec_versions: Collection[int] = (),
     map_id: str | None = None,
 ) -> None:
     """Refuse to read or write a map under settings other than its own: ``MapMismatch`` naming each
-    setting that differs, with the map's value and ours (``codec_version``: ours, when it matters; a map
-    in one of ``readable_codec_versions`` is accepted, see ``MapHeader.differences``)."""
-    differences = header.differences(params, codec_version, readable_codec_versions)
+    setting that differs, with the map's value and ours (``codec_version``: ours, when it matters)."""
+    differences = header.differences(params, codec_version)
     if differences:
         raise MapMismatch(map_id, differences)
 

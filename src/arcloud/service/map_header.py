@@ -40,15 +40,8 @@ def check_not_being_deleted(store: MapCatalog, map_id: str) -> None:
 
 
 def check_store_header(store: MapCatalog, header: MapHeader, params: Params, map_id: str) -> None:
-    """``check_header`` against ``params`` and the blob formats ``store`` writes and reads: a map
-    created under an older codec version the store still reads is accepted."""
-    check_header(
-        header,
-        params,
-        codec_version=store.codec_version,
-        readable_codec_versions=store.readable_codec_versions,
-        map_id=map_id,
-    )
+    """``check_header`` against ``params`` and the blob format ``store`` writes and reads."""
+    check_header(header, params, codec_version=store.codec_version, map_id=map_id)
 
 
 __all__ = ["check_map_header", "check_not_being_deleted", "open_map_checked"]

@@ -27,26 +27,16 @@ bit for bit; the codec stays lossless for any input (NaN and -0.0 included). Nea
 one label only, with about the same score each frame: its votes are about its weight times a number.
 
 Measured on the 20 objects (4,992 voxels) of a map of 7-Scenes redkitchen from YOLO masks (1000 frames):
-format 4 took 7.2 bytes a voxel (keys 1.1, counts 1.8, votes with their bits 1.6, colours 2.9), format 5
-takes 6.0 (keys as bits 0.6, seen as seen - weights 0.7 instead of 0.9, votes from their prediction 1.3,
-colours as differences 2.4); metadata with a preset dictionary 208 instead of 322 bytes an object. Encoding the 20
-takes 3.9-4.0 ms instead of 2.3, decoding 1.8-1.9 ms instead of 0.7 (about 60 us more an object read:
-numpy's cost per call on small arrays; quiet 2-core machine), for 20 % fewer bytes stored and moved.
+6.0 bytes a voxel (keys as bits 0.6, counts 1.6, votes from their prediction 1.3, colours as differences
+2.4), metadata 208 bytes an object; encoding the 20 takes 3.9-4.0 ms, decoding 1.8-1.9 ms (quiet 2-core
+machine).
 
-Older formats, read: format 1 (keys, weights, votes float32), 2 (and seen float32 after the weights),
-3 (and colours; votes float16 with ``FLAG_VOTES_F16``), each with the 12-byte header alone; 4 (as 5 with
-a 7-byte plane header, key differences as int64 in a row, colours as they are, no other flags).
-
-Blobs of every version in ``READABLE_VERSIONS`` are read, each by the version in its own header, so a
-map whose header names an older codec version (``core.header``) stays readable and writable: the
-stores accept it (``ObjectStore.readable_codec_versions``) and its objects move to the current format
-as they are rewritten. A process older than the current format cannot read the new blobs (it raises
-``StoreError`` naming the version): upgrade every process of a map together.
+Only format 5 is read: formats 1-4 were written by development versions alone (no deployment holds
+them), and their readers went with issue 23. A blob of another version raises ``StoreError`` naming it,
+and a map whose header names another codec version is refused (``core.header``).
 
 Metadata: compact JSON of the object without its voxels (floats written by ``repr``: exact round
-trip; boxes as lists of floats; devices as a sorted list), zlib-compressed against ``META_DICTIONARY``
-(format 5; format 4 compressed it without one; plain JSON, what formats 1-3 wrote, starts with ``{`` and
-is read as it is).
+trip; boxes as lists of floats; devices as a sorted list), zlib-compressed against ``META_DICTIONARY``.
 ``arcloud.ports.ObjectMeta`` is that, decoded.
 Bounds: 6 little-endian float64 (min xyz, max xyz), the spatial index's entry of an object.
 """
@@ -69,13 +59,11 @@ from arcloud.errors import InvalidInput, StoreError
 
 MAGIC = b"ARCV"
 FORMAT_VERSION = 5
-READABLE_VERSIONS: tuple[int, ...] = (1, 2, 3, 4, 5)
 FLAG_ZLIB = 1
-FLAG_VOTES_F16 = 2  # format 3: votes as float16 (read only)
 FLAG_COLORS = 4
-FLAG_KEYS_GRID = 8  # format 5: keys as occupancy bits over their box (else key differences)
-FLAG_SEEN_EXTRA = 16  # format 5: the seen plane holds seen - weights
-FLAG_VOTES_PREDICTED = 32  # format 5: the votes plane holds what a voxel's votes differ from its prediction
+FLAG_KEYS_GRID = 8  # keys as occupancy bits over their box (else key differences)
+FLAG_SEEN_EXTRA = 16  # the seen plane holds seen - weights
+FLAG_VOTES_PREDICTED = 32  # the votes plane holds what a voxel's votes differ from its prediction
 ZLIB_MIN_BYTES = 256  # smaller payloads are stored raw (zlib would not pay for its own overhead)
 ZLIB_LEVEL = 6
 KIND_F32, KIND_U16, KIND_U32 = 0, 1, 2
@@ -84,9 +72,8 @@ _U16_MAX, _U32_MAX = (1 << 16) - 1, (1 << 32) - 1
 _KIND_MAX = {KIND_U16: _U16_MAX, KIND_U32: _U32_MAX}
 VOTES_SCALE = 1.0 / VOTE_STEP  # votes are stored in steps
 _HEADER = struct.Struct("<4sBBHI")
-_PLANES_4 = struct.Struct("<BBBI")  # format 4: kinds of weights, seen, votes; n_votes
-_PLANES = struct.Struct("<BBBIH")  # format 5: and the votes a unit of weight predicts, in steps
-_GRID = struct.Struct("<3i3I")  # format 5 with FLAG_KEYS_GRID: the box's first voxel index (i, j, k) and its extent
+_PLANES = struct.Struct("<BBBIH")  # kinds of weights, seen, votes; n_votes; the votes a unit of weight predicts, in steps
+_GRID = struct.Struct("<3i3I")  # with FLAG_KEYS_GRID: the box's first voxel index (i, j, k) and its extent
 _BOX = struct.Struct("<6d")  # min xyz, max xyz
 #: Keys go as occupancy bits when their box holds at most this many cells a voxel (a bit a cell against
 #: about 1 compressed byte a key difference), and at most ``MAX_GRID_CELLS`` cells in all.
@@ -289,29 +276,23 @@ def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     if len(blob) < _HEADER.size:
         raise StoreError(f"voxel blob of {len(blob)} bytes is shorter than its {_HEADER.size}-byte header")
     magic, version, flags, n_classes, n = _HEADER.unpack_from(blob)
-    if magic != MAGIC or version not in READABLE_VERSIONS:
-        raise StoreError(f"voxel blob: expected magic {MAGIC!r} version in {READABLE_VERSIONS}, got {magic!r} version {version}")
+    if magic != MAGIC or version != FORMAT_VERSION:
+        raise StoreError(f"voxel blob: expected magic {MAGIC!r} version {FORMAT_VERSION}, got {magic!r} version {version}")
     if n > MAX_BLOB_VOXELS or n_classes > MAX_BLOB_CLASSES:
         raise StoreError(
             f"voxel blob: expected at most {MAX_BLOB_VOXELS} voxels of {MAX_BLOB_CLASSES} classes, got {n} of {n_classes}"
         )
-    if version < 4:
-        return _decode_voxels_before_4(blob, version, flags, n_classes, n)
-    planes_format = _PLANES_4 if version == 4 else _PLANES
-    if version == 4:
-        flags &= FLAG_ZLIB | FLAG_COLORS  # format 4 knew no other flags
     grid_size = _GRID.size if flags & FLAG_KEYS_GRID else 0
-    if len(blob) < _HEADER.size + planes_format.size + grid_size:
+    if len(blob) < _HEADER.size + _PLANES.size + grid_size:
         raise StoreError(
-            f"voxel blob of {len(blob)} bytes is shorter than its {_HEADER.size + planes_format.size + grid_size}-byte header"
+            f"voxel blob of {len(blob)} bytes is shorter than its {_HEADER.size + _PLANES.size + grid_size}-byte header"
         )
-    weights_kind, seen_kind, votes_kind, n_votes, *rest = planes_format.unpack_from(blob, _HEADER.size)
-    votes_per_weight = rest[0] if rest else 0
+    weights_kind, seen_kind, votes_kind, n_votes, votes_per_weight = _PLANES.unpack_from(blob, _HEADER.size)
     if not {weights_kind, seen_kind, votes_kind} <= _KIND_DTYPES.keys() or n_votes > n * n_classes:
         raise StoreError(f"voxel blob: corrupt header (plane kinds {weights_kind, seen_kind, votes_kind}, {n_votes} votes)")
     if flags & FLAG_VOTES_PREDICTED and (weights_kind == KIND_F32 or votes_kind == KIND_F32):
         raise StoreError("voxel blob: corrupt header (votes predicted from float planes)")
-    grid = _grid_of(blob, _HEADER.size + planes_format.size, n) if flags & FLAG_KEYS_GRID else None
+    grid = _grid_of(blob, _HEADER.size + _PLANES.size, n) if flags & FLAG_KEYS_GRID else None
     keys_bytes = n * 8 if grid is None else (grid[2] + 7) // 8
     mask_bytes = (n_classes + 7) // 8
     weights_at = keys_bytes
@@ -320,9 +301,9 @@ def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     votes_at = mask_at + n * mask_bytes
     colors_at = votes_at + n_votes * _KIND_DTYPES[votes_kind].itemsize
     has_colors = bool(flags & FLAG_COLORS)
-    at = _HEADER.size + planes_format.size + grid_size
+    at = _HEADER.size + _PLANES.size + grid_size
     payload = _payload(blob, at, flags, colors_at + (n * 3 if has_colors else 0), n)
-    keys = _keys_of_grid(payload, n, *grid) if grid is not None else _keys_of_differences(payload, n, version)
+    keys = _keys_of_grid(payload, n, *grid) if grid is not None else _keys_of_differences(payload, n)
     weights = _plane(payload, weights_kind, n, weights_at, 1.0)
     seen = _plane(payload, seen_kind, n, seen_at, 1.0)
     if flags & FLAG_SEEN_EXTRA:
@@ -344,7 +325,7 @@ def decode_voxels(blob: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     colors = None
     if has_colors:
         planes = np.frombuffer(payload, np.uint8, n * 3, colors_at).reshape(3, n)
-        colors = _colors_of_planes(planes) if version >= 5 else planes.T.copy()
+        colors = _colors_of_planes(planes)
     return keys, weights, votes, seen, colors
 
 
@@ -371,10 +352,9 @@ def _keys_of_grid(payload: memoryview, n: int, first: np.ndarray, extent: np.nda
     return keys
 
 
-def _keys_of_differences(payload: memoryview, n: int, version: int) -> np.ndarray:
-    """Keys from their differences: int64 in a row (format 4), or byte positions apart (5)."""
-    deltas = np.frombuffer(payload, "<i8", n, 0) if version == 4 else _plane_numbers(payload, np.dtype("<i8"), n, 0)
-    return np.cumsum(deltas, dtype=np.int64)
+def _keys_of_differences(payload: memoryview, n: int) -> np.ndarray:
+    """Keys from their differences, int64 byte positions apart."""
+    return np.cumsum(_plane_numbers(payload, np.dtype("<i8"), n, 0), dtype=np.int64)
 
 
 def _payload(blob: bytes, at: int, flags: int, expected: int, n: int) -> memoryview:
@@ -388,24 +368,6 @@ def _payload(blob: bytes, at: int, flags: int, expected: int, n: int) -> memoryv
     if len(payload) != expected:
         raise StoreError(f"voxel blob: expected {expected} bytes for {n} voxels, got {len(payload)}")
     return payload
-
-
-def _decode_voxels_before_4(
-    blob: bytes, version: int, flags: int, n_classes: int, n: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """``decode_voxels`` of a format 1, 2 or 3 blob (float32 arrays one after another)."""
-    votes_dtype = np.dtype("<f2") if flags & FLAG_VOTES_F16 else np.dtype("<f4")
-    n_float_arrays = 2 if version >= 2 else 1
-    has_colors = version >= 3 and bool(flags & FLAG_COLORS)
-    votes_at = n * 8 + n * 4 * n_float_arrays
-    colors_at = votes_at + n * n_classes * votes_dtype.itemsize
-    payload = _payload(blob, _HEADER.size, flags, colors_at + (n * 3 if has_colors else 0), n)
-    keys = np.cumsum(np.frombuffer(payload, "<i8", n, 0), dtype=np.int64)
-    weights = np.frombuffer(payload, "<f4", n, n * 8).astype(np.float32)
-    seen = np.frombuffer(payload, "<f4", n, n * 12).astype(np.float32) if version >= 2 else weights.copy()
-    votes = np.frombuffer(payload, votes_dtype, n * n_classes, votes_at).astype(np.float32).reshape(n, n_classes)
-    colors = np.frombuffer(payload, np.uint8, n * 3, colors_at).reshape(3, n).copy().T if has_colors else None  # (N, 3) view
-    return keys, weights, votes, seen, colors
 
 
 def pack_box(box: AABB) -> bytes:
@@ -449,8 +411,8 @@ META_ZLIB_LEVEL = 9  # the blobs are small: the best compression costs microseco
 
 
 #: What metadata JSON is compressed against (zlib's preset dictionary: a blob refers to these bytes
-#: instead of spelling its field names out; format 5 on). Never edit it: a blob names its dictionary by
-#: checksum, and a new one must be added beside it (``_META_DICTIONARIES``).
+#: instead of spelling its field names out). Never edit it: a blob names its dictionary by checksum,
+#: and a new one must be added beside it (``_META_DICTIONARIES``).
 META_DICTIONARY = (
     b'"label":"laptop","label":"couch","label":"table","label":"tv","label":"chair",'
     b'"version":1,"n_voxels":1,"n_frames":1,"devices":[""],"score_sum":0.0,'
@@ -533,16 +495,13 @@ def decode_metas(object_ids: Sequence[int], blobs: Sequence[bytes]) -> list[Obje
 
 
 def _unpacked_meta(blob: bytes) -> bytes:
-    """A metadata blob's JSON: as it is (formats 1-3), or decompressed (at most ``MAX_META_BYTES``)."""
-    if blob[:1] == b"{":
-        return blob
-    dictionary = b""
-    if len(blob) >= 6 and blob[1] & 0x20:  # zlib's FDICT bit: the preset dictionary's checksum follows
-        checksum = int.from_bytes(blob[2:6], "big")
-        if checksum not in _META_DICTIONARIES:
-            raise ValueError(f"metadata compressed against an unknown dictionary (checksum {checksum:#010x})")
-        dictionary = _META_DICTIONARIES[checksum]
-    unpacker = zlib.decompressobj(zdict=dictionary) if dictionary else zlib.decompressobj()
+    """A metadata blob's JSON, decompressed (at most ``MAX_META_BYTES``) against the dictionary it names."""
+    if len(blob) < 6 or not blob[1] & 0x20:  # zlib's FDICT bit: the preset dictionary's checksum follows
+        raise ValueError("metadata not compressed against a preset dictionary")
+    checksum = int.from_bytes(blob[2:6], "big")
+    if checksum not in _META_DICTIONARIES:
+        raise ValueError(f"metadata compressed against an unknown dictionary (checksum {checksum:#010x})")
+    unpacker = zlib.decompressobj(zdict=_META_DICTIONARIES[checksum])
     json_bytes = unpacker.decompress(blob, MAX_META_BYTES)
     if unpacker.unconsumed_tail:
         raise ValueError(f"metadata unpacks to more than {MAX_META_BYTES} bytes")

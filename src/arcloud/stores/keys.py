@@ -71,11 +71,7 @@ Service-wide keys (no tag: single-key commands only):
 
 ``RedisStore.delete_map`` removes every key matching ``map_pattern``; the queue's ``forget_map`` removes the
 map's frame records and counts from its shard (not its part of the shard's backlog: frames still queued
-leave it when they settle). Written before ingest shards, and no longer read: the one stream
-``arcloud:ingest`` with ``:dead``, ``:dead:bytes``, ``:backlog``, ``:stats``, and per map
-``arcloud:{m}:ingest:status``, ``:sweep``, ``:counts`` (``delete_map`` removes those with the map); before
-the frame records were bounded: ``arcloud:{m}:frames`` (SET), ``arcloud:{m}:ingest:accepted`` and
-``:failed`` (SETs).
+leave it when they settle).
 """
 
 from __future__ import annotations
@@ -288,8 +284,6 @@ def ingest_counts_key(tag: str, map_id: str) -> str:
 # Service-wide keys (no tag).
 INGEST_SHARDS = f"{PREFIX}:ingest:shards"
 INGEST_WORKERS = f"{PREFIX}:ingest:workers"
-#: The one stream before ingest shards (no longer written; ``RedisFrameQueue.health`` reports entries left in it).
-LEGACY_INGEST_STREAM = f"{PREFIX}:ingest"
 API_KEYS = f"{PREFIX}:keys"
 MAPS = f"{PREFIX}:maps"
 

@@ -95,7 +95,6 @@ class MemoryStore:
     change log keeps; ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION  # objects are kept as they are, but a map's header names the format
-    readable_codec_versions = codec.READABLE_VERSIONS
 
     def __init__(
         self,

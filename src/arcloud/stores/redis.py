@@ -265,7 +265,6 @@ class RedisStore:
     or up to about a hundred more); ``clock``: Unix seconds."""
 
     codec_version = codec.FORMAT_VERSION
-    readable_codec_versions = codec.READABLE_VERSIONS
 
     def __init__(
         self,

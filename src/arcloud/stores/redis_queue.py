@@ -59,8 +59,7 @@ worker start; ``prepare`` removes those of workers gone (``remove_stale_consumer
 Recovery: a Redis restarted without its data has no consumer groups; the readers (``take``,
 ``claim_abandoned``) create them again (``NOGROUP`` -> ``prepare``) and read on. Frames queued before
 the restart are lost with the data; frames queued since (XADD makes the stream) are read, as the group
-starts at the stream's beginning. ``health`` reports a missing group; ``prepare`` warns of frames left in
-the one stream of the layout before shards (``keys.LEGACY_INGEST_STREAM``), which nothing reads any more.
+starts at the stream's beginning. ``health`` reports a missing group.
 
 On a Redis Cluster (a ``RedisCluster`` client, ``connect_redis``) the same calls run unchanged: every
 script and every multi-key command names keys of one shard (one slot); the reads of several shards
@@ -486,8 +485,7 @@ class RedisFrameQueue:
     def prepare(self) -> None:
         """Write the number of shards unless written (``InvalidInput`` naming ``ingest_shards`` when another
         number is), and create each shard's consumer group (and stream) unless it exists. A group starts
-        at its stream's beginning so that frames queued before any worker started are read. Warns of frames
-        left in the one stream of the layout before shards."""
+        at its stream's beginning so that frames queued before any worker started are read."""
         with redis_errors("create the consumer groups", self._where):
             self.client.set(keys.INGEST_SHARDS, self.shards, nx=True)
         self.check_shards()
@@ -498,14 +496,6 @@ class RedisFrameQueue:
                 except redis.exceptions.ResponseError as exc:
                     if "BUSYGROUP" not in str(exc):
                         raise
-            legacy = int(self.client.xlen(keys.LEGACY_INGEST_STREAM))
-        if legacy:
-            log.warning(
-                "%d frames left in %s, the stream of before ingest shards: nothing reads them (drain them with the "
-                "previous version; docs/service.md, Upgrading)",
-                legacy,
-                keys.LEGACY_INGEST_STREAM,
-            )
         self.remove_stale_consumers()
 
     def remove_stale_consumers(self) -> list[str]:

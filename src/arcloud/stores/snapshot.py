@@ -6,8 +6,7 @@ version, the object count) and, per object, ``objects/<id>.meta`` (``codec.encod
 ``objects/<id>.voxels`` (``codec.encode_voxels``), so a restore is exact: ids, labels, scores, boxes,
 status, every voxel's weight, votes, sightings and colour. Only the versions (the stores' write fences) start
 again at 1. A restore writes into an empty map (or replaces the map, when asked) under the snapshot's header
-(its codec version: the store's own, in which the objects are written again; a snapshot taken under an older
-codec version restores, its colours unknown), keeps the ids and moves the map's id counter past them.
+(its codec version must be the store's), keeps the ids and moves the map's id counter past them.
 
 A restore writes in bounded commits, so that no request holds a shared store (Redis runs one script at a time):
 at most ``RESTORE_BATCH`` objects, ``RESTORE_BATCH_CELLS`` index cells and ``RESTORE_BATCH_VOXELS`` voxels a
@@ -17,7 +16,6 @@ anything is written); a long restore logs how far it got every ``PROGRESS_LOG_S`
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
 import logging
@@ -223,12 +221,10 @@ def restore_bytes(store: ObjectStore, map_id: str, data: bytes, *, replace: bool
     (``replace``: it is deleted first); ``MapMismatch`` when it holds a header of other settings, or when
     the snapshot's differs from ``params`` (a service's: its store indexes under them)."""
     _document, header, objects = read_snapshot(data)
-    if header.codec_version not in store.readable_codec_versions:
+    if header.codec_version != store.codec_version:
         raise MapMismatch(map_id, [("codec_version", header.codec_version, store.codec_version)])
     if params is not None:
         check_header(header, params, map_id=map_id)
-    # The blobs were read by the versions they name; the store writes them anew in its own.
-    header = dataclasses.replace(header, codec_version=store.codec_version)
     if replace:
         store.delete_map(map_id)
     elif store.count_objects(map_id):
