@@ -9,8 +9,6 @@ from arcloud.core.associate import (
     index_bounds,
     index_bounds_of_sets,
     overlap_matrix,
-    stored_index_bounds,
-    stored_index_bounds_of,
 )
 from arcloud.core.boxes import (
     at_least,
@@ -42,8 +40,6 @@ from arcloud.core.voxels import (
     key_centers,
     keys_bounds,
     keys_extent,
-    mask_extent,
-    mask_extent_plain,
     pack_keys,
     points_extent,
     sampling_stride_px,
@@ -137,18 +133,6 @@ def test_erode_sampled_is_erode_then_sampled():
         mask = random_mask(rng, int(rng.integers(1, 50)), int(rng.integers(1, 50)))
         radius, stride = int(rng.integers(0, 4)), int(rng.integers(1, 5))
         assert np.array_equal(erode_sampled(mask, radius, stride), erode(mask, radius)[::stride, ::stride])
-
-
-def test_mask_extent_is_its_plain_version():
-    rng = np.random.default_rng(4)
-    for _ in range(CASES):
-        width = int(rng.choice([8, 16, 64, 640, int(rng.integers(1, 70))]))
-        mask = random_mask(
-            rng, int(rng.choice([rng.integers(1, 40), rng.integers(40, 200)])), width
-        )  # one block of rows or several
-        views = [mask, mask[:, ::2], mask.T, np.asfortranarray(mask)]  # contiguous and not
-        for view in views:
-            assert mask_extent(view) == mask_extent_plain(view)
 
 
 def test_footprint_outline_is_its_plain_version():
@@ -356,21 +340,10 @@ def test_visibility_of_several_sets_at_once_is_that_of_each_set():
             assert np.array_equal(visible, visible_voxels(frame, keys, params))
 
 
-def test_bounds_of_several_sets_or_objects_at_once_are_those_of_each():
+def test_bounds_of_several_sets_at_once_are_those_of_each():
     rng = np.random.default_rng(10)
     for _ in range(CASES // 3):
         sets = [pack_keys(random_ijk(rng, int(rng.integers(1, 60)))) for _ in range(int(rng.integers(1, 8)))]
         together = index_bounds_of_sets(sets)
         assert together.shape == (len(sets), 2, 3) and together.dtype == np.int64
         assert all(np.array_equal(b, index_bounds(keys)) for b, keys in zip(together, sets))
-        size = float(rng.choice([0.01, 0.05, 0.1]))
-        dtype = np.float64 if rng.random() < 0.8 else np.float32  # float32 bounds: one by one
-        objects = [
-            empty_object(i).replace(
-                bounds=None if rng.random() < 0.2 else AABB(*(b.astype(dtype) for b in keys_bounds(keys, size)))
-            )
-            for i, keys in enumerate(sets)
-        ]
-        for b, obj in zip(stored_index_bounds_of(objects, size), objects):
-            plain = stored_index_bounds(obj, size)
-            assert (b is None and plain is None) or (np.array_equal(b, plain) and b.dtype == plain.dtype)

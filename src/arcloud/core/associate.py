@@ -70,16 +70,8 @@ def index_bounds_of_sets(sets: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def stored_index_bounds_of(objects: Sequence[MapObject], voxel_size_m: float) -> list[np.ndarray | None]:
-    """``stored_index_bounds`` of each object, worked out for all at once when their stored bounds are
-    all float64 (the same arithmetic, element by element), else one by one."""
-    stored = [o.bounds for o in objects if o.bounds is not None]
-    if not stored or any(b.min.dtype != np.float64 or b.max.dtype != np.float64 for b in stored):
-        return [stored_index_bounds(o, voxel_size_m) for o in objects]
-    corners = np.array([(b.min, b.max) for b in stored])  # (M, 2, 3)
-    lo = np.floor(corners[:, 0] / voxel_size_m + 1e-6).astype(np.int64)
-    hi = np.floor(corners[:, 1] / voxel_size_m - 1e-6).astype(np.int64)
-    computed = iter(np.stack((lo, hi), axis=1))
-    return [None if o.bounds is None else next(computed) for o in objects]
+    """``stored_index_bounds`` of each object."""
+    return [stored_index_bounds(o, voxel_size_m) for o in objects]
 
 
 def stored_index_bounds(obj: MapObject, voxel_size_m: float) -> np.ndarray | None:

@@ -185,50 +185,9 @@ def eroded_lines(mask: np.ndarray, radius_px: int, axis: int, stride_px: int) ->
     return eroded
 
 
-MASK_EXTENT_BLOCK_ROWS = 64  # mask_extent looks for a mask's last row in blocks of this many rows
-
-
 def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     """The bounding box (row0, row1, col0, col1), ends exclusive, of an (H, W) bool mask's pixels; None
-    when it has none.
-
-    ``mask_extent_plain``, faster (a test holds them equal): the first row comes from the first set
-    pixel (argmax stops there); the last from blocks of ``MASK_EXTENT_BLOCK_ROWS`` rows scanned upwards
-    the same way, only the block holding it reduced row by row. A C-contiguous mask whose width is a
-    multiple of 8 has its columns found on 64-bit words: OR-ing the rows' words keeps each pixel's byte
-    non-zero exactly when its column has a pixel set."""
-    height, width = mask.shape
-    if mask.size == 0:
-        return None
-    if mask.flags.c_contiguous:
-        first = int(mask.reshape(-1).argmax())
-        if not mask.flat[first]:
-            return None
-        r0 = first // width
-        end = height
-        while True:  # ends: the row r0 holds a pixel
-            start = max(r0, end - MASK_EXTENT_BLOCK_ROWS)
-            block = mask[start:end].reshape(-1)
-            if block[int(block.argmax())]:
-                r1 = start + int(np.flatnonzero(mask[start:end].any(axis=1))[-1]) + 1
-                break
-            end = start
-    else:
-        rows = np.flatnonzero(mask.any(axis=1))
-        if rows.size == 0:
-            return None
-        r0 = int(rows[0])
-        r1 = r0 + int(np.flatnonzero(mask[r0:].any(axis=1))[-1]) + 1
-    band = mask[r0:r1]
-    if mask.flags.c_contiguous and width % 8 == 0 and mask.dtype == np.bool_:
-        cols = np.flatnonzero(np.bitwise_or.reduce(band.view(np.uint64), axis=0).view(np.uint8))
-    else:
-        cols = np.flatnonzero(band.any(axis=0))
-    return r0, r1, int(cols[0]), int(cols[-1]) + 1
-
-
-def mask_extent_plain(mask: np.ndarray) -> tuple[int, int, int, int] | None:
-    """``mask_extent`` from the rows and columns holding a pixel."""
+    when it has none."""
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if rows.size == 0:
         return None
