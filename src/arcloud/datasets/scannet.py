@@ -30,9 +30,8 @@ from __future__ import annotations
 import csv
 import json
 import logging
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Literal
@@ -50,6 +49,7 @@ from arcloud.datasets.files import (
     read_png_u16,
     read_rgb,
 )
+from arcloud.datasets.frames import FrameSequence
 from arcloud.errors import DatasetError, InvalidInput
 
 if TYPE_CHECKING:
@@ -209,7 +209,7 @@ class ScanNetInstance:
 
 
 @dataclass(frozen=True, eq=False)
-class ScanNetScene:
+class ScanNetScene(FrameSequence):
     """A parsed ScanNet scene. Images are read lazily by ``load_frame``/``frames``.
 
     scan2aligned: (4, 4) the axisAlignment. cam2world: (N, 4, 4) poses of ``frame_names`` in the
@@ -229,14 +229,6 @@ class ScanNetScene:
     labels: LabelTable | None
     annotation: Literal["v1", "v2"] | None = None
     device_id: str = DEFAULT_DEVICE_ID
-
-    @cached_property
-    def _index(self) -> dict[str, int]:
-        return {name: i for i, name in enumerate(self.frame_names)}
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frame_names)
 
     @property
     def objects(self) -> tuple[ScanNetInstance, ...]:
@@ -270,12 +262,6 @@ class ScanNetScene:
             frame_id=name,
             depth_scale=1000.0,
         )
-
-    def frames(self, *, stride: int = 1, limit: int | None = None) -> Iterator[Frame]:
-        """Every ``stride``-th frame with a valid pose, in order, at most ``limit``."""
-        names = self.frame_names[:: max(1, int(stride))]
-        for name in names[:limit]:
-            yield self.load_frame(name)
 
     def gt_boxes(self) -> list[LabelledBox]:
         """The ground truth as ``arcloud.core.types.LabelledBox`` (score 1), one per object of our classes."""

@@ -20,9 +20,7 @@ Optional 3D ground truth, ``gt-boxes.json`` (``arcloud.datasets.gt_boxes``), hol
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
-from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +28,7 @@ import numpy as np
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame, Intrinsics
 from arcloud.datasets.files import map_id_of, natural_key, read_matrix, read_png_u16, read_rgb
-from arcloud.datasets.frames import ColourCamera, LazyFrames
+from arcloud.datasets.frames import ColourCamera, GravityAlignedSequence, LazyFrames
 from arcloud.datasets.gravity import GRAVITY_FILE, choose_up, estimate_up_from_frames, gravity_world2file
 from arcloud.datasets.gt_boxes import GT_BOXES_FILE, GroundTruthBoxes, load_ground_truth
 from arcloud.errors import DatasetError
@@ -44,7 +42,7 @@ _SUFFIX = ".pose.txt"
 
 
 @dataclass(frozen=True, eq=False)
-class SevenScenesSequence:
+class SevenScenesSequence(GravityAlignedSequence):
     """A parsed sequence. ``cam2world``: (N, 4, 4) poses of ``frame_names`` in the output world (the
     file world, or the gravity-aligned one when ``world2file`` is not the identity).
 
@@ -69,30 +67,6 @@ class SevenScenesSequence:
     colour: ColourCamera | None = None
     device_id: str = "user-0"
     up_source: str = "none"
-
-    @cached_property
-    def _index(self) -> dict[str, int]:
-        return {name: i for i, name in enumerate(self.frame_names)}
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frame_names)
-
-    @property
-    def up(self) -> tuple[float, float, float]:
-        """Up in the output world, for ``Params.up`` (+z once gravity-aligned; +z when unknown)."""
-        if self.up_file is None:
-            return (0.0, 0.0, 1.0)
-        up = self.world2file[:3, :3].T @ self.up_file
-        x, y, z = up / np.linalg.norm(up)
-        return float(x), float(y), float(z)
-
-    @property
-    def world2gt(self) -> np.ndarray | None:
-        """(4, 4) maps output-world points to the ground truth's aligned frame (None without ground truth)."""
-        if self.ground_truth is None:
-            return None
-        return self.ground_truth.file2aligned @ self.world2file
 
     def frame_number(self, name: str) -> int:
         """The number in a frame's file name (``frame-000123`` -> 123), as ground truth counts frames."""
@@ -122,10 +96,6 @@ class SevenScenesSequence:
             rgb_intrinsics=None if self.colour is None else self.colour.intrinsics,
             depth2rgb=None if self.colour is None else self.colour.depth2rgb,
         )
-
-    def frames(self, *, stride: int = 1, limit: int | None = None) -> Iterator[Frame]:
-        for name in self.frame_names[:: max(1, int(stride))][:limit]:
-            yield self.load_frame(name)
 
 
 def _sequence_dirs(root: Path) -> list[Path]:

@@ -27,9 +27,8 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +36,7 @@ import numpy as np
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame, Intrinsics
 from arcloud.datasets.files import map_id_of, read_png_u16, read_rgb
-from arcloud.datasets.frames import LazyFrames
+from arcloud.datasets.frames import GravityAlignedSequence, LazyFrames
 from arcloud.datasets.gravity import GRAVITY_FILE, choose_up, estimate_up_from_frames, gravity_world2file
 from arcloud.datasets.gt_boxes import GT_BOXES_FILE, GroundTruthBoxes, load_ground_truth
 from arcloud.errors import DatasetError
@@ -63,7 +62,7 @@ _CAMERA_IN_NAME = re.compile(r"^(?:rgbd_dataset_)?(freiburg[123])(?:_|$)")
 
 
 @dataclass(frozen=True, eq=False)
-class TumSequence:
+class TumSequence(GravityAlignedSequence):
     """A parsed recording. ``frame_names``: the depth timestamps as written in ``depth.txt``.
     ``cam2world``: (N, 4, 4) their poses in the output world (the pose frame, or the gravity-aligned
     one when ``world2file`` is not the identity). ``timestamps_s``: (N,) depth timestamps;
@@ -91,30 +90,6 @@ class TumSequence:
     up_source: str = "none"
     device_id: str = "user-0"
 
-    @cached_property
-    def _index(self) -> dict[str, int]:
-        return {name: i for i, name in enumerate(self.frame_names)}
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frame_names)
-
-    @property
-    def up(self) -> tuple[float, float, float]:
-        """Up in the output world, for ``Params.up`` (+z once gravity-aligned; +z when unknown)."""
-        if self.up_file is None:
-            return (0.0, 0.0, 1.0)
-        up = self.world2file[:3, :3].T @ self.up_file
-        x, y, z = up / np.linalg.norm(up)
-        return float(x), float(y), float(z)
-
-    @property
-    def world2gt(self) -> np.ndarray | None:
-        """(4, 4) maps output-world points to the ground truth's aligned frame (None without ground truth)."""
-        if self.ground_truth is None:
-            return None
-        return self.ground_truth.file2aligned @ self.world2file
-
     def load_frame(self, name: str, *, device_id: str | None = None) -> Frame:
         """The frame ``name`` (a depth timestamp): colour resized to the depth size if they differ."""
         if name not in self._index:
@@ -133,10 +108,6 @@ class TumSequence:
             frame_id=name,
             depth_scale=self.depth_factor,
         )
-
-    def frames(self, *, stride: int = 1, limit: int | None = None) -> Iterator[Frame]:
-        for name in self.frame_names[:: max(1, int(stride))][:limit]:
-            yield self.load_frame(name)
 
 
 @dataclass(frozen=True)
