@@ -17,16 +17,21 @@ reported on the ``report`` split.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from arcloud.core.types import LabelledBox, MapObject
+from arcloud.core.types import Frame, LabelledBox, MapObject, Params
 from arcloud.eval.metrics import evaluate, precision_recall
-from arcloud.eval.protocol import object_boxes
+from arcloud.eval.protocol import object_boxes, run_map
+
+if TYPE_CHECKING:
+    from arcloud.ports import Detector
 
 SPLITS = ("tune", "report")
+#: The users of a distributed run (K), in every suite.
+USERS = 10
 #: Figures of a run that ``summarise`` reports (mean and worst); higher is better for all of them.
 FIGURES = (
     "map25",
@@ -38,6 +43,35 @@ FIGURES = (
     "served_precision50",
     "served_recall50",
 )
+
+
+Score = TypeVar("Score")
+
+
+def case_runs(
+    frames: Sequence[Frame],
+    detector: Detector,
+    params: Params,
+    score: Callable[[int, int, list[MapObject]], Score],
+    *,
+    name: str,
+    runs: int,
+    workers: int,
+    seed: int,
+) -> tuple[Score, list[Score]]:
+    """A case's centralized map (one user) and its ``runs`` maps of ``USERS`` users (``run_map`` seeded
+    ``seed + run``, each map ``<name>-<users>-<run>`` in an embedded store), each scored by ``score(users, run,
+    objects)``: (the centralized score, the distributed ones)."""
+    from arcloud.stores.memory import MemoryStore
+
+    def build(users: int, run: int) -> Score:
+        map_id = f"{name}-{users}-{run}"
+        objects = run_map(
+            frames, detector, params, new_store=MemoryStore, users=users, seed=seed + run, workers=workers, map_id=map_id
+        )
+        return score(users, run, objects)
+
+    return build(1, 0), [build(USERS, run) for run in range(runs)]
 
 
 def score_run(objects: Sequence[MapObject], ground_truth: Sequence[LabelledBox], *, scene: str = "scene") -> dict[str, Any]:

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from arcloud.accuracy.common import case_record, score_run, summarise
-from arcloud.core.types import Params
+from arcloud.accuracy.common import USERS, case_record, case_runs, score_run, summarise
+from arcloud.core.types import MapObject, Params
 from arcloud.datasets.mask_faults import MaskFaults
 from arcloud.errors import DatasetError
 
@@ -49,7 +49,6 @@ ALIGNMENT_REL = "real_frames/frames.json"
 SCENE_ID = "scene0000_00"
 #: The 3D annotation scored against (``load_scannet_scene``'s ``annotation``).
 ANNOTATION: Annotation = "v2"
-USERS = 10
 #: Seeds of the full suite's renders; parameters may be tuned on ``TUNE_SEEDS``, figures are reported on the rest.
 SEEDS = (0, 1, 2, 3, 4, 5)
 TUNE_SEEDS = (0, 1)
@@ -188,8 +187,7 @@ def evaluate_case(
     from arcloud.datasets.frames import LazyFrames
     from arcloud.datasets.gt_masks import GroundTruthMaskDetector
     from arcloud.datasets.scannet import load_scannet_scene
-    from arcloud.eval.protocol import CachedDetector, run_map
-    from arcloud.stores.memory import MemoryStore
+    from arcloud.eval.protocol import CachedDetector
 
     started = time.perf_counter()
     scene = load_scannet_scene(scene_dir)
@@ -211,24 +209,15 @@ def evaluate_case(
         }
         (export_dir / f"{case.name}_gt.json").write_text(json.dumps(gt_payload, indent=1))
 
-    def build(users: int, run: int) -> dict[str, Any]:
-        objects = run_map(
-            frames,
-            detector,
-            params,
-            new_store=MemoryStore,
-            users=users,
-            seed=case.seed * 1000 + run,
-            workers=workers,
-            map_id=f"{case.name}-{users}-{run}",
-        )
+    def score(users: int, run: int, objects: list[MapObject]) -> dict[str, Any]:
         if export_dir is not None:
             payload = export_payload(objects, frame, scene=scene.scene_id, case=case.name, users=users, run=run)
             (export_dir / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
         return score_run(objects, ground_truth, scene=scene.scene_id)
 
-    centralized = build(1, 0)
-    distributed = [build(USERS, run) for run in range(runs)]
+    centralized, distributed = case_runs(
+        frames, detector, params, score, name=case.name, runs=runs, workers=workers, seed=case.seed * 1000
+    )
     render = json.loads((scene_dir / "render.json").read_text())
     record = case_record(
         case.name, case.split, centralized, distributed, users=USERS, walkers=case.users,

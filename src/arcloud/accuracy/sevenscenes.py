@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from arcloud.accuracy.common import case_record, score_run, summarise
+from arcloud.accuracy.common import USERS, case_record, case_runs, score_run, summarise
 from arcloud.accuracy.scannet import default_shared_dir
 from arcloud.core.types import MapObject, Params
 from arcloud.errors import DatasetError
@@ -46,7 +46,6 @@ logger = logging.getLogger(__name__)
 SEQUENCE_REL = "data/7scenes-redkitchen"
 #: The models the suite runs, by name (the first is the default): YOLO11n-seg, and YOLOv8n-seg beside it.
 MODELS_REL = {"yolo11n": "models/yolo11n-seg-fp32-640.onnx", "yolov8n": "models/yolov8n-seg-fp32-640.onnx"}
-USERS = 10
 RUNS = 3
 QUICK_RUNS = 1
 #: The quick mode takes every ``QUICK_STRIDE``-th frame.
@@ -169,8 +168,6 @@ def evaluate_case(
     from arcloud.datasets.export import export_payload
     from arcloud.datasets.frames import LazyFrames
     from arcloud.eval.map_pictures import write_pictures
-    from arcloud.eval.protocol import run_map
-    from arcloud.stores.memory import MemoryStore
 
     started = time.perf_counter()
     ground_truth = sequence.ground_truth
@@ -185,24 +182,13 @@ def evaluate_case(
     exports.mkdir(parents=True, exist_ok=True)
     first_maps: dict[int, list[MapObject]] = {}
 
-    def build(users: int, run: int) -> dict[str, dict[str, Any]]:
-        objects = run_map(
-            frames,
-            detector,
-            params,
-            new_store=MemoryStore,
-            users=users,
-            seed=run,
-            workers=workers,
-            map_id=f"{case.name}-{users}-{run}",
-        )
+    def score(users: int, run: int, objects: list[MapObject]) -> dict[str, dict[str, Any]]:
         payload = export_payload(objects, frame, scene=sequence.name, case=case.name, users=users, run=run, gt_objects=gt_ids)
         (exports / f"{case.name}_{users}_{run}.json").write_text(json.dumps(payload, indent=1))
         first_maps.setdefault(users, objects)
         return score_against(objects, ground_truth, frames=case.frame_range, scene=sequence.name)
 
-    centralized = build(1, 0)
-    distributed = [build(USERS, run) for run in range(runs)]
+    centralized, distributed = case_runs(frames, detector, params, score, name=case.name, runs=runs, workers=workers, seed=0)
     eval_s = time.perf_counter() - started
     pictures = write_pictures(
         out_dir / "pictures" / case.name, frames, first_maps.pop(1), first_maps, title=case.name,

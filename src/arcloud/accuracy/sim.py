@@ -33,20 +33,18 @@ from typing import Any
 
 import numpy as np
 
-from arcloud.accuracy.common import case_record, score_run, summarise
+from arcloud.accuracy.common import USERS, case_record, case_runs, score_run, summarise
 from arcloud.core.types import Frame, LabelledBox, MapObject, Params
 from arcloud.errors import InvalidInput
 from arcloud.eval.metrics import iou_aabb
-from arcloud.eval.protocol import CachedDetector, object_boxes, run_map
+from arcloud.eval.protocol import CachedDetector, object_boxes
 from arcloud.sim.detector import DetectorFaults, FrameTruths, SimulatedDetector
 from arcloud.sim.room import Room, RoomObject, generate_room, room_walk
 from arcloud.sim.sequence import simulate_sequence
-from arcloud.stores.memory import MemoryStore
 from arcloud.virtual_camera.walk import WalkStyle
 
 logger = logging.getLogger(__name__)
 
-USERS = 10
 RUNS = 3
 QUICK_RUNS = 1
 FRAMES = 300
@@ -196,27 +194,17 @@ def evaluate_case(
     unseen = [o for o in room.objects if o not in observable]
     simulated_s = time.perf_counter() - started
 
-    cached = CachedDetector(detector)
+    maps: list[list[MapObject]] = []
 
-    def build(users: int, run: int) -> list[MapObject]:
-        return run_map(
-            frames,
-            cached,
-            params,
-            new_store=MemoryStore,
-            users=users,
-            seed=case.walk_seed * 1000 + run,
-            workers=workers,
-            map_id=f"{case.name}-{users}-{run}",
-        )
-
-    def score(objects: list[MapObject]) -> dict[str, Any]:
+    def score(users: int, run: int, objects: list[MapObject]) -> dict[str, Any]:
+        maps.append(objects)
         scored = without_unseen(objects, unseen)
         return {**score_run(scored, ground_truth, scene=case.name), "n_matched_unseen": len(objects) - len(scored)}
 
-    centralized_map = build(1, 0)
-    centralized = score(centralized_map)
-    distributed = [score(build(USERS, run)) for run in range(runs)]
+    centralized, distributed = case_runs(
+        frames, CachedDetector(detector), params, score, name=case.name, runs=runs, workers=workers, seed=case.walk_seed * 1000
+    )
+    centralized_map = maps[0]
     if out_dir is not None:
         _draw_case(Path(out_dir) / "pictures" / f"{case.name}.png", case, ground_truth, centralized_map, poses)
     record = case_record(
