@@ -511,7 +511,31 @@ def subscribe(
     )
 
 
-class ArcloudClient:
+class _Client:
+    """What both clients hold: the service's ``url``, the retry policy, the auth headers and the frames sent."""
+
+    def __init__(
+        self, url: str, *, max_retries: int, backoff_s: float, max_backoff_s: float, seed: int | None, token: str | None
+    ) -> None:
+        self.url = url.rstrip("/")
+        self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
+        self.headers = auth_headers(token)
+        self.sent = SentFrames()
+
+    def subscribe(
+        self,
+        map_id: str,
+        callback: Callable[[arcloud_pb2.ObjectEvent], None],
+        endpoints: Sequence[str],
+        *,
+        include_tentative: bool = False,
+        config_file: str | os.PathLike[str] | None = None,
+    ) -> Subscription:
+        """As the module's ``subscribe`` (the callback runs on a Zenoh thread)."""
+        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative, config_file=config_file)
+
+
+class ArcloudClient(_Client):
     """Blocking client of one service at ``url``."""
 
     def __init__(
@@ -526,10 +550,7 @@ class ArcloudClient:
         token: str | None = None,
         http: httpx.Client | None = None,
     ) -> None:
-        self.url = url.rstrip("/")
-        self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
-        self.headers = auth_headers(token)
-        self.sent = SentFrames()
+        super().__init__(url, max_retries=max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed, token=token)
         self._owns = http is None
         self.http = http if http is not None else httpx.Client(base_url=self.url, timeout=timeout_s)
 
@@ -752,20 +773,8 @@ class ArcloudClient:
                 raise
             return unknown_map_stats(map_id)
 
-    def subscribe(
-        self,
-        map_id: str,
-        callback: Callable[[arcloud_pb2.ObjectEvent], None],
-        endpoints: Sequence[str],
-        *,
-        include_tentative: bool = False,
-        config_file: str | os.PathLike[str] | None = None,
-    ) -> Subscription:
-        """As the module's ``subscribe``."""
-        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative, config_file=config_file)
 
-
-class AsyncArcloudClient:
+class AsyncArcloudClient(_Client):
     """asyncio client of one service at ``url`` (same methods as ``ArcloudClient``, awaitable)."""
 
     def __init__(
@@ -780,10 +789,7 @@ class AsyncArcloudClient:
         token: str | None = None,
         http: httpx.AsyncClient | None = None,
     ) -> None:
-        self.url = url.rstrip("/")
-        self.retry = RetryPolicy(max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed)
-        self.headers = auth_headers(token)
-        self.sent = SentFrames()
+        super().__init__(url, max_retries=max_retries, backoff_s=backoff_s, max_backoff_s=max_backoff_s, seed=seed, token=token)
         self._owns = http is None
         self.http = http if http is not None else httpx.AsyncClient(base_url=self.url, timeout=timeout_s)
 
@@ -980,15 +986,3 @@ class AsyncArcloudClient:
             if exc.status != 404:
                 raise
             return unknown_map_stats(map_id)
-
-    def subscribe(
-        self,
-        map_id: str,
-        callback: Callable[[arcloud_pb2.ObjectEvent], None],
-        endpoints: Sequence[str],
-        *,
-        include_tentative: bool = False,
-        config_file: str | os.PathLike[str] | None = None,
-    ) -> Subscription:
-        """As ``ArcloudClient.subscribe`` (the callback runs on a Zenoh thread)."""
-        return subscribe(map_id, callback, endpoints, include_tentative=include_tentative, config_file=config_file)
