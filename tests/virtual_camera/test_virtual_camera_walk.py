@@ -16,6 +16,7 @@ from arcloud.virtual_camera.walk import (
     STEP_RANGE_M,
     WalkStyle,
     plan_walk,
+    scan_walk,
 )
 
 FX, CX, CY, W, H = 525.0, 319.5, 239.5, 640, 480
@@ -161,6 +162,26 @@ def test_style_sets_eye_height_and_speed_and_keeps_the_path_of_the_default_walk(
     # The default figures walk the default path (only the per-walk eye height offset is gone).
     same = styled(WalkStyle())
     np.testing.assert_array_equal(np.array(same)[:, :2, 3], np.array(walk)[:, :2, 3])
+
+
+def test_a_scan_walks_the_default_path_looking_along_the_walls_not_at_the_targets(walk: list[np.ndarray]) -> None:
+    scan = scan_walk((0, 0), (6, 5), TARGETS, 240, seed=3, obstacles_xy=OBSTACLES)
+    assert len(scan) == 240 and all(check_pose("cam2world", p) is not None for p in scan)
+    np.testing.assert_array_equal(np.array(scan)[:, :3, 3], np.array(walk)[:, :3, 3])  # the same path and eye heights
+    down = np.degrees(np.arcsin(-np.array([p[2, 2] for p in scan])))  # the optical axis below the horizon
+    assert down.min() >= 10 - 1e-6 and down.max() <= 55 + 1e-6 and np.ptp(down) > 40
+    # Mostly facing away from the room's centre: towards the walls and what stands before them.
+    outward = np.array([p[:2, 3] - [3.0, 2.5] for p in scan])
+    facing = np.einsum("ij,ij->i", outward, np.array([p[:2, 2] for p in scan])) > 0
+    assert 0.5 < facing.mean() < 0.9  # every third stretch of 90 frames faces the room
+
+    # The default walk keeps its targets near the image centre; the scan does not look at them.
+    def near_centre(poses: list[np.ndarray]) -> float:
+        uv, z = zip(*(project(p, TARGETS) for p in poses))
+        offset = np.abs(np.array(uv) - [CX, CY]).max(axis=2)
+        return float(((np.array(z) > 0) & (offset < 120)).any(axis=1).mean())
+
+    assert near_centre(walk) > 0.6 and near_centre(scan) < 0.3  # measured 0.73 and 0.11
 
 
 def angles_around_room(poses: list[np.ndarray], centre: np.ndarray) -> set[int]:

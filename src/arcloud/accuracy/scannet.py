@@ -82,7 +82,10 @@ class RenderCase:
 #: One user's 300-frame walk at 1.5 m (``plan_walk``'s defaults), shared out among K users by the evaluation:
 #: a walk unlike the random ones, on which K = 10 once served a TV's box without its back (docs/accuracy.md).
 ONE_WALK_CASE = RenderCase(6, "report", style="default", users=1, frames_per_user=300)
-FULL_CASES = tuple(RenderCase(seed, "tune" if seed in TUNE_SEEDS else "report") for seed in SEEDS) + (ONE_WALK_CASE,)
+#: One operator's 300-frame scan (``style="scan"``: the camera swings along the walls, at no object in particular),
+#: shared out among K users: objects seen in passing, cut by the image border, from one side at a time.
+SCAN_CASE = RenderCase(1, "report", style="scan", users=1, frames_per_user=300)
+FULL_CASES = tuple(RenderCase(seed, "tune" if seed in TUNE_SEEDS else "report") for seed in SEEDS) + (ONE_WALK_CASE, SCAN_CASE)
 #: One small render (200 frames) of a report seed: a minute's check of the whole path.
 QUICK_CASES = (RenderCase(2, "report", frames_per_user=20),)
 

@@ -242,7 +242,9 @@ def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Seque
     overlap = overlap_matrix(
         keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted
     )
-    same = wanted & ((overlap >= params.merge_min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
+    parts = ~np.isin(labels, [CLASS_INDEX[name] for name in params.split_classes])  # tables, couches: seen in parts
+    min_overlap = np.where(parts[:, None], params.merge_min_overlap_parts, params.merge_min_overlap)
+    same = wanted & ((overlap >= min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
     np.fill_diagonal(same, False)
     parent = list(range(len(objects)))
 

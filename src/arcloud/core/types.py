@@ -369,6 +369,7 @@ class Params:
     box_min_occupancy: float = 0.4
     min_component_fraction: float = 0.2
     merge_min_overlap: float = 0.3
+    merge_min_overlap_parts: float = 0.1  # for classes outside split_classes: see core.fusion.find_duplicates
     merge_min_box_containment: float = 0.6
     score_support_frames: float = 3.0
     implausible_score_factor: float = 0.3
@@ -480,6 +481,7 @@ _PARAM_KINDS: dict[str, str] = {
             "min_component_fraction",
             "merge_min_overlap",
             "merge_min_box_containment",
+            "merge_min_overlap_parts",
             "implausible_score_factor",
             "confirm_min_detection_rate",
             "confirm_min_score",

@@ -37,10 +37,11 @@ def add_render_command(subparsers: Any) -> None:
     render.add_argument("--seed", type=int, default=0)
     render.add_argument(
         "--style",
-        choices=("default", "random"),
+        choices=("default", "random", "scan"),  # render_scannet.WALK_STYLES (not imported here: the CLI starts light)
         default="default",
-        help="walks: default (every user at 1.5 m, plan_walk's defaults) or random (each user's eye height, "
-        "speed, coverage, glances and hand-held shake drawn from --seed; recorded in render.json)",
+        help="walks: default (every user at 1.5 m, plan_walk's defaults), random (each user's eye height, "
+        "speed, coverage, glances and hand-held shake drawn from --seed; recorded in render.json) or scan (the "
+        "default path, the camera swinging along the walls as an operator scanning the room)",
     )
     render.add_argument("--width", type=int, default=640)
     render.add_argument("--height", type=int, default=480)

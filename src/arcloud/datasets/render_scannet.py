@@ -27,7 +27,9 @@ back with the same instances and names its classes one way:
 
 Walk styles: ``"default"`` walks every user at ``eye_height_m`` with ``plan_walk``'s defaults;
 ``"random"`` draws each user's walk from the seed (``random_user_walk``): eye height 1.1-1.9 m, speed,
-how much of the room a lap covers, glances or long looks, and a hand-held camera's shake.
+how much of the room a lap covers, glances or long looks, and a hand-held camera's shake; ``"scan"`` walks
+the default path but swings the camera along the walls as an operator scanning the room does
+(``arcloud.virtual_camera.walk.scan_walk``), looking at no object in particular.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from arcloud.datasets.files import write_matrix, write_png
 from arcloud.datasets.scannet import LABEL_TSV_NAMES, ScanNetScene, find_label_table, v2_label_paths
 from arcloud.errors import DatasetError, InvalidInput
 from arcloud.virtual_camera.render import MeshRenderer
-from arcloud.virtual_camera.walk import plan_walk
+from arcloud.virtual_camera.walk import plan_walk, scan_walk
 
 logger = logging.getLogger(__name__)
 
@@ -62,7 +64,7 @@ STRUCTURE_NYU40 = {FLOOR_NYU40, CEILING_NYU40, WALL_NYU40, 8, 9, 13, 16}
 #: What ``label-filt`` images hold, by the scene's annotation.
 LABEL_IDS_OF_ANNOTATION = {"v1": "scannet", "v2": "nyu40"}
 JPEG_QUALITY = 90
-WALK_STYLES = ("default", "random")
+WALK_STYLES = ("default", "random", "scan")
 #: Ranges of a random user's walk (``random_user_walk``), drawn uniformly.
 EYE_HEIGHT_RANGE_M = (1.1, 1.9)
 STEP_RANGE_M = (0.03, 0.1)  # walking speed: metres per frame
@@ -286,7 +288,7 @@ def render_scannet(
     signature; the random style passes it plan_walk's ``eye_height_jitter_m``, ``step_m``,
     ``fixation_frames`` and ``ring_inset_m`` too)."""
     if walk is None:
-        walk = plan_walk
+        walk = scan_walk if style == "scan" else plan_walk
     if users < 1 or frames_per_user < 1:
         raise InvalidInput("users, frames_per_user", "both >= 1", (users, frames_per_user))
     if style not in WALK_STYLES:

@@ -197,3 +197,30 @@ def plan_walk(
     if style is not None:
         poses = with_jitter(poses, style.jitter_deg, style.jitter_m, np.random.default_rng([int(seed), _STYLE_STREAM, 3]))
     return poses
+
+
+def scan_walk(
+    floor_min_xy: np.ndarray | Sequence[float],
+    floor_max_xy: np.ndarray | Sequence[float],
+    targets: np.ndarray,
+    n_frames: int,
+    seed: int,
+    **walk_options: object,
+) -> list[np.ndarray]:
+    """An operator scanning the room rather than a user looking at things: ``plan_walk``'s path (same
+    arguments), but the camera swings along the walls and what stands before them, looking at nothing in
+    particular: outward from the floor's centre, yaw swinging +-70 degrees over 60 frames, every third
+    stretch of 90 frames turned to face the room instead, pitch sweeping 10-55 degrees down over 37 frames.
+    Objects are seen in passing, cut by the image border, from one side at a time."""
+    path = plan_walk(floor_min_xy, floor_max_xy, targets, n_frames, seed, **walk_options)  # type: ignore[arg-type]  # plan_walk checks its options
+    centre = (np.asarray(floor_min_xy, np.float64).reshape(2) + np.asarray(floor_max_xy, np.float64).reshape(2)) / 2
+    phase = np.random.default_rng([int(seed), _STYLE_STREAM, 4]).uniform(0, 2 * math.pi, 2)
+    poses = []
+    for i, walked in enumerate(path):
+        eye = walked[:3, 3]
+        outward = math.atan2(eye[1] - centre[1], eye[0] - centre[0]) + (math.pi if (i // 90) % 3 == 2 else 0.0)
+        yaw = outward + math.radians(70) * math.sin(2 * math.pi * i / 60 + phase[0])
+        pitch = -math.radians(10 + 45 * (0.5 + 0.5 * math.sin(2 * math.pi * i / 37 + phase[1])))
+        direction = np.array([math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), math.sin(pitch)])
+        poses.append(look_at(eye, eye + direction))
+    return poses
