@@ -34,6 +34,9 @@ SERIAL = {
     "tests/stores/test_queue_shards.py::test_a_consumer_waiting_on_an_empty_shard_gets_a_frame_of_another_soon": (
         "a frame of another shard within 0.3 s"
     ),
+    "tests/stores/test_queue_shards.py::test_an_abandoned_frame_is_claimed_from_whichever_shard_holds_it": (
+        "the frame just claimed is not idle 10 ms later (failed on xdist under load: claimed again)"
+    ),
     "tests/stores/test_store_contract.py::test_lock_timeout_waits_then_gives_up_holding_nothing": "gives up within 2 s",
     "tests/stores/test_store_contract.py::test_lock_waits_for_a_release": "takes the lock within 2 s of the release",
     "tests/stores/test_store_contract.py::test_a_claim_takes_at_most_max_cells_per_call": "refused within 1 s",
