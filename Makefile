@@ -22,9 +22,20 @@ lint: $(STAMP)
 	@if grep -rnE --include='*.py' '# (type: ignore(\[[^]]*\])?|noqa(: [A-Z0-9, ]+)?) *$$' src tests bench; then \
 		echo "lint: the type: ignore / noqa above gives no reason" >&2; exit 1; fi
 
+# The suite in two runs. First every test but those tests/serial_tests.py names, on TEST_WORKERS processes
+# (pytest-xdist; --dist loadfile keeps a module's tests on one process, so that its module-scoped fixtures, a
+# simulated walk of 50 s among them, are built once; modules in file order, the long accuracy suites first). Then
+# those alone, one at a time: they time something against a wall-clock bound. Both always run, and the target fails
+# if either failed. PYTEST_ARGS goes to both, -m included (the split is tests/conftest.py's --serial option, not a
+# -m); a selection that leaves one of them nothing to run is fine (pytest's exit 5), one that leaves both is not.
+TEST_WORKERS ?= 2
 test: $(STAMP) lint
 	@{ command -v redis-server && command -v chromium; } >/dev/null 2>&1 || VENV=$(VENV) PYTHON=$(PYTHON) scripts/bootstrap.sh --test
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	parallel=0; alone=0; \
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --serial skip $(PYTEST_ARGS) || parallel=$$?; \
+	$(BIN)/python -m pytest --serial only $(PYTEST_ARGS) || alone=$$?; \
+	if [ $$parallel = 5 ] && [ $$alone = 5 ]; then exit 5; fi; \
+	for rc in $$parallel $$alone; do if [ $$rc != 0 ] && [ $$rc != 5 ]; then exit $$rc; fi; done
 
 # Every benchmark -> bench/results/*.json (about 30 min, and bench_scaling 549 s on 2 loaded cores; accuracy apart).
 # A run the docs quote is kept in a dated subfolder of bench/results and named in bench/measurements.py.

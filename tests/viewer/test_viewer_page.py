@@ -270,6 +270,11 @@ def test_labels_that_would_overlap_show_one_of_them(page: Any, service: Service)
     open_viewer(page, service, "room")
     wait_drawn(page, 2)
     page.uncheck("#cameras")  # only the objects' labels
+    # dataset.objects counts the boxes when they are made; CSS2DRenderer puts their labels on the page at the next
+    # render, an animation frame later (read at once, a loaded machine's page had none yet)
+    page.wait_for_function(
+        "[...document.querySelectorAll('.label[data-id]')].filter(l => l.style.display !== 'none').length === 2"
+    )
     assert [label["hidden"] for label in object_labels(page)] == [False, False]
     page.mouse.move(800, 400)
     for _ in range(20):  # zoom out until the two labels meet on the screen
