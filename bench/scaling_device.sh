@@ -4,6 +4,8 @@
 #
 #   bench/scaling_device.sh prepare        here: gathers what the run needs into .device/ (git ignores it;
 #                                          about 40 MB: the model, 60 frames, cp312 wheels, redis-server)
+#   bench/scaling_device.sh compare [ARGS] there: settings side by side at W = cores - 1 and a worker's frame
+#                                          part by part alone and contended (see compare() below)
 #   bench/scaling_device.sh run [ARGS]     there, from the repository root (the `run` tool with carry
 #                                          [".device"]): installs the wheels into /tmp/site, runs
 #                                          bench_scaling.py in four parts (ceiling, service, wait, and the
@@ -24,7 +26,7 @@ FRAMES=60  # every STRIDE-th frame of 7-Scenes redkitchen, as bench_scaling.py's
 STRIDE=10
 # What the machine there lacks (DEVICE.md); versions from constraints.txt.
 WHEELS="fastapi starlette uvicorn pydantic pydantic_core pydantic-settings python-dotenv python-multipart redis
-annotated-types typing-inspection annotated-doc httptools opentelemetry-api"
+annotated-types typing-inspection annotated-doc httptools opentelemetry-api hiredis"
 # Pure-Python requirements of those that the machine had; carried anyway, so a machine without them runs too.
 WHEELS="$WHEELS typing_extensions importlib_metadata zipp click h11 anyio idna"
 
@@ -53,17 +55,22 @@ prepare() {
     du -sh "$DEVICE"
 }
 
-run() {
-    local python=${PYTHON:-python3}
+# The carried wheels installed, redis-server and the carried assets on the paths; fails in seconds, not after
+# the ceiling, when something the service imports is missing.
+setup() {
+    python=${PYTHON:-python3}
     [[ -n ${NO_INSTALL:-} ]] || "$python" -m pip install -q --no-index --no-deps --target /tmp/site "$DEVICE"/wheels/*.whl
     export PATH="$PWD/$DEVICE/bin:$PATH" LD_LIBRARY_PATH="$PWD/$DEVICE/lib" PYTHONPATH="/tmp/site:$PWD/src"
     export ARCLOUD_SHARED="$PWD/$DEVICE/shared"
-    local out=${OUT:-bench/results} cores
+    out=${OUT:-bench/results}
     cores=$(nproc)
     echo "cores $cores"
-    # Fail in seconds, not after the ceiling, when something the service imports is missing.
     "$python" -c "import arcloud.service.app, arcloud.service.worker, fastapi, uvicorn, redis, onnxruntime"
     redis-server --version
+}
+
+run() {
+    setup
     # In parts, each with its own limit and file, so that a part that runs long leaves the others' results.
     local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 --service-frames 32)
     timeout "${CEILING_S:-90}" "${bench[@]}" --parts ceiling --ceiling-processes "1,4,8,$((cores - 1)),$cores" \
@@ -78,8 +85,39 @@ run() {
         || echo "no-prefetch part failed or ran out of time"
 }
 
+# Settings side by side at W = cores - 1 (one map and 8 maps each, against one ceiling), then what a worker's
+# frame costs part by part alone and with W copies at once (bench/profile_worker.py: where contention adds).
+# CONFIGS: name:detect_nice:prefetch ...; CONFIG_S: each one's limit.
+compare() {
+    setup
+    local w=$((cores - 1)) name nice prefetch
+    local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 --service-frames 32)
+    timeout "${CEILING_S:-60}" "${bench[@]}" --parts ceiling --ceiling-processes "1,$w" --ceiling-s 6 \
+        --out "$out/compare-ceiling.json" || echo "ceiling failed or ran out of time"
+    for config in ${CONFIGS:-nice0:0:off nice10:10:off nice10-prefetch:10:on}; do
+        IFS=: read -r name nice prefetch <<<"$config"
+        timeout "${CONFIG_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" --workers "$w" \
+            --detect-nice "$nice" --worker-prefetch "$prefetch" --out "$out/compare-$name.json" "$@" \
+            || echo "$name failed or ran out of time"
+    done
+    local profile=("$python" bench/profile_worker.py --frames "${PROFILE_FRAMES:-30}")
+    timeout 60 "${profile[@]}" --out "$out/profile-alone.json" >/dev/null || echo "profile alone failed"
+    local i pids=()
+    for ((i = 0; i < w; i++)); do
+        timeout 120 "${profile[@]}" --out "/tmp/profile-$i.json" >/dev/null &
+        pids+=($!)
+    done
+    wait "${pids[@]}" || echo "a contended profile failed"
+    "$python" - "$out/profile-contention.json" /tmp/profile-*.json <<'PY'
+import json, sys
+runs = [json.load(open(p)) for p in sys.argv[2:]]
+json.dump({"processes": len(runs), "runs": runs}, open(sys.argv[1], "w"), indent=1)
+PY
+}
+
 case "${1:-}" in
     prepare) prepare ;;
     run) shift; run "$@" ;;
-    *) echo "usage: $0 prepare | run [bench_scaling.py arguments]" >&2; exit 2 ;;
+    compare) shift; compare "$@" ;;
+    *) echo "usage: $0 prepare | run [bench_scaling.py arguments] | compare [bench_scaling.py arguments]" >&2; exit 2 ;;
 esac
