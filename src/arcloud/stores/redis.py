@@ -302,9 +302,8 @@ class RedisStore:
         if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
-        self._scripts = {
-            name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "mark_published")
-        }
+        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "query", "mark_published")}
+        self._scripts["release"] = client.register_script(lua_source("leases") + lua_source("release"))
         self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("commit"))
 
     @classmethod
