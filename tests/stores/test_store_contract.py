@@ -306,6 +306,7 @@ def test_gone_counts_are_kept_like_misses(store) -> None:
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
         assert store.commit(MAP, [lease], MapChange(misses={1: 1}, gone={1: 1}), frame_key="f1")
         assert not store.commit(MAP, [lease], MapChange(gone={1: 2}), frame_key="f1")  # re-delivered: nothing
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:  # the commit released the first
         assert store.commit(MAP, [lease], MapChange(misses={1: 2}, gone={1: 2}), frame_key="f2")
     stored = store.get(MAP, [1])[0]
     assert (stored.n_missed, stored.n_gone, stored.version) == (2, 2, a.version)
@@ -326,7 +327,8 @@ def test_retired_objects_leave_the_map_for_its_history(make_store) -> None:
         with pytest.raises(StaleLease):
             store.commit(MAP, [lease], MapChange(retired=tuple([a.replace(version=a.version + 1)])))  # not the stored version
         assert store.commit(MAP, [lease], MapChange(retired=tuple([a])), frame_key="f1")
-        clock.now_s += 10.0
+    clock.now_s += 10.0
+    with store.lock(MAP, [2], ttl_s=10, timeout_s=1) as lease:  # the commit released the first
         assert store.commit(MAP, [lease], MapChange(retired=tuple([b])), frame_key="f2")
     assert [o.id for o in store.list_objects(MAP)] == [3]
     assert store.query_region(MAP, np.full(3, -1.0), np.full(3, 4.0)) == {}
@@ -350,9 +352,9 @@ def test_the_history_keeps_at_most_its_number_of_objects(make_store, monkeypatch
     store = make_store(clock=clock)
     objects = [make_object(i, (i * 1.0, 0.0, 0.0)) for i in (1, 2, 3, 4)]
     assert store.commit(MAP, [], MapChange.writing(MAP, objects))
-    with store.lock(MAP, [1, 2, 3, 4], ttl_s=10, timeout_s=1) as lease:
-        for obj in objects[:3]:
-            clock.now_s += 1.0
+    for obj in objects[:3]:
+        clock.now_s += 1.0
+        with store.lock(MAP, [obj.id], ttl_s=10, timeout_s=1) as lease:
             assert store.commit(MAP, [lease], MapChange(retired=tuple([obj])))
     assert [r.meta.id for r in store.retired_objects(MAP)] == [3, 2] and history_size(store) == 2  # the oldest left
 

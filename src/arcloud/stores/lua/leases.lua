@@ -1,5 +1,5 @@
--- Releasing leases, shared by the scripts that release them (prepended to release.lua: the function below
--- is theirs).
+-- Releasing leases, shared by the scripts that release them (prepended to release.lua and commit.lua: the
+-- function below is theirs).
 
 -- Release one lock or claim key if it still holds this token (never another holder's), and wake a waiter
 -- if someone waits for it (acquire.lua marked it <key>:wanted): a token on <key>:wake, the list the waiter
