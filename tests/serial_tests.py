@@ -39,6 +39,9 @@ SERIAL = {
     ),
     "tests/stores/test_store_contract.py::test_lock_timeout_waits_then_gives_up_holding_nothing": "gives up within 2 s",
     "tests/stores/test_store_contract.py::test_lock_waits_for_a_release": "takes the lock within 2 s of the release",
+    "tests/stores/test_store_contract.py::test_a_waiter_takes_the_lock_when_its_holder_commits": (
+        "takes the lock within 1 s of the holder's commit"
+    ),
     "tests/stores/test_store_contract.py::test_a_claim_takes_at_most_max_cells_per_call": "refused within 1 s",
     "tests/stores/test_store_contract.py::test_new_ids_cost_the_same_for_any_number": "2**53 ids within 1 s",
 }

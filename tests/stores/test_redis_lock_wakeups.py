@@ -1,6 +1,7 @@
 """A caller waiting for a Redis lock or claim is woken by its release (BLPOP on the key's wake list), not by a
 poll: it takes the lock within a round trip of the release, however long it may block, and the keys the wait
-leaves behind expire with the lock."""
+leaves behind expire with the lock. A step's commit releases its locks and claims itself: no release script
+follows it (the waiter woken by the commit: ``test_store_contract``)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,12 @@ import time
 
 import pytest
 from redis.crc import key_slot
+from redis_server import RedisServer
+from store_cases import step_frame
+from test_redis_cluster import Monitor
 
+from arcloud.core.step import integrate_frame
+from arcloud.core.types import Params
 from arcloud.stores import keys, redis
 from arcloud.stores.redis import RedisStore
 
@@ -65,3 +71,17 @@ def test_a_waiter_still_times_out_when_the_holder_keeps_the_lock(redis_store: Re
         redis_store.lock(MAP, [3], ttl_s=10, timeout_s=0.3)
     assert 0.3 <= time.monotonic() - started < 2.0
     held.release()
+
+
+def test_a_step_that_commits_sends_no_release(redis_server: RedisServer, redis_store: RedisStore) -> None:
+    params = Params(index_cell_m=0.5)
+    monitor = Monitor(redis_server)
+    created = integrate_frame(*step_frame(0, 0), redis_store, params)  # new objects: under space claims
+    fused = integrate_frame(*step_frame(0, 1), redis_store, params)  # the same objects: under their locks
+    commands = monitor.stop()
+    assert created.created and fused.updated and not fused.created
+    scripts = [args[1].decode() for source, args in commands if source != "lua" and args[:1] == [b"EVALSHA"]]
+    assert redis_store._scripts["acquire"].sha in scripts and redis_store._scripts["commit"].sha in scripts
+    assert redis_store._scripts["release"].sha not in scripts  # each commit released them
+    assert not [k for k in redis_store.client.scan_iter(match=f"{keys.map_prefix('map-a')}:lock:*")]
+    assert not [k for k in redis_store.client.scan_iter(match=f"{keys.map_prefix('map-a')}:claim:*")]

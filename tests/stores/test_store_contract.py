@@ -258,6 +258,73 @@ def test_frame_is_recorded_once(store) -> None:
     assert store.count_frames("map-b") == 0
 
 
+# --- a commit that writes releases its leases ---------------------------------------------------------
+def test_a_commit_that_writes_frees_its_locks_and_claims_at_once(store) -> None:
+    a = make_object(1, (0.0, 0.0, 0.0))
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a]))
+    lease = store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0)
+    claim = store.claim(MAP, [(3, 0, 0)], ttl_s=10, timeout_s=0)
+    change = MapChange.writing(MAP, [moved(a, (1.0, 0, 0)), make_object(3, (3.0, 0, 0))])
+    assert store.commit(MAP, [lease, claim], change, frame_key="dev/f1")
+    store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0).release()  # nobody released them: the commit did
+    store.claim(MAP, [(3, 0, 0)], ttl_s=10, timeout_s=0).release()
+
+
+def test_a_waiter_takes_the_lock_when_its_holder_commits(store, monkeypatch) -> None:
+    monkeypatch.setattr(arcloud.stores.redis, "WAKE_MAX_S", 5.0)  # a Redis waiter that was not woken would wait this long
+    a = make_object(1, (0.0, 0.0, 0.0))
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a]))
+    held = store.lock(MAP, [1], ttl_s=10, timeout_s=0)
+    taken: list[tuple[float, int]] = []
+
+    def wait() -> None:
+        with store.lock(MAP, [1], ttl_s=10, timeout_s=5):
+            taken.append((time.monotonic(), store.get(MAP, [1])[0].version))
+
+    waiter = threading.Thread(target=wait)
+    waiter.start()
+    time.sleep(0.2)  # the waiter finds the lock busy and blocks
+    committed_at = time.monotonic()
+    assert store.commit(MAP, [held], MapChange.writing(MAP, [moved(a, (1.0, 0, 0))]))  # no release called
+    waiter.join(10)
+    assert taken, "the waiter never took the lock"
+    ((taken_at, version),) = taken
+    assert committed_at <= taken_at < committed_at + 1.0, "woken by the commit, not at the end of a wait"
+    assert version == 2  # it sees what the commit wrote
+
+
+def test_a_commit_that_writes_nothing_leaves_its_leases_held(store) -> None:
+    a = make_object(1, (0.0, 0.0, 0.0))
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a]), frame_key="dev/f1")
+    lease = store.lock(MAP, [1], ttl_s=10, timeout_s=0)
+    claim = store.claim(MAP, [(3, 0, 0)], ttl_s=10, timeout_s=0)
+    change = MapChange.writing(MAP, [moved(a, (1.0, 0, 0)), make_object(3, (3.0, 0, 0))])
+    assert not store.commit(MAP, [lease, claim], change, frame_key="dev/f1")  # recorded before
+    with pytest.raises(StaleLease):  # a fence fails
+        store.commit(MAP, [lease, claim], MapChange.writing(MAP, [a.replace(version=5)]), frame_key="dev/f2")
+    with pytest.raises(LockTimeout):
+        store.lock(MAP, [1], ttl_s=10, timeout_s=0)
+    with pytest.raises(LockTimeout):
+        store.claim(MAP, [(3, 0, 0)], ttl_s=10, timeout_s=0)
+    lease.release()  # the caller releases them, as before
+    claim.release()
+    store.lock(MAP, [1], ttl_s=10, timeout_s=0).release()
+    store.claim(MAP, [(3, 0, 0)], ttl_s=10, timeout_s=0).release()
+
+
+def test_a_release_after_a_commit_that_wrote_frees_nobody_elses_lock(store) -> None:
+    a = make_object(1, (0.0, 0.0, 0.0))
+    assert store.commit(MAP, [], MapChange.writing(MAP, [a]))
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
+        assert store.commit(MAP, [lease], MapChange.writing(MAP, [moved(a, (1.0, 0, 0))]))
+        other = store.lock(MAP, [1], ttl_s=10, timeout_s=0)  # taken meanwhile
+        lease.release()  # a no-op, and so is the with's exit
+    with pytest.raises(LockTimeout):
+        store.lock(MAP, [1], ttl_s=10, timeout_s=0)
+    other.release()
+    store.lock(MAP, [1], ttl_s=10, timeout_s=0).release()
+
+
 def test_processed_frames_are_remembered_for_the_retention_and_counted_for_ever(make_store) -> None:
     clock = Clock()
     store = make_store(frame_record_retention_s=10.0, clock=clock)
@@ -306,6 +373,7 @@ def test_gone_counts_are_kept_like_misses(store) -> None:
     with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:
         assert store.commit(MAP, [lease], MapChange(misses={1: 1}, gone={1: 1}), frame_key="f1")
         assert not store.commit(MAP, [lease], MapChange(gone={1: 2}), frame_key="f1")  # re-delivered: nothing
+    with store.lock(MAP, [1], ttl_s=10, timeout_s=1) as lease:  # the commit released the first
         assert store.commit(MAP, [lease], MapChange(misses={1: 2}, gone={1: 2}), frame_key="f2")
     stored = store.get(MAP, [1])[0]
     assert (stored.n_missed, stored.n_gone, stored.version) == (2, 2, a.version)
@@ -326,7 +394,8 @@ def test_retired_objects_leave_the_map_for_its_history(make_store) -> None:
         with pytest.raises(StaleLease):
             store.commit(MAP, [lease], MapChange(retired=tuple([a.replace(version=a.version + 1)])))  # not the stored version
         assert store.commit(MAP, [lease], MapChange(retired=tuple([a])), frame_key="f1")
-        clock.now_s += 10.0
+    clock.now_s += 10.0
+    with store.lock(MAP, [2], ttl_s=10, timeout_s=1) as lease:  # the commit released the first
         assert store.commit(MAP, [lease], MapChange(retired=tuple([b])), frame_key="f2")
     assert [o.id for o in store.list_objects(MAP)] == [3]
     assert store.query_region(MAP, np.full(3, -1.0), np.full(3, 4.0)) == {}
@@ -350,9 +419,9 @@ def test_the_history_keeps_at_most_its_number_of_objects(make_store, monkeypatch
     store = make_store(clock=clock)
     objects = [make_object(i, (i * 1.0, 0.0, 0.0)) for i in (1, 2, 3, 4)]
     assert store.commit(MAP, [], MapChange.writing(MAP, objects))
-    with store.lock(MAP, [1, 2, 3, 4], ttl_s=10, timeout_s=1) as lease:
-        for obj in objects[:3]:
-            clock.now_s += 1.0
+    for obj in objects[:3]:
+        clock.now_s += 1.0
+        with store.lock(MAP, [obj.id], ttl_s=10, timeout_s=1) as lease:
             assert store.commit(MAP, [lease], MapChange(retired=tuple([obj])))
     assert [r.meta.id for r in store.retired_objects(MAP)] == [3, 2] and history_size(store) == 2  # the oldest left
 

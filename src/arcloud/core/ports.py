@@ -34,13 +34,16 @@ class Lease(Protocol):
     """Held locks (on object ids) or space claims (on index cells) of one map.
 
     A lease is a context manager that releases on exit. Locks expire after their TTL; a write made
-    through an expired lease is refused (``StaleLease``). ``ids`` are the object ids held (empty for
-    a space claim)."""
+    through an expired lease is refused (``StaleLease``). A successful ``MapStore.commit`` releases the
+    leases it was given. ``ids`` are the object ids held (empty for a space claim)."""
 
     map_id: str
     ids: tuple[int, ...]
 
-    def release(self) -> None: ...
+    def release(self) -> None:
+        """Release what the lease still holds, never another holder's; a no-op once released (by a release or
+        a successful commit)."""
+        ...
 
     def __enter__(self) -> Lease: ...
 
@@ -87,7 +90,12 @@ class MapStore(Protocol):
         writing nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
         forget a record after a retention far longer than any redelivery (a day by default); the frame
         then counts as not processed. Retired objects are kept in the map's history, with the commit's
-        time, for the store's retention (``ObjectStore.retired_objects``)."""
+        time, for the store's retention (``ObjectStore.retired_objects``).
+
+        A commit that writes (returns True) releases ``leases`` in the same atomic step, waking whoever waits
+        for them (no call after it: a lock is held no longer than the write), and releasing them after (their
+        ``release``, a ``with`` block's exit) does nothing. A commit that returns False or raises leaves them
+        held: the caller releases them."""
         ...
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:

@@ -5,9 +5,10 @@ judge each visible object nothing was detected on by the depth at its voxels: a 
 there, *seen gone* when the rays pass through where it was; one seen gone in enough frames is retired:
 event ``retired``; one missed in nearly all the frames that saw it is a phantom: deleted) ->
 create -> refine (boxes reach the floor the frames saw; score and confirmation from the evidence) ->
-commit what changed as one ``MapChange`` -> unlock. The change's events go to the map's change log in the
-same atomic write; whoever announces them (server-sent events, Zenoh) reads the log (``core.change``), so
-no event is lost to a worker that dies after its commit.
+commit what changed as one ``MapChange``, which unlocks in the same atomic write (a lock is held no longer
+than the write: ``MapStore.commit``). The change's events go to the map's change log in that write too;
+whoever announces them (server-sent events, Zenoh) reads the log (``core.change``), so no event is lost to a
+worker that dies after its commit.
 
 Creation is where two workers that see the same new object at the same moment would make it twice
 (locks only protect objects that exist). So new objects are created under a *space claim* on the index
@@ -107,7 +108,7 @@ def integrate_frame(
     now_s: float | None = None,
 ) -> StepResult:
     """Everything after detection: voxelize, find visible objects, lock, associate, fuse, create,
-    refine, commit (the map's change log with it), unlock."""
+    refine, commit (the map's change log with it, and the unlock)."""
     now_s = time.time() if now_s is None else now_s
     result = StepResult(frame.key)
     clock = _Clock(result.timings_s)
@@ -167,7 +168,7 @@ def integrate_frame(
             if not store.commit(frame.map_id, leases, change, frame_key=frame.key):
                 return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
             clock.lap("write")
-        finally:
+        finally:  # a commit that wrote released every lease: these releases (and the with's) then do nothing
             for extra in leases[1:]:
                 extra.release()
 

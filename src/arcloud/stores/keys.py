@@ -30,8 +30,8 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
     <lock or claim key>:wanted      STRING  someone waits for the lock or claim (PX its holder's ttl; set by
                                             ``lua/acquire.lua``): its release wakes one waiter
-    <lock or claim key>:wake        LIST    a token for the waiter blocked on it (BLPOP; pushed by
-                                            ``lua/release.lua``, at most one, PX 1 s)
+    <lock or claim key>:wake        LIST    a token for the waiter blocked on it (BLPOP; pushed by the release or
+                                            the commit, ``lua/leases.lua``, at most one, PX 1 s)
     arcloud:alignments:{m}          HASH    device id -> its ``device_from_map`` (JSON, 16 numbers row-major;
                                             ``redis_alignments``): outside ``map_pattern``, so that deleting the
                                             map's objects leaves it (the API's map deletion forgets it)
@@ -198,7 +198,7 @@ def cell_key(map_id: str, cell: tuple[int, int, int]) -> str:
 
 
 def lease_wake_key(lease_key: str) -> str:
-    """The list a caller waiting for a lock or claim key blocks on (``lua/release.lua`` builds the same name)."""
+    """The list a caller waiting for a lock or claim key blocks on (``lua/leases.lua`` builds the same name)."""
     return f"{lease_key}:{WAKE}"
 
 

@@ -6,7 +6,8 @@ object version (fencing), frames are recorded once (a processed frame's mark kep
 ``frame_record_retention_s``, as on Redis), retired objects stay in the map's history for
 ``retired_history_s``, each map's change log (``core.change``) keeps its latest ``change_log_entries`` in a
 ring buffer, appended under the same lock as the commit's writes. Locks are taken all-or-nothing under one condition variable
-per map, so a thread never holds some locks while waiting for others.
+per map, so a thread never holds some locks while waiting for others; a successful commit releases the leases it
+was given under that lock, waking their waiters.
 """
 
 from __future__ import annotations
@@ -69,7 +70,8 @@ class _MapState:
 
 
 class MemoryLease:
-    """Locks or claims held in a ``MemoryStore``; releases on exit."""
+    """Locks or claims held in a ``MemoryStore``; releases on exit. ``released``: a release or a successful
+    commit let go of them already (a release then does nothing)."""
 
     def __init__(self, store: MemoryStore, map_id: str, names: list[_Name], token: str) -> None:
         self.store = store
@@ -77,15 +79,27 @@ class MemoryLease:
         self.names = names
         self.token = token
         self.ids = tuple(name[1] for name in names if name[0] == "object")
+        self.released = False
 
     def release(self) -> None:
-        self.store._release(self)
+        if not self.released:
+            self.store._release(self)
 
     def __enter__(self) -> MemoryLease:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+def _let_go(state: _MapState, lease: MemoryLease) -> None:
+    """Release what ``lease`` still holds (never another holder's) and wake the waiters; ``state.changed`` held."""
+    for name in lease.names:
+        holder = state.held.get(name)
+        if holder is not None and holder.token == lease.token:
+            del state.held[name]
+    lease.released = True
+    state.changed.notify_all()
 
 
 class MemoryStore:
@@ -191,11 +205,7 @@ class MemoryStore:
     def _release(self, lease: MemoryLease) -> None:
         state = self._map(lease.map_id)
         with state.changed:
-            for name in lease.names:
-                holder = state.held.get(name)
-                if holder is not None and holder.token == lease.token:
-                    del state.held[name]
-            state.changed.notify_all()
+            _let_go(state, lease)
 
     # --- objects -----------------------------------------------------------------------------------
     def get(self, map_id: str, ids: Sequence[int]) -> list[MapObject]:
@@ -298,6 +308,8 @@ class MemoryStore:
             if upserts or deletes or retired:
                 with self._maps_lock:
                     self._updated[map_id] = time.time()
+            for lease in own:  # released with the write, as Redis's commit script does
+                _let_go(state, lease)
             return True
 
     # --- the change log ------------------------------------------------------------------------------

@@ -13,18 +13,20 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
 - Locks and space claims: keys holding a random token with a TTL (``SET key token PX ttl``), taken
   all-or-nothing by one Lua script (in sorted order; never some held while waiting), retried until
   ``timeout_s`` (0: try once); released by a script that deletes only the keys still holding the lease's
-  token. A caller that found a key busy blocks (BLPOP, at most ``WAKE_MAX_S``, at most the holder's ttl)
-  on that key's wake list, which the release pushes a token to, so the next waiter tries again within a
-  round trip of the release and waiting costs no CPU (it polled with a backoff of up to 50 ms before:
-  issue 24 measured 0.4-0.5 s of lock wait a frame with 16 workers on one map; docs/scaling.md). The
-  embedded store waits on a condition the same way.
+  token, or by the commit that wrote through the lease (``lua/leases.lua`` in both). A caller that found a
+  key busy blocks (BLPOP, at most ``WAKE_MAX_S``, at most the holder's ttl) on that key's wake list, which
+  the release pushes a token to, so the next waiter tries again within a round trip of the release and
+  waiting costs no CPU (it polled with a backoff of up to 50 ms before: issue 24 measured 0.4-0.5 s of lock
+  wait a frame with 16 workers on one map; docs/scaling.md). The embedded store waits on a condition the
+  same way.
 - Objects: a HASH per object (``version``: the fence, ``cells``: where it is indexed, ``voxels``: the
   ``codec`` blob), the metadata JSON in one HASH per map (listing a map is one read), the bounds in
   another. ``get`` of many ids is one MULTI/EXEC pipeline (a consistent snapshot).
 - ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
   expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
-  mark, or writes nothing. A worker whose lock expired cannot overwrite newer data. Redis runs nothing else
-  while a script runs, so one script adds and removes at most ``cells.MAX_SCRIPT_CELLS`` index cells (an object
+  mark and releases the leases (waking their waiters: no release round trip after, issue 24), or writes
+  nothing and leaves them held. A worker whose lock expired cannot overwrite newer data. Redis runs nothing
+  else while a script runs, so one script adds and removes at most ``cells.MAX_SCRIPT_CELLS`` index cells (an object
   covers at most ``cells.MAX_OBJECT_CELLS``; the script counts the cells it would remove before it writes) and
   one lock call takes at most ``cells.MAX_LOCKS_PER_CALL`` objects: a few tens of milliseconds whatever a
   request holds (``TooManyCells`` / ``InvalidInput`` beyond, nothing written).
@@ -58,8 +60,9 @@ How long a call may take: ``reply_timeout_s`` bounds each wait for a reply or a 
 about that). A command that meets a connection error (a restarted Redis: its pooled connection is dead)
 is sent again once on a new connection; a timeout is not (``connect_redis``). If a commit's
 reply is lost and the retry finds the commit already applied, it returns False (with a ``frame_key``:
-the frame is recorded) or raises ``StaleLease`` (without): the data was written once either way. The
-lock script is idempotent per token, so a retried acquire does not wait for itself.
+the frame is recorded) or raises ``StaleLease`` (without): the data was written once either way, and the
+leases released by that first run (the caller's release then finds none of their keys: never another
+holder's). The lock script is idempotent per token, so a retried acquire does not wait for itself.
 
 On a Redis Cluster (``connect_redis`` with a ``redis+cluster://`` URL: a ``RedisCluster`` client) the same
 code runs: every script and every MULTI/EXEC pipeline names keys of one map (one slot; the scripts build
@@ -231,7 +234,8 @@ def lua_source(name: str) -> str:
 
 
 class RedisLease:
-    """Locks or space claims held in a ``RedisStore``: the keys, the token, the object ids."""
+    """Locks or space claims held in a ``RedisStore``: the keys, the token, the object ids. ``released``: a
+    release or a successful commit let go of the keys already (a release then sends nothing)."""
 
     def __init__(self, store: RedisStore, map_id: str, lease_keys: list[str], token: str, ids: tuple[int, ...]) -> None:
         self.store = store
@@ -239,10 +243,14 @@ class RedisLease:
         self.keys = lease_keys
         self.token = token
         self.ids = ids
+        self.released = False
 
     def release(self) -> None:
-        """Release what this lease still holds (never another holder's keys); safe to call twice."""
-        self.store._release(self)
+        """Release what this lease still holds (never another holder's keys); safe to call twice, and after
+        a successful commit, which released it: a no-op then."""
+        if not self.released:
+            self.store._release(self)
+            self.released = True
 
     def __enter__(self) -> RedisLease:
         return self
@@ -302,10 +310,9 @@ class RedisStore:
         if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
-        self._scripts = {
-            name: client.register_script(lua_source(name)) for name in ("acquire", "release", "query", "mark_published")
-        }
-        self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("commit"))
+        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "query", "mark_published")}
+        self._scripts["release"] = client.register_script(lua_source("leases") + lua_source("release"))
+        self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("leases") + lua_source("commit"))
 
     @classmethod
     def from_url(cls, url: str = DEFAULT_URL, **options: Any) -> RedisStore:
@@ -525,8 +532,11 @@ class RedisStore:
                 ],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
-            if int(written) == 1 and (upserts or deletes or retired):
-                self.client.hset(keys.MAPS, map_id, repr(time.time()))  # the maps list's last update
+            if int(written) == 1:
+                for lease in own:  # the script released them: their release sends nothing
+                    lease.released = True
+                if upserts or deletes or retired:
+                    self.client.hset(keys.MAPS, map_id, repr(time.time()))  # the maps list's last update
         if int(written) < 0:  # the cells it would remove and add, over the bound: nothing written
             check_script_cells(-int(written))
         return int(written) == 1

@@ -1,5 +1,5 @@
--- Atomic commit of one step: check every fence, then write everything, or write nothing.
--- Needs records.lua before it.
+-- Atomic commit of one step: check every fence, then write everything and release the leases, or write nothing.
+-- Needs records.lua and leases.lua before it.
 -- KEYS[1]: the map's processed-frames HASH, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH,
 -- KEYS[4]: the processed-frames counter, KEYS[5]: the processed-frames sweep cursor,
 -- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET),
@@ -9,20 +9,23 @@
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
 --          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells,
 --          log_max}
---          (ids, versions and counts as decimal strings; frame "" for none; cells: "i:j:k i:j:k ..." the
---          index cells of the object's bounds; upserts also carry missed and gone, the object's counters,
---          kept in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago
---          counts as not recorded, and each commit sweeps about `sweep` records for such ones; retired
---          objects are deleted like deletes and their metadata kept in the history, which keeps those
---          retired within history_s, at most history_max; new_cells: how many index cells the upserts add,
---          max_cells: the most cells one commit may add and remove together, counted before anything is written).
+--          (leases: lock and claim keys, of the map's hash tag; ids, versions and counts as decimal strings;
+--          frame "" for none; cells: "i:j:k i:j:k ..." the index cells of the object's bounds; upserts also
+--          carry missed and gone, the object's counters, kept in its hash beside the voxels; now: Unix s; a
+--          frame recorded more than retention_s ago counts as not recorded, and each commit sweeps about `sweep`
+--          records for such ones; retired objects are deleted like deletes and their metadata kept in the
+--          history, which keeps those retired within history_s, at most history_max; new_cells: how many index
+--          cells the upserts add, max_cells: the most cells one commit may add and remove together, counted
+--          before anything is written).
 --          log_max: about how many entries the change log keeps (XADD MAXLEN ~).
 -- ARGV[3]: the change's events (``codec.encode_events``), "" for none: appended to the change log as the entry
 --          "<version>-0" (the map's version + 1) with fields at (now), frame, events, after every check and
 --          before any write, so that a refused commit appends nothing and a failed append writes nothing.
 -- ARGV[4..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
--- Returns 1 (written), 0 (the frame was recorded before: nothing written), -N (the commit would add and remove
--- N > max_cells index cells: nothing written), or an error "STALE ..." (a fence failed: nothing written).
+-- Returns 1 (written, and then the leases released in the same step, their waiters woken: the caller sends no
+-- release), 0 (the frame was recorded before: nothing written), -N (the commit would add and remove N > max_cells
+-- index cells: nothing written), or an error "STALE ..." (a fence failed: nothing written). But for 1, the
+-- leases stay held.
 local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
 local history_key, history_at_key, log_key, version_key = KEYS[6], KEYS[7], KEYS[8], KEYS[9]
 local prefix = ARGV[1]
@@ -167,5 +170,8 @@ end
 for _, id in ipairs(expired) do
   redis.call('HDEL', history_key, id)
   redis.call('ZREM', history_at_key, id)
+end
+for _, lease in ipairs(req.leases) do
+  release_lease(lease[1], lease[2])
 end
 return 1
