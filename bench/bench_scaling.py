@@ -315,7 +315,7 @@ class Deployment:
             detector=f"onnx:{model}",
             detector_threads=1,
             workers=workers,
-            **{k.removeprefix("ARCLOUD_").lower(): v for k, v in env.items()},
+            **{k.removeprefix("ARCLOUD_").lower(): json.loads(v) if k == "ARCLOUD_PARAMS" else v for k, v in env.items()},
         )
         self.pool = worker_pool(settings, workers, detector_factory=detector_factory, restart=False)
         self.pool.start()
@@ -511,6 +511,7 @@ def main() -> None:
     parser.add_argument(
         "--worker-prefetch", choices=("on", "off"), default=None, help="ARCLOUD_WORKER_PREFETCH (default: the service's)"
     )
+    parser.add_argument("--params", default=None, help="ARCLOUD_PARAMS: JSON overrides of Params (default: none)")
     parser.add_argument(
         "--detect-nice", type=int, default=None, help="ARCLOUD_DETECT_NICE, the detector thread's nice (default: the service's)"
     )
@@ -541,6 +542,7 @@ def main() -> None:
         "ARCLOUD_QUEUED_IMAGES": queued_images,
         "ARCLOUD_WORKER_PREFETCH": str(worker_prefetch).lower(),
         "ARCLOUD_DETECT_NICE": str(detect_nice),
+        **({"ARCLOUD_PARAMS": args.params} if args.params else {}),
     }
     result: dict[str, Any] = {
         "benchmark": "scaling",
@@ -557,6 +559,7 @@ def main() -> None:
             "queued_images": queued_images,
             "worker_prefetch": worker_prefetch,
             "detect_nice": detect_nice,
+            "params": args.params,
             "load_fraction": LOAD_FRACTION,
         },
     }
