@@ -3,7 +3,6 @@ a real redis-server (see ``conftest.py``). Both must behave the same."""
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 
@@ -25,7 +24,7 @@ import arcloud.stores.memory
 import arcloud.stores.redis
 from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader, check_header
-from arcloud.core.ports import MAX_CELLS_PER_CALL, ReadFence
+from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import Params
 from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, TooManyCells
@@ -313,48 +312,6 @@ def test_a_commit_that_writes_nothing_leaves_its_leases_held(store) -> None:
     store.claim(MAP, [(3, 0, 0)], ttl_s=10, timeout_s=0).release()
 
 
-# --- read fences: commits of objects read without their locks (optimistic integration) ------------------
-def test_a_read_fence_writes_deletes_and_counts_what_was_read_unchanged(store) -> None:
-    a, b, c = make_object(1, (0.0, 0.0, 0.0)), make_object(2, (3.0, 0.0, 0.0)), make_object(3, (6.0, 0.0, 0.0))
-    assert store.commit(MAP, [], MapChange.writing(MAP, [a, b, c]))
-    fence = ReadFence(MAP, {o.id: o.version for o in store.get(MAP, [1, 2, 3])})
-    change = MapChange(upserts=(moved(a, (1.0, 0.0, 0.0)),), deletes=(b,), misses={3: 4})
-    assert store.commit(MAP, [fence], change, frame_key="dev/f1")
-    assert [(o.id, o.version, o.n_missed) for o in store.get(MAP, [1, 2, 3])] == [(1, 2, 0), (3, 1, 4)]
-    with store.lock(MAP, [1, 3], ttl_s=10, timeout_s=0):  # the fence held nothing
-        pass
-
-
-@pytest.mark.parametrize("meanwhile", ["written", "deleted", "locked"])
-def test_a_read_fence_writes_nothing_when_an_object_read_changed_or_is_locked(store, meanwhile: str) -> None:
-    a, b = make_object(1, (0.0, 0.0, 0.0)), make_object(2, (3.0, 0.0, 0.0))
-    assert store.commit(MAP, [], MapChange.writing(MAP, [a, b]))
-    fence = ReadFence(MAP, {o.id: o.version for o in store.get(MAP, [1, 2])})
-    other = None
-    if meanwhile in ("written", "deleted"):  # another step, through the lock
-        change = (
-            MapChange.writing(MAP, [moved(b, (4.0, 0.0, 0.0))]) if meanwhile == "written" else MapChange.writing(MAP, deletes=[b])
-        )
-        assert store.commit(MAP, [store.lock(MAP, [2], ttl_s=10, timeout_s=0)], change)
-    else:
-        other = store.lock(MAP, [2], ttl_s=10, timeout_s=0)
-    before = [(o.id, o.version) for o in store.get(MAP, [1, 2])]
-    with pytest.raises(StaleLease, match="object 2"):  # only object 1 is written, but the step read 2 as well
-        store.commit(MAP, [fence], MapChange.writing(MAP, [moved(a, (1.0, 0.0, 0.0))]), frame_key="dev/f1")
-    assert [(o.id, o.version) for o in store.get(MAP, [1, 2])] == before
-    assert not store.is_frame_done(MAP, "dev/f1")
-    if other is not None:
-        other.release()
-
-
-def test_a_read_fence_does_not_hold_objects_it_did_not_read(store) -> None:
-    a, b = make_object(1, (0.0, 0.0, 0.0)), make_object(2, (3.0, 0.0, 0.0))
-    assert store.commit(MAP, [], MapChange.writing(MAP, [a, b]))
-    fence = ReadFence(MAP, {1: 1})
-    with pytest.raises(StaleLease, match="object 2"):
-        store.commit(MAP, [fence], MapChange.writing(MAP, [moved(b, (4.0, 0.0, 0.0))]))
-
-
 def test_a_release_after_a_commit_that_wrote_frees_nobody_elses_lock(store) -> None:
     a = make_object(1, (0.0, 0.0, 0.0))
     assert store.commit(MAP, [], MapChange.writing(MAP, [a]))
@@ -600,53 +557,6 @@ def test_concurrent_steps_lose_no_update_and_leave_no_duplicate(store) -> None:
     assert sum(o.n_frames for o in objects) == 2 * n_threads * n_frames  # no lost update
     assert {d for o in objects for d in o.devices} == {f"dev-{d}" for d in range(n_threads)}
     assert store.count_frames(MAP) == n_threads * n_frames
-
-
-class CommitsAfter:
-    """``store`` for one step: its first commit lets ``meanwhile`` run first (another worker's step landing between
-    this step's read and its commit); counts the step's lock calls."""
-
-    def __init__(self, store, meanwhile=None) -> None:
-        self.store, self.meanwhile, self.locks = store, meanwhile, 0
-
-    def __getattr__(self, name: str):
-        return getattr(self.store, name)
-
-    def lock(self, *args, **kwargs):
-        self.locks += 1
-        return self.store.lock(*args, **kwargs)
-
-    def commit(self, *args, **kwargs):
-        meanwhile, self.meanwhile = self.meanwhile, None
-        if meanwhile is not None:
-            meanwhile()
-        return self.store.commit(*args, **kwargs)
-
-
-def objects_state(store, map_id: str) -> list[tuple]:
-    return [(o.id, o.label, o.version, o.n_frames, o.keys.tobytes(), o.weights.tobytes()) for o in store.list_objects(map_id)]
-
-
-def test_a_step_reads_without_locks_and_reads_again_when_another_commits_first(store) -> None:
-    params = Params()
-    creating = CommitsAfter(store)
-    integrate_frame(*step_frame(0, 0), creating, params)
-    assert creating.locks == 1  # creating takes space claims, with the visible objects' locks
-    other = CommitsAfter(store, meanwhile=lambda: integrate_frame(*step_frame(1, 1), store, params))
-    result = integrate_frame(*step_frame(0, 2), other, params)
-    assert result.conflicts == 1 and other.locks == 0 and result.matched == 2  # read again, committed through a fence
-    for device, index in ((0, 0), (1, 1), (0, 2)):  # the same frames one after the other, on another map
-        frame, detections = step_frame(device, index)
-        integrate_frame(dataclasses.replace(frame, map_id="after"), detections, store, params)
-    assert objects_state(store, MAP) == objects_state(store, "after") and len(objects_state(store, MAP)) == 2
-
-
-def test_a_step_without_optimistic_tries_locks(store) -> None:
-    params = Params(optimistic_tries=0)
-    integrate_frame(*step_frame(0, 0), store, params)
-    locking = CommitsAfter(store)
-    result = integrate_frame(*step_frame(0, 1), locking, params)
-    assert locking.locks == 1 and result.conflicts == 0 and result.matched == 2
 
 
 # --- what the service reads --------------------------------------------------------------------------

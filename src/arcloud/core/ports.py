@@ -9,8 +9,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -38,11 +37,8 @@ class Lease(Protocol):
     through an expired lease is refused (``StaleLease``). A successful ``MapStore.commit`` releases the
     leases it was given. ``ids`` are the object ids held (empty for a space claim)."""
 
-    @property
-    def map_id(self) -> str: ...
-
-    @property
-    def ids(self) -> tuple[int, ...]: ...
+    map_id: str
+    ids: tuple[int, ...]
 
     def release(self) -> None:
         """Release what the lease still holds, never another holder's; a no-op once released (by a release or
@@ -52,31 +48,6 @@ class Lease(Protocol):
     def __enter__(self) -> Lease: ...
 
     def __exit__(self, *exc: object) -> None: ...
-
-
-@dataclass(frozen=True, slots=True)
-class ReadFence:
-    """The versions of the objects a step read without locking them (``core.step``'s optimistic integration),
-    given to ``MapStore.commit`` among its leases. It fences as a lock does: the commit writes only if each of
-    these objects is still at the version read and no one holds its lock (else ``StaleLease``: nothing
-    written), and may then write, delete or count them. It holds nothing, so it blocks no one: releasing it
-    does nothing."""
-
-    map_id: str
-    versions: Mapping[int, int]  # object id -> the version read
-    ids: tuple[int, ...] = field(init=False)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "ids", tuple(sorted(self.versions)))
-
-    def release(self) -> None:
-        pass
-
-    def __enter__(self) -> Lease:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        pass
 
 
 class MapStore(Protocol):
@@ -115,8 +86,7 @@ class MapStore(Protocol):
 
         Every existing object written, deleted or counted must be held by one of ``leases`` (new objects need
         none) and be at version ``obj.version - 1`` in the store (deletes and retired: at ``obj.version``);
-        a ``ReadFence`` among them holds its objects when each is at the version it read and no one holds its
-        lock; otherwise nothing is written, nor logged, and ``StaleLease`` is raised (fencing). Returns False,
+        otherwise nothing is written, nor logged, and ``StaleLease`` is raised (fencing). Returns False,
         writing nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
         forget a record after a retention far longer than any redelivery (a day by default); the frame
         then counts as not processed. Retired objects are kept in the map's history, with the commit's

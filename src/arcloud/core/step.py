@@ -1,6 +1,6 @@
 """The per-frame step (the paper's Algorithm 1), over the ports.
 
-detect -> voxelize (masks cleaned with depth) -> find visible objects -> read them -> associate -> fuse (and
+detect -> voxelize (masks cleaned with depth) -> find visible objects -> lock -> associate -> fuse (and
 judge each visible object nothing was detected on by the depth at its voxels: a miss when its surface is
 there, *seen gone* when the rays pass through where it was; one seen gone in enough frames is retired:
 event ``retired``; one missed in nearly all the frames that saw it is a phantom: deleted) ->
@@ -9,13 +9,6 @@ commit what changed as one ``MapChange``, which unlocks in the same atomic write
 than the write: ``MapStore.commit``). The change's events go to the map's change log in that write too;
 whoever announces them (server-sent events, Zenoh) reads the log (``core.change``), so no event is lost to a
 worker that dies after its commit.
-
-Locks are taken only when needed (optimistic integration, ``Params.optimistic_tries``): the visible objects
-are first read without locks, and a frame that creates nothing commits through a ``ReadFence``, which writes
-only if none of them changed, nor is locked, since it read them; otherwise it reads them again. After its
-tries (at once when it must create) it locks them (the paper's way), reads them again (keeping what it fused
-when none changed) and commits through the locks. Frames of one map whose steps overlap then integrate at
-once instead of one at a time, unless one writes what another read: that one computes again.
 
 Creation is where two workers that see the same new object at the same moment would make it twice
 (locks only protect objects that exist). So new objects are created under a *space claim* on the index
@@ -44,7 +37,7 @@ from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.change import MapChange
 from arcloud.core.checks import check_detections
 from arcloud.core.confirm import evidence, is_phantom
-from arcloud.core.errors import LockTimeout, StaleLease, TooManyCells
+from arcloud.core.errors import LockTimeout, TooManyCells
 from arcloud.core.floor import FrameFloor, add_votes, frame_floor
 from arcloud.core.fusion import (
     current_label_index,
@@ -56,7 +49,7 @@ from arcloud.core.fusion import (
     seen_apart,
     split_detection,
 )
-from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore, ReadFence
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import (
     center_rays,
@@ -88,7 +81,6 @@ class StepResult:
     retired: list[int] = field(default_factory=list)  # seen gone: left the map, kept in its history
     events: list[ObjectEvent] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
-    conflicts: int = 0  # optimistic tries whose commit found an object read changed or locked
 
 
 def process_frame(
@@ -133,121 +125,53 @@ def integrate_frame(
 
     floor = frame_floor(frame, params) if observations else None  # only fused objects take its vote
     clock.lap("floor")
-    stored: dict[int, MapObject] | None = None
-    fused: Fused | None = None
-    for _ in range(params.optimistic_tries):  # without locks: committed only if nothing read changed meanwhile
-        stored = {o.id: o for o in store.get(frame.map_id, visible_ids)}
-        fused = fuse_and_count_misses(list(stored.values()), observations, params, frame, floor)
-        result.matched = len(observations) - len(fused.unmatched)
-        clock.lap("associate_fuse")
-        if fused.unmatched:  # creating takes space claims, which go with locks: below
-            break
-        fence = ReadFence(frame.map_id, versions(stored))
-        try:
-            events = write_change(store, frame, stored, fused, [fence], params, now_s, clock)
-        except StaleLease:  # an object read changed meanwhile, or a step holds its lock: read again
-            result.conflicts += 1
-            stored = fused = None
-            continue
-        return finished(result, frame, events)
     with store.lock(frame.map_id, visible_ids, ttl_s=params.lock_ttl_s, timeout_s=params.lock_timeout_s) as lease:
         clock.lap("lock")
-        held = {o.id: o for o in store.get(frame.map_id, visible_ids)}
-        if fused is None or stored is None or versions(held) != versions(stored):  # else what was fused still holds
-            fused = fuse_and_count_misses(list(held.values()), observations, params, frame, floor)
-            result.matched = len(observations) - len(fused.unmatched)
+        # What changed is tracked by id: ``voxels_changed`` objects are refined before they are written,
+        # ``rescored`` ones (a miss moved their score) are written as they are, the rest are left alone.
+        stored = {o.id: o for o in store.get(frame.map_id, visible_ids)}
+        objects, unmatched, voxels_changed, taken = fuse_matches(list(stored.values()), observations, params, frame, floor)
+        misses = count_misses(objects, voxels_changed, frame, params)
+        objects, rescored = misses.objects, misses.rescored
+        result.matched = len(observations) - len(unmatched)
         clock.lap("associate_fuse")
         leases: list[Lease] = [lease]
         try:
-            if fused.unmatched:
+            if unmatched:
                 claims, late, late_and_new, late_changed, late_taken = create_under_claim(
-                    store, frame, fused.unmatched, visible_ids, params, now_s, floor
+                    store, frame, unmatched, visible_ids, params, now_s, floor
                 )
                 leases += claims
-                held.update({o.id: o for o in late})
-                fused = fused.with_created(late_and_new, late_changed, late_taken)
-            events = write_change(store, frame, held, fused, leases, params, now_s, clock)
+                stored.update({o.id: o for o in late})
+                objects += late_and_new
+                voxels_changed |= late_changed
+                taken += late_taken
+            objects = mark_apart(objects, taken, params)
+            objects, absorbed_into = merge_duplicates(objects, voxels_changed, params)
+            objects, trimmed = resolve_shared_voxels(objects)
+            voxels_changed |= set(absorbed_into.values()) | trimmed
+            to_write = refine_changed(objects, voxels_changed, rescored, params)
+            upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
+            events += [ObjectEvent("retired", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
+            events += [ObjectEvent("deleted", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.phantoms]
+            removed += misses.phantoms
+            written = {o.id for o in upserts} | {o.id for o in removed}
+            change = MapChange(
+                upserts=tuple(upserts),
+                deletes=tuple(removed),
+                retired=tuple(misses.retired),
+                misses={i: n for i, n in misses.n_missed.items() if i not in written},
+                gone={i: n for i, n in misses.n_gone.items() if i not in written},
+                events=tuple(events),
+            )
+            clock.lap("create_refine")
+            if not store.commit(frame.map_id, leases, change, frame_key=frame.key):
+                return StepResult(frame.key, skipped=True, timings_s=result.timings_s)
+            clock.lap("write")
         finally:  # a commit that wrote released every lease: these releases (and the with's) then do nothing
             for extra in leases[1:]:
                 extra.release()
-    return finished(result, frame, events)
 
-
-@dataclass(frozen=True, slots=True)
-class Fused:
-    """The visible objects after association, fusion and the misses of those nothing was detected on
-    (``fuse_and_count_misses``). What changed is tracked by id: ``voxels_changed`` objects are refined before
-    they are written, ``misses.rescored`` ones (a miss moved their score) are written as they are, the rest
-    are left alone. ``taken``: which object took each observation (observation, object id)."""
-
-    objects: list[MapObject]
-    unmatched: list[VoxelDetection]
-    voxels_changed: frozenset[int]
-    taken: list[tuple[VoxelDetection, int]]
-    misses: Misses
-
-    def with_created(self, objects: Sequence[MapObject], changed: set[int], taken: Sequence[tuple[VoxelDetection, int]]) -> Fused:
-        """With the objects the unmatched observations were fused into or made (``create_under_claim``)."""
-        return Fused([*self.objects, *objects], self.unmatched, self.voxels_changed | changed, [*self.taken, *taken], self.misses)
-
-
-def fuse_and_count_misses(
-    objects: list[MapObject], observations: Sequence[VoxelDetection], params: Params, frame: Frame, floor: FrameFloor | None
-) -> Fused:
-    """Associate and fuse (``fuse_matches``), then judge the objects nothing was detected on (``count_misses``)."""
-    fused, unmatched, voxels_changed, taken = fuse_matches(objects, observations, params, frame, floor)
-    misses = count_misses(fused, voxels_changed, frame, params)
-    return Fused(misses.objects, unmatched, frozenset(voxels_changed), taken, misses)
-
-
-def versions(objects: Mapping[int, MapObject]) -> dict[int, int]:
-    """Object id -> version."""
-    return {i: o.version for i, o in objects.items()}
-
-
-def write_change(
-    store: MapStore,
-    frame: Frame,
-    stored: Mapping[int, MapObject],
-    fused: Fused,
-    leases: Sequence[Lease],
-    params: Params,
-    now_s: float,
-    clock: _Clock,
-) -> list[ObjectEvent] | None:
-    """The rest of the step once the frame's observations are fused: the apart votes, the merge pass, one
-    instance a voxel, refine what changed, and commit the change against ``stored`` (the objects as read)
-    through ``leases``. Returns its events, or None when the frame was recorded before (nothing written)."""
-    misses = fused.misses
-    objects = mark_apart(fused.objects, fused.taken, params)
-    objects, absorbed_into = merge_duplicates(objects, set(fused.voxels_changed), params)
-    objects, trimmed = resolve_shared_voxels(objects)
-    voxels_changed = set(fused.voxels_changed) | set(absorbed_into.values()) | trimmed
-    to_write = refine_changed(objects, voxels_changed, misses.rescored, params)
-    upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
-    events += [ObjectEvent("retired", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
-    events += [ObjectEvent("deleted", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.phantoms]
-    removed += misses.phantoms
-    written = {o.id for o in upserts} | {o.id for o in removed}
-    change = MapChange(
-        upserts=tuple(upserts),
-        deletes=tuple(removed),
-        retired=tuple(misses.retired),
-        misses={i: n for i, n in misses.n_missed.items() if i not in written},
-        gone={i: n for i, n in misses.n_gone.items() if i not in written},
-        events=tuple(events),
-    )
-    clock.lap("create_refine")
-    committed = store.commit(frame.map_id, leases, change, frame_key=frame.key)
-    clock.lap("write")
-    return events if committed else None
-
-
-def finished(result: StepResult, frame: Frame, events: list[ObjectEvent] | None) -> StepResult:
-    """``result`` completed from the committed change's ``events``; a skipped result when the frame was
-    recorded before (None: nothing written)."""
-    if events is None:
-        return StepResult(frame.key, skipped=True, timings_s=result.timings_s, conflicts=result.conflicts)
     result.created = [e.object_id for e in events if e.kind == "created"]
     result.updated = [e.object_id for e in events if e.kind == "updated"]
     result.left = [e.object_id for e in events if e.kind in ("merged", "deleted", "retired")]

@@ -409,9 +409,6 @@ class Params:
     index_cell_m: float = 1.0
     lock_ttl_s: float = 10.0
     lock_timeout_s: float = 30.0
-    # Optimistic integration: this many tries reading the visible objects without locking them, committing
-    # only if none changed meanwhile (``core.ports.ReadFence``), before a frame takes their locks (0: always locks)
-    optimistic_tries: int = 3
 
     def __post_init__(self) -> None:
         check_params(self)
@@ -514,7 +511,6 @@ _PARAM_KINDS: dict[str, str] = {
             "floor_min_samples",
             "floor_min_votes",
             "floor_ring_min_seen",
-            "optimistic_tries",
         ),
         "count",
     ),

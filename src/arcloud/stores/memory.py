@@ -25,7 +25,7 @@ import numpy as np
 
 from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after
 from arcloud.core.header import MapHeader
-from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease, ReadFence
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
 from arcloud.ports import (
@@ -222,9 +222,7 @@ class MemoryStore:
         return range(first, first + n)
 
     def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
-        fences = [lease for lease in leases if isinstance(lease, ReadFence)]
-        # the port's Lease: else always one this store handed out
-        own = cast("Sequence[MemoryLease]", [lease for lease in leases if not isinstance(lease, ReadFence)])
+        own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
         upserts, deletes, retired, misses, gone = change.upserts, change.deletes, change.retired, change.misses, change.gone
         state = self._map(map_id)
         with state.changed:
@@ -238,19 +236,6 @@ class MemoryStore:
                     if holder is None or holder.token != lease.token or holder.expires_at <= now:
                         raise StaleLease(f"map {map_id}: lease on {name} expired or was taken over; nothing written")
                 held.update(lease.ids)
-            for fence in fences:
-                for object_id, version in fence.versions.items():
-                    current = state.objects.get(object_id)
-                    if current is None or current.version != version:
-                        raise StaleLease(
-                            f"map {map_id}: object {object_id} changed since it was read at version {version}; nothing written"
-                        )
-                    holder = state.held.get(("object", object_id))
-                    if holder is not None and holder.expires_at > now:
-                        raise StaleLease(
-                            f"map {map_id}: object {object_id} read unlocked is locked by another step; nothing written"
-                        )
-                held.update(fence.ids)
             for obj in upserts:
                 current = state.objects.get(obj.id)
                 if current is None and obj.version != 1:

@@ -99,7 +99,7 @@ from redis.retry import Retry
 
 from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after
 from arcloud.core.header import MapHeader
-from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease, ReadFence
+from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
 from arcloud.errors import InvalidInput, LockTimeout, StoreError, TooManyCells
 from arcloud.ports import (
@@ -470,10 +470,8 @@ class RedisStore:
         return range(last - n + 1, last + 1)
 
     def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
-        fences = [lease for lease in leases if isinstance(lease, ReadFence)]
-        # the port's Lease: else always one this store handed out
-        own = cast("Sequence[RedisLease]", [lease for lease in leases if not isinstance(lease, ReadFence)])
-        for lease in leases:
+        own = cast("Sequence[RedisLease]", leases)  # the port's Lease: here always one this store handed out
+        for lease in own:
             if lease.map_id != map_id:
                 raise InvalidInput("leases", f"leases of map {map_id}", f"a lease of map {lease.map_id}")
         upserts, deletes, retired = change.upserts, change.deletes, change.retired
@@ -490,7 +488,6 @@ class RedisStore:
             "sweep": RECORDS_SWEPT_PER_CALL,
             "leases": [[key, lease.token] for lease in own for key in lease.keys],
             "held": [str(i) for lease in own for i in lease.ids],
-            "fences": [{"id": str(int(i)), "version": str(int(v))} for fence in fences for i, v in fence.versions.items()],
             "upserts": [],
             "deletes": [{"id": str(int(o.id)), "version": str(int(o.version))} for o in deletes],
             "misses": [{"id": str(int(i)), "count": str(int(n))} for i, n in change.misses.items()],

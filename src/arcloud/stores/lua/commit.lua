@@ -5,12 +5,11 @@
 -- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET),
 -- KEYS[8]: the map's change log (STREAM), KEYS[9]: the map's version (STRING: the log's last entry).
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
--- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...], fences: [{id, version}...],
+-- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
 --          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells,
 --          log_max}
---          (leases: lock and claim keys, of the map's hash tag; fences: objects read without their locks (a
---          ``ReadFence``), held like locked ones when each is at that version and its lock is free; ids, versions and counts as decimal strings;
+--          (leases: lock and claim keys, of the map's hash tag; ids, versions and counts as decimal strings;
 --          frame "" for none; cells: "i:j:k i:j:k ..." the index cells of the object's bounds; upserts also
 --          carry missed and gone, the object's counters, kept in its hash beside the voxels; now: Unix s; a
 --          frame recorded more than retention_s ago counts as not recorded, and each commit sweeps about `sweep`
@@ -56,16 +55,6 @@ end
 local held = {}
 for _, id in ipairs(req.held) do
   held[id] = true
-end
-for _, f in ipairs(req.fences) do
-  local current = redis.call('HGET', object_key(f.id), 'version')
-  if not current or tonumber(current) ~= tonumber(f.version) then
-    return stale('object ' .. f.id .. ' changed since it was read at version ' .. f.version)
-  end
-  if redis.call('EXISTS', prefix .. ':lock:' .. f.id) == 1 then
-    return stale('object ' .. f.id .. ' read unlocked is locked by another step')
-  end
-  held[f.id] = true
 end
 for _, u in ipairs(req.upserts) do
   local current = redis.call('HGET', object_key(u.id), 'version')
