@@ -512,9 +512,6 @@ def main() -> None:
         "--worker-prefetch", choices=("on", "off"), default=None, help="ARCLOUD_WORKER_PREFETCH (default: the service's)"
     )
     parser.add_argument("--params", default=None, help="ARCLOUD_PARAMS: JSON overrides of Params (default: none)")
-    parser.add_argument(
-        "--detect-nice", type=int, default=None, help="ARCLOUD_DETECT_NICE, the detector thread's nice (default: the service's)"
-    )
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--plot", type=Path, metavar="JSON", help="only draw the plot of a result file, beside it")
     args = parser.parse_args()
@@ -536,12 +533,10 @@ def main() -> None:
     defaults = Settings()
     queued_images = args.queued_images or defaults.queued_images
     worker_prefetch = defaults.worker_prefetch if args.worker_prefetch is None else args.worker_prefetch == "on"
-    detect_nice = defaults.detect_nice if args.detect_nice is None else args.detect_nice
     env = {
         **BENCH_ENV,
         "ARCLOUD_QUEUED_IMAGES": queued_images,
         "ARCLOUD_WORKER_PREFETCH": str(worker_prefetch).lower(),
-        "ARCLOUD_DETECT_NICE": str(detect_nice),
         **({"ARCLOUD_PARAMS": args.params} if args.params else {}),
     }
     result: dict[str, Any] = {
@@ -558,7 +553,6 @@ def main() -> None:
             "connections": args.connections,
             "queued_images": queued_images,
             "worker_prefetch": worker_prefetch,
-            "detect_nice": detect_nice,
             "params": args.params,
             "load_fraction": LOAD_FRACTION,
         },

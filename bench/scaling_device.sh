@@ -87,21 +87,22 @@ run() {
 
 # The service's defaults at W = SWEEP (4,8), then settings side by side at W = cores - 1 (one map and 8 maps each,
 # against one ceiling), then what a worker's frame costs part by part alone and with W copies at once
-# (bench/profile_worker.py: where contention adds). CONFIGS: name:detect_nice:prefetch ...; CONFIG_S: each one's
+# (bench/profile_worker.py: where contention adds). CONFIG_S: each setting's
 # limit. Eight files under $OUT at most come back: seven JSON here, and a log if the command writes one.
+# CONFIGS: name:prefetch:params (params: JSON overrides of Params, or empty) ...
 compare() {
     setup
-    local w=$((cores - 1)) name nice prefetch
+    local w=$((cores - 1)) name prefetch params
     local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 --service-frames 32)
     timeout "${CEILING_S:-90}" "${bench[@]}" --parts ceiling --ceiling-processes "1,${SWEEP:-4,8},$w" --ceiling-s 6 \
         --out "$out/compare-ceiling.json" || echo "ceiling failed or ran out of time"
     # The service's defaults at fewer workers: the ratio per W.
     timeout "${SWEEP_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" \
         --workers "${SWEEP:-4,8}" --out "$out/compare-sweep.json" "$@" || echo "sweep failed or ran out of time"
-    for config in ${CONFIGS:-nice0:0:off nice10:10:off nice10-prefetch:10:on}; do
-        IFS=: read -r name nice prefetch <<<"$config"
+    for config in ${CONFIGS:-prefetch-off:off: prefetch-on:on:}; do
+        IFS=: read -r name prefetch params <<<"$config"
         timeout "${CONFIG_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" --workers "$w" \
-            --detect-nice "$nice" --worker-prefetch "$prefetch" --out "$out/compare-$name.json" "$@" \
+            --worker-prefetch "$prefetch" ${params:+--params "$params"} --out "$out/compare-$name.json" "$@" \
             || echo "$name failed or ran out of time"
     done
     local profile=("$python" bench/profile_worker.py --frames "${PROFILE_FRAMES:-30}")

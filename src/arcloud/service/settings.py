@@ -247,15 +247,6 @@ class Settings(BaseSettings):
         "would otherwise idle through the rest of the step. Off (one frame at a time) for CPU sessions: on 16 cores "
         "it measured 0.88-1.07x of off, and doubled one hot map's lock wait (docs/scaling.md)",
     )
-    detect_nice: int = Field(
-        10,
-        ge=0,
-        le=19,
-        description="each worker's detector runs in a thread of its own at this much lower priority (nice; Linux), so "
-        "that on cores the detectors keep busy the rest of the step (a frame holding its objects' locks, which other "
-        "workers wait for), the API and Redis do not wait for a detection's turn; 0: the detector runs in the worker's "
-        "thread (docs/scaling.md)",
-    )
     api_redis_timeout_s: float = Field(
         2.0, gt=0, description="how long the API waits on a Redis reply before answering 503 (workers wait 30 s)"
     )

@@ -29,11 +29,6 @@ integrates the frame before (query, locks, fusion, commit), so the detector neve
 nor for other workers' locks on a hot map (onnxruntime releases the GIL while it runs). Two frames are in
 hand then, and the heartbeat keeps both fresh; a stop finishes both. Measured in docs/scaling.md.
 
-With ``detect_nice`` (``ARCLOUD_DETECT_NICE``) the detector runs in a thread of its own (with or without
-prefetch) whose nice value is raised by that much (Linux: nice is a thread's): on a machine whose cores
-the detectors keep busy, the rest of the step (above all a frame holding its objects' locks, which other
-workers wait for), the API and Redis take a core from a detection at once instead of after their turn.
-
 A frame delivered twice (a worker died after its commit but before its acknowledgement) is not counted
 twice: the store's commit records the frame key atomically and refuses a second one; it is acknowledged
 as ``redelivered``.
@@ -52,7 +47,6 @@ import functools
 import logging
 import os
 import socket
-import sys
 import threading
 import time
 from collections.abc import Sequence
@@ -178,17 +172,6 @@ def run_step(
     raise AssertionError("unreachable")
 
 
-def lower_priority(nice: int) -> None:
-    """Raise the calling thread's nice value by ``nice`` (Linux, where nice is a thread's; elsewhere it would
-    be the whole process's, so nothing is done there but a warning)."""
-    if nice <= 0:
-        return
-    if sys.platform != "linux":
-        log.warning("detect_nice %d not applied: a thread's own priority needs Linux", nice)
-        return
-    os.nice(nice)
-
-
 def timed_detect(detector: Detector, frame: Frame) -> tuple[list[Detection], float]:
     """The frame's detections and the seconds they took."""
     started = time.perf_counter()
@@ -241,7 +224,6 @@ class FrameWorker:
         heartbeat_s: float | None = HEARTBEAT_S,
         warm_up: bool = False,
         prefetch: bool = False,
-        detect_nice: int = 0,
     ) -> None:
         self.queue = queue
         self.store = store
@@ -257,14 +239,8 @@ class FrameWorker:
         self.heartbeat_s = heartbeat_s
         self._warm_up = warm_up
         self._next_claim = 0.0
-        # prefetch: one thread detects the frame taken last while this one integrates the frame before;
-        # detect_nice: the detector's thread at a lower priority (without prefetch this thread waits for it)
-        self._prefetch = prefetch
-        self._detector_thread = (
-            ThreadPoolExecutor(1, thread_name_prefix="arcloud-detect", initializer=lower_priority, initargs=(detect_nice,))
-            if prefetch or detect_nice
-            else None
-        )
+        # prefetch: one thread detects the frame taken last while this one integrates the frame before
+        self._detector_thread = ThreadPoolExecutor(1, thread_name_prefix="arcloud-detect") if prefetch else None
         self._started: Started | None = None  # prefetch: the frame taken last, detecting or detected
         self._in_hand: tuple[QueuedFrame, ...] = ()  # taken, not settled: kept fresh by the heartbeat
         self._reading = True  # the last poll did not fail: the heartbeat may say so
@@ -349,7 +325,7 @@ class FrameWorker:
         settled = 0
         if isinstance(later, str):  # settled without a step
             settled, later = 1, None
-        if not self._prefetch:  # the frame just started is finished now
+        if self._detector_thread is None:  # no prefetch: the frame just started is finished now
             earlier, later = later, None
         self._started = later
         if earlier is not None:
@@ -399,7 +375,7 @@ class FrameWorker:
                 queue_wait_s = max(0.0, time.time() - item.accepted_at_s)
             self._in_hand = (*self._in_hand, item)
             detect = functools.partial(timed_detect, self.detector, item.frame)
-            if self._detector_thread is not None:  # prefetch or detect_nice
+            if self._detector_thread is not None:
                 detections = self._detector_thread.submit(contextvars.copy_context().run, detect)
             else:
                 detections = Future()
@@ -487,7 +463,6 @@ __all__ = [
     "Started",
     "consumer_name",
     "frame_log_fields",
-    "lower_priority",
     "run_step",
     "timed_detect",
     "warm_up",
