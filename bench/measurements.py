@@ -120,7 +120,7 @@ def latency_on_many_cores(data: Results) -> str:
 
 ACCURACY = "bench/results/accuracy-2026-11-26/accuracy.json"  # one `make accuracy` run: the three suites
 SCANNET = "bench/results/accuracy-2026-11-26/scannet.json"  # the ScanNet suite again, every case at K = 10
-SIXTEEN_CORES = "bench/results/device-2026-11-26/scaling-service-no-prefetch.json"
+SIXTEEN_CORES = "bench/results/device-2026-11-26b/call1-w15.json"
 FIGURES: tuple[Figure, ...] = (
     Figure(redkitchen, lambda data: accuracy_figures(data, "7scenes"), ACCURACY, readme=True),
     Figure(simulated_rooms, lambda data: accuracy_figures(data, "sim"), ACCURACY, readme=True),
