@@ -86,10 +86,10 @@ run() {
 }
 
 # The service's defaults at W = SWEEP (4,8), then settings side by side at W = cores - 1 (one map and 8 maps each,
-# against one ceiling), then what a worker's frame costs part by part alone and with W copies at once
-# (bench/profile_worker.py: where contention adds). CONFIG_S: each setting's
-# limit. Eight files under $OUT at most come back: seven JSON here, and a log if the command writes one.
-# CONFIGS: name:prefetch:params (params: JSON overrides of Params, or empty) ...
+# against one ceiling; CONFIGS: name:prefetch:params ..., params JSON overrides of Params or empty; CONFIG_S: each
+# one's limit), then the hold a frame's locks last (bench/bench_hold.py, idle and beside W sessions), then what a
+# worker's frame costs part by part alone and with W copies at once (bench/profile_worker.py: where contention
+# adds). Eight files under $OUT at most come back: seven JSON here with one setting, and a log.
 compare() {
     setup
     local w=$((cores - 1)) name prefetch params
@@ -99,12 +99,17 @@ compare() {
     # The service's defaults at fewer workers: the ratio per W.
     timeout "${SWEEP_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" \
         --workers "${SWEEP:-4,8}" --out "$out/compare-sweep.json" "$@" || echo "sweep failed or ran out of time"
-    for config in ${CONFIGS:-prefetch-off:off: prefetch-on:on:}; do
+    for config in ${CONFIGS:-defaults:off:}; do
         IFS=: read -r name prefetch params <<<"$config"
         timeout "${CONFIG_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" --workers "$w" \
             --worker-prefetch "$prefetch" ${params:+--params "$params"} --out "$out/compare-$name.json" "$@" \
             || echo "$name failed or ran out of time"
     done
+    # How long a frame holds its locks (what bounds one hot map), on idle cores and beside W busy sessions.
+    timeout 90 "$python" bench/bench_hold.py --frames "$FRAMES" --stride 1 --out "$out/hold-idle.json" >/dev/null \
+        || echo "hold (idle) failed"
+    timeout 150 "$python" bench/bench_hold.py --frames "$FRAMES" --stride 1 --busy "$w" --out "$out/hold-busy.json" >/dev/null \
+        || echo "hold (busy) failed"
     local profile=("$python" bench/profile_worker.py --frames "${PROFILE_FRAMES:-30}")
     timeout 60 "${profile[@]}" --out "$out/profile-alone.json" >/dev/null || echo "profile alone failed"
     local i pids=()
