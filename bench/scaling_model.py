@@ -6,6 +6,9 @@ Inputs (written by the benches on this machine):
 - ``bench/results/throughput.json``: per 640 x 480 frame through the service on Redis with the real model (its
   as-fast run): API, worker and Redis CPU ms, Redis commands and bytes in and out, the upload's size.
 
+``--scaling FILE``: instead, one ``bench_scaling.py`` result (e.g. a run on many cores): its service run at the
+most workers over many maps (as fast as taken), whose workers' CPU holds the session as those cores ran it.
+
 The model: frames/s = devices x rate; worker cores = frames/s x worker CPU s / ``CORE_BUSY``; API cores =
 frames/s x API CPU s / ``CORE_BUSY``; Redis shards = frames/s x Redis CPU s / ``REDIS_BUSY`` (a shard is one
 core, kept 70 % busy at most); network into the API = frames/s x upload bytes; into and out of Redis =
@@ -58,6 +61,26 @@ def costs() -> dict[str, float]:
     }
 
 
+def costs_of_scaling(path: Path) -> dict[str, float]:
+    """Per frame, from a ``bench_scaling.py`` result: the service at its most workers over many maps."""
+    data: dict[str, Any] = json.loads(path.read_text())
+    row = max(data["service"]["rows"], key=lambda r: r["workers"])
+    per_frame = row["many_maps"]["as_fast"]["per_frame"]
+    ceiling = {r["processes"]: r for r in data["ceiling"]["rows"]} if data.get("ceiling") else {}
+    session = ceiling.get(row["workers"], {}).get("session_ms_median", float("nan"))
+    return {
+        "session_s": session / 1000,
+        "step_s": float("nan"),
+        "worker_s": per_frame["cpu_ms"]["workers"] / 1000,
+        "api_s": per_frame["cpu_ms"]["api"] / 1000,
+        "redis_s": per_frame["cpu_ms"]["redis"] / 1000,
+        "redis_commands": per_frame["redis_commands"],
+        "redis_bytes_in": per_frame["redis_bytes_in"],
+        "redis_bytes_out": per_frame["redis_bytes_out"],
+        "upload_bytes": per_frame["request_bytes"],
+    }
+
+
 def plan(devices: int, rate: float, c: dict[str, float]) -> dict[str, float]:
     frames = devices * rate
     return {
@@ -77,11 +100,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--devices", default="1000,100000")
     parser.add_argument("--rate", type=float, default=1.0, help="frames a second per device (default 1)")
+    parser.add_argument("--scaling", type=Path, default=None, help="a bench_scaling.py result instead (see above)")
     args = parser.parse_args()
-    c = costs()
+    c = costs() if args.scaling is None else costs_of_scaling(args.scaling)
+    step = "" if math.isnan(c["step_s"]) else f" and the step {c['step_s'] * 1000:.1f} ms on one core"
     print(
-        f"per frame (measured): workers {c['worker_s'] * 1000:.1f} ms of CPU (the session alone {c['session_s'] * 1000:.1f} ms "
-        f"and the step {c['step_s'] * 1000:.1f} ms on one core), API {c['api_s'] * 1000:.2f} ms, Redis {c['redis_s'] * 1000:.2f} ms "
+        f"per frame (measured): workers {c['worker_s'] * 1000:.1f} ms of CPU (the session alone {c['session_s'] * 1000:.1f} ms"
+        f"{step}), API {c['api_s'] * 1000:.2f} ms, Redis {c['redis_s'] * 1000:.2f} ms "
         f"and {c['redis_commands']:.0f} commands, {c['redis_bytes_in'] / 1e3:.0f} kB into Redis and {c['redis_bytes_out'] / 1e3:.0f} kB "
         f"out, {c['upload_bytes'] / 1e3:.0f} kB upload\n"
     )
