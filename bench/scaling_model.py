@@ -51,13 +51,21 @@ def costs() -> dict[str, float]:
     return {
         "session_s": step["detector"]["median_ms"] / 1000,
         "step_s": step["step"]["median_ms"] / 1000,
+        "upload_bytes": throughput["upload_bytes"],
+        **service_costs(per_frame),
+    }
+
+
+def service_costs(per_frame: dict[str, Any]) -> dict[str, float]:
+    """A service run's ``per_frame`` (``common.ServiceMeter``): CPU seconds of workers, API and Redis, Redis
+    commands and bytes."""
+    return {
         "worker_s": per_frame["cpu_ms"]["workers"] / 1000,
         "api_s": per_frame["cpu_ms"]["api"] / 1000,
         "redis_s": per_frame["cpu_ms"]["redis"] / 1000,
         "redis_commands": per_frame["redis_commands"],
         "redis_bytes_in": per_frame["redis_bytes_in"],
         "redis_bytes_out": per_frame["redis_bytes_out"],
-        "upload_bytes": throughput["upload_bytes"],
     }
 
 
@@ -71,13 +79,8 @@ def costs_of_scaling(path: Path) -> dict[str, float]:
     return {
         "session_s": session / 1000,
         "step_s": float("nan"),
-        "worker_s": per_frame["cpu_ms"]["workers"] / 1000,
-        "api_s": per_frame["cpu_ms"]["api"] / 1000,
-        "redis_s": per_frame["cpu_ms"]["redis"] / 1000,
-        "redis_commands": per_frame["redis_commands"],
-        "redis_bytes_in": per_frame["redis_bytes_in"],
-        "redis_bytes_out": per_frame["redis_bytes_out"],
         "upload_bytes": per_frame["request_bytes"],
+        **service_costs(per_frame),
     }
 
 
