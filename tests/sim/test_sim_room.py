@@ -9,7 +9,7 @@ import pytest
 
 from arcloud.core.types import CLASSES
 from arcloud.errors import InvalidInput
-from arcloud.sim.room import Room, generate_room, gt_boxes
+from arcloud.sim.room import Room, generate_room, gt_boxes, office_room
 
 SEEDS = (0, 1, 2, 5)
 
@@ -148,3 +148,35 @@ def test_bad_arguments_raise_invalid_input(kwargs: dict, field: str) -> None:
 def test_negative_seed_is_refused() -> None:
     with pytest.raises(InvalidInput):
         generate_room(-1)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_the_office_has_desks_pushed_together_and_monitors_side_by_side_and_back_to_back(seed: int) -> None:
+    room = office_room(seed)
+    assert office_room(seed).objects == room.objects  # the same room for the same seed
+    assert Counter(o.label for o in room.objects) == {"tv": 3, "chair": 3, "table": 2, "laptop": 1}
+    first, second = (o for o in room.objects if o.label == "table")
+    gap = np.maximum(first.aabb_min[:2] - second.aabb_max[:2], second.aabb_min[:2] - first.aabb_max[:2])
+    assert gap.max() < 0.01  # the desks' boxes meet: pushed together
+    tvs = [o for o in room.objects if o.label == "tv"]
+    turned = [t for t in tvs if abs(np.cos(t.yaw_rad - first.yaw_rad) + 1) < 1e-6]
+    facing = [t for t in tvs if abs(np.cos(t.yaw_rad - first.yaw_rad) - 1) < 1e-6]
+    assert len(turned) == 1 and len(facing) == 2  # two monitors face one user, one the other
+    side_by_side = np.linalg.norm(facing[0].center[:2] - facing[1].center[:2])
+    assert 0.5 < side_by_side < 0.72  # two 0.5-0.62 m monitors, 0.02-0.08 m apart
+    for monitor in facing:  # back to back with the turned one: within a monitor's width, 0.25-0.35 m behind
+        assert np.linalg.norm(monitor.center[:2] - turned[0].center[:2]) < 0.75
+    tops = [first.aabb_max[2], second.aabb_max[2]]
+    assert facing[0].aabb_min[2] == pytest.approx(facing[1].aabb_min[2])  # on one desk
+    assert facing[0].aabb_min[2] != pytest.approx(turned[0].aabb_min[2]) or tops[0] == pytest.approx(tops[1])
+    for monitor in tvs:  # standing on a desk top
+        assert min(abs(monitor.aabb_min[2] - top) for top in tops) < 1e-6
+
+
+def test_the_office_cases_walk_the_office() -> None:
+    from arcloud.accuracy.sim import FULL_CASES, OFFICE_SEEDS
+
+    office = [c for c in FULL_CASES if c.split == "office"]
+    assert [c.room_seed for c in office] == list(OFFICE_SEEDS) and office[0].name == "office-00"
+    assert office[0].room().objects == office_room(OFFICE_SEEDS[0]).objects
+    assert not {c.name for c in office} & {c.name for c in FULL_CASES if c.split != "office"}

@@ -19,6 +19,10 @@ records how many as ``n_matched_unseen``).
 Rooms ``TUNE_ROOMS`` are the ``tune`` split (parameters may be tuned on them), ``REPORT_ROOMS`` the
 ``report`` split. The quick mode walks ``QUICK_CASES``: two other rooms of the same kind, 150 frames
 each, one distributed run (about 20 s).
+
+``OFFICE_SEEDS`` are the ``office`` split: ``office_room(seed)``, an office laid out as the held-out
+real one is described (two desks pushed together, two monitors side by side and one back to back with
+them, three chairs, a laptop), walked in the seed's style; no parameter is tuned on it.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from arcloud.errors import InvalidInput
 from arcloud.eval.metrics import iou_aabb
 from arcloud.eval.protocol import CachedDetector, object_boxes
 from arcloud.sim.detector import DetectorFaults, FrameTruths, SimulatedDetector
-from arcloud.sim.room import Room, RoomObject, generate_room, room_walk
+from arcloud.sim.room import Room, RoomObject, generate_room, office_room, room_walk
 from arcloud.sim.sequence import simulate_sequence
 from arcloud.virtual_camera.walk import WalkStyle
 
@@ -51,6 +55,7 @@ FRAMES = 300
 QUICK_FRAMES = 150
 TUNE_ROOMS = tuple(range(0, 6))
 REPORT_ROOMS = tuple(range(6, 26))
+OFFICE_SEEDS = tuple(range(0, 4))
 #: An object is observable on a walk when at least ``MIN_VISIBLE_PX`` of its pixels (32 x 32: COCO's
 #: smallest "medium" object) are in view in at least ``MIN_VISIBLE_FRAMES`` frames (1/3 s at 30 Hz).
 MIN_VISIBLE_PX = 1024
@@ -71,7 +76,14 @@ class SimCase:
 
     @property
     def name(self) -> str:
-        return f"room-{self.room_seed:02d}"
+        return f"{'office' if self.split == 'office' else 'room'}-{self.room_seed:02d}"
+
+    def room(self) -> Room:
+        """The case's room: ``office_room`` in the office split, else ``generate_room`` as ``room_spec`` draws it."""
+        if self.split == "office":
+            return office_room(self.room_seed)
+        size_m, counts = self.room_spec()
+        return generate_room(self.room_seed, size_m=size_m, counts=counts)
 
     def room_spec(self) -> tuple[tuple[float, float, float], dict[str, int]]:
         """The room's (x, y, height) in metres and its objects per class, drawn from the room seed."""
@@ -93,7 +105,7 @@ class SimCase:
 
 FULL_CASES = tuple(
     SimCase(seed, "tune" if seed in TUNE_ROOMS else "report", walk_seed=seed) for seed in TUNE_ROOMS + REPORT_ROOMS
-)
+) + tuple(SimCase(seed, "office", walk_seed=seed) for seed in OFFICE_SEEDS)
 QUICK_CASES = tuple(SimCase(seed, "report", walk_seed=seed, frames=QUICK_FRAMES) for seed in (100, 101))
 
 
@@ -167,6 +179,7 @@ def run_suite(
         "runs": n_runs,
         "tune_rooms": [c.room_seed for c in chosen if c.split == "tune"],
         "report_rooms": [c.room_seed for c in chosen if c.split == "report"],
+        "office_seeds": [c.room_seed for c in chosen if c.split == "office"],
         "ground_truth": {"min_visible_px": MIN_VISIBLE_PX, "min_frames": MIN_VISIBLE_FRAMES},
         "faults": dataclasses.asdict(faults),
         "params": dataclasses.asdict(params),
@@ -180,8 +193,7 @@ def evaluate_case(
     """The case's record (``arcloud.accuracy.common.case_record``): its centralized map and ``runs``
     maps of ``USERS`` users, scored against the objects observable on its walk."""
     started = time.perf_counter()
-    size_m, counts = case.room_spec()
-    room = generate_room(case.room_seed, size_m=size_m, counts=counts)
+    room = case.room()
     style = case.style()
     poses = room_walk(room, case.frames, case.walk_seed, style=style)
     truths = FrameTruths(room)
@@ -209,7 +221,7 @@ def evaluate_case(
         _draw_case(Path(out_dir) / "pictures" / f"{case.name}.png", case, ground_truth, centralized_map, poses)
     record = case_record(
         case.name, case.split, centralized, distributed, users=USERS,
-        room_seed=case.room_seed, walk_seed=case.walk_seed, frames=case.frames, room_size_m=list(size_m),
+        room_seed=case.room_seed, walk_seed=case.walk_seed, frames=case.frames, room_size_m=[float(v) for v in room.size_m],
         style=dataclasses.asdict(style), n_room_objects=len(room.objects), n_unseen=len(unseen),
         unseen=[f"{o.label}-{o.instance_id}" for o in unseen],
         simulate_s=round(simulated_s, 2), eval_s=round(time.perf_counter() - started - simulated_s, 2),
@@ -235,5 +247,5 @@ def _draw_case(
 
 
 __all__ = [
-    "FULL_CASES", "QUICK_CASES", "REPORT_ROOMS", "SimCase", "TUNE_ROOMS", "evaluate_case", "observable_objects", "run_suite", "without_unseen",
+    "FULL_CASES", "OFFICE_SEEDS", "QUICK_CASES", "REPORT_ROOMS", "SimCase", "TUNE_ROOMS", "evaluate_case", "observable_objects", "run_suite", "without_unseen",
 ]  # fmt: skip

@@ -115,10 +115,10 @@ def couch_parts(rng: np.random.Generator) -> list[Part]:
     return parts
 
 
-def tv_parts(rng: np.random.Generator, *, wall_mounted: bool) -> list[Part]:
-    """A thin panel (32-65 inch, 16:9) with a dark screen facing -y, on a foot and neck unless
-    ``wall_mounted`` (then the panel's bottom is at z = 0 of the object frame)."""
-    w = rng.uniform(0.72, 1.45)
+def tv_parts(rng: np.random.Generator, *, wall_mounted: bool, width_m: tuple[float, float] = (0.72, 1.45)) -> list[Part]:
+    """A thin panel (32-65 inch by default, 16:9; ``width_m`` 0.5-0.62 for a desk monitor) with a dark screen
+    facing -y, on a foot and neck unless ``wall_mounted`` (then the panel's bottom is at z = 0 of the object frame)."""
+    w = rng.uniform(*width_m)
     h = w * 9 / 16 + 0.04
     t = rng.uniform(0.03, 0.07)
     body = pick_color(rng, ((22, 22, 24), (40, 40, 44), (180, 180, 185)), 4)

@@ -419,3 +419,64 @@ def layout_room(rng: np.random.Generator, size_m: np.ndarray, counts: dict[str, 
         if item is not None:
             layout.add(item)
     return layout
+
+
+def office_layout(rng: np.random.Generator, size_m: np.ndarray) -> Layout:
+    """An office as the held-out real one is described (issue 20): two desks pushed together along their long
+    sides in the middle of the room; on the first, two monitors side by side (0.02-0.08 m apart) facing its
+    user; on the second, one monitor back to back with them (their screens 0.25-0.35 m apart) and a laptop;
+    a chair at each desk, a third against a wall; shelves and a cabinet along the walls."""
+    layout = Layout(rng, size_m)
+    _structure(layout)
+    group = layout.new_group()
+    centre = np.array([size_m[0] / 2 + rng.uniform(-0.3, 0.3), size_m[1] / 2 + rng.uniform(-0.2, 0.2)])
+    yaw = math.radians(rng.normal(0.0, 3.0))
+    first, _, width_a, height_a = table_parts(rng)
+    second, length_b, width_b, height_b = table_parts(rng)
+    turn = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+
+    def at(parts: list[Part], local_xy: Sequence[float], local_yaw: float, z: float = 0.0, **kw: Any) -> PlacedItem:
+        xy = centre + turn @ np.asarray(local_xy, float)
+        return layout.make(parts, yaw + local_yaw, (xy[0], xy[1], z), pad=0.0, group=group, **kw)
+
+    items = [
+        at(first, (0.0, -width_a / 2 - 0.003), 0.0, label="table"),
+        at(second, (rng.uniform(-0.2, 0.2), width_b / 2 + 0.003), 0.0, label="table"),
+    ]
+    gap = rng.uniform(0.02, 0.08)
+    apart = rng.uniform(0.25, 0.35)  # screen to screen, back to back
+    monitors = [tv_parts(rng, wall_mounted=False, width_m=(0.5, 0.62)) for _ in range(3)]
+    widths = [float(np.ptp(bounds(m)[0:2], axis=0)[0]) for m in monitors]
+    x0 = -(widths[0] + gap) / 2
+    items += [
+        at(monitors[0], (x0, -apart / 2), 0.0, height_a, label="tv"),
+        at(monitors[1], (x0 + (widths[0] + widths[1]) / 2 + gap, -apart / 2), 0.0, height_a, label="tv"),
+        at(monitors[2], (rng.uniform(-0.2, 0.2), apart / 2), math.pi, height_b, label="tv"),
+        at(laptop_parts(rng), (rng.choice((-1, 1)) * (length_b / 2 - 0.3), width_b / 2 + 0.1), math.pi, height_b, label="laptop"),
+    ]
+    for side, width in ((-1, width_a), (1, width_b)):
+        chair = chair_parts(rng)
+        depth = float(np.ptp(bounds(chair)[0:2], axis=0)[1])
+        offset = side * (width + rng.uniform(0.0, 0.25) + depth / 2)
+        items.append(
+            at(
+                chair,
+                (rng.uniform(-0.3, 0.3), offset),
+                (0.0 if side > 0 else math.pi) + math.radians(rng.normal(0, 10)),
+                label="chair",
+            )
+        )
+    layout.add(*items)
+    lone = layout.place_against_wall(chair_parts(rng), pad=_PAD_LONE_CHAIR, label="chair")
+    if lone is None:
+        raise PlacementFailed("chair")
+    layout.add(lone)
+    for kind, build in (
+        ("bookshelf", bookshelf_parts),
+        ("bookshelf", bookshelf_parts),
+        ("cabinet", lambda r: cabinet_parts(r, 0.9, 0.45, 0.8)),
+    ):
+        item = layout.place_against_wall(build(rng), pad=_PAD_WALL_ITEM, kind=kind, tries=30)
+        if item is not None:
+            layout.add(item)
+    return layout

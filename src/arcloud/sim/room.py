@@ -18,7 +18,7 @@ import numpy as np
 
 from arcloud.core.types import CLASSES, LabelledBox
 from arcloud.errors import InvalidInput
-from arcloud.sim.layout import Layout, PlacementFailed, check_counts, default_counts, layout_room
+from arcloud.sim.layout import Layout, PlacementFailed, check_counts, default_counts, layout_room, office_layout
 from arcloud.sim.primitives import Part
 from arcloud.virtual_camera.render import MeshRenderer
 from arcloud.virtual_camera.walk import WalkStyle, plan_walk
@@ -128,6 +128,19 @@ def generate_room(seed: int, *, size_m: Sequence[float] = DEFAULT_SIZE_M, counts
     else:
         raise InvalidInput("counts", f"objects that fit a {size[0]:g} x {size[1]:g} m room", repr(wanted))
     return _build_room(seed, size, layout)
+
+
+#: The office's (x, y, height) in metres.
+OFFICE_SIZE_M = (5.0, 4.2, 2.6)
+
+
+def office_room(seed: int) -> Room:
+    """The office of ``office_layout`` (desks pushed together, monitors side by side and back to back),
+    the same for the same seed."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InvalidInput("seed", "an integer >= 0", repr(seed))
+    size = np.asarray(OFFICE_SIZE_M, dtype=np.float64)
+    return _build_room(seed, size, office_layout(np.random.default_rng([seed, 20]), size))
 
 
 def _build_room(seed: int, size: np.ndarray, layout: Layout) -> Room:
