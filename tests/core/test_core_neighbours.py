@@ -86,3 +86,43 @@ def test_two_couches_detected_apart_in_enough_frames_stay_two(frames_apart):
         assert obj.aabb.min[0] == pytest.approx(lo[0], abs=0.15) and obj.aabb.max[0] == pytest.approx(hi[0], abs=0.15)
     left, right = objects
     assert left.apart.get(right.id, 0) >= frames_apart or right.apart.get(left.id, 0) >= frames_apart
+
+
+def detect_desks(store, first, n, *, apart):
+    """Frames of two desks pushed together (``HALVES``), detected as one mask spanning both or as two."""
+    for i in range(first, first + n):
+        frame, instance = couch_frame(i, HALVES)
+        masks = [instance == 0, instance == 1] if apart else [instance >= 0]
+        integrate_frame(frame, [Detection("table", 0.9, mask) for mask in masks], store, PARAMS)
+
+
+@pytest.mark.parametrize("frames_apart", [1, 2, 8])
+def test_an_object_grown_over_its_neighbour_is_carved_apart_by_frames_that_see_two(frames_apart):
+    # Early frames see the two desks as one (one object over both); then frames see two masks: from
+    # apart_min_frames such frames on, the object gives up, frame after frame, what the other's mask covers.
+    store = MemoryStore()
+    detect_desks(store, 0, 4, apart=False)
+    (welded,) = store.list_objects("m")
+    assert welded.aabb.size[0] > 1.4
+    detect_desks(store, 4, frames_apart, apart=True)
+    objects = sorted(store.list_objects("m"), key=lambda o: o.aabb.min[0])
+    if frames_apart < PARAMS.apart_min_frames:  # on probation: the newer one keeps its voxels, nothing is carved
+        assert len(objects) == 2 and max(o.aabb.size[0] for o in objects) > 1.4
+        return
+    assert len(objects) == 2
+    for obj, (lo, hi) in zip(objects, HALVES):
+        assert obj.aabb.min[0] == pytest.approx(lo[0], abs=0.15) and obj.aabb.max[0] == pytest.approx(hi[0], abs=0.15)
+    detect_desks(store, 4 + frames_apart, 4, apart=False)  # a mask spanning both again is shared out
+    assert len(store.list_objects("m")) == 2
+
+
+def test_one_frame_that_splits_an_object_into_two_masks_does_not_split_it():
+    # A detector's one-off split (two masks for one object) makes a second object on probation; the next
+    # frame that sees the object whole merges it back.
+    store = MemoryStore()
+    detect_desks(store, 0, 4, apart=False)
+    detect_desks(store, 4, 1, apart=True)
+    assert len(store.list_objects("m")) == 2
+    detect_desks(store, 5, 2, apart=False)
+    (table,) = store.list_objects("m")
+    assert table.aabb.size[0] > 1.4 and table.apart == {}

@@ -215,10 +215,16 @@ def seen_apart(a: MapObject, b: MapObject, params: Params) -> bool:
     return params.apart_min_frames > 0 and frames >= params.apart_min_frames
 
 
-def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Sequence[bool] | None = None) -> list[tuple[int, int]]:
+def find_duplicates(
+    objects: Sequence[MapObject],
+    params: Params,
+    changed: Sequence[bool] | None = None,
+    apart_now: Sequence[tuple[int, int]] = (),
+) -> list[tuple[int, int]]:
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
-    overlap >= ``merge_min_overlap``, unless frames saw them apart (``seen_apart``). Chains resolve to one
-    keeper per group (the most observed), and a chain never joins two objects seen apart.
+    overlap >= ``merge_min_overlap``, unless frames saw them apart (``seen_apart``) or the current frame
+    did (``apart_now``: id pairs, smaller first). Chains resolve to one keeper per group (the most
+    observed), and a chain never joins two objects seen apart.
     With ``changed``, only pairs with at least one changed object are considered (the others were
     checked when they last changed)."""
     if len(objects) < 2:
@@ -255,9 +261,14 @@ def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Seque
         return i
 
     members_of = {i: [i] for i in range(len(objects))}
+    now = set(apart_now)
     for i, j in zip(*np.nonzero(np.triu(same))):
         ri, rj = root(int(i)), root(int(j))
-        if ri == rj or any(seen_apart(objects[a], objects[b], params) for a in members_of[ri] for b in members_of[rj]):
+        if ri == rj or any(
+            seen_apart(objects[a], objects[b], params) or _pair(objects[a].id, objects[b].id) in now
+            for a in members_of[ri]
+            for b in members_of[rj]
+        ):
             continue
         parent[ri] = rj
         members_of[rj] += members_of.pop(ri)
@@ -270,6 +281,10 @@ def find_duplicates(objects: Sequence[MapObject], params: Params, changed: Seque
             keeper = max(members, key=lambda i: (objects[i].weights.sum(), -objects[i].id))
             pairs.extend((keeper, m) for m in members if m != keeper)
     return pairs
+
+
+def _pair(a: int, b: int) -> tuple[int, int]:
+    return (a, b) if a < b else (b, a)
 
 
 def box_containment(objects: Sequence[MapObject]) -> np.ndarray:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +43,7 @@ from arcloud.core.fusion import (
     current_label_index,
     find_duplicates,
     fuse_detection,
+    keep_voxels,
     merge_objects,
     new_object,
     resolve_conflicts,
@@ -53,6 +54,8 @@ from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore
 from arcloud.core.types import Detection, Frame, MapObject, ObjectEvent, Params, VoxelDetection
 from arcloud.core.voxels import (
     center_rays,
+    coarsen_keys,
+    coarsen_keys_unsorted,
     free_voxels,
     key_centers,
     keys_bounds,
@@ -146,9 +149,12 @@ def integrate_frame(
                 objects += late_and_new
                 voxels_changed |= late_changed
                 taken += late_taken
-            objects = mark_apart(objects, taken, params)
-            objects, absorbed_into = merge_duplicates(objects, voxels_changed, params)
-            objects, trimmed = resolve_shared_voxels(objects)
+            apart = apart_in_frame(taken, params) if params.apart_min_frames else []
+            objects = mark_apart(objects, apart, params)
+            objects, carved, probation = carve_apart(objects, taken, apart, params)
+            voxels_changed |= carved
+            objects, absorbed_into = merge_duplicates(objects, voxels_changed, params, apart)
+            objects, trimmed = resolve_shared_voxels(objects, probation)
             voxels_changed |= set(absorbed_into.values()) | trimmed
             to_write = refine_changed(objects, voxels_changed, rescored, params)
             upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
@@ -267,24 +273,20 @@ def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | N
     return out
 
 
-def mark_apart(objects: list[MapObject], taken: Sequence[tuple[VoxelDetection, int]], params: Params) -> list[MapObject]:
-    """Two detections of one class in this frame that share few voxels (coarse overlap below
-    ``association_min_overlap``) are two instances the frame saw apart: the objects that took them
-    (``taken``: (observation, object id) of every observation fused into an object or made one), when not
-    the same, count one more frame apart from each other (``MapObject.apart``; ``core.fusion.seen_apart``
-    keeps them from being merged, and a later mask spanning both is shared out between them)."""
-    if params.apart_min_frames == 0:
-        return objects
+def apart_in_frame(taken: Sequence[tuple[VoxelDetection, int]], params: Params) -> list[tuple[int, int]]:
+    """Object id pairs (a, b), a < b, that this frame saw apart: two detections of one class that share few
+    voxels (coarse overlap below ``association_min_overlap``) went to them (``taken``: (observation, object
+    id) of every observation fused into an object or made one), with both detections (their coarse voxels)."""
     by_label: dict[int, list[tuple[VoxelDetection, int]]] = {}
     for observation, object_id in taken:
         by_label.setdefault(observation.label_index, []).append((observation, object_id))
-    pairs: set[tuple[int, int]] = set()
+    pairs: dict[tuple[int, int], None] = {}
+    margin = params.association_tolerance_voxels + 1
     for group in by_label.values():
         if len({object_id for _, object_id in group}) < 2:
             continue
         keys = [observation.keys for observation, _ in group]
         extents = [keys_extent(k) for k in keys]
-        margin = params.association_tolerance_voxels + 1
         overlap = None
         for a, (_, id_a) in enumerate(group):
             for b in range(a + 1, len(group)):
@@ -292,20 +294,64 @@ def mark_apart(objects: list[MapObject], taken: Sequence[tuple[VoxelDetection, i
                 if id_a == id_b:
                     continue
                 (lo_a, hi_a), (lo_b, hi_b) = extents[a], extents[b]
-                if bool(np.any(lo_a > hi_b + margin) or np.any(lo_b > hi_a + margin)):  # apart in space: nothing shared
-                    pairs.add((min(id_a, id_b), max(id_a, id_b)))
-                    continue
-                if overlap is None:
-                    overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels)
-                if overlap[a, b] < params.association_min_overlap:
-                    pairs.add((min(id_a, id_b), max(id_a, id_b)))
-    if not pairs:
+                if not bool(np.any(lo_a > hi_b + margin) or np.any(lo_b > hi_a + margin)):  # near in space: measure
+                    if overlap is None:
+                        overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels)
+                    if overlap[a, b] >= params.association_min_overlap:
+                        continue
+                pairs[(min(id_a, id_b), max(id_a, id_b))] = None
+    return list(pairs)
+
+
+def mark_apart(objects: list[MapObject], apart: Sequence[tuple[int, int]], params: Params) -> list[MapObject]:
+    """The objects of each pair this frame saw apart (``apart_in_frame``) count one more frame apart from each
+    other (``MapObject.apart``; ``core.fusion.seen_apart`` keeps them from being merged, and a later mask
+    spanning both is shared out between them)."""
+    if params.apart_min_frames == 0 or not apart:
         return objects
     seen_with: dict[int, dict[int, int]] = {}
-    for a, b in pairs:
+    for a, b in apart:
         seen_with.setdefault(a, {})[b] = 1
         seen_with.setdefault(b, {})[a] = 1
     return [o.replace(apart=add_votes(o.apart, seen_with[o.id])) if o.id in seen_with else o for o in objects]
+
+
+def carve_apart(
+    objects: list[MapObject], taken: Sequence[tuple[VoxelDetection, int]], apart: Sequence[tuple[int, int]], params: Params
+) -> tuple[list[MapObject], set[int], set[int]]:
+    """Objects that this frame saw apart (``apart``, ``mark_apart`` applied) but the map holds as overlapping:
+    an object that early frames grew over its neighbour (two monitors side by side welded, a desk's object
+    grown over the desk pushed against it) while another object took the neighbour's detections.
+
+    Seen apart in ``apart_min_frames`` frames (``seen_apart``), each gives up its voxels in the coarse cells
+    that the other's detections in this frame cover and its own do not (frame after frame: what one frame
+    does not show stays). Seen apart in fewer, the younger of
+    the two (fewer frames) is *on probation*: it keeps every voxel (the step leaves it out of
+    ``resolve_shared_voxels``) and the merge pass does not join the pair in this frame; a later frame that
+    does not see them apart merges it back (a detector's one-off split of one object into two masks), one
+    that does counts another frame apart. Returns the objects, the ids of those that gave up voxels, and
+    the ids on probation."""
+    index = {o.id: i for i, o in enumerate(objects)}
+    factor = 1 + params.association_tolerance_voxels
+    carved: set[int] = set()
+    probation: set[int] = set()
+    for id_a, id_b in apart:
+        a, b = objects[index[id_a]], objects[index[id_b]]
+        if not seen_apart(a, b, params):
+            probation.add(min((a, b), key=lambda o: (o.n_frames, -o.id)).id)
+            continue
+        cells = {
+            object_id: coarsen_keys(np.concatenate([obs.keys for obs, owner in taken if owner == object_id]), factor)
+            for object_id in (id_a, id_b)
+        }
+        for owner, other in ((id_a, id_b), (id_b, id_a)):
+            obj = objects[index[owner]]
+            obj_cells = coarsen_keys_unsorted(obj.keys, factor)
+            give = np.isin(obj_cells, cells[other]) & ~np.isin(obj_cells, cells[owner])
+            if give.any():
+                objects[index[owner]] = keep_voxels(obj, ~give)
+                carved.add(owner)
+    return objects, carved, probation
 
 
 @dataclass(slots=True)
@@ -498,24 +544,27 @@ def try_lock(store: MapStore, map_id: str, ids: Sequence[int], params: Params) -
 
 
 def merge_duplicates(
-    objects: Sequence[MapObject], voxels_changed: set[int], params: Params
+    objects: Sequence[MapObject], voxels_changed: set[int], params: Params, apart: Sequence[tuple[int, int]] = ()
 ) -> tuple[list[MapObject], dict[int, int]]:
     """The merge pass: objects that are one physical object (``find_duplicates``; only pairs with an
-    object whose voxels changed are looked at) merged into one keeper each. Returns the objects left
-    and ``absorbed_into``: absorbed id -> keeper id."""
+    object whose voxels changed are looked at, never a pair this frame saw ``apart``) merged into one keeper
+    each. Returns the objects left and ``absorbed_into``: absorbed id -> keeper id."""
     objects = list(objects)
     absorbed_into: dict[int, int] = {}
-    for keep, absorb in find_duplicates(objects, params, [o.id in voxels_changed for o in objects]):
+    for keep, absorb in find_duplicates(objects, params, [o.id in voxels_changed for o in objects], apart):
         objects[keep] = merge_objects(objects[keep], objects[absorb])
         absorbed_into[objects[absorb].id] = objects[keep].id
     return [o for o in objects if o.id not in absorbed_into], absorbed_into
 
 
-def resolve_shared_voxels(objects: Sequence[MapObject]) -> tuple[list[MapObject], set[int]]:
-    """One instance per voxel (``resolve_conflicts``); returns the objects and the ids of those that
-    gave up voxels (resolving only removes voxels, so they are the ones with fewer)."""
-    resolved = resolve_conflicts(objects)
-    return resolved, {new.id for old, new in zip(objects, resolved) if new.keys.size != old.keys.size}
+def resolve_shared_voxels(objects: Sequence[MapObject], probation: Collection[int] = ()) -> tuple[list[MapObject], set[int]]:
+    """One instance per voxel (``resolve_conflicts``) among the objects not on ``probation``
+    (``carve_apart``); returns the objects and the ids of those that gave up voxels (resolving only
+    removes voxels, so they are the ones with fewer)."""
+    subject = [o for o in objects if o.id not in probation]
+    resolved = iter(resolve_conflicts(subject))
+    out = [o if o.id in probation else next(resolved) for o in objects]
+    return out, {new.id for old, new in zip(objects, out) if new.keys.size != old.keys.size}
 
 
 def refine_changed(objects: Sequence[MapObject], voxels_changed: set[int], rescored: set[int], params: Params) -> list[MapObject]:
