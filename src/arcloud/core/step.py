@@ -340,14 +340,20 @@ def carve_apart(
         if not seen_apart(a, b, params):
             probation.add(min((a, b), key=lambda o: (o.n_frames, -o.id)).id)
             continue
-        cells = {
-            object_id: coarsen_keys(np.concatenate([obs.keys for obs, owner in taken if owner == object_id]), factor)
-            for object_id in (id_a, id_b)
+        seen_now = {
+            object_id: np.concatenate([obs.keys for obs, owner in taken if owner == object_id]) for object_id in (id_a, id_b)
         }
         for owner, other in ((id_a, id_b), (id_b, id_a)):
             obj = objects[index[owner]]
+            if not obj.keys.size:
+                continue
+            (lo, hi), (lo_other, hi_other) = keys_extent(obj.keys), keys_extent(seen_now[other])
+            if np.any(lo > hi_other + factor) or np.any(lo_other > hi + factor):  # no coarse cell near both: none to give
+                continue
             obj_cells = coarsen_keys_unsorted(obj.keys, factor)
-            give = np.isin(obj_cells, cells[other]) & ~np.isin(obj_cells, cells[owner])
+            give = np.isin(obj_cells, coarsen_keys(seen_now[other], factor)) & ~np.isin(
+                obj_cells, coarsen_keys(seen_now[owner], factor)
+            )
             if give.any():
                 objects[index[owner]] = keep_voxels(obj, ~give)
                 carved.add(owner)
