@@ -276,7 +276,7 @@ def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | N
 def apart_in_frame(taken: Sequence[tuple[VoxelDetection, int]], params: Params) -> list[tuple[int, int]]:
     """Object id pairs (a, b), a < b, that this frame saw apart: two detections of one class that share few
     voxels (coarse overlap below ``association_min_overlap``) went to them (``taken``: (observation, object
-    id) of every observation fused into an object or made one), with both detections (their coarse voxels)."""
+    id) of every observation fused into an object or made one)."""
     by_label: dict[int, list[tuple[VoxelDetection, int]]] = {}
     for observation, object_id in taken:
         by_label.setdefault(observation.label_index, []).append((observation, object_id))
@@ -325,29 +325,37 @@ def carve_apart(
 
     Seen apart in ``apart_min_frames`` frames (``seen_apart``), each gives up its voxels in the coarse cells
     that the other's detections in this frame cover and its own do not (frame after frame: what one frame
-    does not show stays). Seen apart in fewer, the younger of
-    the two (fewer frames) is *on probation*: it keeps every voxel (the step leaves it out of
-    ``resolve_shared_voxels``) and the merge pass does not join the pair in this frame; a later frame that
-    does not see them apart merges it back (a detector's one-off split of one object into two masks), one
-    that does counts another frame apart. Returns the objects, the ids of those that gave up voxels, and
-    the ids on probation."""
+    does not show stays). Seen apart in fewer, the younger of the two (fewer frames) is *on probation*: it
+    keeps every voxel (the step leaves it out of ``resolve_shared_voxels``) and the merge pass does not join
+    the pair in this frame; a later frame that does not see them apart merges it back (a detector's one-off
+    split of one object into two masks), one that does counts another frame apart. Returns the objects,
+    the ids of those that gave up voxels, and the ids on probation."""
     index = {o.id: i for i, o in enumerate(objects)}
     factor = 1 + params.association_tolerance_voxels
     carved: set[int] = set()
     probation: set[int] = set()
+    # An object is in several pairs: its detections this frame and the extents are worked out once each. An
+    # object's extent is read before it gives anything up, so it can only be larger than its voxels' now,
+    # which keeps the early-out below safe.
+    seen_now: dict[int, np.ndarray] = {}
+    seen_extent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    object_extent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for id_a, id_b in apart:
         a, b = objects[index[id_a]], objects[index[id_b]]
         if not seen_apart(a, b, params):
             probation.add(min((a, b), key=lambda o: (o.n_frames, -o.id)).id)
             continue
-        seen_now = {
-            object_id: np.concatenate([obs.keys for obs, owner in taken if owner == object_id]) for object_id in (id_a, id_b)
-        }
+        for obj in (a, b):
+            if obj.id not in seen_now:
+                seen_now[obj.id] = np.concatenate([obs.keys for obs, owner in taken if owner == obj.id])
+                seen_extent[obj.id] = keys_extent(seen_now[obj.id])
+                if obj.keys.size:
+                    object_extent[obj.id] = keys_extent(obj.keys)
         for owner, other in ((id_a, id_b), (id_b, id_a)):
             obj = objects[index[owner]]
             if not obj.keys.size:
                 continue
-            (lo, hi), (lo_other, hi_other) = keys_extent(obj.keys), keys_extent(seen_now[other])
+            (lo, hi), (lo_other, hi_other) = object_extent[owner], seen_extent[other]
             if np.any(lo > hi_other + factor) or np.any(lo_other > hi + factor):  # no coarse cell near both: none to give
                 continue
             obj_cells = coarsen_keys_unsorted(obj.keys, factor)
