@@ -142,7 +142,9 @@ class LockTimer:
     def new_ids(self, map_id: str, n: int) -> Sequence[int]:
         return self.store.new_ids(map_id, n)
 
-    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
+    def commit(
+        self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | tuple[str, ...] | None = None
+    ) -> bool:
         return self.store.commit(map_id, leases, change, frame_key=frame_key)
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
