@@ -428,6 +428,7 @@ def run_worker(
             read_block_s=settings.read_block_s,
             warm_up=True,
             prefetch=settings.worker_prefetch,
+            detectors=settings.worker_detectors,
         ).run(stop)
     finally:
         close_all(owned)
