@@ -309,27 +309,23 @@ class Deployment:
 
         redis.client.flushall()
         self.redis, self.workers = redis, workers
-        detectors = int(env.get("ARCLOUD_WORKER_DETECTORS", "1"))
-        if workers % detectors:
-            raise SystemExit(f"{workers} workers (detector threads) are not whole processes of {detectors} detectors")
-        processes = self.processes = workers // detectors
         self.api = ServeProcess(redis.url, workers=0, detector=f"onnx:{model}", env=env, api_processes=api_processes)
         settings = Settings(
             store=redis.url,
             detector=f"onnx:{model}",
             detector_threads=1,
-            workers=processes,
+            workers=workers,
             **{k.removeprefix("ARCLOUD_").lower(): json.loads(v) if k == "ARCLOUD_PARAMS" else v for k, v in env.items()},
         )
-        self.pool = worker_pool(settings, processes, detector_factory=detector_factory, restart=False)
+        self.pool = worker_pool(settings, workers, detector_factory=detector_factory, restart=False)
         self.pool.start()
         self.queue = RedisFrameQueue(redis.url)
-        deadline = time.time() + 60 + 15 * processes
-        while len(self.queue.live_consumers(5.0)) < processes:
-            if time.time() > deadline or self.pool.alive() < processes:
+        deadline = time.time() + 60 + 15 * workers
+        while len(self.queue.live_consumers(5.0)) < workers:
+            if time.time() > deadline or self.pool.alive() < workers:
                 self.stop()
                 raise SystemExit(
-                    f"{len(self.queue.live_consumers(5.0))} of {processes} workers took frames, {self.pool.alive()} alive "
+                    f"{len(self.queue.live_consumers(5.0))} of {workers} workers took frames, {self.pool.alive()} alive "
                     "(a worker's error is logged above)"
                 )
             time.sleep(0.2)
@@ -398,7 +394,7 @@ def bench_service(
             ready_s = time.perf_counter() - started
             warm = bodies.phase(["warm-up"], f"warm{workers}", max(2, workers))  # each worker's first frame
             run_phase(deployment, warm, rate_per_s=None, connections=connections)
-            row: dict[str, Any] = {"workers": workers, "processes": deployment.processes, "startup_s": round(ready_s, 1)}
+            row: dict[str, Any] = {"workers": workers, "startup_s": round(ready_s, 1)}
             n = frames_for(workers)
             for layout, names in (("one_map", ["hot"]), ("many_maps", [f"map{m}" for m in range(maps)])):
                 tag = f"{layout}-{workers}"
@@ -515,13 +511,6 @@ def main() -> None:
     parser.add_argument(
         "--worker-prefetch", choices=("on", "off"), default=None, help="ARCLOUD_WORKER_PREFETCH (default: the service's)"
     )
-    parser.add_argument(
-        "--worker-detectors",
-        type=int,
-        default=None,
-        help="ARCLOUD_WORKER_DETECTORS: detector threads a worker process; W (--workers) counts them, in W / D processes "
-        "(default: the service's)",
-    )
     parser.add_argument("--params", default=None, help="ARCLOUD_PARAMS: JSON overrides of Params (default: none)")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--plot", type=Path, metavar="JSON", help="only draw the plot of a result file, beside it")
@@ -544,12 +533,10 @@ def main() -> None:
     defaults = Settings()
     queued_images = args.queued_images or defaults.queued_images
     worker_prefetch = defaults.worker_prefetch if args.worker_prefetch is None else args.worker_prefetch == "on"
-    worker_detectors = args.worker_detectors or defaults.worker_detectors
     env = {
         **BENCH_ENV,
         "ARCLOUD_QUEUED_IMAGES": queued_images,
         "ARCLOUD_WORKER_PREFETCH": str(worker_prefetch).lower(),
-        "ARCLOUD_WORKER_DETECTORS": str(worker_detectors),
         **({"ARCLOUD_PARAMS": args.params} if args.params else {}),
     }
     result: dict[str, Any] = {
@@ -566,7 +553,6 @@ def main() -> None:
             "connections": args.connections,
             "queued_images": queued_images,
             "worker_prefetch": worker_prefetch,
-            "worker_detectors": worker_detectors,
             "params": args.params,
             "load_fraction": LOAD_FRACTION,
         },

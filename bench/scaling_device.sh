@@ -86,27 +86,25 @@ run() {
 }
 
 # The service's defaults at W = SWEEP (4,8), then settings side by side at W = cores - 1 (one map and 8 maps each,
-# against one ceiling; CONFIGS: name:prefetch:detectors:params ..., detectors a worker process's detector threads
-# (W = cores - 1 counts them), params JSON overrides of Params or empty; SWEEP empty skips the sweep; CONFIG_S: each
+# against one ceiling; CONFIGS: name:prefetch:params ..., params JSON overrides of Params or empty; CONFIG_S: each
 # one's limit), then the hold a frame's locks last (bench/bench_hold.py, idle and beside W sessions), then what a
 # worker's frame costs part by part alone and with W copies at once (bench/profile_worker.py: where contention
 # adds). Eight files under $OUT at most come back: seven JSON here with one setting, and a log.
 compare() {
     setup
-    local w=$((cores - 1)) name prefetch detectors params
+    local w=$((cores - 1)) name prefetch params
     local bench=("$python" bench/bench_scaling.py --frames "$FRAMES" --stride 1 --api-processes 2 --service-frames 32)
     timeout "${CEILING_S:-90}" "${bench[@]}" --parts ceiling --ceiling-processes "1,${SWEEP:-4,8},$w" --ceiling-s 6 \
         --out "$out/compare-ceiling.json" || echo "ceiling failed or ran out of time"
     # The service's defaults at fewer workers: the ratio per W.
-    [[ -z ${SWEEP-x} ]] || timeout "${SWEEP_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" \
+    timeout "${SWEEP_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" \
         --workers "${SWEEP:-4,8}" --out "$out/compare-sweep.json" "$@" || echo "sweep failed or ran out of time"
-    for config in ${CONFIGS:-defaults:off:1:}; do
-        IFS=: read -r name prefetch detectors params <<<"$config"
+    for config in ${CONFIGS:-defaults:off:}; do
+        IFS=: read -r name prefetch params <<<"$config"
         timeout "${CONFIG_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" --workers "$w" \
-            --worker-prefetch "$prefetch" --worker-detectors "${detectors:-1}" ${params:+--params "$params"} \
-            --out "$out/compare-$name.json" "$@" || echo "$name failed or ran out of time"
+            --worker-prefetch "$prefetch" ${params:+--params "$params"} --out "$out/compare-$name.json" "$@" \
+            || echo "$name failed or ran out of time"
     done
-    [[ -z ${NO_HOLD:-} ]] || return 0
     # How long a frame holds its locks (what bounds one hot map), on idle cores and beside W busy sessions.
     timeout 90 "$python" bench/bench_hold.py --frames "$FRAMES" --stride 1 --out "$out/hold-idle.json" >/dev/null \
         || echo "hold (idle) failed"

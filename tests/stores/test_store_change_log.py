@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from store_cases import MAP, make_object, moved
 
-from arcloud.core.change import FRAME_KEY_SEPARATOR, ChangesSince, MapChange
+from arcloud.core.change import ChangesSince, MapChange
 from arcloud.core.types import ObjectEvent, ObjectMeta
 from arcloud.errors import StaleLease
 from arcloud.stores import keys
@@ -55,16 +55,6 @@ def test_a_refused_commit_appends_nothing(store) -> None:
     got = store.changes_since(MAP, 0, 10)
     assert got.version == 1 and kinds(got) == [[("created", 1)]]
     assert [o.id for o in store.list_objects(MAP)] == [1]
-
-
-def test_the_entry_of_a_commit_of_several_frames_names_every_one(store) -> None:
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]), frame_key="dev/f1")
-    frames = ("dev/f3", "dev/f2")  # in the order given, not sorted
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(2, (2.0, 0, 0))]), frame_key=frames)
-    got = store.changes_since(MAP, 0, 10)
-    assert [e.frame_key for e in got.entries] == ["dev/f1", "dev/f3 dev/f2"]
-    assert tuple(got.entries[1].frame_key.split(FRAME_KEY_SEPARATOR)) == frames
-    assert kinds(got) == [[("created", 1)], [("created", 2)]]
 
 
 def test_the_log_keeps_its_latest_entries_and_a_reader_behind_them_is_told(make_store) -> None:

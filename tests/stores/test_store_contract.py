@@ -22,7 +22,7 @@ from store_cases import (
 
 import arcloud.stores.memory
 import arcloud.stores.redis
-from arcloud.core.change import ChangesSince, MapChange
+from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.ports import MAX_CELLS_PER_CALL
 from arcloud.core.step import integrate_frame
@@ -256,63 +256,6 @@ def test_frame_is_recorded_once(store) -> None:
     assert store.commit(MAP, [], MapChange())  # no frame: always writes
     assert store.count_frames(MAP) == 2
     assert store.count_frames("map-b") == 0
-
-
-# --- one commit of several frames (batched integration of a map's frames, issue 24) ---------------------------
-def test_a_commit_of_several_frames_records_every_one(store) -> None:
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]), frame_key=("dev/f1", "dev/f2"))
-    assert store.is_frame_done(MAP, "dev/f1") and store.is_frame_done(MAP, "dev/f2")
-    assert store.count_frames(MAP) == 2
-    assert [o.id for o in store.list_objects(MAP)] == [1]
-    assert store.changes_since(MAP, 0, 0).version == 1
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(2, (1.0, 0, 0))]), frame_key=("dev/f3", "dev/f4", "dev/f5"))
-    assert store.count_frames(MAP) == 5
-    for key in ("dev/f1", "dev/f2"):  # each, redelivered alone, was processed
-        assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(3, (2.0, 0, 0))]), frame_key=key) is False
-    assert [o.id for o in store.list_objects(MAP)] == [1, 2] and store.count_frames(MAP) == 5
-
-
-@pytest.mark.parametrize("keys", [("dev/f2", "dev/f1"), ("dev/f1", "dev/f2")], ids=["recorded-last", "recorded-first"])
-def test_a_commit_of_several_frames_one_of_them_recorded_writes_nothing(store, keys: tuple[str, str]) -> None:
-    a = make_object(1, (0.0, 0, 0))
-    assert store.commit(MAP, [], MapChange.writing(MAP, [a]), frame_key="dev/f1")
-    with store.lock(MAP, [1], ttl_s=10, timeout_s=0) as lease:
-        change = MapChange.writing(MAP, [moved(a, (1.0, 0, 0)), make_object(2, (3.0, 0, 0))])
-        assert store.commit(MAP, [lease], change, frame_key=keys) is False
-    assert not store.is_frame_done(MAP, "dev/f2")  # the new one is not recorded either
-    assert store.count_frames(MAP) == 1
-    assert [o.id for o in store.list_objects(MAP)] == [1]
-    stored = store.get(MAP, [1])[0]
-    assert stored.version == 1
-    assert_same_object(stored, a)
-    assert store.query_region(MAP, np.full(3, 2.9), np.full(3, 6.0)) == {}
-    assert store.changes_since(MAP, 0, 10).version == 1  # the map's version: no entry logged
-    assert store.commit(MAP, [], MapChange(), frame_key="dev/f2")  # alone, it is a new frame
-
-
-def test_a_one_key_tuple_is_that_key_and_an_empty_one_none(store) -> None:
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]), frame_key=("dev/f1",))
-    assert store.is_frame_done(MAP, "dev/f1") and store.count_frames(MAP) == 1
-    for again in ("dev/f1", ("dev/f1",)):
-        assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(2, (1.0, 0, 0))]), frame_key=again) is False
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(2, (1.0, 0, 0))]), frame_key="dev/f2")
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(3, (2.0, 0, 0))]), frame_key=("dev/f2",)) is False
-    assert store.commit(MAP, [], MapChange(), frame_key=())  # no frame: always writes, records nothing
-    assert store.commit(MAP, [], MapChange(), frame_key=())
-    assert store.count_frames(MAP) == 2
-    assert [o.id for o in store.list_objects(MAP)] == [1, 2]
-    assert [e.frame_key for e in store.changes_since(MAP, 0, 10).entries] == ["dev/f1", "dev/f2"]
-
-
-@pytest.mark.parametrize(
-    "keys", [("dev/f1", "dev/f2", "dev/f1"), ("dev/f1", "dev/f 2")], ids=["a-key-twice", "a-key-with-the-separator"]
-)
-def test_frame_keys_that_cannot_be_recorded_together_are_refused_before_anything_is_written(store, keys) -> None:
-    with pytest.raises(InvalidInput, match="frame_key"):
-        store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]), frame_key=keys)
-    assert store.list_objects(MAP) == [] and store.count_frames(MAP) == 0
-    assert not any(store.is_frame_done(MAP, key) for key in keys)
-    assert store.changes_since(MAP, 0, 10) == ChangesSince((), 0, True)
 
 
 # --- a commit that writes releases its leases ---------------------------------------------------------

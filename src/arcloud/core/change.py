@@ -17,12 +17,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-from arcloud.core.errors import InvalidInput
 from arcloud.core.types import MapObject, ObjectEvent
-
-# What joins the keys of a commit that records several frames, in its change log entry (``LoggedChange``): a frame
-# key is "<device_id>/<frame_id>", and neither id may hold whitespace (``core.checks.check_id``).
-FRAME_KEY_SEPARATOR = " "
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,10 +55,8 @@ class MapChange:
 @dataclass(frozen=True, slots=True)
 class LoggedChange:
     """One entry of a map's change log: the events of one commit, the map's ``version`` after it (the entry's
-    id), when it was written (Unix s) and the frame it recorded ("" for none; for a commit that recorded
-    several, their keys in the order given, joined by ``FRAME_KEY_SEPARATOR``, a space, which no frame key
-    holds: ``frame_key.split(FRAME_KEY_SEPARATOR)`` gives them back). Each event's ``object`` is the object's
-    ``ObjectMeta`` (a log keeps no voxels)."""
+    id), when it was written (Unix s) and the frame it recorded ("" for none). Each event's ``object`` is the
+    object's ``ObjectMeta`` (a log keeps no voxels)."""
 
     version: int
     at_s: float
@@ -83,29 +76,6 @@ class ChangesSince:
     complete: bool
 
 
-def frame_keys(frame_key: str | tuple[str, ...] | None) -> tuple[str, ...]:
-    """The frame keys a commit records (``MapStore.commit``'s ``frame_key``): none for None or (), one for a
-    string. ``InvalidInput``, before anything is written, for a key given twice, and for a key holding
-    ``FRAME_KEY_SEPARATOR`` among several (their log entry could not be read back)."""
-    if frame_key is None:
-        return ()
-    if isinstance(frame_key, str):
-        return (frame_key,)
-    keys = tuple(frame_key)
-    twice = [k for k in keys if keys.count(k) > 1]
-    if twice:
-        raise InvalidInput("frame_key", "distinct frame keys", f"{twice[0]!r} given {keys.count(twice[0])} times")
-    spaced = [k for k in keys if FRAME_KEY_SEPARATOR in k]
-    if spaced and len(keys) > 1:
-        raise InvalidInput("frame_key", f"keys without {FRAME_KEY_SEPARATOR!r} when several", repr(spaced[0]))
-    return keys
-
-
-def logged_frame_key(keys: Sequence[str]) -> str:
-    """``LoggedChange.frame_key`` of a commit that records ``keys`` (``frame_keys``): "" for none."""
-    return FRAME_KEY_SEPARATOR.join(keys)
-
-
 def changes_after(entries: Sequence[LoggedChange], version: int, after: int, limit: int) -> ChangesSince:
     """``ChangesSince`` of a log holding ``entries`` (consecutive versions, oldest first) whose map is at
     ``version``, for a reader that saw up to ``after``: at most ``limit`` entries."""
@@ -116,12 +86,4 @@ def changes_after(entries: Sequence[LoggedChange], version: int, after: int, lim
     return ChangesSince(tuple(kept), version, after + 1 >= first or after == version)
 
 
-__all__ = [
-    "FRAME_KEY_SEPARATOR",
-    "ChangesSince",
-    "LoggedChange",
-    "MapChange",
-    "changes_after",
-    "frame_keys",
-    "logged_frame_key",
-]
+__all__ = ["ChangesSince", "LoggedChange", "MapChange", "changes_after"]

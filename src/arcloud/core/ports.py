@@ -80,23 +80,16 @@ class MapStore(Protocol):
         a ``range``, so that moving the counter past restored ids costs the same for any ``n``)."""
         ...
 
-    def commit(
-        self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | tuple[str, ...] | None = None
-    ) -> bool:
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
         """Write ``change`` atomically, append its events to the map's change log (``core.change``: one entry,
         the map's version + 1, when it has events) and record ``frame_key`` as processed, in the same step.
 
         Every existing object written, deleted or counted must be held by one of ``leases`` (new objects need
         none) and be at version ``obj.version - 1`` in the store (deletes and retired: at ``obj.version``);
         otherwise nothing is written, nor logged, and ``StaleLease`` is raised (fencing). Returns False,
-        writing nothing, when ``frame_key`` was already recorded (the frame was processed before).
-
-        ``frame_key`` may be a tuple of keys, for one commit of several frames integrated together (batched
-        integration of a map's frames, issue 24; a one-key tuple is the key, an empty one None): all or nothing,
-        it returns False and writes nothing when any of them was recorded, else records every one (each counts
-        in ``count_frames``; the log entry names them all: ``LoggedChange.frame_key``); a key given twice raises
-        ``InvalidInput``, nothing written. A store may forget a record after a retention far longer than any
-        redelivery (a day by default); the frame then counts as not processed. Retired objects are kept in the map's history, with the commit's
+        writing nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
+        forget a record after a retention far longer than any redelivery (a day by default); the frame
+        then counts as not processed. Retired objects are kept in the map's history, with the commit's
         time, for the store's retention (``ObjectStore.retired_objects``).
 
         A commit that writes (returns True) releases ``leases`` in the same atomic step, waking whoever waits

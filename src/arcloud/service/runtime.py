@@ -136,7 +136,6 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
                 heartbeat_s=None,
                 warm_up=True,
                 prefetch=settings.worker_prefetch,
-                detectors=settings.worker_detectors,
             )
             for i in range(settings.workers)
         ]

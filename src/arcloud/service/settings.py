@@ -247,15 +247,6 @@ class Settings(BaseSettings):
         "would otherwise idle through the rest of the step. Off (one frame at a time) for CPU sessions: on 16 cores "
         "it measured 0.88-1.07x of off, and doubled one hot map's lock wait (docs/scaling.md)",
     )
-    worker_detectors: int = Field(
-        1,
-        ge=1,
-        le=64,
-        description="threads that detect frames in each worker (one detector session shared, each run on its calling "
-        "thread) while the worker's own thread integrates what they detected; several detected frames of one map are "
-        "integrated as one batch: one hold of its locks, one commit (docs/scaling.md). For a hot map on many cores: "
-        "fewer worker processes of several detectors each",
-    )
     api_redis_timeout_s: float = Field(
         2.0, gt=0, description="how long the API waits on a Redis reply before answering 503 (workers wait 30 s)"
     )

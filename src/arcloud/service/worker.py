@@ -50,7 +50,7 @@ import socket
 import threading
 import time
 from collections.abc import Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -142,9 +142,7 @@ class LockTimer:
     def new_ids(self, map_id: str, n: int) -> Sequence[int]:
         return self.store.new_ids(map_id, n)
 
-    def commit(
-        self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | tuple[str, ...] | None = None
-    ) -> bool:
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
         return self.store.commit(map_id, leases, change, frame_key=frame_key)
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
@@ -226,7 +224,6 @@ class FrameWorker:
         heartbeat_s: float | None = HEARTBEAT_S,
         warm_up: bool = False,
         prefetch: bool = False,
-        detectors: int = 1,
     ) -> None:
         self.queue = queue
         self.store = store
@@ -242,16 +239,9 @@ class FrameWorker:
         self.heartbeat_s = heartbeat_s
         self._warm_up = warm_up
         self._next_claim = 0.0
-        if detectors < 1:
-            raise InvalidInput("detectors", ">= 1", detectors)
-        self.detectors = detectors
-        # prefetch: one thread detects the frame taken last while this one integrates the frame before;
-        # detectors > 1: that many threads detect frames while this one integrates those detected (in batches)
-        self._detector_thread = (
-            ThreadPoolExecutor(detectors, thread_name_prefix="arcloud-detect") if prefetch or detectors > 1 else None
-        )
+        # prefetch: one thread detects the frame taken last while this one integrates the frame before
+        self._detector_thread = ThreadPoolExecutor(1, thread_name_prefix="arcloud-detect") if prefetch else None
         self._started: Started | None = None  # prefetch: the frame taken last, detecting or detected
-        self._detecting: list[Started] = []  # detectors > 1: frames taken, detecting or detected, in the order taken
         self._in_hand: tuple[QueuedFrame, ...] = ()  # taken, not settled: kept fresh by the heartbeat
         self._reading = True  # the last poll did not fail: the heartbeat may say so
 
@@ -322,10 +312,7 @@ class FrameWorker:
         """Take a frame (an abandoned one when a claim is due, else a new one, blocking ``read_block_s``
         while no other frame is in hand) and start it (``start``). Without prefetch it is then finished;
         with prefetch its detection runs on while the frame started before it is finished here, once the
-        detector is free of that one. With ``detectors`` > 1, ``poll_detected``. Returns how many frames were
-        settled."""
-        if self.detectors > 1:
-            return self.poll_detected()
+        detector is free of that one. Returns how many frames were settled."""
         earlier = self._started
         if earlier is not None:
             wait([earlier.detections])  # the detector is free: the next frame may start
@@ -347,115 +334,9 @@ class FrameWorker:
         return settled
 
     def finish_started(self) -> None:
-        """Finish the frames started and not finished (prefetched, or detecting in ``detectors`` threads)."""
+        """Finish the frame prefetched (taken and started by ``poll_once``), if any."""
         started, self._started = self._started, None
         if started is not None:
-            self.finish(started)
-        detecting, self._detecting = self._detecting, []
-        for started in detecting:
-            self.finish(started)
-
-    def poll_detected(self) -> int:
-        """With ``detectors`` threads: start frames until every detector has one (blocking ``read_block_s``
-        only while none is in hand), wait for one detection at least, start frames for the detectors it
-        freed, then integrate every frame detected: alone, or, when several are of one map, as one batch
-        (``finish_batch``). Returns how many frames were settled."""
-        settled = self._start_detections()
-        if not self._detecting:
-            return settled
-        wait([s.detections for s in self._detecting], return_when=FIRST_COMPLETED)
-        detected = [s for s in self._detecting if s.detections.done()]
-        self._detecting = [s for s in self._detecting if not any(s is d for d in detected)]
-        settled += self._start_detections()
-        by_map: dict[str, list[Started]] = {}
-        for started in detected:
-            by_map.setdefault(started.frame.map_id, []).append(started)
-        for group in by_map.values():
-            if len(group) == 1:
-                self.finish(group[0])
-            else:
-                self.finish_batch(group)
-            settled += len(group)
-        return settled
-
-    def _start_detections(self) -> int:
-        """Take and start frames while a detector is free; returns how many were settled without a step."""
-        settled = 0
-        while len(self._detecting) < self.detectors:
-            try:
-                item = self._next_delivery(block_s=0.0 if self._detecting else self.read_block_s)
-            except BaseException:
-                self.finish_started()  # the frames detected are not held through a queue outage
-                raise
-            if item is None:
-                break
-            started = self.start(item)
-            if isinstance(started, str):
-                settled += 1
-            else:
-                self._detecting.append(started)
-        return settled
-
-    def finish_batch(self, group: Sequence[Started]) -> None:
-        """Integrate several detected frames of one map in one hold of its locks (``core.staged``): each
-        frame's step in turn, then one commit for them all, then each acknowledged. A frame that cannot join
-        (a redelivery, a failed detection, locks it would wait for, any error of its step) and every frame of a
-        batch whose commit is refused or fails is finished alone afterwards (``finish``), as it would be
-        without batches."""
-        from arcloud.core.staged import StagedStore
-        from arcloud.core.step import integrate_frame  # scipy: loaded with the first frame, not at import
-
-        map_id = group[0].frame.map_id
-        locks = LockTimer(self.store)
-        staged = StagedStore(locks, map_id)
-        joined: list[tuple[Started, StepResult, float, float, float]] = []  # frame, result, detect s, step s, lock s
-        alone: list[Started] = []
-        try:
-            check_map_header(self.store, map_id, self.params, open_new=True)
-            for started in group:
-                with log_context(**frame_log_fields(started.item)):
-                    if started.item.deliveries > 1 or started.detections.exception() is not None:
-                        alone.append(started)
-                        continue
-                    detections, detect_s = started.detections.result()
-                    began, waited = time.perf_counter(), locks.lock_wait_s
-                    try:
-                        result = integrate_frame(started.frame, detections, staged, self.params)
-                    except Exception as exc:  # noqa: BLE001 - its own step says what it is
-                        log.debug(
-                            "map %s frame %s left out of a batch: %s: %s", map_id, started.item.frame_key, type(exc).__name__, exc
-                        )
-                        alone.append(started)
-                        continue
-                    joined.append((started, result, detect_s, time.perf_counter() - began, locks.lock_wait_s - waited))
-            began, waited = time.perf_counter(), locks.lock_wait_s
-            written = staged.flush()
-        except Exception as exc:  # noqa: BLE001 - each frame of the batch is tried alone below
-            log.warning(
-                "map %s: a batch of %d frames was not written (%s: %s); each goes alone",
-                map_id,
-                len(group),
-                type(exc).__name__,
-                exc,
-            )
-            staged.release()
-            written = False
-        if not written:
-            tried = {id(started) for started in alone} | {id(j[0]) for j in joined}
-            alone = [started for started in group if id(started) in tried]
-            joined = []
-        elif joined:
-            flush_s, flush_wait_s = (time.perf_counter() - began) / len(joined), (locks.lock_wait_s - waited) / len(joined)
-            if self.feed is not None and any(result.events for _, result, _, _, _ in joined):
-                self._publish(map_id)
-            for started, result, detect_s, step_s, lock_s in joined:
-                with log_context(**frame_log_fields(started.item)):
-                    timings = FrameTimings(
-                        step_s=detect_s + step_s + flush_s, queue_wait_s=started.queue_wait_s, lock_wait_s=lock_s + flush_wait_s
-                    )
-                    self.queue.ack(started.item, redelivered=result.skipped, timings=timings)
-                    self._in_hand = tuple(i for i in self._in_hand if i is not started.item)
-        for started in alone:
             self.finish(started)
 
     def _next_delivery(self, *, block_s: float) -> QueuedFrame | None:

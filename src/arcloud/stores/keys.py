@@ -10,7 +10,7 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:ids                 STRING  object id counter (INCRBY)
     arcloud:{m}:processed           HASH    processed frame key ("<device_id>/<frame_id>") -> when its commit was
                                             written (Unix s); kept ``frame_record_retention_s`` (``RedisStore``)
-    arcloud:{m}:processed:count     STRING  frames of the map processed (INCRBY in the commit, by its frames; never lowered)
+    arcloud:{m}:processed:count     STRING  frames of the map processed (INCR in the commit; never lowered)
     arcloud:{m}:processed:sweep     STRING  where the commits' sweep of expired marks goes on (HSCAN cursor)
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
     arcloud:{m}:meta                HASH    object id -> metadata (``codec.encode_meta``): listing needs one read

@@ -23,7 +23,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after, frame_keys, logged_frame_key
+from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
@@ -221,15 +221,12 @@ class MemoryStore:
             first, state.next_id = state.next_id, state.next_id + n
         return range(first, first + n)
 
-    def commit(
-        self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | tuple[str, ...] | None = None
-    ) -> bool:
-        frames = frame_keys(frame_key)  # InvalidInput (a key given twice, ...) before anything is written
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
         own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
         upserts, deletes, retired, misses, gone = change.upserts, change.deletes, change.retired, change.misses, change.gone
         state = self._map(map_id)
         with state.changed:
-            if any(self._recorded(state, key) for key in frames):  # all or nothing: one recorded, none written
+            if frame_key is not None and self._recorded(state, frame_key):
                 return False
             now = time.monotonic()
             held: set[int] = set()
@@ -295,10 +292,10 @@ class MemoryStore:
                 state.cells_of[obj.id] = cells
                 for cell in cells:
                     state.index.setdefault(cell, set()).add(obj.id)
-            for key in frames:
-                state.frames.pop(key, None)
-                state.frames[key] = self._clock()
-            state.n_frames += len(frames)
+            if frame_key is not None:
+                state.frames.pop(frame_key, None)
+                state.frames[frame_key] = self._clock()
+                state.n_frames += 1
             cutoff = self._clock() - self.frame_record_retention_s
             for expired in list(
                 itertools.islice(itertools.takewhile(lambda k: state.frames[k] < cutoff, state.frames), RECORDS_SWEPT_PER_CALL)
@@ -307,9 +304,7 @@ class MemoryStore:
             self._trim_history(state)
             if change.events:
                 state.version += 1
-                state.log.append(
-                    LoggedChange(state.version, self._clock(), logged_frame_key(frames), logged_events(change.events))
-                )
+                state.log.append(LoggedChange(state.version, self._clock(), frame_key or "", logged_events(change.events)))
             if upserts or deletes or retired:
                 with self._maps_lock:
                     self._updated[map_id] = time.time()

@@ -23,8 +23,8 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   ``codec`` blob), the metadata JSON in one HASH per map (listing a map is one read), the bounds in
   another. ``get`` of many ids is one MULTI/EXEC pipeline (a consistent snapshot).
 - ``commit``: one Lua script checks every fence (each lease still holds its keys, each object is at the
-  expected version, none of the commit's frames is recorded yet) and then writes objects, index, bounds and the
-  frames' marks and releases the leases (waking their waiters: no release round trip after, issue 24), or writes
+  expected version, the frame is not recorded yet) and then writes objects, index, bounds and the frame
+  mark and releases the leases (waking their waiters: no release round trip after, issue 24), or writes
   nothing and leaves them held. A worker whose lock expired cannot overwrite newer data. Redis runs nothing
   else while a script runs, so one script adds and removes at most ``cells.MAX_SCRIPT_CELLS`` index cells (an object
   covers at most ``cells.MAX_OBJECT_CELLS``; the script counts the cells it would remove before it writes) and
@@ -97,7 +97,7 @@ from redis.backoff import ExponentialWithJitterBackoff
 from redis.cluster import ClusterNode, RedisCluster
 from redis.retry import Retry
 
-from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after, frame_keys, logged_frame_key
+from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_after
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
@@ -469,10 +469,7 @@ class RedisStore:
             last = int(self.client.incrby(keys.ids_key(map_id), n))
         return range(last - n + 1, last + 1)
 
-    def commit(
-        self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | tuple[str, ...] | None = None
-    ) -> bool:
-        frames = frame_keys(frame_key)  # InvalidInput (a key given twice, ...) before anything is written
+    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
         own = cast("Sequence[RedisLease]", leases)  # the port's Lease: here always one this store handed out
         for lease in own:
             if lease.map_id != map_id:
@@ -485,8 +482,7 @@ class RedisStore:
             new_cells += check_object_cells(f"object {obj.id}.bounds", obj.bounds.min, obj.bounds.max, self.cell_m)
         check_script_cells(new_cells)  # the script adds these and checks them with those it removes
         header: dict[str, Any] = {
-            "frames": list(frames),
-            "log_frame": logged_frame_key(frames),
+            "frame": frame_key or "",
             "now": self._clock(),
             "retention_s": self.frame_record_retention_s,
             "sweep": RECORDS_SWEPT_PER_CALL,

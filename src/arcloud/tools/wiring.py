@@ -428,7 +428,6 @@ def run_worker(
             read_block_s=settings.read_block_s,
             warm_up=True,
             prefetch=settings.worker_prefetch,
-            detectors=settings.worker_detectors,
         ).run(stop)
     finally:
         close_all(owned)

@@ -5,37 +5,35 @@
 -- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET),
 -- KEYS[8]: the map's change log (STREAM), KEYS[9]: the map's version (STRING: the log's last entry).
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
--- ARGV[2]: JSON {frames, log_frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
+-- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
 --          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells,
 --          log_max}
 --          (leases: lock and claim keys, of the map's hash tag; ids, versions and counts as decimal strings;
---          frames: the frame keys the commit records, [] for none; log_frame: what the change log entry's frame
---          field says of them, "" for none (``core.change.logged_frame_key``); cells: "i:j:k i:j:k ..." the
---          index cells of the object's bounds; upserts also carry missed and gone, the object's counters, kept
---          in its hash beside the voxels; now: Unix s; a frame recorded more than retention_s ago counts as not
---          recorded, and each commit sweeps about `sweep` records for such ones; retired objects are deleted
---          like deletes and their metadata kept in the history, which keeps those retired within history_s, at
---          most history_max; new_cells: how many index cells the upserts add, max_cells: the most cells one
---          commit may add and remove together, counted before anything is written).
+--          frame "" for none; cells: "i:j:k i:j:k ..." the index cells of the object's bounds; upserts also
+--          carry missed and gone, the object's counters, kept in its hash beside the voxels; now: Unix s; a
+--          frame recorded more than retention_s ago counts as not recorded, and each commit sweeps about `sweep`
+--          records for such ones; retired objects are deleted like deletes and their metadata kept in the
+--          history, which keeps those retired within history_s, at most history_max; new_cells: how many index
+--          cells the upserts add, max_cells: the most cells one commit may add and remove together, counted
+--          before anything is written).
 --          log_max: about how many entries the change log keeps (XADD MAXLEN ~).
 -- ARGV[3]: the change's events (``codec.encode_events``), "" for none: appended to the change log as the entry
---          "<version>-0" (the map's version + 1) with fields at (now), frame (log_frame), events, after every
---          check and before any write, so that a refused commit appends nothing and a failed append writes
---          nothing.
+--          "<version>-0" (the map's version + 1) with fields at (now), frame, events, after every check and
+--          before any write, so that a refused commit appends nothing and a failed append writes nothing.
 -- ARGV[4..]: per upsert in order, three values: packed bounds, metadata JSON, encoded voxels.
--- Returns 1 (written, every frame of `frames` recorded and counted, and then the leases released in the same
--- step, their waiters woken: the caller sends no release), 0 (any frame of `frames` was recorded before: nothing
--- written, none recorded), -N (the commit would add and remove N > max_cells index cells: nothing written), or
--- an error "STALE ..." (a fence failed: nothing written). But for 1, the leases stay held.
+-- Returns 1 (written, and then the leases released in the same step, their waiters woken: the caller sends no
+-- release), 0 (the frame was recorded before: nothing written), -N (the commit would add and remove N > max_cells
+-- index cells: nothing written), or an error "STALE ..." (a fence failed: nothing written). But for 1, the
+-- leases stay held.
 local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
 local history_key, history_at_key, log_key, version_key = KEYS[6], KEYS[7], KEYS[8], KEYS[9]
 local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
 local cutoff = tonumber(req.now) - tonumber(req.retention_s)
 
-for _, frame in ipairs(req.frames) do
-  local recorded_at = redis.call('HGET', frames_key, frame)
+if req.frame ~= '' then
+  local recorded_at = redis.call('HGET', frames_key, req.frame)
   if recorded_at and tonumber(recorded_at) >= cutoff then
     return 0
   end
@@ -106,7 +104,7 @@ end
 
 if ARGV[3] ~= '' then
   local version = tonumber(redis.call('GET', version_key) or '0') + 1
-  redis.call('XADD', log_key, 'MAXLEN', '~', req.log_max, version .. '-0', 'at', req.now, 'frame', req.log_frame, 'events', ARGV[3])
+  redis.call('XADD', log_key, 'MAXLEN', '~', req.log_max, version .. '-0', 'at', req.now, 'frame', req.frame, 'events', ARGV[3])
   redis.call('SET', version_key, version)
 end
 
@@ -154,11 +152,9 @@ for field, counters in pairs({missed = req.misses, gone = req.gone}) do
     end
   end
 end
-for _, frame in ipairs(req.frames) do
-  redis.call('HSET', frames_key, frame, req.now)
-end
-if #req.frames > 0 then
-  redis.call('INCRBY', count_key, #req.frames)
+if req.frame ~= '' then
+  redis.call('HSET', frames_key, req.frame, req.now)
+  redis.call('INCR', count_key)
 end
 sweep(frames_key, sweep_key, cutoff, tonumber(req.sweep), tonumber)
 -- The history: drop those retired more than history_s ago (a bounded number a commit), then the oldest
