@@ -86,7 +86,8 @@ run() {
 }
 
 # The service's defaults at W = SWEEP (4,8), then settings side by side at W = cores - 1 (one map and 8 maps each,
-# against one ceiling; CONFIGS: name:prefetch:params ..., params JSON overrides of Params or empty; CONFIG_S: each
+# against one ceiling; CONFIGS: name:prefetch:params ..., params JSON overrides of Params or empty; SWEEP set and
+# empty skips the sweep, NO_HOLD set skips the hold and the profiles (device time is short); CONFIG_S: each
 # one's limit), then the hold a frame's locks last (bench/bench_hold.py, idle and beside W sessions), then what a
 # worker's frame costs part by part alone and with W copies at once (bench/profile_worker.py: where contention
 # adds). Eight files under $OUT at most come back: seven JSON here with one setting, and a log.
@@ -97,7 +98,7 @@ compare() {
     timeout "${CEILING_S:-90}" "${bench[@]}" --parts ceiling --ceiling-processes "1,${SWEEP:-4,8},$w" --ceiling-s 6 \
         --out "$out/compare-ceiling.json" || echo "ceiling failed or ran out of time"
     # The service's defaults at fewer workers: the ratio per W.
-    timeout "${SWEEP_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" \
+    [[ -z ${SWEEP-x} ]] || timeout "${SWEEP_S:-100}" "${bench[@]}" --parts service --ceiling-from "$out/compare-ceiling.json" \
         --workers "${SWEEP:-4,8}" --out "$out/compare-sweep.json" "$@" || echo "sweep failed or ran out of time"
     for config in ${CONFIGS:-defaults:off:}; do
         IFS=: read -r name prefetch params <<<"$config"
@@ -105,6 +106,7 @@ compare() {
             --worker-prefetch "$prefetch" ${params:+--params "$params"} --out "$out/compare-$name.json" "$@" \
             || echo "$name failed or ran out of time"
     done
+    [[ -z ${NO_HOLD:-} ]] || return 0
     # How long a frame holds its locks (what bounds one hot map), on idle cores and beside W busy sessions.
     timeout 90 "$python" bench/bench_hold.py --frames "$FRAMES" --stride 1 --out "$out/hold-idle.json" >/dev/null \
         || echo "hold (idle) failed"
