@@ -8,6 +8,7 @@ from arcloud.core.voxels import (
     coarsen_keys,
     erode,
     erode_sampled,
+    footprint_share,
     key_centers,
     mask_extent,
     mask_points,
@@ -131,3 +132,23 @@ def test_mask_extent_is_the_bounding_box_of_the_pixels(width):
         rows, cols = np.nonzero(mask)
         assert mask_extent(mask) == (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
     assert mask_extent(np.zeros((23, width), bool)) is None
+
+
+def _box_keys(lo, hi):
+    grid = np.stack(np.meshgrid(*(np.arange(a, b) for a, b in zip(lo, hi)), indexing="ij"), -1).reshape(-1, 3)
+    return sorted_unique(pack_keys(grid))
+
+
+def test_footprint_share_tells_pieces_of_one_object_from_neighbours():
+    params = Params()  # 5 cm voxels, one voxel of tolerance
+    seat = _box_keys((0, 0, 8), (10, 10, 10))  # 0.5 x 0.5 m, 0.4-0.5 m up
+    back = _box_keys((0, 8, 10), (10, 12, 18))  # above the seat's rear edge, reaching 0.1 m behind it
+    # Of the back's 4 rows of ground cells: 2 on the seat's, 1 within a voxel of it, 1 beyond; either way round.
+    assert footprint_share(back, seat, params) == footprint_share(seat, back, params) == 0.75
+    beside = _box_keys((10, 0, 0), (20, 10, 18))  # a neighbour touching along x
+    assert footprint_share(seat, beside, params) == pytest.approx(0.1)  # its edge column only
+    apart = _box_keys((13, 0, 0), (23, 10, 18))
+    assert footprint_share(seat, apart, params) == 0.0
+    up_y = Params(up=(0.0, 1.0, 0.0))  # the same shapes with y up: the footprint is x-z
+    assert footprint_share(seat, _box_keys((0, 20, 0), (10, 30, 10)), up_y) == 1.0
+    assert footprint_share(seat, _box_keys((0, 20, 11), (10, 30, 20)), up_y) == 0.0

@@ -220,9 +220,11 @@ def find_duplicates(
     params: Params,
     changed: Sequence[bool] | None = None,
     apart_now: Sequence[tuple[int, int]] = (),
+    joined: Sequence[tuple[int, int]] = (),
 ) -> list[tuple[int, int]]:
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
-    overlap >= ``merge_min_overlap``, unless frames saw them apart (``seen_apart``) or the current frame
+    overlap >= ``merge_min_overlap``, or pieces of one object that a mask spanned (``joined``: id pairs,
+    ``core.step.joined_by_masks``), unless frames saw them apart (``seen_apart``) or the current frame
     did (``apart_now``: id pairs, smaller first). Chains resolve to one keeper per group (the most
     observed), and a chain never joins two objects seen apart.
     With ``changed``, only pairs with at least one changed object are considered (the others were
@@ -251,6 +253,12 @@ def find_duplicates(
     parts = ~np.isin(labels, [CLASS_INDEX[name] for name in params.split_classes])  # tables, couches: seen in parts
     min_overlap = np.where(parts[:, None], params.merge_min_overlap_parts, params.merge_min_overlap)
     same = wanted & ((overlap >= min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
+    if joined:
+        index = {o.id: i for i, o in enumerate(objects)}
+        for a, b in joined:
+            if a in index and b in index:
+                i, j = index[a], index[b]
+                same[i, j] = same[j, i] = wanted[i, j]
     np.fill_diagonal(same, False)
     parent = list(range(len(objects)))
 

@@ -56,6 +56,7 @@ from arcloud.core.voxels import (
     center_rays,
     coarsen_keys,
     coarsen_keys_unsorted,
+    footprint_share,
     free_voxels,
     key_centers,
     keys_bounds,
@@ -133,7 +134,9 @@ def integrate_frame(
         # What changed is tracked by id: ``voxels_changed`` objects are refined before they are written,
         # ``rescored`` ones (a miss moved their score) are written as they are, the rest are left alone.
         stored = {o.id: o for o in store.get(frame.map_id, visible_ids)}
-        objects, unmatched, voxels_changed, taken = fuse_matches(list(stored.values()), observations, params, frame, floor)
+        objects, unmatched, voxels_changed, taken, joined = fuse_matches(
+            list(stored.values()), observations, params, frame, floor
+        )
         misses = count_misses(objects, voxels_changed, frame, params)
         objects, rescored = misses.objects, misses.rescored
         result.matched = len(observations) - len(unmatched)
@@ -153,7 +156,7 @@ def integrate_frame(
             objects = mark_apart(objects, apart, params)
             objects, carved, probation = carve_apart(objects, taken, apart, params)
             voxels_changed |= carved
-            objects, absorbed_into = merge_duplicates(objects, voxels_changed, params, apart)
+            objects, absorbed_into = merge_duplicates(objects, voxels_changed, params, apart, joined)
             objects, trimmed = resolve_shared_voxels(objects, probation)
             voxels_changed |= set(absorbed_into.values()) | trimmed
             to_write = refine_changed(objects, voxels_changed, rescored, params)
@@ -218,12 +221,13 @@ def fuse_matches(
     params: Params,
     frame: Frame,
     floor: FrameFloor | None = None,
-) -> tuple[list[MapObject], list[VoxelDetection], set[int], list[tuple[VoxelDetection, int]]]:
+) -> tuple[list[MapObject], list[VoxelDetection], set[int], list[tuple[VoxelDetection, int]], list[tuple[int, int]]]:
     """Associate observations with objects (Hungarian) and fuse the pairs, counting which voxels of a
     matched object the frame saw; returns the objects (fused ones replaced), the observations left
-    unmatched, the ids of the fused objects and the matched pairs (observation, object id)."""
+    unmatched, the ids of the fused objects, the matched pairs (observation, object id) and the pieces
+    of one object that a mask spanned (``joined_by_masks``)."""
     if not observations:
-        return objects, [], set(), []
+        return objects, [], set(), [], []
     association = associate(
         [o.keys for o in observations],
         [o.label_index for o in observations],
@@ -256,7 +260,30 @@ def fuse_matches(
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
     taken = [(observations[d], objects[o].id) for d, o in association.pairs]
-    return fused, [observations[d] for d in association.unmatched], fused_ids, taken
+    joined = joined_by_masks(objects, association.pairs, association.rivals, params)
+    return fused, [observations[d] for d in association.unmatched], fused_ids, taken, joined
+
+
+def joined_by_masks(
+    objects: Sequence[MapObject], pairs: Sequence[tuple[int, int]], rivals: Mapping[int, Sequence[int]], params: Params
+) -> list[tuple[int, int]]:
+    """Object id pairs (a, b), a < b, that are pieces of one object: one mask of this frame spanned both
+    (``rivals`` of a matched detection, ``core.associate.Association``), no frame ever saw them apart (not
+    once: ``MapObject.apart``), and they stand on one footprint (``footprint_share`` at least
+    ``merge_spanned_min_footprint``). A chair's back first seen from behind and its seat from the front
+    are two objects until a mask covers the whole chair; two chairs side by side, or two screens, stand on
+    two footprints, and a spanning mask is shared out between them as before. Only classes that stand on
+    the floor (``Params.floor_standing``): a screen over the shelf below it stands on the shelf's footprint,
+    and a tentative twin there must not take the screen. The merge pass joins the pairs (``merge_duplicates``)."""
+    joined: list[tuple[int, int]] = []
+    for d, o in pairs:
+        for r in rivals.get(d, ()):
+            a, b = objects[o], objects[r]
+            if a.label not in params.floor_standing or b.id in a.apart or a.id in b.apart:
+                continue
+            if footprint_share(a.keys, b.keys, params) >= params.merge_spanned_min_footprint:
+                joined.append((min(a.id, b.id), max(a.id, b.id)))
+    return joined
 
 
 def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | None:
@@ -533,7 +560,8 @@ def create_under_claim(
         late_ids = sorted(set(store.query_region(frame.map_id, lo, hi)) - set(held_ids))
         late_leases = try_lock(store, frame.map_id, late_ids, params)
         late = store.get(frame.map_id, [lease.ids[0] for lease in late_leases])
-        fused_late, still_unmatched, fused_ids, taken = fuse_matches(late, unmatched, params, frame, floor)
+        # (Pieces of one object that a mask spans are joined when a later frame's mask spans them again.)
+        fused_late, still_unmatched, fused_ids, taken, _ = fuse_matches(late, unmatched, params, frame, floor)
         new_ids = store.new_ids(frame.map_id, len(still_unmatched)) if still_unmatched else []
         taken += list(zip(still_unmatched, new_ids))
         created = [
@@ -558,14 +586,20 @@ def try_lock(store: MapStore, map_id: str, ids: Sequence[int], params: Params) -
 
 
 def merge_duplicates(
-    objects: Sequence[MapObject], voxels_changed: set[int], params: Params, apart: Sequence[tuple[int, int]] = ()
+    objects: Sequence[MapObject],
+    voxels_changed: set[int],
+    params: Params,
+    apart: Sequence[tuple[int, int]] = (),
+    joined: Sequence[tuple[int, int]] = (),
 ) -> tuple[list[MapObject], dict[int, int]]:
     """The merge pass: objects that are one physical object (``find_duplicates``; only pairs with an
-    object whose voxels changed are looked at, never a pair this frame saw ``apart``) merged into one keeper
-    each. Returns the objects left and ``absorbed_into``: absorbed id -> keeper id."""
+    object whose voxels changed are looked at, never a pair this frame saw ``apart``, and the pieces a mask
+    ``joined``) merged into one keeper each. Returns the objects left and ``absorbed_into``: absorbed id ->
+    keeper id."""
     objects = list(objects)
     absorbed_into: dict[int, int] = {}
-    for keep, absorb in find_duplicates(objects, params, [o.id in voxels_changed for o in objects], apart):
+    changed = [o.id in voxels_changed for o in objects]
+    for keep, absorb in find_duplicates(objects, params, changed, apart, joined):
         objects[keep] = merge_objects(objects[keep], objects[absorb])
         absorbed_into[objects[absorb].id] = objects[keep].id
     return [o for o in objects if o.id not in absorbed_into], absorbed_into

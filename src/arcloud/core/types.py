@@ -371,6 +371,7 @@ class Params:
     merge_min_overlap: float = 0.3
     merge_min_overlap_parts: float = 0.1  # for classes outside split_classes: see core.fusion.find_duplicates
     merge_min_box_containment: float = 0.6
+    merge_spanned_min_footprint: float = 0.25  # pieces one mask spans: see core.step.joined_by_masks
     score_support_frames: float = 3.0
     implausible_score_factor: float = 0.3
     # Confirmation (see core.confirm): what an object needs to be served by default
@@ -482,6 +483,7 @@ _PARAM_KINDS: dict[str, str] = {
             "merge_min_overlap",
             "merge_min_box_containment",
             "merge_min_overlap_parts",
+            "merge_spanned_min_footprint",
             "implausible_score_factor",
             "confirm_min_detection_rate",
             "confirm_min_score",

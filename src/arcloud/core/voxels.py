@@ -101,6 +101,28 @@ def coarsen_keys_unsorted(keys: np.ndarray, factor: int) -> np.ndarray:
     return pack_keys(np.floor_divide(unpack_keys(keys), factor))
 
 
+def ground_cells(keys: np.ndarray, params: Params) -> np.ndarray:
+    """Sorted unique ids of the ground cells (one voxel wide, across ``params.up``) under voxels ``keys`` (N,)."""
+    ground = key_centers(keys, params.voxel_size_m) @ params.gravity.world2gravity[:2].T
+    cells = np.zeros((keys.size, 3), np.int64)
+    cells[:, :2] = np.floor(ground / params.voxel_size_m)
+    return sorted_unique(pack_keys(cells))
+
+
+def footprint_share(keys_a: np.ndarray, keys_b: np.ndarray, params: Params) -> float:
+    """The share of the smaller of two voxel sets' footprints (``ground_cells``) that lies on the other's
+    or within ``association_tolerance_voxels`` of it: pieces of one object seen from different sides (a
+    chair's back, its seat) stand on one footprint; neighbours side by side stand on two that meet, if at
+    all, along an edge."""
+    small, large = sorted((ground_cells(keys_a, params), ground_cells(keys_b, params)), key=len)
+    if not small.size:
+        return 0.0
+    reach = range(-params.association_tolerance_voxels, params.association_tolerance_voxels + 1)
+    cells = unpack_keys(large)
+    near = sorted_unique(np.concatenate([pack_keys(cells + (di, dj, 0)) for di in reach for dj in reach]))
+    return np.count_nonzero(np.isin(small, near, assume_unique=True)) / small.size
+
+
 def keys_bounds(keys: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Outer (min, max) corners in metres of the voxels ``keys`` (non-empty)."""
     lo, hi = keys_extent(keys)
