@@ -108,6 +108,20 @@ DEFAULT_RETIRED_HISTORY_S = 7 * 86400.0
 RETIRED_HISTORY_MAX_PER_MAP = 10_000
 
 
+def check_store_settings(
+    cell_m: float, change_log_entries: int, frame_record_retention_s: float, retired_history_s: float
+) -> None:
+    """Refuse an object store's settings that no store can keep (``InvalidInput``): the same on every adapter."""
+    for name, value, bound, holds in (
+        ("cell_m", cell_m, "> 0", cell_m > 0),
+        ("change_log_entries", change_log_entries, ">= 1", change_log_entries >= 1),
+        ("frame_record_retention_s", frame_record_retention_s, "> 0", frame_record_retention_s > 0),
+        ("retired_history_s", retired_history_s, "> 0", retired_history_s > 0),
+    ):
+        if not holds:
+            raise InvalidInput(name, bound, value)
+
+
 @dataclass(frozen=True, eq=False, slots=True)
 class RetiredObject:
     """An object the step retired (seen gone: ``core.step.count_misses``), as it was when it left the map,

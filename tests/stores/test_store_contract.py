@@ -609,3 +609,12 @@ def test_opened_maps_are_listed_with_their_last_change_until_deleted(store) -> N
     assert store.list_maps()[MAP] == listed[MAP]
     store.delete_map(MAP)
     assert store.list_maps() == {"map-b": 1000.0} and store.count_objects(MAP) == 0
+
+
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [("cell_m", 0.0), ("change_log_entries", 0), ("frame_record_retention_s", -1.0), ("retired_history_s", 0.0)],
+)
+def test_a_store_refuses_settings_it_cannot_keep(make_store, setting, value) -> None:
+    with pytest.raises(InvalidInput, match=setting):
+        make_store(**{setting: value})

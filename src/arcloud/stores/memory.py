@@ -38,6 +38,7 @@ from arcloud.ports import (
     MapDeletion,
     ObjectMeta,
     RetiredObject,
+    check_store_settings,
 )
 from arcloud.stores import codec
 from arcloud.stores.cells import check_lock_ids, check_object_cells, check_script_cells
@@ -119,15 +120,8 @@ class MemoryStore:
         change_log_entries: int = DEFAULT_CHANGE_LOG_ENTRIES,
         clock: Callable[[], float] = time.time,
     ) -> None:
-        if not cell_m > 0:
-            raise InvalidInput("cell_m", "> 0", cell_m)
-        if change_log_entries < 1:
-            raise InvalidInput("change_log_entries", ">= 1", change_log_entries)
+        check_store_settings(cell_m, change_log_entries, frame_record_retention_s, retired_history_s)
         self.change_log_entries = int(change_log_entries)
-        if not frame_record_retention_s > 0:
-            raise InvalidInput("frame_record_retention_s", "> 0", frame_record_retention_s)
-        if not retired_history_s > 0:
-            raise InvalidInput("retired_history_s", "> 0", retired_history_s)
         self.cell_m = cell_m
         self.frame_record_retention_s = float(frame_record_retention_s)
         self.retired_history_s = float(retired_history_s)
