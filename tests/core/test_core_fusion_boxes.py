@@ -194,3 +194,15 @@ def test_objects_on_one_line_get_a_box_along_it():
     assert sorted(obb.size[:2].round(2)) == [0.05, pytest.approx(np.hypot(4.95, 4.95), abs=0.01)]
     straight = line * np.array([1.0, 0.0, 1.0]) + np.array([0.0, 0.025, 0.0])
     assert fit_gravity_obb(straight, 0.05, Gravity.of((0.0, 0.0, 1.0)), 0.0).size[:2].round(2).tolist() == [4.95, 0.05]
+
+
+def test_a_merged_object_keeps_the_misses_of_its_larger_piece_not_their_sum():
+    # A desk detected in 8 frames and missed in 3, and a fragment of it detected once and then missed in 27
+    # frames that detected the desk instead: merged, the desk was missed in 3 frames, not 30.
+    desk = new_object(1, det("table", block((0, 0, 0), (10, 6, 2))), "a", 0.0)
+    for _ in range(7):
+        desk = fuse_detection(desk, det("table", desk.keys), "a")
+    desk = desk.replace(n_missed=3)
+    fragment = new_object(2, det("table", block((8, 4, 0), (12, 8, 2))), "a", 0.0).replace(n_missed=27)
+    for merged in (merge_objects(desk, fragment), merge_objects(fragment, desk)):
+        assert (merged.n_frames, merged.n_missed) == (9, 3)

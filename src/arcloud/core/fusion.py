@@ -159,12 +159,16 @@ def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float
 
 
 def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
-    """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object)."""
+    """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object). Misses are
+    not added: pieces of one object are in view in the same frames, and a frame that detected one piece and
+    missed the other did not miss the object; the merged object keeps the misses of the piece with the most
+    occupancy weight (the merge pass's keeper, ``find_duplicates``; either order gives the same). Added, a
+    fragment's misses sank the object it joined (a desk seen with its neighbour, then alone: office-00)."""
     merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes, absorbed.colors)
     return merged.replace(
         floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
-        n_missed=keep.n_missed + absorbed.n_missed,
+        n_missed=max((keep, absorbed), key=lambda o: (float(o.weights.sum()), -o.id)).n_missed,
         n_gone=min(keep.n_gone, absorbed.n_gone),  # seen gone since the later of their last sightings
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,
