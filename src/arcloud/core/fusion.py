@@ -158,17 +158,22 @@ def new_object(object_id: int, det: VoxelDetection, device_id: str, now_s: float
     return fuse_detection(fresh, det, device_id, floor_vote=floor_vote)
 
 
+def keeper_rank(obj: MapObject) -> tuple[float, int]:
+    """Which of objects that are one is kept when they merge: the most occupancy weight, then the older id."""
+    return float(obj.weights.sum()), -obj.id
+
+
 def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
     """``keep`` with ``absorbed``'s voxels and evidence added (two observations of one object). Misses are
     not added: pieces of one object are in view in the same frames, and a frame that detected one piece and
     missed the other did not miss the object; the merged object keeps the misses of the piece with the most
-    occupancy weight (the merge pass's keeper, ``find_duplicates``; either order gives the same). Added, a
+    occupancy weight (``keeper_rank``, as the merge pass picks its keeper; either order gives the same). Added, a
     fragment's misses sank the object it joined (a desk seen with its neighbour, then alone: office-00)."""
     merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes, absorbed.colors)
     return merged.replace(
         floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
-        n_missed=max((keep, absorbed), key=lambda o: (float(o.weights.sum()), -o.id)).n_missed,
+        n_missed=max((keep, absorbed), key=keeper_rank).n_missed,
         n_gone=min(keep.n_gone, absorbed.n_gone),  # seen gone since the later of their last sightings
         devices=keep.devices | absorbed.devices,
         score_sum=keep.score_sum + absorbed.score_sum,
@@ -290,7 +295,7 @@ def find_duplicates(
     pairs: list[tuple[int, int]] = []
     for members in groups.values():
         if len(members) > 1:
-            keeper = max(members, key=lambda i: (objects[i].weights.sum(), -objects[i].id))
+            keeper = max(members, key=lambda i: keeper_rank(objects[i]))
             pairs.extend((keeper, m) for m in members if m != keeper)
     return pairs
 
