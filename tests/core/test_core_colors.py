@@ -58,7 +58,7 @@ def test_voxel_colours_are_the_mean_of_the_samples_in_each_voxel() -> None:
     frame = plane_frame(1.0, rgb=rgb)
     frame = dataclasses.replace(frame, depth_m=depth)
     mask = rect_mask(slice(5, 55), slice(8, 75))
-    (det,) = voxelize_detections(frame, [Detection("tv", 0.9, mask)], PARAMS)  # a TV: no depth cleanup
+    (det,) = voxelize_detections(frame, [Detection("couch", 0.9, mask)], PARAMS)  # a couch: no depth cleanup
     # The plain version: every sample the voxelization takes, summed per voxel in a dict.
     v_px, u_px, z_m = mask_samples(frame, mask, PARAMS, sampling_stride_px(frame, PARAMS))
     sample_keys = points_to_keys(back_project(frame, v_px, u_px, z_m), PARAMS.voxel_size_m)

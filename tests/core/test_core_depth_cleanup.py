@@ -79,3 +79,42 @@ def test_unregistered_colour_masks_are_looked_up_where_the_colour_camera_saw():
     assert on_patch(naive) < 0.75
     (cleaned,) = voxelize_detections(unregistered, [Detection("chair", 0.9, colour_mask)], PARAMS)
     assert on_patch(cleaned) == 1.0
+
+
+# Screens on walls (core.voxels.off_wall_samples): the hand-made wall at z = 3 m faces the camera, so it is
+# vertical when up is -y (image rows run down).
+UPRIGHT = PARAMS.replace(up=(0.0, -1.0, 0.0))
+
+
+def tv_depths(frame, mask, params=UPRIGHT) -> np.ndarray:
+    observations = voxelize_detections(frame, [Detection("tv", 0.9, mask)], params)
+    return np.concatenate([depths_of(o.keys) for o in observations]) if observations else np.empty(0)
+
+
+def test_a_screen_mask_that_takes_in_the_wall_past_its_edge_keeps_the_screen():
+    frame = plane_frame(3.0, patches=((slice(20, 40), slice(30, 50), 2.82),))  # 18 cm off the wall
+    mask = rect_mask(slice(17, 43), slice(27, 53))  # 3 px of wall on every side
+    assert tv_depths(frame, mask).max() < 2.9
+    assert tv_depths(frame, mask, UPRIGHT.replace(wall_margin_m=None)).max() > 2.9  # the rule is what removed it
+    assert tv_depths(frame, mask, PARAMS).max() > 2.9  # with z up that plane is a floor, not a wall
+
+
+def test_a_dark_screen_whose_mask_sees_only_the_wall_adds_nothing():
+    frame = plane_frame(3.0, patches=((slice(10, 50), slice(15, 65), 0.0),))  # no depth back from the screen
+    mask = rect_mask(slice(8, 52), slice(13, 67))
+    assert tv_depths(frame, mask).size == 0
+    assert np.all(np.abs(tv_depths(frame, mask, UPRIGHT.replace(wall_margin_m=None)) - 3.0) < 0.06)
+
+
+def test_a_mask_inside_its_screen_keeps_the_screen_its_surroundings_lie_on():
+    # The mask falls short of the monitor's edge: the ring around it is the monitor's own face.
+    frame = plane_frame(3.0, patches=((slice(10, 50), slice(10, 70), 2.0),))
+    depths = tv_depths(frame, rect_mask(slice(15, 45), slice(15, 65)))
+    assert depths.size and np.all(np.abs(depths - 2.0) < 0.06)
+
+
+def test_a_monitor_far_from_the_wall_keeps_its_stand():
+    stand = (slice(35, 42), slice(36, 44), 2.2)  # 20 cm behind the screen, 80 cm off the wall
+    frame = plane_frame(3.0, patches=((slice(15, 35), slice(25, 55), 2.0), stand))
+    depths = tv_depths(frame, rect_mask(slice(12, 45), slice(22, 58)))
+    assert depths.max() < 2.9 and np.any(np.abs(depths - 2.2) < 0.06)

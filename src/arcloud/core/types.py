@@ -347,6 +347,12 @@ class Params:
     layer_margin_m: float | None = 0.1
     layer_touch_m: float = 0.15
     layer_classes: tuple[str, ...] = ("chair", "table", "laptop")  # see core.voxels.front_samples
+    # The wall behind a screen (core.voxels.off_wall_samples); wall_margin_m None turns it off
+    wall_classes: tuple[str, ...] = ("tv",)
+    wall_margin_m: float | None = 0.12
+    wall_screen_depth_m: float = 0.1
+    wall_front_share: float = 0.5
+    wall_depth_share: float = 0.3
     # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
@@ -445,6 +451,7 @@ _PARAM_KINDS: dict[str, str] = {
             "depth_min_m",
             "depth_max_m",
             "layer_touch_m",
+            "wall_screen_depth_m",
             "score_support_frames",
             "floor_bin_m",
             "index_cell_m",
@@ -470,10 +477,12 @@ _PARAM_KINDS: dict[str, str] = {
         ),
         "non-negative",
     ),
-    "layer_margin_m": "optional non-negative",
+    **dict.fromkeys(("layer_margin_m", "wall_margin_m"), "optional non-negative"),
     **dict.fromkeys(
         (
             "layer_min_fraction",
+            "wall_front_share",
+            "wall_depth_share",
             "association_min_overlap",
             "class_mismatch_min_overlap",
             "prune_max_occupancy",
@@ -518,7 +527,7 @@ _PARAM_KINDS: dict[str, str] = {
     ),
     "pixel_stride_max_px": "stride",
     "class_aware": "flag",
-    **dict.fromkeys(("layer_classes", "split_classes", "floor_standing"), "classes"),
+    **dict.fromkeys(("layer_classes", "wall_classes", "split_classes", "floor_standing"), "classes"),
     "floor_max_tilt_deg": "tilt",
     "up": "up",
     "world2aligned": "transform",

@@ -417,6 +417,103 @@ def _touching_layers(label_of: np.ndarray, points: np.ndarray, kept: np.ndarray,
     return kept
 
 
+#: The wall behind a screen (``wall_plane``): a vertical plane that at least ``WALL_MIN_SHARE`` of the depth
+#: samples in a ring around the mask (``WALL_RING_PX`` pixels out, for an image 640 pixels wide) lie within
+#: ``WALL_INLIER_M`` of, the best of ``WALL_TRIALS`` lines through two of at most ``WALL_MAX_POINTS`` of them.
+WALL_RING_PX = (8, 20)
+WALL_INLIER_M = 0.03
+WALL_MIN_SHARE = 0.4
+WALL_TRIALS = 64
+WALL_MAX_POINTS = 2000
+
+
+def ring_points(
+    frame: Frame, mask: np.ndarray, params: Params, stride_px: int, registered: RegisteredSamples | None
+) -> np.ndarray:
+    """World points (N, 3) of the depth samples that land in a ring around the mask, ``WALL_RING_PX``
+    pixels out (scaled with the image's width): what the camera sees around the object."""
+    extent = mask_extent(mask)
+    if extent is None:
+        return np.empty((0, 3))
+    inner, outer = (max(1, round(r * mask.shape[1] / 640)) for r in WALL_RING_PX)
+    height, width = mask.shape
+    r0, c0 = max(0, extent[0] - outer), max(0, extent[2] - outer)
+    r1, c1 = min(height, extent[1] + outer), min(width, extent[3] + outer)
+    crop = mask[r0:r1, c0:c1].view(np.uint8)
+    ring = (ndimage.maximum_filter(crop, size=2 * outer + 1) > 0) & ~(ndimage.maximum_filter(crop, size=2 * inner + 1) > 0)
+    if registered is None:
+        depth = frame.depth_m[r0:r1:stride_px, c0:c1:stride_px]
+        v, u = np.nonzero(ring[::stride_px, ::stride_px] & (depth >= params.depth_min_m) & (depth <= params.depth_max_m))
+        return back_project(frame, v * stride_px + r0, u * stride_px + c0, depth[v, u].astype(np.float64))
+    rgb_v, rgb_u = registered.rgb_v_px, registered.rgb_u_px
+    near = np.flatnonzero((rgb_v >= r0) & (rgb_v < r1) & (rgb_u >= c0) & (rgb_u < c1))
+    near = near[ring[rgb_v[near] - r0, rgb_u[near] - c0]]
+    return back_project(frame, registered.v_px[near], registered.u_px[near], registered.z_m[near])
+
+
+def wall_plane(points: np.ndarray, up: np.ndarray, eye: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The vertical plane most of ``points`` (N, 3) lie on (see ``WALL_MIN_SHARE``), as its horizontal
+    unit normal facing the ``eye`` and its offset (``normal @ x == offset`` on it); None when there is
+    none, or when the points on it spread less than ``WALL_INLIER_M`` across their main direction (they
+    are a line, not a wall). Vertical planes are lines seen from above: RANSAC over pairs of points,
+    seeded, so one frame always gives the same plane."""
+    if len(points) > WALL_MAX_POINTS:
+        points = points[:: -(-len(points) // WALL_MAX_POINTS)]
+    n = len(points)
+    if n < 2:
+        return None
+    across = np.cross(up, (1.0, 0.0, 0.0) if abs(up[0]) < 0.9 else (0.0, 1.0, 0.0))
+    across /= np.linalg.norm(across)
+    level = np.stack((across, np.cross(up, across)))  # (2, 3): a basis of the horizontal
+    flat = points @ level.T  # (N, 2): the points seen from above
+    pairs = np.random.default_rng(0).integers(0, n, size=(WALL_TRIALS, 2))
+    along = flat[pairs[:, 1]] - flat[pairs[:, 0]]
+    length = np.linalg.norm(along, axis=1)
+    usable = length > 2 * WALL_INLIER_M
+    normals = np.stack((-along[:, 1], along[:, 0]), axis=1) / np.maximum(length, 1e-12)[:, None]
+    distances = np.abs(np.einsum("tk,tnk->tn", normals, flat[None] - flat[pairs[:, 0]][:, None]))  # (trials, N)
+    inliers = (distances < WALL_INLIER_M).sum(axis=1) * usable
+    best = int(np.argmax(inliers))
+    if inliers[best] < max(WALL_MIN_SHARE * n, 3):
+        return None
+    on_plane = points[distances[best] < WALL_INLIER_M]
+    along = normals[best] @ np.array([[0.0, 1.0], [-1.0, 0.0]]) @ level  # the line's direction, horizontal
+    spread = np.linalg.eigvalsh(np.cov(np.stack((on_plane @ along, on_plane @ up))))
+    if spread[0] < WALL_INLIER_M**2:  # a line (the edge of a floor seen from above, a rail) is no wall
+        return None
+    normal = normals[best] @ level
+    offset = float(np.median(on_plane @ normal))
+    return (normal, offset) if normal @ eye >= offset else (-normal, -offset)
+
+
+def off_wall_samples(points: np.ndarray, ring: np.ndarray, eye: np.ndarray, depth_share: float, params: Params) -> np.ndarray:
+    """(N,) bool: the samples of a screen's mask (``points`` (N, 3), world) that are not the wall behind it.
+
+    A screen's mask takes in the wall past its edge, and a dark screen seen at an angle returns no depth:
+    its mask's samples are the wall seen through it. Where the mask's surroundings (``ring``, from
+    ``ring_points``) lie on a vertical plane (``wall_plane``), a sample on that plane or behind it, or
+    in front of it by less than the screen's own depth off the wall (the median of its samples off the
+    plane) less ``wall_screen_depth_m``, at most ``wall_margin_m``, is wall or a mixed pixel between the
+    two. They are dropped when most samples are off the wall (``wall_front_share``: the screen stands out
+    from it) or the mask has depth on few of its pixels (``depth_share`` below ``wall_depth_share``: the
+    screen returned none); otherwise the plane is the object's own face or its neighbour's, and every
+    sample is kept."""
+    keep_all = np.ones(len(points), bool)
+    if params.wall_margin_m is None or len(points) == 0 or len(ring) == 0:
+        return keep_all
+    plane = wall_plane(ring, params.gravity.up, eye)
+    if plane is None:
+        return keep_all
+    normal, offset = plane
+    off_wall_m = points @ normal - offset
+    face = off_wall_m[off_wall_m > WALL_INLIER_M]
+    cut_m = params.wall_margin_m
+    if face.size:
+        cut_m = min(cut_m, max(WALL_INLIER_M, float(np.median(face)) - params.wall_screen_depth_m))
+    off = off_wall_m >= cut_m
+    return off if off.mean() >= params.wall_front_share or depth_share < params.wall_depth_share else keep_all
+
+
 def sampling_stride_px(frame: Frame, params: Params) -> int:
     """A pixel stride that still puts several samples in every voxel at the nearest valid depth, at
     most ``params.pixel_stride_max_px``.
@@ -439,7 +536,7 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
 
     Each mask is sampled every n-th pixel row and column (``sampling_stride_px``: 1 to
     ``params.pixel_stride_max_px``) and cleaned with depth: samples of what lies behind or apart from
-    the object (``front_samples``) are left out. Each voxel's colour is the mean of the colour pixels
+    the object (``front_samples``), and the wall behind a screen (``off_wall_samples``), are left out. Each voxel's colour is the mean of the colour pixels
     its samples land on (``voxel_colors``)."""
     stride = sampling_stride_px(frame, params)
     registered = None if frame.registered else register_samples(frame, params, stride)
@@ -458,6 +555,11 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
         if params.layer_margin_m is not None and z_m.size and det.label in params.layer_classes:
             front = front_samples(v_px, u_px, z_m, stride, params, points)
             points, rgb_px = points[front], rgb_px[front]
+        if params.wall_margin_m is not None and z_m.size and det.label in params.wall_classes:
+            depth_share = z_m.size * stride * stride / max(1, int(np.count_nonzero(det.mask)))
+            ring = ring_points(frame, det.mask, params, stride, registered)
+            off = off_wall_samples(points, ring, frame.cam2world[:3, 3], depth_share, params)
+            points, rgb_px = points[off], rgb_px[off]
         if len(points) == 0:
             continue
         sample_keys = points_to_keys(points, params.voxel_size_m)
