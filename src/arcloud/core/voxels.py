@@ -471,7 +471,7 @@ def wall_plane(points: np.ndarray, up: np.ndarray, eye: np.ndarray) -> tuple[np.
     length = np.linalg.norm(along, axis=1)
     usable = length > 2 * WALL_INLIER_M
     normals = np.stack((-along[:, 1], along[:, 0]), axis=1) / np.maximum(length, 1e-12)[:, None]
-    distances = np.abs(np.einsum("tk,tnk->tn", normals, flat[None] - flat[pairs[:, 0]][:, None]))  # (trials, N)
+    distances = np.abs(normals @ flat.T - np.einsum("tk,tk->t", normals, flat[pairs[:, 0]])[:, None])  # (trials, N)
     inliers = (distances < WALL_INLIER_M).sum(axis=1) * usable
     best = int(np.argmax(inliers))
     if inliers[best] < max(WALL_MIN_SHARE * n, 3):
