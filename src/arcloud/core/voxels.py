@@ -477,8 +477,8 @@ def wall_plane(points: np.ndarray, up: np.ndarray, eye: np.ndarray) -> tuple[np.
     if inliers[best] < max(WALL_MIN_SHARE * n, 3):
         return None
     on_plane = points[distances[best] < WALL_INLIER_M]
-    along = normals[best] @ np.array([[0.0, 1.0], [-1.0, 0.0]]) @ level  # the line's direction, horizontal
-    spread = np.linalg.eigvalsh(np.cov(np.stack((on_plane @ along, on_plane @ up))))
+    direction = normals[best] @ np.array([[0.0, 1.0], [-1.0, 0.0]]) @ level  # the line's, horizontal
+    spread = np.linalg.eigvalsh(np.cov(np.stack((on_plane @ direction, on_plane @ up))))
     if spread[0] < WALL_INLIER_M**2:  # a line (the edge of a floor seen from above, a rail) is no wall
         return None
     normal = normals[best] @ level
@@ -536,8 +536,8 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
 
     Each mask is sampled every n-th pixel row and column (``sampling_stride_px``: 1 to
     ``params.pixel_stride_max_px``) and cleaned with depth: samples of what lies behind or apart from
-    the object (``front_samples``), and the wall behind a screen (``off_wall_samples``), are left out. Each voxel's colour is the mean of the colour pixels
-    its samples land on (``voxel_colors``)."""
+    the object (``front_samples``), and the wall behind a screen (``off_wall_samples``), are left out.
+    Each voxel's colour is the mean of the colour pixels its samples land on (``voxel_colors``)."""
     stride = sampling_stride_px(frame, params)
     registered = None if frame.registered else register_samples(frame, params, stride)
     width = frame.rgb.shape[1]
