@@ -77,6 +77,25 @@ def test_delete_map_removes_every_key_of_the_map_and_no_other(redis_store: Redis
     assert [o.id for o in store.list_objects(other)] == [1]
 
 
+def test_a_deletion_counts_each_object_once_when_scan_returns_it_twice(
+    redis_store: RedisStore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Redis documents that SCAN may return an element more than once (the hash rehashes while the deletion
+    # removes its fields): the record must count objects removed, not ids seen.
+    store = redis_store
+    store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 0.7, 0, 0)) for i in (1, 2, 3)]), frame_key="dev/f1")
+    scan = store.client.hscan_iter
+
+    def scan_twice(name: str, *args: object, **kwargs: object):  # the real SCAN, then its first field again
+        fields = list(scan(name, *args, **kwargs))
+        yield from fields + fields[:1]
+
+    monkeypatch.setattr(store.client, "hscan_iter", scan_twice)
+    assert store.delete_map(MAP) == 3
+    deletion = store.map_deletion(MAP)
+    assert deletion is not None and (deletion.objects, deletion.objects_removed) == (3, 3)
+
+
 def test_key_templates() -> None:
     assert keys.map_prefix("m") == "arcloud:{m}"
     assert keys.object_key("m", 7) == "arcloud:{m}:obj:7"

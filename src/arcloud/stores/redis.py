@@ -650,9 +650,9 @@ class RedisStore:
         pipe = self.client.pipeline(transaction=False)
         pipe.hdel(keys.bounds_key(map_id), *ids)
         pipe.hdel(keys.meta_key(map_id), *ids)
-        pipe.execute()
+        gone, _ = pipe.execute()  # SCAN may return an object twice: count what HDEL removed, not the ids
         return self._record_deletion(
-            replace(going, objects_removed=going.objects_removed + len(ids), keys_removed=going.keys_removed + removed)
+            replace(going, objects_removed=going.objects_removed + int(gone), keys_removed=going.keys_removed + removed)
         )
 
     def _record_deletion(self, deletion: MapDeletion, *, done: bool = False) -> MapDeletion:
