@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from arcloud.core.gravity import Gravity
 from arcloud.core.types import CLASS_INDEX, Detection, Frame, Params, VoxelDetection
 
 KEY_BITS = 21
@@ -451,7 +452,7 @@ def ring_points(
     return back_project(frame, registered.v_px[near], registered.u_px[near], registered.z_m[near])
 
 
-def wall_plane(points: np.ndarray, up: np.ndarray, eye: np.ndarray) -> tuple[np.ndarray, float] | None:
+def wall_plane(points: np.ndarray, gravity: Gravity, eye: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The vertical plane most of ``points`` (N, 3) lie on (see ``WALL_MIN_SHARE``), as its horizontal
     unit normal facing the ``eye`` and its offset (``normal @ x == offset`` on it); None when there is
     none, or when the points on it spread less than ``WALL_INLIER_M`` across their main direction (they
@@ -462,9 +463,7 @@ def wall_plane(points: np.ndarray, up: np.ndarray, eye: np.ndarray) -> tuple[np.
     n = len(points)
     if n < 2:
         return None
-    across = np.cross(up, (1.0, 0.0, 0.0) if abs(up[0]) < 0.9 else (0.0, 1.0, 0.0))
-    across /= np.linalg.norm(across)
-    level = np.stack((across, np.cross(up, across)))  # (2, 3): a basis of the horizontal
+    level, up = gravity.world2gravity[:2], gravity.up  # level: (2, 3), a basis of the horizontal
     flat = points @ level.T  # (N, 2): the points seen from above
     pairs = np.random.default_rng(0).integers(0, n, size=(WALL_TRIALS, 2))
     along = flat[pairs[:, 1]] - flat[pairs[:, 0]]
@@ -501,7 +500,7 @@ def off_wall_samples(points: np.ndarray, ring: np.ndarray, eye: np.ndarray, dept
     keep_all = np.ones(len(points), bool)
     if params.wall_margin_m is None or len(points) == 0 or len(ring) == 0:
         return keep_all
-    plane = wall_plane(ring, params.gravity.up, eye)
+    plane = wall_plane(ring, params.gravity, eye)
     if plane is None:
         return keep_all
     normal, offset = plane
