@@ -13,7 +13,7 @@ from arcloud.core.confirm import is_confirmed
 from arcloud.core.floor import frame_floor
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import OBB, Detection, Params, empty_object
-from arcloud.core.voxels import back_project, view_weight
+from arcloud.core.voxels import back_project, mask_extent, view_weight
 from arcloud.stores.memory import MemoryStore
 
 PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)
@@ -36,18 +36,20 @@ def mask_points(frame, mask):
 
 def test_view_weight_falls_for_cut_off_small_far_and_edge_on_views():
     frame, mask = next(screen_views(0, 1, yaw_deg=0.0))
-    full = view_weight(frame, mask, mask_points(frame, mask), PARAMS)
+    full = view_weight(frame, mask_extent(mask), mask_points(frame, mask), PARAMS)
     assert full == pytest.approx(1.0, abs=0.02)  # face on, whole, near
     (oblique, oblique_mask), *_ = screen_views(0, 1, yaw_deg=70.0)
-    assert view_weight(oblique, oblique_mask, mask_points(oblique, oblique_mask), PARAMS) < 0.6 * full
+    assert view_weight(oblique, mask_extent(oblique_mask), mask_points(oblique, oblique_mask), PARAMS) < 0.6 * full
     cut = mask.copy()
     cut[: np.flatnonzero(mask.any(axis=1))[0] + 3] = False  # its top rows gone, then touching the border:
     cut[0] = mask[np.flatnonzero(mask.any(axis=1))[0] + 3]
-    assert view_weight(frame, cut, mask_points(frame, cut), PARAMS) == pytest.approx(PARAMS.view_truncated_weight, rel=0.05)
+    assert view_weight(frame, mask_extent(cut), mask_points(frame, cut), PARAMS) == pytest.approx(
+        PARAMS.view_truncated_weight, rel=0.05
+    )
     tiny = rect_mask(slice(28, 30), slice(38, 40))  # 4 of 4800 pixels
-    assert view_weight(frame, tiny, mask_points(frame, tiny), PARAMS) == pytest.approx(4 / 4800 / 0.01, rel=0.05)
+    assert view_weight(frame, mask_extent(tiny), mask_points(frame, tiny), PARAMS) == pytest.approx(4 / 4800 / 0.01, rel=0.05)
     far_points = mask_points(frame, mask) + np.array([0.0, 4.0, 0.0])  # 6 m away
-    assert view_weight(frame, mask, far_points, PARAMS) < 0.6
+    assert view_weight(frame, mask_extent(mask), far_points, PARAMS) < 0.6
 
 
 @pytest.mark.parametrize("weighted", [True, False])

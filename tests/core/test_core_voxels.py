@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 from handmade_frames import INTRINSICS, plane_frame, rect_mask
+from scipy import ndimage
 
 from arcloud.core.camera import boxes_in_frustum, frame_frustum, view_frustum
 from arcloud.core.types import Detection, Params
@@ -12,8 +13,10 @@ from arcloud.core.voxels import (
     key_centers,
     mask_extent,
     mask_points,
+    near_mask,
     pack_keys,
     sorted_unique,
+    summed_area,
     unpack_keys,
     voxelize_detections,
 )
@@ -121,6 +124,19 @@ def test_sorted_unique_matches_np_unique():
 def test_erode_sampled_is_erode_then_sample(radius_px, stride_px):
     mask = np.random.default_rng(radius_px).random((37, 53)) < 0.9
     assert np.array_equal(erode_sampled(mask, radius_px, stride_px), erode(mask, radius_px)[::stride_px, ::stride_px])
+
+
+@pytest.mark.parametrize("radius_px", [1, 3, 8])
+def test_near_mask_is_a_square_maximum_filter(radius_px):
+    rng = np.random.default_rng(radius_px)
+    mask = np.zeros((31, 47), bool)
+    mask[tuple(rng.integers(0, (31, 47), (6, 2)).T)] = True  # a few pixels, some near the border
+    mask[0, 5] = mask[12, 46] = True
+    v, u = np.arange(31)[:, None], np.arange(47)[None, :]
+    expected = ndimage.maximum_filter(mask.view(np.uint8), size=2 * radius_px + 1) > 0
+    assert np.array_equal(near_mask(summed_area(mask), v, u, radius_px), expected)
+    rows, cols = rng.integers(0, 31, 100), rng.integers(0, 47, 100)  # read at scattered pixels
+    assert np.array_equal(near_mask(summed_area(mask), rows, cols, radius_px), expected[rows, cols])
 
 
 @pytest.mark.parametrize("width", [64, 61])  # read as 64-bit words, and not

@@ -208,22 +208,28 @@ def eroded_lines(mask: np.ndarray, radius_px: int, axis: int, stride_px: int) ->
     return eroded
 
 
-def mask_extent(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+def mask_extent(mask: np.ndarray) -> Extent | None:
     """The bounding box (row0, row1, col0, col1), ends exclusive, of an (H, W) bool mask's pixels; None
     when it has none."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    rows = np.flatnonzero(mask.any(axis=1))
     if rows.size == 0:
         return None
-    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    r0, r1 = int(rows[0]), int(rows[-1]) + 1
+    cols = np.flatnonzero(mask[r0:r1].any(axis=0))  # only the rows that hold it: one pass over the mask
+    return r0, r1, int(cols[0]), int(cols[-1]) + 1
+
+
+Extent = tuple[int, int, int, int]  # a mask's (row0, row1, col0, col1), ends exclusive (``mask_extent``)
 
 
 Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # v_px (N,), u_px (N,) depth pixels and z_m (N,)
 
 
-def mask_samples(frame: Frame, mask: np.ndarray, params: Params, stride_px: int = 1) -> Samples:
+def mask_samples(frame: Frame, mask: np.ndarray, params: Params, stride_px: int = 1, extent: Extent | None = None) -> Samples:
     """The depth samples (every ``stride_px``-th row and column) under a mask of a registered frame,
-    after eroding the mask's border, with depth in range. Works on the mask's bounding box only."""
-    extent = mask_extent(mask)
+    after eroding the mask's border, with depth in range. Works on the mask's bounding box only
+    (``extent``: its ``mask_extent``, when the caller has it)."""
+    extent = extent or mask_extent(mask)
     if extent is None:
         return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
     r0, r1, c0, c1 = extent
@@ -301,9 +307,12 @@ def registered_mask_samples(mask: np.ndarray, params: Params, samples: Registere
     return samples.v_px[near], samples.u_px[near], samples.z_m[near]
 
 
-def registered_mask_indices(mask: np.ndarray, params: Params, samples: RegisteredSamples) -> np.ndarray:
-    """Indices (ascending) into ``samples`` of those ``registered_mask_samples`` returns."""
-    extent = mask_extent(mask)
+def registered_mask_indices(
+    mask: np.ndarray, params: Params, samples: RegisteredSamples, extent: Extent | None = None
+) -> np.ndarray:
+    """Indices (ascending) into ``samples`` of those ``registered_mask_samples`` returns (``extent``: the
+    mask's ``mask_extent``, when the caller has it)."""
+    extent = extent or mask_extent(mask)
     if extent is None:
         return np.empty(0, np.int64)
     r0, r1, c0, c1 = extent
@@ -429,27 +438,57 @@ WALL_MAX_POINTS = 2000
 
 
 def ring_points(
-    frame: Frame, mask: np.ndarray, params: Params, stride_px: int, registered: RegisteredSamples | None
+    frame: Frame,
+    mask: np.ndarray,
+    params: Params,
+    stride_px: int,
+    registered: RegisteredSamples | None,
+    extent: Extent | None = None,
 ) -> np.ndarray:
     """World points (N, 3) of the depth samples that land in a ring around the mask, ``WALL_RING_PX``
-    pixels out (scaled with the image's width): what the camera sees around the object."""
-    extent = mask_extent(mask)
+    pixels out (scaled with the image's width): what the camera sees around the object. ``extent``:
+    the mask's ``mask_extent``, when the caller has it."""
+    extent = extent or mask_extent(mask)
     if extent is None:
         return np.empty((0, 3))
     inner, outer = (max(1, round(r * mask.shape[1] / 640)) for r in WALL_RING_PX)
     height, width = mask.shape
     r0, c0 = max(0, extent[0] - outer), max(0, extent[2] - outer)
     r1, c1 = min(height, extent[1] + outer), min(width, extent[3] + outer)
-    crop = mask[r0:r1, c0:c1].view(np.uint8)
-    ring = (ndimage.maximum_filter(crop, size=2 * outer + 1) > 0) & ~(ndimage.maximum_filter(crop, size=2 * inner + 1) > 0)
+    counts = summed_area(mask[r0:r1, c0:c1])
+
+    def ring(v: np.ndarray, u: np.ndarray) -> np.ndarray:  # v, u: crop pixels (broadcast together)
+        return near_mask(counts, v, u, outer) & ~near_mask(counts, v, u, inner)
+
     if registered is None:
+        v, u = np.arange(0, r1 - r0, stride_px), np.arange(0, c1 - c0, stride_px)
         depth = frame.depth_m[r0:r1:stride_px, c0:c1:stride_px]
-        v, u = np.nonzero(ring[::stride_px, ::stride_px] & (depth >= params.depth_min_m) & (depth <= params.depth_max_m))
+        v, u = np.nonzero(ring(v[:, None], u[None, :]) & (depth >= params.depth_min_m) & (depth <= params.depth_max_m))
         return back_project(frame, v * stride_px + r0, u * stride_px + c0, depth[v, u].astype(np.float64))
     rgb_v, rgb_u = registered.rgb_v_px, registered.rgb_u_px
     near = np.flatnonzero((rgb_v >= r0) & (rgb_v < r1) & (rgb_u >= c0) & (rgb_u < c1))
-    near = near[ring[rgb_v[near] - r0, rgb_u[near] - c0]]
+    near = near[ring(rgb_v[near] - r0, rgb_u[near] - c0)]
     return back_project(frame, registered.v_px[near], registered.u_px[near], registered.z_m[near])
+
+
+def summed_area(mask: np.ndarray) -> np.ndarray:
+    """(H + 1, W + 1) int32: the summed-area table of an (H, W) bool mask, a zero row and column first
+    (entry (v, u) counts the mask's pixels above and left of pixel (v, u))."""
+    counts = np.zeros((mask.shape[0] + 1, mask.shape[1] + 1), np.int32)
+    np.cumsum(mask, axis=0, dtype=np.int32, out=counts[1:, 1:])
+    np.cumsum(counts[1:, 1:], axis=1, out=counts[1:, 1:])
+    return counts
+
+
+def near_mask(counts: np.ndarray, v: np.ndarray, u: np.ndarray, radius_px: int) -> np.ndarray:
+    """Whether a mask pixel lies within ``radius_px`` (chessboard distance) of each pixel (v, u) (int
+    arrays that broadcast together), from the mask's ``summed_area`` table: the count in the square
+    around it, clipped to the mask. A square's maximum filter (``ndimage.maximum_filter`` is its plain
+    version; a test holds them equal), read only where it is needed."""
+    height, width = counts.shape[0] - 1, counts.shape[1] - 1
+    top, bottom = np.maximum(v - radius_px, 0), np.minimum(v + radius_px + 1, height)
+    left, right = np.maximum(u - radius_px, 0), np.minimum(u + radius_px + 1, width)
+    return counts[bottom, right] - counts[top, right] - counts[bottom, left] + counts[top, left] > 0
 
 
 def wall_plane(points: np.ndarray, gravity: Gravity, eye: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -543,11 +582,14 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
     rgb_pixels = frame.rgb.reshape(-1, 3)  # (H * W, 3): a pixel by its flat index (a view when contiguous)
     voxelized = []
     for det in detections:
+        extent = mask_extent(det.mask)
+        if extent is None:
+            continue
         if registered is None:
-            v_px, u_px, z_m = mask_samples(frame, det.mask, params, stride)
+            v_px, u_px, z_m = mask_samples(frame, det.mask, params, stride, extent)
             rgb_px = v_px * width + u_px
         else:
-            near = registered_mask_indices(det.mask, params, registered)
+            near = registered_mask_indices(det.mask, params, registered, extent)
             v_px, u_px, z_m = registered.v_px[near], registered.u_px[near], registered.z_m[near]
             rgb_px = registered.rgb_v_px[near] * width + registered.rgb_u_px[near]
         points = back_project(frame, v_px, u_px, z_m)
@@ -555,8 +597,9 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
             front = front_samples(v_px, u_px, z_m, stride, params, points)
             points, rgb_px = points[front], rgb_px[front]
         if params.wall_margin_m is not None and z_m.size and det.label in params.wall_classes:
-            depth_share = z_m.size * stride * stride / max(1, int(np.count_nonzero(det.mask)))
-            ring = ring_points(frame, det.mask, params, stride, registered)
+            r0, r1, c0, c1 = extent
+            depth_share = z_m.size * stride * stride / max(1, int(np.count_nonzero(det.mask[r0:r1, c0:c1])))
+            ring = ring_points(frame, det.mask, params, stride, registered, extent)
             off = off_wall_samples(points, ring, frame.cam2world[:3, 3], depth_share, params)
             points, rgb_px = points[off], rgb_px[off]
         if len(points) == 0:
@@ -565,15 +608,16 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
         keys = sorted_unique(sample_keys)
         if keys.size >= params.min_voxels_per_detection:
             colors = voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0))
-            weight = view_weight(frame, det.mask, points, params, stride)
+            weight = view_weight(frame, extent, points, params, stride)
             voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors, weight))
     return voxelized
 
 
-def view_weight(frame: Frame, mask: np.ndarray, points: np.ndarray, params: Params, stride_px: int = 1) -> float:
+def view_weight(frame: Frame, extent: Extent, points: np.ndarray, params: Params, stride_px: int = 1) -> float:
     """How well a frame saw a detected object, in (0, 1]: the product of
-    - ``view_truncated_weight`` when the mask touches the image border (the object is cut off: its mask
-      often takes in what lies beyond the cut, and a part looks like another class);
+    - ``view_truncated_weight`` when the mask (its ``mask_extent``: ``extent``) touches the image border
+      (the object is cut off: its mask often takes in what lies beyond the cut, and a part looks like
+      another class);
     - the share of the image its samples cover (each ``stride_px`` squared pixels) over
       ``view_full_mask_share``, at most 1 (a few pixels);
     - ``view_far_m`` over the mean distance of its points, at most 1 (far views are coarse);
@@ -582,9 +626,10 @@ def view_weight(frame: Frame, mask: np.ndarray, points: np.ndarray, params: Para
       like a laptop.
     ``points``: (N, 3) world points of the mask's samples (N > 0), taken every ``stride_px``-th row and column."""
     weight = 1.0
-    if mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+    height, width = frame.shape
+    if extent[0] == 0 or extent[1] == height or extent[2] == 0 or extent[3] == width:
         weight *= params.view_truncated_weight
-    share = len(points) * stride_px * stride_px / mask.size
+    share = len(points) * stride_px * stride_px / (height * width)
     if params.view_full_mask_share > 0:
         weight *= min(1.0, share / params.view_full_mask_share)
     eye = frame.cam2world[:3, 3]
