@@ -63,7 +63,8 @@ def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m
     # the frames' order decides) still joins the parts it touches; empty space does not.
     grid = np.zeros(shape, bool)
     local_all = ijk_all - origin
-    inside = np.all((local_all >= 0) & (local_all < np.array(shape)), axis=1)
+    below = local_all.view(np.uint64) < np.array(shape, np.uint64)  # a negative index reads as a huge one
+    inside = below[:, 0] & below[:, 1] & below[:, 2]
     grid[tuple(local_all[inside].T)] = True
     local = ijk - origin
     labelled, n_parts = ndimage.label(grid, structure=_CONNECTIVITY_26)
