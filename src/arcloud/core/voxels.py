@@ -300,18 +300,11 @@ def register_samples(frame: Frame, params: Params, stride_px: int) -> Registered
     return RegisteredSamples(stride_px, v[keep], u[keep], z[keep], rgb_v[seen], rgb_u[seen])
 
 
-def registered_mask_samples(mask: np.ndarray, params: Params, samples: RegisteredSamples) -> Samples:
-    """The depth samples whose colour pixel lies in the mask (eroded by ``params.erode_px`` in the
-    colour image)."""
-    near = registered_mask_indices(mask, params, samples)
-    return samples.v_px[near], samples.u_px[near], samples.z_m[near]
-
-
 def registered_mask_indices(
     mask: np.ndarray, params: Params, samples: RegisteredSamples, extent: Extent | None = None
 ) -> np.ndarray:
-    """Indices (ascending) into ``samples`` of those ``registered_mask_samples`` returns (``extent``: the
-    mask's ``mask_extent``, when the caller has it)."""
+    """Indices (ascending) into ``samples`` of the depth samples whose colour pixel lies in the mask (eroded by
+    ``params.erode_px`` in the colour image); ``extent``: the mask's ``mask_extent``, when the caller has it."""
     extent = extent or mask_extent(mask)
     if extent is None:
         return np.empty(0, np.int64)

@@ -114,12 +114,6 @@ def _create_session(path: Path, intra_op_threads: int | None, providers: tuple[s
     return session
 
 
-def clear_session_cache() -> None:
-    """Forget every cached session (tests, or after replacing model files)."""
-    with _sessions_lock:
-        _sessions.clear()
-
-
 def _spec(node: Any) -> TensorSpec:
     shape = node.shape if isinstance(node.shape, list) else []
     return TensorSpec(node.name, tuple(shape), node.type)
