@@ -1,5 +1,5 @@
 """Decided across views, on hand-made frames: the label from every frame that saw an object, weighted by
-how well each saw it (core.voxels.view_weight); boxes of what was seen (a chair pushed under a table
+how well each saw it (core.voxels.view_weights); boxes of what was seen (a chair pushed under a table
 does not reach a floor no frame saw beside it: core.floor.floor_beside_seen); an object detected in
 many frames at a low score is confirmed (core.confirm)."""
 
@@ -13,7 +13,7 @@ from arcloud.core.confirm import is_confirmed
 from arcloud.core.floor import frame_floor
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import OBB, Detection, Params, empty_object
-from arcloud.core.voxels import back_project, mask_extent, view_weight
+from arcloud.core.voxels import back_project, mask_extent, view_weights
 from arcloud.stores.memory import MemoryStore
 
 PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)
@@ -34,22 +34,37 @@ def mask_points(frame, mask):
     return back_project(frame, v, u, frame.depth_m[v, u])
 
 
+def view_weight(frame, mask, points):
+    return view_weights(frame, [mask_extent(mask)], [points], PARAMS)[0]
+
+
 def test_view_weight_falls_for_cut_off_small_far_and_edge_on_views():
     frame, mask = next(screen_views(0, 1, yaw_deg=0.0))
-    full = view_weight(frame, mask_extent(mask), mask_points(frame, mask), PARAMS)
+    full = view_weight(frame, mask, mask_points(frame, mask))
     assert full == pytest.approx(1.0, abs=0.02)  # face on, whole, near
     (oblique, oblique_mask), *_ = screen_views(0, 1, yaw_deg=70.0)
-    assert view_weight(oblique, mask_extent(oblique_mask), mask_points(oblique, oblique_mask), PARAMS) < 0.6 * full
+    assert view_weight(oblique, oblique_mask, mask_points(oblique, oblique_mask)) < 0.6 * full
     cut = mask.copy()
     cut[: np.flatnonzero(mask.any(axis=1))[0] + 3] = False  # its top rows gone, then touching the border:
     cut[0] = mask[np.flatnonzero(mask.any(axis=1))[0] + 3]
-    assert view_weight(frame, mask_extent(cut), mask_points(frame, cut), PARAMS) == pytest.approx(
-        PARAMS.view_truncated_weight, rel=0.05
-    )
+    assert view_weight(frame, cut, mask_points(frame, cut)) == pytest.approx(PARAMS.view_truncated_weight, rel=0.05)
     tiny = rect_mask(slice(28, 30), slice(38, 40))  # 4 of 4800 pixels
-    assert view_weight(frame, mask_extent(tiny), mask_points(frame, tiny), PARAMS) == pytest.approx(4 / 4800 / 0.01, rel=0.05)
+    assert view_weight(frame, tiny, mask_points(frame, tiny)) == pytest.approx(4 / 4800 / 0.01, rel=0.05)
     far_points = mask_points(frame, mask) + np.array([0.0, 4.0, 0.0])  # 6 m away
-    assert view_weight(frame, mask_extent(mask), far_points, PARAMS) < 0.6
+    assert view_weight(frame, mask, far_points) < 0.6
+
+
+def test_view_weights_of_a_frames_masks_together_are_each_masks_own():
+    # One eigendecomposition serves every mask of a frame: the weights are those of one mask at a time.
+    frame, mask = next(screen_views(0, 1, yaw_deg=35.0))
+    cut = mask.copy()
+    cut[: np.flatnonzero(mask.any(axis=1))[0] + 3] = False
+    masks = [mask, rect_mask(slice(28, 30), slice(38, 40)), cut, rect_mask(slice(0, 30), slice(0, 60))]
+    masks = [m & (frame.depth_m > 0) for m in masks]
+    extents, points = [mask_extent(m) for m in masks], [mask_points(frame, m) for m in masks]
+    together = view_weights(frame, extents, points, PARAMS)
+    assert together == [view_weights(frame, [e], [p], PARAMS)[0] for e, p in zip(extents, points)]
+    assert len(set(together)) == len(masks)  # four different views, four different weights
 
 
 @pytest.mark.parametrize("weighted", [True, False])

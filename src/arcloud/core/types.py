@@ -96,7 +96,7 @@ class Detection:
 class VoxelDetection:
     """A detection back-projected into the world: sorted unique packed voxel keys (int64), and
     ``colors`` (N, 3) uint8 aligned with them: the mean RGB of the samples in each voxel (None: unknown).
-    ``view_weight`` in (0, 1]: how well the frame saw it (``core.voxels.view_weight``); its label vote
+    ``view_weight`` in (0, 1]: how well the frame saw it (``core.voxels.view_weights``); its label vote
     is its score times this."""
 
     label_index: int
@@ -362,7 +362,7 @@ class Params:
     split_min_frames: int = 3
     split_classes: tuple[str, ...] = ("chair", "laptop", "tv")  # see core.associate.Association
     apart_min_frames: int = 3  # two objects detected apart in this many frames stay two (core.fusion.seen_apart; 0: off)
-    # Label votes weighted by how well each view saw the object (core.voxels.view_weight)
+    # Label votes weighted by how well each view saw the object (core.voxels.view_weights)
     view_truncated_weight: float = 0.5  # a mask touching the image border (the object is cut off)
     view_full_mask_share: float = 0.01  # a mask covering less of the image weighs in proportion
     view_far_m: float = 3.0  # a view from farther weighs in proportion (view_far_m / median depth)

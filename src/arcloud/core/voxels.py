@@ -573,7 +573,9 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
     registered = None if frame.registered else register_samples(frame, params, stride)
     width = frame.rgb.shape[1]
     rgb_pixels = frame.rgb.reshape(-1, 3)  # (H * W, 3): a pixel by its flat index (a view when contiguous)
-    voxelized = []
+    kept: list[tuple[Detection, np.ndarray, np.ndarray]] = []  # (detection, keys, colours) of those kept
+    extents: list[Extent] = []
+    point_sets: list[np.ndarray] = []
     for det in detections:
         extent = mask_extent(det.mask)
         if extent is None:
@@ -600,15 +602,21 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
         sample_keys = points_to_keys(points, params.voxel_size_m)
         keys = sorted_unique(sample_keys)
         if keys.size >= params.min_voxels_per_detection:
-            colors = voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0))
-            weight = view_weight(frame, extent, points, params, stride)
-            voxelized.append(VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors, weight))
-    return voxelized
+            kept.append((det, keys, voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0))))
+            extents.append(extent)
+            point_sets.append(points)
+    weights = view_weights(frame, extents, point_sets, params, stride)
+    return [
+        VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors, weight)
+        for (det, keys, colors), weight in zip(kept, weights)
+    ]
 
 
-def view_weight(frame: Frame, extent: Extent, points: np.ndarray, params: Params, stride_px: int = 1) -> float:
-    """How well a frame saw a detected object, in (0, 1]: the product of
-    - ``view_truncated_weight`` when the mask (its ``mask_extent``: ``extent``) touches the image border
+def view_weights(
+    frame: Frame, extents: Sequence[Extent], point_sets: Sequence[np.ndarray], params: Params, stride_px: int = 1
+) -> list[float]:
+    """How well a frame saw each of its detected objects, in (0, 1]: the product of
+    - ``view_truncated_weight`` when the mask (its ``mask_extent``, in ``extents``) touches the image border
       (the object is cut off: its mask often takes in what lies beyond the cut, and a part looks like
       another class);
     - the share of the image its samples cover (each ``stride_px`` squared pixels) over
@@ -617,30 +625,38 @@ def view_weight(frame: Frame, extent: Extent, points: np.ndarray, params: Params
     - for a flat object (its points' smallest spread well below the middle one), the cosine between its
       normal and the line of sight, scaled into [``view_oblique_min``, 1]: a screen seen edge-on looks
       like a laptop.
-    ``points``: (N, 3) world points of the mask's samples (N > 0), taken every ``stride_px``-th row and column."""
-    weight = 1.0
+    ``point_sets``: each object's (N, 3) world points of its mask's samples (N > 0), taken every
+    ``stride_px``-th row and column. The spreads of all objects are found by one eigendecomposition of
+    their stacked scatter matrices (a call per object costs several times more inside the step)."""
     height, width = frame.shape
-    if extent[0] == 0 or extent[1] == height or extent[2] == 0 or extent[3] == width:
-        weight *= params.view_truncated_weight
-    share = len(points) * stride_px * stride_px / (height * width)
-    if params.view_full_mask_share > 0:
-        weight *= min(1.0, share / params.view_full_mask_share)
     eye = frame.cam2world[:3, 3]
-    sample = points[:: max(1, len(points) // 256)] - eye  # from the eye
-    distance_m = float(np.sqrt(np.einsum("ij,ij->i", sample, sample)).mean())
-    if distance_m > params.view_far_m:
-        weight *= params.view_far_m / distance_m
-    if params.view_oblique_min < 1 and len(sample) >= 16:
-        mean = sample.mean(axis=0)
-        centred = sample - mean
-        spreads, axes = np.linalg.eigh(centred.T @ centred)  # ascending
-        if spreads[1] > 0:
-            flatness = 1.0 - float(np.sqrt(max(spreads[0], 0.0) / spreads[1]))
-            sight = mean
-            cosine = abs(float(axes[:, 0] @ sight)) / max(float(np.linalg.norm(sight)), 1e-9)
-            facing = params.view_oblique_min + (1 - params.view_oblique_min) * cosine
-            weight *= 1.0 - flatness * (1.0 - facing)
-    return max(weight, 1e-3)
+    weights: list[float] = []
+    flat: list[tuple[int, np.ndarray, np.ndarray]] = []  # (index, scatter matrix, mean from the eye)
+    for extent, points in zip(extents, point_sets):
+        weight = 1.0
+        if extent[0] == 0 or extent[1] == height or extent[2] == 0 or extent[3] == width:
+            weight *= params.view_truncated_weight
+        share = len(points) * stride_px * stride_px / (height * width)
+        if params.view_full_mask_share > 0:
+            weight *= min(1.0, share / params.view_full_mask_share)
+        sample = points[:: max(1, len(points) // 256)] - eye  # from the eye
+        distance_m = float(np.sqrt(np.einsum("ij,ij->i", sample, sample)).mean())
+        if distance_m > params.view_far_m:
+            weight *= params.view_far_m / distance_m
+        if params.view_oblique_min < 1 and len(sample) >= 16:
+            mean = sample.mean(axis=0)
+            centred = sample - mean
+            flat.append((len(weights), centred.T @ centred, mean))
+        weights.append(weight)
+    if flat:
+        spreads, axes = np.linalg.eigh(np.stack([scatter for _, scatter, _ in flat]))  # ascending
+        for (i, _, sight), spread, axis in zip(flat, spreads, axes):
+            if spread[1] > 0:
+                flatness = 1.0 - float(np.sqrt(max(spread[0], 0.0) / spread[1]))
+                cosine = abs(float(axis[:, 0] @ sight)) / max(float(np.linalg.norm(sight)), 1e-9)
+                facing = params.view_oblique_min + (1 - params.view_oblique_min) * cosine
+                weights[i] *= 1.0 - flatness * (1.0 - facing)
+    return [max(weight, 1e-3) for weight in weights]
 
 
 def project_centers(
