@@ -292,7 +292,7 @@ class Histogram:
 @dataclass(frozen=True, slots=True)
 class FrameTimings:
     """What one processed frame took and waited (seconds), for the queue's histograms (``QueueStats``):
-    ``step_s``, the step (detect to publish, its retries included); ``queue_wait_s``, from the frame's
+    ``step_s``, the step (detect to commit, its retries included); ``queue_wait_s``, from the frame's
     acceptance until a worker took it (None: not counted, as for a frame delivered again, whose wait holds
     its earlier deliveries; the API's and the worker's clocks must agree); ``lock_wait_s``, in the store's
     lock and claim calls (a round trip each when nothing else holds the objects or cells)."""

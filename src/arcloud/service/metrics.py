@@ -78,7 +78,7 @@ class IngestCollector(Collector):
             buckets.append(("+Inf" if bound == float("inf") else repr(bound), cumulative))
         yield HistogramMetricFamily(
             "arcloud_step_latency_seconds",
-            "Time of the per-frame step (detect to publish)",
+            "Time of the per-frame step (detect to commit)",
             buckets=buckets,
             sum_value=snap.latency_sum_s,
         )
