@@ -10,6 +10,7 @@ from arcloud.core.voxels import (
     erode,
     erode_sampled,
     footprint_share,
+    in_sorted,
     key_centers,
     mask_extent,
     mask_points,
@@ -124,6 +125,15 @@ def test_sorted_unique_matches_np_unique():
 def test_erode_sampled_is_erode_then_sample(radius_px, stride_px):
     mask = np.random.default_rng(radius_px).random((37, 53)) < 0.9
     assert np.array_equal(erode_sampled(mask, radius_px, stride_px), erode(mask, radius_px)[::stride_px, ::stride_px])
+
+
+def test_in_sorted_is_isin():
+    rng = np.random.default_rng(5)
+    for n_values, n_ordered in ((1000, 300), (50, 1), (20, 0), (0, 10)):
+        values = rng.integers(-40, 40, n_values)
+        ordered = sorted_unique(rng.integers(-30, 30, n_ordered))
+        assert np.array_equal(in_sorted(values, ordered), np.isin(values, ordered))
+    assert in_sorted(np.array([7, 9]), np.array([9])).tolist() == [False, True]  # past the last: not found
 
 
 @pytest.mark.parametrize("radius_px", [1, 3, 8])

@@ -10,7 +10,15 @@ import numpy as np
 from arcloud.core.associate import index_bounds_of_sets, overlap_matrix, stored_index_bounds_of
 from arcloud.core.floor import add_votes
 from arcloud.core.types import CLASS_INDEX, CLASSES, N_CLASSES, MapObject, Params, VoxelDetection, empty_object
-from arcloud.core.voxels import coarsen_keys, coarsen_keys_unsorted, keys_extent, mean_colors, sorted_unique, unpack_keys
+from arcloud.core.voxels import (
+    coarsen_keys,
+    coarsen_keys_unsorted,
+    in_sorted,
+    keys_extent,
+    mean_colors,
+    sorted_unique,
+    unpack_keys,
+)
 
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
@@ -129,9 +137,9 @@ def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: i
     (possibly empty)."""
     coarse = coarsen_keys_unsorted(det.keys, factor)
     owner = np.zeros(det.keys.size, np.int64)
-    taken = np.isin(coarse, coarsen_keys(owners[0], factor))
+    taken = in_sorted(coarse, coarsen_keys(owners[0], factor))
     for i, keys in enumerate(owners[1:], start=1):
-        mine = ~taken & np.isin(coarse, coarsen_keys(keys, factor))
+        mine = ~taken & in_sorted(coarse, coarsen_keys(keys, factor))
         owner[mine] = i
         taken |= mine
     if not taken.all():
@@ -259,7 +267,8 @@ def find_duplicates(
     overlap = overlap_matrix(
         keys, keys, params.association_tolerance_voxels, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted
     )
-    parts = ~np.isin(labels, [CLASS_INDEX[name] for name in params.split_classes])  # tables, couches: seen in parts
+    split = {CLASS_INDEX[name] for name in params.split_classes}  # tables, couches: seen in parts
+    parts = np.array([label not in split for label in labels.tolist()], bool)
     min_overlap = np.where(parts[:, None], params.merge_min_overlap_parts, params.merge_min_overlap)
     same = wanted & ((overlap >= min_overlap) | (box_containment(objects) >= params.merge_min_box_containment))
     if joined:

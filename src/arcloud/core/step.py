@@ -58,6 +58,7 @@ from arcloud.core.voxels import (
     coarsen_keys_unsorted,
     footprint_share,
     free_voxels,
+    in_sorted,
     key_centers,
     keys_bounds,
     keys_extent,
@@ -386,7 +387,7 @@ def carve_apart(
             if np.any(lo > hi_other + factor) or np.any(lo_other > hi + factor):  # no coarse cell near both: none to give
                 continue
             obj_cells = coarsen_keys_unsorted(obj.keys, factor)
-            give = np.isin(obj_cells, coarsen_keys(seen_now[other], factor)) & ~np.isin(
+            give = in_sorted(obj_cells, coarsen_keys(seen_now[other], factor)) & ~in_sorted(
                 obj_cells, coarsen_keys(seen_now[owner], factor)
             )
             if give.any():

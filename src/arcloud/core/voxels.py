@@ -69,6 +69,17 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
     return ordered[first]
 
 
+def in_sorted(values: np.ndarray, ordered: np.ndarray) -> np.ndarray:
+    """(N,) bool: which of ``values`` (N,) are among ``ordered`` (sorted unique): ``np.isin``'s answer (its
+    plain version; a test holds them equal) by a binary search, which costs a fraction of ``np.isin``'s
+    sorting of both arrays together."""
+    if ordered.size == 0:
+        return np.zeros(np.shape(values), bool)
+    at = np.searchsorted(ordered, values)
+    np.minimum(at, ordered.size - 1, out=at)
+    return ordered[at] == values
+
+
 def coarsen_keys(keys: np.ndarray, factor: int) -> np.ndarray:
     """Sorted unique keys of the ``factor``-times coarser voxels holding ``keys``: ``coarsen_keys_plain``,
     without unpacking when ``factor`` is a power of two (a test holds them equal)."""
@@ -121,7 +132,7 @@ def footprint_share(keys_a: np.ndarray, keys_b: np.ndarray, params: Params) -> f
     reach = range(-params.association_tolerance_voxels, params.association_tolerance_voxels + 1)
     cells = unpack_keys(large)
     near = sorted_unique(np.concatenate([pack_keys(cells + (di, dj, 0)) for di in reach for dj in reach]))
-    return np.count_nonzero(np.isin(small, near, assume_unique=True)) / small.size
+    return np.count_nonzero(in_sorted(small, near)) / small.size
 
 
 def keys_bounds(keys: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
