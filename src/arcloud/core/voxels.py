@@ -219,6 +219,9 @@ def eroded_lines(mask: np.ndarray, radius_px: int, axis: int, stride_px: int) ->
     return eroded
 
 
+Extent = tuple[int, int, int, int]  # a mask's (row0, row1, col0, col1), ends exclusive (``mask_extent``)
+
+
 def mask_extent(mask: np.ndarray) -> Extent | None:
     """The bounding box (row0, row1, col0, col1), ends exclusive, of an (H, W) bool mask's pixels; None
     when it has none."""
@@ -228,9 +231,6 @@ def mask_extent(mask: np.ndarray) -> Extent | None:
     r0, r1 = int(rows[0]), int(rows[-1]) + 1
     cols = np.flatnonzero(mask[r0:r1].any(axis=0))  # only the rows that hold it: one pass over the mask
     return r0, r1, int(cols[0]), int(cols[-1]) + 1
-
-
-Extent = tuple[int, int, int, int]  # a mask's (row0, row1, col0, col1), ends exclusive (``mask_extent``)
 
 
 Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # v_px (N,), u_px (N,) depth pixels and z_m (N,)
