@@ -4,6 +4,9 @@ as a gauge."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 from prometheus_client.parser import text_string_to_metric_families
 from svc_helpers import AppClient, BlobDetector, make_test_frame, wait_until
 
@@ -13,6 +16,7 @@ from arcloud.service.settings import Settings
 from arcloud.tools.wiring import create_app
 
 PROTOBUF = {"content-type": "application/x-protobuf"}
+SERVICE_DOCS = Path(__file__).resolve().parents[2] / "docs" / "service.md"
 
 
 def samples(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
@@ -69,3 +73,31 @@ def test_map_series_are_bounded_queued_maps_first() -> None:
     shown = [s.labels["map_id"] for s in families["arcloud_map_frames_processed"].samples if s.name.endswith("_total")]
     assert len(shown) == MAX_MAP_SERIES and shown[0] == "m0000"  # queued frames first, then the busiest maps
     assert shown[1] == f"m{MAX_MAP_SERIES + 49:04d}"
+
+
+def documented_metric_names(row: str) -> set[str]:
+    """The metric names a table row gives in backticks, brace groups inside a name expanded
+    (``a_{b,c}_total``: ``a_b_total``, ``a_c_total``) and a label list at its end dropped (``name{method,route}``)."""
+    names = set()
+    for token in re.findall(r"`([a-z_{},]+)`", row):
+        token = re.sub(r"\{[a-z_,]+\}$", "", token)  # labels
+        group = re.search(r"\{([a-z_,]+)\}", token)
+        options = group.group(1).split(",") if group else [""]
+        names |= {token[: group.start()] + o + token[group.end() :] if group else token for o in options}
+    return names
+
+
+def test_the_service_docs_list_every_metric_the_app_exposes_and_no_other() -> None:
+    row = next(line for line in SERVICE_DOCS.read_text().splitlines() if line.startswith("| `GET /metrics` |"))
+    documented = {name for name in documented_metric_names(row) if name.startswith(("arcloud_", "http_"))}
+    settings = Settings(detector="sim:0", workers=1, auth="none")
+    with AppClient(create_app(settings, detector=BlobDetector())) as api:
+        body = frame_to_proto(make_test_frame(0, map_id="docs")).SerializeToString()
+        assert api.post("/v1/maps/docs/frames", content=body, headers=PROTOBUF).status_code == 202
+        assert api.post("/v1/maps/docs/frames", content=b"x", headers={"content-type": "text/plain"}).status_code == 415
+        wait_until(lambda: api.get("/v1/maps/docs/stats").json()["frames"]["processed"] == 1, 30, "the frame processed")
+        families = list(text_string_to_metric_families(api.get("/metrics").text))
+    # prometheus-client's own ``<counter or histogram>_created`` series (when each began) are not ours to list.
+    ours = [f for f in families if f.name.startswith(("arcloud_", "http_")) and not f.name.endswith("_created")]
+    exposed = {f.name + ("_total" if f.type == "counter" else "") for f in ours}
+    assert documented == exposed, f"undocumented: {sorted(exposed - documented)}; not exposed: {sorted(documented - exposed)}"
