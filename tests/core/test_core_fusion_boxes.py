@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
+from scipy import ndimage
 
-from arcloud.core.boxes import box_voxel_mask, fit_gravity_obb, refine
+from arcloud.core.boxes import box_voxel_mask, box_voxel_masks, fit_gravity_obb, label_side_by_side, refine, refine_all
 from arcloud.core.fusion import (
     VOTE_STEP,
     find_duplicates,
@@ -15,7 +16,7 @@ from arcloud.core.fusion import (
 )
 from arcloud.core.gravity import Gravity, up_rotation
 from arcloud.core.types import CLASS_INDEX, Params, VoxelDetection, empty_object
-from arcloud.core.voxels import pack_keys
+from arcloud.core.voxels import pack_keys, unpack_keys
 
 
 def block(lo, hi):
@@ -167,6 +168,42 @@ def test_parts_joined_by_the_objects_own_weak_voxels_stay_in_the_box_and_empty_s
     # The same parts with the layer empty (never the object's): the back is a small part of its own.
     apart = new_object(2, det("tv", np.union1d(body, back)), "a", 0.0)
     assert set(apart.keys[box_voxel_mask(apart, params)]) == set(body)
+
+
+def same_parts(a, b):
+    """Whether two labellings of one grid make the same parts (label numbers aside)."""
+    pairs = np.unique(np.stack((a.ravel(), b.ravel())), axis=1)
+    return len(set(pairs[0])) == len(set(pairs[1])) == pairs.shape[1] and bool(((a == 0) == (b == 0)).all())
+
+
+@pytest.mark.parametrize("widths", [(6, 5, 7), (3, 40, 2)])  # side by side, and too unlike to share an array
+def test_grids_labelled_side_by_side_have_the_parts_each_has_alone(widths):
+    rng = np.random.default_rng(sum(widths))
+    grids = [rng.random((int(rng.integers(2, 9)), w, int(rng.integers(2, 6)))) < 0.3 for w in widths]
+    labelled = label_side_by_side([(list(g.shape), np.argwhere(g)) for g in grids])
+    structure = np.ones((3, 3, 3), bool)
+    for grid, parts in zip(grids, labelled):
+        assert parts.shape == grid.shape and same_parts(parts, ndimage.label(grid, structure=structure)[0])
+    # Two cells of one grid on its last layer, and a next grid whose first layer would join them: still two parts.
+    ends, bridge = np.zeros((2, 1, 5), bool), np.ones((1, 1, 5), bool)
+    ends[1, 0, [0, 4]] = True
+    first, _ = label_side_by_side([(list(ends.shape), np.argwhere(ends)), (list(bridge.shape), np.argwhere(bridge))])
+    assert first[1, 0, 0] != first[1, 0, 4]
+
+
+def test_box_voxels_and_refined_objects_together_are_each_ones_own():
+    body = block((0, 0, 0), (10, 10, 10))
+    with_island = new_object(1, det("couch", np.union1d(body, block((30, 0, 0), (31, 2, 2)))), "a", 0.0)
+    screen = new_object(2, det("tv", np.union1d(block((0, 0, 0), (10, 10, 4)), block((0, 0, 6), (10, 10, 7)))), "a", 0.0)
+    small = new_object(3, det("chair", block((5, 5, 5), (6, 6, 7))), "a", 0.0)
+    objects, params = [with_island, screen, small], Params(min_component_fraction=0.5)
+    masks = box_voxel_masks(objects, params, [unpack_keys(o.keys) for o in objects], [None] * 3)
+    assert [m.tolist() for m in masks] == [box_voxel_mask(o, params).tolist() for o in objects]
+    assert masks[0].sum() == body.size and masks[1].sum() == 400  # each lost its small part
+    for together, alone in zip(refine_all(objects, params), [refine(o, params) for o in objects]):
+        assert np.array_equal(together.keys, alone.keys) and together.label == alone.label
+        assert np.array_equal(together.aabb.min, alone.aabb.min) and np.array_equal(together.aabb.max, alone.aabb.max)
+        assert np.array_equal(together.obb.center, alone.obb.center) and np.array_equal(together.obb.size, alone.obb.size)
 
 
 def test_gravity_obb_recovers_a_rotated_box():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -39,43 +40,77 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     through any of the object's voxels, kept or not; sizes count kept voxels)."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
-    return _box_voxel_mask(obj, params, unpack_keys(obj.keys))
+    return box_voxel_masks([obj], params, [unpack_keys(obj.keys)], [None])[0]
 
 
-def _box_voxel_mask(obj: MapObject, params: Params, ijk_all: np.ndarray, floor_m: float | None = None) -> np.ndarray:
-    """``box_voxel_mask`` of a non-empty object whose keys unpack to ``ijk_all`` (N, 3); with the
-    object's ``floor_m`` (``core.floor``), voxels within ``floor_clearance_m`` above it are floor a mask
-    bled onto, not the object."""
-    k = int(0.9 * (obj.weights.size - 1))
-    reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
-    keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
-    if floor_m is not None:
-        bottoms = ijk_all @ (params.voxel_size_m * params.gravity.up)  # (exactly so when up is +z)
-        keep &= bottoms > floor_m + params.floor_clearance_m
-    if np.count_nonzero(keep) < 2:
-        return keep
-    ijk = ijk_all[keep]
-    origin, top = ijk_extent(ijk)
-    shape = (top - origin + 1).tolist()
-    if math.prod(shape) > MAX_COMPONENT_GRID_CELLS:
-        return keep
-    # Parts are found over all the object's voxels in that extent: a voxel short of the occupancy rule (which
-    # the frames' order decides) still joins the parts it touches; empty space does not.
-    grid = np.zeros(shape, bool)
-    local_all = ijk_all - origin
-    below = local_all.view(np.uint64) < np.array(shape, np.uint64)  # a negative index reads as a huge one
-    inside = below[:, 0] & below[:, 1] & below[:, 2]
-    grid[tuple(local_all[inside].T)] = True
-    local = ijk - origin
-    labelled, n_parts = ndimage.label(grid, structure=_CONNECTIVITY_26)
-    if n_parts > 1:
-        part = labelled[local[:, 0], local[:, 1], local[:, 2]]
+def box_voxel_masks(
+    objects: Sequence[MapObject], params: Params, ijks: Sequence[np.ndarray], floors: Sequence[float | None]
+) -> list[np.ndarray]:
+    """``box_voxel_mask`` of non-empty objects whose keys unpack to ``ijks`` (each (N, 3)); with an object's
+    floor (``floors``: ``core.floor``, or None), voxels within ``floor_clearance_m`` above it are floor a mask
+    bled onto, not the object. The parts of all the objects are found by one labelling (``label_side_by_side``)."""
+    keeps: list[np.ndarray] = []
+    grids: list[tuple[list[int], np.ndarray, np.ndarray] | None] = []  # (shape, cells of all voxels, kept voxels)
+    for obj, ijk_all, floor_m in zip(objects, ijks, floors):
+        k = int(0.9 * (obj.weights.size - 1))
+        reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
+        keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
+        if floor_m is not None:
+            bottoms = ijk_all @ (params.voxel_size_m * params.gravity.up)  # (exactly so when up is +z)
+            keep &= bottoms > floor_m + params.floor_clearance_m
+        keeps.append(keep)
+        grids.append(None)
+        if np.count_nonzero(keep) < 2:
+            continue
+        ijk = ijk_all[keep]
+        origin, top = ijk_extent(ijk)
+        shape = (top - origin + 1).tolist()
+        if math.prod(shape) > MAX_COMPONENT_GRID_CELLS:
+            continue
+        # Parts are found over all the object's voxels in that extent: a voxel short of the occupancy rule (which
+        # the frames' order decides) still joins the parts it touches; empty space does not.
+        local_all = ijk_all - origin
+        below = local_all.view(np.uint64) < np.array(shape, np.uint64)  # a negative index reads as a huge one
+        grids[-1] = (shape, local_all[below[:, 0] & below[:, 1] & below[:, 2]], ijk - origin)
+    labelled = iter(label_side_by_side([(grid[0], grid[1]) for grid in grids if grid is not None]))
+    for keep, grid in zip(keeps, grids):
+        if grid is None:
+            continue
+        local = grid[2]
+        part = next(labelled)[local[:, 0], local[:, 1], local[:, 2]]
+        if part.min() == part.max():  # one part: nothing to drop
+            continue
         sizes = np.bincount(part)
-        sizes[0] = 0
         large = sizes >= params.min_component_fraction * sizes.max()
         kept_idx = np.flatnonzero(keep)
         keep[kept_idx[~large[part]]] = False
-    return keep
+    return keeps
+
+
+def label_side_by_side(grids: Sequence[tuple[list[int], np.ndarray]]) -> list[np.ndarray]:
+    """The connected parts (26-neighbourhood) of each of several boolean grids, given as (shape, indices (N, 3) of
+    its cells that are set): a labelled array of the grid's shape each, by one ``ndimage.label`` of all the grids
+    side by side along the first axis, an empty layer between two (a call costs several times more inside the
+    step than alone). When their other two sides differ so much that the shared array would hold four times
+    their cells, each is labelled on its own."""
+    if not grids:
+        return []
+    heights = [shape[0] for shape, _ in grids]
+    width, depth = max(shape[1] for shape, _ in grids), max(shape[2] for shape, _ in grids)
+    starts = np.cumsum([0] + [h + 1 for h in heights[:-1]]).tolist()
+    side_by_side = (starts[-1] + heights[-1], width, depth)
+    if len(grids) == 1 or math.prod(side_by_side) > 4 * sum(math.prod(shape) for shape, _ in grids):
+        labelled = []
+        for shape, cells in grids:
+            grid = np.zeros(shape, bool)
+            grid[tuple(cells.T)] = True
+            labelled.append(ndimage.label(grid, structure=_CONNECTIVITY_26)[0])
+        return labelled
+    together = np.zeros(side_by_side, bool)
+    for start, (_, cells) in zip(starts, grids):
+        together[cells[:, 0] + start, cells[:, 1], cells[:, 2]] = True
+    parts = ndimage.label(together, structure=_CONNECTIVITY_26)[0]
+    return [parts[start : start + shape[0], : shape[1], : shape[2]] for start, (shape, _) in zip(starts, grids)]
 
 
 def footprint_outline(xy: np.ndarray, voxel_size_m: float) -> np.ndarray:
@@ -294,12 +329,27 @@ def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[A
 def refine(obj: MapObject, params: Params) -> MapObject:
     """Prune noisy voxels, then derive label, score, bounds and boxes. An object left without voxels
     comes back empty (the caller deletes it)."""
-    obj = prune_voxels(obj, params)
-    if obj.keys.size == 0:
-        return obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None, confirmed=False)
-    ijk = unpack_keys(obj.keys)  # once: the component filter, the box's centres and the bounds use it
-    floor_m = floor_height(obj.floor_votes, params)
-    box_mask = _box_voxel_mask(obj, params, ijk, floor_m)
+    return refine_all([obj], params)[0]
+
+
+def refine_all(objects: Sequence[MapObject], params: Params) -> list[MapObject]:
+    """``refine`` of each object, their box voxels found together (``box_voxel_masks``)."""
+    pruned = [prune_voxels(obj, params) for obj in objects]
+    live = [obj for obj in pruned if obj.keys.size]
+    ijks = [unpack_keys(obj.keys) for obj in live]  # once: the component filter, the box's centres and the bounds use it
+    floors = [floor_height(obj.floor_votes, params) for obj in live]
+    fitted = iter(zip(ijks, floors, box_voxel_masks(live, params, ijks, floors)))
+    return [
+        _boxed(obj, params, *next(fitted))
+        if obj.keys.size
+        else obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None, confirmed=False)
+        for obj in pruned
+    ]
+
+
+def _boxed(obj: MapObject, params: Params, ijk: np.ndarray, floor_m: float | None, box_mask: np.ndarray) -> MapObject:
+    """A pruned non-empty object's label, score, bounds and boxes, from its voxels' indices ``ijk``, its floor and
+    its ``box_voxel_mask``."""
     if not box_mask.any():  # no voxel is solid enough yet: box what there is
         box_mask = np.ones(obj.keys.size, bool)
     voxel_labels = obj.votes.argmax(axis=1)  # once: the label and its purity use it

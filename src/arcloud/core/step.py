@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
-from arcloud.core.boxes import refine
+from arcloud.core.boxes import refine_all
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.change import MapChange
 from arcloud.core.checks import check_detections
@@ -619,7 +619,9 @@ def resolve_shared_voxels(objects: Sequence[MapObject], probation: Collection[in
 def refine_changed(objects: Sequence[MapObject], voxels_changed: set[int], rescored: set[int], params: Params) -> list[MapObject]:
     """The objects to write, in order: those whose voxels changed, refined (an object refined to no
     voxels comes back empty), and those only rescored, as they are."""
-    return [refine(o, params) if o.id in voxels_changed else o for o in objects if o.id in voxels_changed or o.id in rescored]
+    written = [o for o in objects if o.id in voxels_changed or o.id in rescored]
+    refined = iter(refine_all([o for o in written if o.id in voxels_changed], params))
+    return [next(refined) if o.id in voxels_changed else o for o in written]
 
 
 def diff_with_stored(
