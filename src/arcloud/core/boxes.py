@@ -92,14 +92,15 @@ def label_side_by_side(grids: Sequence[tuple[list[int], np.ndarray]]) -> list[np
     its cells that are set): a labelled array of the grid's shape each, by one ``ndimage.label`` of all the grids
     side by side along the first axis, an empty layer between two (a call costs several times more inside the
     step than alone). When their other two sides differ so much that the shared array would hold four times
-    their cells, each is labelled on its own."""
+    their cells, or it would exceed ``MAX_COMPONENT_GRID_CELLS``, each is labelled on its own."""
     if not grids:
         return []
     heights = [shape[0] for shape, _ in grids]
     width, depth = max(shape[1] for shape, _ in grids), max(shape[2] for shape, _ in grids)
     starts = np.cumsum([0] + [h + 1 for h in heights[:-1]]).tolist()
     side_by_side = (starts[-1] + heights[-1], width, depth)
-    if len(grids) == 1 or math.prod(side_by_side) > 4 * sum(math.prod(shape) for shape, _ in grids):
+    size = math.prod(side_by_side)
+    if len(grids) == 1 or size > MAX_COMPONENT_GRID_CELLS or size > 4 * sum(math.prod(shape) for shape, _ in grids):
         labelled = []
         for shape, cells in grids:
             grid = np.zeros(shape, bool)
