@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
-import subprocess
 import sys
 import time
 import traceback
@@ -140,21 +139,6 @@ def sevenscenes_targets(record: Mapping[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def source_version() -> dict[str, Any]:
-    """The checkout measured: its commit and whether ``src/`` differs from it (None outside git)."""
-
-    def git(*args: str) -> str | None:
-        try:
-            done = subprocess.run(["git", *args], capture_output=True, text=True, check=True, cwd=Path(__file__).parent)
-        except (OSError, subprocess.CalledProcessError):
-            return None
-        return done.stdout.strip()
-
-    commit = git("rev-parse", "HEAD")
-    changed = git("status", "--porcelain", "--", "../src")
-    return {"commit": commit, "src_changed": None if changed is None else bool(changed)}
-
-
 def _mean_worst(entry: Mapping[str, Any]) -> str:
     if entry["mean"] is None:
         return "-"
@@ -186,7 +170,7 @@ def main() -> int:
     records: dict[str, dict[str, Any]] = {}
     skipped: dict[str, str] = {}
     failed: dict[str, str] = {}
-    payload: dict[str, Any] = {"benchmark": "accuracy suites", "quick": args.quick, "source": source_version(), "suites": records,
+    payload: dict[str, Any] = {"benchmark": "accuracy suites", "quick": args.quick, "suites": records,
                                "skipped": skipped, "failed": failed,
                                **environment(("arcloud", "numpy", "scipy", "open3d", "onnxruntime"))}  # fmt: skip
     for name in suites:

@@ -79,9 +79,25 @@ def environment(packages: tuple[str, ...] = ("arcloud", "numpy", "scipy")) -> di
             versions[name] = None
     return {
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "source": source_version(),
         "versions": versions,
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "platform": platform.platform()},
     }
+
+
+def source_version() -> dict[str, object]:
+    """The checkout measured: its commit and whether ``src/`` differs from it (None outside git)."""
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], capture_output=True, text=True, check=True, cwd=Path(__file__).parent)
+        except (OSError, subprocess.CalledProcessError):
+            return None
+        return done.stdout.strip()
+
+    commit = git("rev-parse", "HEAD")
+    changed = git("status", "--porcelain", "--", "../src")
+    return {"commit": commit, "src_changed": None if changed is None else bool(changed)}
 
 
 def write_json(path: Path, payload: dict[str, object]) -> None:
