@@ -18,6 +18,7 @@ Every entry of the cost matrix is finite: empty sets give overlap 0.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -64,7 +65,7 @@ def index_bounds(keys: np.ndarray) -> np.ndarray:
 def index_bounds_of_sets(sets: Sequence[np.ndarray]) -> np.ndarray:
     """(S, 2, 3) ``index_bounds`` of each of S >= 1 non-empty key sets, for all at once: the keys
     concatenated and unpacked, each index reduced set by set (``reduceat``)."""
-    starts = np.cumsum([0] + [s.size for s in sets[:-1]])
+    starts = list(itertools.accumulate((s.size for s in sets[:-1]), initial=0))  # a few ints: no numpy call
     indices = np.ascontiguousarray(unpack_keys(np.concatenate(sets)).T)  # (3, N): rows reduce fastest
     return np.stack((np.minimum.reduceat(indices, starts, axis=1).T, np.maximum.reduceat(indices, starts, axis=1).T), axis=1)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
@@ -97,7 +98,7 @@ def label_side_by_side(grids: Sequence[tuple[list[int], np.ndarray]]) -> list[np
         return []
     heights = [shape[0] for shape, _ in grids]
     width, depth = max(shape[1] for shape, _ in grids), max(shape[2] for shape, _ in grids)
-    starts = np.cumsum([0] + [h + 1 for h in heights[:-1]]).tolist()
+    starts = list(itertools.accumulate((h + 1 for h in heights[:-1]), initial=0))
     side_by_side = (starts[-1] + heights[-1], width, depth)
     size = math.prod(side_by_side)
     if len(grids) == 1 or size > MAX_COMPONENT_GRID_CELLS or size > 4 * sum(math.prod(shape) for shape, _ in grids):

@@ -23,6 +23,7 @@ overlap, so a duplicate lives only until some frame sees both copies. A claim ta
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import time
@@ -435,7 +436,7 @@ def count_misses(objects: list[MapObject], fused_ids: set[int], frame: Frame, pa
         return out
     samples = [objects[i].keys[:: max(1, objects[i].keys.size // MISS_SAMPLE_VOXELS)] for i in undetected]
     all_samples = np.concatenate(samples)
-    starts = np.cumsum([0] + [s.size for s in samples[:-1]])
+    starts = list(itertools.accumulate((s.size for s in samples[:-1]), initial=0))
     segments = [slice(start, start + s.size) for start, s in zip(starts, samples)]
     visible, free_centres = center_rays(frame, all_samples, params)
     surface_shares = np.add.reduceat(visible, starts) / [s.size for s in samples]

@@ -6,6 +6,7 @@ key with 21 bits per axis (offset 2**20), which spans +-52 km at 5 cm. Packed ke
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -684,7 +685,7 @@ def project_centers(
     if set_sizes is None:
         cam = (centers - origin) @ rotation  # world2cam of a rigid pose: R^T (x - t)
     else:
-        ends = np.cumsum(set_sizes).tolist()
+        ends = list(itertools.accumulate(set_sizes))
         cam = np.concatenate([(centers[end - size : end] - origin) @ rotation for size, end in zip(set_sizes, ends)])
     z = cam[:, 2]
     intr = frame.intrinsics
@@ -730,7 +731,7 @@ def visible_voxels_of_sets(frame: Frame, key_sets: Sequence[np.ndarray], params:
         return []
     sizes = [keys.size for keys in key_sets]
     visible = center_rays(frame, np.concatenate(key_sets), params, sizes)[0]
-    return np.split(visible, np.cumsum(sizes)[:-1])
+    return np.split(visible, list(itertools.accumulate(sizes))[:-1])
 
 
 def free_voxels(frame: Frame, keys: np.ndarray, params: Params) -> np.ndarray:
