@@ -158,9 +158,10 @@ class MemoryStore:
                 for cell in self._cells(lo, hi):
                     ids |= state.index.get(cell, set())
             found = {}
+            lo_xyz, hi_xyz = lo.tolist(), hi.tolist()  # three numbers: Python compares them faster than numpy
             for object_id in ids:
                 b_lo, b_hi = state.bounds[object_id]
-                if np.all(b_lo <= hi) and np.all(lo <= b_hi):
+                if all(a <= b for a, b in zip(b_lo.tolist(), hi_xyz)) and all(a <= b for a, b in zip(lo_xyz, b_hi.tolist())):
                     found[object_id] = (b_lo, b_hi)
             return found
 
