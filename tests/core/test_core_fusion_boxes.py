@@ -2,7 +2,16 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from arcloud.core.boxes import box_voxel_mask, box_voxel_masks, fit_gravity_obb, label_side_by_side, refine, refine_all
+from arcloud.core.boxes import (
+    box_voxel_mask,
+    box_voxel_masks,
+    fit_gravity_obb,
+    label_side_by_side,
+    level_box_axes,
+    refine,
+    refine_all,
+    trimmed_layers,
+)
 from arcloud.core.fusion import (
     VOTE_STEP,
     find_duplicates,
@@ -215,6 +224,70 @@ def test_gravity_obb_recovers_a_rotated_box():
     assert np.allclose(sorted(obb.size), [0.7, 0.8, 2.0], atol=0.03)
     assert np.allclose(obb.center, [3.0, 1.0, 0.35], atol=0.03)
     assert np.allclose(up_rotation(np.array([0.0, -1.0, 0.0])) @ [0, -1, 0], [0, 0, 1])
+
+
+def seen_often(keys, detected, frames, label="tv"):
+    """An object of ``keys`` fused ``frames`` times by detections of ``detected``, each voxel seen only when detected."""
+    obj = new_object(1, det(label, keys), "a", 0.0)
+    for _ in range(frames):
+        obj = fuse_detection(obj, det(label, detected), "a", np.isin(obj.keys, detected))
+    return obj
+
+
+def test_a_few_voxels_a_misregistered_frame_put_behind_a_screen_do_not_deepen_its_box():
+    screen = block((0, 0, 0), (16, 3, 9))  # 0.8 x 0.15 x 0.45 m, its thin side along y
+    behind = block((7, 3, 4), (8, 6, 5))  # three voxels in a row behind it, touching it, seen once
+    obj = seen_often(np.union1d(screen, behind), screen, frames=10)
+    params = Params(voxel_size_m=0.05)
+    assert refine(obj, params).aabb.size[1] == pytest.approx(0.1)  # centre to centre: three layers
+    assert refine(obj, params.replace(box_trim_share=0.0)).aabb.size[1] == pytest.approx(0.25)  # as before the rule
+    assert np.isin(behind, refine(obj, params).keys).all()  # left out of the box, not deleted
+    table = seen_often(np.union1d(screen, behind), screen, frames=10, label="table")  # only screens are trimmed
+    assert refine(table, params).aabb.size[1] == pytest.approx(0.25)
+
+
+def test_a_thin_screens_rarely_seen_back_stays_in_its_box():
+    # Three layers: the face and the middle seen in every frame, the back (a few voxels) once: light and sparse,
+    # but trimming it would leave the box two layers thin.
+    face = block((0, 0, 0), (16, 2, 9))
+    back = block((6, 2, 3), (10, 3, 5))
+    obj = seen_often(np.union1d(face, back), face, frames=10)
+    assert refine(obj, Params(voxel_size_m=0.05)).aabb.size[1] == pytest.approx(0.1)
+
+
+def test_the_light_but_full_end_of_an_object_stays_in_its_box():
+    # A screen whose left end (two layers, 0.1 m) two frames of 31 saw: 0.7 % of the weight, but full layers.
+    screen = block((0, 0, 0), (20, 3, 10))
+    rest = block((2, 0, 0), (20, 3, 10))
+    obj = fuse_detection(seen_often(screen, rest, frames=29), det("tv", screen), "a")
+    params = Params(voxel_size_m=0.05)
+    end = ~np.isin(obj.keys, rest)
+    assert obj.weights[end].sum() < params.box_trim_share * obj.weights.sum()  # light enough to trim, were it sparse
+    assert refine(obj, params).aabb.min[0] == pytest.approx(0.025)
+
+
+def test_trimmed_layers_leave_out_light_sparse_outer_layers_on_either_side_only():
+    # Layers along x: 0 (1 voxel), 1 (1 voxel) | 2..9 full (10 voxels each) | 10 (1 voxel), and a sparse inner layer 5.
+    ijk = np.array([[0, 0, 0], [1, 0, 0], [10, 0, 0]] + [[x, y, 0] for x in range(2, 10) for y in range(10) if x != 5 or y == 0])
+    weights = np.ones(len(ijk))
+    axes = np.array([[1.0, 0.0, 0.0]])
+    keep = trimmed_layers(ijk, weights, axes, share=0.05)  # 3 of 74 voxels' weight: within 5 %
+    assert set(ijk[keep][:, 0]) == set(range(2, 10))  # the inner sparse layer 5 stays
+    assert set(ijk[trimmed_layers(ijk, weights, axes, share=0.02)][:, 0]) == set(range(1, 10))  # 2 %: one voxel a side
+    assert trimmed_layers(ijk, weights, axes, share=0.0).all()
+    heavy = weights.copy()
+    heavy[:2] = 50.0  # the two left layers hold most of the weight now: they stay
+    assert set(ijk[trimmed_layers(ijk, heavy, axes, share=0.05)][:, 0]) == set(range(0, 10))
+
+
+def test_a_box_is_trimmed_across_its_level_axes():
+    assert level_box_axes(Params()).tolist() == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    y_up = level_box_axes(Params(up=(0.0, 1.0, 0.0)))  # an ARKit world: y up
+    assert sorted(map(tuple, y_up)) == [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+    yaw = np.eye(4)
+    yaw[:2, :2] = [[np.cos(0.5), -np.sin(0.5)], [np.sin(0.5), np.cos(0.5)]]
+    aligned = level_box_axes(Params(world2aligned=tuple(map(tuple, yaw))))
+    assert np.allclose(sorted(map(tuple, aligned)), sorted(map(tuple, yaw[:2, :3])))
 
 
 def test_one_layer_of_voxels_gives_a_box_one_voxel_thick():
