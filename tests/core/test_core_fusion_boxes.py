@@ -7,9 +7,9 @@ from arcloud.core.boxes import (
     box_voxel_masks,
     fit_gravity_obb,
     label_side_by_side,
-    level_box_axes,
     refine,
     refine_all,
+    thin_level_axis,
     trimmed_layers,
 )
 from arcloud.core.fusion import (
@@ -280,14 +280,24 @@ def test_trimmed_layers_leave_out_light_sparse_outer_layers_on_either_side_only(
     assert set(ijk[trimmed_layers(ijk, heavy, axes, share=0.05)][:, 0]) == set(range(0, 10))
 
 
-def test_a_box_is_trimmed_across_its_level_axes():
-    assert level_box_axes(Params()).tolist() == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
-    y_up = level_box_axes(Params(up=(0.0, 1.0, 0.0)))  # an ARKit world: y up
-    assert sorted(map(tuple, y_up)) == [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+def test_a_wide_screens_light_sparse_ends_stay_in_its_box():
+    # Its two end columns (two voxels each) seen once: sparse and light, but along its width, not its normal.
+    body = block((1, 0, 0), (15, 3, 9))
+    ends = pack_keys(np.array([[0, 1, 4], [0, 1, 5], [15, 1, 4], [15, 1, 5]]))
+    obj = seen_often(np.union1d(body, ends), body, frames=10)
+    assert refine(obj, Params(voxel_size_m=0.05)).aabb.size[0] == pytest.approx(0.75)
+
+
+def test_a_screen_is_trimmed_along_its_thinner_level_axis():
+    flat_along_y = np.array([[x, y, z] for x in range(10) for y in range(3) for z in range(5)])
+    assert thin_level_axis(flat_along_y, Params()).tolist() == [[0.0, 1.0, 0.0]]
+    assert thin_level_axis(flat_along_y[:, [1, 0, 2]], Params()).tolist() == [[1.0, 0.0, 0.0]]
+    # An ARKit world (y up): the level axes are x and z; the screen's normal is z.
+    assert thin_level_axis(flat_along_y[:, [0, 2, 1]], Params(up=(0.0, 1.0, 0.0))).tolist() == [[0.0, 0.0, 1.0]]
     yaw = np.eye(4)
     yaw[:2, :2] = [[np.cos(0.5), -np.sin(0.5)], [np.sin(0.5), np.cos(0.5)]]
-    aligned = level_box_axes(Params(world2aligned=tuple(map(tuple, yaw))))
-    assert np.allclose(sorted(map(tuple, aligned)), sorted(map(tuple, yaw[:2, :3])))
+    in_aligned = flat_along_y @ yaw[:3, :3]  # the grid indices of a screen thin along the aligned frame's y
+    assert np.allclose(thin_level_axis(in_aligned, Params(world2aligned=tuple(map(tuple, yaw)))), yaw[1:2, :3])
 
 
 def test_one_layer_of_voxels_gives_a_box_one_voxel_thick():

@@ -92,11 +92,13 @@ def box_voxel_masks(
     return keeps
 
 
-def level_box_axes(params: Params) -> np.ndarray:
-    """(2, 3): the two axes of the served box (``world2aligned``'s, else the voxel grid's) farthest from up, in
-    the voxel grid's frame: the box's horizontal sides."""
+def thin_level_axis(ijk: np.ndarray, params: Params) -> np.ndarray:
+    """(1, 3): of the served box's two level axes (``world2aligned``'s, else the voxel grid's: the two farthest from
+    up), the one the voxels ``ijk`` (N, 3) spread least along, in the grid's frame: a screen's normal."""
     rotation = np.eye(3) if params.world2aligned is None else np.asarray(params.world2aligned, np.float64)[:3, :3]
-    return rotation[np.argsort(np.abs(rotation @ params.gravity.up))[:2]]
+    level = rotation[np.argsort(np.abs(rotation @ params.gravity.up))[:2]]
+    along = ijk @ level.T
+    return level[[int(np.argmin(along.max(axis=0) - along.min(axis=0)))]]
 
 
 def trimmed_layers(ijk: np.ndarray, weights: np.ndarray, axes: np.ndarray, share: float) -> np.ndarray:
@@ -393,7 +395,8 @@ def _boxed(obj: MapObject, params: Params, ijk: np.ndarray, floor_m: float | Non
     if label in params.wall_classes and params.box_trim_share > 0:  # what the wall rule left behind a screen
         kept = np.flatnonzero(box_mask)
         box_mask = np.zeros_like(box_mask)
-        box_mask[kept] = trimmed_layers(ijk[kept], obj.weights[kept], level_box_axes(params), params.box_trim_share)
+        axis = thin_level_axis(ijk[kept], params)
+        box_mask[kept] = trimmed_layers(ijk[kept], obj.weights[kept], axis, params.box_trim_share)
     box_ijk = ijk[box_mask]
     box_lo, box_hi = (corner.tolist() for corner in ijk_extent(box_ijk))
     size_m, pad_m = params.voxel_size_m, params.box_pad_voxels * params.voxel_size_m

@@ -374,7 +374,7 @@ class Params:
     box_rel_weight: float = 0.05
     box_min_occupancy: float = 0.4
     min_component_fraction: float = 0.2
-    box_trim_share: float = 0.01  # a screen's (wall_classes) sparse outer layers with this share of weight: out (0: none)
+    box_trim_share: float = 0.01  # a screen's sparse outer layers along its normal, this share of weight: out (0: none)
     merge_min_overlap: float = 0.3
     merge_min_overlap_parts: float = 0.1  # for classes outside split_classes: see core.fusion.find_duplicates
     merge_min_box_containment: float = 0.6
