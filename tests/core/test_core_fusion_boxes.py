@@ -2,16 +2,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from arcloud.core.boxes import (
-    box_voxel_mask,
-    box_voxel_masks,
-    fit_gravity_obb,
-    label_side_by_side,
-    refine,
-    refine_all,
-    thin_level_axis,
-    trimmed_layers,
-)
+from arcloud.core.boxes import box_voxel_mask, box_voxel_masks, fit_gravity_obb, label_side_by_side, refine, refine_all
 from arcloud.core.fusion import (
     VOTE_STEP,
     find_duplicates,
@@ -224,80 +215,6 @@ def test_gravity_obb_recovers_a_rotated_box():
     assert np.allclose(sorted(obb.size), [0.7, 0.8, 2.0], atol=0.03)
     assert np.allclose(obb.center, [3.0, 1.0, 0.35], atol=0.03)
     assert np.allclose(up_rotation(np.array([0.0, -1.0, 0.0])) @ [0, -1, 0], [0, 0, 1])
-
-
-def seen_often(keys, detected, frames, label="tv"):
-    """An object of ``keys`` fused ``frames`` times by detections of ``detected``, each voxel seen only when detected."""
-    obj = new_object(1, det(label, keys), "a", 0.0)
-    for _ in range(frames):
-        obj = fuse_detection(obj, det(label, detected), "a", np.isin(obj.keys, detected))
-    return obj
-
-
-def test_a_few_voxels_a_misregistered_frame_put_behind_a_screen_do_not_deepen_its_box():
-    screen = block((0, 0, 0), (16, 3, 9))  # 0.8 x 0.15 x 0.45 m, its thin side along y
-    behind = block((7, 3, 4), (8, 6, 5))  # three voxels in a row behind it, touching it, seen once
-    obj = seen_often(np.union1d(screen, behind), screen, frames=10)
-    params = Params(voxel_size_m=0.05)
-    assert refine(obj, params).aabb.size[1] == pytest.approx(0.1)  # centre to centre: three layers
-    assert refine(obj, params.replace(box_trim_share=0.0)).aabb.size[1] == pytest.approx(0.25)  # as before the rule
-    assert np.isin(behind, refine(obj, params).keys).all()  # left out of the box, not deleted
-    table = seen_often(np.union1d(screen, behind), screen, frames=10, label="table")  # only screens are trimmed
-    assert refine(table, params).aabb.size[1] == pytest.approx(0.25)
-
-
-def test_a_thin_screens_rarely_seen_back_stays_in_its_box():
-    # Three layers: the face and the middle seen in every frame, the back (a few voxels) once: light and sparse,
-    # but trimming it would leave the box two layers thin.
-    face = block((0, 0, 0), (16, 2, 9))
-    back = block((6, 2, 3), (10, 3, 5))
-    obj = seen_often(np.union1d(face, back), face, frames=10)
-    assert refine(obj, Params(voxel_size_m=0.05)).aabb.size[1] == pytest.approx(0.1)
-
-
-def test_the_light_but_full_end_of_an_object_stays_in_its_box():
-    # A screen whose left end (two layers, 0.1 m) two frames of 31 saw: 0.7 % of the weight, but full layers.
-    screen = block((0, 0, 0), (20, 3, 10))
-    rest = block((2, 0, 0), (20, 3, 10))
-    obj = fuse_detection(seen_often(screen, rest, frames=29), det("tv", screen), "a")
-    params = Params(voxel_size_m=0.05)
-    end = ~np.isin(obj.keys, rest)
-    assert obj.weights[end].sum() < params.box_trim_share * obj.weights.sum()  # light enough to trim, were it sparse
-    assert refine(obj, params).aabb.min[0] == pytest.approx(0.025)
-
-
-def test_trimmed_layers_leave_out_light_sparse_outer_layers_on_either_side_only():
-    # Layers along x: 0 (1 voxel), 1 (1 voxel) | 2..9 full (10 voxels each) | 10 (1 voxel), and a sparse inner layer 5.
-    ijk = np.array([[0, 0, 0], [1, 0, 0], [10, 0, 0]] + [[x, y, 0] for x in range(2, 10) for y in range(10) if x != 5 or y == 0])
-    weights = np.ones(len(ijk))
-    axes = np.array([[1.0, 0.0, 0.0]])
-    keep = trimmed_layers(ijk, weights, axes, share=0.05)  # 3 of 74 voxels' weight: within 5 %
-    assert set(ijk[keep][:, 0]) == set(range(2, 10))  # the inner sparse layer 5 stays
-    assert set(ijk[trimmed_layers(ijk, weights, axes, share=0.02)][:, 0]) == set(range(1, 10))  # 2 %: one voxel a side
-    assert trimmed_layers(ijk, weights, axes, share=0.0).all()
-    heavy = weights.copy()
-    heavy[:2] = 50.0  # the two left layers hold most of the weight now: they stay
-    assert set(ijk[trimmed_layers(ijk, heavy, axes, share=0.05)][:, 0]) == set(range(0, 10))
-
-
-def test_a_wide_screens_light_sparse_ends_stay_in_its_box():
-    # Its two end columns (two voxels each) seen once: sparse and light, but along its width, not its normal.
-    body = block((1, 0, 0), (15, 3, 9))
-    ends = pack_keys(np.array([[0, 1, 4], [0, 1, 5], [15, 1, 4], [15, 1, 5]]))
-    obj = seen_often(np.union1d(body, ends), body, frames=10)
-    assert refine(obj, Params(voxel_size_m=0.05)).aabb.size[0] == pytest.approx(0.75)
-
-
-def test_a_screen_is_trimmed_along_its_thinner_level_axis():
-    flat_along_y = np.array([[x, y, z] for x in range(10) for y in range(3) for z in range(5)])
-    assert thin_level_axis(flat_along_y, Params()).tolist() == [[0.0, 1.0, 0.0]]
-    assert thin_level_axis(flat_along_y[:, [1, 0, 2]], Params()).tolist() == [[1.0, 0.0, 0.0]]
-    # An ARKit world (y up): the level axes are x and z; the screen's normal is z.
-    assert thin_level_axis(flat_along_y[:, [0, 2, 1]], Params(up=(0.0, 1.0, 0.0))).tolist() == [[0.0, 0.0, 1.0]]
-    yaw = np.eye(4)
-    yaw[:2, :2] = [[np.cos(0.5), -np.sin(0.5)], [np.sin(0.5), np.cos(0.5)]]
-    in_aligned = flat_along_y @ yaw[:3, :3]  # the grid indices of a screen thin along the aligned frame's y
-    assert np.allclose(thin_level_axis(in_aligned, Params(world2aligned=tuple(map(tuple, yaw)))), yaw[1:2, :3])
 
 
 def test_one_layer_of_voxels_gives_a_box_one_voxel_thick():

@@ -18,10 +18,6 @@ from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, points_extent, sorted_unique, unpack_keys
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
-#: A layer across a box with at most this share of the fullest layer's voxels is sparse (``trimmed_layers``).
-TRIM_SPARSE_FRACTION = 0.1
-#: ... and never trims a box thinner than this many layers (a thin screen's back is rarely seen, but its own).
-TRIM_MIN_LAYERS = 3
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
 _CONNECTIVITY_26.setflags(write=False)
 
@@ -90,37 +86,6 @@ def box_voxel_masks(
         kept_idx = np.flatnonzero(keep)
         keep[kept_idx[~large[part]]] = False
     return keeps
-
-
-def thin_level_axis(ijk: np.ndarray, params: Params) -> np.ndarray:
-    """(1, 3): of the served box's two level axes (``world2aligned``'s, else the voxel grid's: the two farthest from
-    up), the one the voxels ``ijk`` (N, 3) spread least along, in the grid's frame: a screen's normal."""
-    rotation = np.eye(3) if params.world2aligned is None else np.asarray(params.world2aligned, np.float64)[:3, :3]
-    level = rotation[np.argsort(np.abs(rotation @ params.gravity.up))[:2]]
-    along = ijk @ level.T
-    return level[[int(np.argmin(along.max(axis=0) - along.min(axis=0)))]]
-
-
-def trimmed_layers(ijk: np.ndarray, weights: np.ndarray, axes: np.ndarray, share: float) -> np.ndarray:
-    """(N,) bool: the voxels (indices ``ijk`` (N, 3), occupancy ``weights``) outside the outermost layers (one voxel
-    thick, along each of ``axes`` (A, 3)) that hold together at most ``share`` of the weight, each of them sparse
-    (at most ``TRIM_SPARSE_FRACTION`` of the fullest layer's voxels), on either side, unless fewer than
-    ``TRIM_MIN_LAYERS`` would be left: a few voxels of the wall that a frame a little off its calibration put
-    behind a screen stretch its box by their whole distance but hold almost none of its evidence, while the end
-    of an object seen in few frames is light but full."""
-    layers = np.rint(ijk @ axes.T).astype(np.int64)  # (N, A)
-    cut = share * float(np.sum(weights, dtype=np.float64))
-    keep = np.ones(len(ijk), bool)
-    for layer in layers.T:
-        lowest = int(layer.min())
-        counts = np.bincount(layer - lowest)
-        cumulative = np.cumsum(np.bincount(layer - lowest, weights=weights))
-        full = np.flatnonzero(counts > TRIM_SPARSE_FRACTION * counts.max())
-        first = min(int(np.searchsorted(cumulative, cut, side="right")), int(full[0]))
-        last = max(int(np.searchsorted(cumulative, cumulative[-1] - cut, side="left")), int(full[-1]))
-        if last - first + 1 >= TRIM_MIN_LAYERS:
-            keep &= (layer >= lowest + first) & (layer <= lowest + last)
-    return keep
 
 
 def label_side_by_side(grids: Sequence[tuple[list[int], np.ndarray]]) -> list[np.ndarray]:
@@ -391,12 +356,6 @@ def _boxed(obj: MapObject, params: Params, ijk: np.ndarray, floor_m: float | Non
         box_mask = np.ones(obj.keys.size, bool)
     voxel_labels = obj.votes.argmax(axis=1)  # once: the label and its purity use it
     label_index = object_label_index(obj, voxel_labels)
-    label = CLASSES[label_index]
-    if label in params.wall_classes and params.box_trim_share > 0:  # what the wall rule left behind a screen
-        kept = np.flatnonzero(box_mask)
-        box_mask = np.zeros_like(box_mask)
-        axis = thin_level_axis(ijk[kept], params)
-        box_mask[kept] = trimmed_layers(ijk[kept], obj.weights[kept], axis, params.box_trim_share)
     box_ijk = ijk[box_mask]
     box_lo, box_hi = (corner.tolist() for corner in ijk_extent(box_ijk))
     size_m, pad_m = params.voxel_size_m, params.box_pad_voxels * params.voxel_size_m
@@ -407,6 +366,7 @@ def _boxed(obj: MapObject, params: Params, ijk: np.ndarray, floor_m: float | Non
         aabb = fit_voxels_aabb(box_lo, box_hi, size_m, pad_m)
     obb = fit_voxels_obb(box_ijk, size_m, params.gravity, pad_m, (box_lo[2], box_hi[2]))
     lo, hi = ijk_bounds(ijk, size_m)
+    label = CLASSES[label_index]
     if floor_m is not None and label in params.floor_standing:
         aabb, obb = reach_floor(aabb, obb, floor_m, params)
     refined = obj.replace(

@@ -374,7 +374,6 @@ class Params:
     box_rel_weight: float = 0.05
     box_min_occupancy: float = 0.4
     min_component_fraction: float = 0.2
-    box_trim_share: float = 0.01  # a screen's sparse outer layers along its normal, this share of weight: out (0: none)
     merge_min_overlap: float = 0.3
     merge_min_overlap_parts: float = 0.1  # for classes outside split_classes: see core.fusion.find_duplicates
     merge_min_box_containment: float = 0.6
@@ -490,7 +489,6 @@ _PARAM_KINDS: dict[str, str] = {
             "box_rel_weight",
             "box_min_occupancy",
             "min_component_fraction",
-            "box_trim_share",
             "merge_min_overlap",
             "merge_min_box_containment",
             "merge_min_overlap_parts",
