@@ -85,16 +85,17 @@ def cast_boxes(
     *,
     floor_z: float | None = 0.0,
     intrinsics: Intrinsics = INTRINSICS,
+    shape: tuple[int, int] = (HEIGHT, WIDTH),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth (H, W) float32 and instance (H, W) int (-1: floor or nothing, i: ``boxes[i]``) of a world
     of axis-aligned boxes (min, max) standing on a floor plane z = ``floor_z`` (None: no floor), seen by
-    a pinhole camera: exact ray casting, slab method."""
-    v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(float)
+    a pinhole camera of ``shape`` (H, W) pixels: exact ray casting, slab method."""
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
     rays_cam = np.stack(((u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones_like(u)), -1)
     rays = rays_cam @ cam2world[:3, :3].T  # world directions with camera z = 1
     origin = cam2world[:3, 3]
-    t_best = np.full((HEIGHT, WIDTH), np.inf)
-    instance = np.full((HEIGHT, WIDTH), -1)
+    t_best = np.full(shape, np.inf)
+    instance = np.full(shape, -1)
     if floor_z is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (floor_z - origin[2]) / rays[..., 2]

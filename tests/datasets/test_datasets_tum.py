@@ -170,6 +170,54 @@ def test_intrinsics_given_from_a_file_by_the_folder_name_or_generic(tmp_path: Pa
     np.testing.assert_allclose(half.load_frame(half.frame_names[0]).depth_m, 1.0)
 
 
+def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8) -> Path:
+    """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of a room made with ``intrinsics``:
+    the camera steps 5 cm and turns 12 degrees a frame, depth in TUM's units, colour black."""
+    import cv2
+    from handmade_frames import cast_boxes, look_down_pose
+
+    room = [((-0.1, -0.1, 0.0), (0.0, 4.1, 2.5)), ((4.0, -0.1, 0.0), (4.1, 4.1, 2.5)), ((-0.1, -0.1, 0.0), (4.1, 0.0, 2.5)),
+            ((-0.1, 4.0, 0.0), (4.1, 4.1, 2.5)), ((1.0, 2.6, 0.0), (2.0, 3.3, 0.75)), ((3.0, 0.5, 0.0), (3.6, 1.5, 1.2))]  # fmt: skip
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    lines: dict[str, list[str]] = {"rgb": [], "depth": [], "groundtruth": []}
+    for i in range(n_frames):
+        t = f"{100.0 + i / 30:.6f}"
+        eye = (1.8 + 0.05 * i, 1.8, 1.4)
+        heading = np.radians(12.0 * i)
+        pose = look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), 1.0))
+        depth_m = cast_boxes(pose, room, intrinsics=intrinsics, shape=(480, 640))[0]
+        cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
+        cv2.imwrite(str(root / "rgb" / f"{t}.png"), np.zeros((480, 640, 3), np.uint8))
+        lines["rgb"].append(f"{t} rgb/{t}.png")
+        lines["depth"].append(f"{t} depth/{t}.png")
+        lines["groundtruth"].append(
+            " ".join([t, *map(str, pose[:3, 3]), *map(str, Rotation.from_matrix(pose[:3, :3]).as_quat())])
+        )
+    for name, listed in lines.items():
+        (root / f"{name}.txt").write_text("\n".join(listed) + "\n")
+    return root
+
+
+def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    calibrated = PUBLISHED_INTRINSICS["freiburg1"]  # 16 px from the generic in cy
+    kept = load_tum(write_room_tum(tmp_path / "rgbd_dataset_freiburg1_room", calibrated), estimate_up=False)
+    assert kept.intrinsics == calibrated
+    assert kept.intrinsics_source.startswith("TUM freiburg1 (by the folder's name): the depth and poses disagree by ")
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
+        generic = load_tum(write_room_tum(tmp_path / "freiburg1_desk", GENERIC_INTRINSICS), estimate_up=False)
+    assert generic.intrinsics == GENERIC_INTRINSICS and "using the generic" in caplog.text
+    assert generic.intrinsics_source.startswith("generic 525, 525, 319.5, 239.5, not TUM freiburg1 (by the folder's name)")
+    # a file or --intrinsics is taken as it is, unchecked
+    (tmp_path / "freiburg1_desk" / "intrinsics.txt").write_text("517.3 516.5 318.6 255.3\n")
+    assert load_tum(tmp_path / "freiburg1_desk", estimate_up=False).intrinsics == calibrated
+    # frames that do not turn give nothing to check on: the name's, said so
+    tiny = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg1_xyz"), estimate_up=False)
+    assert tiny.intrinsics == calibrated and "no frames seen from places turned apart" in tiny.intrinsics_source
+
+
 @pytest.mark.parametrize(
     ("file", "text", "message"),
     [

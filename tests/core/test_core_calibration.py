@@ -1,0 +1,86 @@
+"""Which intrinsics the depth and poses agree with (core.calibration): exact renders of a room of boxes from
+poses turned apart agree with the intrinsics that made them, and less with a principal point a few pixels off
+or a focal length a few per cent off; frames that only step sideways, or only turn, make no pairs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from handmade_frames import cast_boxes, look_down_pose
+
+from arcloud.core.calibration import MAX_PAIRS, PAIR_TURN_DEG, depth_disagreement, view_pairs
+from arcloud.core.types import Intrinsics
+
+INTRINSICS = Intrinsics(400.0, 400.0, 160.0, 120.0)  # 320 x 240 pixels, 44 degrees across
+SHAPE = (240, 320)
+
+#: Four walls of a 4 x 4 m room, 2.5 m high, a table and a cabinet.
+ROOM = [
+    ((-0.1, -0.1, 0.0), (0.0, 4.1, 2.5)),
+    ((4.0, -0.1, 0.0), (4.1, 4.1, 2.5)),
+    ((-0.1, -0.1, 0.0), (4.1, 0.0, 2.5)),
+    ((-0.1, 4.0, 0.0), (4.1, 4.1, 2.5)),
+    ((1.0, 2.6, 0.0), (2.0, 3.3, 0.75)),
+    ((3.0, 0.5, 0.0), (3.6, 1.5, 1.2)),
+]
+
+
+def turning_poses(n: int = 12, step_deg: float = 12.0) -> np.ndarray:
+    """Poses at the middle of ``ROOM``, stepping 5 cm a frame and turning ``step_deg`` a frame, looking down a little."""
+    poses = []
+    for i in range(n):
+        eye = (1.8 + 0.05 * i, 1.8, 1.4)
+        heading = np.radians(step_deg * i)
+        poses.append(look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), 1.0)))
+    return np.stack(poses)
+
+
+def renders(poses: np.ndarray, intrinsics=INTRINSICS) -> list[np.ndarray]:
+    return [cast_boxes(pose, ROOM, intrinsics=intrinsics, shape=SHAPE)[0] for pose in poses]
+
+
+@pytest.fixture(scope="module")
+def room_renders() -> list[np.ndarray]:
+    return renders(turning_poses())
+
+
+def test_pairs_are_turned_apart_near_each_other_and_drawn_the_same_each_time() -> None:
+    poses = turning_poses()
+    pairs = view_pairs(poses)
+    assert pairs and pairs == view_pairs(poses)
+    for i, j in pairs:
+        relative = poses[i, :3, :3].T @ poses[j, :3, :3]
+        turn = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
+        assert PAIR_TURN_DEG[0] <= turn <= PAIR_TURN_DEG[1]
+    assert {(0, 1), (0, 2)} <= set(pairs) and (0, 3) not in pairs  # 12, 24 degrees apart; 36 is too many
+    sideways = turning_poses(step_deg=0.0)  # a step along the camera's x axis turns the rays alike in both frames
+    assert view_pairs(sideways) == []
+    many = view_pairs(turning_poses(n=60, step_deg=3.0))
+    assert len(many) == MAX_PAIRS and many == sorted(many)
+
+
+@pytest.mark.parametrize(
+    "moved",
+    [{"cy": 132.0}, {"cy": 108.0}, {"cx": 172.0}, {"fx": 420.0, "fy": 420.0}, {"fx": 380.0, "fy": 380.0}],
+)
+def test_the_depth_agrees_best_with_the_intrinsics_that_made_it(moved: dict[str, float], room_renders: list[np.ndarray]) -> None:
+    poses = turning_poses()
+    depths, pairs = room_renders, view_pairs(poses)
+    right = depth_disagreement(depths, poses, INTRINSICS, pairs)
+    wrong = depth_disagreement(depths, poses, dataclasses.replace(INTRINSICS, **moved), pairs)
+    assert right < 0.01  # exact renders: what is left is the pixel a sample lands on
+    assert wrong > 2 * right
+    # and the other way round: depth made with the moved intrinsics agrees with them, not with the first
+    made = renders(poses, dataclasses.replace(INTRINSICS, **moved))
+    assert depth_disagreement(made, poses, dataclasses.replace(INTRINSICS, **moved), pairs) < depth_disagreement(
+        made, poses, INTRINSICS, pairs
+    )
+
+
+def test_nothing_to_compare_is_nan() -> None:
+    poses = turning_poses(n=3)
+    empty = [np.zeros_like(d) for d in renders(poses)]  # no depth measured anywhere
+    assert np.isnan(depth_disagreement(empty, poses, INTRINSICS, view_pairs(poses)))
+    assert np.isnan(depth_disagreement(renders(poses), poses, INTRINSICS, []))
