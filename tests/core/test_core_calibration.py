@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from handmade_frames import cast_boxes, look_down_pose
 
-from arcloud.core.calibration import MAX_PAIRS, PAIR_TURN_DEG, depth_disagreement, view_pairs
+from arcloud.core.calibration import MAX_PAIRS, PAIR_TURN_DEG, agreeing_intrinsics, depth_disagreement, view_pairs
 from arcloud.core.types import Intrinsics
 
 INTRINSICS = Intrinsics(400.0, 400.0, 160.0, 120.0)  # 320 x 240 pixels, 44 degrees across
@@ -27,13 +27,16 @@ ROOM = [
 ]
 
 
-def turning_poses(n: int = 12, step_deg: float = 12.0) -> np.ndarray:
-    """Poses at the middle of ``ROOM``, stepping 5 cm a frame and turning ``step_deg`` a frame, looking down a little."""
+def turning_poses(n: int = 12, step_deg: float = 12.0, *, pitching: bool = True) -> np.ndarray:
+    """Poses at the middle of ``ROOM``, stepping 5 cm and turning ``step_deg`` a frame, looking down and up a little
+    (``pitching``: a hand-held camera's; without it a principal point off in y and a focal length off trade
+    against each other)."""
     poses = []
     for i in range(n):
         eye = (1.8 + 0.05 * i, 1.8, 1.4)
         heading = np.radians(step_deg * i)
-        poses.append(look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), 1.0)))
+        target_z = 1.0 + (0.35 * np.sin(1.3 * i) if pitching else 0.0)
+        poses.append(look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), target_z)))
     return np.stack(poses)
 
 
@@ -55,7 +58,7 @@ def test_pairs_are_turned_apart_near_each_other_and_drawn_the_same_each_time() -
         turn = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
         assert PAIR_TURN_DEG[0] <= turn <= PAIR_TURN_DEG[1]
     assert {(0, 1), (0, 2)} <= set(pairs) and (0, 3) not in pairs  # 12, 24 degrees apart; 36 is too many
-    sideways = turning_poses(step_deg=0.0)  # a step along the camera's x axis turns the rays alike in both frames
+    sideways = turning_poses(step_deg=0.0, pitching=False)  # a step along the camera's x axis turns rays alike in both frames
     assert view_pairs(sideways) == []
     many = view_pairs(turning_poses(n=60, step_deg=3.0))
     assert len(many) == MAX_PAIRS and many == sorted(many)
@@ -84,3 +87,19 @@ def test_nothing_to_compare_is_nan() -> None:
     empty = [np.zeros_like(d) for d in renders(poses)]  # no depth measured anywhere
     assert np.isnan(depth_disagreement(empty, poses, INTRINSICS, view_pairs(poses)))
     assert np.isnan(depth_disagreement(renders(poses), poses, INTRINSICS, []))
+
+
+def test_near_moved_intrinsics_the_ones_that_made_the_depth_are_found(room_renders: list[np.ndarray]) -> None:
+    poses = turning_poses()
+    pairs = view_pairs(poses)
+    moved = dataclasses.replace(INTRINSICS, fx=380.0, fy=380.0, cx=166.0, cy=130.0)
+    found, gap = agreeing_intrinsics(room_renders, poses, moved, pairs)
+    assert abs(found.fx - INTRINSICS.fx) <= 4 and found.fx == found.fy  # the focal length within 1 %
+    assert abs(found.cx - INTRINSICS.cx) <= 2 and abs(found.cy - INTRINSICS.cy) <= 2  # within a step
+    assert (
+        gap
+        <= depth_disagreement(room_renders, poses, INTRINSICS, pairs) * 1.5
+        < depth_disagreement(room_renders, poses, moved, pairs)
+    )
+    # at the intrinsics that made it, nothing near does better by more than the pixels' rounding
+    assert agreeing_intrinsics(room_renders, poses, INTRINSICS, pairs)[0].fx == INTRINSICS.fx

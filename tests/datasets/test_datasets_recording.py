@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -20,11 +21,12 @@ from datasets_builders import (
     build_seven_scenes,
     build_tum_from_seven_scenes,
     circle_walk,
+    write_room_tum,
 )
 
 from arcloud.accuracy.cli import add_eval_commands
 from arcloud.core.types import Intrinsics
-from arcloud.datasets.recording import detect_layout, load_recording
+from arcloud.datasets.recording import check_intrinsics, detect_layout, load_recording
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
 from arcloud.errors import DatasetError
@@ -147,3 +149,24 @@ def test_eval_recording_on_a_scannet_scene_scores_against_its_annotation(
     assert results["accuracy"][0]["ap25_per_class"]["chair"] == pytest.approx(1.0)
     assert "ScanNet axis-aligned frame" in results["frame"]
     assert "(observed boxes)" in capsys.readouterr().out
+
+
+def test_a_recording_read_with_intrinsics_off_is_told_which_its_depth_agrees_with(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    made = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    root = write_room_tum(tmp_path / "my room", made, n_frames=12)
+    (root / "intrinsics.txt").write_text("525 525 319.5 255.5\n")  # a camera calibrated 16 px off in cy
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
+        check = check_intrinsics(load_recording(root, estimate_up=False))
+    assert check["intrinsics"] == [525.0, 525.0, 319.5, 255.5] and check["frames"] == 12 and check["pairs"] > 0
+    fx, fy, cx, cy = check["agreeing"]
+    assert fx == fy
+    assert abs(fx / made.fx - 1) <= 0.01 and abs(cx - made.cx) <= 2 and abs(cy - made.cy) <= 2
+    assert check["agreeing_disagreement_mm"] < 0.5 * check["disagreement_mm"]
+    assert "the depth and poses agree better with" in caplog.text
+    caplog.clear()
+    (root / "intrinsics.txt").write_text("525 525 319.5 239.5\n")
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
+        right = check_intrinsics(load_recording(root, estimate_up=False))
+    assert right["disagreement_mm"] < check["disagreement_mm"] and "agree better" not in caplog.text

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from datasets_builders import TUM_RGB_DELAY_S, build_tum_from_seven_scenes, tum_time
+from datasets_builders import TUM_RGB_DELAY_S, build_tum_from_seven_scenes, tum_time, write_room_tum
 from scipy.spatial.transform import Rotation
 
 from arcloud.core.types import Intrinsics
@@ -168,35 +168,6 @@ def test_intrinsics_given_from_a_file_by_the_folder_name_or_generic(tmp_path: Pa
     np.testing.assert_allclose(frame.cam2world[:3, 3], [0.01, 0.0, 0.0])
     half = load_tum(tmp_path / "my room", depth_factor=10000.0, estimate_up=False)
     np.testing.assert_allclose(half.load_frame(half.frame_names[0]).depth_m, 1.0)
-
-
-def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8) -> Path:
-    """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of a room made with ``intrinsics``:
-    the camera steps 5 cm and turns 12 degrees a frame, depth in TUM's units, colour black."""
-    import cv2
-    from handmade_frames import cast_boxes, look_down_pose
-
-    room = [((-0.1, -0.1, 0.0), (0.0, 4.1, 2.5)), ((4.0, -0.1, 0.0), (4.1, 4.1, 2.5)), ((-0.1, -0.1, 0.0), (4.1, 0.0, 2.5)),
-            ((-0.1, 4.0, 0.0), (4.1, 4.1, 2.5)), ((1.0, 2.6, 0.0), (2.0, 3.3, 0.75)), ((3.0, 0.5, 0.0), (3.6, 1.5, 1.2))]  # fmt: skip
-    (root / "rgb").mkdir(parents=True)
-    (root / "depth").mkdir()
-    lines: dict[str, list[str]] = {"rgb": [], "depth": [], "groundtruth": []}
-    for i in range(n_frames):
-        t = f"{100.0 + i / 30:.6f}"
-        eye = (1.8 + 0.05 * i, 1.8, 1.4)
-        heading = np.radians(12.0 * i)
-        pose = look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), 1.0))
-        depth_m = cast_boxes(pose, room, intrinsics=intrinsics, shape=(480, 640))[0]
-        cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
-        cv2.imwrite(str(root / "rgb" / f"{t}.png"), np.zeros((480, 640, 3), np.uint8))
-        lines["rgb"].append(f"{t} rgb/{t}.png")
-        lines["depth"].append(f"{t} depth/{t}.png")
-        lines["groundtruth"].append(
-            " ".join([t, *map(str, pose[:3, 3]), *map(str, Rotation.from_matrix(pose[:3, :3]).as_quat())])
-        )
-    for name, listed in lines.items():
-        (root / f"{name}.txt").write_text("\n".join(listed) + "\n")
-    return root
 
 
 def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(

@@ -194,7 +194,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
     from arcloud.core.types import Intrinsics
     from arcloud.datasets.export import objects_json
     from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
-    from arcloud.datasets.recording import load_recording
+    from arcloud.datasets.recording import check_intrinsics, load_recording
     from arcloud.eval.map_pictures import write_pictures
 
     started = time.perf_counter()
@@ -203,6 +203,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         intrinsics=None if args.intrinsics is None else Intrinsics(*args.intrinsics), depth_factor=args.depth_factor,
         pose_time_offset_s=args.pose_time_offset_s, colour=args.colour_camera,
     )  # fmt: skip
+    intrinsics_check = check_intrinsics(recording)
     ground_truth = recording.ground_truth
     names = recording.frame_names[:: args.stride]
     frames = LazyFrames(names, recording.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
@@ -246,6 +247,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         "gravity_aligned": recording.gravity.up_file is not None,
         "gravity": recording.gravity.to_json(),
         "recording": dict(recording.facts),
+        "intrinsics_check": intrinsics_check,
         "frame": frame.description,
         "reference_min_score": args.reference_min_score,
         "centralized_objects": [

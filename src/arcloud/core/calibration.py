@@ -15,6 +15,7 @@ within 4 px of cx and cy and 2 % of the focal length.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -30,6 +31,11 @@ SAMPLES_PER_PAIR = 3000
 #: A sample's gap counts up to this (metres).
 BAND_M = 0.1
 DEPTH_RANGE_M = (0.3, 4.0)
+#: What ``agreeing_intrinsics`` tries: the focal lengths scaled by 0.9-1.1, the principal point moved by up to
+#: 3.75 % of the image's width (24 px of 640) either way, in steps of 1 % and of 2 px at 640.
+FIT_SCALES = np.linspace(0.9, 1.1, 21)
+FIT_SHIFTS = np.linspace(-0.0375, 0.0375, 25)
+FIT_ROUNDS = 6
 
 
 def view_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> list[tuple[int, int]]:
@@ -84,4 +90,40 @@ def depth_disagreement(
     return float(every.mean()) if every.size else float("nan")
 
 
-__all__ = ["BAND_M", "MAX_PAIRS", "PAIR_TURN_DEG", "depth_disagreement", "view_pairs"]
+def agreeing_intrinsics(
+    depths_m: Sequence[np.ndarray], cam2world: np.ndarray, intrinsics: Intrinsics, pairs: Sequence[tuple[int, int]]
+) -> tuple[Intrinsics, float]:
+    """Near ``intrinsics``, the ones the frames' depth and poses disagree with least (``depth_disagreement``), and
+    that figure: the focal lengths scaled by each of ``FIT_SCALES``, then cx and cy each moved by each of
+    ``FIT_SHIFTS`` (a share of the image's width), one after the other from the best so far, until a round
+    finds none better (at most ``FIT_ROUNDS``: a principal point off in y and a focal length off trade against
+    each other when the camera seldom pitches)."""
+    best, best_gap = intrinsics, depth_disagreement(depths_m, cam2world, intrinsics, pairs)
+    width = depths_m[0].shape[1] if len(depths_m) else 0
+    for _ in range(FIT_ROUNDS):
+        before = best
+        for field in ("f", "cx", "cy"):
+            start = best
+            for value in FIT_SCALES if field == "f" else FIT_SHIFTS * width:
+                if field == "f":
+                    candidate = replace(start, fx=start.fx * float(value), fy=start.fy * float(value))
+                else:
+                    candidate = replace(start, **{field: getattr(start, field) + float(value)})
+                gap = depth_disagreement(depths_m, cam2world, candidate, pairs)
+                if gap < best_gap:
+                    best, best_gap = candidate, gap
+        if best == before:
+            break
+    return best, best_gap
+
+
+__all__ = [
+    "BAND_M",
+    "FIT_SCALES",
+    "FIT_SHIFTS",
+    "MAX_PAIRS",
+    "PAIR_TURN_DEG",
+    "agreeing_intrinsics",
+    "depth_disagreement",
+    "view_pairs",
+]

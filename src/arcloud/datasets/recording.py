@@ -9,12 +9,15 @@ exported in (``ExportFrame``: the ground truth's aligned frame when there is one
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from arcloud.errors import DatasetError
+
+logger = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from arcloud.core.types import Frame, Intrinsics
@@ -168,4 +171,43 @@ def _scannet(base: Path, gt_boxes: str | Path | None) -> Recording:
     )  # fmt: skip
 
 
-__all__ = ["LAYOUTS", "Recording", "detect_layout", "load_recording"]
+#: Frames ``check_intrinsics`` reads, spread over the recording; the share of disagreement it calls notable.
+CHECK_FRAMES = 150
+CHECK_NOTABLE = 0.9
+
+
+def check_intrinsics(recording: Recording) -> dict[str, Any]:
+    """How well the recording's depth and poses agree with its depth intrinsics, and the intrinsics near them they
+    agree with best (``core.calibration.agreeing_intrinsics``, up to ``CHECK_FRAMES`` frames), as JSON; logged as
+    a warning when those disagree less than ``CHECK_NOTABLE`` as much (a camera calibrated a few pixels off, or a
+    recording read with another camera's intrinsics)."""
+    import numpy as np
+
+    from arcloud.core.calibration import agreeing_intrinsics, depth_disagreement, view_pairs
+
+    names = recording.frame_names[:: max(1, -(-len(recording.frame_names) // CHECK_FRAMES))]
+    frames = [recording.load_frame(name) for name in names]
+    cam2world = np.stack([frame.cam2world for frame in frames])
+    pairs = view_pairs(cam2world)
+    used = frames[0].intrinsics
+    out: dict[str, Any] = {"intrinsics": [used.fx, used.fy, used.cx, used.cy], "frames": len(frames), "pairs": len(pairs)}
+    if not pairs:
+        return out
+    depths = [frame.depth_m for frame in frames]
+    gap = depth_disagreement(depths, cam2world, used, pairs)
+    best, best_gap = agreeing_intrinsics(depths, cam2world, used, pairs)
+    out |= {
+        "disagreement_mm": round(gap * 1000, 2),
+        "agreeing": [round(v, 2) for v in (best.fx, best.fy, best.cx, best.cy)],
+        "agreeing_disagreement_mm": round(best_gap * 1000, 2),
+    }
+    if best_gap < CHECK_NOTABLE * gap:
+        logger.warning(
+            "%s: the depth and poses agree better with fx %.1f, fy %.1f, cx %.1f, cy %.1f than with the intrinsics used "
+            "(%s): %.1f mm against %.1f mm; check the camera's intrinsics (TUM: --intrinsics)",
+            recording.root, best.fx, best.fy, best.cx, best.cy, out["intrinsics"], best_gap * 1000, gap * 1000,
+        )  # fmt: skip
+    return out
+
+
+__all__ = ["CHECK_FRAMES", "LAYOUTS", "Recording", "check_intrinsics", "detect_layout", "load_recording"]
