@@ -97,8 +97,9 @@ def office_rows() -> dict[str, dict[str, Any]]:
         frames = simulate_sequence(
             room, n_frames=case.frames, seed=case.walk_seed, faults=faults, map_id=case.name, poses=poses, truths=truths
         )
-        detector = CachedDetector(SimulatedDetector(room, faults, seed=case.walk_seed, truths=truths))
-        observable = observable_objects(room, frames, detector)
+        simulated = SimulatedDetector(room, faults, seed=case.walk_seed, truths=truths)
+        observable = observable_objects(room, frames, simulated)
+        detector = CachedDetector(simulated)
         unseen = [o for o in room.objects if o not in observable]
         for name, (kind, *change) in VARIANTS.items():
             if kind == "registration":
