@@ -186,14 +186,19 @@ def check_intrinsics(recording: Recording) -> dict[str, Any]:
     from arcloud.core.calibration import agreeing_intrinsics, depth_disagreement, view_pairs
 
     names = recording.frame_names[:: max(1, -(-len(recording.frame_names) // CHECK_FRAMES))]
-    frames = [recording.load_frame(name) for name in names]
-    cam2world = np.stack([frame.cam2world for frame in frames])
+    if not names:
+        return {"frames": 0, "pairs": 0}
+    depths, poses = [], []
+    for name in names:  # the depth and pose of each, not its colour (150 VGA frames: 180 MB of depth)
+        frame = recording.load_frame(name)
+        depths.append(frame.depth_m)
+        poses.append(frame.cam2world)
+    cam2world = np.stack(poses)
     pairs = view_pairs(cam2world)
-    used = frames[0].intrinsics
-    out: dict[str, Any] = {"intrinsics": [used.fx, used.fy, used.cx, used.cy], "frames": len(frames), "pairs": len(pairs)}
+    used = frame.intrinsics
+    out: dict[str, Any] = {"intrinsics": [used.fx, used.fy, used.cx, used.cy], "frames": len(names), "pairs": len(pairs)}
     if not pairs:
         return out
-    depths = [frame.depth_m for frame in frames]
     gap = depth_disagreement(depths, cam2world, used, pairs)
     best, best_gap = agreeing_intrinsics(depths, cam2world, used, pairs)
     out |= {
