@@ -79,6 +79,30 @@ def look_down_pose(eye: tuple[float, float, float], target: tuple[float, float, 
     return pose
 
 
+#: Four walls of a 4 x 4 m room, 2.5 m high, a table and a cabinet.
+BOX_ROOM = [
+    ((-0.1, -0.1, 0.0), (0.0, 4.1, 2.5)),
+    ((4.0, -0.1, 0.0), (4.1, 4.1, 2.5)),
+    ((-0.1, -0.1, 0.0), (4.1, 0.0, 2.5)),
+    ((-0.1, 4.0, 0.0), (4.1, 4.1, 2.5)),
+    ((1.0, 2.6, 0.0), (2.0, 3.3, 0.75)),
+    ((3.0, 0.5, 0.0), (3.6, 1.5, 1.2)),
+]
+
+
+def turning_poses(n: int = 12, step_deg: float = 12.0, *, pitching: bool = True) -> np.ndarray:
+    """Poses (N, 4, 4) at the middle of ``BOX_ROOM``, stepping 5 cm and turning ``step_deg`` a frame, looking down and up a little
+    (``pitching``: a hand-held camera's; without it a principal point off in y and a focal length off trade
+    against each other)."""
+    poses = []
+    for i in range(n):
+        eye = (1.8 + 0.05 * i, 1.8, 1.4)
+        heading = np.radians(step_deg * i)
+        target_z = 1.0 + (0.35 * np.sin(1.3 * i) if pitching else 0.0)
+        poses.append(look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), target_z)))
+    return np.stack(poses)
+
+
 def cast_boxes(
     cam2world: np.ndarray,
     boxes: list[tuple[tuple[float, ...], tuple[float, ...]]],

@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from handmade_frames import cast_boxes, look_down_pose
+from handmade_frames import BOX_ROOM, cast_boxes, turning_poses
 
 from arcloud.core.calibration import MAX_PAIRS, PAIR_TURN_DEG, agreeing_intrinsics, depth_disagreement, view_pairs
 from arcloud.core.types import Intrinsics
@@ -17,32 +17,9 @@ from arcloud.core.types import Intrinsics
 INTRINSICS = Intrinsics(400.0, 400.0, 160.0, 120.0)  # 320 x 240 pixels, 44 degrees across
 SHAPE = (240, 320)
 
-#: Four walls of a 4 x 4 m room, 2.5 m high, a table and a cabinet.
-ROOM = [
-    ((-0.1, -0.1, 0.0), (0.0, 4.1, 2.5)),
-    ((4.0, -0.1, 0.0), (4.1, 4.1, 2.5)),
-    ((-0.1, -0.1, 0.0), (4.1, 0.0, 2.5)),
-    ((-0.1, 4.0, 0.0), (4.1, 4.1, 2.5)),
-    ((1.0, 2.6, 0.0), (2.0, 3.3, 0.75)),
-    ((3.0, 0.5, 0.0), (3.6, 1.5, 1.2)),
-]
-
-
-def turning_poses(n: int = 12, step_deg: float = 12.0, *, pitching: bool = True) -> np.ndarray:
-    """Poses at the middle of ``ROOM``, stepping 5 cm and turning ``step_deg`` a frame, looking down and up a little
-    (``pitching``: a hand-held camera's; without it a principal point off in y and a focal length off trade
-    against each other)."""
-    poses = []
-    for i in range(n):
-        eye = (1.8 + 0.05 * i, 1.8, 1.4)
-        heading = np.radians(step_deg * i)
-        target_z = 1.0 + (0.35 * np.sin(1.3 * i) if pitching else 0.0)
-        poses.append(look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), target_z)))
-    return np.stack(poses)
-
 
 def renders(poses: np.ndarray, intrinsics=INTRINSICS) -> list[np.ndarray]:
-    return [cast_boxes(pose, ROOM, intrinsics=intrinsics, shape=SHAPE)[0] for pose in poses]
+    return [cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=SHAPE)[0] for pose in poses]
 
 
 @pytest.fixture(scope="module")

@@ -232,22 +232,17 @@ def build_tum_from_seven_scenes(seven_root: Path, root: Path, frame_numbers: lis
 
 
 def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8) -> Path:
-    """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of a room made with ``intrinsics``:
-    the camera steps 5 cm and turns 12 degrees a frame, pitching a little, depth in TUM's units, colour black."""
-    from handmade_frames import cast_boxes, look_down_pose
+    """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of ``BOX_ROOM`` made with ``intrinsics``
+    along ``turning_poses``, depth in TUM's units, colour black."""
+    from handmade_frames import BOX_ROOM, cast_boxes, turning_poses
     from scipy.spatial.transform import Rotation
 
-    room = [((-0.1, -0.1, 0.0), (0.0, 4.1, 2.5)), ((4.0, -0.1, 0.0), (4.1, 4.1, 2.5)), ((-0.1, -0.1, 0.0), (4.1, 0.0, 2.5)),
-            ((-0.1, 4.0, 0.0), (4.1, 4.1, 2.5)), ((1.0, 2.6, 0.0), (2.0, 3.3, 0.75)), ((3.0, 0.5, 0.0), (3.6, 1.5, 1.2))]  # fmt: skip
     (root / "rgb").mkdir(parents=True)
     (root / "depth").mkdir()
     lines: dict[str, list[str]] = {"rgb": [], "depth": [], "groundtruth": []}
-    for i in range(n_frames):
+    for i, pose in enumerate(turning_poses(n_frames)):
         t = f"{100.0 + i / 30:.6f}"
-        eye = (1.8 + 0.05 * i, 1.8, 1.4)
-        heading = np.radians(12.0 * i)
-        pose = look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), 1.0 + 0.35 * np.sin(1.3 * i)))
-        depth_m = cast_boxes(pose, room, intrinsics=intrinsics, shape=(480, 640))[0]
+        depth_m = cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640))[0]
         cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
         cv2.imwrite(str(root / "rgb" / f"{t}.png"), np.zeros((480, 640, 3), np.uint8))
         lines["rgb"].append(f"{t} rgb/{t}.png")
