@@ -59,6 +59,7 @@ def map_objects(draw: st.DrawFn, object_id: int = 1) -> MapObject:
         n_missed=draw(st.integers(0, 5)),
         n_gone=draw(st.integers(0, 5)),
         floor_votes=draw(st.dictionaries(st.integers(-3, 3), st.integers(1, 4), max_size=3)),
+        wall_votes=draw(st.dictionaries(st.integers(0, 359), st.tuples(st.integers(1, 4), st.integers(-5000, 5000)), max_size=3)),
         apart=draw(st.dictionaries(st.integers(1, 6), st.integers(1, 4), max_size=3)),
     )
 
@@ -72,7 +73,8 @@ def test_a_refined_objects_boxes_contain_the_voxels_they_are_fitted_to(
     obj: MapObject, up: tuple[float, float, float], voxel_size_m: float, pad: float
 ) -> None:
     params = Params(voxel_size_m=voxel_size_m, up=up, box_pad_voxels=pad)
-    obj = obj.replace(floor_votes={})  # no floor: with one, voxels just above it are left out of the boxes on purpose
+    # no floor or wall: with them, voxels just above the floor or behind the wall are left out of the boxes on purpose
+    obj = obj.replace(floor_votes={}, wall_votes={})
     refined = refine(obj, params)
     pruned = prune_voxels(obj, params)
     if pruned.keys.size == 0:
@@ -103,7 +105,7 @@ def test_merging_two_objects_does_not_depend_on_their_order(a: MapObject, b: Map
     for name in ("weights", "votes", "seen_counts"):
         assert np.array_equal(getattr(ab, name), getattr(ba, name)), name
     assert (ab.colors is None) == (ba.colors is None) and (ab.colors is None or np.array_equal(ab.colors, ba.colors))
-    for name in ("n_frames", "n_missed", "n_gone", "devices", "score_sum", "created_at_s", "floor_votes", "apart"):
+    for name in ("n_frames", "n_missed", "n_gone", "devices", "score_sum", "created_at_s", "floor_votes", "wall_votes", "apart"):
         assert getattr(ab, name) == getattr(ba, name), name
     assert float(ab.weights.sum()) == float(a.weights.sum()) + float(b.weights.sum())  # nothing lost (whole numbers)
     assert (ab.id, ba.id) == (a.id, b.id)  # the kept object's identity

@@ -59,6 +59,7 @@ def test_replace_agrees_with_dataclasses_replace():
             "votes": rng.random((n, N_CLASSES), np.float32),
             "seen": rng.random(n, np.float32) if rng.integers(2) else None,
             "floor_votes": {int(rng.integers(-3, 3)): 1},
+            "wall_votes": {int(rng.integers(0, 360)): (1, int(rng.integers(-3000, 3000)))},
             "devices": frozenset({"a", str(rng.integers(3))}),
         }
         chosen = rng.choice(list(values), int(rng.integers(0, len(values))), replace=False)

@@ -103,6 +103,8 @@ def edits(obj: MapObject) -> list[tuple[str, dict[str, object]]]:
         ("n_frames", {"n_frames": -3}),
         ("devices", {"devices": frozenset({"phone 1\n<b>"})}),
         ("floor_votes", {"floor_votes": {3: -1}}),
+        ("wall_votes", {"wall_votes": {360: (2, 1000)}}),
+        ("wall_votes", {"wall_votes": {90: (0, 1000)}}),
     ]
 
 

@@ -16,6 +16,7 @@ from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, points_extent, sorted_unique, unpack_keys
+from arcloud.core.walls import object_wall, outside_wall
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
@@ -49,7 +50,8 @@ def box_voxel_masks(
 ) -> list[np.ndarray]:
     """``box_voxel_mask`` of non-empty objects whose keys unpack to ``ijks`` (each (N, 3)); with an object's
     floor (``floors``: ``core.floor``, or None), voxels within ``floor_clearance_m`` above it are floor a mask
-    bled onto, not the object. The parts of all the objects are found by one labelling (``label_side_by_side``)."""
+    bled onto, not the object; a screen's voxels behind its wall (``core.walls``) are the wall. The parts of all
+    the objects are found by one labelling (``label_side_by_side``)."""
     keeps: list[np.ndarray] = []
     grids: list[tuple[list[int], np.ndarray, np.ndarray] | None] = []  # (shape, cells of all voxels, kept voxels)
     for obj, ijk_all, floor_m in zip(objects, ijks, floors):
@@ -59,6 +61,10 @@ def box_voxel_masks(
         if floor_m is not None:
             bottoms = ijk_all @ (params.voxel_size_m * params.gravity.up)  # (exactly so when up is +z)
             keep &= bottoms > floor_m + params.floor_clearance_m
+        if obj.wall_votes and params.wall_margin_m is not None and CLASSES[object_label_index(obj)] in params.wall_classes:
+            wall = object_wall(obj.wall_votes, obj.n_frames, params.gravity)
+            if wall is not None:
+                keep &= outside_wall(ijk_centers(ijk_all, params.voxel_size_m), wall, params.voxel_size_m)
         keeps.append(keep)
         grids.append(None)
         if np.count_nonzero(keep) < 2:

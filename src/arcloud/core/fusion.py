@@ -19,6 +19,7 @@ from arcloud.core.voxels import (
     sorted_unique,
     unpack_keys,
 )
+from arcloud.core.walls import add_wall_votes
 
 _NO_VOXEL_COLORS = np.empty((0, 3), np.uint8)
 _NO_VOXEL_COLORS.flags.writeable = False
@@ -105,7 +106,8 @@ def fuse_detection(
     of the detection's score times its view weight (``vote_of``) for its label and the detection's colour into its mean; every voxel
     covered or ``visible`` ((N,) bool over the object's voxels: in view and not occluded in this frame)
     is counted as seen once more. Seen again, it has not been seen gone since (``n_gone`` 0).
-    ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``)."""
+    ``floor_vote``: the height bin of the floor this frame saw under the object (``core.floor``); the
+    detection's ``wall_vote`` joins the object's (``core.walls``)."""
     det_votes = np.zeros((det.keys.size, N_CLASSES), np.float32)
     det_votes[:, det.label_index] = max(vote_of(det.score * det.view_weight), np.float32(VOTE_STEP))
     ones = np.ones(det.keys.size, np.float32)
@@ -122,6 +124,7 @@ def fuse_detection(
         votes=votes,
         colors=colors,
         floor_votes=obj.floor_votes if floor_vote is None else add_votes(obj.floor_votes, {floor_vote: 1}),
+        wall_votes=obj.wall_votes if det.wall_vote is None else add_wall_votes(obj.wall_votes, dict([det.wall_vote])),
         n_frames=obj.n_frames + 1,
         devices=obj.devices | {device_id},
         score_sum=obj.score_sum + det.score,
@@ -134,7 +137,7 @@ def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: i
     was matched to): a voxel goes to a later owner when its coarse voxel (``factor`` times coarser) is
     that owner's and not the first's; a voxel in no owner's coarse voxels goes to the owner whose voxel
     bounds are nearest (the first on ties); the rest go to the first. One part per owner, in order
-    (possibly empty)."""
+    (possibly empty); the first keeps the detection's wall vote."""
     coarse = coarsen_keys_unsorted(det.keys, factor)
     owner = np.zeros(det.keys.size, np.int64)
     taken = in_sorted(coarse, coarsen_keys(owners[0], factor))
@@ -155,8 +158,10 @@ def split_detection(det: VoxelDetection, owners: Sequence[np.ndarray], factor: i
         owner[free] = np.argmin(np.stack(gaps), axis=0)
     parts = [owner == i for i in range(len(owners))]
     return [
-        VoxelDetection(det.label_index, det.score, det.keys[p], None if det.colors is None else det.colors[p], det.view_weight)
-        for p in parts
+        VoxelDetection(
+            det.label_index, det.score, det.keys[p], None if det.colors is None else det.colors[p], det.view_weight, vote
+        )
+        for p, vote in zip(parts, [det.wall_vote] + [None] * (len(parts) - 1))
     ]
 
 
@@ -180,6 +185,7 @@ def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
     merged = union_voxels(keep, absorbed.keys, absorbed.weights, absorbed.seen_counts, absorbed.votes, absorbed.colors)
     return merged.replace(
         floor_votes=add_votes(keep.floor_votes, absorbed.floor_votes),
+        wall_votes=add_wall_votes(keep.wall_votes, absorbed.wall_votes),
         n_frames=keep.n_frames + absorbed.n_frames,
         n_missed=max((keep, absorbed), key=keeper_rank).n_missed,
         n_gone=min(keep.n_gone, absorbed.n_gone),  # seen gone since the later of their last sightings

@@ -27,6 +27,9 @@ CLASSES: tuple[str, ...] = ("chair", "table", "laptop", "couch", "tv")
 N_CLASSES = len(CLASSES)
 CLASS_INDEX: dict[str, int] = {name: i for i, name in enumerate(CLASSES)}
 
+#: A frame's vote for the wall behind a screen (``core.walls``): (direction in whole degrees, (frames, offset in mm)).
+WallVote = tuple[int, tuple[int, int]]
+
 
 @dataclass(frozen=True, slots=True)
 class Intrinsics:
@@ -97,13 +100,14 @@ class VoxelDetection:
     """A detection back-projected into the world: sorted unique packed voxel keys (int64), and
     ``colors`` (N, 3) uint8 aligned with them: the mean RGB of the samples in each voxel (None: unknown).
     ``view_weight`` in (0, 1]: how well the frame saw it (``core.voxels.view_weights``); its label vote
-    is its score times this."""
+    is its score times this. ``wall_vote``: where the frame found the wall behind it (``core.walls``), or None."""
 
     label_index: int
     score: float
     keys: np.ndarray
     colors: np.ndarray | None = None
     view_weight: float = 1.0
+    wall_vote: WallVote | None = None
 
 
 @dataclass(frozen=True, eq=False, slots=True)
@@ -236,6 +240,7 @@ class MapObject:
     bounds: AABB | None = None  # world bounds of all voxels (the spatial index uses these)
     confirmed: bool = False  # served to clients by default (see ``arcloud.core.confirm``)
     floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)  # height bin -> frames (core.floor)
+    wall_votes: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)  # direction -> frames, offset (core.walls)
     n_missed: int = 0  # frames that saw it in view, unoccluded, and detected nothing there
     n_gone: int = 0  # frames that saw its place empty since it was last seen there (core.step.count_misses)
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
@@ -294,6 +299,7 @@ class ObjectMeta:
     bounds: AABB | None
     confirmed: bool = False
     floor_votes: dict[int, int] = dataclasses.field(default_factory=dict)
+    wall_votes: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
     label_purity: float = 0.0
     apart: dict[int, int] = dataclasses.field(default_factory=dict)
 

@@ -15,7 +15,8 @@ import numpy as np
 from scipy import ndimage
 
 from arcloud.core.gravity import Gravity
-from arcloud.core.types import CLASS_INDEX, Detection, Frame, Params, VoxelDetection
+from arcloud.core.types import CLASS_INDEX, Detection, Frame, Params, VoxelDetection, WallVote
+from arcloud.core.walls import wall_vote
 
 KEY_BITS = 21
 KEY_OFFSET = 1 << (KEY_BITS - 1)
@@ -529,8 +530,11 @@ def wall_plane(points: np.ndarray, gravity: Gravity, eye: np.ndarray) -> tuple[n
     return (normal, offset) if normal @ eye >= offset else (-normal, -offset)
 
 
-def off_wall_samples(points: np.ndarray, ring: np.ndarray, eye: np.ndarray, depth_share: float, params: Params) -> np.ndarray:
-    """(N,) bool: the samples of a screen's mask (``points`` (N, 3), world) that are not the wall behind it.
+def off_wall_samples(
+    points: np.ndarray, ring: np.ndarray, eye: np.ndarray, depth_share: float, params: Params
+) -> tuple[np.ndarray, tuple[np.ndarray, float] | None]:
+    """(N,) bool: the samples of a screen's mask (``points`` (N, 3), world) that are not the wall behind it,
+    and the plane they were cut at (its unit normal, facing the eye, and offset; None: none were cut).
 
     A screen's mask takes in the wall past its edge, and a dark screen seen at an angle returns no depth:
     its mask's samples are the wall seen through it. Where the mask's surroundings (``ring``, from
@@ -543,10 +547,10 @@ def off_wall_samples(points: np.ndarray, ring: np.ndarray, eye: np.ndarray, dept
     sample is kept."""
     keep_all = np.ones(len(points), bool)
     if params.wall_margin_m is None or len(points) == 0 or len(ring) == 0:
-        return keep_all
+        return keep_all, None
     plane = wall_plane(ring, params.gravity, eye)
     if plane is None:
-        return keep_all
+        return keep_all, None
     normal, offset = plane
     off_wall_m = points @ normal - offset
     face = off_wall_m[off_wall_m > WALL_INLIER_M]
@@ -554,7 +558,9 @@ def off_wall_samples(points: np.ndarray, ring: np.ndarray, eye: np.ndarray, dept
     if face.size:
         cut_m = min(cut_m, max(WALL_INLIER_M, float(np.median(face)) - params.wall_screen_depth_m))
     off = off_wall_m >= cut_m
-    return off if off.mean() >= params.wall_front_share or depth_share < params.wall_depth_share else keep_all
+    if off.mean() >= params.wall_front_share or depth_share < params.wall_depth_share:
+        return off, (normal, offset + cut_m)
+    return keep_all, None
 
 
 def sampling_stride_px(frame: Frame, params: Params) -> int:
@@ -585,7 +591,7 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
     registered = None if frame.registered else register_samples(frame, params, stride)
     width = frame.rgb.shape[1]
     rgb_pixels = frame.rgb.reshape(-1, 3)  # (H * W, 3): a pixel by its flat index (a view when contiguous)
-    kept: list[tuple[Detection, np.ndarray, np.ndarray]] = []  # (detection, keys, colours) of those kept
+    kept: list[tuple[Detection, np.ndarray, np.ndarray, WallVote | None]] = []  # (detection, keys, colours, wall vote)
     extents: list[Extent] = []
     point_sets: list[np.ndarray] = []
     for det in detections:
@@ -600,6 +606,7 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
             v_px, u_px, z_m = registered.v_px[near], registered.u_px[near], registered.z_m[near]
             rgb_px = registered.rgb_v_px[near] * width + registered.rgb_u_px[near]
         points = back_project(frame, v_px, u_px, z_m)
+        vote = None
         if params.layer_margin_m is not None and z_m.size and det.label in params.layer_classes:
             front = front_samples(v_px, u_px, z_m, stride, params, points)
             points, rgb_px = points[front], rgb_px[front]
@@ -607,20 +614,21 @@ def voxelize_detections(frame: Frame, detections: Sequence[Detection], params: P
             r0, r1, c0, c1 = extent
             depth_share = z_m.size * stride * stride / max(1, int(np.count_nonzero(det.mask[r0:r1, c0:c1])))
             ring = ring_points(frame, det.mask, params, stride, registered, extent)
-            off = off_wall_samples(points, ring, frame.cam2world[:3, 3], depth_share, params)
+            off, cut_at = off_wall_samples(points, ring, frame.cam2world[:3, 3], depth_share, params)
             points, rgb_px = points[off], rgb_px[off]
+            vote = None if cut_at is None else wall_vote(*cut_at, params.gravity)
         if len(points) == 0:
             continue
         sample_keys = points_to_keys(points, params.voxel_size_m)
         keys = sorted_unique(sample_keys)
         if keys.size >= params.min_voxels_per_detection:
-            kept.append((det, keys, voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0))))
+            kept.append((det, keys, voxel_colors(sample_keys, keys, np.take(rgb_pixels, rgb_px, axis=0)), vote))
             extents.append(extent)
             point_sets.append(points)
     weights = view_weights(frame, extents, point_sets, params, stride)
     return [
-        VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors, weight)
-        for (det, keys, colors), weight in zip(kept, weights)
+        VoxelDetection(CLASS_INDEX[det.label], float(det.score), keys, colors, weight, vote)
+        for (det, keys, colors, vote), weight in zip(kept, weights)
     ]
 
 

@@ -400,6 +400,7 @@ def meta_of(obj: MapObject) -> ObjectMeta:
         bounds=obj.bounds,
         confirmed=obj.confirmed,
         floor_votes=obj.floor_votes,
+        wall_votes=obj.wall_votes,
         label_purity=obj.label_purity,
         apart=obj.apart,
     )
@@ -436,8 +437,9 @@ def _meta_json(obj: MapObject | ObjectMeta) -> bytes:
 
 
 def _meta_fields(obj: MapObject | ObjectMeta) -> dict[str, Any]:
-    # left out when empty: the blobs of objects without it are the bytes they were
+    # left out when empty: the blobs of objects without them are the bytes they were
     apart = {"apart": {str(k): int(v) for k, v in sorted(obj.apart.items())}} if obj.apart else {}
+    walls = {"wall_votes": {str(k): [int(n), int(mm)] for k, (n, mm) in sorted(obj.wall_votes.items())}} if obj.wall_votes else {}
     return {
         "label": obj.label,
         "score": float(obj.score),
@@ -455,6 +457,7 @@ def _meta_fields(obj: MapObject | ObjectMeta) -> dict[str, Any]:
         "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
         "label_purity": float(obj.label_purity),
         **apart,
+        **walls,
     }
 
 
@@ -525,6 +528,7 @@ def _meta(object_id: int, fields: dict[str, Any]) -> ObjectMeta:
         bounds=_box(fields["bounds"]),
         confirmed=bool(fields.get("confirmed", False)),
         floor_votes={int(k): int(v) for k, v in fields.get("floor_votes", {}).items()},
+        wall_votes={int(k): (int(n), int(mm)) for k, (n, mm) in fields.get("wall_votes", {}).items()},
         label_purity=float(fields.get("label_purity", 0.0)),
         apart={int(k): int(v) for k, v in fields.get("apart", {}).items()},
     )
@@ -558,6 +562,7 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_mis
         bounds=meta.bounds,
         confirmed=meta.confirmed,
         floor_votes=meta.floor_votes,
+        wall_votes=meta.wall_votes,
         n_missed=n_missed,
         n_gone=n_gone,
         label_purity=meta.label_purity,

@@ -150,6 +150,8 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
         check_id(f"{where}.devices", device)
     if any(count < 0 for count in obj.floor_votes.values()):
         raise InvalidInput(f"{where}.floor_votes", "counts >= 0", describe(obj.floor_votes))
+    if any(not 0 <= direction < 360 or frames < 1 for direction, (frames, _) in obj.wall_votes.items()):
+        raise InvalidInput(f"{where}.wall_votes", "directions from 0 to 359 with frames >= 1", describe(obj.wall_votes))
     if obj.keys.size == 0:
         raise InvalidInput(f"{where}.voxels", "at least one voxel", "none")
     for name in ("weights", "seen", "votes"):
