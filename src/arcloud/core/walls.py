@@ -11,9 +11,9 @@ turns by a degree or two), at its mean offset, once ``WALL_MIN_FRAMES`` frames a
 of the frames that detected the object found it. A screen on a wall has its wall found in most of its frames
 (measured: 60-90 %); a monitor on a desk has a plane found behind it now and then (the monitor back to back
 with it, a partition; 0-22 % in the simulated offices), and that is no wall to cut it at; nor is the
-backsplash behind a screen-like thing on a kitchen counter, found in 44 % of its frames (7-Scenes). The object's box
-leaves out its voxels behind that plane (``outside_wall``), whichever frames put them there. Votes are
-integers that add up, so an object's wall does not depend on the order in which frames arrive.
+backsplash behind a screen-like thing on a kitchen counter, found in 44 % of its frames (7-Scenes). The
+object's box leaves out its voxels behind that plane (``outside_wall``), whichever frames put them there.
+Votes are integers that add up, so an object's wall does not depend on the order in which frames arrive.
 """
 
 from __future__ import annotations
@@ -73,7 +73,8 @@ def object_wall(votes: WallVotes, n_frames: int, gravity: Gravity) -> tuple[np.n
 
 
 def outside_wall(centers: np.ndarray, wall: tuple[np.ndarray, float], voxel_size_m: float) -> np.ndarray:
-    """(N,) bool: the voxels (their centres, (N, 3)) not behind the wall's plane by more than half a voxel (a
-    voxel that a sample in front of it fell in may have its centre up to that far behind)."""
+    """(N,) bool: the voxels (their centres, (N, 3)) not behind the wall's plane by more than half a voxel: a
+    voxel that samples in front of the plane fell in has its centre up to half a voxel behind it where the wall
+    runs along the grid (up to 0.71 voxel where it runs diagonally: such a voxel may be left out)."""
     normal, offset_m = wall
     return centers @ normal >= offset_m - voxel_size_m / 2
