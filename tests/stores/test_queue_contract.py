@@ -244,6 +244,28 @@ def test_a_frame_status_follows_it_from_accepted_to_processed_or_failed(queue: F
     assert queue.frame_status(MAP, ok.key) is None
 
 
+def test_a_frame_settled_while_its_status_is_read_is_processed_not_lost(
+    make_queue: MakeQueue, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    queue = make_queue()
+    if not isinstance(queue, RedisFrameQueue):
+        pytest.skip("the embedded queue reads a frame's status under the lock its worker settles it under")
+    sent = frame(9)
+    queue.put(sent)
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None
+    read_entry = queue.client.xrange
+
+    def settled_first(*args: Any, **kwargs: Any) -> Any:  # the worker acknowledges between the status's two reads
+        monkeypatch.setattr(queue.client, "xrange", read_entry)
+        queue.ack(item, redelivered=False)
+        return read_entry(*args, **kwargs)
+
+    monkeypatch.setattr(queue.client, "xrange", settled_first)
+    assert queue.frame_status(MAP, sent.key) == FrameStatus("processed")  # was "unknown": the client counted it lost
+    assert queue.client.xrange is read_entry  # the entry was read, after the ack
+
+
 def test_settled_frames_are_counted_per_map_and_per_worker_and_a_forgotten_map_s_go(make_queue: MakeQueue) -> None:
     queue = make_queue()
     for index, map_id in ((1, "ma"), (2, "ma"), (3, "mb"), (4, "mb")):

@@ -367,19 +367,28 @@ class RedisFrameQueue:
 
     def frame_status(self, map_id: str, frame_key: str) -> FrameStatus | None:
         """From the map's status HASH; a frame with an entry is "processing" while the entry is pending
-        (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown"."""
+        (delivered, not yet acknowledged), "queued" before; one whose entry is gone is "unknown". The record
+        is read again when the entry is gone: a worker settles the record and deletes the entry in one script
+        (``lua/settle_frame.lua``), so a frame settled between the two reads is processed or failed, not lost."""
         stream = keys.ingest_stream(self._tag_of(map_id))
         with redis_errors("read the frame's status", self._where):
             record = self._record(map_id, frame_key)
+            gone = (
+                record is not None
+                and record.status == "queued"
+                and not self.client.xrange(stream, record.entry_id, record.entry_id)
+            )
+            if gone:
+                record = self._record(map_id, frame_key)
             if record is None:
                 return None
             if record.status == "processed":
                 return FrameStatus("processed")
             if record.status == "failed":
                 return FrameStatus("failed", record.reason)
-            entry_id = record.entry_id
-            if record.status != "queued" or not self.client.xrange(stream, entry_id, entry_id):
+            if record.status != "queued" or gone:
                 return FrameStatus("unknown")  # lost: a retry queues it again
+            entry_id = record.entry_id
             try:
                 pending = self.client.xpending_range(stream, self.group, min=entry_id, max=entry_id, count=1)
             except redis.exceptions.ResponseError as exc:
