@@ -197,7 +197,7 @@ def test_box_voxels_and_refined_objects_together_are_each_ones_own():
     screen = new_object(2, det("tv", np.union1d(block((0, 0, 0), (10, 10, 4)), block((0, 0, 6), (10, 10, 7)))), "a", 0.0)
     small = new_object(3, det("chair", block((5, 5, 5), (6, 6, 7))), "a", 0.0)
     objects, params = [with_island, screen, small], Params(min_component_fraction=0.5)
-    masks = box_voxel_masks(objects, params, [unpack_keys(o.keys) for o in objects], [None] * 3)
+    masks = box_voxel_masks(objects, params, [unpack_keys(o.keys) for o in objects], [None] * 3, [None] * 3)
     assert [m.tolist() for m in masks] == [box_voxel_mask(o, params).tolist() for o in objects]
     assert masks[0].sum() == body.size and masks[1].sum() == 400  # each lost its small part
     for together, alone in zip(refine_all(objects, params), [refine(o, params) for o in objects]):

@@ -16,7 +16,7 @@ from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
 from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, points_extent, sorted_unique, unpack_keys
-from arcloud.core.walls import object_wall, outside_wall
+from arcloud.core.walls import Wall, object_wall, outside_wall
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
@@ -42,29 +42,31 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     through any of the object's voxels, kept or not; sizes count kept voxels)."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
-    return box_voxel_masks([obj], params, [unpack_keys(obj.keys)], [None])[0]
+    return box_voxel_masks([obj], params, [unpack_keys(obj.keys)], [None], [None])[0]
 
 
 def box_voxel_masks(
-    objects: Sequence[MapObject], params: Params, ijks: Sequence[np.ndarray], floors: Sequence[float | None]
+    objects: Sequence[MapObject],
+    params: Params,
+    ijks: Sequence[np.ndarray],
+    floors: Sequence[float | None],
+    walls: Sequence[Wall | None],
 ) -> list[np.ndarray]:
     """``box_voxel_mask`` of non-empty objects whose keys unpack to ``ijks`` (each (N, 3)); with an object's
     floor (``floors``: ``core.floor``, or None), voxels within ``floor_clearance_m`` above it are floor a mask
-    bled onto, not the object; a screen's voxels behind its wall (``core.walls``) are the wall. The parts of all
-    the objects are found by one labelling (``label_side_by_side``)."""
+    bled onto, not the object; with its wall (``walls``: ``screen_wall``, or None), voxels behind it are the
+    wall. The parts of all the objects are found by one labelling (``label_side_by_side``)."""
     keeps: list[np.ndarray] = []
     grids: list[tuple[list[int], np.ndarray, np.ndarray] | None] = []  # (shape, cells of all voxels, kept voxels)
-    for obj, ijk_all, floor_m in zip(objects, ijks, floors):
+    for obj, ijk_all, floor_m, wall in zip(objects, ijks, floors, walls):
         k = int(0.9 * (obj.weights.size - 1))
         reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
         keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
         if floor_m is not None:
             bottoms = ijk_all @ (params.voxel_size_m * params.gravity.up)  # (exactly so when up is +z)
             keep &= bottoms > floor_m + params.floor_clearance_m
-        if obj.wall_votes and params.wall_margin_m is not None and CLASSES[object_label_index(obj)] in params.wall_classes:
-            wall = object_wall(obj.wall_votes, obj.n_frames, params.gravity)
-            if wall is not None:
-                keep &= outside_wall(ijk_centers(ijk_all, params.voxel_size_m), wall, params.voxel_size_m)
+        if wall is not None:
+            keep &= outside_wall(ijk_centers(ijk_all, params.voxel_size_m), wall, params.voxel_size_m)
         keeps.append(keep)
         grids.append(None)
         if np.count_nonzero(keep) < 2:
@@ -346,13 +348,21 @@ def refine_all(objects: Sequence[MapObject], params: Params) -> list[MapObject]:
     live = [obj for obj in pruned if obj.keys.size]
     ijks = [unpack_keys(obj.keys) for obj in live]  # once: the component filter, the box's centres and the bounds use it
     floors = [floor_height(obj.floor_votes, params) for obj in live]
-    fitted = iter(zip(ijks, floors, box_voxel_masks(live, params, ijks, floors)))
+    walls = [screen_wall(obj, params) for obj in live]
+    fitted = iter(zip(ijks, floors, box_voxel_masks(live, params, ijks, floors, walls)))
     return [
         _boxed(obj, params, *next(fitted))
         if obj.keys.size
         else obj.replace(label="", score=0.0, aabb=None, obb=None, bounds=None, confirmed=False)
         for obj in pruned
     ]
+
+
+def screen_wall(obj: MapObject, params: Params) -> Wall | None:
+    """The wall behind an object labelled one of ``params.wall_classes`` (``core.walls.object_wall``), or None."""
+    if not obj.wall_votes or params.wall_margin_m is None or CLASSES[object_label_index(obj)] not in params.wall_classes:
+        return None
+    return object_wall(obj.wall_votes, obj.n_frames, params.gravity)
 
 
 def _boxed(obj: MapObject, params: Params, ijk: np.ndarray, floor_m: float | None, box_mask: np.ndarray) -> MapObject:

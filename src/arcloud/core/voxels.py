@@ -16,7 +16,7 @@ from scipy import ndimage
 
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import CLASS_INDEX, Detection, Frame, Params, VoxelDetection, WallVote
-from arcloud.core.walls import wall_vote
+from arcloud.core.walls import Wall, wall_vote
 
 KEY_BITS = 21
 KEY_OFFSET = 1 << (KEY_BITS - 1)
@@ -497,7 +497,7 @@ def near_mask(counts: np.ndarray, v: np.ndarray, u: np.ndarray, radius_px: int) 
     return counts[bottom, right] - counts[top, right] - counts[bottom, left] + counts[top, left] > 0
 
 
-def wall_plane(points: np.ndarray, gravity: Gravity, eye: np.ndarray) -> tuple[np.ndarray, float] | None:
+def wall_plane(points: np.ndarray, gravity: Gravity, eye: np.ndarray) -> Wall | None:
     """The vertical plane most of ``points`` (N, 3) lie on (see ``WALL_MIN_SHARE``), as its horizontal
     unit normal facing the ``eye`` and its offset (``normal @ x == offset`` on it); None when there is
     none, or when the points on it spread less than ``WALL_INLIER_M`` across their main direction (they
@@ -532,7 +532,7 @@ def wall_plane(points: np.ndarray, gravity: Gravity, eye: np.ndarray) -> tuple[n
 
 def off_wall_samples(
     points: np.ndarray, ring: np.ndarray, eye: np.ndarray, depth_share: float, params: Params
-) -> tuple[np.ndarray, tuple[np.ndarray, float] | None]:
+) -> tuple[np.ndarray, Wall | None]:
     """(N,) bool: the samples of a screen's mask (``points`` (N, 3), world) that are not the wall behind it,
     and the plane they were cut at (its unit normal, facing the eye, and offset; None: none were cut).
 

@@ -33,6 +33,8 @@ _DIRECTIONS = 360
 
 #: An object's tally: direction in whole degrees -> (frames, the sum of their cut offsets in millimetres).
 WallVotes = Mapping[int, tuple[int, int]]
+#: A vertical plane: its horizontal unit normal (facing the room) and offset (``normal @ x == offset`` on it).
+Wall = tuple[np.ndarray, float]
 
 
 def wall_vote(normal: np.ndarray, offset_m: float, gravity: Gravity) -> WallVote:
@@ -51,7 +53,7 @@ def add_wall_votes(a: WallVotes, b: WallVotes) -> dict[int, tuple[int, int]]:
     return out
 
 
-def object_wall(votes: WallVotes, n_frames: int, gravity: Gravity) -> tuple[np.ndarray, float] | None:
+def object_wall(votes: WallVotes, n_frames: int, gravity: Gravity) -> Wall | None:
     """The plane the votes of an object detected in ``n_frames`` frames agree on, as its horizontal unit normal
     and offset; None before enough of its frames agree on one (see the module docstring)."""
     if not votes:
@@ -72,7 +74,7 @@ def object_wall(votes: WallVotes, n_frames: int, gravity: Gravity) -> tuple[np.n
     return normal, sum(mm for _, _, mm in pool) / frames / 1000
 
 
-def outside_wall(centers: np.ndarray, wall: tuple[np.ndarray, float], voxel_size_m: float) -> np.ndarray:
+def outside_wall(centers: np.ndarray, wall: Wall, voxel_size_m: float) -> np.ndarray:
     """(N,) bool: the voxels (their centres, (N, 3)) not behind the wall's plane by more than half a voxel: a
     voxel that samples in front of the plane fell in has its centre up to half a voxel behind it where the wall
     runs along the grid (up to 0.71 voxel where it runs diagonally: such a voxel may be left out)."""
