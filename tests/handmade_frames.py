@@ -94,13 +94,15 @@ def turning_poses(n: int = 12, step_deg: float = 12.0, *, pitching: bool = True)
     """Poses (N, 4, 4) at the middle of ``BOX_ROOM``, stepping 5 cm and turning ``step_deg`` a frame, looking down and up a little
     (``pitching``: a hand-held camera's; without it a principal point off in y and a focal length off trade
     against each other)."""
-    poses = []
-    for i in range(n):
-        eye = (1.8 + 0.05 * i, 1.8, 1.4)
-        heading = np.radians(step_deg * i)
-        target_z = 1.0 + (0.35 * np.sin(1.3 * i) if pitching else 0.0)
-        poses.append(look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), target_z)))
-    return np.stack(poses)
+    return np.stack([turning_pose(i, step_deg, pitching=pitching) for i in range(n)])
+
+
+def turning_pose(i: float, step_deg: float = 12.0, *, pitching: bool = True) -> np.ndarray:
+    """The pose of ``turning_poses`` at frame ``i``, any real number: the camera between two frames."""
+    eye = (1.8 + 0.05 * i, 1.8, 1.4)
+    heading = np.radians(step_deg * i)
+    target_z = 1.0 + (0.35 * np.sin(1.3 * i) if pitching else 0.0)
+    return look_down_pose(eye, (eye[0] + np.cos(heading), eye[1] + np.sin(heading), target_z))
 
 
 def cast_boxes(

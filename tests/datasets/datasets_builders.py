@@ -231,28 +231,39 @@ def build_tum_from_seven_scenes(seven_root: Path, root: Path, frame_numbers: lis
     return root
 
 
-def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8) -> Path:
+def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8, *, colour_delay_s: float = 0.0) -> Path:
     """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of ``BOX_ROOM`` made with ``intrinsics``
-    along ``turning_poses``, depth in TUM's units, colour black."""
-    from handmade_frames import BOX_ROOM, cast_boxes, turning_poses
+    along ``turning_poses`` at 30 frames a second, depth in TUM's units; each colour image taken ``colour_delay_s``
+    after its depth image (the trajectory holds the poses at both times), black but for ``BOX_ROOM``'s table,
+    painted (255, 0, 0) where the camera saw it then."""
+    from handmade_frames import BOX_ROOM, cast_boxes, turning_pose
     from scipy.spatial.transform import Rotation
 
     (root / "rgb").mkdir(parents=True)
     (root / "depth").mkdir()
     lines: dict[str, list[str]] = {"rgb": [], "depth": [], "groundtruth": []}
-    for i, pose in enumerate(turning_poses(n_frames)):
-        t = f"{100.0 + i / 30:.6f}"
+
+    def pose_line(t: str, pose: np.ndarray) -> str:
+        return " ".join([t, *map(str, pose[:3, 3]), *map(str, Rotation.from_matrix(pose[:3, :3]).as_quat())])
+
+    for i in range(n_frames):
+        t, t_colour = f"{100.0 + i / 30:.6f}", f"{100.0 + i / 30 + colour_delay_s:.6f}"
+        pose, colour_pose = turning_pose(i), turning_pose(i + colour_delay_s * 30)
         depth_m = cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640))[0]
         cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
-        cv2.imwrite(str(root / "rgb" / f"{t}.png"), np.zeros((480, 640, 3), np.uint8))
-        lines["rgb"].append(f"{t} rgb/{t}.png")
+        colour = np.zeros((480, 640, 3), np.uint8)
+        colour[cast_boxes(colour_pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640))[1] == TABLE_IN_BOX_ROOM] = (0, 0, 255)
+        cv2.imwrite(str(root / "rgb" / f"{t_colour}.png"), colour)  # BGR
+        lines["rgb"].append(f"{t_colour} rgb/{t_colour}.png")
         lines["depth"].append(f"{t} depth/{t}.png")
-        lines["groundtruth"].append(
-            " ".join([t, *map(str, pose[:3, 3]), *map(str, Rotation.from_matrix(pose[:3, :3]).as_quat())])
-        )
+        lines["groundtruth"] += [pose_line(t, pose)] + ([pose_line(t_colour, colour_pose)] if colour_delay_s else [])
     for name, listed in lines.items():
         (root / f"{name}.txt").write_text("\n".join(listed) + "\n")
     return root
+
+
+#: ``handmade_frames.BOX_ROOM``'s table.
+TABLE_IN_BOX_ROOM = 4
 
 
 #: The annotated room of ``build_room_scene``: raw category -> (min, max) in the aligned frame.

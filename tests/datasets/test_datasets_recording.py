@@ -74,6 +74,7 @@ def test_eval_recording_on_a_tum_recording_against_the_7scenes_ground_truth(
     results = json.loads(out.read_text())
     assert (results["dataset"], results["sequence"], results["frames"]) == ("tum", "my_kitchen__TUM_", 9)
     assert results["recording"]["dropped_frames"] == 1 and results["recording"]["depth_factor"] == 5000.0
+    assert results["recording"]["colour_turn_deg"] == {"median": 0.0, "max": 0.0}  # no pose 8 ms after a depth image
     assert results["gravity"]["source"].endswith("gt-boxes.json (up_axis_world)")
     assert "gt-boxes.json aligned frame" in results["frame"]
     rows = results["accuracy"]

@@ -6,14 +6,23 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from datasets_builders import TUM_RGB_DELAY_S, build_tum_from_seven_scenes, tum_time, write_room_tum
+from datasets_builders import (
+    TABLE_IN_BOX_ROOM,
+    TUM_RGB_DELAY_S,
+    build_tum_from_seven_scenes,
+    tum_time,
+    write_room_tum,
+)
+from handmade_frames import BOX_ROOM, cast_boxes
 from scipy.spatial.transform import Rotation
 
-from arcloud.core.types import Intrinsics
+from arcloud.core.types import Detection, Intrinsics, Params
+from arcloud.core.voxels import voxelize_detections
 from arcloud.datasets.sevenscenes import load_seven_scenes
 from arcloud.datasets.tum import GENERIC_INTRINSICS, PUBLISHED_INTRINSICS, associate, interpolate_poses, load_tum
 from arcloud.errors import DatasetError
@@ -92,8 +101,44 @@ def test_a_recording_reads_back_as_the_7scenes_frames_it_was_made_of(
         np.testing.assert_array_equal(ours.rgb, theirs.rgb)
         # 7-Scenes rotations are orthonormal to about 1e-4; a quaternion is exactly a rotation
         np.testing.assert_allclose(ours.cam2world, theirs.cam2world, atol=2e-4)
-        assert ours.frame_id == name and ours.map_id == tum.name and ours.registered
+        assert ours.frame_id == name and ours.map_id == tum.name
+        # colour 8 ms after depth: where the next pose is a frame (33 ms) on, the camera's motion between
+        # them, a quarter of the way; else no pose near the colour's time, and the frame is registered
+        if number + 1 in FRAMES:
+            after = seven.load_frame(f"{number + 1:06d}").cam2world
+            at_colour, _ = interpolate_poses(
+                np.array([0.0, 1 / 30]), np.stack([theirs.cam2world[:3, 3], after[:3, 3]]),
+                Rotation.from_matrix(np.stack([theirs.cam2world[:3, :3], after[:3, :3]])).as_quat(), np.array([TUM_RGB_DELAY_S]),
+            )  # fmt: skip
+            assert ours.depth2rgb is not None
+            np.testing.assert_allclose(ours.depth2rgb, np.linalg.inv(at_colour[0]) @ theirs.cam2world, atol=2e-4)
+        else:
+            assert ours.registered
     assert tum.load_frame(tum.frame_names[3]).timestamp_s == pytest.approx(1.0)
+
+
+def test_masks_of_a_colour_image_taken_after_its_depth_land_where_the_turned_camera_saw(tmp_path: Path) -> None:
+    intrinsics = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    # 10 ms at 360 degrees a second (turning_poses): the camera turns 3.6 degrees, 33 px, between the two images
+    tum = load_tum(write_room_tum(tmp_path / "room", intrinsics, n_frames=11, colour_delay_s=0.01), intrinsics=intrinsics,
+                   align_gravity=False, estimate_up=False)  # fmt: skip
+    turn = tum.colour_turn_deg()
+    assert 3.6 <= turn["median"] <= turn["max"] < 10  # the heading's 3.6 degrees, and the camera's nod
+    params = Params()
+    counts = np.zeros((2, 3))  # (with the motion, laid on as it is) x (table's voxels found, voxels found, table's voxels)
+    for name in tum.frame_names[7:]:  # the frames that see the table (a fifth to a third of the image)
+        frame = tum.load_frame(name)
+        assert not frame.registered
+        # the table's voxels: a mask of it drawn where the depth camera saw it, looked up the same way
+        seen = cast_boxes(frame.cam2world, BOX_ROOM, intrinsics=intrinsics, shape=frame.shape)[1] == TABLE_IN_BOX_ROOM
+        (table,) = voxelize_detections(replace(frame, depth2rgb=np.eye(4)), [Detection("table", 0.9, seen)], params)
+        painted = Detection("table", 0.9, frame.rgb[..., 0] == 255)  # the table where the colour camera saw it
+        for row, looked_up in enumerate((frame, replace(frame, depth2rgb=None))):
+            (found,) = voxelize_detections(looked_up, [painted], params)
+            counts[row] += np.isin(found.keys, table.keys).sum(), found.keys.size, table.keys.size
+    (precision, recall), (precision_as_is, recall_as_is) = counts[:, 0:1] / counts[:, 1:]
+    assert precision > 0.95 and recall > 0.9
+    assert precision_as_is < 0.9 and recall_as_is < 0.8  # what the motion costs where it is not undone
 
 
 @pytest.mark.shared

@@ -127,6 +127,7 @@ def _tum(
         "depth_factor": sequence.depth_factor,
         "pose_time_offset_s": pose_time_offset_s,
         "dropped_frames": len(sequence.dropped_frames),
+        "colour_turn_deg": sequence.colour_turn_deg(),
     }
     return Recording(
         "tum", sequence.name, base, sequence.frame_names, sequence.load_frame, sequence.ground_truth,

@@ -12,6 +12,13 @@ poses around it (position linearly, rotation by slerp); where one of them lies m
 ``MAX_POSE_GAP_S`` away (a gap in the tracking, the ends of the trajectory) the nearest pose within
 ``MAX_POSE_GAP_S`` is taken as it is, and a frame with none is dropped (logged with a count).
 
+The colour image of a frame was taken up to ``MAX_RGB_DEPTH_DIFFERENCE_S`` before or after its depth (the
+sensor's two streams are not synchronized), and a hand-held camera turns by a few pixels' worth in that time.
+A frame whose camera moved between its two images carries the motion as ``Frame.depth2rgb`` (the depth camera
+at its time to the colour camera at its own, from the trajectory at both timestamps), so its masks are looked
+up where the colour camera saw each depth point; one without a pose at its colour time, or that did not move,
+is registered pixel for pixel.
+
 Intrinsics: given, else ``camera-intrinsics.txt`` or ``intrinsics.txt`` in the folder (4 numbers
 ``fx fy cx cy``, or a 3x3 or 4x4 camera matrix), else by the folder's name (``freiburg1``/``2``/``3``) the
 one of two that the recording's depth and poses agree with (``intrinsics_by_depth``): TUM's calibrated colour
@@ -61,6 +68,9 @@ PUBLISHED_INTRINSICS = {
     "freiburg3": Intrinsics(535.4, 539.2, 320.1, 247.6),
 }
 GENERIC_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
+#: A camera whose motion between a frame's two images moves no entry of the transform by more than this (a
+#: micrometre, a microradian: a thousandth of a pixel) did not move: the frame is registered pixel for pixel.
+STILL = 1e-6
 #: Depth images ``intrinsics_by_depth`` reads, spread over the recording.
 CHECK_FRAMES = 150
 #: The generic intrinsics replace the calibrated ones when the depth disagrees with them less by this share.
@@ -97,6 +107,16 @@ class TumSequence(GravityAlignedSequence):
     ground_truth: GroundTruthBoxes | None = None
     up_source: str = "none"
     device_id: str = "user-0"
+    depth2rgb: np.ndarray | None = None  # (N, 4, 4): the camera's motion from each depth image to its colour image
+
+    def colour_turn_deg(self) -> dict[str, float]:
+        """How far the camera turned between a frame's depth and colour images (median and largest, degrees):
+        the motion ``load_frame`` undoes (a degree is 9 px at 525 px focal length)."""
+        if self.depth2rgb is None:
+            return {"median": 0.0, "max": 0.0}
+        cosines = (np.trace(self.depth2rgb[:, :3, :3], axis1=1, axis2=2) - 1) / 2
+        degrees = np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))
+        return {"median": round(float(np.median(degrees)), 3), "max": round(float(degrees.max()), 3)}
 
     def load_frame(self, name: str, *, device_id: str | None = None) -> Frame:
         """The frame ``name`` (a depth timestamp): colour resized to the depth size if they differ."""
@@ -105,11 +125,13 @@ class TumSequence(GravityAlignedSequence):
         index = self._index[name]
         depth = read_png_u16(self.depth_paths[index])
         rgb = read_rgb(self.rgb_paths[index], (depth.shape[1], depth.shape[0]))
+        moved = None if self.depth2rgb is None else self.depth2rgb[index]
         return make_frame(
             rgb,
             depth,
             self.intrinsics,
             self.cam2world[index],
+            depth2rgb=None if moved is None or np.allclose(moved, np.eye(4), rtol=0, atol=STILL) else moved,
             timestamp_s=float(self.timestamps_s[index] - self.timestamps_s[0]),
             map_id=self.name,
             device_id=device_id or self.device_id,
@@ -353,6 +375,12 @@ def load_tum(
     if not kept:
         raise DatasetError(f"{base}: expected depth images with a colour image and a pose, got none of {len(depth.texts)}")
     kept_depth = {i for i, _ in kept}
+    # the camera's motion from each depth image to its colour image (none where no pose is near the colour's time)
+    colour_pose, colour_posed = interpolate_poses(
+        times, positions, quaternions, rgb.times_s[[j for _, j in kept]] + pose_time_offset_s
+    )
+    depth2rgb = np.linalg.inv(np.where(colour_posed[:, None, None], colour_pose, np.eye(4))) @ cam2file[posed]
+    depth2rgb[~colour_posed] = np.eye(4)
     gt_path = Path(gt_boxes) if gt_boxes is not None else base / GT_BOXES_FILE
     ground_truth = load_ground_truth(gt_path) if gt_boxes is not None or gt_path.is_file() else None
     in_file_world = TumSequence(
@@ -370,6 +398,7 @@ def load_tum(
         world2file=np.eye(4),
         depth_factor=float(depth_factor),
         ground_truth=ground_truth,
+        depth2rgb=depth2rgb,
     )
     if intrinsics_source.endswith(BY_NAME):
         checked, intrinsics_source = intrinsics_by_depth(in_file_world)
