@@ -195,17 +195,32 @@ def tum_time(frame_number: int) -> str:
     return f"{TUM_START_S + frame_number / 30.0:.6f}"
 
 
-def build_tum_from_seven_scenes(seven_root: Path, root: Path, frame_numbers: list[int], *, intrinsics: bool = True) -> Path:
+def build_tum_from_seven_scenes(
+    seven_root: Path,
+    root: Path,
+    frame_numbers: list[int],
+    *,
+    intrinsics: bool = True,
+    trajectory_frames: list[int] | None = None,
+    pose_clock_s: float = 0.0,
+) -> Path:
     """A TUM RGB-D layout recording of frames of a 7-Scenes folder: colour as PNG (``rgb/``, taken
     ``TUM_RGB_DELAY_S`` after the depth, plus one stray colour image 0.5 s after the last), depth in TUM's
     units (``depth/``: millimetres x 5; 7-Scenes' invalid 65535 -> 0, and one more depth image 1 s after
-    the last, beyond the trajectory), and ``groundtruth.txt`` holding the poses as quaternion lines at the
-    depth timestamps, newest first. ``intrinsics``: copy ``camera-intrinsics.txt``."""
+    the last, beyond the trajectory), and ``groundtruth.txt`` holding the poses of ``trajectory_frames``
+    (default: those with images) as quaternion lines at their depth timestamps plus ``pose_clock_s`` (a
+    trajectory whose clock runs that far ahead of the camera's), newest first. ``intrinsics``: copy
+    ``camera-intrinsics.txt``."""
     from scipy.spatial.transform import Rotation
 
     (root / "rgb").mkdir(parents=True)
     (root / "depth").mkdir()
     rgb_lines, depth_lines, pose_lines = ["# color images", "# timestamp filename"], ["# depth maps"], []
+    for number in frame_numbers if trajectory_frames is None else trajectory_frames:
+        pose = np.loadtxt(seven_root / f"frame-{number:06d}.pose.txt")
+        quaternion = Rotation.from_matrix(pose[:3, :3]).as_quat()
+        pose_time = f"{float(tum_time(number)) + pose_clock_s:.6f}"
+        pose_lines.append(" ".join([pose_time, *(f"{v:.9f}" for v in (*pose[:3, 3], *quaternion))]))
     for number in frame_numbers:
         stem = f"frame-{number:06d}"
         depth_time, rgb_time = tum_time(number), f"{float(tum_time(number)) + TUM_RGB_DELAY_S:.6f}"
@@ -215,9 +230,6 @@ def build_tum_from_seven_scenes(seven_root: Path, root: Path, frame_numbers: lis
         cv2.imwrite(str(root / "rgb" / f"{rgb_time}.png"), cv2.imread(str(seven_root / f"{stem}.color.jpg")))
         rgb_lines.append(f"{rgb_time} rgb/{rgb_time}.png")
         depth_lines.append(f"{depth_time} depth/{depth_time}.png")
-        pose = np.loadtxt(seven_root / f"{stem}.pose.txt")
-        quaternion = Rotation.from_matrix(pose[:3, :3]).as_quat()
-        pose_lines.append(" ".join([depth_time, *(f"{v:.9f}" for v in (*pose[:3, 3], *quaternion))]))
     late = f"{float(tum_time(frame_numbers[-1])) + 1.0:.6f}"
     cv2.imwrite(str(root / "depth" / f"{late}.png"), np.zeros((48, 64), np.uint16))
     cv2.imwrite(str(root / "rgb" / f"{late}.png"), np.zeros((48, 64, 3), np.uint8))

@@ -153,6 +153,22 @@ def test_the_pose_time_offset_moves_each_frame_along_the_trajectory(seven_root: 
 
 
 @pytest.mark.shared
+def test_a_trajectory_whose_clock_runs_ahead_is_put_back_by_the_depth(seven_root: Path, tmp_path: Path) -> None:
+    imaged, posed = list(range(0, 400, 5)), list(range(0, 406))
+    ahead = load_tum(build_tum_from_seven_scenes(seven_root, tmp_path / "ahead", imaged, trajectory_frames=posed, pose_clock_s=0.03),
+                     align_gravity=False, estimate_up=False)  # fmt: skip
+    assert ahead.pose_time_offset_s == pytest.approx(0.03) and ahead.pose_time_offset_source.startswith("+0.030 s by the depth")
+    seven = load_seven_scenes(seven_root)
+    for name, number in zip(ahead.frame_names[::20], imaged[::20], strict=True):
+        np.testing.assert_allclose(ahead.load_frame(name).cam2world, seven.load_frame(f"{number:06d}").cam2world, atol=2e-4)
+    on_time = load_tum(build_tum_from_seven_scenes(seven_root, tmp_path / "on time", imaged, trajectory_frames=posed),
+                       align_gravity=False, estimate_up=False)  # fmt: skip
+    assert on_time.pose_time_offset_s == 0.0 and on_time.pose_time_offset_source.startswith("0 s by the depth")
+    given = load_tum(tmp_path / "ahead", align_gravity=False, estimate_up=False, pose_time_offset_s=0.01)
+    assert (given.pose_time_offset_s, given.pose_time_offset_source) == (0.01, "given")
+
+
+@pytest.mark.shared
 def test_up_comes_from_the_first_source_there(seven_root: Path, tmp_path: Path) -> None:
     root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen", list(range(0, 1000, 50)))
     truth = np.asarray(json.loads((seven_root / "gt-boxes.json").read_text())["up_axis_world"])

@@ -393,7 +393,7 @@ def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) ->
         help="agreement: take only centralized objects scoring at least this as ground truth (default 0: all)",
     )
     if not layouts:
-        parser.set_defaults(layout="7scenes", intrinsics=None, depth_factor=None, pose_time_offset_s=0.0)
+        parser.set_defaults(layout="7scenes", intrinsics=None, depth_factor=None, pose_time_offset_s=None)
         return
     from arcloud.datasets.recording import LAYOUTS
 
@@ -415,8 +415,9 @@ def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) ->
     parser.add_argument(
         "--pose-time-offset-s",
         type=float,
-        default=0.0,
-        help="TUM: added to each depth timestamp before its pose is interpolated (default 0)",
+        default=None,
+        help="TUM: added to each image's timestamp before its pose is interpolated (default: the one of -0.05 to "
+        "0.05 s the depth and poses agree with best, else 0)",
     )
 
 

@@ -75,7 +75,7 @@ def load_recording(
     up: object = None,
     intrinsics: Intrinsics | None = None,
     depth_factor: float | None = None,
-    pose_time_offset_s: float = 0.0,
+    pose_time_offset_s: float | None = None,
     colour: ColourCamera | None = None,
     estimate_up: bool = True,
 ) -> Recording:
@@ -92,7 +92,7 @@ def load_recording(
         "--up": up is not None and chosen == "scannet",
         "--intrinsics": intrinsics is not None and chosen != "tum",
         "--depth-factor": depth_factor is not None and chosen != "tum",
-        "--pose-time-offset-s": pose_time_offset_s != 0.0 and chosen != "tum",
+        "--pose-time-offset-s": pose_time_offset_s is not None and chosen != "tum",
         "--colour-camera": colour is not None and chosen != "7scenes",
     }
     if any(refused.values()):
@@ -110,7 +110,7 @@ def _tum(
     up: object,
     intrinsics: Intrinsics | None,
     depth_factor: float | None,
-    pose_time_offset_s: float,
+    pose_time_offset_s: float | None,
     estimate_up: bool,
 ) -> Recording:
     from arcloud.datasets.export import tum_export_frame
@@ -125,7 +125,8 @@ def _tum(
         "intrinsics": [sequence.intrinsics.fx, sequence.intrinsics.fy, sequence.intrinsics.cx, sequence.intrinsics.cy],
         "intrinsics_source": sequence.intrinsics_source,
         "depth_factor": sequence.depth_factor,
-        "pose_time_offset_s": pose_time_offset_s,
+        "pose_time_offset_s": sequence.pose_time_offset_s,
+        "pose_time_offset_source": sequence.pose_time_offset_source,
         "dropped_frames": len(sequence.dropped_frames),
         "colour_turn_deg": sequence.colour_turn_deg(),
     }

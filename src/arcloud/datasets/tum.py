@@ -10,7 +10,11 @@ in time, within ``MAX_RGB_DEPTH_DIFFERENCE_S`` (closest pairs first, each image 
 pose is the trajectory at its depth timestamp plus ``pose_time_offset_s``: interpolated between the two
 poses around it (position linearly, rotation by slerp); where one of them lies more than
 ``MAX_POSE_GAP_S`` away (a gap in the tracking, the ends of the trajectory) the nearest pose within
-``MAX_POSE_GAP_S`` is taken as it is, and a frame with none is dropped (logged with a count).
+``MAX_POSE_GAP_S`` is taken as it is, and a frame with none is dropped (logged with a count). Unless given,
+the offset is the one of ``POSE_TIME_OFFSETS_S`` that the recording's depth and poses agree with best
+(``pose_time_offset_by_depth``), or 0 where none agrees better by ``CHECK_MARGIN``: a trajectory whose clock
+runs a few hundredths of a second off the camera's puts every frame where the camera was a moment before or
+after, which fuses what one object's frames saw into a smear.
 
 The colour image of a frame was taken up to ``MAX_RGB_DEPTH_DIFFERENCE_S`` before or after its depth (the
 sensor's two streams are not synchronized), and a hand-held camera turns by a few pixels' worth in that time.
@@ -71,10 +75,13 @@ GENERIC_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
 #: A camera whose motion between a frame's two images moves no entry of the transform by more than this (a
 #: micrometre, a microradian: a thousandth of a pixel) did not move: the frame is registered pixel for pixel.
 STILL = 1e-6
-#: Depth images ``intrinsics_by_depth`` reads, spread over the recording.
+#: Depth images ``intrinsics_by_depth`` and ``pose_time_offset_by_depth`` read, spread over the recording.
 CHECK_FRAMES = 150
-#: The generic intrinsics replace the calibrated ones when the depth disagrees with them less by this share.
+#: The generic intrinsics replace the calibrated ones, and a pose time offset replaces none, when the depth
+#: disagrees with them less by this share.
 CHECK_MARGIN = 0.02
+#: The pose time offsets ``pose_time_offset_by_depth`` tries (seconds): +-50 ms in steps of 5 ms.
+POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
 BY_NAME = "(by the folder's name)"  # the source of intrinsics chosen by the folder's name
 _CAMERA_IN_NAME = re.compile(r"^(?:rgbd_dataset_)?(freiburg[123])(?:_|$)")
 
@@ -108,6 +115,8 @@ class TumSequence(GravityAlignedSequence):
     up_source: str = "none"
     device_id: str = "user-0"
     depth2rgb: np.ndarray | None = None  # (N, 4, 4): the camera's motion from each depth image to its colour image
+    pose_time_offset_s: float = 0.0
+    pose_time_offset_source: str = "given"
 
     def colour_turn_deg(self) -> dict[str, float]:
         """How far the camera turned between a frame's depth and colour images (median and largest, degrees):
@@ -337,15 +346,16 @@ def load_tum(
     name: str | None = None,
     intrinsics: Intrinsics | None = None,
     depth_factor: float = DEPTH_FACTOR,
-    pose_time_offset_s: float = 0.0,
+    pose_time_offset_s: float | None = None,
     gt_boxes: str | Path | None = None,
     up: object = None,
     estimate_up: bool = True,
 ) -> TumSequence:
     """Parse a TUM RGB-D recording (see the module docstring), with ``gt_boxes`` (a ground-truth file)
     or else the folder's ``gt-boxes.json`` when it has one. ``name`` (default: the folder's name, as a
-    map id) names the maps. Up in the pose frame: ``up`` (3 numbers), else ``gravity-direction.txt``,
-    else the ground truth's, else (with ``estimate_up``) an estimate from the depth."""
+    map id) names the maps. ``pose_time_offset_s``: None (default) for the one the depth agrees with. Up in
+    the pose frame: ``up`` (3 numbers), else ``gravity-direction.txt``, else the ground truth's, else (with
+    ``estimate_up``) an estimate from the depth."""
     base = Path(root)
     if not base.is_dir():
         raise DatasetError(f"{base}: expected a TUM RGB-D folder, got no such folder")
@@ -354,18 +364,24 @@ def load_tum(
             raise DatasetError(f"{base}: expected {listed} (TUM RGB-D layout), got no such file")
     if not (np.isfinite(depth_factor) and depth_factor > 0):
         raise DatasetError(f"depth factor: expected a positive number of depth units a metre, got {depth_factor}")
-    if not np.isfinite(pose_time_offset_s):
+    if pose_time_offset_s is not None and not np.isfinite(pose_time_offset_s):
         raise DatasetError(f"pose time offset: expected a finite number of seconds, got {pose_time_offset_s}")
     chosen_intrinsics, intrinsics_source = choose_intrinsics(base, intrinsics)
     rgb = _read_listing(base / RGB_LIST, 2, "timestamp path")
     depth = _read_listing(base / DEPTH_LIST, 2, "timestamp path")
     if len(set(depth.texts)) != len(depth.texts):
         raise DatasetError(f"{base / DEPTH_LIST}: expected one image per timestamp, got repeated timestamps")
-    times, positions, quaternions = _read_trajectory(base / TRAJECTORY)
+    trajectory = _read_trajectory(base / TRAJECTORY)
 
     pairs = sorted(associate(depth.times_s, rgb.times_s), key=lambda pair: depth.times_s[pair[0]])
-    paired = np.array([i for i, _ in pairs], int)
-    cam2file, posed = interpolate_poses(times, positions, quaternions, depth.times_s[paired] + pose_time_offset_s)
+    if pose_time_offset_s is None:
+        paired = [i for i, _ in pairs]
+        offset_s, offset_source = pose_time_offset_by_depth(
+            trajectory, depth.times_s[paired], [base / depth.fields[i][0] for i in paired], chosen_intrinsics, depth_factor
+        )
+    else:
+        offset_s, offset_source = float(pose_time_offset_s), "given"
+    cam2file, posed = interpolate_poses(*trajectory, depth.times_s[[i for i, _ in pairs]] + offset_s)
     kept = [(i, j) for (i, j), ok in zip(pairs, posed, strict=True) if ok]
     without_rgb, without_pose = len(depth.texts) - len(pairs), int(np.sum(~posed))
     if without_rgb or without_pose:
@@ -376,9 +392,7 @@ def load_tum(
         raise DatasetError(f"{base}: expected depth images with a colour image and a pose, got none of {len(depth.texts)}")
     kept_depth = {i for i, _ in kept}
     # the camera's motion from each depth image to its colour image (none where no pose is near the colour's time)
-    colour_pose, colour_posed = interpolate_poses(
-        times, positions, quaternions, rgb.times_s[[j for _, j in kept]] + pose_time_offset_s
-    )
+    colour_pose, colour_posed = interpolate_poses(*trajectory, rgb.times_s[[j for _, j in kept]] + offset_s)
     depth2rgb = np.linalg.inv(np.where(colour_posed[:, None, None], colour_pose, np.eye(4))) @ cam2file[posed]
     depth2rgb[~colour_posed] = np.eye(4)
     gt_path = Path(gt_boxes) if gt_boxes is not None else base / GT_BOXES_FILE
@@ -399,6 +413,8 @@ def load_tum(
         depth_factor=float(depth_factor),
         ground_truth=ground_truth,
         depth2rgb=depth2rgb,
+        pose_time_offset_s=offset_s,
+        pose_time_offset_source=offset_source,
     )
     if intrinsics_source.endswith(BY_NAME):
         checked, intrinsics_source = intrinsics_by_depth(in_file_world)
@@ -412,7 +428,9 @@ def load_tum(
         where=base,
     )  # fmt: skip
     world2file = gravity_world2file(choice.up_file) if align_gravity else np.eye(4)
-    logger.info("%s: %d frames, intrinsics %s", base, in_file_world.n_frames, intrinsics_source)
+    logger.info(
+        "%s: %d frames, intrinsics %s, pose time offset %s", base, in_file_world.n_frames, intrinsics_source, offset_source
+    )
     return replace(
         in_file_world,
         cam2world=np.einsum("ij,njk->nik", np.linalg.inv(world2file), in_file_world.cam2world),
@@ -422,11 +440,40 @@ def load_tum(
     )
 
 
+def pose_time_offset_by_depth(
+    trajectory: tuple[np.ndarray, np.ndarray, np.ndarray],
+    times_s: np.ndarray,
+    depth_paths: Sequence[Path],
+    intrinsics: Intrinsics,
+    depth_factor: float,
+) -> tuple[float, str]:
+    """The pose time offset (seconds) and what decided it: the one of ``POSE_TIME_OFFSETS_S`` at which up to
+    ``CHECK_FRAMES`` depth images (taken at ``times_s``, of ``depth_paths``) agree best with the poses of
+    ``trajectory`` (times, positions, quaternions xyzw) there (``core.calibration``), when they disagree with it
+    by ``CHECK_MARGIN`` less than with none; else 0. Frames without a pose at some offset are left out."""
+    picked = np.arange(0, len(times_s), max(1, -(-len(times_s) // CHECK_FRAMES)))
+    tried = [interpolate_poses(*trajectory, times_s[picked] + offset) for offset in POSE_TIME_OFFSETS_S]
+    always = np.logical_and.reduce([posed for _, posed in tried])
+    poses = {offset: cam2world[always] for offset, (cam2world, _) in zip(POSE_TIME_OFFSETS_S, tried, strict=True)}
+    pairs = view_pairs(poses[0.0])
+    if not pairs:
+        return 0.0, "0 s: no frames with poses seen from places turned apart to check it on"
+    depths = [read_png_u16(depth_paths[i]).astype(np.float32) / depth_factor for i in picked[always]]
+    gaps = {offset: depth_disagreement(depths, cam2world, intrinsics, pairs) for offset, cam2world in poses.items()}
+    best = min(gaps, key=lambda offset: (gaps[offset], abs(offset)))
+    figures = f"the depth and poses disagree by {gaps[best] * 1000:.1f} mm at {best:+.3f} s, {gaps[0.0] * 1000:.1f} mm at 0"
+    if best != 0.0 and gaps[best] < (1 - CHECK_MARGIN) * gaps[0.0]:
+        logger.warning("pose time offset: %s; using %+.3f s", figures, best)
+        return best, f"{best:+.3f} s by the depth: {figures}"
+    return 0.0, f"0 s by the depth: {figures}"
+
+
 __all__ = [
     "DEPTH_FACTOR",
     "GENERIC_INTRINSICS",
     "MAX_POSE_GAP_S",
     "MAX_RGB_DEPTH_DIFFERENCE_S",
+    "POSE_TIME_OFFSETS_S",
     "PUBLISHED_INTRINSICS",
     "TumSequence",
     "associate",
@@ -435,5 +482,6 @@ __all__ = [
     "intrinsics_by_depth",
     "is_tum_recording",
     "load_tum",
+    "pose_time_offset_by_depth",
     "read_intrinsics_file",
 ]
