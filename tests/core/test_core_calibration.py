@@ -1,7 +1,7 @@
 """Which intrinsics the depth and poses agree with (core.calibration): exact renders of a room of boxes from
 poses turned apart agree with the intrinsics that made them, and less with a principal point a few pixels off
 or a focal length a few per cent off, and near moved intrinsics the ones that made them are found; frames that
-only step make no pairs."""
+only step make no pairs. The depth's edges meet the colour's where the colour camera stands."""
 
 from __future__ import annotations
 
@@ -11,7 +11,15 @@ import numpy as np
 import pytest
 from handmade_frames import BOX_ROOM, cast_boxes, turning_poses
 
-from arcloud.core.calibration import MAX_PAIRS, PAIR_TURN_DEG, agreeing_intrinsics, depth_disagreement, view_pairs
+from arcloud.core.calibration import (
+    MAX_PAIRS,
+    PAIR_TURN_DEG,
+    agreeing_intrinsics,
+    colour_edge_strength,
+    depth_disagreement,
+    view_pairs,
+)
+from arcloud.core.checks import make_frame
 from arcloud.core.types import Intrinsics
 
 INTRINSICS = Intrinsics(400.0, 400.0, 160.0, 120.0)  # 320 x 240 pixels, 44 degrees across
@@ -81,3 +89,30 @@ def test_near_moved_intrinsics_the_ones_that_made_the_depth_are_found(room_rende
     )
     # at the intrinsics that made it, nothing near does better by more than the pixels' rounding
     assert agreeing_intrinsics(room_renders, poses, INTRINSICS, pairs)[0].fx == INTRINSICS.fx
+
+
+def room_frames(colour_shift_px: tuple[float, float]) -> list:
+    """Frames of ``BOX_ROOM`` along ``turning_poses`` whose colour images (each box a grey of its own, the floor
+    another) were taken by a camera whose principal point lies ``colour_shift_px`` from the depth camera's."""
+    colour = dataclasses.replace(INTRINSICS, cx=INTRINSICS.cx + colour_shift_px[0], cy=INTRINSICS.cy + colour_shift_px[1])
+    greys = np.array([40, 70, 100, 130, 160, 190, 220], np.uint8)  # boxes 0-5, then the floor (instance -1)
+    frames = []
+    for i, pose in enumerate(turning_poses()):
+        depth = cast_boxes(pose, BOX_ROOM, intrinsics=INTRINSICS, shape=SHAPE)[0]
+        instance = cast_boxes(pose, BOX_ROOM, intrinsics=colour, shape=SHAPE)[1]
+        rgb = np.repeat(greys[instance][..., None], 3, axis=2)
+        frames.append(make_frame(rgb, depth, INTRINSICS, pose, timestamp_s=i / 30, map_id="m", device_id="d", frame_id=f"{i}"))
+    return frames
+
+
+def test_the_depth_edges_meet_the_colour_edges_where_the_colour_camera_stands() -> None:
+    shifts = [(du, dv) for dv in range(-5, 6) for du in range(-5, 6)]
+    moved = room_frames((3.0, -2.0))
+    strength = colour_edge_strength(moved, shifts)
+    # within a pixel: an edge lies between its near pixel and its far one, where both colour pixels change
+    assert np.abs(np.subtract(shifts[int(np.argmax(strength))], (3, -2))).max() <= 1
+    assert strength.max() > 2 * strength[shifts.index((0, 0))]  # as the frames say (registered), edges miss
+    # told where the colour camera stands, the edges meet where they are
+    told = [dataclasses.replace(f, rgb_intrinsics=dataclasses.replace(INTRINSICS, cx=163.0, cy=118.0)) for f in moved]
+    assert np.abs(shifts[int(np.argmax(colour_edge_strength(told, shifts)))]).max() <= 1
+    assert np.isnan(colour_edge_strength([dataclasses.replace(moved[0], depth_m=np.zeros(SHAPE, np.float32))], [(0, 0)])[0])

@@ -243,11 +243,19 @@ def build_tum_from_seven_scenes(
     return root
 
 
-def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8, *, colour_delay_s: float = 0.0) -> Path:
+def write_room_tum(
+    root: Path,
+    intrinsics: Intrinsics,
+    n_frames: int = 8,
+    *,
+    colour_delay_s: float = 0.0,
+    colour_shift_px: tuple[float, float] = (0.0, 0.0),
+) -> Path:
     """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of ``BOX_ROOM`` made with ``intrinsics``
     along ``turning_poses`` at 30 frames a second, depth in TUM's units; each colour image taken ``colour_delay_s``
-    after its depth image (the trajectory holds the poses at both times), black but for ``BOX_ROOM``'s table,
-    painted (255, 0, 0) where the camera saw it then."""
+    after its depth image (the trajectory holds the poses at both times) by a camera whose principal point lies
+    ``colour_shift_px`` from the depth camera's, black but for ``BOX_ROOM``'s table, painted (255, 0, 0) where the
+    camera saw it then."""
     from handmade_frames import BOX_ROOM, cast_boxes, turning_pose
     from scipy.spatial.transform import Rotation
 
@@ -264,7 +272,14 @@ def write_room_tum(root: Path, intrinsics: Intrinsics, n_frames: int = 8, *, col
         depth_m = cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640))[0]
         cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
         colour = np.zeros((480, 640, 3), np.uint8)
-        colour[cast_boxes(colour_pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640))[1] == TABLE_IN_BOX_ROOM] = (0, 0, 255)
+        colour_camera = Intrinsics(
+            intrinsics.fx, intrinsics.fy, intrinsics.cx + colour_shift_px[0], intrinsics.cy + colour_shift_px[1]
+        )
+        colour[cast_boxes(colour_pose, BOX_ROOM, intrinsics=colour_camera, shape=(480, 640))[1] == TABLE_IN_BOX_ROOM] = (
+            0,
+            0,
+            255,
+        )
         cv2.imwrite(str(root / "rgb" / f"{t_colour}.png"), colour)  # BGR
         lines["rgb"].append(f"{t_colour} rgb/{t_colour}.png")
         lines["depth"].append(f"{t} depth/{t}.png")

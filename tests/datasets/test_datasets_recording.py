@@ -26,7 +26,7 @@ from datasets_builders import (
 
 from arcloud.accuracy.cli import add_eval_commands
 from arcloud.core.types import Intrinsics
-from arcloud.datasets.recording import check_intrinsics, detect_layout, load_recording
+from arcloud.datasets.recording import check_intrinsics, detect_layout, load_recording, register_colour
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
 from arcloud.errors import DatasetError
@@ -86,6 +86,7 @@ def test_eval_recording_on_a_tum_recording_against_the_7scenes_ground_truth(
         assert row["n_gt"] == 9 and {k for k, v in row["ap25_per_class"].items() if v is not None} == {"chair", "table", "tv"}
     assert rows[0]["map25_mean"] > 0.0  # the frames, poses and ground truth line up: something matched
     assert results["agreement"][0]["users"] == 3 and all(Path(p).is_file() for p in results["pictures"])
+    assert results["registration"]["frames"] == 17 and len(results["registration"]["shift_px"]) == 2
     printed = capsys.readouterr().out
     assert f"Accuracy against {seven / 'gt-boxes.json'} (observed boxes)" in printed
     assert f"AP per class against {seven / 'gt-boxes.json'} (amodal boxes), IoU 0.25 / 0.5" in printed
@@ -171,3 +172,26 @@ def test_a_recording_read_with_intrinsics_off_is_told_which_its_depth_agrees_wit
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
         right = check_intrinsics(load_recording(root, estimate_up=False))
     assert right["disagreement_mm"] < check["disagreement_mm"] and "agree better" not in caplog.text
+
+
+def test_a_colour_camera_a_few_pixels_off_is_found_by_the_edges_and_moved(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    made = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    off = load_recording(
+        write_room_tum(tmp_path / "off", made, 12, colour_shift_px=(4.0, -3.0)), intrinsics=made, estimate_up=False
+    )
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
+        moved, found = register_colour(off)
+    du, dv = found["shift_px"]
+    assert found["frames"] == 12 and abs(du - 4) <= 1 and abs(dv + 3) <= 1 and found["strongest_shift_px"] == [du, dv]
+    assert found["strongest_edge_strength"] > 1.05 * found["edge_strength"] and "moving it" in caplog.text
+    name = off.frame_names[8]
+    assert off.load_frame(name).registered
+    assert moved.load_frame(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 319.5 + du, 239.5 + dv)
+    # as made: nothing moves; told a move: that one
+    as_made = load_recording(write_room_tum(tmp_path / "as made", made, 12), intrinsics=made, estimate_up=False)
+    kept, found = register_colour(as_made)
+    assert kept is as_made and found["shift_px"] == [0.0, 0.0]
+    told, found = register_colour(as_made, (1.0, 2.0))
+    assert found == {"shift_px": [1.0, 2.0]} and told.load_frame(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 320.5, 241.5)

@@ -10,6 +10,12 @@ step times its angle: 1.6 mm for 5 cm and 1.8 degrees), as the mean gap along th
 sample lands and the depth measured there, each gap capped at ``BAND_M`` (surfaces one frame hides from the
 other count once, not by their distance). On 7-Scenes (every 5th frame) it is least at the published intrinsics,
 within 4 px of cx and cy and 2 % of the focal length.
+
+Where the colour camera stands against the depth camera (``colour_edge_strength``): a mask is drawn on the
+colour image and looked up on the depth, so a colour camera a few pixels off puts every mask's border on the
+wrong side of its object's edge (4 px moves 7-Scenes' served mAP@0.25 by up to 0.11). Where depth jumps, colour
+changes too: the near side of each depth edge, carried into the colour image, lands on strong colour
+gradients when the two cameras are where the frames say.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from arcloud.core.types import Intrinsics
+from arcloud.core.types import Frame, Intrinsics
 
 #: Pairs of frames ``view_pairs`` draws, at most.
 MAX_PAIRS = 40
@@ -36,6 +42,9 @@ DEPTH_RANGE_M = (0.3, 4.0)
 FIT_SCALES = np.linspace(0.9, 1.1, 21)
 FIT_SHIFTS = np.linspace(-0.0375, 0.0375, 25)
 FIT_ROUNDS = 6
+#: A depth edge (``colour_edge_strength``): a pixel nearer than one of its 8 neighbours by this much (metres, plus
+#: this share of its range: Kinect-like depth is noisier far away).
+EDGE_JUMP_M, EDGE_JUMP_SHARE = 0.05, 0.03
 
 
 def view_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> list[tuple[int, int]]:
@@ -117,13 +126,49 @@ def agreeing_intrinsics(
     return best, best_gap
 
 
+def colour_edge_strength(frames: Sequence[Frame], shifts_px: Sequence[tuple[float, float]]) -> np.ndarray:
+    """(M,): for each of ``shifts_px`` (du, dv), moving every frame's colour camera (``Frame.rgb_intrinsics``, else
+    its depth intrinsics) by that many pixels, the mean colour gradient where the near sides of the frames' depth
+    edges land (the grey image's Sobel magnitude, smoothed over a pixel; see the module docstring). Higher is
+    better; nan where no edge lands in any colour image."""
+    from scipy import ndimage
+
+    moves = np.asarray(shifts_px, np.float64).reshape(-1, 2)
+    sums, counts = np.zeros(len(moves)), np.zeros(len(moves))
+    for frame in frames:
+        depth = frame.depth_m.astype(np.float64)
+        nearest_far = ndimage.maximum_filter(depth, size=3)
+        v, u = np.nonzero((depth > DEPTH_RANGE_M[0]) & (nearest_far - depth > EDGE_JUMP_M + EDGE_JUMP_SHARE * depth))
+        z = depth[v, u]
+        intr = frame.intrinsics
+        points = np.stack(((u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z), axis=1)
+        if frame.depth2rgb is not None:
+            points = points @ frame.depth2rgb[:3, :3].T + frame.depth2rgb[:3, 3]
+        points = points[points[:, 2] > 0]
+        colour = frame.rgb_intrinsics or intr
+        grey = frame.rgb.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+        gradient = ndimage.gaussian_filter(np.hypot(ndimage.sobel(grey, axis=1), ndimage.sobel(grey, axis=0)), 1.0)
+        height, width = gradient.shape
+        x, y = colour.fx * points[:, 0] / points[:, 2] + colour.cx, colour.fy * points[:, 1] / points[:, 2] + colour.cy
+        for k, (du, dv) in enumerate(moves):
+            cu, cv = np.floor(x + du + 0.5), np.floor(y + dv + 0.5)
+            inside = (cu >= 0) & (cu < width) & (cv >= 0) & (cv < height)
+            sums[k] += gradient[cv[inside].astype(np.intp), cu[inside].astype(np.intp)].sum()
+            counts[k] += np.count_nonzero(inside)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sums / counts
+
+
 __all__ = [
     "BAND_M",
+    "EDGE_JUMP_M",
+    "EDGE_JUMP_SHARE",
     "FIT_SCALES",
     "FIT_SHIFTS",
     "MAX_PAIRS",
     "PAIR_TURN_DEG",
     "agreeing_intrinsics",
+    "colour_edge_strength",
     "depth_disagreement",
     "view_pairs",
 ]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -217,4 +217,57 @@ def check_intrinsics(recording: Recording) -> dict[str, Any]:
     return out
 
 
-__all__ = ["CHECK_FRAMES", "LAYOUTS", "Recording", "check_intrinsics", "detect_layout", "load_recording"]
+#: ``register_colour``: the frames it reads, spread over the recording; the moves of the colour camera it tries
+#: (pixels, each way, in steps of 1); how much stronger the edges must agree at the best move for it to be taken.
+REGISTRATION_FRAMES = 40
+REGISTRATION_SHIFT_PX = 8
+REGISTRATION_MARGIN = 0.05
+
+
+def register_colour(recording: Recording, shift_px: tuple[float, float] | None = None) -> tuple[Recording, dict[str, Any]]:
+    """The recording with its colour camera moved by ``shift_px`` (du, dv pixels: its principal point), or, when
+    None, by the move of up to ``REGISTRATION_SHIFT_PX`` at which the near sides of its depth edges land on the
+    strongest colour gradients (``core.calibration.colour_edge_strength``, up to ``REGISTRATION_FRAMES`` frames),
+    when they are ``REGISTRATION_MARGIN`` stronger there than where the recording puts them; and what was found,
+    as JSON (logged as a warning when a move is taken). A mask is drawn on colour and looked up on depth, so a
+    colour camera a few pixels off moves every mask's border across its object's edge."""
+    import numpy as np
+
+    from arcloud.core.calibration import colour_edge_strength
+
+    out: dict[str, Any] = {}
+    if shift_px is None:
+        names = recording.frame_names[:: max(1, -(-len(recording.frame_names) // REGISTRATION_FRAMES))]
+        reach = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1)
+        moves = [(0.0, 0.0)] + [(float(du), float(dv)) for dv in reach for du in reach if du or dv]
+        strength = colour_edge_strength([recording.load_frame(name) for name in names], moves)
+        best = int(np.nanargmax(strength)) if np.isfinite(strength).any() else 0
+        taken = bool(strength[best] > (1 + REGISTRATION_MARGIN) * strength[0])
+        shift_px = moves[best] if taken else (0.0, 0.0)
+        out = {
+            "frames": len(names),
+            "edge_strength": round(float(strength[0]), 2),
+            "strongest_shift_px": list(moves[best]),
+            "strongest_edge_strength": round(float(strength[best]), 2),
+        }
+        if taken:
+            logger.warning(
+                "%s: the depth's edges meet the colour's %.0f %% better with the colour camera moved by %+g, %+g px; "
+                "moving it (--colour-shift 0,0 keeps it)",
+                recording.root, 100 * (strength[best] / strength[0] - 1), *shift_px,
+            )  # fmt: skip
+    du, dv = float(shift_px[0]), float(shift_px[1])
+    out["shift_px"] = [du, dv]
+    if not (du or dv):
+        return recording, out
+    load = recording.load_frame
+
+    def moved(name: str) -> Frame:
+        frame = load(name)
+        colour = frame.rgb_intrinsics or frame.intrinsics
+        return replace(frame, rgb_intrinsics=replace(colour, cx=colour.cx + du, cy=colour.cy + dv))
+
+    return replace(recording, load_frame=moved), out
+
+
+__all__ = ["CHECK_FRAMES", "LAYOUTS", "Recording", "check_intrinsics", "detect_layout", "load_recording", "register_colour"]
