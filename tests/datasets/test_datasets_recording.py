@@ -7,6 +7,7 @@ folder of any name."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -195,3 +196,9 @@ def test_a_colour_camera_a_few_pixels_off_is_found_by_the_edges_and_moved(
     assert kept is as_made and found["shift_px"] == [0.0, 0.0]
     told, found = register_colour(as_made, (1.0, 2.0))
     assert found == {"shift_px": [1.0, 2.0]} and told.load_frame(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 320.5, 241.5)
+    # frames without depth tell nothing: kept as they are
+    blind = dataclasses.replace(
+        as_made, load_frame=lambda n: dataclasses.replace(as_made.load_frame(n), depth_m=np.zeros((480, 640), np.float32))
+    )
+    kept, found = register_colour(blind)
+    assert kept is blind and found == {"frames": 12, "edge_strength": None, "shift_px": [0.0, 0.0]}

@@ -241,7 +241,9 @@ def register_colour(recording: Recording, shift_px: tuple[float, float] | None =
         reach = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1)
         moves = [(0.0, 0.0)] + [(float(du), float(dv)) for dv in reach for du in reach if du or dv]
         strength = colour_edge_strength([recording.load_frame(name) for name in names], moves)
-        best = int(np.nanargmax(strength)) if np.isfinite(strength).any() else 0
+        if not np.isfinite(strength).all():  # no depth edge lands in any colour image: nothing to tell
+            return recording, {"frames": len(names), "edge_strength": None, "shift_px": [0.0, 0.0]}
+        best = int(np.argmax(strength))
         taken = bool(strength[best] > (1 + REGISTRATION_MARGIN) * strength[0])
         shift_px = moves[best] if taken else (0.0, 0.0)
         out = {
