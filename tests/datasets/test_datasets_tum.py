@@ -141,6 +141,19 @@ def test_masks_of_a_colour_image_taken_after_its_depth_land_where_the_turned_cam
     assert precision_as_is < 0.9 and recall_as_is < 0.8  # what the motion costs where it is not undone
 
 
+def test_no_motion_is_made_up_between_two_poses_a_tracking_gap_apart(tmp_path: Path) -> None:
+    intrinsics = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    root = write_room_tum(tmp_path / "room", intrinsics, n_frames=7, colour_delay_s=0.018)
+    poses = (root / "groundtruth.txt").read_text().splitlines()
+    (root / "groundtruth.txt").write_text("\n".join(poses[0:14:6]) + "\n")  # the depth poses of frames 0, 3, 6: 0.1 s apart
+    for listing in ("rgb.txt", "depth.txt"):  # frame 1 alone
+        (root / listing).write_text((root / listing).read_text().splitlines()[1] + "\n")
+    tum = load_tum(root, intrinsics=intrinsics, align_gravity=False, estimate_up=False, pose_time_offset_s=0.0)
+    # frame 1: its depth (33 ms) takes frame 0's pose, its colour (51 ms) would take frame 3's: no motion between them
+    first = tum.load_frame(tum.frame_names[0])
+    assert first.frame_id == "100.033333" and first.registered and tum.colour_turn_deg() == {"median": 0.0, "max": 0.0}
+
+
 @pytest.mark.shared
 def test_the_pose_time_offset_moves_each_frame_along_the_trajectory(seven_root: Path, tmp_path: Path) -> None:
     root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen", [0, 1, 2])

@@ -255,6 +255,19 @@ def interpolate_poses(
     return poses, valid
 
 
+def _between_poses(times_s: np.ndarray, query_s: np.ndarray) -> np.ndarray:
+    """(M,) whether each of ``query_s`` lies between two poses of a trajectory at ``times_s`` (increasing), each
+    within ``MAX_POSE_GAP_S``: where ``interpolate_poses`` interpolates rather than takes the nearest pose."""
+    after = np.clip(np.searchsorted(times_s, query_s, side="left"), 0, len(times_s) - 1)
+    before = np.clip(np.searchsorted(times_s, query_s, side="right") - 1, 0, len(times_s) - 1)
+    return (
+        (times_s[before] <= query_s)
+        & (query_s <= times_s[after])
+        & (query_s - times_s[before] <= MAX_POSE_GAP_S)
+        & (times_s[after] - query_s <= MAX_POSE_GAP_S)
+    )
+
+
 def _read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``groundtruth.txt`` -> times (N,) increasing, positions (N, 3), unit quaternions xyzw (N, 4)."""
     listing = _read_listing(path, 8, "timestamp tx ty tz qx qy qz qw")
@@ -391,10 +404,13 @@ def load_tum(
     if not kept:
         raise DatasetError(f"{base}: expected depth images with a colour image and a pose, got none of {len(depth.texts)}")
     kept_depth = {i for i, _ in kept}
-    # the camera's motion from each depth image to its colour image (none where no pose is near the colour's time)
-    colour_pose, colour_posed = interpolate_poses(*trajectory, rgb.times_s[[j for _, j in kept]] + offset_s)
-    depth2rgb = np.linalg.inv(np.where(colour_posed[:, None, None], colour_pose, np.eye(4))) @ cam2file[posed]
-    depth2rgb[~colour_posed] = np.eye(4)
+    # the camera's motion from each depth image to its colour image, where the trajectory holds poses around both
+    # times (not a nearest pose taken as it is: two of those may lie a tracking gap apart)
+    depth_s, colour_s = depth.times_s[[i for i, _ in kept]] + offset_s, rgb.times_s[[j for _, j in kept]] + offset_s
+    colour_pose, _ = interpolate_poses(*trajectory, colour_s)
+    moved = _between_poses(trajectory[0], depth_s) & _between_poses(trajectory[0], colour_s)
+    depth2rgb = np.tile(np.eye(4), (len(kept), 1, 1))
+    depth2rgb[moved] = np.linalg.inv(colour_pose[moved]) @ cam2file[posed][moved]
     gt_path = Path(gt_boxes) if gt_boxes is not None else base / GT_BOXES_FILE
     ground_truth = load_ground_truth(gt_path) if gt_boxes is not None or gt_path.is_file() else None
     in_file_world = TumSequence(
