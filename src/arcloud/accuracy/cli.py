@@ -393,8 +393,8 @@ def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) ->
         type=parse_numbers(2, "du,dv"),
         default=None,
         metavar="DU,DV",
-        help="move the colour camera's principal point by these pixels (default: where the depth's edges meet the "
-        "colour's best, when 5 %% better than as recorded; 0,0: as recorded)",
+        help="move the colour camera's principal point by these pixels (default: where, within 20 px, the depth's edges "
+        "meet the colour's best, when 5 %% better than as recorded; 0,0: as recorded)",
     )
     parser.add_argument(
         "--reference-min-score",

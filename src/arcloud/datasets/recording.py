@@ -218,19 +218,22 @@ def check_intrinsics(recording: Recording) -> dict[str, Any]:
 
 
 #: ``register_colour``: the frames it reads, spread over the recording; the moves of the colour camera it tries
-#: (pixels, each way, in steps of 1); how much stronger the edges must agree at the best move for it to be taken.
+#: (pixels, each way: every second pixel, then the pixels around the best); how much stronger the edges must agree
+#: at the best move for it to be taken. 16 px is the gap between the two principal points TUM publishes for its
+#: freiburg1 camera (its colour camera's calibration, and the values for its registered depth).
 REGISTRATION_FRAMES = 40
-REGISTRATION_SHIFT_PX = 8
+REGISTRATION_SHIFT_PX = 20
 REGISTRATION_MARGIN = 0.05
 
 
 def register_colour(recording: Recording, shift_px: tuple[float, float] | None = None) -> tuple[Recording, dict[str, Any]]:
     """The recording with its colour camera moved by ``shift_px`` (du, dv pixels: its principal point), or, when
-    None, by the move of up to ``REGISTRATION_SHIFT_PX`` at which the near sides of its depth edges land on the
-    strongest colour gradients (``core.calibration.colour_edge_strength``, up to ``REGISTRATION_FRAMES`` frames),
-    when they are ``REGISTRATION_MARGIN`` stronger there than where the recording puts them; and what was found,
-    as JSON (logged as a warning when a move is taken). A mask is drawn on colour and looked up on depth, so a
-    colour camera a few pixels off moves every mask's border across its object's edge."""
+    None, by the move of up to ``REGISTRATION_SHIFT_PX`` each way (every second pixel, then the pixels around the
+    strongest) at which the near sides of its depth edges land on the strongest colour gradients
+    (``core.calibration.colour_edge_strength``, up to ``REGISTRATION_FRAMES`` frames), when they are
+    ``REGISTRATION_MARGIN`` stronger there than where the recording puts them; and what was found, as JSON (logged
+    as a warning when a move is taken). A mask is drawn on colour and looked up on depth, so a colour camera a few
+    pixels off moves every mask's border across its object's edge."""
     import numpy as np
 
     from arcloud.core.calibration import colour_edge_strength
@@ -238,11 +241,16 @@ def register_colour(recording: Recording, shift_px: tuple[float, float] | None =
     out: dict[str, Any] = {}
     if shift_px is None:
         names = recording.frame_names[:: max(1, -(-len(recording.frame_names) // REGISTRATION_FRAMES))]
-        reach = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1)
+        frames = [recording.load_frame(name) for name in names]
+        reach = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1, 2)
         moves = [(0.0, 0.0)] + [(float(du), float(dv)) for dv in reach for du in reach if du or dv]
-        strength = colour_edge_strength([recording.load_frame(name) for name in names], moves)
+        strength = colour_edge_strength(frames, moves)
         if not np.isfinite(strength).all():  # no depth edge lands in any colour image: nothing to tell
             return recording, {"frames": len(names), "edge_strength": None, "shift_px": [0.0, 0.0]}
+        coarse = moves[int(np.argmax(strength))]
+        around = [(coarse[0] + du, coarse[1] + dv) for dv in (-1.0, 0.0, 1.0) for du in (-1.0, 0.0, 1.0) if du or dv]
+        moves += around
+        strength = np.concatenate([strength, colour_edge_strength(frames, around)])
         best = int(np.argmax(strength))
         taken = bool(strength[best] > (1 + REGISTRATION_MARGIN) * strength[0])
         shift_px = moves[best] if taken else (0.0, 0.0)
