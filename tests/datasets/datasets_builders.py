@@ -203,6 +203,7 @@ def build_tum_from_seven_scenes(
     intrinsics: bool = True,
     trajectory_frames: list[int] | None = None,
     pose_clock_s: float = 0.0,
+    depth_scale: float = 1.0,
 ) -> Path:
     """A TUM RGB-D layout recording of frames of a 7-Scenes folder: colour as PNG (``rgb/``, taken
     ``TUM_RGB_DELAY_S`` after the depth, plus one stray colour image 0.5 s after the last), depth in TUM's
@@ -210,7 +211,7 @@ def build_tum_from_seven_scenes(
     the last, beyond the trajectory), and ``groundtruth.txt`` holding the poses of ``trajectory_frames``
     (default: those with images) as quaternion lines at their depth timestamps plus ``pose_clock_s`` (a
     trajectory whose clock runs that far ahead of the camera's), newest first. ``intrinsics``: copy
-    ``camera-intrinsics.txt``."""
+    ``camera-intrinsics.txt``. ``depth_scale``: the depth written that much long (a sensor reading long)."""
     from scipy.spatial.transform import Rotation
 
     (root / "rgb").mkdir(parents=True)
@@ -226,7 +227,9 @@ def build_tum_from_seven_scenes(
         depth_time, rgb_time = tum_time(number), f"{float(tum_time(number)) + TUM_RGB_DELAY_S:.6f}"
         depth_mm = cv2.imread(str(seven_root / f"{stem}.depth.png"), cv2.IMREAD_UNCHANGED)
         depth_mm = np.where(depth_mm == 65535, 0, depth_mm).astype(np.uint32)
-        cv2.imwrite(str(root / "depth" / f"{depth_time}.png"), np.minimum(depth_mm * 5, 65535).astype(np.uint16))
+        cv2.imwrite(
+            str(root / "depth" / f"{depth_time}.png"), np.minimum(np.round(depth_mm * 5 * depth_scale), 65535).astype(np.uint16)
+        )
         cv2.imwrite(str(root / "rgb" / f"{rgb_time}.png"), cv2.imread(str(seven_root / f"{stem}.color.jpg")))
         rgb_lines.append(f"{rgb_time} rgb/{rgb_time}.png")
         depth_lines.append(f"{depth_time} depth/{depth_time}.png")

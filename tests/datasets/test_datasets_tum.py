@@ -182,6 +182,23 @@ def test_a_trajectory_whose_clock_runs_ahead_is_put_back_by_the_depth(seven_root
 
 
 @pytest.mark.shared
+def test_depth_that_reads_long_is_scaled_back_by_the_poses(seven_root: Path, tmp_path: Path) -> None:
+    imaged = list(range(0, 400, 5))
+    long = load_tum(build_tum_from_seven_scenes(seven_root, tmp_path / "long", imaged, depth_scale=1.04),
+                    align_gravity=False, estimate_up=False, pose_time_offset_s=0.0)  # fmt: skip
+    assert long.depth_factor == pytest.approx(5000 * 1.04, rel=0.011) and "by the depth" in long.depth_factor_source
+    seven = load_seven_scenes(seven_root)
+    theirs, ours = seven.load_frame("000100").depth_m, long.load_frame(long.frame_names[20]).depth_m
+    both = (theirs > 0) & (ours > 0)
+    assert np.median(theirs[both] / ours[both]) == pytest.approx(1.0, abs=0.011)  # metres again
+    right = load_tum(tmp_path / "long", align_gravity=False, estimate_up=False, pose_time_offset_s=0.0, depth_factor=5200.0)
+    assert (right.depth_factor, right.depth_factor_source) == (5200.0, "given")
+    as_made = load_tum(build_tum_from_seven_scenes(seven_root, tmp_path / "as made", imaged), align_gravity=False,
+                       estimate_up=False, pose_time_offset_s=0.0)  # fmt: skip
+    assert as_made.depth_factor == 5000.0 and as_made.depth_factor_source.startswith("5000 by the depth")
+
+
+@pytest.mark.shared
 def test_up_comes_from_the_first_source_there(seven_root: Path, tmp_path: Path) -> None:
     root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen", list(range(0, 1000, 50)))
     truth = np.asarray(json.loads((seven_root / "gt-boxes.json").read_text())["up_axis_world"])

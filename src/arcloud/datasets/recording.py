@@ -115,16 +115,17 @@ def _tum(
 ) -> Recording:
     from arcloud.datasets.export import tum_export_frame
     from arcloud.datasets.gravity import UpChoice
-    from arcloud.datasets.tum import DEPTH_FACTOR, load_tum
+    from arcloud.datasets.tum import load_tum
 
     sequence = load_tum(
-        base, intrinsics=intrinsics, depth_factor=DEPTH_FACTOR if depth_factor is None else depth_factor,
+        base, intrinsics=intrinsics, depth_factor=depth_factor,
         pose_time_offset_s=pose_time_offset_s, gt_boxes=gt_boxes, up=up, estimate_up=estimate_up,
     )  # fmt: skip
     facts = {
         "intrinsics": [sequence.intrinsics.fx, sequence.intrinsics.fy, sequence.intrinsics.cx, sequence.intrinsics.cy],
         "intrinsics_source": sequence.intrinsics_source,
         "depth_factor": sequence.depth_factor,
+        "depth_factor_source": sequence.depth_factor_source,
         "pose_time_offset_s": sequence.pose_time_offset_s,
         "pose_time_offset_source": sequence.pose_time_offset_source,
         "dropped_frames": len(sequence.dropped_frames),

@@ -82,6 +82,9 @@ CHECK_FRAMES = 150
 CHECK_MARGIN = 0.02
 #: The pose time offsets ``pose_time_offset_by_depth`` tries (seconds): +-50 ms in steps of 5 ms.
 POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
+#: The scales of the depth ``depth_factor_by_depth`` tries: 0.9-1.1 in steps of 1 % (TUM's freiburg2 depth reads
+#: about 4 % long at its factor of 5000: ORB-SLAM2's TUM2 settings take 5208).
+DEPTH_SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(21))
 BY_NAME = "(by the folder's name)"  # the source of intrinsics chosen by the folder's name
 _CAMERA_IN_NAME = re.compile(r"^(?:rgbd_dataset_)?(freiburg[123])(?:_|$)")
 
@@ -117,6 +120,7 @@ class TumSequence(GravityAlignedSequence):
     depth2rgb: np.ndarray | None = None  # (N, 4, 4): the camera's motion from each depth image to its colour image
     pose_time_offset_s: float = 0.0
     pose_time_offset_source: str = "given"
+    depth_factor_source: str = "given"
 
     def colour_turn_deg(self) -> dict[str, float]:
         """How far the camera turned between a frame's depth and colour images (median and largest, degrees):
@@ -348,6 +352,31 @@ def intrinsics_by_depth(sequence: TumSequence) -> tuple[Intrinsics, str]:
     return sequence.intrinsics, f"{sequence.intrinsics_source}: {figures}"
 
 
+def depth_factor_by_depth(sequence: TumSequence) -> tuple[float, str]:
+    """The sequence's depth factor (TUM's 5000, or its own) over the one of ``DEPTH_SCALES`` at which up to
+    ``CHECK_FRAMES`` of its depth images agree best with its poses (``core.calibration``), when they disagree with
+    it by ``CHECK_MARGIN`` less than at 1; and what decided it. Depth a few per cent long or short puts what two
+    frames seen from places apart measured of one surface a few centimetres apart: the map fuses them into a
+    smear. Frames that only turn cannot tell (every scale agrees as well)."""
+    picked = list(range(0, sequence.n_frames, max(1, -(-sequence.n_frames // CHECK_FRAMES))))
+    cam2world = sequence.cam2world[picked]
+    pairs = view_pairs(cam2world)
+    nominal = sequence.depth_factor
+    if not pairs:
+        return nominal, f"{nominal:g}: no frames seen from places turned apart to check it on"
+    raw = [read_png_u16(sequence.depth_paths[i]).astype(np.float32) for i in picked]
+    gaps = {
+        scale: depth_disagreement([d * (scale / nominal) for d in raw], cam2world, sequence.intrinsics, pairs)
+        for scale in DEPTH_SCALES
+    }
+    best = min(gaps, key=lambda scale: (gaps[scale], abs(scale - 1.0)))
+    figures = f"the depth and poses disagree by {gaps[best] * 1000:.1f} mm at x{best:.2f}, {gaps[1.0] * 1000:.1f} mm at x1"
+    if best != 1.0 and gaps[best] < (1 - CHECK_MARGIN) * gaps[1.0]:
+        logger.warning("%s: %s; depth factor %g -> %g", sequence.root, figures, nominal, nominal / best)
+        return nominal / best, f"{nominal / best:.6g} (x{best:.2f} the depth) by the depth: {figures}"
+    return nominal, f"{nominal:g} by the depth: {figures}"
+
+
 def is_tum_recording(root: Path) -> bool:
     return (root / RGB_LIST).is_file() and (root / DEPTH_LIST).is_file()
 
@@ -358,7 +387,7 @@ def load_tum(
     align_gravity: bool = True,
     name: str | None = None,
     intrinsics: Intrinsics | None = None,
-    depth_factor: float = DEPTH_FACTOR,
+    depth_factor: float | None = None,
     pose_time_offset_s: float | None = None,
     gt_boxes: str | Path | None = None,
     up: object = None,
@@ -366,7 +395,8 @@ def load_tum(
 ) -> TumSequence:
     """Parse a TUM RGB-D recording (see the module docstring), with ``gt_boxes`` (a ground-truth file)
     or else the folder's ``gt-boxes.json`` when it has one. ``name`` (default: the folder's name, as a
-    map id) names the maps. ``pose_time_offset_s``: None (default) for the one the depth agrees with. Up in
+    map id) names the maps. ``pose_time_offset_s`` and ``depth_factor``: None (default) for the ones the depth
+    agrees with (``pose_time_offset_by_depth``, ``depth_factor_by_depth``). Up in
     the pose frame: ``up`` (3 numbers), else ``gravity-direction.txt``, else the ground truth's, else (with
     ``estimate_up``) an estimate from the depth."""
     base = Path(root)
@@ -375,7 +405,7 @@ def load_tum(
     for listed in (RGB_LIST, DEPTH_LIST, TRAJECTORY):
         if not (base / listed).is_file():
             raise DatasetError(f"{base}: expected {listed} (TUM RGB-D layout), got no such file")
-    if not (np.isfinite(depth_factor) and depth_factor > 0):
+    if depth_factor is not None and not (np.isfinite(depth_factor) and depth_factor > 0):
         raise DatasetError(f"depth factor: expected a positive number of depth units a metre, got {depth_factor}")
     if pose_time_offset_s is not None and not np.isfinite(pose_time_offset_s):
         raise DatasetError(f"pose time offset: expected a finite number of seconds, got {pose_time_offset_s}")
@@ -390,8 +420,9 @@ def load_tum(
     if pose_time_offset_s is None:
         paired = [i for i, _ in pairs]
         offset_s, offset_source = pose_time_offset_by_depth(
-            trajectory, depth.times_s[paired], [base / depth.fields[i][0] for i in paired], chosen_intrinsics, depth_factor
-        )
+            trajectory, depth.times_s[paired], [base / depth.fields[i][0] for i in paired], chosen_intrinsics,
+            DEPTH_FACTOR if depth_factor is None else depth_factor,
+        )  # fmt: skip
     else:
         offset_s, offset_source = float(pose_time_offset_s), "given"
     cam2file, posed = interpolate_poses(*trajectory, depth.times_s[[i for i, _ in pairs]] + offset_s)
@@ -426,12 +457,15 @@ def load_tum(
         dropped_frames=tuple(text for i, text in enumerate(depth.texts) if i not in kept_depth),
         up_file=None,
         world2file=np.eye(4),
-        depth_factor=float(depth_factor),
+        depth_factor=DEPTH_FACTOR if depth_factor is None else float(depth_factor),
         ground_truth=ground_truth,
         depth2rgb=depth2rgb,
         pose_time_offset_s=offset_s,
         pose_time_offset_source=offset_source,
     )
+    if depth_factor is None:
+        checked_factor, factor_source = depth_factor_by_depth(in_file_world)
+        in_file_world = replace(in_file_world, depth_factor=checked_factor, depth_factor_source=factor_source)
     if intrinsics_source.endswith(BY_NAME):
         checked, intrinsics_source = intrinsics_by_depth(in_file_world)
         in_file_world = replace(in_file_world, intrinsics=checked, intrinsics_source=intrinsics_source)
@@ -486,6 +520,7 @@ def pose_time_offset_by_depth(
 
 __all__ = [
     "DEPTH_FACTOR",
+    "DEPTH_SCALES",
     "GENERIC_INTRINSICS",
     "MAX_POSE_GAP_S",
     "MAX_RGB_DEPTH_DIFFERENCE_S",
@@ -494,6 +529,7 @@ __all__ = [
     "TumSequence",
     "associate",
     "choose_intrinsics",
+    "depth_factor_by_depth",
     "interpolate_poses",
     "intrinsics_by_depth",
     "is_tum_recording",
