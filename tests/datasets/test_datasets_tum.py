@@ -270,8 +270,12 @@ def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
     assert kept.intrinsics_source.startswith("TUM freiburg1 (by the folder's name): the depth and poses disagree by ")
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
         generic = load_tum(write_room_tum(tmp_path / "freiburg1_desk", GENERIC_INTRINSICS), estimate_up=False)
-    assert generic.intrinsics == GENERIC_INTRINSICS and "using the generic" in caplog.text
+    assert (
+        generic.intrinsics == GENERIC_INTRINSICS
+        and "using generic 525, 525, 319.5, 239.5 and a depth factor of 5000" in caplog.text
+    )
     assert generic.intrinsics_source.startswith("generic 525, 525, 319.5, 239.5, not TUM freiburg1 (by the folder's name)")
+    assert kept.depth_factor == generic.depth_factor == 5000.0  # exact renders: the intrinsics, not the depth's scale
     # a file or --intrinsics is taken as it is, unchecked
     (tmp_path / "freiburg1_desk" / "intrinsics.txt").write_text("517.3 516.5 318.6 255.3\n")
     assert load_tum(tmp_path / "freiburg1_desk", estimate_up=False).intrinsics == calibrated

@@ -25,9 +25,10 @@ is registered pixel for pixel.
 
 Intrinsics: given, else ``camera-intrinsics.txt`` or ``intrinsics.txt`` in the folder (4 numbers
 ``fx fy cx cy``, or a 3x3 or 4x4 camera matrix), else by the folder's name (``freiburg1``/``2``/``3``) the
-one of two that the recording's depth and poses agree with (``intrinsics_by_depth``): TUM's calibrated colour
+one of two that the recording's depth and poses agree with (``camera_by_depth``): TUM's calibrated colour
 camera, or the 525, 525, 319.5, 239.5 TUM gives for turning its registered depth into 3D; else the generic
-525, 525, 319.5, 239.5 with a warning.
+525, 525, 319.5, 239.5 with a warning. The depth factor: given, else TUM's 5000 over the scale the depth and
+poses agree with (``camera_by_depth`` decides both together).
 
 TUM's world is not known to be gravity-aligned: up in the pose frame is chosen by
 ``arcloud.datasets.gravity.choose_up`` (given, ``gravity-direction.txt``, the ground truth's, else
@@ -75,14 +76,14 @@ GENERIC_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
 #: A camera whose motion between a frame's two images moves no entry of the transform by more than this (a
 #: micrometre, a microradian: a thousandth of a pixel) did not move: the frame is registered pixel for pixel.
 STILL = 1e-6
-#: Depth images ``intrinsics_by_depth`` and ``pose_time_offset_by_depth`` read, spread over the recording.
+#: Depth images ``camera_by_depth`` and ``pose_time_offset_by_depth`` read, spread over the recording.
 CHECK_FRAMES = 150
 #: The generic intrinsics replace the calibrated ones, and a pose time offset replaces none, when the depth
 #: disagrees with them less by this share.
 CHECK_MARGIN = 0.02
 #: The pose time offsets ``pose_time_offset_by_depth`` tries (seconds): +-50 ms in steps of 5 ms.
 POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
-#: The scales of the depth ``depth_factor_by_depth`` tries: 0.9-1.1 in steps of 1 % (TUM's freiburg2 depth reads
+#: The scales of the depth ``camera_by_depth`` tries: 0.9-1.1 in steps of 1 % (TUM's freiburg2 depth reads
 #: about 4 % long at its factor of 5000: ORB-SLAM2's TUM2 settings take 5208).
 DEPTH_SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(21))
 BY_NAME = "(by the folder's name)"  # the source of intrinsics chosen by the folder's name
@@ -330,51 +331,49 @@ def choose_intrinsics(root: Path, given: Intrinsics | None = None) -> tuple[Intr
     return GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"
 
 
-def intrinsics_by_depth(sequence: TumSequence) -> tuple[Intrinsics, str]:
-    """The sequence's intrinsics (TUM's calibrated ones, by the folder's name), or the generic 525, 525, 319.5,
-    239.5 when its depth and poses agree with those better by ``CHECK_MARGIN`` (``core.calibration``; up to
-    ``CHECK_FRAMES`` depth images). TUM publishes both: its colour cameras' calibration, and the generic values
-    as the conversion of its depth, registered to colour by the sensor's factory calibration, to 3D. The two
-    differ by 16 px in cy on freiburg1, which turns every frame's rays by 1.8 degrees; the recording decides."""
-    step = max(1, -(-sequence.n_frames // CHECK_FRAMES))
-    picked = range(0, sequence.n_frames, step)
-    cam2world = sequence.cam2world[list(picked)]
-    pairs = view_pairs(cam2world)
-    if not pairs:
-        return sequence.intrinsics, f"{sequence.intrinsics_source}; no frames seen from places turned apart to check it on"
-    depths = [read_png_u16(sequence.depth_paths[i]).astype(np.float32) / sequence.depth_factor for i in picked]
-    named = depth_disagreement(depths, cam2world, sequence.intrinsics, pairs)
-    generic = depth_disagreement(depths, cam2world, GENERIC_INTRINSICS, pairs)
-    figures = f"the depth and poses disagree by {named * 1000:.1f} mm with it, {generic * 1000:.1f} mm with the generic"
-    if generic < (1 - CHECK_MARGIN) * named:
-        logger.warning("%s: %s; using the generic %s", sequence.root, figures, GENERIC_INTRINSICS)
-        return GENERIC_INTRINSICS, f"generic 525, 525, 319.5, 239.5, not {sequence.intrinsics_source}: {figures}"
-    return sequence.intrinsics, f"{sequence.intrinsics_source}: {figures}"
-
-
-def depth_factor_by_depth(sequence: TumSequence) -> tuple[float, str]:
-    """The sequence's depth factor (TUM's 5000, or its own) over the one of ``DEPTH_SCALES`` at which up to
-    ``CHECK_FRAMES`` of its depth images agree best with its poses (``core.calibration``), when they disagree with
-    it by ``CHECK_MARGIN`` less than at 1; and what decided it. Depth a few per cent long or short puts what two
-    frames seen from places apart measured of one surface a few centimetres apart: the map fuses them into a
-    smear. Frames that only turn cannot tell (every scale agrees as well)."""
+def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[float]) -> TumSequence:
+    """The sequence with the intrinsics and depth factor its depth and poses agree with best (``core.calibration``;
+    up to ``CHECK_FRAMES`` depth images), when they disagree with them by ``CHECK_MARGIN`` less than with its own
+    intrinsics and factor; their sources say what decided. Tried together, each with each: its intrinsics and,
+    when ``named`` (TUM's calibrated ones, by the folder's name), the generic 525, 525, 319.5, 239.5, which TUM gives
+    as the conversion of its depth, registered to colour by the sensor's factory calibration, to 3D (the two differ
+    by 16 px in cy on freiburg1, which turns every frame's rays by 1.8 degrees); and its depth scaled by each of
+    ``scales`` (depth a few per cent long puts what two frames seen from places apart measured of one surface
+    centimetres apart). Together, since each stands in for the other a little: 7-Scenes' depth 3 % short agrees
+    better with a focal length 1.5 % short than with its own at the depth's own scale."""
+    cameras = [(sequence.intrinsics, sequence.intrinsics_source)]
+    if named:
+        cameras.append((GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"))
     picked = list(range(0, sequence.n_frames, max(1, -(-sequence.n_frames // CHECK_FRAMES))))
     cam2world = sequence.cam2world[picked]
     pairs = view_pairs(cam2world)
-    nominal = sequence.depth_factor
-    if not pairs:
-        return nominal, f"{nominal:g}: no frames seen from places turned apart to check it on"
-    raw = [read_png_u16(sequence.depth_paths[i]).astype(np.float32) for i in picked]
+    if not pairs or (len(cameras) == 1 and list(scales) == [1.0]):
+        unchecked = "; no frames seen from places turned apart to check it on" if not pairs else ""
+        return replace(sequence, intrinsics_source=sequence.intrinsics_source + unchecked)
+    raw = [read_png_u16(sequence.depth_paths[i]).astype(np.float32) / sequence.depth_factor for i in picked]
     gaps = {
-        scale: depth_disagreement([d * (scale / nominal) for d in raw], cam2world, sequence.intrinsics, pairs)
-        for scale in DEPTH_SCALES
+        (k, scale): depth_disagreement([d * scale for d in raw] if scale != 1.0 else raw, cam2world, camera, pairs)
+        for k, (camera, _) in enumerate(cameras)
+        for scale in scales
     }
-    best = min(gaps, key=lambda scale: (gaps[scale], abs(scale - 1.0)))
-    figures = f"the depth and poses disagree by {gaps[best] * 1000:.1f} mm at x{best:.2f}, {gaps[1.0] * 1000:.1f} mm at x1"
-    if best != 1.0 and gaps[best] < (1 - CHECK_MARGIN) * gaps[1.0]:
-        logger.warning("%s: %s; depth factor %g -> %g", sequence.root, figures, nominal, nominal / best)
-        return nominal / best, f"{nominal / best:.6g} (x{best:.2f} the depth) by the depth: {figures}"
-    return nominal, f"{nominal:g} by the depth: {figures}"
+    own = gaps[(0, 1.0)]
+    best = min(gaps, key=lambda key: (gaps[key], key[0], abs(key[1] - 1.0)))
+    if gaps[best] >= (1 - CHECK_MARGIN) * own:
+        best = (0, 1.0)
+    (k, scale), nominal = best, sequence.depth_factor
+    figures = f"the depth and poses disagree by {gaps[best] * 1000:.1f} mm with it, {own * 1000:.1f} mm with {cameras[0][1]} at {nominal:g}"
+    if best != (0, 1.0):
+        logger.warning("%s: %s; using %s and a depth factor of %.6g", sequence.root, figures, cameras[k][1], nominal / scale)
+    intrinsics_source = cameras[k][1] if k == 0 else f"{cameras[k][1]}, not {cameras[0][1]}"
+    return replace(
+        sequence,
+        intrinsics=cameras[k][0],
+        intrinsics_source=f"{intrinsics_source}: {figures}",
+        depth_factor=nominal / scale,
+        depth_factor_source=f"{nominal / scale:.6g}"
+        + (f" (the depth x{scale:.2f})" if scale != 1.0 else "")
+        + f" by the depth: {figures}",
+    )
 
 
 def is_tum_recording(root: Path) -> bool:
@@ -396,7 +395,7 @@ def load_tum(
     """Parse a TUM RGB-D recording (see the module docstring), with ``gt_boxes`` (a ground-truth file)
     or else the folder's ``gt-boxes.json`` when it has one. ``name`` (default: the folder's name, as a
     map id) names the maps. ``pose_time_offset_s`` and ``depth_factor``: None (default) for the ones the depth
-    agrees with (``pose_time_offset_by_depth``, ``depth_factor_by_depth``). Up in
+    agrees with (``pose_time_offset_by_depth``, ``camera_by_depth``). Up in
     the pose frame: ``up`` (3 numbers), else ``gravity-direction.txt``, else the ground truth's, else (with
     ``estimate_up``) an estimate from the depth."""
     base = Path(root)
@@ -463,12 +462,9 @@ def load_tum(
         pose_time_offset_s=offset_s,
         pose_time_offset_source=offset_source,
     )
-    if depth_factor is None:
-        checked_factor, factor_source = depth_factor_by_depth(in_file_world)
-        in_file_world = replace(in_file_world, depth_factor=checked_factor, depth_factor_source=factor_source)
-    if intrinsics_source.endswith(BY_NAME):
-        checked, intrinsics_source = intrinsics_by_depth(in_file_world)
-        in_file_world = replace(in_file_world, intrinsics=checked, intrinsics_source=intrinsics_source)
+    in_file_world = camera_by_depth(
+        in_file_world, named=intrinsics_source.endswith(BY_NAME), scales=DEPTH_SCALES if depth_factor is None else [1.0]
+    )
     choice = choose_up(
         given=up,
         gravity_file=base / GRAVITY_FILE,
@@ -528,10 +524,9 @@ __all__ = [
     "PUBLISHED_INTRINSICS",
     "TumSequence",
     "associate",
+    "camera_by_depth",
     "choose_intrinsics",
-    "depth_factor_by_depth",
     "interpolate_poses",
-    "intrinsics_by_depth",
     "is_tum_recording",
     "load_tum",
     "pose_time_offset_by_depth",
