@@ -89,6 +89,8 @@ def test_eval_recording_on_a_tum_recording_against_the_7scenes_ground_truth(
     assert results["agreement"][0]["users"] == 3 and all(Path(p).is_file() for p in results["pictures"])
     assert results["registration"]["frames"] == 17 and len(results["registration"]["shift_px"]) == 2
     printed = capsys.readouterr().out
+    assert "  depth factor   5000: 5000 by the depth" in printed and "  pose clock     +0.000 s: 0 s" in printed
+    assert "  colour camera  moved" in printed
     assert f"Accuracy against {seven / 'gt-boxes.json'} (observed boxes)" in printed
     assert f"AP per class against {seven / 'gt-boxes.json'} (amodal boxes), IoU 0.25 / 0.5" in printed
     assert f"wrote {out}" in printed

@@ -25,7 +25,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -272,6 +272,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         f"Agreement of distributed maps with the centralized one ({recording.name}, {recording.layout} layout, {len(names)} frames)"
     )
     _print_table(rows)
+    _print_camera(out["recording"], registration)
     if ground_truth is not None:
         for kind in ground_truth.box_kinds:
             chosen = [r for r in out["accuracy"] if r["boxes"] == kind]
@@ -281,6 +282,25 @@ def run_eval_recording(args: argparse.Namespace) -> int:
             _print_per_class(chosen)
     print(f"\nwrote {out_path} and {len(pictures)} pictures beside it")
     return 0
+
+
+def _print_camera(facts: Mapping[str, Any], registration: Mapping[str, Any]) -> None:
+    """What the recording's depth and poses decided of its camera (each decision's reason is in the results)."""
+    print("\nCamera (as the recording's depth and poses decided; results.recording and .registration say why)")
+    if "intrinsics" in facts:
+        print(f"  intrinsics     {', '.join(f'{v:g}' for v in facts['intrinsics'])}: {facts['intrinsics_source'].split(':')[0]}")
+    if "depth_factor" in facts:
+        print(f"  depth factor   {facts['depth_factor']:.6g}: {facts['depth_factor_source'].split(':')[0]}")
+    if "pose_time_offset_s" in facts:
+        print(f"  pose clock     {facts['pose_time_offset_s']:+.3f} s: {facts['pose_time_offset_source'].split(':')[0]}")
+    if "colour_turn_deg" in facts:
+        turn = facts["colour_turn_deg"]
+        print(
+            f"  colour motion  the camera turned {turn['median']:g} degrees (median, largest {turn['max']:g}) between a frame's two images"
+        )
+    du, dv = registration["shift_px"]
+    found = "given" if "edge_strength" not in registration else "kept as recorded" if not (du or dv) else "by the edges"
+    print(f"  colour camera  moved {du:+g}, {dv:+g} px: {found}")
 
 
 def _write_charts(out_path: Path, **figures: Any) -> list[str]:
