@@ -78,8 +78,8 @@ GENERIC_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
 STILL = 1e-6
 #: Depth images ``camera_by_depth`` and ``pose_time_offset_by_depth`` read, spread over the recording.
 CHECK_FRAMES = 150
-#: The generic intrinsics replace the calibrated ones, and a pose time offset replaces none, when the depth
-#: disagrees with them less by this share.
+#: The generic intrinsics replace the calibrated ones, a depth scale or a pose time offset replaces none, when the
+#: depth disagrees with them less by this share.
 CHECK_MARGIN = 0.02
 #: The pose time offsets ``pose_time_offset_by_depth`` tries (seconds): +-50 ms in steps of 5 ms.
 POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
@@ -100,7 +100,9 @@ class TumSequence(GravityAlignedSequence):
 
     up_file: (3,) unit up in the pose frame, None when unknown; ``up_source`` says where it came from.
     world2file: (4, 4) maps output-world points to the pose frame (identity unless gravity-aligned).
-    ground_truth: ``gt-boxes.json`` parsed (the folder's, or the one given), or None."""
+    ground_truth: ``gt-boxes.json`` parsed (the folder's, or the one given), or None.
+    depth2rgb: (N, 4, 4) each frame's camera motion from its depth image to its colour image (identity: none known).
+    ``pose_time_offset_s``, ``depth_factor`` and ``intrinsics`` come with a ``*_source`` saying what decided them."""
 
     name: str
     root: Path
@@ -118,7 +120,7 @@ class TumSequence(GravityAlignedSequence):
     ground_truth: GroundTruthBoxes | None = None
     up_source: str = "none"
     device_id: str = "user-0"
-    depth2rgb: np.ndarray | None = None  # (N, 4, 4): the camera's motion from each depth image to its colour image
+    depth2rgb: np.ndarray | None = None
     pose_time_offset_s: float = 0.0
     pose_time_offset_source: str = "given"
     depth_factor_source: str = "given"
