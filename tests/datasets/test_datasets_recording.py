@@ -26,7 +26,7 @@ from datasets_builders import (
 )
 
 from arcloud.accuracy.cli import add_eval_commands
-from arcloud.core.types import Intrinsics
+from arcloud.core.types import Frame, Intrinsics
 from arcloud.datasets.recording import check_intrinsics, detect_layout, load_recording, register_colour
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
@@ -185,22 +185,23 @@ def test_a_colour_camera_a_few_pixels_off_is_found_by_the_edges_and_moved(
         write_room_tum(tmp_path / "off", made, 12, colour_shift_px=(4.0, -3.0)), intrinsics=made, estimate_up=False
     )
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
-        moved, found = register_colour(off)
+        moved, found = register_colour(off.frame_names, off.load_frame, where=off.root)
     du, dv = found["shift_px"]
     assert found["frames"] == 12 and abs(du - 4) <= 1 and abs(dv + 3) <= 1 and found["strongest_shift_px"] == [du, dv]
     assert found["strongest_edge_strength"] > 1.05 * found["edge_strength"] and "moving it" in caplog.text
     name = off.frame_names[8]
     assert off.load_frame(name).registered
-    assert moved.load_frame(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 319.5 + du, 239.5 + dv)
+    assert moved(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 319.5 + du, 239.5 + dv)
     # as made: nothing moves; told a move: that one
     as_made = load_recording(write_room_tum(tmp_path / "as made", made, 12), intrinsics=made, estimate_up=False)
-    kept, found = register_colour(as_made)
-    assert kept is as_made and found["shift_px"] == [0.0, 0.0]
-    told, found = register_colour(as_made, (1.0, 2.0))
-    assert found == {"shift_px": [1.0, 2.0]} and told.load_frame(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 320.5, 241.5)
+    kept, found = register_colour(as_made.frame_names, as_made.load_frame)
+    assert kept is as_made.load_frame and found["shift_px"] == [0.0, 0.0]
+    told, found = register_colour(as_made.frame_names, as_made.load_frame, (1.0, 2.0))
+    assert found == {"shift_px": [1.0, 2.0]} and told(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 320.5, 241.5)
+
     # frames without depth tell nothing: kept as they are
-    blind = dataclasses.replace(
-        as_made, load_frame=lambda n: dataclasses.replace(as_made.load_frame(n), depth_m=np.zeros((480, 640), np.float32))
-    )
-    kept, found = register_colour(blind)
+    def blind(n: str) -> Frame:
+        return dataclasses.replace(as_made.load_frame(n), depth_m=np.zeros((480, 640), np.float32))
+
+    kept, found = register_colour(as_made.frame_names, blind)
     assert kept is blind and found == {"frames": 12, "edge_strength": None, "shift_px": [0.0, 0.0]}

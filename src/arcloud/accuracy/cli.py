@@ -21,6 +21,7 @@ Adding the commands imports nothing heavy (``arcloud --help`` stays fast); each 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -121,6 +122,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     from arcloud.datasets.frames import CACHE_FRAMES_UP_TO, LazyFrames
     from arcloud.datasets.gt_boxes import load_ground_truth
     from arcloud.datasets.gt_masks import GroundTruthMaskDetector, gt_masks_options
+    from arcloud.datasets.recording import register_colour
     from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
 
     started = time.perf_counter()
@@ -134,11 +136,14 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     gt_options = gt_masks_options(argument)[0] if prefix == GT_MASKS else {}
     shared_detector = None if prefix == GT_MASKS else _make_detector(args.detector)
     params = _params(args)
-    entries, frame_counts, export_frames = [], {}, {}
+    entries, frame_counts, export_frames, registrations = [], {}, {}, {}
     for scene_dir in scene_dirs:
         scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
         names = scene.frame_names[:: args.stride]
-        frames = LazyFrames(names, scene.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+        load_frame, registrations[scene.scene_id] = register_colour(
+            scene.frame_names, scene.load_frame, args.colour_shift, where=scene_dir
+        )
+        frames = LazyFrames(names, load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
         detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector
         export_frames[scene.scene_id] = scannet_export_frame(scene, ground_truth)
         if ground_truth is not None:  # one scene: its boxes are fitted in the file's aligned frame
@@ -162,6 +167,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         "frames": frame_counts,
         "stride": args.stride,
         "seed": args.seed,
+        "registration": registrations,
         "wall_s": round(time.perf_counter() - started, 2),
     }
     if ground_truth is not None:
@@ -204,7 +210,8 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         pose_time_offset_s=args.pose_time_offset_s, colour=args.colour_camera,
     )  # fmt: skip
     intrinsics_check = check_intrinsics(recording)
-    recording, registration = register_colour(recording, args.colour_shift)
+    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, args.colour_shift, where=args.root)
+    recording = dataclasses.replace(recording, load_frame=load_frame)
     ground_truth = recording.ground_truth
     names = recording.frame_names[:: args.stride]
     frames = LazyFrames(names, recording.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
@@ -381,6 +388,17 @@ def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: i
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_colour_shift(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--colour-shift",
+        type=parse_numbers(2, "du,dv"),
+        default=None,
+        metavar="DU,DV",
+        help="move the colour camera's principal point by these pixels (default: where, within 20 px, the depth's edges "
+        "meet the colour's best, when 5 %% better than as recorded; 0,0: as recorded)",
+    )
+
+
 def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) -> None:
     """What ``eval recording`` and ``eval 7scenes`` take besides ``_add_common``'s (the reader's options
     when ``layouts``; ``eval 7scenes`` reads the 7-Scenes layout only)."""
@@ -408,14 +426,7 @@ def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) ->
         help="7-Scenes: the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
         "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)",
     )
-    parser.add_argument(
-        "--colour-shift",
-        type=parse_numbers(2, "du,dv"),
-        default=None,
-        metavar="DU,DV",
-        help="move the colour camera's principal point by these pixels (default: where, within 20 px, the depth's edges "
-        "meet the colour's best, when 5 %% better than as recorded; 0,0: as recorded)",
-    )
+    _add_colour_shift(parser)
     parser.add_argument(
         "--reference-min-score",
         type=float,
@@ -490,6 +501,7 @@ def add_eval_commands(subparsers: Any) -> Any:
         help="ground-truth boxes of one scene (the gt-boxes.json format, its world the scan frame of pose/) "
         "instead of the scene's annotation; boxes are fitted in its aligned frame",
     )
+    _add_colour_shift(scannet)
     _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
     scannet.set_defaults(handler=run_eval_scannet)
 

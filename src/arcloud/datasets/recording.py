@@ -10,7 +10,7 @@ exported in (``ExportFrame``: the ground truth's aligned frame when there is one
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -227,27 +227,33 @@ REGISTRATION_SHIFT_PX = 20
 REGISTRATION_MARGIN = 0.05
 
 
-def register_colour(recording: Recording, shift_px: tuple[float, float] | None = None) -> tuple[Recording, dict[str, Any]]:
-    """The recording with its colour camera moved by ``shift_px`` (du, dv pixels: its principal point), or, when
+def register_colour(
+    frame_names: Sequence[str],
+    load_frame: Callable[[str], Frame],
+    shift_px: tuple[float, float] | None = None,
+    *,
+    where: object = "",
+) -> tuple[Callable[[str], Frame], dict[str, Any]]:
+    """``load_frame`` with the colour camera moved by ``shift_px`` (du, dv pixels: its principal point), or, when
     None, by the move of up to ``REGISTRATION_SHIFT_PX`` each way (every second pixel, then the pixels around the
-    strongest) at which the near sides of its depth edges land on the strongest colour gradients
-    (``core.calibration.colour_edge_strength``, up to ``REGISTRATION_FRAMES`` frames), when they are
-    ``REGISTRATION_MARGIN`` stronger there than where the recording puts them; and what was found, as JSON (logged
-    as a warning when a move is taken). A mask is drawn on colour and looked up on depth, so a colour camera a few
-    pixels off moves every mask's border across its object's edge."""
+    strongest) at which the near sides of the depth edges of up to ``REGISTRATION_FRAMES`` of ``frame_names`` land
+    on the strongest colour gradients (``core.calibration.colour_edge_strength``), when they are
+    ``REGISTRATION_MARGIN`` stronger there than where the frames put them; and what was found, as JSON (logged as a
+    warning naming ``where`` when a move is taken). A mask is drawn on colour and looked up on depth, so a colour
+    camera a few pixels off moves every mask's border across its object's edge."""
     import numpy as np
 
     from arcloud.core.calibration import colour_edge_strength
 
     out: dict[str, Any] = {}
     if shift_px is None:
-        names = recording.frame_names[:: max(1, -(-len(recording.frame_names) // REGISTRATION_FRAMES))]
-        frames = [recording.load_frame(name) for name in names]
+        names = frame_names[:: max(1, -(-len(frame_names) // REGISTRATION_FRAMES))]
+        frames = [load_frame(name) for name in names]
         reach = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1, 2)
         moves = [(0.0, 0.0)] + [(float(du), float(dv)) for dv in reach for du in reach if du or dv]
         strength = colour_edge_strength(frames, moves)
         if not np.isfinite(strength).all():  # no depth edge lands in any colour image: nothing to tell
-            return recording, {"frames": len(names), "edge_strength": None, "shift_px": [0.0, 0.0]}
+            return load_frame, {"frames": len(names), "edge_strength": None, "shift_px": [0.0, 0.0]}
         coarse = moves[int(np.argmax(strength))]
         around = [(coarse[0] + du, coarse[1] + dv) for dv in (-1.0, 0.0, 1.0) for du in (-1.0, 0.0, 1.0) if du or dv]
         moves += around
@@ -265,20 +271,19 @@ def register_colour(recording: Recording, shift_px: tuple[float, float] | None =
             logger.warning(
                 "%s: the depth's edges meet the colour's %.0f %% better with the colour camera moved by %+g, %+g px; "
                 "moving it (--colour-shift 0,0 keeps it)",
-                recording.root, 100 * (strength[best] / strength[0] - 1), *shift_px,
+                where, 100 * (strength[best] / strength[0] - 1), *shift_px,
             )  # fmt: skip
     du, dv = float(shift_px[0]), float(shift_px[1])
     out["shift_px"] = [du, dv]
     if not (du or dv):
-        return recording, out
-    load = recording.load_frame
+        return load_frame, out
 
     def moved(name: str) -> Frame:
-        frame = load(name)
+        frame = load_frame(name)
         colour = frame.rgb_intrinsics or frame.intrinsics
         return replace(frame, rgb_intrinsics=replace(colour, cx=colour.cx + du, cy=colour.cy + dv))
 
-    return replace(recording, load_frame=moved), out
+    return moved, out
 
 
 __all__ = ["CHECK_FRAMES", "LAYOUTS", "Recording", "check_intrinsics", "detect_layout", "load_recording", "register_colour"]
