@@ -395,7 +395,7 @@ def _add_colour_shift(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="DU,DV",
         help="move the colour camera's principal point by these pixels (default: where, within 20 px, the depth's edges "
-        "meet the colour's best, when 5 %% better than as recorded; 0,0: as recorded)",
+        "meet the colour's best, when 10 %% better than as recorded; 0,0: as recorded)",
     )
 
 

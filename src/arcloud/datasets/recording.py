@@ -224,7 +224,7 @@ def check_intrinsics(recording: Recording) -> dict[str, Any]:
 #: freiburg1 camera (its colour camera's calibration, and the values for its registered depth).
 REGISTRATION_FRAMES = 40
 REGISTRATION_SHIFT_PX = 20
-REGISTRATION_MARGIN = 0.05
+REGISTRATION_MARGIN = 0.1
 
 
 def register_colour(
@@ -238,7 +238,8 @@ def register_colour(
     None, by the move of up to ``REGISTRATION_SHIFT_PX`` each way (every second pixel, then the pixels around the
     strongest) at which the near sides of the depth edges of up to ``REGISTRATION_FRAMES`` of ``frame_names`` land
     on the strongest colour gradients (``core.calibration.colour_edge_strength``), when they are
-    ``REGISTRATION_MARGIN`` stronger there than where the frames put them; and what was found, as JSON (logged as a
+    ``REGISTRATION_MARGIN`` stronger there than where the frames put them and the move is not on the search's border
+    (a climb towards a border is no peak); and what was found, as JSON (logged as a
     warning naming ``where`` when a move is taken). A mask is drawn on colour and looked up on depth, so a colour
     camera a few pixels off moves every mask's border across its object's edge."""
     import numpy as np
@@ -259,7 +260,10 @@ def register_colour(
         moves += around
         strength = np.concatenate([strength, colour_edge_strength(frames, around)])
         best = int(np.argmax(strength))
-        taken = bool(strength[best] > (1 + REGISTRATION_MARGIN) * strength[0])
+        # a peak, not the edge of the search: colour and depth that differ by more than a shift (another focal
+        # length, a baseline) make the strength climb a little towards some border, and that is no registration
+        inside = max(abs(moves[best][0]), abs(moves[best][1])) < REGISTRATION_SHIFT_PX
+        taken = bool(inside and strength[best] > (1 + REGISTRATION_MARGIN) * strength[0])
         shift_px = moves[best] if taken else (0.0, 0.0)
         out = {
             "frames": len(names),
