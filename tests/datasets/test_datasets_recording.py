@@ -199,6 +199,13 @@ def test_a_colour_camera_a_few_pixels_off_is_found_by_the_edges_and_moved(
     told, found = register_colour(as_made.frame_names, as_made.load_frame, (1.0, 2.0))
     assert found == {"shift_px": [1.0, 2.0]} and told(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 320.5, 241.5)
 
+    # further off than the search reaches: the edges meet best at its border, which is no peak, and nothing moves
+    far = load_recording(
+        write_room_tum(tmp_path / "far", made, 12, colour_shift_px=(30.0, 0.0)), intrinsics=made, estimate_up=False
+    )
+    kept, found = register_colour(far.frame_names, far.load_frame)
+    assert kept is far.load_frame and found["strongest_shift_px"][0] >= 20 and found["shift_px"] == [0.0, 0.0]
+
     # frames without depth tell nothing: kept as they are
     def blind(n: str) -> Frame:
         return dataclasses.replace(as_made.load_frame(n), depth_m=np.zeros((480, 640), np.float32))
