@@ -91,15 +91,22 @@ def test_near_moved_intrinsics_the_ones_that_made_the_depth_are_found(room_rende
     assert agreeing_intrinsics(room_renders, poses, INTRINSICS, pairs)[0].fx == INTRINSICS.fx
 
 
-def room_frames(colour_shift_px: tuple[float, float]) -> list:
+def room_frames(colour_shift_px: tuple[float, float], *, scale: float = 1.0, baseline_m: float = 0.0) -> list:
     """Frames of ``BOX_ROOM`` along ``turning_poses`` whose colour images (each box a grey of its own, the floor
-    another) were taken by a camera whose principal point lies ``colour_shift_px`` from the depth camera's."""
-    colour = dataclasses.replace(INTRINSICS, cx=INTRINSICS.cx + colour_shift_px[0], cy=INTRINSICS.cy + colour_shift_px[1])
+    another) were taken by a camera whose principal point lies ``colour_shift_px`` from the depth camera's, whose
+    focal lengths are ``scale`` times its, and which stands ``baseline_m`` from it along its x axis (a colour point
+    is a depth point plus (``baseline_m``, 0, 0), as ``Frame.depth2rgb`` moves it)."""
+    colour = dataclasses.replace(
+        INTRINSICS, fx=INTRINSICS.fx * scale, fy=INTRINSICS.fy * scale,
+        cx=INTRINSICS.cx + colour_shift_px[0], cy=INTRINSICS.cy + colour_shift_px[1],
+    )  # fmt: skip
+    beside = np.eye(4)
+    beside[0, 3] = -baseline_m  # the colour camera's centre in depth camera coordinates
     greys = np.array([40, 70, 100, 130, 160, 190, 220], np.uint8)  # boxes 0-5, then the floor (instance -1)
     frames = []
     for i, pose in enumerate(turning_poses()):
         depth = cast_boxes(pose, BOX_ROOM, intrinsics=INTRINSICS, shape=SHAPE)[0]
-        instance = cast_boxes(pose, BOX_ROOM, intrinsics=colour, shape=SHAPE)[1]
+        instance = cast_boxes(pose @ beside, BOX_ROOM, intrinsics=colour, shape=SHAPE)[1]
         rgb = np.repeat(greys[instance][..., None], 3, axis=2)
         frames.append(make_frame(rgb, depth, INTRINSICS, pose, timestamp_s=i / 30, map_id="m", device_id="d", frame_id=f"{i}"))
     return frames
@@ -107,12 +114,22 @@ def room_frames(colour_shift_px: tuple[float, float]) -> list:
 
 def test_the_depth_edges_meet_the_colour_edges_where_the_colour_camera_stands() -> None:
     shifts = [(du, dv) for dv in range(-5, 6) for du in range(-5, 6)]
+    moves = [(1.0, du, dv, 0.0) for du, dv in shifts]
     moved = room_frames((3.0, -2.0))
-    strength = colour_edge_strength(moved, shifts)
+    strength = colour_edge_strength(moved, moves)
     # within a pixel: an edge lies between its near pixel and its far one, where both colour pixels change
     assert np.abs(np.subtract(shifts[int(np.argmax(strength))], (3, -2))).max() <= 1
     assert strength.max() > 2 * strength[shifts.index((0, 0))]  # as the frames say (registered), edges miss
     # told where the colour camera stands, the edges meet where they are
     told = [dataclasses.replace(f, rgb_intrinsics=dataclasses.replace(INTRINSICS, cx=163.0, cy=118.0)) for f in moved]
-    assert np.abs(shifts[int(np.argmax(colour_edge_strength(told, shifts)))]).max() <= 1
-    assert np.isnan(colour_edge_strength([dataclasses.replace(moved[0], depth_m=np.zeros(SHAPE, np.float32))], [(0, 0)])[0])
+    assert np.abs(shifts[int(np.argmax(colour_edge_strength(told, moves)))]).max() <= 1
+    assert np.isnan(colour_edge_strength([dataclasses.replace(moved[0], depth_m=np.zeros(SHAPE, np.float32))], [(1, 0, 0, 0)])[0])
+
+
+def test_another_focal_length_and_a_baseline_are_told_apart_from_a_shift() -> None:
+    # a Kinect v1's colour camera: a focal length 10 % shorter than its depth camera's, 3.5 cm to the side
+    frames = room_frames((0.0, 0.0), scale=0.9, baseline_m=-0.035)
+    moves = [(scale, du, 0.0, tx) for scale in (0.9, 1.0) for du in range(-12, 13, 2) for tx in (-0.035, 0.0, 0.035)]
+    strength = colour_edge_strength(frames, moves)
+    assert moves[int(np.argmax(strength))] == (0.9, 0, 0.0, -0.035)
+    assert strength.max() > 1.5 * strength[moves.index((1.0, 0, 0.0, 0.0))]

@@ -90,7 +90,7 @@ def test_eval_scannet_command(tmp_path: Path) -> None:
     assert all(set(r) == ROW_KEYS for r in results["table1"])
     assert results["table1"][0]["map25_mean"] == pytest.approx(1.0)
     assert results["scenes"] == [SCENE_ID] and results["frames"] == {SCENE_ID: 16}
-    assert results["registration"][SCENE_ID]["shift_px"] == [0.0, 0.0]  # rendered: colour and depth from one camera
+    assert results["registration"][SCENE_ID]["move"] == [1.0, 0.0, 0.0, 0.0]  # rendered: colour and depth from one camera
     assert results["centralized"]["n_gt"]["chair"] == 1 and results["centralized"]["n_gt"]["table"] == 1
     curves = results["centralized"]["curves"]["0.25"]
     assert set(curves) == {"chair", "table"} and all(c["recall"][-1] == 1.0 for c in curves.values())

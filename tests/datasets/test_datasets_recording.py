@@ -87,10 +87,10 @@ def test_eval_recording_on_a_tum_recording_against_the_7scenes_ground_truth(
         assert row["n_gt"] == 9 and {k for k, v in row["ap25_per_class"].items() if v is not None} == {"chair", "table", "tv"}
     assert rows[0]["map25_mean"] > 0.0  # the frames, poses and ground truth line up: something matched
     assert results["agreement"][0]["users"] == 3 and all(Path(p).is_file() for p in results["pictures"])
-    assert results["registration"]["frames"] == 17 and len(results["registration"]["shift_px"]) == 2
+    assert results["registration"]["frames"] == 17 and len(results["registration"]["move"]) == 4
     printed = capsys.readouterr().out
     assert "  depth factor   5000: 5000 by the depth" in printed and "  pose clock     +0.000 s: 0 s" in printed
-    assert "  colour camera  moved" in printed
+    assert "  colour camera  focal x" in printed
     assert f"Accuracy against {seven / 'gt-boxes.json'} (observed boxes)" in printed
     assert f"AP per class against {seven / 'gt-boxes.json'} (amodal boxes), IoU 0.25 / 0.5" in printed
     assert f"wrote {out}" in printed
@@ -186,29 +186,32 @@ def test_a_colour_camera_a_few_pixels_off_is_found_by_the_edges_and_moved(
     )
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
         moved, found = register_colour(off.frame_names, off.load_frame, where=off.root)
-    du, dv = found["shift_px"]
-    assert found["frames"] == 12 and abs(du - 4) <= 1 and abs(dv + 3) <= 1 and found["strongest_shift_px"] == [du, dv]
+    scale, du, dv, tx = found["move"]
+    assert found["frames"] == 12 and found["strongest_move"] == found["move"]
+    assert abs(scale - 1) <= 0.01 and abs(du - 4) <= 1 and abs(dv + 3) <= 1 and abs(tx) <= 0.01
     assert found["strongest_edge_strength"] > 1.1 * found["edge_strength"] and "moving it" in caplog.text
     name = off.frame_names[8]
     assert off.load_frame(name).registered
-    assert moved(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 319.5 + du, 239.5 + dv)
+    assert moved(name).rgb_intrinsics == Intrinsics(525.0 * scale, 525.0 * scale, 319.5 + du, 239.5 + dv)
     # as made: nothing moves; told a move: that one
     as_made = load_recording(write_room_tum(tmp_path / "as made", made, 12), intrinsics=made, estimate_up=False)
     kept, found = register_colour(as_made.frame_names, as_made.load_frame)
-    assert kept is as_made.load_frame and found["shift_px"] == [0.0, 0.0]
-    told, found = register_colour(as_made.frame_names, as_made.load_frame, (1.0, 2.0))
-    assert found == {"shift_px": [1.0, 2.0]} and told(name).rgb_intrinsics == Intrinsics(525.0, 525.0, 320.5, 241.5)
-
+    assert kept is as_made.load_frame and found["move"] == [1.0, 0.0, 0.0, 0.0]
+    told, found = register_colour(as_made.frame_names, as_made.load_frame, (0.9, 1.0, 2.0, -0.035))
+    assert found == {"move": [0.9, 1.0, 2.0, -0.035]}
+    frame = told(name)
+    assert frame.rgb_intrinsics == Intrinsics(472.5, 472.5, 320.5, 241.5)
+    np.testing.assert_allclose(frame.depth2rgb[:3, 3], [-0.035, 0.0, 0.0])
     # further off than the search reaches: the edges meet best at its border, which is no peak, and nothing moves
     far = load_recording(
         write_room_tum(tmp_path / "far", made, 12, colour_shift_px=(30.0, 0.0)), intrinsics=made, estimate_up=False
     )
     kept, found = register_colour(far.frame_names, far.load_frame)
-    assert kept is far.load_frame and found["strongest_shift_px"][0] >= 20 and found["shift_px"] == [0.0, 0.0]
+    assert kept is far.load_frame and found["strongest_move"][1] >= 20 and found["move"] == [1.0, 0.0, 0.0, 0.0]
 
     # frames without depth tell nothing: kept as they are
     def blind(n: str) -> Frame:
         return dataclasses.replace(as_made.load_frame(n), depth_m=np.zeros((480, 640), np.float32))
 
     kept, found = register_colour(as_made.frame_names, blind)
-    assert kept is blind and found == {"frames": 12, "edge_strength": None, "shift_px": [0.0, 0.0]}
+    assert kept is blind and found == {"frames": 12, "edge_strength": None, "move": [1.0, 0.0, 0.0, 0.0]}

@@ -141,7 +141,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
         names = scene.frame_names[:: args.stride]
         load_frame, registrations[scene.scene_id] = register_colour(
-            scene.frame_names, scene.load_frame, args.colour_shift, where=scene_dir
+            scene.frame_names, scene.load_frame, args.colour_move, where=scene_dir
         )
         frames = LazyFrames(names, load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
         detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector
@@ -210,7 +210,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         pose_time_offset_s=args.pose_time_offset_s, colour=args.colour_camera,
     )  # fmt: skip
     intrinsics_check = check_intrinsics(recording)
-    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, args.colour_shift, where=args.root)
+    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, args.colour_move, where=args.root)
     recording = dataclasses.replace(recording, load_frame=load_frame)
     ground_truth = recording.ground_truth
     names = recording.frame_names[:: args.stride]
@@ -305,9 +305,9 @@ def _print_camera(facts: Mapping[str, Any], registration: Mapping[str, Any]) -> 
         print(
             f"  colour motion  the camera turned {turn['median']:g} degrees (median, largest {turn['max']:g}) between a frame's two images"
         )
-    du, dv = registration["shift_px"]
-    found = "given" if "edge_strength" not in registration else "kept as recorded" if not (du or dv) else "by the edges"
-    print(f"  colour camera  moved {du:+g}, {dv:+g} px: {found}")
+    scale, du, dv, tx = registration["move"]
+    found = "given" if "edge_strength" not in registration else "by the edges" if registration["move"] != [1, 0, 0, 0] else "kept"
+    print(f"  colour camera  focal x{scale:g}, principal point {du:+g}, {dv:+g} px, {tx:+g} m along x: {found}")
 
 
 def _write_charts(out_path: Path, **figures: Any) -> list[str]:
@@ -388,14 +388,15 @@ def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: i
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _add_colour_shift(parser: argparse.ArgumentParser) -> None:
+def _add_colour_move(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--colour-shift",
-        type=parse_numbers(2, "du,dv"),
+        "--colour-move",
+        type=parse_numbers(4, "scale,du,dv,tx"),
         default=None,
-        metavar="DU,DV",
-        help="move the colour camera's principal point by these pixels (default: where, within 20 px, the depth's edges "
-        "meet the colour's best, when 10 %% better than as recorded; 0,0: as recorded)",
+        metavar="SCALE,DU,DV,TX",
+        help="move the colour camera: its focal lengths times SCALE, its principal point by DU, DV pixels, the camera TX "
+        "metres along x (default: where the depth's edges meet the colour's best, when 10 %% better than as "
+        "recorded; 1,0,0,0: as recorded)",
     )
 
 
@@ -426,7 +427,7 @@ def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) ->
         help="7-Scenes: the colour camera's intrinsics (pixels, at the depth size) and the depth->colour translation "
         "(metres), when colour and depth are not registered (default: gt-boxes.json's estimate, else registered)",
     )
-    _add_colour_shift(parser)
+    _add_colour_move(parser)
     parser.add_argument(
         "--reference-min-score",
         type=float,
@@ -501,7 +502,7 @@ def add_eval_commands(subparsers: Any) -> Any:
         help="ground-truth boxes of one scene (the gt-boxes.json format, its world the scan frame of pose/) "
         "instead of the scene's annotation; boxes are fitted in its aligned frame",
     )
-    _add_colour_shift(scannet)
+    _add_colour_move(scannet)
     _add_common(scannet, DEFAULT_SCANNET_USERS, 10)
     scannet.set_defaults(handler=run_eval_scannet)
 

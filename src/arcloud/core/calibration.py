@@ -126,15 +126,17 @@ def agreeing_intrinsics(
     return best, best_gap
 
 
-def colour_edge_strength(frames: Sequence[Frame], shifts_px: Sequence[tuple[float, float]]) -> np.ndarray:
-    """(M,): for each of ``shifts_px`` (du, dv), moving every frame's colour camera (``Frame.rgb_intrinsics``, else
-    its depth intrinsics) by that many pixels, the mean colour gradient where the near sides of the frames' depth
-    edges land (the grey image's Sobel magnitude, smoothed over a pixel; see the module docstring). Higher is
-    better; nan where no edge lands in any colour image."""
+def colour_edge_strength(frames: Sequence[Frame], moves: Sequence[Sequence[float]]) -> np.ndarray:
+    """(M,): for each of ``moves`` (scale, du, dv, tx_m) of every frame's colour camera (``Frame.rgb_intrinsics``,
+    else its depth intrinsics, and ``Frame.depth2rgb``: its focal lengths times ``scale``, its principal point
+    moved by ``du``, ``dv`` pixels, the camera moved by ``tx_m`` metres along its x axis, as a baseline moves it),
+    the mean colour gradient where the near sides of the frames' depth edges land (the grey image's Sobel
+    magnitude, smoothed over a pixel; see the module docstring). Higher is better; nan where no edge lands in any
+    colour image."""
     from scipy import ndimage
 
-    moves = np.asarray(shifts_px, np.float64).reshape(-1, 2)
-    sums, counts = np.zeros(len(moves)), np.zeros(len(moves))
+    moves_array = np.asarray(moves, np.float64).reshape(-1, 4)
+    sums, counts = np.zeros(len(moves_array)), np.zeros(len(moves_array))
     for frame in frames:
         depth = frame.depth_m.astype(np.float64)
         nearest_far = ndimage.maximum_filter(depth, size=3)
@@ -149,9 +151,11 @@ def colour_edge_strength(frames: Sequence[Frame], shifts_px: Sequence[tuple[floa
         grey = frame.rgb.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
         gradient = ndimage.gaussian_filter(np.hypot(ndimage.sobel(grey, axis=1), ndimage.sobel(grey, axis=0)), 1.0)
         height, width = gradient.shape
-        x, y = colour.fx * points[:, 0] / points[:, 2] + colour.cx, colour.fy * points[:, 1] / points[:, 2] + colour.cy
-        for k, (du, dv) in enumerate(moves):
-            cu, cv = np.floor(x + du + 0.5), np.floor(y + dv + 0.5)
+        inverse_z = 1.0 / points[:, 2]
+        x, y = points[:, 0] * inverse_z, points[:, 1] * inverse_z
+        for k, (scale, du, dv, tx) in enumerate(moves_array):
+            cu = np.floor(colour.fx * scale * (x + tx * inverse_z) + colour.cx + du + 0.5)
+            cv = np.floor(colour.fy * scale * y + colour.cy + dv + 0.5)
             inside = (cu >= 0) & (cu < width) & (cv >= 0) & (cv < height)
             sums[k] += gradient[cv[inside].astype(np.intp), cu[inside].astype(np.intp)].sum()
             counts[k] += np.count_nonzero(inside)

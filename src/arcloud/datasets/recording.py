@@ -218,76 +218,123 @@ def check_intrinsics(recording: Recording) -> dict[str, Any]:
     return out
 
 
-#: ``register_colour``: the frames it reads, spread over the recording; the moves of the colour camera it tries
-#: (pixels, each way: every second pixel, then the pixels around the best); how much stronger the edges must agree
-#: at the best move for it to be taken. 16 px is the gap between the two principal points TUM publishes for its
-#: freiburg1 camera (its colour camera's calibration, and the values for its registered depth).
+#: ``register_colour``: the frames it reads, spread over the recording; how far it moves the colour camera (its focal
+#: lengths times 1 -+ ``REGISTRATION_SCALE``, its principal point up to ``REGISTRATION_SHIFT_PX`` each way, the
+#: camera up to ``REGISTRATION_BASELINE_M`` along its x axis); how much stronger the edges must agree at the best
+#: move for it to be taken. 16 px is the gap between the two principal points TUM publishes for its freiburg1
+#: camera; a Kinect v1's colour camera has a focal length about 10 % shorter than its depth camera's, 2.5-3.5 cm
+#: to the side (7-Scenes' unregistered frames).
 REGISTRATION_FRAMES = 40
+REGISTRATION_SCALE = 0.16
 REGISTRATION_SHIFT_PX = 20
+REGISTRATION_BASELINE_M = 0.06
 REGISTRATION_MARGIN = 0.1
+#: No move: the colour camera where the frames put it.
+STILL_COLOUR: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+
+def _grid(centre: Sequence[float], steps: Sequence[Sequence[float]]) -> list[tuple[float, float, float, float]]:
+    """Moves (scale, du, dv, tx_m) around ``centre``: each coordinate plus each of its ``steps``."""
+    import itertools
+
+    return [
+        (round(centre[0] + a, 4), round(centre[1] + b, 4), round(centre[2] + c, 4), round(centre[3] + d, 4))
+        for a, b, c, d in itertools.product(*steps)
+    ]
+
+
+def strongest_colour_move(frames: Sequence[Frame]) -> tuple[tuple[float, float, float, float], dict[str, Any]]:
+    """The move (scale, du, dv, tx_m) of the frames' colour camera at which their depth edges meet the colour's
+    best (``core.calibration.colour_edge_strength``), searched coarse to fine: focal length and principal point
+    (every 4 %, every 4 px), then the baseline with them (every centimetre), then the finest steps; and the
+    figures, as JSON. ``STILL_COLOUR`` when no edge lands in any colour image."""
+    import numpy as np
+
+    from arcloud.core.calibration import colour_edge_strength
+
+    def strongest(moves: list[tuple[float, float, float, float]]) -> tuple[tuple[float, float, float, float], float]:
+        strength = colour_edge_strength(frames, moves)
+        k = int(np.argmax(strength))
+        return moves[k], float(strength[k])
+
+    still = float(colour_edge_strength(frames, [STILL_COLOUR])[0])
+    if not np.isfinite(still):
+        return STILL_COLOUR, {"frames": len(frames), "edge_strength": None}
+    scales = np.arange(-REGISTRATION_SCALE, REGISTRATION_SCALE + 1e-9, 0.04).tolist()
+    shifts = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1, 4)
+    best, strength = strongest(_grid(STILL_COLOUR, [scales, shifts, shifts, [0.0]]))
+    baselines = np.arange(-REGISTRATION_BASELINE_M, REGISTRATION_BASELINE_M + 1e-9, 0.01).tolist()  # about the first stage's 0
+    best, strength = strongest(_grid(best, [[-0.02, 0.0, 0.02], range(-8, 9, 2), [-2, 0, 2], baselines]))
+    best, strength = strongest(_grid(best, [[-0.01, 0.0, 0.01], [-1, 0, 1], [-1, 0, 1], [-0.005, 0.0, 0.005]]))
+    return best, {
+        "frames": len(frames),
+        "edge_strength": round(still, 2),
+        "strongest_move": list(best),
+        "strongest_edge_strength": round(strength, 2),
+    }
 
 
 def register_colour(
     frame_names: Sequence[str],
     load_frame: Callable[[str], Frame],
-    shift_px: tuple[float, float] | None = None,
+    move: Sequence[float] | None = None,
     *,
     where: object = "",
 ) -> tuple[Callable[[str], Frame], dict[str, Any]]:
-    """``load_frame`` with the colour camera moved by ``shift_px`` (du, dv pixels: its principal point), or, when
-    None, by the move of up to ``REGISTRATION_SHIFT_PX`` each way (every second pixel, then the pixels around the
-    strongest) at which the near sides of the depth edges of up to ``REGISTRATION_FRAMES`` of ``frame_names`` land
-    on the strongest colour gradients (``core.calibration.colour_edge_strength``), when they are
-    ``REGISTRATION_MARGIN`` stronger there than where the frames put them and the move is not on the search's border
-    (a climb towards a border is no peak); and what was found, as JSON (logged as a
-    warning naming ``where`` when a move is taken). A mask is drawn on colour and looked up on depth, so a colour
-    camera a few pixels off moves every mask's border across its object's edge."""
+    """``load_frame`` with the colour camera moved by ``move`` (scale, du, dv, tx_m: its focal lengths times
+    scale, its principal point by du, dv pixels, the camera tx_m metres along its x axis), or, when None, by the
+    move at which the depth edges of up to ``REGISTRATION_FRAMES`` of ``frame_names`` meet their colour edges best
+    (``strongest_colour_move``), when they meet ``REGISTRATION_MARGIN`` more strongly there than where the frames
+    put the colour camera and the move is not on the search's border (a climb towards a border is no peak); and
+    what was found, as JSON (logged as a warning naming ``where`` when a move is taken). A mask is drawn on colour
+    and looked up on depth, so a colour camera a few pixels off moves every mask's border across its object's
+    edge."""
     import numpy as np
 
-    from arcloud.core.calibration import colour_edge_strength
-
     out: dict[str, Any] = {}
-    if shift_px is None:
+    if move is None:
         names = frame_names[:: max(1, -(-len(frame_names) // REGISTRATION_FRAMES))]
-        frames = [load_frame(name) for name in names]
-        reach = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1, 2)
-        moves = [(0.0, 0.0)] + [(float(du), float(dv)) for dv in reach for du in reach if du or dv]
-        strength = colour_edge_strength(frames, moves)
-        if not np.isfinite(strength).all():  # no depth edge lands in any colour image: nothing to tell
-            return load_frame, {"frames": len(names), "edge_strength": None, "shift_px": [0.0, 0.0]}
-        coarse = moves[int(np.argmax(strength))]
-        around = [(coarse[0] + du, coarse[1] + dv) for dv in (-1.0, 0.0, 1.0) for du in (-1.0, 0.0, 1.0) if du or dv]
-        moves += around
-        strength = np.concatenate([strength, colour_edge_strength(frames, around)])
-        best = int(np.argmax(strength))
-        # a peak, not the edge of the search: colour and depth that differ by more than a shift (another focal
-        # length, a baseline) make the strength climb a little towards some border, and that is no registration
-        inside = max(abs(moves[best][0]), abs(moves[best][1])) < REGISTRATION_SHIFT_PX
-        taken = bool(inside and strength[best] > (1 + REGISTRATION_MARGIN) * strength[0])
-        shift_px = moves[best] if taken else (0.0, 0.0)
-        out = {
-            "frames": len(names),
-            "edge_strength": round(float(strength[0]), 2),
-            "strongest_shift_px": list(moves[best]),
-            "strongest_edge_strength": round(float(strength[best]), 2),
-        }
+        strongest, out = strongest_colour_move([load_frame(name) for name in names])
+        scale, du, dv, tx = strongest
+        inside = (
+            abs(scale - 1.0) < REGISTRATION_SCALE - 1e-9
+            and max(abs(du), abs(dv)) < REGISTRATION_SHIFT_PX
+            and abs(tx) < REGISTRATION_BASELINE_M - 1e-9
+        )
+        taken = out["edge_strength"] is not None and inside
+        taken = taken and out["strongest_edge_strength"] > (1 + REGISTRATION_MARGIN) * out["edge_strength"]
+        move = strongest if taken else STILL_COLOUR
         if taken:
             logger.warning(
-                "%s: the depth's edges meet the colour's %.0f %% better with the colour camera moved by %+g, %+g px; "
-                "moving it (--colour-shift 0,0 keeps it)",
-                where, 100 * (strength[best] / strength[0] - 1), *shift_px,
+                "%s: the depth's edges meet the colour's %.0f %% better with the colour camera's focal lengths x%g, "
+                "its principal point moved by %+g, %+g px and the camera by %+g m along x; moving it "
+                "(--colour-move 1,0,0,0 keeps it)",
+                where, 100 * (out["strongest_edge_strength"] / out["edge_strength"] - 1), *move,
             )  # fmt: skip
-    du, dv = float(shift_px[0]), float(shift_px[1])
-    out["shift_px"] = [du, dv]
-    if not (du or dv):
+    scale, du, dv, tx = (float(v) for v in move)
+    out["move"] = [scale, du, dv, tx]
+    if (scale, du, dv, tx) == STILL_COLOUR:
         return load_frame, out
+    beside = np.eye(4)
+    beside[0, 3] = tx
 
     def moved(name: str) -> Frame:
         frame = load_frame(name)
         colour = frame.rgb_intrinsics or frame.intrinsics
-        return replace(frame, rgb_intrinsics=replace(colour, cx=colour.cx + du, cy=colour.cy + dv))
+        depth2rgb = beside if frame.depth2rgb is None else beside @ frame.depth2rgb
+        camera = replace(colour, fx=colour.fx * scale, fy=colour.fy * scale, cx=colour.cx + du, cy=colour.cy + dv)
+        return replace(frame, rgb_intrinsics=camera, depth2rgb=depth2rgb if tx else frame.depth2rgb)
 
     return moved, out
 
 
-__all__ = ["CHECK_FRAMES", "LAYOUTS", "Recording", "check_intrinsics", "detect_layout", "load_recording", "register_colour"]
+__all__ = [
+    "CHECK_FRAMES",
+    "LAYOUTS",
+    "Recording",
+    "check_intrinsics",
+    "detect_layout",
+    "load_recording",
+    "register_colour",
+    "strongest_colour_move",
+]
