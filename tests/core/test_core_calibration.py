@@ -133,3 +133,11 @@ def test_another_focal_length_and_a_baseline_are_told_apart_from_a_shift() -> No
     strength = colour_edge_strength(frames, moves)
     assert moves[int(np.argmax(strength))] == (0.9, 0, 0.0, -0.035)
     assert strength.max() > 1.5 * strength[moves.index((1.0, 0, 0.0, 0.0))]
+
+
+def test_a_depth_image_of_another_size_is_compared_within_its_own_bounds(room_renders: list[np.ndarray]) -> None:
+    poses = turning_poses()
+    pairs = view_pairs(poses)
+    odd = list(room_renders)
+    odd[pairs[0][1]] = np.zeros((48, 64), np.float32)  # a stray small image, as a recording may hold by mistake
+    assert np.isfinite(depth_disagreement(odd, poses, INTRINSICS, pairs))

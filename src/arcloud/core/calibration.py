@@ -91,6 +91,7 @@ def depth_disagreement(
         seen = seen[seen[:, 2] > DEPTH_RANGE_M[0]]
         uj = np.floor(fx * seen[:, 0] / seen[:, 2] + cx + 0.5)
         vj = np.floor(fy * seen[:, 1] / seen[:, 2] + cy + 0.5)
+        height, width = second.shape  # the second image's own size (a recording may hold another by mistake)
         inside = (uj >= 0) & (uj < width) & (vj >= 0) & (vj < height)
         measured = second[vj[inside].astype(np.intp), uj[inside].astype(np.intp)].astype(np.float64)
         landed = measured > 0
