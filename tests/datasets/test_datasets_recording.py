@@ -215,3 +215,20 @@ def test_a_colour_camera_a_few_pixels_off_is_found_by_the_edges_and_moved(
 
     kept, found = register_colour(as_made.frame_names, blind)
     assert kept is blind and found == {"frames": 12, "edge_strength": None, "move": [1.0, 0.0, 0.0, 0.0]}
+
+
+@pytest.mark.shared
+def test_a_real_kinect_recording_read_as_registered_with_its_clock_and_depth_off_is_put_right(
+    shared: type, tmp_path: Path
+) -> None:
+    # 7-Scenes' real frames as a TUM recording: no colour camera (a Kinect v1's: focal x0.90 of the depth's, 3.5 cm
+    # aside, gt-boxes.json's estimate), the trajectory's clock 20 ms ahead, the depth written 3 % long
+    seven = shared.path("data/7scenes-redkitchen/gt-boxes.json").parent
+    root = build_tum_from_seven_scenes(seven, tmp_path / "kitchen", list(range(0, 1000, 60)), trajectory_frames=list(range(1000)),
+                                       pose_clock_s=0.02, depth_scale=1.03)  # fmt: skip
+    recording = load_recording(root, estimate_up=False)
+    assert recording.facts["pose_time_offset_s"] == pytest.approx(0.02)
+    assert recording.facts["depth_factor"] == pytest.approx(5000 * 1.03, rel=0.012)
+    _, found = register_colour(recording.frame_names, recording.load_frame)
+    scale, du, dv, tx = found["move"]
+    assert abs(scale - 0.9) <= 0.02 and abs(tx + 0.035) <= 0.01 and max(abs(du), abs(dv)) <= 6
