@@ -112,12 +112,21 @@ def cast_boxes(
     floor_z: float | None = 0.0,
     intrinsics: Intrinsics = INTRINSICS,
     shape: tuple[int, int] = (HEIGHT, WIDTH),
+    distortion: tuple[float, ...] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth (H, W) float32 and instance (H, W) int (-1: floor or nothing, i: ``boxes[i]``) of a world
     of axis-aligned boxes (min, max) standing on a floor plane z = ``floor_z`` (None: no floor), seen by
-    a pinhole camera of ``shape`` (H, W) pixels: exact ray casting, slab method."""
+    a pinhole camera of ``shape`` (H, W) pixels, through a lens with ``distortion`` (OpenCV's k1, k2, p1, p2, k3)
+    when given: exact ray casting, slab method."""
     v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
     rays_cam = np.stack(((u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones_like(u)), -1)
+    if distortion is not None:  # the ray each pixel of the bent image sees
+        import cv2
+
+        matrix = np.array([[intrinsics.fx, 0, intrinsics.cx], [0, intrinsics.fy, intrinsics.cy], [0, 0, 1]])
+        pixels = np.stack((u, v), -1).reshape(-1, 1, 2)
+        straight = cv2.undistortPoints(pixels, matrix, np.asarray(distortion, float)).reshape(shape[0], shape[1], 2)
+        rays_cam = np.concatenate((straight, np.ones_like(u)[..., None]), -1)
     rays = rays_cam @ cam2world[:3, :3].T  # world directions with camera z = 1
     origin = cam2world[:3, 3]
     t_best = np.full(shape, np.inf)

@@ -253,12 +253,13 @@ def write_room_tum(
     *,
     colour_delay_s: float = 0.0,
     colour_shift_px: tuple[float, float] = (0.0, 0.0),
+    distortion: tuple[float, ...] | None = None,
 ) -> Path:
     """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of ``BOX_ROOM`` made with ``intrinsics``
     along ``turning_poses`` at 30 frames a second, depth in TUM's units; each colour image taken ``colour_delay_s``
     after its depth image (the trajectory holds the poses at both times) by a camera whose principal point lies
     ``colour_shift_px`` from the depth camera's, black but for ``BOX_ROOM``'s table, painted (255, 0, 0) where the
-    camera saw it then."""
+    camera saw it then. ``distortion``: both images taken through that lens (registered pixel for pixel, as TUM's)."""
     from handmade_frames import BOX_ROOM, cast_boxes, turning_pose
     from scipy.spatial.transform import Rotation
 
@@ -272,17 +273,14 @@ def write_room_tum(
     for i in range(n_frames):
         t, t_colour = f"{100.0 + i / 30:.6f}", f"{100.0 + i / 30 + colour_delay_s:.6f}"
         pose, colour_pose = turning_pose(i), turning_pose(i + colour_delay_s * 30)
-        depth_m = cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640))[0]
+        depth_m = cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640), distortion=distortion)[0]
         cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
         colour = np.zeros((480, 640, 3), np.uint8)
         colour_camera = Intrinsics(
             intrinsics.fx, intrinsics.fy, intrinsics.cx + colour_shift_px[0], intrinsics.cy + colour_shift_px[1]
         )
-        colour[cast_boxes(colour_pose, BOX_ROOM, intrinsics=colour_camera, shape=(480, 640))[1] == TABLE_IN_BOX_ROOM] = (
-            0,
-            0,
-            255,
-        )
+        seen = cast_boxes(colour_pose, BOX_ROOM, intrinsics=colour_camera, shape=(480, 640), distortion=distortion)[1]
+        colour[seen == TABLE_IN_BOX_ROOM] = (0, 0, 255)
         cv2.imwrite(str(root / "rgb" / f"{t_colour}.png"), colour)  # BGR
         lines["rgb"].append(f"{t_colour} rgb/{t_colour}.png")
         lines["depth"].append(f"{t} depth/{t}.png")

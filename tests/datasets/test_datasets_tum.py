@@ -23,8 +23,16 @@ from scipy.spatial.transform import Rotation
 
 from arcloud.core.types import Detection, Intrinsics, Params
 from arcloud.core.voxels import voxelize_detections
+from arcloud.datasets.files import read_png_u16
 from arcloud.datasets.sevenscenes import load_seven_scenes
-from arcloud.datasets.tum import GENERIC_INTRINSICS, PUBLISHED_INTRINSICS, associate, interpolate_poses, load_tum
+from arcloud.datasets.tum import (
+    GENERIC_INTRINSICS,
+    PUBLISHED_DISTORTION,
+    PUBLISHED_INTRINSICS,
+    associate,
+    interpolate_poses,
+    load_tum,
+)
 from arcloud.errors import DatasetError
 
 SEVEN_SCENES = "data/7scenes-redkitchen"
@@ -276,12 +284,29 @@ def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
     )
     assert generic.intrinsics_source.startswith("generic 525, 525, 319.5, 239.5, not TUM freiburg1 (by the folder's name)")
     assert kept.depth_factor == generic.depth_factor == 5000.0  # exact renders: the intrinsics, not the depth's scale
+    assert kept.distortion is None and generic.distortion is None  # pinhole renders: no lens to undo
     # a file or --intrinsics is taken as it is, unchecked
     (tmp_path / "freiburg1_desk" / "intrinsics.txt").write_text("517.3 516.5 318.6 255.3\n")
-    assert load_tum(tmp_path / "freiburg1_desk", estimate_up=False).intrinsics == calibrated
+    from_file = load_tum(tmp_path / "freiburg1_desk", estimate_up=False)
+    # ... and its depth's scale is not bent to make up for intrinsics 16 px off (that least lies at the scales' end)
+    assert from_file.intrinsics == calibrated and from_file.depth_factor == 5000.0
     # frames that do not turn give nothing to check on: the name's, said so
     tiny = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg1_xyz"), estimate_up=False)
     assert tiny.intrinsics == calibrated and "no frames seen from places turned apart" in tiny.intrinsics_source
+
+
+def test_a_lens_that_bends_both_images_is_undone_when_the_depth_agrees(tmp_path: Path) -> None:
+    calibrated, lens = PUBLISHED_INTRINSICS["freiburg1"], PUBLISHED_DISTORTION["freiburg1"]
+    bent = load_tum(write_room_tum(tmp_path / "rgbd_dataset_freiburg1_room", calibrated, 12, distortion=lens), estimate_up=False)
+    assert bent.distortion == lens and bent.intrinsics == calibrated
+    assert "with its lens distortion" in bent.intrinsics_source and bent.depth_factor == 5000.0
+    # its frames are the pinhole images: depth as a straight camera sees it, but at the image's outer pixels
+    frame = bent.load_frame(bent.frame_names[8])
+    straight = cast_boxes(frame.cam2world, BOX_ROOM, intrinsics=calibrated, shape=(480, 640))[0]
+    both = (frame.depth_m > 0) & (straight > 0)
+    assert both.mean() > 0.8 and np.mean(np.abs(frame.depth_m[both] - straight[both]) < 0.005) > 0.98
+    as_read = read_png_u16(bent.depth_paths[8]) / 5000.0
+    assert np.mean(np.abs(as_read[both] - straight[both]) < 0.005) < 0.5  # what the lens did
 
 
 @pytest.mark.parametrize(

@@ -39,6 +39,7 @@ world the frame of ``groundtruth.txt``.
 
 from __future__ import annotations
 
+import functools
 import logging
 import re
 from collections.abc import Sequence
@@ -73,6 +74,12 @@ PUBLISHED_INTRINSICS = {
     "freiburg3": Intrinsics(535.4, 539.2, 320.1, 247.6),
 }
 GENERIC_INTRINSICS = Intrinsics(525.0, 525.0, 319.5, 239.5)
+#: TUM's published lens distortion of its colour cameras (OpenCV's k1, k2, p1, p2, k3) by camera; freiburg3's images
+#: are published undistorted.
+PUBLISHED_DISTORTION = {
+    "freiburg1": (0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+    "freiburg2": (0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
+}
 #: A camera whose motion between a frame's two images moves no entry of the transform by more than this (a
 #: micrometre, a microradian: a thousandth of a pixel) did not move: the frame is registered pixel for pixel.
 STILL = 1e-6
@@ -102,7 +109,9 @@ class TumSequence(GravityAlignedSequence):
     world2file: (4, 4) maps output-world points to the pose frame (identity unless gravity-aligned).
     ground_truth: ``gt-boxes.json`` parsed (the folder's, or the one given), or None.
     depth2rgb: (N, 4, 4) each frame's camera motion from its depth image to its colour image (identity: none known).
-    ``pose_time_offset_s``, ``depth_factor`` and ``intrinsics`` come with a ``*_source`` saying what decided them."""
+    ``pose_time_offset_s``, ``depth_factor`` and ``intrinsics`` come with a ``*_source`` saying what decided them.
+    distortion: the lens distortion (OpenCV's k1, k2, p1, p2, k3) of both images, which ``load_frame`` undoes
+    (``undistort``) so that frames are pinhole images with ``intrinsics``; None: they are already."""
 
     name: str
     root: Path
@@ -124,6 +133,7 @@ class TumSequence(GravityAlignedSequence):
     pose_time_offset_s: float = 0.0
     pose_time_offset_source: str = "given"
     depth_factor_source: str = "given"
+    distortion: tuple[float, ...] | None = None
 
     def colour_turn_deg(self) -> dict[str, float]:
         """How far the camera turned between a frame's depth and colour images (median and largest, degrees):
@@ -141,6 +151,8 @@ class TumSequence(GravityAlignedSequence):
         index = self._index[name]
         depth = read_png_u16(self.depth_paths[index])
         rgb = read_rgb(self.rgb_paths[index], (depth.shape[1], depth.shape[0]))
+        if self.distortion is not None:
+            depth, rgb = undistort(depth, self.intrinsics, self.distortion), undistort(rgb, self.intrinsics, self.distortion)
         moved = None if self.depth2rgb is None else self.depth2rgb[index]
         return make_frame(
             rgb,
@@ -333,6 +345,28 @@ def choose_intrinsics(root: Path, given: Intrinsics | None = None) -> tuple[Intr
     return GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"
 
 
+def undistort(image: np.ndarray, intrinsics: Intrinsics, distortion: Sequence[float]) -> np.ndarray:
+    """The pinhole image with ``intrinsics`` of an ``image`` (H, W) or (H, W, 3) taken through a lens with
+    ``distortion`` (OpenCV's k1, k2, p1, p2, k3) and the same intrinsics: depth and labels by the nearest pixel
+    (never a depth between two surfaces), colour bilinearly."""
+    import cv2
+
+    height, width = image.shape[:2]
+    x_map, y_map = _undistortion_maps(intrinsics, tuple(distortion), width, height)
+    nearest = image.ndim == 2 or image.dtype != np.uint8
+    return cv2.remap(image, x_map, y_map, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR)
+
+
+@functools.lru_cache(maxsize=4)
+def _undistortion_maps(
+    intrinsics: Intrinsics, distortion: tuple[float, ...], width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
+    import cv2
+
+    matrix = np.array([[intrinsics.fx, 0, intrinsics.cx], [0, intrinsics.fy, intrinsics.cy], [0, 0, 1]], np.float64)
+    return cv2.initUndistortRectifyMap(matrix, np.asarray(distortion, np.float64), None, matrix, (width, height), cv2.CV_32FC1)
+
+
 def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[float]) -> TumSequence:
     """The sequence with the intrinsics and depth factor its depth and poses agree with best (``core.calibration``;
     up to ``CHECK_FRAMES`` depth images), when they disagree with them by ``CHECK_MARGIN`` less than with its own
@@ -342,24 +376,39 @@ def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[floa
     by 16 px in cy on freiburg1, which turns every frame's rays by 1.8 degrees); and its depth scaled by each of
     ``scales`` (depth a few per cent long puts what two frames seen from places apart measured of one surface
     centimetres apart). Together, since each stands in for the other a little: 7-Scenes' depth 3 % short agrees
-    better with a focal length 1.5 % short than with its own at the depth's own scale."""
-    cameras = [(sequence.intrinsics, sequence.intrinsics_source)]
+    better with a focal length 1.5 % short than with its own at the depth's own scale. When ``named`` and TUM
+    publishes the camera's lens distortion (``PUBLISHED_DISTORTION``), its intrinsics with the distortion undone
+    are tried too (TUM registers depth to colour pixel for pixel, so a lens that bends the colour image may bend
+    the depth image alike)."""
+    cameras: list[tuple[Intrinsics, str, tuple[float, ...] | None]] = [(sequence.intrinsics, sequence.intrinsics_source, None)]
     if named:
-        cameras.append((GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"))
+        cameras.append((GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5", None))
+        named_camera = _CAMERA_IN_NAME.match(sequence.root.name)
+        published: tuple[float, ...] | None = PUBLISHED_DISTORTION.get(named_camera.group(1)) if named_camera else None
+        if published is not None:
+            cameras.append((sequence.intrinsics, f"{sequence.intrinsics_source} with its lens distortion {published}", published))
     picked = list(range(0, sequence.n_frames, max(1, -(-sequence.n_frames // CHECK_FRAMES))))
     cam2world = sequence.cam2world[picked]
     pairs = view_pairs(cam2world)
     if not pairs or (len(cameras) == 1 and list(scales) == [1.0]):
         unchecked = "; no frames seen from places turned apart to check it on" if not pairs else ""
         return replace(sequence, intrinsics_source=sequence.intrinsics_source + unchecked)
-    raw = [read_png_u16(sequence.depth_paths[i]).astype(np.float32) / sequence.depth_factor for i in picked]
-    gaps = {
-        (k, scale): depth_disagreement([d * scale for d in raw] if scale != 1.0 else raw, cam2world, camera, pairs)
-        for k, (camera, _) in enumerate(cameras)
-        for scale in scales
-    }
+    images = [read_png_u16(sequence.depth_paths[i]) for i in picked]
+    gaps = {}
+    for k, (camera, _, lens) in enumerate(cameras):
+        raw = [(undistort(d, camera, lens) if lens else d).astype(np.float32) / sequence.depth_factor for d in images]
+        for scale in scales:
+            gaps[(k, scale)] = depth_disagreement([d * scale for d in raw] if scale != 1.0 else raw, cam2world, camera, pairs)
     own = gaps[(0, 1.0)]
-    best = min(gaps, key=lambda key: (gaps[key], key[0], abs(key[1] - 1.0)))
+
+    def least(keys: list[tuple[int, float]]) -> tuple[int, float]:
+        return min(keys, key=lambda key: (gaps[key], key[0], abs(key[1] - 1.0)))
+
+    best = least(list(gaps))
+    if len(scales) > 1 and best[1] in (min(scales), max(scales)):
+        # the least at the end of the scales is a climb, not a minimum: intrinsics a little off (a file's) pull the
+        # depth's scale to whichever end shrinks their error; decide the intrinsics at the depth's own scale
+        best = least([key for key in gaps if key[1] == 1.0])
     if gaps[best] >= (1 - CHECK_MARGIN) * own:
         best = (0, 1.0)
     (k, scale), nominal = best, sequence.depth_factor
@@ -371,6 +420,7 @@ def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[floa
         sequence,
         intrinsics=cameras[k][0],
         intrinsics_source=f"{intrinsics_source}: {figures}",
+        distortion=cameras[k][2],
         depth_factor=nominal / scale,
         depth_factor_source=f"{nominal / scale:.6g}"
         + (f" (the depth x{scale:.2f})" if scale != 1.0 else "")
@@ -498,7 +548,8 @@ def pose_time_offset_by_depth(
     """The pose time offset (seconds) and what decided it: the one of ``POSE_TIME_OFFSETS_S`` at which up to
     ``CHECK_FRAMES`` depth images (taken at ``times_s``, of ``depth_paths``) agree best with the poses of
     ``trajectory`` (times, positions, quaternions xyzw) there (``core.calibration``), when they disagree with it
-    by ``CHECK_MARGIN`` less than with none; else 0. Frames without a pose at some offset are left out."""
+    by ``CHECK_MARGIN`` less than with none and it is not at an end of them; else 0. Frames without a pose at some
+    offset are left out."""
     picked = np.arange(0, len(times_s), max(1, -(-len(times_s) // CHECK_FRAMES)))
     tried = [interpolate_poses(*trajectory, times_s[picked] + offset) for offset in POSE_TIME_OFFSETS_S]
     always = np.logical_and.reduce([posed for _, posed in tried])
@@ -510,7 +561,8 @@ def pose_time_offset_by_depth(
     gaps = {offset: depth_disagreement(depths, cam2world, intrinsics, pairs) for offset, cam2world in poses.items()}
     best = min(gaps, key=lambda offset: (gaps[offset], abs(offset)))
     figures = f"the depth and poses disagree by {gaps[best] * 1000:.1f} mm at {best:+.3f} s, {gaps[0.0] * 1000:.1f} mm at 0"
-    if best != 0.0 and gaps[best] < (1 - CHECK_MARGIN) * gaps[0.0]:
+    inside = min(POSE_TIME_OFFSETS_S) < best < max(POSE_TIME_OFFSETS_S)  # a least at an end is a climb, not a minimum
+    if best != 0.0 and inside and gaps[best] < (1 - CHECK_MARGIN) * gaps[0.0]:
         logger.warning("pose time offset: %s; using %+.3f s", figures, best)
         return best, f"{best:+.3f} s by the depth: {figures}"
     return 0.0, f"0 s by the depth: {figures}"
@@ -523,6 +575,7 @@ __all__ = [
     "MAX_POSE_GAP_S",
     "MAX_RGB_DEPTH_DIFFERENCE_S",
     "POSE_TIME_OFFSETS_S",
+    "PUBLISHED_DISTORTION",
     "PUBLISHED_INTRINSICS",
     "TumSequence",
     "associate",
@@ -533,4 +586,5 @@ __all__ = [
     "load_tum",
     "pose_time_offset_by_depth",
     "read_intrinsics_file",
+    "undistort",
 ]
