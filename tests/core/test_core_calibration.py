@@ -17,6 +17,7 @@ from arcloud.core.calibration import (
     agreeing_intrinsics,
     colour_edge_strength,
     depth_disagreement,
+    stepped_pairs,
     view_pairs,
 )
 from arcloud.core.checks import make_frame
@@ -46,6 +47,9 @@ def test_pairs_are_turned_apart_near_each_other_and_drawn_the_same_each_time() -
     assert {(0, 1), (0, 2)} <= set(pairs) and (0, 3) not in pairs  # 12, 24 degrees apart; 36 is too many
     sideways = turning_poses(step_deg=0.0, pitching=False)  # frames that only step tell little: no pairs
     assert view_pairs(sideways) == []
+    stepped = stepped_pairs(sideways)  # ... but a depth's scale: pairs stepped 0.2-1 m apart
+    assert stepped and all(0.2 <= np.linalg.norm(sideways[i, :3, 3] - sideways[j, :3, 3]) <= 1.0 for i, j in stepped)
+    assert stepped_pairs(turning_poses()) == []  # every neighbour far enough away has turned
     many = view_pairs(turning_poses(n=60, step_deg=3.0))
     assert len(many) == MAX_PAIRS and many == sorted(many)
 

@@ -254,12 +254,16 @@ def write_room_tum(
     colour_delay_s: float = 0.0,
     colour_shift_px: tuple[float, float] = (0.0, 0.0),
     distortion: tuple[float, ...] | None = None,
+    turn_deg: float = 12.0,
+    depth_scale: float = 1.0,
 ) -> Path:
     """A 640 x 480 recording of exact renders (``handmade_frames.cast_boxes``) of ``BOX_ROOM`` made with ``intrinsics``
     along ``turning_poses`` at 30 frames a second, depth in TUM's units; each colour image taken ``colour_delay_s``
     after its depth image (the trajectory holds the poses at both times) by a camera whose principal point lies
     ``colour_shift_px`` from the depth camera's, black but for ``BOX_ROOM``'s table, painted (255, 0, 0) where the
-    camera saw it then. ``distortion``: both images taken through that lens (registered pixel for pixel, as TUM's)."""
+    camera saw it then. ``distortion``: both images taken through that lens (registered pixel for pixel, as TUM's).
+    ``turn_deg``: the camera turns that much a frame (0: it steps sideways, level); ``depth_scale``: the depth
+    written that much long."""
     from handmade_frames import BOX_ROOM, cast_boxes, turning_pose
     from scipy.spatial.transform import Rotation
 
@@ -272,9 +276,10 @@ def write_room_tum(
 
     for i in range(n_frames):
         t, t_colour = f"{100.0 + i / 30:.6f}", f"{100.0 + i / 30 + colour_delay_s:.6f}"
-        pose, colour_pose = turning_pose(i), turning_pose(i + colour_delay_s * 30)
+        moving = {"step_deg": turn_deg, "pitching": turn_deg != 0}
+        pose, colour_pose = turning_pose(i, **moving), turning_pose(i + colour_delay_s * 30, **moving)
         depth_m = cast_boxes(pose, BOX_ROOM, intrinsics=intrinsics, shape=(480, 640), distortion=distortion)[0]
-        cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000).astype(np.uint16))
+        cv2.imwrite(str(root / "depth" / f"{t}.png"), np.round(depth_m * 5000 * depth_scale).astype(np.uint16))
         colour = np.zeros((480, 640, 3), np.uint8)
         colour_camera = Intrinsics(
             intrinsics.fx, intrinsics.fy, intrinsics.cx + colour_shift_px[0], intrinsics.cy + colour_shift_px[1]

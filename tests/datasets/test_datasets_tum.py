@@ -292,7 +292,14 @@ def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
     assert from_file.intrinsics == calibrated and from_file.depth_factor == 5000.0
     # frames that do not turn give nothing to check on: the name's, said so
     tiny = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg1_xyz"), estimate_up=False)
-    assert tiny.intrinsics == calibrated and "no frames seen from places turned apart" in tiny.intrinsics_source
+    assert tiny.intrinsics == calibrated and "no frames seen from places turned or stepped apart" in tiny.intrinsics_source
+
+
+def test_a_path_that_steps_without_turning_still_tells_the_depths_scale(tmp_path: Path) -> None:
+    made = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    stepping = write_room_tum(tmp_path / "sideways", made, 12, turn_deg=0.0, depth_scale=1.04)  # 5 cm a frame, level
+    read = load_tum(stepping, intrinsics=made, estimate_up=False, pose_time_offset_s=0.0)
+    assert read.depth_factor == pytest.approx(5000 * 1.04, rel=0.011) and "by the depth" in read.depth_factor_source
 
 
 def test_a_lens_that_bends_both_images_is_undone_when_the_depth_agrees(tmp_path: Path) -> None:

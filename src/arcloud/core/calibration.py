@@ -32,6 +32,8 @@ MAX_PAIRS = 40
 #: A pair's frames are turned apart by this much (degrees), and stand at most ``PAIR_MAX_APART_M`` apart.
 PAIR_TURN_DEG = (8.0, 35.0)
 PAIR_MAX_APART_M = 1.0
+#: ``stepped_pairs``: frames turned less than ``PAIR_TURN_DEG[0]`` apart that stand this far apart (metres).
+STEP_APART_M = (0.2, 1.0)
 #: Depth samples drawn from the first frame of a pair.
 SAMPLES_PER_PAIR = 3000
 #: A sample's gap counts up to this (metres).
@@ -63,6 +65,27 @@ def view_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> lis
         return candidates
     chosen = np.random.default_rng(seed).choice(len(candidates), MAX_PAIRS, replace=False)
     return [candidates[k] for k in sorted(chosen)]
+
+
+def stepped_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> list[tuple[int, int]]:
+    """Up to ``MAX_PAIRS`` pairs (i, i < j < i + ``window``) of poses (N, 4, 4) that turned less than
+    ``PAIR_TURN_DEG[0]`` apart and stand ``STEP_APART_M`` apart, drawn with a seeded generator: what a path that
+    steps without turning offers. They tell a depth's scale and a trajectory's clock (both move what two frames
+    measured of one surface by the step), and intrinsics only weakly (by the step times the rays' error)."""
+    rotations, origins = cam2world[:, :3, :3], cam2world[:, :3, 3]
+    low = np.cos(np.radians(PAIR_TURN_DEG[0]))
+    candidates: list[tuple[int, int]] = []
+    for i in range(len(cam2world) - 1):
+        later = np.arange(i + 1, min(len(cam2world), i + window))
+        relative = np.einsum("ji,njk->nik", rotations[i], rotations[later])
+        cos_turn = (np.trace(relative, axis1=1, axis2=2) - 1) / 2
+        apart = np.linalg.norm(origins[later] - origins[i], axis=1)
+        chosen = (cos_turn > low) & (apart >= STEP_APART_M[0]) & (apart <= STEP_APART_M[1])
+        candidates.extend((i, int(j)) for j in later[chosen])
+    if len(candidates) <= MAX_PAIRS:
+        return candidates
+    picked = np.random.default_rng(seed).choice(len(candidates), MAX_PAIRS, replace=False)
+    return [candidates[k] for k in sorted(picked)]
 
 
 def depth_disagreement(
@@ -172,8 +195,10 @@ __all__ = [
     "FIT_SHIFTS",
     "MAX_PAIRS",
     "PAIR_TURN_DEG",
+    "STEP_APART_M",
     "agreeing_intrinsics",
     "colour_edge_strength",
     "depth_disagreement",
+    "stepped_pairs",
     "view_pairs",
 ]

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arcloud.core.calibration import depth_disagreement, view_pairs
+from arcloud.core.calibration import MAX_PAIRS, depth_disagreement, stepped_pairs, view_pairs
 from arcloud.core.checks import make_frame
 from arcloud.core.types import Frame, Intrinsics
 from arcloud.datasets.files import map_id_of, read_png_u16, read_rgb
@@ -345,6 +345,16 @@ def choose_intrinsics(root: Path, given: Intrinsics | None = None) -> tuple[Intr
     return GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"
 
 
+def check_pairs(cam2world: np.ndarray) -> list[tuple[int, int]]:
+    """The pairs of frames the depth checks compare: frames turned apart (``core.calibration.view_pairs``), and
+    when those are fewer than a quarter of ``MAX_PAIRS`` (a path that steps more than it turns), frames stepped
+    apart besides (``stepped_pairs``), which tell the depth's scale and the clock."""
+    pairs = view_pairs(cam2world)
+    if len(pairs) < MAX_PAIRS // 4:
+        pairs = sorted(set(pairs) | set(stepped_pairs(cam2world)[: MAX_PAIRS - len(pairs)]))
+    return pairs
+
+
 def undistort(image: np.ndarray, intrinsics: Intrinsics, distortion: Sequence[float]) -> np.ndarray:
     """The pinhole image with ``intrinsics`` of an ``image`` (H, W) or (H, W, 3) taken through a lens with
     ``distortion`` (OpenCV's k1, k2, p1, p2, k3) and the same intrinsics: depth and labels by the nearest pixel
@@ -389,9 +399,9 @@ def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[floa
             cameras.append((sequence.intrinsics, f"{sequence.intrinsics_source} with its lens distortion {published}", published))
     picked = list(range(0, sequence.n_frames, max(1, -(-sequence.n_frames // CHECK_FRAMES))))
     cam2world = sequence.cam2world[picked]
-    pairs = view_pairs(cam2world)
+    pairs = check_pairs(cam2world)
     if not pairs or (len(cameras) == 1 and list(scales) == [1.0]):
-        unchecked = "; no frames seen from places turned apart to check it on" if not pairs else ""
+        unchecked = "; no frames seen from places turned or stepped apart to check it on" if not pairs else ""
         return replace(sequence, intrinsics_source=sequence.intrinsics_source + unchecked)
     images = [read_png_u16(sequence.depth_paths[i]) for i in picked]
     gaps = {}
@@ -554,9 +564,9 @@ def pose_time_offset_by_depth(
     tried = [interpolate_poses(*trajectory, times_s[picked] + offset) for offset in POSE_TIME_OFFSETS_S]
     always = np.logical_and.reduce([posed for _, posed in tried])
     poses = {offset: cam2world[always] for offset, (cam2world, _) in zip(POSE_TIME_OFFSETS_S, tried, strict=True)}
-    pairs = view_pairs(poses[0.0])
+    pairs = check_pairs(poses[0.0])
     if not pairs:
-        return 0.0, "0 s: no frames with poses seen from places turned apart to check it on"
+        return 0.0, "0 s: no frames with poses seen from places turned or stepped apart to check it on"
     depths = [read_png_u16(depth_paths[i]).astype(np.float32) / depth_factor for i in picked[always]]
     gaps = {offset: depth_disagreement(depths, cam2world, intrinsics, pairs) for offset, cam2world in poses.items()}
     best = min(gaps, key=lambda offset: (gaps[offset], abs(offset)))
@@ -580,6 +590,7 @@ __all__ = [
     "TumSequence",
     "associate",
     "camera_by_depth",
+    "check_pairs",
     "choose_intrinsics",
     "interpolate_poses",
     "is_tum_recording",
