@@ -20,7 +20,7 @@ gradients when the two cameras are where the frames say.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -52,40 +52,38 @@ EDGE_JUMP_M, EDGE_JUMP_SHARE = 0.05, 0.03
 def view_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> list[tuple[int, int]]:
     """Up to ``MAX_PAIRS`` pairs (i, j), i < j < i + ``window``, of poses (N, 4, 4) turned apart by
     ``PAIR_TURN_DEG`` and standing within ``PAIR_MAX_APART_M``, drawn with a seeded generator."""
-    rotations, origins = cam2world[:, :3, :3], cam2world[:, :3, 3]
     low, high = np.cos(np.radians(PAIR_TURN_DEG[1])), np.cos(np.radians(PAIR_TURN_DEG[0]))
+    return _pairs(cam2world, lambda cos_turn, apart: (cos_turn >= low) & (cos_turn <= high) & (apart <= PAIR_MAX_APART_M),
+                  window=window, seed=seed)  # fmt: skip
+
+
+def stepped_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> list[tuple[int, int]]:
+    """As ``view_pairs``, pairs of poses that turned less than ``PAIR_TURN_DEG[0]`` apart and stand
+    ``STEP_APART_M`` apart: what a path that steps without turning offers. They tell a depth's scale and a
+    trajectory's clock (both move what two frames measured of one surface by the step), and intrinsics only
+    weakly (by the step times the rays' error)."""
+    low = np.cos(np.radians(PAIR_TURN_DEG[0]))
+    return _pairs(cam2world, lambda cos_turn, apart: (cos_turn > low) & (apart >= STEP_APART_M[0]) & (apart <= STEP_APART_M[1]),
+                  window=window, seed=seed)  # fmt: skip
+
+
+def _pairs(
+    cam2world: np.ndarray, keep: Callable[[np.ndarray, np.ndarray], np.ndarray], *, window: int, seed: int
+) -> list[tuple[int, int]]:
+    """Up to ``MAX_PAIRS`` pairs (i, j), i < j < i + ``window``, that ``keep(cos_turn, apart_m)`` keeps (the
+    cosine of the turn between the two poses, the distance between them), drawn with a seeded generator."""
+    rotations, origins = cam2world[:, :3, :3], cam2world[:, :3, 3]
     candidates: list[tuple[int, int]] = []
     for i in range(len(cam2world) - 1):
         later = np.arange(i + 1, min(len(cam2world), i + window))
         relative = np.einsum("ji,njk->nik", rotations[i], rotations[later])  # R_i^T R_j
         cos_turn = (np.trace(relative, axis1=1, axis2=2) - 1) / 2
-        near = np.linalg.norm(origins[later] - origins[i], axis=1) <= PAIR_MAX_APART_M
-        candidates.extend((i, int(j)) for j in later[(cos_turn >= low) & (cos_turn <= high) & near])
+        apart = np.linalg.norm(origins[later] - origins[i], axis=1)
+        candidates.extend((i, int(j)) for j in later[keep(cos_turn, apart)])
     if len(candidates) <= MAX_PAIRS:
         return candidates
     chosen = np.random.default_rng(seed).choice(len(candidates), MAX_PAIRS, replace=False)
     return [candidates[k] for k in sorted(chosen)]
-
-
-def stepped_pairs(cam2world: np.ndarray, *, window: int = 60, seed: int = 0) -> list[tuple[int, int]]:
-    """Up to ``MAX_PAIRS`` pairs (i, i < j < i + ``window``) of poses (N, 4, 4) that turned less than
-    ``PAIR_TURN_DEG[0]`` apart and stand ``STEP_APART_M`` apart, drawn with a seeded generator: what a path that
-    steps without turning offers. They tell a depth's scale and a trajectory's clock (both move what two frames
-    measured of one surface by the step), and intrinsics only weakly (by the step times the rays' error)."""
-    rotations, origins = cam2world[:, :3, :3], cam2world[:, :3, 3]
-    low = np.cos(np.radians(PAIR_TURN_DEG[0]))
-    candidates: list[tuple[int, int]] = []
-    for i in range(len(cam2world) - 1):
-        later = np.arange(i + 1, min(len(cam2world), i + window))
-        relative = np.einsum("ji,njk->nik", rotations[i], rotations[later])
-        cos_turn = (np.trace(relative, axis1=1, axis2=2) - 1) / 2
-        apart = np.linalg.norm(origins[later] - origins[i], axis=1)
-        chosen = (cos_turn > low) & (apart >= STEP_APART_M[0]) & (apart <= STEP_APART_M[1])
-        candidates.extend((i, int(j)) for j in later[chosen])
-    if len(candidates) <= MAX_PAIRS:
-        return candidates
-    picked = np.random.default_rng(seed).choice(len(candidates), MAX_PAIRS, replace=False)
-    return [candidates[k] for k in sorted(picked)]
 
 
 def depth_disagreement(
