@@ -293,6 +293,7 @@ def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
     # frames that do not turn give nothing to check on: the name's, said so
     tiny = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg1_xyz"), estimate_up=False)
     assert tiny.intrinsics == calibrated and "no frames seen from places turned or stepped apart" in tiny.intrinsics_source
+    assert tiny.depth_factor_source == "5000; no frames seen from places turned or stepped apart to check it on"
 
 
 def test_a_path_that_steps_without_turning_still_tells_the_depths_scale(tmp_path: Path) -> None:

@@ -402,7 +402,8 @@ def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[floa
     pairs = check_pairs(cam2world)
     if not pairs or (len(cameras) == 1 and list(scales) == [1.0]):
         unchecked = "; no frames seen from places turned or stepped apart to check it on" if not pairs else ""
-        return replace(sequence, intrinsics_source=sequence.intrinsics_source + unchecked)
+        factor_source = sequence.depth_factor_source if list(scales) == [1.0] else f"{sequence.depth_factor:g}{unchecked}"
+        return replace(sequence, intrinsics_source=sequence.intrinsics_source + unchecked, depth_factor_source=factor_source)
     images = [read_png_u16(sequence.depth_paths[i]) for i in picked]
     gaps = {}
     for k, (camera, _, lens) in enumerate(cameras):
@@ -536,9 +537,8 @@ def load_tum(
         where=base,
     )  # fmt: skip
     world2file = gravity_world2file(choice.up_file) if align_gravity else np.eye(4)
-    logger.info(
-        "%s: %d frames, intrinsics %s, pose time offset %s", base, in_file_world.n_frames, intrinsics_source, offset_source
-    )
+    logger.info("%s: %d frames, intrinsics %s, depth factor %s, pose time offset %s", base, in_file_world.n_frames,
+                in_file_world.intrinsics_source, in_file_world.depth_factor_source, offset_source)  # fmt: skip
     return replace(
         in_file_world,
         cam2world=np.einsum("ij,njk->nik", np.linalg.inv(world2file), in_file_world.cam2world),
