@@ -457,7 +457,7 @@ def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) ->
         "--depth-factor",
         type=float,
         default=None,
-        help="TUM: depth PNG units a metre (default: 5000, over the scale of 0.9-1.1 the depth and poses agree with best)",
+        help="TUM: depth PNG units a metre (default: 5000, over the scale of 0.95-1.05 the depth and poses agree with best)",
     )
     parser.add_argument(
         "--pose-time-offset-s",

@@ -90,9 +90,10 @@ CHECK_FRAMES = 150
 CHECK_MARGIN = 0.02
 #: The pose time offsets ``pose_time_offset_by_depth`` tries (seconds): +-50 ms in steps of 5 ms.
 POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
-#: The scales of the depth ``camera_by_depth`` tries: 0.9-1.1 in steps of 1 % (TUM's freiburg2 depth reads
-#: about 4 % long at its factor of 5000: ORB-SLAM2's TUM2 settings take 5208).
-DEPTH_SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(21))
+#: The scales of the depth ``camera_by_depth`` tries: 0.95-1.05 in steps of 1 % (TUM's freiburg2 depth reads
+#: about 4 % long at its factor of 5000: ORB-SLAM2's TUM2 settings take 5208). No wider: with intrinsics that are
+#: all wrong (another camera's) the depth's scale makes up for them, and a least at the ends is not taken.
+DEPTH_SCALES = tuple(round(0.95 + 0.01 * k, 2) for k in range(11))
 BY_NAME = "(by the folder's name)"  # the source of intrinsics chosen by the folder's name
 _CAMERA_IN_NAME = re.compile(r"^(?:rgbd_dataset_)?(freiburg[123])(?:_|$)")
 
