@@ -242,11 +242,12 @@ def interpolate_poses(
     query_s: np.ndarray,
     *,
     max_gap_s: float = MAX_POSE_GAP_S,
+    interpolated_only: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Poses at ``query_s`` (M,) from a trajectory: ``times_s`` (N,) increasing, ``positions`` (N, 3),
     unit ``quaternions_xyzw`` (N, 4). Between two poses both within ``max_gap_s``: position linear,
-    rotation slerp; else the nearest pose within ``max_gap_s``. Returns (M, 4, 4) poses and (M,) bool,
-    False where no pose lies within ``max_gap_s`` (those poses are NaN)."""
+    rotation slerp; else the nearest pose within ``max_gap_s`` (with ``interpolated_only``: none). Returns
+    (M, 4, 4) poses and (M,) bool, False where no pose was found (those poses are NaN)."""
     from scipy.spatial.transform import Rotation
 
     times, query = np.asarray(times_s, np.float64), np.asarray(query_s, np.float64)
@@ -262,7 +263,7 @@ def interpolate_poses(
     span = times[after] - times[before]
     alpha = np.where(between & (span > 0), (query - times[before]) / np.where(span > 0, span, 1.0), 0.0)
     nearest = np.where(gap_after < gap_before, after, before)
-    valid = between | (np.minimum(gap_before, gap_after) <= max_gap_s)
+    valid = between if interpolated_only else between | (np.minimum(gap_before, gap_after) <= max_gap_s)
     start = np.where(between, before, nearest)
     end = np.where(between, after, nearest)
     alpha = np.where(between, alpha, 0.0)
@@ -273,19 +274,6 @@ def interpolate_poses(
     poses[:, :3, 3] = (1 - alpha[:, None]) * positions[start] + alpha[:, None] * positions[end]
     poses[~valid] = np.nan
     return poses, valid
-
-
-def _between_poses(times_s: np.ndarray, query_s: np.ndarray) -> np.ndarray:
-    """(M,) whether each of ``query_s`` lies between two poses of a trajectory at ``times_s`` (increasing), each
-    within ``MAX_POSE_GAP_S``: where ``interpolate_poses`` interpolates rather than takes the nearest pose."""
-    after = np.clip(np.searchsorted(times_s, query_s, side="left"), 0, len(times_s) - 1)
-    before = np.clip(np.searchsorted(times_s, query_s, side="right") - 1, 0, len(times_s) - 1)
-    return (
-        (times_s[before] <= query_s)
-        & (query_s <= times_s[after])
-        & (query_s - times_s[before] <= MAX_POSE_GAP_S)
-        & (times_s[after] - query_s <= MAX_POSE_GAP_S)
-    )
 
 
 def _read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -501,10 +489,11 @@ def load_tum(
     # the camera's motion from each depth image to its colour image, where the trajectory holds poses around both
     # times (not a nearest pose taken as it is: two of those may lie a tracking gap apart)
     depth_s, colour_s = depth.times_s[[i for i, _ in kept]] + offset_s, rgb.times_s[[j for _, j in kept]] + offset_s
-    colour_pose, _ = interpolate_poses(*trajectory, colour_s)
-    moved = _between_poses(trajectory[0], depth_s) & _between_poses(trajectory[0], colour_s)
+    depth_pose, depth_between = interpolate_poses(*trajectory, depth_s, interpolated_only=True)
+    colour_pose, colour_between = interpolate_poses(*trajectory, colour_s, interpolated_only=True)
+    moved = depth_between & colour_between
     depth2rgb = np.tile(np.eye(4), (len(kept), 1, 1))
-    depth2rgb[moved] = np.linalg.inv(colour_pose[moved]) @ cam2file[posed][moved]
+    depth2rgb[moved] = np.linalg.inv(colour_pose[moved]) @ depth_pose[moved]
     gt_path = Path(gt_boxes) if gt_boxes is not None else base / GT_BOXES_FILE
     ground_truth = load_ground_truth(gt_path) if gt_boxes is not None or gt_path.is_file() else None
     in_file_world = TumSequence(
