@@ -254,15 +254,17 @@ def strongest_colour_move(frames: Sequence[Frame]) -> tuple[tuple[float, float, 
 
     def strongest(moves: list[tuple[float, float, float, float]]) -> tuple[tuple[float, float, float, float], float]:
         strength = colour_edge_strength(frames, moves)
-        k = int(np.argmax(strength))
+        k = int(np.nanargmax(strength))  # a move that carries no edge into any image tells nothing
         return moves[k], float(strength[k])
 
-    still = float(colour_edge_strength(frames, [STILL_COLOUR])[0])
-    if not np.isfinite(still):
-        return STILL_COLOUR, {"frames": len(frames), "edge_strength": None}
     scales = np.arange(-REGISTRATION_SCALE, REGISTRATION_SCALE + 1e-9, 0.04).tolist()
     shifts = range(-REGISTRATION_SHIFT_PX, REGISTRATION_SHIFT_PX + 1, 4)
-    best, strength = strongest(_grid(STILL_COLOUR, [scales, shifts, shifts, [0.0]]))
+    coarse = _grid(STILL_COLOUR, [scales, shifts, shifts, [0.0]])  # STILL_COLOUR among them
+    strengths = colour_edge_strength(frames, coarse)
+    still = float(strengths[coarse.index(STILL_COLOUR)])
+    if not np.isfinite(still):
+        return STILL_COLOUR, {"frames": len(frames), "edge_strength": None}
+    best, strength = coarse[int(np.nanargmax(strengths))], float(np.nanmax(strengths))
     baselines = np.arange(-REGISTRATION_BASELINE_M, REGISTRATION_BASELINE_M + 1e-9, 0.01).tolist()  # about the first stage's 0
     best, strength = strongest(_grid(best, [[-0.02, 0.0, 0.02], range(-8, 9, 2), [-2, 0, 2], baselines]))
     best, strength = strongest(_grid(best, [[-0.01, 0.0, 0.01], [-1, 0, 1], [-1, 0, 1], [-0.005, 0.0, 0.005]]))
