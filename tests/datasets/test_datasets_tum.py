@@ -32,6 +32,7 @@ from arcloud.datasets.tum import (
     associate,
     interpolate_poses,
     load_tum,
+    tum_camera,
 )
 from arcloud.errors import DatasetError
 
@@ -73,17 +74,19 @@ def test_poses_are_interpolated_linearly_and_by_slerp() -> None:
     np.testing.assert_allclose(poses[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))
 
 
-def test_across_a_gap_or_beyond_the_ends_the_nearest_pose_within_50_ms_or_none() -> None:
-    times = np.array([0.0, 1.0])
-    positions = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
-    quaternions = np.array([turn_z(0.0), turn_z(40.0)])
-    query = np.array([0.03, 0.5, 0.98, -0.04, -0.06, 1.04, 1.06])
+def test_across_a_gap_or_beyond_the_ends_the_nearest_pose_within_20_ms_or_none() -> None:
+    times = np.array([0.0, 1.0, 1.05])
+    positions = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    quaternions = np.array([turn_z(0.0), turn_z(40.0), turn_z(40.0)])
+    query = np.array([0.015, 0.03, 0.5, 0.99, -0.015, -0.03, 1.065, 1.1, 1.025])
     poses, valid = interpolate_poses(times, positions, quaternions, query)
-    assert valid.tolist() == [True, False, True, True, False, True, False]
-    np.testing.assert_allclose(poses[[0, 3], :3, 3], [[0.0, 0, 0], [0.0, 0, 0]])  # no extrapolation, no blending
-    np.testing.assert_allclose(poses[[2, 5], :3, 3], [[1.0, 0, 0], [1.0, 0, 0]])
+    # a fast camera moves 2 cm and turns 2 degrees in 50 ms: beyond 20 ms no pose is taken as it is
+    assert valid.tolist() == [True, False, False, True, True, False, True, False, True]
+    np.testing.assert_allclose(poses[[0, 4], :3, 3], [[0.0, 0, 0], [0.0, 0, 0]])  # no extrapolation, no blending
+    np.testing.assert_allclose(poses[[3, 6], :3, 3], [[1.0, 0, 0], [2.0, 0, 0]])
+    np.testing.assert_allclose(poses[8, :3, 3], [1.5, 0, 0])  # two poses 50 ms apart around it: between them
     assert np.all(np.isnan(poses[~valid]))
-    one, ok = interpolate_poses(times[:1], positions[:1], quaternions[:1], np.array([0.01, 0.2]))
+    one, ok = interpolate_poses(times[:1], positions[:1], quaternions[:1], np.array([0.01, 0.03]))
     assert ok.tolist() == [True, False] and np.allclose(one[0], np.eye(4))
 
 
@@ -97,7 +100,10 @@ def test_a_recording_reads_back_as_the_7scenes_frames_it_was_made_of(
     root = build_tum_from_seven_scenes(seven_root, tmp_path / "kitchen (TUM copy)", FRAMES)
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
         tum = load_tum(root, align_gravity=False, estimate_up=False)
-    assert "dropped 1 of 7 depth images: 0 without a colour image within 0.02 s, 1 without a pose within 0.05 s" in caplog.text
+    assert (
+        "dropped 1 of 7 depth images: 0 without a colour image within 0.02 s, 1 without a pose (two around it within "
+        "0.05 s, or one within 0.02 s)" in caplog.text
+    )
     seven = load_seven_scenes(seven_root)
     assert tum.name == "kitchen__TUM_copy_" and tum.frame_names == tuple(tum_time(n) for n in FRAMES)
     assert tum.dropped_frames == (f"{float(tum_time(FRAMES[-1])) + 1.0:.6f}",)
@@ -153,11 +159,13 @@ def test_no_motion_is_made_up_between_two_poses_a_tracking_gap_apart(tmp_path: P
     intrinsics = Intrinsics(525.0, 525.0, 319.5, 239.5)
     root = write_room_tum(tmp_path / "room", intrinsics, n_frames=7, colour_delay_s=0.018)
     poses = (root / "groundtruth.txt").read_text().splitlines()
-    (root / "groundtruth.txt").write_text("\n".join(poses[0:14:6]) + "\n")  # the depth poses of frames 0, 3, 6: 0.1 s apart
+    # the poses at frame 0's colour (18 ms) and frames 3 and 6's depth (100, 200 ms): a tracking gap of 82 ms
+    (root / "groundtruth.txt").write_text("\n".join([poses[1], poses[6], poses[12]]) + "\n")
     for listing in ("rgb.txt", "depth.txt"):  # frame 1 alone
         (root / listing).write_text((root / listing).read_text().splitlines()[1] + "\n")
     tum = load_tum(root, intrinsics=intrinsics, align_gravity=False, estimate_up=False, pose_time_offset_s=0.0)
-    # frame 1: its depth (33 ms) takes frame 0's pose, its colour (51 ms) would take frame 3's: no motion between them
+    # frame 1: its depth (33 ms) takes the pose at 18 ms as it is, its colour (51 ms) lies between that one and the one
+    # at 100 ms: the gap's motion is no motion of the camera between its two images
     first = tum.load_frame(tum.frame_names[0])
     assert first.frame_id == "100.033333" and first.registered and tum.colour_turn_deg() == {"median": 0.0, "max": 0.0}
 
@@ -254,7 +262,12 @@ def write_tiny_tum(root: Path, *, n_frames: int = 3) -> Path:
 def test_intrinsics_given_from_a_file_by_the_folder_name_or_generic(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     fr3 = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg3_long_office_household"), estimate_up=False)
     assert fr3.intrinsics == PUBLISHED_INTRINSICS["freiburg3"] == Intrinsics(535.4, 539.2, 320.1, 247.6)
-    assert load_tum(write_tiny_tum(tmp_path / "freiburg2_desk"), estimate_up=False).intrinsics.fx == 520.9
+    # freiburg1 and 2 are the sensor's own images: the 525 TUM recommends for their registered depth, unless it disagrees
+    fr2 = load_tum(write_tiny_tum(tmp_path / "Freiburg2_desk"), estimate_up=False)
+    assert fr2.intrinsics == GENERIC_INTRINSICS
+    assert fr2.intrinsics_source.startswith(
+        "TUM's 525, 525, 319.5, 239.5 for freiburg2's registered depth (freiburg2 by the folder's name)"
+    )
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
         plain = load_tum(write_tiny_tum(tmp_path / "my room"), estimate_up=False)
     assert plain.intrinsics == GENERIC_INTRINSICS and "using the generic" in caplog.text
@@ -273,18 +286,24 @@ def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     calibrated = PUBLISHED_INTRINSICS["freiburg1"]  # 16 px from the generic in cy
-    kept = load_tum(write_room_tum(tmp_path / "rgbd_dataset_freiburg1_room", calibrated), estimate_up=False)
-    assert kept.intrinsics == calibrated
-    assert kept.intrinsics_source.startswith("TUM freiburg1 (by the folder's name): the depth and poses disagree by ")
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
-        generic = load_tum(write_room_tum(tmp_path / "freiburg1_desk", GENERIC_INTRINSICS), estimate_up=False)
+        moved = load_tum(write_room_tum(tmp_path / "rgbd_dataset_freiburg1_room", calibrated), estimate_up=False)
     assert (
-        generic.intrinsics == GENERIC_INTRINSICS
-        and "using generic 525, 525, 319.5, 239.5 and a depth factor of 5000" in caplog.text
+        moved.intrinsics == calibrated
+        and "using TUM freiburg1's calibrated colour camera and a depth factor of 5000" in caplog.text
     )
-    assert generic.intrinsics_source.startswith("generic 525, 525, 319.5, 239.5, not TUM freiburg1 (by the folder's name)")
-    assert kept.depth_factor == generic.depth_factor == 5000.0  # exact renders: the intrinsics, not the depth's scale
-    assert kept.distortion is None and generic.distortion is None  # pinhole renders: no lens to undo
+    assert moved.intrinsics_source.startswith(
+        "TUM freiburg1's calibrated colour camera, not TUM's 525, 525, 319.5, 239.5 for freiburg1's registered depth "
+        "(freiburg1 by the folder's name): the depth and poses disagree by "
+    )
+    kept = load_tum(write_room_tum(tmp_path / "freiburg1_desk", GENERIC_INTRINSICS), estimate_up=False)
+    assert kept.intrinsics == GENERIC_INTRINSICS
+    assert kept.intrinsics_source.startswith(
+        "TUM's 525, 525, 319.5, 239.5 for freiburg1's registered depth (freiburg1 by the folder's name): the depth and "
+        "poses disagree by "
+    )
+    assert kept.depth_factor == moved.depth_factor == 5000.0  # exact renders: the intrinsics, not the depth's scale
+    assert kept.distortion is None and moved.distortion is None  # pinhole renders: no lens to undo
     # a file or --intrinsics is taken as it is, unchecked
     (tmp_path / "freiburg1_desk" / "intrinsics.txt").write_text("517.3 516.5 318.6 255.3\n")
     from_file = load_tum(tmp_path / "freiburg1_desk", estimate_up=False)
@@ -292,8 +311,58 @@ def test_by_the_folder_name_the_intrinsics_the_depth_and_poses_agree_with(
     assert from_file.intrinsics == calibrated and from_file.depth_factor == 5000.0
     # frames that do not turn give nothing to check on: the name's, said so
     tiny = load_tum(write_tiny_tum(tmp_path / "rgbd_dataset_freiburg1_xyz"), estimate_up=False)
-    assert tiny.intrinsics == calibrated and "no frames seen from places turned or stepped apart" in tiny.intrinsics_source
+    assert (
+        tiny.intrinsics == GENERIC_INTRINSICS and "no frames seen from places turned or stepped apart" in tiny.intrinsics_source
+    )
     assert tiny.depth_factor_source == "5000; no frames seen from places turned or stepped apart to check it on"
+
+
+def test_the_tum_camera_by_the_folder_as_resolved_or_by_the_bag_file_rgb_txt_names(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for folder in ("rgbd_dataset_freiburg1_desk2", "Freiburg1_desk2", "tum_fr1_desk", "freiburg1"):
+        assert tum_camera(write_tiny_tum(tmp_path / folder)) == ("freiburg1", "by the folder's name"), folder
+    renamed = write_tiny_tum(tmp_path / "office")
+    assert tum_camera(renamed) is None and tum_camera(tmp_path / "freiburg12") is None
+    # TUM's list files begin with the bag they were taken from
+    listing = (renamed / "rgb.txt").read_text()
+    (renamed / "rgb.txt").write_text("# color images\n# file: 'rgbd_dataset_freiburg2_desk.bag'\n" + listing)
+    assert tum_camera(renamed) == ("freiburg2", "by the bag file rgb.txt names")
+    assert load_tum(renamed, estimate_up=False).intrinsics_source.startswith(
+        "TUM's 525, 525, 319.5, 239.5 for freiburg2's registered depth (freiburg2 by the bag file rgb.txt names)"
+    )
+    monkeypatch.chdir(tmp_path / "Freiburg1_desk2")  # `eval recording --root .`
+    assert tum_camera(Path(".")) == ("freiburg1", "by the folder's name")
+
+
+def test_a_scale_or_another_camera_is_taken_only_by_the_margin_over_what_it_replaces(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import arcloud.datasets.tum as tum
+
+    root = write_room_tum(tmp_path / "rgbd_dataset_freiburg1_room", GENERIC_INTRINSICS, 12)
+    plain = load_tum(root, estimate_up=False, pose_time_offset_s=0.0)
+    cameras = {GENERIC_INTRINSICS.fx: 0, PUBLISHED_INTRINSICS["freiburg1"].fx: 1}
+
+    def disagreement(table: dict[tuple[int, float], float]):  # by (camera: 0 generic, 1 calibrated; scale), else 10 mm
+        def measured(depths, cam2world, intrinsics, pairs):
+            scale = round(float(np.nanmedian(depths[0]) / np.nanmedian(read_png_u16(plain.depth_paths[0]) / 5000.0)), 2)
+            return table.get((cameras[intrinsics.fx], scale), 0.010)
+
+        return measured
+
+    def read(table: dict[tuple[int, float], float]):
+        monkeypatch.setattr(tum, "depth_disagreement", disagreement(table))
+        return load_tum(root, estimate_up=False, pose_time_offset_s=0.0)
+
+    # a scale 1 % better than its own camera at 1 is no scale; 3 % is
+    assert read({(0, 0.98): 0.0099}).depth_factor == 5000.0
+    assert read({(0, 0.98): 0.0097}).depth_factor == pytest.approx(5000 / 0.98)
+    # another camera at its own scale: by the margin over this one at its scale, not over this one at 1
+    assert read({(0, 0.98): 0.0090, (1, 1.0): 0.0089}).intrinsics == GENERIC_INTRINSICS
+    assert read({(0, 0.98): 0.0090, (1, 1.0): 0.0087}).intrinsics == PUBLISHED_INTRINSICS["freiburg1"]
+    # a least at an end of the scales is a climb, not taken
+    assert read({(0, 0.95): 0.0080}).depth_factor == 5000.0
 
 
 def test_a_path_that_steps_without_turning_still_tells_the_depths_scale(tmp_path: Path) -> None:

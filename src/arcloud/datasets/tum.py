@@ -10,7 +10,7 @@ in time, within ``MAX_RGB_DEPTH_DIFFERENCE_S`` (closest pairs first, each image 
 pose is the trajectory at its depth timestamp plus ``pose_time_offset_s``: interpolated between the two
 poses around it (position linearly, rotation by slerp); where one of them lies more than
 ``MAX_POSE_GAP_S`` away (a gap in the tracking, the ends of the trajectory) the nearest pose within
-``MAX_POSE_GAP_S`` is taken as it is, and a frame with none is dropped (logged with a count). Unless given,
+``MAX_NEAREST_POSE_S`` is taken as it is, and a frame with none is dropped (logged with a count). Unless given,
 the offset is the one of ``POSE_TIME_OFFSETS_S`` that the recording's depth and poses agree with best
 (``pose_time_offset_by_depth``), or 0 where none agrees better by ``CHECK_MARGIN``: a trajectory whose clock
 runs a few hundredths of a second off the camera's puts every frame where the camera was a moment before or
@@ -24,11 +24,12 @@ up where the colour camera saw each depth point; one without a pose at its colou
 is registered pixel for pixel.
 
 Intrinsics: given, else ``camera-intrinsics.txt`` or ``intrinsics.txt`` in the folder (4 numbers
-``fx fy cx cy``, or a 3x3 or 4x4 camera matrix), else by the folder's name (``freiburg1``/``2``/``3``) the
-one of two that the recording's depth and poses agree with (``camera_by_depth``): TUM's calibrated colour
-camera, or the 525, 525, 319.5, 239.5 TUM gives for turning its registered depth into 3D; else the generic
-525, 525, 319.5, 239.5 with a warning. The depth factor: given, else TUM's 5000 over the scale the depth and
-poses agree with (``camera_by_depth`` decides both together).
+``fx fy cx cy``, or a 3x3 or 4x4 camera matrix), else by the TUM camera (``tum_camera``: the folder's name, or
+the bag file ``rgb.txt`` names) what TUM publishes for it that the recording's depth and poses agree with
+(``camera_by_depth``): the 525, 525, 319.5, 239.5 TUM recommends for turning its registered depth into 3D (the
+first for freiburg1 and 2), its calibrated colour camera (the first for freiburg3), that camera with its lens
+undone; else the generic 525, 525, 319.5, 239.5 with a warning. The depth factor: given, else TUM's 5000 over
+the scale the depth and poses agree with (``camera_by_depth`` decides it for each camera).
 
 TUM's world is not known to be gravity-aligned: up in the pose frame is chosen by
 ``arcloud.datasets.gravity.choose_up`` (given, ``gravity-direction.txt``, the ground truth's, else
@@ -65,8 +66,12 @@ INTRINSICS_FILES = ("camera-intrinsics.txt", "intrinsics.txt")
 DEPTH_FACTOR = 5000.0
 #: Largest time between a depth image and the colour image it is paired with (TUM's associate.py).
 MAX_RGB_DEPTH_DIFFERENCE_S = 0.02
-#: Largest time between a frame and a pose it takes.
+#: Largest time between a frame and either of the two poses it is interpolated between.
 MAX_POSE_GAP_S = 0.05
+#: Largest time between a frame and the nearest pose it takes as it is, where no two lie around it (the ends of the
+#: trajectory, a gap in the tracking): TUM's tools pair poses within 0.02 s; a freiburg1 camera moves 8 mm and turns
+#: 0.6 degrees in that time.
+MAX_NEAREST_POSE_S = 0.02
 #: TUM's published colour intrinsics (depth is registered to colour) by camera.
 PUBLISHED_INTRINSICS = {
     "freiburg1": Intrinsics(517.3, 516.5, 318.6, 255.3),
@@ -94,8 +99,10 @@ POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
 #: about 4 % long at its factor of 5000: ORB-SLAM2's TUM2 settings take 5208). No wider: with intrinsics that are
 #: all wrong (another camera's) the depth's scale makes up for them, and a least at the ends is not taken.
 DEPTH_SCALES = tuple(round(0.95 + 0.01 * k, 2) for k in range(11))
-BY_NAME = "(by the folder's name)"  # the source of intrinsics chosen by the folder's name
-_CAMERA_IN_NAME = re.compile(r"^(?:rgbd_dataset_)?(freiburg[123])(?:_|$)")
+GENERIC_SOURCE = "generic 525, 525, 319.5, 239.5"
+#: A TUM camera in a folder's name (``rgbd_dataset_freiburg1_desk``, ``Freiburg2_xyz``, ``fr3_office``) or in the
+#: ``# file: 'rgbd_dataset_freiburg1_desk.bag'`` line TUM's list files begin with.
+_CAMERA_IN_NAME = re.compile(r"(?:^|[^a-z0-9])(?:rgbd_dataset_)?(?:freiburg|fr)([123])(?=_|\.|'|$)", re.IGNORECASE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -242,11 +249,12 @@ def interpolate_poses(
     query_s: np.ndarray,
     *,
     max_gap_s: float = MAX_POSE_GAP_S,
+    max_nearest_s: float = MAX_NEAREST_POSE_S,
     interpolated_only: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Poses at ``query_s`` (M,) from a trajectory: ``times_s`` (N,) increasing, ``positions`` (N, 3),
     unit ``quaternions_xyzw`` (N, 4). Between two poses both within ``max_gap_s``: position linear,
-    rotation slerp; else the nearest pose within ``max_gap_s`` (with ``interpolated_only``: none). Returns
+    rotation slerp; else the nearest pose within ``max_nearest_s`` (with ``interpolated_only``: none). Returns
     (M, 4, 4) poses and (M,) bool, False where no pose was found (those poses are NaN)."""
     from scipy.spatial.transform import Rotation
 
@@ -263,7 +271,7 @@ def interpolate_poses(
     span = times[after] - times[before]
     alpha = np.where(between & (span > 0), (query - times[before]) / np.where(span > 0, span, 1.0), 0.0)
     nearest = np.where(gap_after < gap_before, after, before)
-    valid = between if interpolated_only else between | (np.minimum(gap_before, gap_after) <= max_gap_s)
+    valid = between if interpolated_only else between | (np.minimum(gap_before, gap_after) <= max_nearest_s)
     start = np.where(between, before, nearest)
     end = np.where(between, after, nearest)
     alpha = np.where(between, alpha, 0.0)
@@ -318,20 +326,43 @@ def read_intrinsics_file(path: Path) -> Intrinsics:
     return Intrinsics(float(fx), float(fy), float(cx), float(cy))
 
 
-def choose_intrinsics(root: Path, given: Intrinsics | None = None) -> tuple[Intrinsics, str]:
-    """The recording's intrinsics and where they came from (see the module docstring)."""
+def tum_camera(root: Path) -> tuple[str, str] | None:
+    """The TUM camera (``freiburg1``, ``2`` or ``3``) a recording was taken with and what says so: its folder's name
+    (as resolved: ``.`` names the folder it is), else the bag file its ``rgb.txt`` says it came from; None when
+    neither does."""
+    named = _CAMERA_IN_NAME.search(root.resolve().name)
+    if named is not None:
+        return f"freiburg{named.group(1)}", "by the folder's name"
+    try:
+        with open(root / RGB_LIST, errors="replace") as listing:
+            header = [line for line, _ in zip(listing, range(5)) if line.startswith("#")]
+    except OSError:
+        return None
+    named = next((found for line in header if (found := _CAMERA_IN_NAME.search(line)) is not None), None)
+    return None if named is None else (f"freiburg{named.group(1)}", f"by the bag file {RGB_LIST} names")
+
+
+def choose_intrinsics(root: Path, given: Intrinsics | None = None) -> tuple[Intrinsics, str, str | None]:
+    """The recording's intrinsics, where they came from and the TUM camera they stand for (None: none; see the module
+    docstring): for a TUM camera whose colour images are the sensor's own (freiburg1 and 2, whose lens TUM
+    publishes), the 525, 525, 319.5, 239.5 TUM recommends for turning their registered depth into 3D; for freiburg3
+    (published undistorted) its calibration."""
     if given is not None:
-        return given, "given (--intrinsics)"
+        return given, "given (--intrinsics)", None
     for name in INTRINSICS_FILES:
         if (root / name).is_file():
-            return read_intrinsics_file(root / name), str(root / name)
-    camera = _CAMERA_IN_NAME.match(root.name)
-    if camera is not None:
-        return PUBLISHED_INTRINSICS[camera.group(1)], f"TUM {camera.group(1)} {BY_NAME}"
-    logger.warning(
-        "%s: no intrinsics file and no freiburg1/2/3 in the folder's name; using the generic %s", root, GENERIC_INTRINSICS
-    )
-    return GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5"
+            return read_intrinsics_file(root / name), str(root / name), None
+    found = tum_camera(root)
+    if found is None:
+        logger.warning(
+            "%s: no intrinsics file and no freiburg1/2/3 in the folder's name or %s; using the generic %s", root, RGB_LIST,
+            GENERIC_INTRINSICS,
+        )  # fmt: skip
+        return GENERIC_INTRINSICS, GENERIC_SOURCE, None
+    camera, where = found
+    if camera in PUBLISHED_DISTORTION:
+        return GENERIC_INTRINSICS, f"TUM's 525, 525, 319.5, 239.5 for {camera}'s registered depth ({camera} {where})", camera
+    return PUBLISHED_INTRINSICS[camera], f"TUM {camera}'s calibrated colour camera ({camera} {where})", camera
 
 
 def check_pairs(cam2world: np.ndarray) -> list[tuple[int, int]]:
@@ -366,26 +397,34 @@ def _undistortion_maps(
     return cv2.initUndistortRectifyMap(matrix, np.asarray(distortion, np.float64), None, matrix, (width, height), cv2.CV_32FC1)
 
 
-def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[float]) -> TumSequence:
+def camera_by_depth(sequence: TumSequence, *, camera: str | None, scales: Sequence[float]) -> TumSequence:
     """The sequence with the intrinsics and depth factor its depth and poses agree with best (``core.calibration``;
-    up to ``CHECK_FRAMES`` depth images), when they disagree with them by ``CHECK_MARGIN`` less than with its own
-    intrinsics and factor; their sources say what decided. Tried together, each with each: its intrinsics and,
-    when ``named`` (TUM's calibrated ones, by the folder's name), the generic 525, 525, 319.5, 239.5, which TUM gives
-    as the conversion of its depth, registered to colour by the sensor's factory calibration, to 3D (the two differ
-    by 16 px in cy on freiburg1, which turns every frame's rays by 1.8 degrees); and its depth scaled by each of
-    ``scales`` (depth a few per cent long puts what two frames seen from places apart measured of one surface
-    centimetres apart). Together, since each stands in for the other a little: 7-Scenes' depth 3 % short agrees
-    better with a focal length 1.5 % short than with its own at the depth's own scale. When ``named`` and TUM
-    publishes the camera's lens distortion (``PUBLISHED_DISTORTION``), its intrinsics with the distortion undone
-    are tried too (TUM registers depth to colour pixel for pixel, so a lens that bends the colour image may bend
-    the depth image alike)."""
-    cameras: list[tuple[Intrinsics, str, tuple[float, ...] | None]] = [(sequence.intrinsics, sequence.intrinsics_source, None)]
-    if named:
-        cameras.append((GENERIC_INTRINSICS, "generic 525, 525, 319.5, 239.5", None))
-        named_camera = _CAMERA_IN_NAME.match(sequence.root.name)
-        published: tuple[float, ...] | None = PUBLISHED_DISTORTION.get(named_camera.group(1)) if named_camera else None
-        if published is not None:
-            cameras.append((sequence.intrinsics, f"{sequence.intrinsics_source} with its lens distortion {published}", published))
+    up to ``CHECK_FRAMES`` depth images), each taken only where the depth disagrees with it by ``CHECK_MARGIN``
+    less; their sources say what decided. Each candidate camera at the depth's scale it agrees with (one of
+    ``scales``, over 1 only by the margin and never at an end of them: depth a few per cent long puts what two
+    frames seen from places apart measured of one surface centimetres apart); then a camera other than the
+    sequence's own by the margin over that one at its scale. For a TUM ``camera`` (by the folder's name) the
+    candidates are the generic 525, 525, 319.5, 239.5, which TUM gives for turning its depth, registered to
+    colour by the sensor's factory calibration, into 3D, and its calibrated colour camera (16 px apart in cy on
+    freiburg1, which turns every frame's rays by 1.8 degrees), and where TUM publishes that camera's lens
+    distortion (``PUBLISHED_DISTORTION``) its calibration with the lens undone too (TUM registers depth to colour
+    pixel for pixel, so a lens that bends the colour image may bend the depth image alike). Each camera at its own
+    scale, since each stands in for the other a little: 7-Scenes' depth 3 % short agrees better with a focal
+    length 1.5 % short than with its own at the depth's own scale."""
+    own = (sequence.intrinsics, sequence.intrinsics_source, None)
+    cameras: list[tuple[Intrinsics, str, tuple[float, ...] | None]] = [own]
+    if camera is not None:
+        calibrated, lens = PUBLISHED_INTRINSICS[camera], PUBLISHED_DISTORTION.get(camera)
+        cameras += [
+            other
+            for other in (
+                (GENERIC_INTRINSICS, GENERIC_SOURCE, None),
+                (calibrated, f"TUM {camera}'s calibrated colour camera", None),
+            )
+            if other[0] != own[0]
+        ]
+        if lens is not None:
+            cameras.append((calibrated, f"TUM {camera}'s calibrated colour camera with its lens distortion {lens}", lens))
     picked = list(range(0, sequence.n_frames, max(1, -(-sequence.n_frames // CHECK_FRAMES))))
     cam2world = sequence.cam2world[picked]
     pairs = check_pairs(cam2world)
@@ -395,27 +434,27 @@ def camera_by_depth(sequence: TumSequence, *, named: bool, scales: Sequence[floa
         return replace(sequence, intrinsics_source=sequence.intrinsics_source + unchecked, depth_factor_source=factor_source)
     images = [read_png_u16(sequence.depth_paths[i]) for i in picked]
     gaps = {}
-    for k, (camera, _, lens) in enumerate(cameras):
-        raw = [(undistort(d, camera, lens) if lens else d).astype(np.float32) / sequence.depth_factor for d in images]
+    for k, (intrinsics, _, distortion) in enumerate(cameras):
+        raw = [
+            (undistort(d, intrinsics, distortion) if distortion else d).astype(np.float32) / sequence.depth_factor for d in images
+        ]
         for scale in scales:
-            gaps[(k, scale)] = depth_disagreement([d * scale for d in raw] if scale != 1.0 else raw, cam2world, camera, pairs)
-    own = gaps[(0, 1.0)]
+            gaps[(k, scale)] = depth_disagreement([d * scale for d in raw] if scale != 1.0 else raw, cam2world, intrinsics, pairs)
 
-    def least(keys: list[tuple[int, float]]) -> tuple[int, float]:
-        return min(keys, key=lambda key: (gaps[key], key[0], abs(key[1] - 1.0)))
+    def own_scale(k: int) -> float:  # a least at an end of the scales is a climb, not a minimum
+        scale = min(scales, key=lambda s: (gaps[(k, s)], abs(s - 1.0)))
+        inside = min(scales) < scale < max(scales)
+        return scale if inside and gaps[(k, scale)] < (1 - CHECK_MARGIN) * gaps[(k, 1.0)] else 1.0
 
-    best = least(list(gaps))
-    if len(scales) > 1 and best[1] in (min(scales), max(scales)):
-        # the least at the end of the scales is a climb, not a minimum: intrinsics a little off (a file's) pull the
-        # depth's scale to whichever end shrinks their error; decide the intrinsics at the depth's own scale
-        best = least([key for key in gaps if key[1] == 1.0])
-    if gaps[best] >= (1 - CHECK_MARGIN) * own:
-        best = (0, 1.0)
-    (k, scale), nominal = best, sequence.depth_factor
-    figures = f"the depth and poses disagree by {gaps[best] * 1000:.1f} mm with it, {own * 1000:.1f} mm with {cameras[0][1]} at {nominal:g}"
-    if best != (0, 1.0):
+    best = [(k, own_scale(k)) for k in range(len(cameras))]
+    chosen = min(best, key=lambda key: (gaps[key], key[0]))
+    if gaps[chosen] >= (1 - CHECK_MARGIN) * gaps[best[0]]:
+        chosen = best[0]
+    (k, scale), nominal, start = chosen, sequence.depth_factor, (0, 1.0)
+    figures = f"the depth and poses disagree by {gaps[chosen] * 1000:.1f} mm with it, {gaps[start] * 1000:.1f} mm with {own[1]} at {nominal:g}"
+    if chosen != start:
         logger.warning("%s: %s; using %s and a depth factor of %.6g", sequence.root, figures, cameras[k][1], nominal / scale)
-    intrinsics_source = cameras[k][1] if k == 0 else f"{cameras[k][1]}, not {cameras[0][1]}"
+    intrinsics_source = own[1] if k == 0 else f"{cameras[k][1]}, not {own[1]}"
     return replace(
         sequence,
         intrinsics=cameras[k][0],
@@ -460,7 +499,7 @@ def load_tum(
         raise DatasetError(f"depth factor: expected a positive number of depth units a metre, got {depth_factor}")
     if pose_time_offset_s is not None and not np.isfinite(pose_time_offset_s):
         raise DatasetError(f"pose time offset: expected a finite number of seconds, got {pose_time_offset_s}")
-    chosen_intrinsics, intrinsics_source = choose_intrinsics(base, intrinsics)
+    chosen_intrinsics, intrinsics_source, camera = choose_intrinsics(base, intrinsics)
     rgb = _read_listing(base / RGB_LIST, 2, "timestamp path")
     depth = _read_listing(base / DEPTH_LIST, 2, "timestamp path")
     if len(set(depth.texts)) != len(depth.texts):
@@ -480,9 +519,9 @@ def load_tum(
     kept = [(i, j) for (i, j), ok in zip(pairs, posed, strict=True) if ok]
     without_rgb, without_pose = len(depth.texts) - len(pairs), int(np.sum(~posed))
     if without_rgb or without_pose:
-        logger.warning("%s: dropped %d of %d depth images: %d without a colour image within %g s, %d without a pose within %g s",
-                       base, without_rgb + without_pose, len(depth.texts), without_rgb, MAX_RGB_DEPTH_DIFFERENCE_S,
-                       without_pose, MAX_POSE_GAP_S)  # fmt: skip
+        logger.warning("%s: dropped %d of %d depth images: %d without a colour image within %g s, %d without a pose "
+                       "(two around it within %g s, or one within %g s)", base, without_rgb + without_pose, len(depth.texts),
+                       without_rgb, MAX_RGB_DEPTH_DIFFERENCE_S, without_pose, MAX_POSE_GAP_S, MAX_NEAREST_POSE_S)  # fmt: skip
     if not kept:
         raise DatasetError(f"{base}: expected depth images with a colour image and a pose, got none of {len(depth.texts)}")
     kept_depth = {i for i, _ in kept}
@@ -516,7 +555,9 @@ def load_tum(
         pose_time_offset_source=offset_source,
     )
     in_file_world = camera_by_depth(
-        in_file_world, named=intrinsics_source.endswith(BY_NAME), scales=DEPTH_SCALES if depth_factor is None else [1.0]
+        in_file_world,
+        camera=camera,
+        scales=DEPTH_SCALES if depth_factor is None else [1.0],
     )
     choice = choose_up(
         given=up,
@@ -572,6 +613,7 @@ __all__ = [
     "DEPTH_FACTOR",
     "DEPTH_SCALES",
     "GENERIC_INTRINSICS",
+    "MAX_NEAREST_POSE_S",
     "MAX_POSE_GAP_S",
     "MAX_RGB_DEPTH_DIFFERENCE_S",
     "POSE_TIME_OFFSETS_S",
@@ -587,5 +629,6 @@ __all__ = [
     "load_tum",
     "pose_time_offset_by_depth",
     "read_intrinsics_file",
+    "tum_camera",
     "undistort",
 ]
