@@ -51,9 +51,10 @@ def test_parsing() -> None:
     args = parser().parse_args(["eval", "scannet", "--root", "r", "--detector", "gt-masks", "--out", "o", "--users", "1, 10"])
     assert args.users == (1, 10)
     base = ["eval", "scannet", "--root", "r", "--out", "o.json"]
-    for bad in ([], ["--detector", "x", "--users", "0,10"], ["--detector", "x", "--runs", "0"]):
-        with pytest.raises(SystemExit):  # no --detector; K = 0; no runs
-            parser().parse_args(base + bad)
+    assert parser().parse_args(base).detector == "onnx"  # the model cache's default model, as `serve` runs it
+    for bad in (base + ["--users", "0,10"], base + ["--runs", "0"], ["eval", "recording", "r", "--max-frames", "0"]):
+        with pytest.raises(SystemExit):  # K = 0; no runs; no frames
+            parser().parse_args(bad)
 
 
 def test_parse_scenes_from_file(tmp_path: Path) -> None:

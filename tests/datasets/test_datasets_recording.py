@@ -30,7 +30,7 @@ from arcloud.core.types import Frame, Intrinsics
 from arcloud.datasets.recording import check_intrinsics, detect_layout, load_recording, register_colour
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
-from arcloud.errors import DatasetError
+from arcloud.errors import DatasetError, InvalidInput
 
 
 def parser() -> argparse.ArgumentParser:
@@ -141,19 +141,28 @@ def test_eval_scannet_takes_a_scene_folder_of_any_name_and_a_ground_truth_file(r
 
 
 def test_eval_recording_on_a_scannet_scene_scores_against_its_annotation(
-    rendered_scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    rendered_scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    out = tmp_path / "out" / "room.json"
-    args = parser().parse_args(["eval", "recording", "--root", str(rendered_scene), "--detector", f"gt-masks:{rendered_scene}",
-                                "--users", "1,2", "--runs", "1", "--out", str(out), "--no-progress", "--workers", "2"])  # fmt: skip
+    monkeypatch.chdir(tmp_path)  # the folder as ROOT, the results where --out is by default: out/eval/<its name>.json
+    args = parser().parse_args(["eval", "recording", str(rendered_scene), "--detector", f"gt-masks:{rendered_scene}",
+                                "--users", "1,2", "--runs", "1", "--no-progress", "--workers", "2"])  # fmt: skip
     assert args.handler(args) == 0
-    results = json.loads(out.read_text())
+    results = json.loads((tmp_path / "out" / "eval" / f"{rendered_scene.name}.json").read_text())
     assert results["dataset"] == "scannet" and results["ground_truth"]["box_kinds"] == ["observed"]
     assert [(r["users"], r["boxes"]) for r in results["accuracy"]] == [(1, "observed"), (2, "observed")]
     assert results["accuracy"][0]["map25_mean"] == pytest.approx(1.0)
     assert results["accuracy"][0]["ap25_per_class"]["chair"] == pytest.approx(1.0)
     assert "ScanNet axis-aligned frame" in results["frame"]
-    assert "(observed boxes)" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "(observed boxes)" in printed and "Agreement of distributed maps with the centralized one" in printed
+    # one user, a few frames: no agreement to tell; the frames asked for
+    args = parser().parse_args(["eval", "recording", "--root", str(rendered_scene), "--detector", f"gt-masks:{rendered_scene}",
+                                "--users", "1", "--max-frames", "4", "--out", "few.json", "--no-progress"])  # fmt: skip
+    assert args.handler(args) == 0
+    assert json.loads((tmp_path / "few.json").read_text())["frames"] == 4 and "Agreement" not in capsys.readouterr().out
+    with pytest.raises(InvalidInput, match="ROOT: expected the folder to evaluate, as ROOT or --root"):
+        args = parser().parse_args(["eval", "recording", "--users", "1"])
+        args.handler(args)
 
 
 def test_a_recording_read_with_intrinsics_off_is_told_which_its_depth_agrees_with(

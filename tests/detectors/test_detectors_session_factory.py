@@ -81,7 +81,10 @@ def test_model_files_are_checked_before_anything_loads(tiny_models, tmp_path, mo
     monkeypatch.setenv("ARCLOUD_MODELS", str(tmp_path / "cache"))  # an empty model cache
     for spec in (f"onnx:{tiny_models['yolo']}", f"maskrcnn:{tiny_models['maskrcnn']}", "sim:0", "gt-masks:anything"):
         check_model_file(spec)  # no model file to check, or one that is there
-    with pytest.raises(InvalidInput, match="sim:SEED runs the simulator's detector.*got no file at .*yolo11n-seg-fp32-640.onnx"):
+    with pytest.raises(
+        InvalidInput,
+        match="also run sim:SEED, the simulator's detector, with no model.*got no file at .*yolo11n-seg-fp32-640.onnx",
+    ):
         check_model_file("onnx")
     with pytest.raises(InvalidInput, match="got 'maskrcnn' with no path"):
         check_model_file("maskrcnn")

@@ -9,6 +9,7 @@ import pytest
 from arcloud.core.types import OBB, LabelledBox
 from arcloud.errors import InvalidInput
 from arcloud.eval.plot import (
+    BACKGROUND_RGB,
     CLASS_COLORS_RGB,
     GT_COLOR_RGB,
     MAX_SIDE_PX,
@@ -214,3 +215,13 @@ def test_draw_boxes_in_image_rejects_bad_input():
         draw_boxes_in_image(np.zeros((H, W, 3), np.uint8), [], np.zeros((4, 4)), (FX, FY, CX, CY))
     with pytest.raises(InvalidInput, match="rgb: expected dtype uint8"):
         draw_boxes_in_image(np.zeros((H, W, 3)), [], np.eye(4), (FX, FY, CX, CY))
+
+
+def test_a_long_title_is_made_smaller_to_fit_the_picture() -> None:
+    box = LabelledBox.from_center_size("chair", (0, 0, 0.4), (0.5, 0.5, 0.8))
+    title = "7scenes-redkitchen: centralized, 50 frames, served objects"
+    image = render_top_down(gt=[box], predictions=[box], title=title).image_rgb
+    inked = np.flatnonzero((image[:28] != BACKGROUND_RGB).any(axis=(0, 2)))  # the title's band
+    assert inked.size and inked.max() < image.shape[1] - 10  # its last letters inside, not cut at the border
+    short = render_top_down(gt=[box], predictions=[box], title="t").image_rgb
+    assert (short[:28] != BACKGROUND_RGB).any()

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from arcloud.datasets.cli import add_render_command
-from arcloud.errors import DatasetError
+from arcloud.errors import DatasetError, InvalidInput
 
 if TYPE_CHECKING:
     from arcloud.core.types import Params
@@ -105,6 +105,23 @@ def _params(args: argparse.Namespace) -> Params:
     return params
 
 
+def _add_root(parser: argparse.ArgumentParser, what: str) -> None:
+    """The folder an ``eval`` reads, as ROOT or ``--root``."""
+    parser.add_argument("root_given", nargs="?", default=None, metavar="ROOT", help=f"{what} (or --root)")
+    parser.add_argument("--root", default=None, help=argparse.SUPPRESS)
+
+
+def _settle_folders(args: argparse.Namespace) -> None:
+    """``args.root`` from ROOT or ``--root`` (one of them, or both the same), and ``args.out`` by default
+    ``out/eval/<the folder's name>.json``."""
+    given = {str(root) for root in (args.root_given, args.root) if root is not None}
+    if len(given) != 1:
+        raise InvalidInput("ROOT", "the folder to evaluate, as ROOT or --root (once)", sorted(given) or "none")
+    args.root = given.pop()
+    if args.out is None:
+        args.out = str(Path("out") / "eval" / f"{Path(args.root).resolve().name or 'root'}.json")
+
+
 def _make_detector(spec: str) -> Detector:
     from arcloud.datasets.gt_masks import register_gt_masks_detector
     from arcloud.detectors import make_detector
@@ -126,6 +143,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     from arcloud.datasets.scannet import find_scene_dirs, load_scannet_scene
 
     started = time.perf_counter()
+    _settle_folders(args)
     scene_dirs = find_scene_dirs(args.root, args.scenes)
     if args.axis_alignment and len(scene_dirs) != 1:
         raise DatasetError(f"--axis-alignment: expected one scene, got {len(scene_dirs)}")
@@ -204,6 +222,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
     from arcloud.eval.map_pictures import write_pictures
 
     started = time.perf_counter()
+    _settle_folders(args)
     recording = load_recording(
         args.root, layout=args.layout, gt_boxes=args.gt_boxes, up=args.up,
         intrinsics=None if args.intrinsics is None else Intrinsics(*args.intrinsics), depth_factor=args.depth_factor,
@@ -213,7 +232,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
     load_frame, registration = register_colour(recording.frame_names, recording.load_frame, args.colour_move, where=args.root)
     recording = dataclasses.replace(recording, load_frame=load_frame)
     ground_truth = recording.ground_truth
-    names = recording.frame_names[:: args.stride]
+    names = recording.frame_names[:: args.stride][: args.max_frames]
     frames = LazyFrames(names, recording.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
     out_path = Path(args.out)
     export_dir = Path(args.export) if args.export else None
@@ -275,10 +294,10 @@ def run_eval_recording(args: argparse.Namespace) -> int:
             ap_per_class=None if one_user is None else {"0.25": one_user["ap25_per_class"], "0.5": one_user["ap50_per_class"]},
         )
     _write_json(out_path, out)
-    print(
-        f"Agreement of distributed maps with the centralized one ({recording.name}, {recording.layout} layout, {len(names)} frames)"
-    )
-    _print_table(rows)
+    print(f"{recording.name}: {recording.layout} layout, {len(names)} frames")
+    if rows:
+        print("\nAgreement of distributed maps with the centralized one")
+        _print_table(rows)
     _print_camera(out["recording"], registration)
     if ground_truth is not None:
         for kind in ground_truth.box_kinds:
@@ -376,7 +395,7 @@ def _add_common(parser: argparse.ArgumentParser, users: tuple[int, ...], runs: i
         help=f"user counts K, comma-separated; 1 = centralized (default {','.join(map(str, users))})",
     )
     parser.add_argument("--runs", type=positive_int, default=runs, help=f"distributed runs per K (default {runs})")
-    parser.add_argument("--out", required=True, help="results JSON to write")
+    parser.add_argument("--out", default=None, help="results JSON to write (default: out/eval/<ROOT's name>.json)")
     parser.add_argument(
         "--export", default=None, help="folder for every run's objects: <scene>_<K>_<run>.json (with world_from_export)"
     )
@@ -403,7 +422,17 @@ def _add_colour_move(parser: argparse.ArgumentParser) -> None:
 def _add_recording_options(parser: argparse.ArgumentParser, *, layouts: bool) -> None:
     """What ``eval recording`` and ``eval 7scenes`` take besides ``_add_common``'s (the reader's options
     when ``layouts``; ``eval 7scenes`` reads the 7-Scenes layout only)."""
-    parser.add_argument("--detector", required=True, help="onnx:PATH (a YOLO-seg ONNX model)")
+    from arcloud.argtypes import positive_int
+
+    parser.add_argument(
+        "--detector",
+        default="onnx",
+        help="onnx[:PATH]: a YOLO-seg or Mask R-CNN ONNX model (default: the model cache's default model, as `serve` "
+        f"runs it: `arcloud models`); ScanNet layout: or {GT_MASKS}[:OPTIONS], the scene's own masks",
+    )
+    parser.add_argument(
+        "--max-frames", type=positive_int, default=None, help="map at most N frames: the first N after --stride (default all)"
+    )
     parser.add_argument(
         "--gt-boxes",
         default=None,
@@ -482,12 +511,12 @@ def add_eval_commands(subparsers: Any) -> Any:
         description="Table 1 on ScanNet-layout scenes. The default scene list is every scene folder under "
         "--root (the paper does not list its 41 scenes; see docs/datasets.md).",
     )
-    scannet.add_argument("--root", required=True, help="a scene folder (any name), a folder of scenes, or one holding scans/")
+    _add_root(scannet, "a scene folder (any name), a folder of scenes, or one holding scans/")
     scannet.add_argument("--scenes", type=parse_scenes, default=None, help="scene names, comma-separated, or @FILE")
     scannet.add_argument(
         "--detector",
-        required=True,
-        help=f"onnx:PATH (a YOLO-seg ONNX model), or {GT_MASKS}[:OPTIONS] (each scene's own masks; "
+        default="onnx",
+        help=f"onnx[:PATH] (an ONNX model; default: the model cache's default model), or {GT_MASKS}[:OPTIONS] (each scene's own masks; "
         "OPTIONS e.g. faults=default,seed=3: a model's mask faults, see docs/datasets.md)",
     )
     scannet.add_argument(
@@ -512,7 +541,7 @@ def add_eval_commands(subparsers: Any) -> Any:
         "centralized map, and pictures, on any recording: ScanNet, 7-Scenes or TUM RGB-D layout",
         description="Evaluate one recording of any layout and any folder name (see docs/datasets.md).",
     )
-    recording.add_argument("--root", required=True, help="the recording's folder")
+    _add_root(recording, "the recording's folder")
     _add_recording_options(recording, layouts=True)
     _add_common(recording, DEFAULT_7SCENES_USERS, 3)
     recording.set_defaults(handler=run_eval_recording)
@@ -522,7 +551,7 @@ def add_eval_commands(subparsers: Any) -> Any:
         help="eval recording on the 7-Scenes layout: accuracy against gt-boxes.json (when the sequence has it), "
         "agreement of distributed maps with the centralized map, and pictures",
     )
-    seven.add_argument("--root", required=True, help="a 7-Scenes sequence folder (or a scene of seq-XX folders)")
+    _add_root(seven, "a 7-Scenes sequence folder (or a scene of seq-XX folders)")
     _add_recording_options(seven, layouts=False)
     _add_common(seven, DEFAULT_7SCENES_USERS, 3)
     seven.set_defaults(handler=run_eval_recording)

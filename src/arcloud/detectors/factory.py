@@ -77,7 +77,7 @@ def _model_path(argument: str, prefix: str) -> str:
     expected = f"{prefix}:PATH to a model file" + (
         f", or {MODEL_ENV_VAR} set to one, or the default model {DEFAULT_MODEL} in the model cache" if prefix == "onnx" else ""
     )
-    expected += " (sim:SEED runs the simulator's detector, no model needed)"
+    expected += " (serve and replay also run sim:SEED, the simulator's detector, with no model)"
     if not path and prefix == "onnx":
         if not cached_path().is_file():
             raise InvalidInput("detector spec", expected, not_cached())

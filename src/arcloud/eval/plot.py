@@ -159,8 +159,9 @@ def render_top_down(
         corner = view.to_px(np.array([[b.min[0], b.max[1]]]))[0]
         _text(cv2, image, f"{b.label} {b.score:.2f}", corner + (0, -5), color_for(b.label))
 
-    if title:
-        _text(cv2, image, title, (MARGIN_PX // 2, 20), TEXT_RGB, scale=0.6)
+    if title:  # as large as fits the picture's width, down to a size still read
+        title_w = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)[0][0]
+        _text(cv2, image, title, (MARGIN_PX // 2, 20), TEXT_RGB, scale=max(0.3, min(0.6, 0.6 * (width - MARGIN_PX) / title_w)))
     footer_top = header + content_h + 2 * MARGIN_PX
     _draw_scale_bar(cv2, image, scale, (MARGIN_PX // 2, footer_top + 12))
     _draw_legend(cv2, image, legend_rows, footer_top + 40)
