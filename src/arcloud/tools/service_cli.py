@@ -172,12 +172,13 @@ def run_serve(args: argparse.Namespace) -> int:
     from arcloud.errors import ArcloudError
     from arcloud.service.logs import configure_logging
     from arcloud.tools.http_server import run_server, run_servers
-    from arcloud.tools.wiring import check_model_file, check_zenoh_config, create_app
+    from arcloud.tools.wiring import check_model_file, check_redis, check_zenoh_config, create_app
 
     settings = settings_from_args(args)
     configure_logging(settings.log_level, settings.log_format)
     check_exposure(settings, args.host)
     check_zenoh_config(settings)
+    check_redis(settings)
     if args.api_processes > 1 and settings.embedded:
         raise ArcloudError("--api-processes N needs --redis: the embedded store and queue live in one process")
     if settings.embedded or settings.workers > 0:

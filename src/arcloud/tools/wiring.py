@@ -108,6 +108,22 @@ def check_model_file(spec: str) -> None:
     check(spec)
 
 
+def check_redis(settings: Settings) -> None:
+    """``StoreUnavailable`` now, in one line naming where, when the service's Redis does not answer within 3 s (not
+    a traceback from the API's start); nothing for the embedded store."""
+    if settings.embedded:
+        return
+    from arcloud.stores.redis import connect_redis, where
+    from arcloud.stores.redis_errors import redis_errors
+
+    client = connect_redis(settings.store, reply_timeout_s=3.0)
+    try:
+        with redis_errors("reach the store (start Redis, or give the URL it answers at)", lambda: where(client)):
+            client.ping()
+    finally:
+        client.close()
+
+
 def check_zenoh_config(settings: Settings) -> None:
     """``InvalidInput`` naming ``zenoh_config`` now, when Zenoh cannot read it (not at the first session)."""
     if settings.zenoh_mode != "off" and settings.zenoh_config:
@@ -487,6 +503,7 @@ __all__ = [
     "build_store",
     "check_detector_spec",
     "check_model_file",
+    "check_redis",
     "check_zenoh_config",
     "connect",
     "create_app",
