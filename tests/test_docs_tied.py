@@ -199,3 +199,18 @@ def test_the_results_files_behind_the_figures_are_not_git_ignored() -> None:
         assert (ROOT / figure.source).is_file(), figure.source
         ignored = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "-q", figure.source], check=False)
         assert ignored.returncode == 1, f"{figure.source} is git-ignored: the README would quote a file it does not ship"
+
+
+def test_every_file_the_docs_name_is_in_the_repository() -> None:
+    """A path in backticks under a folder of the repository or of the package (``core/step.py``) names a file or
+    folder that exists (what a bench writes, under bench/results/, is made by running it)."""
+    tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    folders = sorted({path.split("/")[0] for path in tracked if "/" in path} | {p.name for p in SRC.iterdir() if p.is_dir()})
+    named = re.compile(rf"`((?:{'|'.join(map(re.escape, folders))})/[A-Za-z0-9_./-]+)`")
+    missing = [
+        (doc.name, path)
+        for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+        for path in (found.rstrip(".") for found in named.findall(doc.read_text()))
+        if not path.startswith("bench/results/") and not (ROOT / path).exists() and not (SRC / path).exists()
+    ]
+    assert missing == []

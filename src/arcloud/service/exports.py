@@ -38,7 +38,10 @@ MEDIA: dict[str, tuple[str, str]] = {
     "glb": ("model/gltf-binary", "glb"),
     "scannet": ("application/zip", "zip"),
 }
-WORLD_FRAME = "the map's world frame: metres, z up (the frame of the devices' cam2world poses)"
+WORLD_FRAME = (
+    "the map's world frame: metres, z up (the frame of the poses sent, turned by the device's convention, world_up and "
+    "alignment: arcloud.core.conventions.world2map takes a device's world into it)"
+)
 READ_BATCH = 64  # objects read from the store (voxels decoded) and encoded at a time
 
 
