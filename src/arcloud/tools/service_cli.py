@@ -20,8 +20,9 @@ from typing import Any
 from arcloud.argtypes import PARAMS_HELP, non_negative_int, params_overrides, positive_int
 
 
-def _store_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--redis", metavar="URL", help="Redis URL (default: $ARCLOUD_STORE, else the embedded in-memory store)")
+def _store_options(parser: argparse.ArgumentParser, *, embedded: bool = True) -> None:
+    store = "else the embedded in-memory store" if embedded else "which a worker needs: it takes frames from Redis"
+    parser.add_argument("--redis", metavar="URL", help=f"Redis URL (default: $ARCLOUD_STORE, {store})")
     parser.add_argument(
         "--detector", metavar="SPEC", help="sim:SEED, onnx:PATH, maskrcnn:PATH, ... (default: $ARCLOUD_DETECTOR or onnx)"
     )
@@ -69,7 +70,7 @@ def add_service_commands(subparsers: argparse._SubParsersAction) -> None:
         help="run one ingest worker process on Redis (more with more processes or containers)",
         description="Reads frames from the Redis ingest stream through the consumer group until SIGTERM.",
     )
-    _store_options(worker)
+    _store_options(worker, embedded=False)
     worker.set_defaults(handler=run_worker_command)
 
     replay = subparsers.add_parser(

@@ -21,6 +21,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     settings = Settings()
     if args.healthcheck:
+        if settings.embedded:  # no worker process runs beside the embedded store: nothing to tell alive
+            print("unhealthy: ARCLOUD_STORE is no Redis URL (workers take frames from Redis)")
+            return 1
         return 0 if healthy(settings) else 1
     configure_logging(settings.log_level, settings.log_format)
     try:
