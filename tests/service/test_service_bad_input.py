@@ -364,6 +364,28 @@ def test_bad_input_answers_4xx_naming_the_field(
     assert stats["frames"]["accepted"] == 1, (case, stats)  # nothing else was queued
 
 
+def test_a_missing_or_unknown_field_is_said_so_in_the_detail(client: AppClient) -> None:
+    frame = make_test_frame(1)
+    parts = multipart_parts(frame)
+    meta = json.loads(parts["meta"][1])
+    missing = {k: v for k, v in meta.items() if k != "frame_id"}
+    answer = client.post(
+        "/v1/maps/m/frames", files={**parts, "meta": ("meta.json", json.dumps(missing).encode(), "application/json")}
+    )
+    assert answer.status_code == 422
+    assert answer.json()["detail"] == "meta.frame_id: expected a value (the field is required), got none"
+    extra = {**meta, "colour": 1}
+    answer = client.post(
+        "/v1/maps/m/frames", files={**parts, "meta": ("meta.json", json.dumps(extra).encode(), "application/json")}
+    )
+    assert answer.json()["detail"] == "meta.colour: expected no such field, got 1"
+    answer = client.get("/v1/maps/m/objects", params={"limit": "many"})
+    assert (
+        answer.status_code == 422
+        and answer.json()["detail"] == "limit: expected a valid integer, unable to parse string as an integer, got 'many'"
+    )
+
+
 # --- against a real redis-server -----------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def redis_app() -> Iterator[tuple[AppClient, RedisServer]]:

@@ -30,6 +30,7 @@ from arcloud.errors import InvalidInput
 from arcloud.ports import DeviceAlignments
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import POSE_CONVENTIONS, frame_from_proto
+from arcloud.service.problems import validation_wording
 from arcloud.service.schemas import FrameMeta
 
 PROTOBUF_MEDIA_TYPES = ("application/x-protobuf", "application/protobuf", "application/vnd.google.protobuf")
@@ -74,7 +75,8 @@ def parse_meta(raw: str | bytes) -> FrameMeta:
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
-        raise InvalidInput(f"meta.{where}" if where else "meta", first["msg"], describe(first.get("input"))) from exc
+        got = "none" if first.get("type") == "missing" else describe(first.get("input"))
+        raise InvalidInput(f"meta.{where}" if where else "meta", validation_wording(first), got) from exc
 
 
 def message_from_parts(meta: FrameMeta, rgb: bytes, depth: bytes, map_id: str) -> pb.Frame:

@@ -232,6 +232,17 @@ def problem_openapi(spec: dict[str, Any], problem_schema: str = "Problem") -> di
     return spec
 
 
+def validation_wording(error: Mapping[str, Any]) -> str:
+    """What a pydantic validation error expected, worded as a problem's detail says it after "expected": its
+    message without pydantic's "Input should be", and a missing or unknown field said as such."""
+    kind, message = error.get("type"), str(error.get("msg", "a valid value"))
+    if kind == "missing":
+        return "a value (the field is required)"
+    if kind == "extra_forbidden":
+        return "no such field"
+    return message.removeprefix("Input should be ").removeprefix("Value error, ")
+
+
 def _phrase(status: int) -> str:
     try:
         return HTTPStatus(status).phrase
@@ -249,4 +260,5 @@ __all__ = [
     "problem_openapi",
     "problem_response",
     "type_for",
+    "validation_wording",
 ]

@@ -179,11 +179,11 @@ def run_serve(args: argparse.Namespace) -> int:
     configure_logging(settings.log_level, settings.log_format)
     check_exposure(settings, args.host)
     check_zenoh_config(settings)
-    check_redis(settings)
     if args.api_processes > 1 and settings.embedded:
         raise ArcloudError("--api-processes N needs --redis: the embedded store and queue live in one process")
     if settings.embedded or settings.workers > 0:
         check_model_file(settings.detector)  # a clear error now, not one per worker after start-up
+    check_redis(settings)
     server = {
         "host": args.host,
         "port": args.port,
