@@ -34,7 +34,7 @@ def add_render_command(subparsers: Any) -> None:
     render.add_argument("--out", required=True, help="output root; the scene is written to OUT/<scene>/")
     render.add_argument("--users", type=positive_int, default=10, help="users walking the room, one after the other (default 10)")
     render.add_argument("--frames", type=positive_int, default=60, help="frames per user (default 60)")
-    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--seed", type=int, default=0, help="the walks' seed S: user u walks with S * 1000 + u (default 0)")
     render.add_argument(
         "--style",
         choices=("default", "random", "scan"),  # render_scannet.WALK_STYLES (not imported here: the CLI starts light)

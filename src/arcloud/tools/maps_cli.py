@@ -186,5 +186,5 @@ def run_copy(args: argparse.Namespace) -> int:
     finally:
         source.close()
         target.close()
-    print(f"copied map {args.map_id} ({copied} objects) to {args.target}", file=sys.stderr)
+    print(f"copied map {args.map_id} ({copied} objects) to map {args.to_map or args.map_id} at {args.target}", file=sys.stderr)
     return 0
