@@ -80,8 +80,19 @@ def test_pull_refuses_other_bytes_unless_an_export_of_the_model(
     assert status == 2 and "expected an export of YOLO11n-seg" in err and "YOLOv8n-seg" in err, err
     assert not cache.exists() or not any(cache.iterdir())  # nothing written by a refused pull
 
-    # Another build of the same weights (here: the int8 export) passes on its signature; verify then holds it to its bytes.
-    status, out, _ = arcloud(capsys, "models", "pull", DEFAULT_MODEL, "--from", str(int8), "--exported")
+    # A quantized export has the same inputs and outputs, and is not the float32 model the catalogue names
+    status, _, err = arcloud(capsys, "models", "pull", DEFAULT_MODEL, "--from", str(int8), "--exported")
+    assert status == 2 and "expected a float32 export for yolo11n-seg-fp32-640, got a quantized one" in err, err
+    # Another build of the same weights (here: written again with another producer) passes on its signature; verify
+    # then holds it to its bytes.
+    import onnx
+
+    rebuilt = onnx.load(str(shared.path(f"models/{DEFAULT_MODEL}.onnx")))
+    rebuilt.producer_version = "another build"
+    onnx.save(rebuilt, str(cache.parent / "yolo11n-seg.onnx"))
+    status, out, _ = arcloud(
+        capsys, "models", "pull", DEFAULT_MODEL, "--from", str(cache.parent / "yolo11n-seg.onnx"), "--exported"
+    )
     assert status == 0 and "checked by its signature: YOLO11n-seg, input 640 x 640, the 80 COCO classes" in out, out
     status, out, _ = arcloud(capsys, "models", "verify", DEFAULT_MODEL)
     assert status == 0 and "the sha256 recorded when it was pulled" in out

@@ -197,13 +197,23 @@ def verify(name: str | None = None) -> Checked:
     )
 
 
+#: Operators only a quantized export holds (their names are plain strings in the file): the catalogue's models
+#: are all float32, and an int8 file has the same inputs and outputs.
+QUANTIZED_OPERATORS = (b"QuantizeLinear", b"ConvInteger", b"MatMulInteger", b"QLinearConv", b"QLinearMatMul")
+
+
 def check_signature(model: CatalogueModel, path: Path) -> None:
-    """``ModelError`` unless the file is a YOLO-seg ONNX model of the model's input size and the 80 COCO classes,
-    and, when its metadata has an Ultralytics ``description``, of the model's architecture (loads it in onnxruntime)."""
+    """``ModelError`` unless the file is a float32 YOLO-seg ONNX model of the model's input size and the 80 COCO
+    classes, and, when its metadata has an Ultralytics ``description``, of the model's architecture (loads it in
+    onnxruntime)."""
     from arcloud.detectors.coco import COCO80
     from arcloud.detectors.onnx_yolo import YoloSegDetector
     from arcloud.detectors.session import load_session, metadata
 
+    content = path.read_bytes()
+    quantized = [op.decode() for op in QUANTIZED_OPERATORS if op in content]
+    if quantized:
+        raise ModelError(f"{path}: expected a float32 export for {model.name}, got a quantized one ({', '.join(quantized)})")
     detector = YoloSegDetector(path, intra_op_threads=1)
     description = metadata(load_session(path, intra_op_threads=1)).get("description", "")
     if description.startswith("Ultralytics ") and not description.startswith(f"Ultralytics {model.architecture} "):
