@@ -3,7 +3,15 @@ import itertools
 import numpy as np
 import pytest
 
-from arcloud.core.associate import GATED_COST, associate, association_cost, common_counts, hungarian_match, overlap_matrix
+from arcloud.core.associate import (
+    GATED_COST,
+    UNMATCHED_COST,
+    associate,
+    association_cost,
+    common_counts,
+    hungarian_match,
+    overlap_matrix,
+)
 from arcloud.core.types import Params
 
 
@@ -20,21 +28,18 @@ def test_common_counts_equal_set_intersections():
 
 
 def brute_force(cost):
-    """The minimum total cost over every assignment of min(D, O) pairs, and the matchings that reach it (each
-    sorted, gated pairs dropped): more than one where costs tie."""
+    """The minimum total cost over every matching of rows to distinct columns, each row paired by a pair the gates
+    let through or left unpaired at ``UNMATCHED_COST``, and the matchings (sorted pairs) that reach it: more than
+    one where costs tie."""
     d, o = cost.shape
-    if d <= o:
-        assignments = [list(zip(range(d), cols)) for cols in itertools.permutations(range(o), d)]
-    else:
-        assignments = [list(zip(rows, range(o))) for rows in itertools.permutations(range(d), o)]
-    totals = [sum(cost[r, c] for r, c in pairs) for pairs in assignments]
+    matchings = []
+    for choice in itertools.product([None, *range(o)], repeat=d):  # each row's column, or None: unpaired
+        taken = [c for c in choice if c is not None]
+        if len(taken) == len(set(taken)) and all(c is None or cost[r, c] < GATED_COST for r, c in enumerate(choice)):
+            matchings.append([(r, c) for r, c in enumerate(choice) if c is not None])
+    totals = [sum(cost[r, c] for r, c in pairs) + UNMATCHED_COST * (d - len(pairs)) for pairs in matchings]
     best = min(totals)
-    optimal = {
-        tuple(sorted((r, c) for r, c in pairs if cost[r, c] < GATED_COST))
-        for pairs, total in zip(assignments, totals)
-        if total <= best + 1e-9
-    }
-    return best, optimal
+    return best, {tuple(sorted(pairs)) for pairs, total in zip(matchings, totals) if total <= best + 1e-9}
 
 
 @pytest.mark.parametrize("seed", range(25))
@@ -47,10 +52,18 @@ def test_hungarian_matches_brute_force(seed):
     assert np.isfinite(cost).all()
     pairs = hungarian_match(cost)
     best, optimal = brute_force(cost)
-    total = sum(cost[r, c] for r, c in pairs) + GATED_COST * (min(cost.shape) - len(pairs))
+    total = sum(cost[r, c] for r, c in pairs) + UNMATCHED_COST * (cost.shape[0] - len(pairs))
     assert total == pytest.approx(best)
     assert tuple(sorted(pairs)) in optimal  # one of the optimal matchings, gated pairs left out
     assert all(cost[r, c] < GATED_COST for r, c in pairs)
+
+
+def test_a_weak_pair_never_displaces_a_strong_one_to_pair_more():
+    # desks D, A, C in a row: A mapped whole, D in part, C new. A's detection covers A and touches D; C's touches A.
+    overlap = np.array([[1.0, 0.333], [0.2, 0.0]])  # rows: the detections of A and C; columns: objects A and D
+    cost = association_cost(overlap, [0, 0], [0, 0], Params())
+    assert hungarian_match(cost) == [(0, 0)]  # A's detection to A; C's left to become a new object, not welded to A
+    assert hungarian_match(cost[1:]) == [(0, 0)]  # alone, C's detection still joins A (shares 0.2)
 
 
 def test_gating_keeps_weak_pairs_unmatched_and_class_aware_option():

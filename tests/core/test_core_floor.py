@@ -71,3 +71,33 @@ def test_thin_legs_are_kept_in_the_box():
     (table,) = store.list_objects("m")
     assert table.aabb.min[2] <= 0.1 and table.aabb.max[2] == pytest.approx(0.75, abs=0.05)
     assert table.aabb.size[0] == pytest.approx(1.15, abs=0.1)
+
+
+@pytest.mark.parametrize(
+    ("up", "to_world", "shift"),
+    [
+        ((0.0, -1.0, 0.0), ((1, 0, 0), (0, 0, -1), (0, 1, 0)), (0, -1, 0)),  # a Kinect's y-down world: height h at y -h-1
+        ((0.0, 1.0, 0.0), ((1, 0, 0), (0, 0, 1), (0, -1, 0)), (0, 0, 0)),  # ARKit's y-up world
+        ((-1.0, 0.0, 0.0), ((0, 0, -1), (0, 1, 0), (1, 0, 0)), (-1, 0, 0)),
+    ],
+)
+def test_the_floor_clearance_leaves_out_the_same_layers_whichever_way_the_world_points_up(
+    up: tuple[float, float, float], to_world: tuple[tuple[int, ...], ...], shift: tuple[int, int, int]
+) -> None:
+    from arcloud.core.boxes import box_voxel_masks
+    from arcloud.core.fusion import new_object
+    from arcloud.core.types import CLASS_INDEX, VoxelDetection
+    from arcloud.core.voxels import pack_keys, unpack_keys
+
+    def kept_layers(params: Params, rotation: np.ndarray, offset: np.ndarray) -> list[int]:
+        column = np.mgrid[0:4, 0:4, 0:8].reshape(3, -1).T  # 4 x 4 voxels, 8 layers above a floor at 1 cm (z up)
+        keys = np.sort(pack_keys(column @ rotation.T + offset))
+        obj = new_object(1, VoxelDetection(CLASS_INDEX["chair"], 0.9, keys), "d", 0.0)
+        obj = obj.replace(floor_votes={height_bin(0.01, params): 5})
+        ijk = unpack_keys(obj.keys)
+        keep = box_voxel_masks([obj], params, [ijk], [floor_height(obj.floor_votes, params)], [None])[0]
+        return sorted({int(h) for h in ((ijk[keep] - offset) @ rotation)[:, 2]})
+
+    z_up = kept_layers(Params(), np.eye(3, dtype=int), np.zeros(3, int))
+    assert z_up[0] >= 1  # the layer on the floor is left out
+    assert kept_layers(Params(up=up), np.array(to_world), np.array(shift)) == z_up

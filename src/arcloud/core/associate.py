@@ -29,6 +29,10 @@ from arcloud.core.types import CLASS_INDEX, MapObject, Params
 from arcloud.core.voxels import coarsen_keys, keys_extent, unpack_keys
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
+#: A detection left without an object costs what a pair sharing nothing would: every pair the gates let through
+#: costs less (overlap >= ``association_min_overlap``), so a pair is made where it shares something, and the
+#: matching maximises the overlap shared, never the number of pairs.
+UNMATCHED_COST = 1.0
 
 
 def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) -> np.ndarray:
@@ -160,11 +164,18 @@ def association_cost(overlap: np.ndarray, labels_a: Sequence[int], labels_b: Seq
 
 
 def hungarian_match(cost: np.ndarray) -> list[tuple[int, int]]:
-    """Minimum-cost pairs (row, col) from ``linear_sum_assignment``, gated pairs removed."""
+    """Minimum-cost pairs (row, col) from ``linear_sum_assignment``, where each row may instead stay unpaired at
+    ``UNMATCHED_COST``; gated pairs are never made. Without that choice the assignment pairs as many rows as it
+    can first: a detection of one desk that touches a neighbour's object would push the detection of that object
+    onto a weaker pair (two monitors side by side welded, the third never made)."""
     if cost.size == 0:
         return []
-    rows, cols = linear_sum_assignment(cost)
-    return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < GATED_COST]
+    n_rows, n_cols = cost.shape
+    padded = np.full((n_rows, n_cols + n_rows), GATED_COST)
+    padded[:, :n_cols] = cost
+    padded[np.arange(n_rows), n_cols + np.arange(n_rows)] = UNMATCHED_COST  # row r's own "unpaired"
+    rows, cols = linear_sum_assignment(padded)
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if c < n_cols and cost[r, c] < GATED_COST]
 
 
 @dataclass(frozen=True, slots=True)

@@ -63,7 +63,8 @@ def box_voxel_masks(
         reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
         keep = (obj.weights >= params.box_rel_weight * reference) & (obj.weights >= params.box_min_occupancy * obj.seen_counts)
         if floor_m is not None:
-            bottoms = ijk_all @ (params.voxel_size_m * params.gravity.up)  # (exactly so when up is +z)
+            up = params.voxel_size_m * params.gravity.up  # a voxel's lowest corner: its own corner plus the steps down
+            bottoms = ijk_all @ up + np.minimum(up, 0.0).sum()
             keep &= bottoms > floor_m + params.floor_clearance_m
         if wall is not None:
             keep &= outside_wall(ijk_centers(ijk_all, params.voxel_size_m), wall, params.voxel_size_m)
