@@ -18,6 +18,7 @@ from arcloud.core.types import Detection, Frame, Intrinsics
 from arcloud.datasets.frames import LazyFrames
 from arcloud.datasets.render_scannet import render_scannet
 from arcloud.datasets.scannet import load_scannet_scene
+from arcloud.errors import DatasetError
 
 ROW_KEYS = {"approach", "users", "runs", "map25_mean", "map25_var", "map50_mean", "map50_var", "wall_s"}
 
@@ -81,10 +82,11 @@ def test_eval_scannet_command(tmp_path: Path) -> None:
     render_scannet(scene, tmp_path / "data", users=2, frames_per_user=8, seed=0, width=160, height=120,
                    intrinsics=Intrinsics(120.0, 120.0, 79.5, 59.5), walk=circle_walk)  # fmt: skip
     out = tmp_path / "results" / "r.json"
-    args = parser().parse_args([
+    argv = [
         "eval", "scannet", "--root", str(tmp_path / "data"), "--detector", "gt-masks", "--users", "1,2",
         "--runs", "2", "--out", str(out), "--export", str(tmp_path / "exp"), "--no-progress", "--workers", "2",
-    ])  # fmt: skip
+    ]  # fmt: skip
+    args = parser().parse_args(argv)
     assert args.handler(args) == 0
     results = json.loads(out.read_text())
     assert [(r["approach"], r["users"], r["runs"]) for r in results["table1"]] == [("centralized", 1, 1), ("distributed", 2, 2)]
@@ -109,6 +111,15 @@ def test_eval_scannet_command(tmp_path: Path) -> None:
     np.testing.assert_allclose(chair["aabb_max"], [1.3, 1.3, 0.9], atol=0.1)
     # export coordinates (the aligned frame) -> the scan frame of ScanNet's poses and mesh
     np.testing.assert_allclose(payload["world_from_export"], np.linalg.inv(ALIGNMENT), atol=1e-12)
+    assert results["axis_alignment"] == {SCENE_ID: f"{SCENE_ID}.txt axisAlignment"}
+    # ground-truth masks without ScanNet's labels tsv would have no chair or table: refused, not scored as nothing
+    tsv = next((tmp_path / "data").glob("*.tsv"))
+    (tmp_path / "elsewhere").mkdir()
+    tsv = tsv.rename(tmp_path / "elsewhere" / tsv.name)
+    with pytest.raises(DatasetError, match="expected ScanNet's labels tsv .* or --labels-tsv"):
+        args.handler(args)
+    args = parser().parse_args([*argv, "--labels-tsv", str(tsv), "--users", "1"])
+    assert args.handler(args) == 0 and json.loads(out.read_text())["table1"][0]["map25_mean"] == pytest.approx(1.0)
 
 
 class BoxDetector:

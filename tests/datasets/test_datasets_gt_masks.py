@@ -256,3 +256,13 @@ def test_detector_spec_with_faults(tiny_scannet: TinyScanNet) -> None:
         gt_masks_options("faults=default,seed=x")
     with pytest.raises(InvalidInput, match="seed= with faults="):
         gt_masks_options("seed=1")
+
+
+def test_label_images_are_resized_to_the_depth_size_pixel_centre_to_pixel_centre() -> None:
+    from arcloud.datasets.files import resize_nearest
+
+    columns = np.tile(np.arange(1296, dtype=np.uint16), (968, 1))  # ScanNet's colour-size labels: each pixel its column
+    resized = resize_nearest(columns, (480, 640))  # onto the 640 x 480 depth
+    centres = (np.arange(640) + 0.5) * 1296 / 640 - 0.5  # the column under each depth pixel's centre
+    assert np.abs(resized[0] - centres).max() <= 0.5 and abs(float(np.mean(resized[0] - centres))) < 0.01
+    assert set(np.unique(resized)) <= set(range(1296))  # ids kept exact, none blended

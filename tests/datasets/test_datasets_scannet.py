@@ -26,6 +26,7 @@ from arcloud.datasets.files import read_ply_mesh
 from arcloud.datasets.scannet import (
     DEFAULT_CLASS_MAPPING,
     ClassMapping,
+    find_label_table,
     find_scene_dirs,
     load_axis_alignment,
     load_scannet_scene,
@@ -77,15 +78,38 @@ def test_axis_alignment_applied_to_poses(tiny_scannet: TinyScanNet) -> None:
 
 def test_missing_axis_alignment_is_identity_and_can_be_overridden(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     tiny = build_scannet(tmp_path, alignment=False)
-    with caplog.at_level(logging.INFO):
+    with caplog.at_level(logging.WARNING):
         scene = load_scannet_scene(tiny.scene_dir)
-    assert "no axisAlignment" in caplog.text
+    assert "no axisAlignment" in caplog.text and "--axis-alignment gives it" in caplog.text
+    assert scene.alignment_source.startswith("none") and "the scan's frame" in scene.alignment_source
     np.testing.assert_array_equal(scene.scan2aligned, np.eye(4))
     np.testing.assert_allclose(scene.pose("0"), tiny.poses_scan["0"])
     override = tmp_path / "frames.json"
     override.write_text(json.dumps({"axis_align_matrix": ALIGNMENT.tolist()}))
     scene = load_scannet_scene(tiny.scene_dir, scan2aligned=override)
     np.testing.assert_allclose(scene.pose("0"), ALIGNMENT @ tiny.poses_scan["0"])
+    assert scene.alignment_source == "given (--axis-alignment)"
+
+
+def test_the_segments_are_those_the_aggregation_names_not_the_first_segs_file(tmp_path: Path) -> None:
+    tiny = build_scannet(tmp_path)
+    # ScanNet's download puts the high-resolution mesh's segments beside the low-resolution one's; it sorts first
+    (tiny.scene_dir / f"{SCENE_ID}_vh_clean.segs.json").write_text(json.dumps({"segIndices": [0] * 1000}))
+    aggregation = tiny.scene_dir / f"{SCENE_ID}.aggregation.json"
+    named = {**json.loads(aggregation.read_text()), "segmentsFile": f"scannet.{SCENE_ID}_vh_clean_2.0.010000.segs.json"}
+    aggregation.write_text(json.dumps(named))
+    assert [inst.label for inst in load_scannet_scene(tiny.scene_dir).objects] == ["chair", "table", "table"]
+    aggregation.write_text(json.dumps({k: v for k, v in named.items() if k != "segmentsFile"}))  # v1's: none named
+    assert [inst.label for inst in load_scannet_scene(tiny.scene_dir).objects] == ["chair", "table", "table"]
+
+
+def test_the_labels_tsv_is_found_in_meta_data_as_scannets_code_keeps_it(tmp_path: Path) -> None:
+    tiny = build_scannet(tmp_path / "scans")
+    tsv = tmp_path / "scans" / "scannetv2-labels.combined.tsv"
+    (tmp_path / "meta_data").mkdir()
+    tsv.rename(tmp_path / "meta_data" / tsv.name)
+    assert find_label_table(tiny.scene_dir) == tmp_path / "meta_data" / tsv.name
+    assert [inst.label for inst in load_scannet_scene(tiny.scene_dir).objects] == ["chair", "table", "table"]
 
 
 @pytest.mark.parametrize("tsv_version", [1, 2])

@@ -155,12 +155,20 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
     shared_detector = None if prefix == GT_MASKS else _make_detector(args.detector)
     params = _params(args)
     entries, frame_counts, export_frames, registrations = [], {}, {}, {}
+    alignments = {}
     for scene_dir in scene_dirs:
-        scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment)
+        scene = load_scannet_scene(scene_dir, scan2aligned=args.axis_alignment, labels_tsv=args.labels_tsv)
+        if scene.labels is None and (prefix == GT_MASKS or (ground_truth is None and scene.annotation == "v1")):
+            raise DatasetError(
+                f"{scene_dir}: expected ScanNet's labels tsv (scannetv2-labels.combined.tsv) in the scene's folder, its "
+                "two parents or a meta_data/ beside them, or --labels-tsv: without it chairs, tables and couches are "
+                "no class of ours"
+            )
         names = scene.frame_names[:: args.stride]
-        load_frame, registrations[scene.scene_id] = register_colour(
-            scene.frame_names, scene.load_frame, args.colour_move, where=scene_dir
-        )
+        # ground-truth masks are the mesh seen from the depth camera's pose: no colour camera to move
+        move = (1.0, 0.0, 0.0, 0.0) if prefix == GT_MASKS and args.colour_move is None else args.colour_move
+        load_frame, registrations[scene.scene_id] = register_colour(scene.frame_names, scene.load_frame, move, where=scene_dir)
+        alignments[scene.scene_id] = scene.alignment_source
         frames = LazyFrames(names, load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
         detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector
         export_frames[scene.scene_id] = scannet_export_frame(scene, ground_truth)
@@ -186,6 +194,7 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
         "stride": args.stride,
         "seed": args.seed,
         "registration": registrations,
+        "axis_alignment": alignments,
         "wall_s": round(time.perf_counter() - started, 2),
     }
     if ground_truth is not None:
@@ -229,7 +238,9 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         pose_time_offset_s=args.pose_time_offset_s, colour=args.colour_camera,
     )  # fmt: skip
     intrinsics_check = check_intrinsics(recording)
-    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, args.colour_move, where=args.root)
+    # ground-truth masks are the mesh seen from the depth camera's pose: no colour camera to move
+    move = (1.0, 0.0, 0.0, 0.0) if args.detector.startswith(GT_MASKS) and args.colour_move is None else args.colour_move
+    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, move, where=args.root)
     recording = dataclasses.replace(recording, load_frame=load_frame)
     ground_truth = recording.ground_truth
     names = recording.frame_names[:: args.stride][: args.max_frames]
@@ -523,6 +534,12 @@ def add_eval_commands(subparsers: Any) -> Any:
         "--axis-alignment",
         default=None,
         help="scan2aligned for a scene without one: 16 numbers, a JSON file with axis_align_matrix, or a ScanNet .txt",
+    )
+    scannet.add_argument(
+        "--labels-tsv",
+        default=None,
+        metavar="FILE",
+        help="ScanNet's scannetv2-labels.combined.tsv (default: in the scene's folder, its two parents or meta_data/)",
     )
     scannet.add_argument(
         "--gt-boxes",

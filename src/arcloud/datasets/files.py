@@ -54,12 +54,14 @@ def read_label_png(path: Path) -> np.ndarray:
 
 
 def resize_nearest(image: np.ndarray, shape_hw: tuple[int, int]) -> np.ndarray:
-    """``image`` (H, W) resized to ``shape_hw`` by nearest neighbour (labels must not blend)."""
+    """``image`` (H, W) resized to ``shape_hw`` by nearest neighbour (labels must not blend), each pixel taking the
+    one under its centre (OpenCV's plain nearest takes one a third of a pixel off: ScanNet's 1296 x 968 labels
+    laid on its 640 x 480 depth moved right and down)."""
     import cv2
 
     if image.shape[:2] == tuple(shape_hw):
         return image
-    return cv2.resize(image, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_NEAREST)
+    return cv2.resize(image, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_NEAREST_EXACT)
 
 
 def write_png(path: Path, image: np.ndarray) -> None:

@@ -163,11 +163,13 @@ def read_label_table(path: Path, mapping: ClassMapping = DEFAULT_CLASS_MAPPING) 
 
 
 def find_label_table(scene_dir: Path, levels: int = 2) -> Path | None:
-    """The labels tsv in the scene folder or one of its ``levels`` parents (v2 name first)."""
-    for folder in [scene_dir, *list(scene_dir.parents)[:levels]]:
-        for name in LABEL_TSV_NAMES:
-            if (folder / name).is_file():
-                return folder / name
+    """The labels tsv in the scene folder or one of its ``levels`` parents, or in a ``meta_data/`` beside them
+    (where ScanNet's own code keeps it; v2 name first)."""
+    for folder in [scene_dir, *list(scene_dir.resolve().parents)[:levels]]:
+        for where in (folder, folder / "meta_data"):
+            for name in LABEL_TSV_NAMES:
+                if (where / name).is_file():
+                    return where / name
     return None
 
 
@@ -212,7 +214,7 @@ class ScanNetInstance:
 class ScanNetScene(FrameSequence):
     """A parsed ScanNet scene. Images are read lazily by ``load_frame``/``frames``.
 
-    scan2aligned: (4, 4) the axisAlignment. cam2world: (N, 4, 4) poses of ``frame_names`` in the
+    scan2aligned: (4, 4) the axisAlignment (``alignment_source`` says whose). cam2world: (N, 4, 4) poses of ``frame_names`` in the
     aligned frame (invalid poses already dropped, their names in ``skipped_frames``). ``annotation``:
     the 3D annotation ``instances`` come from, ``"v1"`` or ``"v2"``; None when none was read."""
 
@@ -229,6 +231,7 @@ class ScanNetScene(FrameSequence):
     labels: LabelTable | None
     annotation: Literal["v1", "v2"] | None = None
     device_id: str = DEFAULT_DEVICE_ID
+    alignment_source: str = "given"
 
     @property
     def objects(self) -> tuple[ScanNetInstance, ...]:
@@ -338,6 +341,22 @@ def _read_intrinsics(scene_dir: Path, meta: Mapping[str, str], which: str) -> In
     return None
 
 
+def segments_file(scene_dir: Path, scene_id: str, aggregation_path: Path) -> Path | None:
+    """The over-segmentation the aggregation's groups index: the file its ``segmentsFile`` names (ScanNet writes
+    ``scannet.<scene>_vh_clean_2.0.010000.segs.json``), else the low-resolution mesh's, else None. Not any
+    ``*_vh_clean*.segs.json``: ScanNet's download puts the high-resolution mesh's beside it, and that one sorts first."""
+    named = ""
+    if aggregation_path.is_file():
+        try:
+            named = str(json.loads(aggregation_path.read_text()).get("segmentsFile", ""))
+        except (ValueError, AttributeError):
+            named = ""
+    for name in (named.removeprefix("scannet."), f"{scene_id}_vh_clean_2.0.010000.segs.json"):
+        if name and (scene_dir / name).is_file():
+            return scene_dir / name
+    return None
+
+
 def read_instances(
     scene_dir: Path,
     scene_id: str,
@@ -351,13 +370,13 @@ def read_instances(
     Empty when the scene has no aggregation. Without a labels tsv, nyu40 ids are 0 and only the raw
     entries of ``mapping`` give classes."""
     aggregation_path = scene_dir / f"{scene_id}.aggregation.json"
-    segs_paths = sorted(scene_dir.glob(f"{scene_id}_vh_clean*.segs.json"))
-    if not aggregation_path.is_file() or not segs_paths:
+    segs_path = segments_file(scene_dir, scene_id, aggregation_path)
+    if not aggregation_path.is_file() or segs_path is None:
         logger.info("scene %s: no aggregation/segs files, so no 3D ground truth", scene_id)
         return ()
     try:
         aggregation = json.loads(aggregation_path.read_text())
-        seg_indices = np.asarray(json.loads(segs_paths[0].read_text())["segIndices"], dtype=np.int64)
+        seg_indices = np.asarray(json.loads(segs_path.read_text())["segIndices"], dtype=np.int64)
         groups = aggregation["segGroups"]
     except (OSError, ValueError, KeyError) as exc:
         raise DatasetError(
@@ -365,7 +384,7 @@ def read_instances(
         ) from exc
     if seg_indices.shape[0] != vertices_scan.shape[0]:
         raise DatasetError(
-            f"{segs_paths[0]}: expected one segment index per mesh vertex ({vertices_scan.shape[0]}), got {seg_indices.shape[0]}"
+            f"{segs_path}: expected one segment index per mesh vertex ({vertices_scan.shape[0]}), got {seg_indices.shape[0]}"
         )
     vertices_aligned = _aligned(vertices_scan, scan2aligned)
     instances: list[ScanNetInstance] = []
@@ -513,12 +532,15 @@ def load_scannet_scene(
     meta_path = root / f"{scene_id}.txt"
     meta = read_key_values(meta_path) if meta_path.is_file() else {}
     if scan2aligned is not None:
-        alignment = load_axis_alignment(scan2aligned)
+        alignment, alignment_source = load_axis_alignment(scan2aligned), "given (--axis-alignment)"
     elif "axisAlignment" in meta:
-        alignment = parse_axis_alignment(meta["axisAlignment"], meta_path)
+        alignment, alignment_source = parse_axis_alignment(meta["axisAlignment"], meta_path), f"{meta_path.name} axisAlignment"
     else:
-        logger.info("scene %s: no axisAlignment in %s; using identity", scene_id, meta_path.name)
-        alignment = np.eye(4)
+        logger.warning(
+            "scene %s: no axisAlignment in %s: boxes are fitted in the scan's own frame, not ScanNet's aligned one "
+            "(--axis-alignment gives it)", scene_id, meta_path.name,
+        )  # fmt: skip
+        alignment, alignment_source = np.eye(4), f"none ({meta_path.name} has no axisAlignment): the scan's frame"
 
     tsv = Path(labels_tsv) if labels_tsv is not None else find_label_table(root)
     labels = read_label_table(tsv, mapping) if tsv is not None else None
@@ -558,6 +580,7 @@ def load_scannet_scene(
         mesh=mesh,
         labels=labels,
         annotation=chosen if instances else None,
+        alignment_source=alignment_source,
     )
     logger.info(
         "scene %s: %d frames, %d instances (%d of our classes) from the %s annotation",
