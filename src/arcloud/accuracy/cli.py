@@ -122,6 +122,14 @@ def _settle_folders(args: argparse.Namespace) -> None:
         args.out = str(Path("out") / "eval" / f"{Path(args.root).resolve().name or 'root'}.json")
 
 
+def _colour_move(args: argparse.Namespace) -> tuple[float, ...] | None:
+    """``--colour-move``; else none for ground-truth masks (the mesh seen from the depth camera's pose: no colour
+    camera to move), else None: where the recording's edges say (``register_colour``)."""
+    if args.colour_move is None and args.detector.partition(":")[0] == GT_MASKS:
+        return (1.0, 0.0, 0.0, 0.0)
+    return args.colour_move
+
+
 def _make_detector(spec: str) -> Detector:
     from arcloud.datasets.gt_masks import register_gt_masks_detector
     from arcloud.detectors import make_detector
@@ -165,9 +173,9 @@ def run_eval_scannet(args: argparse.Namespace) -> int:
                 "no class of ours"
             )
         names = scene.frame_names[:: args.stride]
-        # ground-truth masks are the mesh seen from the depth camera's pose: no colour camera to move
-        move = (1.0, 0.0, 0.0, 0.0) if prefix == GT_MASKS and args.colour_move is None else args.colour_move
-        load_frame, registrations[scene.scene_id] = register_colour(scene.frame_names, scene.load_frame, move, where=scene_dir)
+        load_frame, registrations[scene.scene_id] = register_colour(
+            scene.frame_names, scene.load_frame, _colour_move(args), where=scene_dir
+        )
         alignments[scene.scene_id] = scene.alignment_source
         frames = LazyFrames(names, load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
         detector = GroundTruthMaskDetector(scene, **gt_options) if shared_detector is None else shared_detector
@@ -238,9 +246,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         pose_time_offset_s=args.pose_time_offset_s, colour=args.colour_camera,
     )  # fmt: skip
     intrinsics_check = check_intrinsics(recording)
-    # ground-truth masks are the mesh seen from the depth camera's pose: no colour camera to move
-    move = (1.0, 0.0, 0.0, 0.0) if args.detector.startswith(GT_MASKS) and args.colour_move is None else args.colour_move
-    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, move, where=args.root)
+    load_frame, registration = register_colour(recording.frame_names, recording.load_frame, _colour_move(args), where=args.root)
     recording = dataclasses.replace(recording, load_frame=load_frame)
     ground_truth = recording.ground_truth
     names = recording.frame_names[:: args.stride][: args.max_frames]

@@ -403,7 +403,7 @@ def camera_by_depth(sequence: TumSequence, *, camera: str | None, scales: Sequen
     less; their sources say what decided. Each candidate camera at the depth's scale it agrees with (one of
     ``scales``, over 1 only by the margin and never at an end of them: depth a few per cent long puts what two
     frames seen from places apart measured of one surface centimetres apart); then a camera other than the
-    sequence's own by the margin over that one at its scale. For a TUM ``camera`` (by the folder's name) the
+    sequence's own by the margin over that one at its scale. For a TUM ``camera`` (``tum_camera``) the
     candidates are the generic 525, 525, 319.5, 239.5, which TUM gives for turning its depth, registered to
     colour by the sensor's factory calibration, into 3D, and its calibrated colour camera (16 px apart in cy on
     freiburg1, which turns every frame's rays by 1.8 degrees), and where TUM publishes that camera's lens
