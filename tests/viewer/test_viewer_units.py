@@ -42,6 +42,9 @@ def test_a_resumed_stream_that_does_not_know_what_its_client_shows_removes_each_
 
 def test_last_event_id_names_a_version_or_nothing() -> None:
     assert [last_event_id(h) for h in ("42", " 7 ", None, "", "abc", "-1", "1-0")] == [42, 7, None, None, None, None, None]
+    # digits Python reads but a version is not: a superscript (int() raised: 500), 5,000 digits (over Python's limit),
+    # past what a Redis stream id holds (every read of the map's log failed, for all its streams)
+    assert [last_event_id(h) for h in ("\u00b2", "9" * 5000, str(2**64 - 1), str(2**63 - 2))] == [None, None, None, 2**63 - 2]
 
 
 def test_an_event_is_one_data_line_of_json_with_its_id_when_given() -> None:

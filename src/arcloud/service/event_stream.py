@@ -135,11 +135,19 @@ def sse(name: str, data: Mapping[str, Any], event_id: int | None = None) -> str:
     return f"{head}event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
 
 
+#: The largest version a ``Last-Event-ID`` may name: versions are the first part of Redis stream ids, and the log is
+#: read from the one after it (a larger one made every read of the map's log fail, for all its streams).
+MAX_EVENT_ID = 2**63 - 2
+
+
 def last_event_id(header: str | None) -> int | None:
-    """The version a client's ``Last-Event-ID`` names; None when it names none (absent, or not one of ours)."""
-    if header is None or not header.strip().isdigit():
+    """The version a client's ``Last-Event-ID`` names; None when it names none (absent, or not one of ours: not ASCII
+    digits, or past ``MAX_EVENT_ID``). One past the map's version is answered by ``reset`` and a snapshot."""
+    text = "" if header is None else header.strip()
+    if not (text.isascii() and text.isdigit()) or len(text) > len(str(MAX_EVENT_ID)):
         return None
-    return int(header.strip())
+    version = int(text)
+    return version if version <= MAX_EVENT_ID else None
 
 
 # --- one stream, one watched map, every stream of the process ----------------------------------------
