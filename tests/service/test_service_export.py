@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, UvicornThread, make_test_frame, wait_until
 
 from arcloud.access import new_key
 from arcloud.cli import main as cli_main
@@ -23,6 +23,7 @@ from arcloud.core.types import LabelledBox
 from arcloud.eval.metrics import evaluate
 from arcloud.formats.colors import object_color
 from arcloud.formats.scannet import read_boxes
+from arcloud.proto.convert import frame_to_proto
 from arcloud.service.settings import Settings
 from arcloud.stores.file_api_keys import FileKeyStore
 from arcloud.tools.wiring import create_app
@@ -172,3 +173,22 @@ def test_export_refusals(served: tuple[str, str, list[dict[str, Any]]]) -> None:
         with pytest.raises(ServiceError) as unknown:
             client.export("nowhere", "json")
         assert unknown.value.status == 403  # not the reader's map: refused before anything is looked up
+
+
+def test_exports_beyond_those_being_built_are_refused_with_retry_after() -> None:
+    app = create_app(Settings(detector="sim:0", workers=1, max_exports=1), detector=BlobDetector())
+    with AppClient(app) as api:
+        frame = make_test_frame(0, map_id="room", boxes=(LEFT, RIGHT), level=True)
+        assert api.post("/v1/maps/room/frames", content=frame_to_proto(frame).SerializeToString(),
+                        headers={"content-type": "application/x-protobuf"}).status_code == 202  # fmt: skip
+        building = app.state.runtime.exports
+        assert building.acquire(blocking=False)  # an export being built: the process's one place taken
+        try:
+            refused = api.get("/v1/maps/room/export", params={"format": "json"})
+        finally:
+            building.release()
+        assert refused.status_code == 429 and refused.headers["retry-after"] == "2"
+        assert (
+            "1 exports are being built in this API process, the most it builds at once (max_exports)" in refused.json()["detail"]
+        )
+        assert api.get("/v1/maps/room/export", params={"format": "json"}).status_code == 200  # its place back

@@ -199,6 +199,29 @@ def test_over_http_an_upload_beyond_its_maps_places_is_refused_before_its_body_i
         assert again.status_code == 202, again.text
 
 
+def test_a_body_still_arriving_after_the_body_timeout_is_refused_and_frees_its_place() -> None:
+    settings = Settings(detector="sim:0", workers=1, body_timeout_s=0.5, map_frame_rate_per_s=0, key_rate_per_s=0)
+    app = create_app(settings, detector=BlobDetector())
+    with UvicornThread(app) as server, httpx.Client(base_url=server.url, timeout=10) as http:
+        body = frame_to_proto(make_test_frame(0, map_id="slow")).SerializeToString()
+        trickle = start_upload(server.port, "slow", len(body), body[:100])  # a client sending its body a little at a time
+        try:
+            started = time.monotonic()
+            for chunk in (body[100:200], body[200:300]):
+                time.sleep(0.2)
+                trickle.sendall(chunk)
+            status, _, problem = read_answer(trickle)
+            waited = time.monotonic() - started
+        finally:
+            trickle.close()
+        assert status == 408 and problem["field"] == "body" and problem["type"] == "/problems/too-slow", problem
+        assert "within 0.5 s of its first byte (body_timeout_s), got 300 bytes" in str(problem["detail"])
+        assert 0.4 <= waited < 5.0
+        gate = app.state.upload_gate
+        wait_until(lambda: gate.by_map["slow"] == 0, 10, "the slow upload's place freed", 0.02)
+        assert http.post("/v1/maps/slow/frames", content=body, headers=PROTOBUF).status_code == 202  # sent at once: taken
+
+
 # --- a flood on one map, another map's uploads: the API in a process of its own, on a real Redis ------------------
 def big_frame_body(map_id: str, device_id: str) -> bytes:
     """A 1280 x 960 frame (noisy colour, a depth ramp with noise) as protobuf: about 1.8 MB, 40-60 ms to check."""

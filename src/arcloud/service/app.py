@@ -37,6 +37,7 @@ the same way.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import time
@@ -101,6 +102,7 @@ Label = Literal[CLASSES]  # type: ignore[valid-type]  # the class names as a Lit
 
 
 READY_RETRY_AFTER_S = 5  # a 503 from /readyz or /healthz/workers: ask again in this many seconds
+EXPORT_RETRY_AFTER_S = 2  # an export refused while others are built: ask again in this many seconds
 
 
 class BodyTooLarge(Exception):
@@ -109,13 +111,23 @@ class BodyTooLarge(Exception):
         super().__init__(f"body: expected at most {limit} bytes, got {got}")
 
 
+class BodyTooSlow(Exception):
+    def __init__(self, timeout_s: float, received: int) -> None:
+        super().__init__(
+            f"body: expected it whole within {timeout_s:g} s of its first byte (body_timeout_s), got {received} bytes"
+        )
+
+
 class BodyLimit:
     """ASGI middleware refusing bodies over ``max_bytes``: at once from Content-Length, else while
-    reading (``BodyTooLarge`` from ``receive``, answered 413 by the app's handler)."""
+    reading (``BodyTooLarge`` from ``receive``, answered 413 by the app's handler); and bodies still arriving
+    ``timeout_s`` after the first read of them (``BodyTooSlow``, answered 408): a client sending a byte at a time
+    would hold its upload's place for as long as it liked."""
 
-    def __init__(self, app: Callable[..., Awaitable[None]], max_bytes: int) -> None:
+    def __init__(self, app: Callable[..., Awaitable[None]], max_bytes: int, timeout_s: float = 60.0) -> None:
         self.app = app
         self.max_bytes = max_bytes
+        self.timeout_s = timeout_s
 
     async def __call__(
         self,
@@ -140,10 +152,16 @@ class BodyLimit:
                 )
                 return
         received = 0
+        deadline: float | None = None
 
         async def limited() -> dict[str, Any]:
-            nonlocal received
-            message = await receive()
+            nonlocal received, deadline
+            loop = asyncio.get_running_loop()
+            deadline = loop.time() + self.timeout_s if deadline is None else deadline
+            try:
+                message = await asyncio.wait_for(receive(), max(0.0, deadline - loop.time()))
+            except TimeoutError:
+                raise BodyTooSlow(self.timeout_s, received) from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > self.max_bytes:
@@ -407,17 +425,28 @@ def export(
     voxels: Annotated[bool, Query(description="json: add each object's voxel centres, weights and colours")] = False,
 ) -> Response:
     known_map(runtime, map_id)
-    body = export_from_store(  # 422 over max_export_objects / max_export_voxels, before any voxel is read
-        runtime.store,
-        map_id,
-        runtime.params,
-        fmt,
-        include_tentative=include == "tentative",
-        color=color,
-        voxels=voxels,
-        max_voxels=runtime.settings.max_export_voxels,
-        max_objects=runtime.settings.max_export_objects,
-    )
+    if not runtime.exports.acquire(blocking=False):  # each holds its file in memory: a few at a time, whoever asks
+        raise Refused(
+            429,
+            f"export: {runtime.settings.max_exports} exports are being built in this API process, the most it builds at "
+            f"once (max_exports); retry in {EXPORT_RETRY_AFTER_S} s",
+            "format",
+            {"Retry-After": str(EXPORT_RETRY_AFTER_S)},
+        )
+    try:
+        body = export_from_store(  # 422 over max_export_objects / max_export_voxels, before any voxel is read
+            runtime.store,
+            map_id,
+            runtime.params,
+            fmt,
+            include_tentative=include == "tentative",
+            color=color,
+            voxels=voxels,
+            max_voxels=runtime.settings.max_export_voxels,
+            max_objects=runtime.settings.max_export_objects,
+        )
+    finally:
+        runtime.exports.release()
     media, extension = MEDIA[fmt]
     return Response(body, media_type=media, headers={"Content-Disposition": f'attachment; filename="{map_id}.{extension}"'})
 
@@ -764,6 +793,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     async def refused(request: Request, exc: Refused) -> Response:
         return problem(request, exc.status, exc.detail, exc.field, exc.headers)
 
+    @app.exception_handler(BodyTooSlow)
+    async def too_slow(request: Request, exc: BodyTooSlow) -> Response:
+        return problem(request, 408, str(exc), "body")
+
     @app.exception_handler(BodyTooLarge)
     async def too_large(request: Request, exc: BodyTooLarge) -> Response:
         return problem(request, 413, str(exc), "body")
@@ -833,7 +866,7 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     app.openapi = openapi  # type: ignore[method-assign]  # FastAPI's documented way to change the schema
 
-    app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_frame_bytes, timeout_s=settings.body_timeout_s)
     # Outside the body limit: its refusals, answered before routing, are counted too (with the route they were for).
     app.add_middleware(HttpMetrics, metrics=metrics, routes=lambda scope: [r.path for r in matching_routes(app, scope)])
     app.include_router(router)

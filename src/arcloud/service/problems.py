@@ -75,6 +75,13 @@ PROBLEM_TYPES: dict[str, ProblemType] = {
             "The route exists but not with this method; the Allow header lists those it takes.",
         ),
         ProblemType(
+            "too-slow",
+            "Body too slow",
+            (408,),
+            "The body did not arrive whole within ARCLOUD_BODY_TIMEOUT_S of its first byte; `field` is `body`. Send it "
+            "again at a steadier rate.",
+        ),
+        ProblemType(
             "map-mismatch",
             "Map of other settings",
             (409,),
@@ -112,8 +119,8 @@ PROBLEM_TYPES: dict[str, ProblemType] = {
             "rate-limited",
             "Too many requests",
             (429,),
-            "Over the key's, the map's or the address's rate (or the address failed authentication too often): try "
-            "again after Retry-After seconds.",
+            "Over the key's, the map's or the address's rate, or too many of its uploads or of the process's exports "
+            "in progress (or the address failed authentication too often): try again after Retry-After seconds.",
         ),
         ProblemType(
             "internal-error",

@@ -92,6 +92,10 @@ class Runtime:
     owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
     alignments: DeviceAlignments | None = None
     feed_stop: threading.Event = field(default_factory=threading.Event)  # ends the feed's sweeps (with a publisher)
+    exports: threading.BoundedSemaphore = field(init=False)  # places for exports being built (``max_exports``)
+
+    def __post_init__(self) -> None:
+        self.exports = threading.BoundedSemaphore(self.settings.max_exports)
 
 
 def start_runtime(settings: Settings, connect: Connect) -> Runtime:

@@ -194,7 +194,22 @@ class Settings(BaseSettings):
         "queued): 429 beyond, before the body is read",
     )
     max_uploads_per_key: int = Field(
-        16, ge=1, description="uploads of one key (with auth none: one client address) in progress at once: 429 beyond"
+        8,
+        ge=1,
+        description="uploads of one key (with auth none: one client address) in progress at once: 429 beyond (half a "
+        "map's, so that one key sending slowly cannot hold every upload of its map)",
+    )
+    body_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        description="seconds a request's body may take to arrive, from its first byte: 408 beyond (a client sending a "
+        "byte at a time holds no upload for longer)",
+    )
+    max_exports: int = Field(
+        2,
+        ge=1,
+        description="exports one API process builds at once (each holds its file in memory: a JSON export with voxels "
+        "takes about 60 bytes a voxel): 429 with Retry-After beyond",
     )
     max_export_voxels: int = Field(
         1_000_000,
