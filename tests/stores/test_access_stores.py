@@ -158,3 +158,19 @@ def test_redis_drops_a_viewer_pass_when_it_expires(redis_url: str) -> None:
     ttl_ms = passes.client.pttl(viewer_pass_key(secret_digest(secret)))
     assert 55_000 < ttl_ms <= 60_000  # the secret itself is nowhere: the key is its digest
     passes.close()
+
+
+def test_a_key_drawing_memory_passes_past_the_limit_ends_its_own_never_another_keys(monkeypatch: pytest.MonkeyPatch) -> None:
+    import arcloud.stores.memory_viewer_passes as memory_passes
+
+    monkeypatch.setattr(memory_passes, "MAX_PASSES", 5)
+    passes, now = MemoryViewerPasses(), time.time()
+    victim, victim_secret = new_viewer_pass("session", "beta", "aaaaaaaaaaaa", now_s=now, ttl_s=3600)
+    passes.put(secret_digest(victim_secret), victim)  # the oldest pass of all
+    drawn = []
+    for _ in range(20):  # a reader key drawing sessions as fast as its rate lets it
+        grant, secret = new_viewer_pass("session", "alpha", "bbbbbbbbbbbb", now_s=now, ttl_s=3600)
+        passes.put(secret_digest(secret), grant)
+        drawn.append(secret_digest(secret))
+    assert passes.find(secret_digest(victim_secret)) == victim  # still logged in
+    assert [passes.find(d) is not None for d in drawn] == [False] * 16 + [True] * 4  # its own oldest went

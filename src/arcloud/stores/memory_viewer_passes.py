@@ -8,7 +8,8 @@ from collections.abc import Callable
 
 from arcloud.access import ViewerGrant
 
-#: Passes kept at most: beyond, expired ones are dropped, then the oldest.
+#: Passes kept at most: beyond, expired ones are dropped, then the oldest of the key asking for one more (else the
+#: oldest): a key drawing passes fast ends its own, never another key's viewers'.
 MAX_PASSES = 100_000
 
 
@@ -28,8 +29,9 @@ class MemoryViewerPasses:
             if len(self._passes) >= MAX_PASSES:
                 now = self.clock()
                 self._passes = {d: g for d, g in self._passes.items() if g.expires_at_s > now}
+                own = [d for d, g in self._passes.items() if g.key_id == grant.key_id]  # oldest first
                 while len(self._passes) >= MAX_PASSES:
-                    del self._passes[next(iter(self._passes))]
+                    del self._passes[own.pop(0) if own else next(iter(self._passes))]
             self._passes[digest] = grant
 
     def find(self, digest: str) -> ViewerGrant | None:
