@@ -16,9 +16,10 @@ from store_cases import MAP, assert_same_object, make_object
 from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
 from arcloud.core.types import AABB, OBB, MapObject, Params
+from arcloud.core.voxels import keys_bounds
 from arcloud.errors import InvalidInput, MapMismatch
 from arcloud.stores.memory import MemoryStore
-from arcloud.stores.snapshot import restore_bytes, snapshot_bytes
+from arcloud.stores.snapshot import read_snapshot, restore_bytes, snapshot_bytes
 
 
 def test_a_snapshot_carries_the_voxel_colours(store) -> None:
@@ -133,3 +134,33 @@ def test_the_largest_id_restores_and_the_next_new_id_follows_it(store) -> None:
     assert restore_bytes(store, MAP, with_object_renamed(valid, 1, str(2**53 - 1)), params=Params()) == 2
     assert sorted(o.id for o in store.list_objects(MAP)) == [2, 2**53 - 1]
     assert list(store.new_ids(MAP, 1)) == [2**53]
+
+
+def test_a_snapshot_is_of_one_version_when_a_commit_lands_while_its_objects_are_read(store) -> None:
+    store.open_map(MAP, MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0))
+    first, second = make_object(1, (0.0, 0.0, 0.0), seed=1), make_object(2, (2.0, 0.0, 0.0), seed=2)
+    store.commit(MAP, [], MapChange.writing(MAP, [first, second]))
+    merged = first.replace(keys=np.union1d(first.keys, second.keys))  # as a merge writes it: 2's voxels into 1, 2 gone
+    merged = merged.replace(
+        weights=np.ones(merged.keys.size, np.float32), votes=np.ones((merged.keys.size, first.votes.shape[1]), np.float32),
+        seen=None, colors=None, version=2,
+    )  # fmt: skip
+    merged = merged.replace(bounds=AABB(*keys_bounds(merged.keys, Params().voxel_size_m)))
+    reads = []
+    list_objects = store.list_objects
+
+    def torn_read(map_id: str) -> list[MapObject]:  # the first read sees the map before the merge: a batch read early
+        before = list_objects(map_id)
+        if not reads:
+            with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=1) as lease:
+                store.commit(MAP, [lease], MapChange.writing(MAP, [merged], [second]))
+        reads.append(len(before))
+        return before
+
+    store.list_objects = torn_read  # type: ignore[method-assign]
+    try:
+        _, _, objects = read_snapshot(snapshot_bytes(store, MAP))
+    finally:
+        del store.list_objects
+    assert reads == [2, 1]  # read again after the commit landed: the merged map, one object
+    assert [o.id for o in objects] == [1] and objects[0].keys.size == merged.keys.size

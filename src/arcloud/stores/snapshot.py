@@ -32,7 +32,7 @@ from arcloud.core.checks import check_finite_number, check_id, describe
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.types import AABB, MapObject, Params
 from arcloud.core.voxels import keys_bounds
-from arcloud.errors import InvalidInput, MapMismatch, StoreError
+from arcloud.errors import InvalidInput, MapMismatch, StoreError, StoreUnavailable
 from arcloud.ports import ObjectStore
 from arcloud.stores import codec
 from arcloud.stores.cells import MAX_OBJECT_CELLS, check_object_cells
@@ -67,12 +67,32 @@ UNREADABLE = (
 )
 
 
+#: Reads of a map's objects a snapshot tries before giving up on one no commit landed in the middle of.
+SNAPSHOT_READS = 5
+
+
+def consistent_objects(store: ObjectStore, map_id: str) -> list[MapObject]:
+    """Every object of the map as of one version: read again when a commit landed while they were read (a large map
+    is read in batches, and a merge between two of them would put one object's voxels in the snapshot twice, or in
+    none of it). ``StoreUnavailable`` when every one of ``SNAPSHOT_READS`` reads met a commit."""
+    for _ in range(SNAPSHOT_READS):
+        before = store.changes_since(map_id, 0, 0).version
+        objects = store.list_objects(map_id)
+        if store.changes_since(map_id, 0, 0).version == before:
+            return objects
+    raise StoreUnavailable(
+        f"snapshot of map {map_id}: the map changed during each of {SNAPSHOT_READS} reads of its objects; try again "
+        "when fewer frames of it are being processed"
+    )
+
+
 def snapshot_bytes(store: ObjectStore, map_id: str) -> bytes:
-    """The map's header and objects as a snapshot file's bytes (``InvalidInput`` for a map never opened)."""
+    """The map's header and objects as a snapshot file's bytes, all of one version (``consistent_objects``;
+    ``InvalidInput`` for a map never opened)."""
     header = store.map_header(map_id)
     if header is None:
         raise InvalidInput("map_id", "a map with data", repr(map_id))
-    objects = store.list_objects(map_id)
+    objects = consistent_objects(store, map_id)
     archive = io.BytesIO()
     with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as out:
         document = {
