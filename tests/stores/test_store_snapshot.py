@@ -157,7 +157,7 @@ def test_a_snapshot_is_of_one_version_when_a_commit_lands_while_its_objects_are_
         reads.append(len(before))
         return before
 
-    store.list_objects = torn_read  # type: ignore[method-assign]
+    store.list_objects = torn_read  # type: ignore[method-assign]  # the store reading as a torn batch would
     try:
         _, _, objects = read_snapshot(snapshot_bytes(store, MAP))
     finally:
