@@ -157,8 +157,20 @@ def test_a_stop_finishes_both_frames_in_hand_and_leaves_the_rest_queued(server: 
     slow = worker(server, BlobDetector(delay_s=0.5), prefetch=True, consumer="stopping")
     for frame in walk("stop", 8):
         slow.queue.put(frame)
+    # two frames are in hand only while the first's step runs (the next is taken once the detector is free of the
+    # first): that step is held here until the stop is asked for, so the test cannot miss the moment under load
+    stepping, go_on, finish = threading.Event(), threading.Event(), slow.finish
+
+    def held_finish(started: Any) -> Any:
+        stepping.set()
+        go_on.wait(30)
+        return finish(started)
+
+    slow.finish = held_finish  # type: ignore[method-assign]  # the worker's own finish, held until the stop is asked
     running = Running(slow)
-    wait_until(lambda: len(pending_of(server, "stopping")) == 2, 30, "two frames in hand")
+    wait_until(lambda: stepping.is_set() and len(pending_of(server, "stopping")) == 2, 30, "two frames in hand")
+    running.stop_event.set()
+    go_on.set()
     running.stop()
     assert pending_of(server, "stopping") == []
     stats = slow.queue.stats()
