@@ -222,6 +222,22 @@ def test_a_body_still_arriving_after_the_body_timeout_is_refused_and_frees_its_p
         assert http.post("/v1/maps/slow/frames", content=body, headers=PROTOBUF).status_code == 202  # sent at once: taken
 
 
+def test_an_event_stream_outlives_the_body_timeout_once_its_request_is_whole() -> None:
+    # the stream waits on ``receive`` for its client's disconnect, long after its (empty) body arrived
+    settings = Settings(detector="sim:0", workers=1, body_timeout_s=0.3, event_heartbeat_s=0.2)
+    app = create_app(settings, detector=BlobDetector())
+    with UvicornThread(app) as server, httpx.Client(base_url=server.url, timeout=10) as http:
+        body = frame_to_proto(make_test_frame(0, map_id="watched")).SerializeToString()
+        assert http.post("/v1/maps/watched/frames", content=body, headers=PROTOBUF).status_code == 202
+        started, beats = time.monotonic(), 0
+        with http.stream("GET", "/v1/maps/watched/events") as stream:
+            for line in stream.iter_lines():
+                beats += line == ": keep-alive"
+                if time.monotonic() - started > 1.5:
+                    break
+        assert beats >= 4  # kept alive five times the body timeout (it was cut at 0.3 s, mid-stream)
+
+
 # --- a flood on one map, another map's uploads: the API in a process of its own, on a real Redis ------------------
 def big_frame_body(map_id: str, device_id: str) -> bytes:
     """A 1280 x 960 frame (noisy colour, a depth ramp with noise) as protobuf: about 1.8 MB, 40-60 ms to check."""

@@ -122,7 +122,8 @@ class BodyLimit:
     """ASGI middleware refusing bodies over ``max_bytes``: at once from Content-Length, else while
     reading (``BodyTooLarge`` from ``receive``, answered 413 by the app's handler); and bodies still arriving
     ``timeout_s`` after the first read of them (``BodyTooSlow``, answered 408): a client sending a byte at a time
-    would hold its upload's place for as long as it liked."""
+    would hold its upload's place for as long as it liked. Once the body is whole, ``receive`` waits as long as the
+    app likes (an event stream waits on it for its client's disconnect)."""
 
     def __init__(self, app: Callable[..., Awaitable[None]], max_bytes: int, timeout_s: float = 60.0) -> None:
         self.app = app
@@ -153,9 +154,12 @@ class BodyLimit:
                 return
         received = 0
         deadline: float | None = None
+        whole = False
 
         async def limited() -> dict[str, Any]:
-            nonlocal received, deadline
+            nonlocal received, deadline, whole
+            if whole:
+                return await receive()
             loop = asyncio.get_running_loop()
             deadline = loop.time() + self.timeout_s if deadline is None else deadline
             try:
@@ -166,6 +170,7 @@ class BodyLimit:
                 received += len(message.get("body", b""))
                 if received > self.max_bytes:
                     raise BodyTooLarge(self.max_bytes, f"more than {self.max_bytes} bytes")
+            whole = message["type"] != "http.request" or not message.get("more_body", False)
             return message
 
         await self.app(scope, limited, send)
