@@ -150,8 +150,8 @@ def test_every_script_touches_keys_of_one_slot_only(redis_server: RedisServer) -
     commands = monitor.stop()
     with redis_server.client() as client:
         assert (
-            _check_scripts(commands, client) == 8
-        )  # acquire release query commit accept settle dead_letters_kept rate_limit (delete_map: no script, SCAN + UNLINK)
+            _check_scripts(commands, client) == 9
+        )  # acquire release query commit accept settle dead_letters_kept rate_limit mark_published (delete_map's only one)
         stray = [("c", [b"EVALSHA", b"sha", b"1", b"a{m}"]), ("lua", [b"GET", b"a{m}"]), ("lua", [b"GET", b"b{n}"])]
         with pytest.raises(AssertionError, match="touched 'b{n}' of another slot"):
             _check_scripts(stray, client)  # the check sees what it is for

@@ -68,16 +68,27 @@ def test_the_log_keeps_its_latest_entries_and_a_reader_behind_them_is_told(make_
     assert 5 <= len(kept) <= 5 + 200
     assert store.changes_since(MAP, kept[0] - 1, 1000).complete  # the reader saw up to the first kept
     assert not store.changes_since(MAP, kept[0] - 2, 1000).complete
-    assert store.changes_since(MAP, 301, 10) == ChangesSince((), 300, False)  # ahead: the map was made again
+    assert store.changes_since(MAP, 301, 10) == ChangesSince((), 300, False)  # ahead: not a version of this log
 
 
-def test_deleting_a_map_starts_its_log_over(store) -> None:
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]))
+def test_deleting_a_map_empties_its_log_and_a_map_made_again_goes_on_from_its_version(store) -> None:
+    """A reader that saw version 2 of the deleted map is told it missed changes, whatever the map made again wrote
+    since (its versions restarting at 1 reached 2 and read as complete: a stream resumed on the old objects)."""
+    for i in (1, 2):
+        assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0))]))
     store.mark_published(MAP, 1)
     store.delete_map(MAP)
-    assert store.changes_since(MAP, 1, 10) == ChangesSince((), 0, False) and store.published_version(MAP) == 0
-    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]))
-    assert [e.version for e in store.changes_since(MAP, 0, 10).entries] == [1]
+    assert store.changes_since(MAP, 2, 10) == ChangesSince((), 3, False)  # the deletion: one more version, no entry
+    assert store.published_version(MAP) == 3  # nothing of the old map left to publish
+    assert store.changes_since(MAP, 3, 10) == ChangesSince((), 3, True)
+    for i in (1, 2):
+        assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0))]))
+    behind = store.changes_since(MAP, 2, 10)  # one that read up to 2 before the deletion: it re-reads the map
+    assert (behind.version, behind.complete) == (5, False)
+    assert [e.version for e in store.changes_since(MAP, 3, 10).entries] == [4, 5]  # one that read the empty map: complete
+    assert store.changes_since(MAP, 3, 10).complete
+    store.delete_map("never-made")  # a map no commit wrote has no version to move on
+    assert store.changes_since("never-made", 0, 10) == ChangesSince((), 0, True)
 
 
 def test_how_far_the_log_was_published_is_only_raised(store) -> None:

@@ -4,6 +4,7 @@ workers in another process's place. Streams are read as a browser reads them: li
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Iterator
@@ -132,12 +133,13 @@ def test_a_stream_sends_the_map_then_each_change_as_frames_are_processed(service
         assert versions == sorted(set(versions))  # coalesced per poll, never an older state after a newer one
         assert served.devices["d"]["cam2world"][3] == pytest.approx(0.04)  # the device's last pose
 
+        before = max(int(served.last_id or 0), int(every.last_id or 0))
         deleted = service.http.delete("/v1/maps/ev-b", headers=bearer(service.tokens["admin"]))
         assert deleted.status_code == 200, deleted.text
-        for stream in (served, every):  # the map's change log starts over: the streams start over with it
-            assert stream.next_event("reset")[1]["version"] == 0
+        for stream in (served, every):  # the deletion empties the log and moves the version on: the streams start over
+            _, reset = stream.next_event("reset")
             _, empty = stream.next_event("snapshot")
-            assert empty["objects"] == [] and empty["version"] == 0 and stream.objects == {}
+            assert empty["objects"] == [] and empty["version"] == reset["version"] > before and stream.objects == {}
     wait_until(lambda: service.streams.open_streams == 0, 5, "both streams closed once their client went")
     wait_until(lambda: not service.streams.watches, 5, "the map's poller stopped")
 
@@ -318,3 +320,50 @@ def test_a_client_back_with_last_event_id_gets_what_it_missed_and_one_too_far_be
                 _, snapshot = behind.next_event("snapshot")
                 assert reset["version"] == snapshot["version"] == 8 and behind.last_id == "8"
                 assert sorted(o["id"] for o in snapshot["objects"]) == [2, 3, 4, 5, 6, 7]
+
+
+@pytest.mark.parametrize("store_kind", ["memory", pytest.param("redis", marks=pytest.mark.redis)])
+def test_a_client_back_with_an_id_from_before_the_map_was_deleted_is_reset_however_far_the_new_map_got(
+    store_kind: str,
+) -> None:
+    """The map is deleted and made again while the client is away, and the new map's writers get past the client's
+    ``Last-Event-ID``: the stream says ``reset`` and sends the new map. (Versions restarted at 1 with the new map, so
+    that one at version 2 answered an id 2 with nothing: the client kept the deleted map's objects, silently.)"""
+    from redis_server import RedisServer
+
+    from arcloud.stores.redis import RedisStore
+
+    with contextlib.ExitStack() as stack:
+        if store_kind == "redis":
+            redis_url = stack.enter_context(RedisServer.start()).url
+            store: MemoryStore | RedisStore = RedisStore(redis_url)
+            stack.callback(store.close)
+            settings = Settings(store=redis_url, auth="none", detector="sim:0", workers=0, event_poll_s=0.02)
+            app = create_app(settings)
+        else:
+            store = MemoryStore()
+            settings = Settings(detector="sim:0", workers=1, auth="none", event_poll_s=0.02)
+            app = create_app(settings, store=store, detector=BlobDetector())
+        header = MapHeader.from_params(Params(), codec_version=store.codec_version, created_at_s=1.0)
+
+        def made(*places: int) -> None:  # the map opened, each object (ids from the map's counter) one commit
+            store.open_map("again", header)
+            for place, object_id in zip(places, store.new_ids("again", len(places))):
+                store.commit("again", [], MapChange.writing("again", [cube(place).replace(id=object_id)]))
+
+        made(1, 2)
+        server = stack.enter_context(UvicornThread(app))
+        with EventStream(server.url, "again", tentative=True) as first:
+            first.next_event("snapshot")
+            left_at, held = first.last_id, dict(first.objects)
+        assert left_at == "2" and sorted(held) == [1, 2]
+        assert httpx.delete(f"{server.url}/v1/maps/again", timeout=10).status_code == 200
+        made(7, 8, 9)  # the new map, while the client is away: as many commits as the old one had, and one more
+        with EventStream(server.url, "again", tentative=True, last_event_id=left_at) as back:
+            back.objects = held
+            _, reset = back.next_event("reset")
+            _, snapshot = back.next_event("snapshot")
+        listed = store.list_meta("again")
+        assert reset["version"] == snapshot["version"] == 6  # 2 commits, the deletion, 3 commits
+        assert {i: o["aabb"]["min"] for i, o in back.objects.items()} == {o.id: o.aabb.min.tolist() for o in listed}
+        assert sorted(back.objects) == [3, 4, 5]  # ids the deleted map never gave

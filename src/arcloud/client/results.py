@@ -178,8 +178,8 @@ class SnapshotEvent:
 
 @dataclass(frozen=True, slots=True)
 class ResetEvent:
-    """The stream could not resume where the client was (the map's change log no longer holds what followed, or
-    the map was made again): drop what you hold; a ``SnapshotEvent`` follows."""
+    """The stream could not resume where the client was (the map's change log no longer holds what followed: the
+    client was away too long, or the map was deleted since): drop what you hold; a ``SnapshotEvent`` follows."""
 
     reason: str
     version: int

@@ -68,8 +68,9 @@ class LoggedChange:
 class ChangesSince:
     """What a change log holds after a version a reader saw (``ChangeLog.changes_since``): ``entries``, oldest
     first; ``version``, the map's version now (the last entry's, 0 before any); ``complete``: False when
-    entries the reader has not seen are gone (trimmed, or the map was deleted and made again: its versions
-    start over), so that the reader must re-read the map instead."""
+    entries the reader has not seen are gone (trimmed, or the map was deleted since: a deletion moves the version
+    on and empties the log, ``ObjectStore.delete_map``; or ``after`` is ahead of the map: not a version of this
+    log), so that the reader must re-read the map instead."""
 
     entries: tuple[LoggedChange, ...]
     version: int
@@ -79,7 +80,7 @@ class ChangesSince:
 def changes_after(entries: Sequence[LoggedChange], version: int, after: int, limit: int) -> ChangesSince:
     """``ChangesSince`` of a log holding ``entries`` (consecutive versions, oldest first) whose map is at
     ``version``, for a reader that saw up to ``after``: at most ``limit`` entries."""
-    if after > version:  # versions from before the map was made again
+    if after > version:  # not a version of this log (another store's, or one that lost its data)
         return ChangesSince((), version, False)
     first = entries[0].version if entries else version + 1
     kept = [e for e in entries if e.version > after][: max(0, limit)]

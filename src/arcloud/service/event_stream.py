@@ -8,9 +8,9 @@ have every ``event_poll_s`` (0.5 s): on Redis one GET and one XRANGE a tick, how
 maps no one watches. A stream's events carry the map's version as their SSE ``id`` (the last event of each
 read; a bare ``id:`` when a read moved the version but showed this stream nothing), so a client that connects
 again with ``Last-Event-ID`` resumes where it was: the entries after that version, no snapshot, no gap. When the
-log no longer holds them (trimmed: the store keeps its latest ``change_log_entries``; or the id is not of this
-map's log, which starts over when the map is deleted and made again) the stream says ``reset`` and sends the map
-as it is. Changes within one tick are coalesced per object (its latest state), and a state never older than one
+log no longer holds them (trimmed: the store keeps its latest ``change_log_entries``; emptied: the map was deleted,
+which moves its version on, ``ObjectStore.delete_map``; or the id is ahead of the log, not of this map's) the
+stream says ``reset`` and sends the map as it is. Changes within one tick are coalesced per object (its latest state), and a state never older than one
 the stream sent goes out.
 
 Events, each ``event: NAME`` and one line of JSON ``data:``:
@@ -311,7 +311,7 @@ class MapWatch:
                 sub.offer(got, moved, gone)
             elif read.snapshot is not None and (sub.position is None or got is not None):  # not one that came since
                 behind = "the change log no longer holds the changes after the stream's version"
-                unknown = "the version is not of this map's change log (the map was made again)"
+                unknown = "the version is not of this map's change log (ahead of it)"
                 reason = None if sub.position is None else unknown if sub.position > read.snapshot.version else behind
                 sub.start_over(read.snapshot, reason)
 

@@ -7,7 +7,7 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
 
     arcloud:{m}:header              STRING  the map's header (``core.header.MapHeader``, JSON): the settings its data
                                             is written under; set once, by the map's first ``open_map`` (SET NX)
-    arcloud:{m}:ids                 STRING  object id counter (INCRBY)
+    arcloud:{m}:ids                 STRING  object id counter (INCRBY); kept by ``delete_map``
     arcloud:{m}:processed           HASH    processed frame key ("<device_id>/<frame_id>") -> when its commit was
                                             written (Unix s); kept ``frame_record_retention_s`` (``RedisStore``)
     arcloud:{m}:processed:count     STRING  frames of the map processed (INCR in the commit; never lowered)
@@ -23,8 +23,10 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
     arcloud:{m}:changes             STREAM  the map's change log (``core.change``): entry ``<version>-0`` per commit with
                                             events (``at``, ``frame``, ``events``: ``codec.encode_events``), appended
                                             by the commit script; ``MAXLEN ~`` the store's ``change_log_entries``
-    arcloud:{m}:changes:version     STRING  the map's version: the change log's last entry (set by the commit)
-    arcloud:{m}:changes:published   STRING  the version up to which the log was published over Zenoh (only raised)
+    arcloud:{m}:changes:version     STRING  the map's version: the change log's last entry (set by the commit); kept by
+                                            ``delete_map``, one more (the deletion)
+    arcloud:{m}:changes:published   STRING  the version up to which the log was published over Zenoh (only raised); kept
+                                            by ``delete_map``, raised to the version
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
@@ -69,7 +71,8 @@ Service-wide keys (no tag: single-key commands only):
                                             (``redis_viewer_passes``, PX until it expires)
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
-``RedisStore.delete_map`` removes every key matching ``map_pattern``; the queue's ``forget_map`` removes the
+``RedisStore.delete_map`` removes every key matching ``map_pattern`` but the three it keeps (``ids``,
+``changes:version``, ``changes:published``: a map made again goes on from them); the queue's ``forget_map`` removes the
 map's frame records and counts from its shard (not its part of the shard's backlog: frames still queued
 leave it when they settle).
 """

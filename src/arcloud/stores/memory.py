@@ -378,6 +378,13 @@ class MemoryStore:
         now_s = self._clock()
         with self._maps_lock:
             state = self._maps.pop(map_id, None)
+            if state is not None:  # its versions and object ids go on, as Redis's ``delete_map`` keeps them
+                self._maps[map_id] = _MapState(
+                    log=deque(maxlen=self.change_log_entries),
+                    next_id=state.next_id,
+                    version=state.version + 1 if state.version else 0,
+                    published=state.version + 1 if state.version else 0,
+                )
             self._headers.pop(map_id, None)
             self._updated.pop(map_id, None)
             n_objects = 0 if state is None else len(state.objects)

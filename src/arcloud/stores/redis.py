@@ -50,7 +50,9 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   deletes its objects ``DELETE_OBJECTS`` at a time (HSCAN of the bounds registry: each object's hash and the
   index cells it lists, ``DELETE_BATCH`` keys a call, then its registry fields), recording how far it got after
   each step, then unlinks the registries and SCANs ``arcloud:{map}:*`` (on every primary of a cluster) for what
-  is left (frame marks, leases, what writers added meanwhile), logging its progress every ``PROGRESS_LOG_S``:
+  is left (frame marks, leases, what writers added meanwhile), but for the map's id counter, version and published
+  version: it raises the version by one (and the published one to it; ``ObjectStore.delete_map``: a map made again
+  never reuses a version or an object id). It logs its progress every ``PROGRESS_LOG_S``:
   Redis answers others between calls whatever the map holds (one script deleting a map of 5 million index cells
   held Redis 9 s). Not atomic against writers of the same map that run at the same time; called again after a
   deletion stopped half way (its process died), it goes on from what is left.
@@ -604,23 +606,24 @@ class RedisStore:
                         )
             if ids:
                 going = self._delete_objects(going, ids)
-            # What is left: the registries, then by SCAN frame marks, leases and what writers added meanwhile.
+            # What is left: the registries, then by SCAN frame marks, leases and what writers added meanwhile. The
+            # map's version and id counter stay: a map made again goes on from them (``ObjectStore.delete_map``).
+            kept = {k.encode() for k in (keys.ids_key(map_id), keys.version_key(map_id), keys.published_key(map_id))}
             registries = [
                 keys.bounds_key(map_id),
                 keys.meta_key(map_id),
-                keys.ids_key(map_id),
                 keys.processed_key(map_id),
                 keys.processed_count_key(map_id),
                 keys.processed_sweep_key(map_id),
                 keys.retired_key(map_id),
                 keys.retired_at_key(map_id),
                 keys.changes_key(map_id),
-                keys.version_key(map_id),
-                keys.published_key(map_id),
             ]
             removed_keys = int(self.client.unlink(*registries))  # one slot: the map's tag
             batch: list[bytes] = []
             for key in self.client.scan_iter(match=keys.map_pattern(map_id), count=SCAN_COUNT):
+                if key in kept:
+                    continue
                 batch.append(key)
                 if len(batch) == DELETE_BATCH:
                     removed_keys += int(self.client.unlink(*batch))
@@ -629,6 +632,9 @@ class RedisStore:
                     removed_keys = 0
             if batch:
                 removed_keys += int(self.client.unlink(*batch))
+            if self.client.get(keys.version_key(map_id)) is not None:  # the deletion is one more version, logged nowhere
+                version = int(self.client.incr(keys.version_key(map_id)))
+                self._scripts["mark_published"](keys=[keys.published_key(map_id)], args=[version])  # nothing left to publish
             going = self._record_deletion(replace(going, keys_removed=going.keys_removed + removed_keys), done=True)
         log.info(
             "map %s deleted: %d objects, %d keys in %.1f s", map_id, n_objects, going.keys_removed, time.monotonic() - started
