@@ -224,12 +224,11 @@ class MapCatalog(Protocol):
     def delete_map(self, map_id: str) -> int:
         """Remove a map and everything under it (objects, header, change log, history); returns the number of
         objects removed. Its version and its object id counter stay, the version one on (the deletion is a change
-        of the map, an empty log its only entry): a map made again under the id goes on from them, so that no
-        version and no object id of it is ever given twice. A reader back with a version of the deleted map finds
-        the log incomplete and reads the map again (``ChangesSince``), however far the map made again got, and
-        no object of the new map takes an id a reader may hold of the old. The map leaves the list and loses its header first, then its objects go a bounded batch
-        at a time, the progress recorded (``map_deletion``); called again on a map whose deletion stopped half
-        way, it goes on."""
+        of the map, an empty log its only entry): a map made again under the id goes on from them, so no version
+        and no object id is given twice. A reader back with a version of the deleted map finds the log incomplete
+        and reads the map again (``ChangesSince``), however far the map made again got. The map leaves the list
+        and loses its header first, then its objects go a bounded batch at a time, the progress recorded
+        (``map_deletion``); called again on a map whose deletion stopped half way, it goes on."""
         ...
 
     def map_deletion(self, map_id: str) -> MapDeletion | None:

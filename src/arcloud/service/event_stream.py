@@ -10,8 +10,8 @@ read; a bare ``id:`` when a read moved the version but showed this stream nothin
 again with ``Last-Event-ID`` resumes where it was: the entries after that version, no snapshot, no gap. When the
 log no longer holds them (trimmed: the store keeps its latest ``change_log_entries``; emptied: the map was deleted,
 which moves its version on, ``ObjectStore.delete_map``; or the id is ahead of the log, not of this map's) the
-stream says ``reset`` and sends the map as it is. Changes within one tick are coalesced per object (its latest state), and a state never older than one
-the stream sent goes out.
+stream says ``reset`` and sends the map as it is. Changes within one tick are coalesced per object (its latest
+state), and a state never older than one the stream sent goes out.
 
 Events, each ``event: NAME`` and one line of JSON ``data:``:
 
