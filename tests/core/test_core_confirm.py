@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 from handmade_frames import look_down_pose, scene_frame
 
+from arcloud.core.boxes import refine
 from arcloud.core.confirm import detection_rate, is_confirmed, plausible
+from arcloud.core.fusion import new_object
 from arcloud.core.step import integrate_frame
-from arcloud.core.types import OBB, Detection, MapObject, Params, empty_object
+from arcloud.core.types import CLASS_INDEX, OBB, Detection, MapObject, Params, VoxelDetection, empty_object
+from arcloud.core.voxels import pack_keys
 from arcloud.stores.memory import MemoryStore
 
 PARAMS = Params(voxel_size_m=0.05, floor_min_samples=5)
@@ -83,3 +86,19 @@ def test_an_occluded_object_is_not_missed():
         integrate_frame(frame, [], store, PARAMS)
     (chair,) = store.list_objects("m")
     assert chair.n_missed == 0 and chair.confirmed
+
+
+def test_a_box_as_tall_as_its_class_can_be_is_plausible_wherever_the_grid_falls():
+    # A chair 0.30 m (the least a chair can be) between its outer voxels' centres: its height, a difference of
+    # coordinates, measured 0.30000000000000004 m or 0.29999999999999993 m by where the world's grid fell.
+    i, j, k = np.meshgrid(np.arange(8), np.arange(8), np.arange(7), indexing="ij")
+    block = np.column_stack([i.ravel(), j.ravel(), k.ravel()])
+    heights, verdicts = set(), set()
+    for shift in range(-40, 40, 3):
+        obj = refine(
+            new_object(1, VoxelDetection(CLASS_INDEX["chair"], 0.9, np.sort(pack_keys(block + (0, 0, shift)))), "a", 0.0), PARAMS
+        )
+        heights.add(float(obj.obb.size[2]))
+        verdicts.add(plausible(obj, PARAMS))
+    assert len(heights) > 1  # the float differs with the grid's phase ...
+    assert verdicts == {True}  # ... and the verdict does not

@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from arcloud.core.boxes import box_voxel_mask, box_voxel_masks, fit_gravity_obb, label_side_by_side, refine, refine_all
+from arcloud.core.boxes import (
+    COMPONENT_GAP_VOXELS,
+    box_voxel_mask,
+    box_voxel_masks,
+    fit_gravity_obb,
+    label_side_by_side,
+    refine,
+    refine_all,
+)
 from arcloud.core.fusion import (
     VOTE_STEP,
     find_duplicates,
@@ -165,9 +173,50 @@ def test_parts_joined_by_the_objects_own_weak_voxels_stay_in_the_box_and_empty_s
     params = Params(min_component_fraction=0.5)
     mask = box_voxel_mask(obj, params)
     assert set(obj.keys[mask]) == set(np.union1d(body, back))  # the weak layer joins, and stays out itself
-    # The same parts with the layer empty (never the object's): the back is a small part of its own.
-    apart = new_object(2, det("tv", np.union1d(body, back)), "a", 0.0)
-    assert set(apart.keys[box_voxel_mask(apart, params)]) == set(body)
+    # A back beside the body with empty layers between them (never the object's): up to COMPONENT_GAP_VOXELS of
+    # them, the back is what a camera below it saw thinly and stays; one more, it is a small part of its own.
+    for gap in (1, COMPONENT_GAP_VOXELS, COMPONENT_GAP_VOXELS + 1):
+        far_back = block((10 + gap, 0, 0), (11 + gap, 10, 4))  # ``gap`` empty layers behind the body (x 0-9)
+        apart = new_object(2, det("tv", np.union1d(body, far_back)), "a", 0.0)
+        kept = np.union1d(body, far_back) if gap <= COMPONENT_GAP_VOXELS else body
+        assert set(apart.keys[box_voxel_mask(apart, params)]) == set(kept), gap
+
+
+def test_a_part_a_gap_away_stays_only_within_the_gap_above_or_below_the_large_parts():
+    # A screen (z 0-5) and, one empty layer below it, a piece the masks bled onto: reaching no further below the
+    # screen than COMPONENT_GAP_VOXELS, it is the screen's lower edge and stays; reaching further, it is the shelf
+    # under the screen and goes.
+    screen = block((0, 0, 0), (12, 2, 6))
+    params = Params(min_component_fraction=0.9)  # the piece is under 0.9 of the screen however deep
+    for depth in (1, COMPONENT_GAP_VOXELS - 1, COMPONENT_GAP_VOXELS, 5):
+        below = block((0, 0, -1 - depth), (12, 2, -1))  # the gap at z -1, the piece at z -1 - depth .. -2
+        tv = new_object(1, det("tv", np.union1d(screen, below)), "a", 0.0)
+        kept = np.union1d(screen, below) if 1 + depth <= COMPONENT_GAP_VOXELS else screen
+        assert set(tv.keys[box_voxel_mask(tv, params)]) == set(kept), depth
+
+
+def test_a_part_a_gap_away_is_not_joined_where_it_would_make_the_box_one_the_class_cannot_have():
+    # A laptop 0.30 m long (7 voxels at 5 cm, between outer centres) and, two empty voxels past its end, 4 voxels of
+    # the keyboard beside it that masks bled onto: joined, the laptop would be 0.60 m long (a laptop is at most
+    # 0.55 m), so the piece stays a small part of its own and out of the box. The same shapes as a TV's are a size
+    # a TV can have, and join.
+    body, beside = block((0, 0, 0), (7, 5, 1)), block((9, 0, 0), (13, 5, 1))
+    params = Params(voxel_size_m=0.05, min_component_fraction=0.7, box_pad_voxels=0)
+    laptop = new_object(1, det("laptop", np.union1d(body, beside)), "a", 0.0)
+    assert set(laptop.keys[box_voxel_mask(laptop, params)]) == set(body)
+    screen, back = block((0, 0, 0), (7, 1, 6)), block((9, 0, 0), (13, 1, 6))
+    tv = new_object(2, det("tv", np.union1d(screen, back)), "a", 0.0)
+    assert box_voxel_mask(tv, params).all()
+
+
+def test_small_parts_a_gap_apart_are_not_counted_as_one_larger_part():
+    # A part of 100 voxels, and far from it two of 75 one empty layer apart: each of the two is small beside the
+    # first (under 0.8 of it) and stays small, though together they would be the largest.
+    a = block((0, 0, 0), (10, 10, 1))
+    b, c = block((30, 0, 0), (45, 5, 1)), block((30, 6, 0), (45, 11, 1))
+    params = Params(min_component_fraction=0.8)
+    obj = new_object(1, det("table", np.union1d(np.union1d(a, b), c)), "a", 0.0)
+    assert set(obj.keys[box_voxel_mask(obj, params)]) == set(a)
 
 
 def same_parts(a, b):
@@ -194,7 +243,9 @@ def test_grids_labelled_side_by_side_have_the_parts_each_has_alone(widths):
 def test_box_voxels_and_refined_objects_together_are_each_ones_own():
     body = block((0, 0, 0), (10, 10, 10))
     with_island = new_object(1, det("couch", np.union1d(body, block((30, 0, 0), (31, 2, 2)))), "a", 0.0)
-    screen = new_object(2, det("tv", np.union1d(block((0, 0, 0), (10, 10, 4)), block((0, 0, 6), (10, 10, 7)))), "a", 0.0)
+    screen = new_object(
+        2, det("tv", np.union1d(block((0, 0, 0), (10, 10, 4)), block((0, 0, 7), (10, 10, 8)))), "a", 0.0
+    )  # 3 empty layers
     small = new_object(3, det("chair", block((5, 5, 5), (6, 6, 7))), "a", 0.0)
     objects, params = [with_island, screen, small], Params(min_component_fraction=0.5)
     masks = box_voxel_masks(objects, params, [unpack_keys(o.keys) for o in objects], [None] * 3, [None] * 3)

@@ -10,16 +10,23 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from arcloud.core.confirm import label_purity, with_evidence
+from arcloud.core.confirm import label_purity, plausible, with_evidence
 from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, points_extent, sorted_unique, unpack_keys
+from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, keys_near, points_extent, sorted_unique, unpack_keys
 from arcloud.core.walls import Wall, object_wall, outside_wall
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
+#: Lengths that differ by less are one: heights worked out from coordinates carry rounding that falls with the
+#: world's grid (0.3 m was 0.30000000000000004 or 0.29999999999999993), so a rule must not turn on it.
+EXACT_M = 1e-6
+#: A small part this few empty voxels from a large one stays with it: what a camera sees of a thing it looks up or
+#: down at thinly (a TV's back above the eye, a couch's arm beside its seat) is often cut from the rest by a
+#: voxel or two no mask covered; stray voxels lie further out.
+COMPONENT_GAP_VOXELS = 2
 _CONNECTIVITY_26.setflags(write=False)
 
 
@@ -39,7 +46,8 @@ def box_voxel_mask(obj: MapObject, params: Params) -> np.ndarray:
     visible (occupancy weights / seen >= ``box_min_occupancy``) and not hit too rarely compared with
     the object's well-observed voxels (``box_rel_weight`` of the 90th percentile weight), then drops
     connected parts smaller than ``min_component_fraction`` of the largest (26-neighbourhood, connected
-    through any of the object's voxels, kept or not; sizes count kept voxels)."""
+    through any of the object's voxels, kept or not; sizes count kept voxels), but for those within
+    ``COMPONENT_GAP_VOXELS`` empty voxels of a part kept (``box_voxel_masks``)."""
     if obj.keys.size == 0:
         return np.zeros(0, bool)
     return box_voxel_masks([obj], params, [unpack_keys(obj.keys)], [None], [None])[0]
@@ -57,7 +65,7 @@ def box_voxel_masks(
     bled onto, not the object; with its wall (``walls``: ``screen_wall``, or None), voxels behind it are the
     wall. The parts of all the objects are found by one labelling (``label_side_by_side``)."""
     keeps: list[np.ndarray] = []
-    grids: list[tuple[list[int], np.ndarray, np.ndarray] | None] = []  # (shape, cells of all voxels, kept voxels)
+    grids: list[tuple[list[int], np.ndarray, np.ndarray, np.ndarray] | None] = []  # shape, cells of all, kept, all's indices
     for obj, ijk_all, floor_m, wall in zip(objects, ijks, floors, walls):
         k = int(0.9 * (obj.weights.size - 1))
         reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
@@ -65,7 +73,7 @@ def box_voxel_masks(
         if floor_m is not None:
             up = params.voxel_size_m * params.gravity.up  # a voxel's lowest corner: its own corner plus the steps down
             bottoms = ijk_all @ up + np.minimum(up, 0.0).sum()
-            keep &= bottoms > floor_m + params.floor_clearance_m
+            keep &= bottoms > floor_m + params.floor_clearance_m + EXACT_M  # a bottom on the line is below it
         if wall is not None:
             keep &= outside_wall(ijk_centers(ijk_all, params.voxel_size_m), wall, params.voxel_size_m)
         keeps.append(keep)
@@ -81,20 +89,70 @@ def box_voxel_masks(
         # the frames' order decides) still joins the parts it touches; empty space does not.
         local_all = ijk_all - origin
         below = local_all.view(np.uint64) < np.array(shape, np.uint64)  # a negative index reads as a huge one
-        grids[-1] = (shape, local_all[below[:, 0] & below[:, 1] & below[:, 2]], ijk - origin)
+        in_extent = np.flatnonzero(below[:, 0] & below[:, 1] & below[:, 2])
+        grids[-1] = (shape, local_all[in_extent], ijk - origin, in_extent)
     labelled = iter(label_side_by_side([(grid[0], grid[1]) for grid in grids if grid is not None]))
-    for keep, grid in zip(keeps, grids):
+    for obj, ijk_all, keep, grid in zip(objects, ijks, keeps, grids):
         if grid is None:
             continue
-        local = grid[2]
-        part = next(labelled)[local[:, 0], local[:, 1], local[:, 2]]
+        labels, (_, cells, local, in_extent) = next(labelled), grid
+        part = labels[local[:, 0], local[:, 1], local[:, 2]]
         if part.min() == part.max():  # one part: nothing to drop
             continue
-        sizes = np.bincount(part)
-        large = sizes >= params.min_component_fraction * sizes.max()
+        small = ~large_parts(part, params)
+        if not small.any():
+            continue
         kept_idx = np.flatnonzero(keep)
-        keep[kept_idx[~large[part]]] = False
+        stays = np.isin(part, parts_near(obj.keys[in_extent], labels[tuple(cells.T)], part[~small]))
+        heights = ijk_all[kept_idx] @ params.gravity.up
+        lowest, highest = heights[~small].min(), heights[~small].max()
+        off = small & stays & ((heights < lowest - COMPONENT_GAP_VOXELS - 0.5) | (heights > highest + COMPONENT_GAP_VOXELS + 0.5))
+        stays &= ~np.isin(part, part[off])
+        joined = kept_idx[small & ~stays]
+        apart = kept_idx[small]
+        keep[
+            joined if joined.size < apart.size and not grows_implausible(obj, ijk_all, keep, apart, joined, params) else apart
+        ] = False
     return keeps
+
+
+def parts_near(keys: np.ndarray, labels: np.ndarray, large: np.ndarray) -> np.ndarray:
+    """The labels of the parts (of an object's voxels ``keys``, sorted, labelled ``labels``) within
+    ``COMPONENT_GAP_VOXELS`` empty voxels of a ``large`` part, or of a part so found (a chain of small parts: a
+    TV's back seen in pieces), all the voxels counted, kept or not."""
+    joined = np.unique(large)
+    while True:
+        inside = np.isin(labels, joined)
+        if inside.all():
+            return joined
+        near = keys_near(keys[~inside], keys[inside], COMPONENT_GAP_VOXELS + 1)
+        if not near.any():
+            return joined
+        joined = np.union1d(joined, labels[~inside][near])
+
+
+def large_parts(part: np.ndarray, params: Params) -> np.ndarray:
+    """(N,) bool: which of N voxels labelled by ``part`` lie in a part of at least ``min_component_fraction`` of the
+    largest's voxels."""
+    sizes = np.bincount(part)
+    return (sizes >= params.min_component_fraction * sizes.max())[part]
+
+
+def grows_implausible(
+    obj: MapObject, ijk: np.ndarray, keep: np.ndarray, apart: np.ndarray, joined: np.ndarray, params: Params
+) -> bool:
+    """Whether keeping the small parts near a large one (dropping only ``joined`` of the kept voxels rather than
+    ``apart``) would give the object a box its class cannot have, where the large parts alone give one it can:
+    a laptop's part beside the keyboard a mask bled onto is a gap away, and kept makes a 0.75 m laptop."""
+    labelled = obj.replace(label=CLASSES[object_label_index(obj)])  # the label refining will give it
+    boxes = []
+    for dropped in (joined, apart):
+        mask = keep.copy()
+        mask[dropped] = False
+        box_ijk = ijk[mask]
+        box_obb = fit_voxels_obb(box_ijk, params.voxel_size_m, params.gravity, params.box_pad_voxels * params.voxel_size_m)
+        boxes.append(plausible(labelled.replace(obb=box_obb), params))
+    return not boxes[0] and boxes[1]
 
 
 def label_side_by_side(grids: Sequence[tuple[list[int], np.ndarray]]) -> list[np.ndarray]:
