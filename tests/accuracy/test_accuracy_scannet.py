@@ -49,7 +49,8 @@ def independent_map(predictions: list[dict], ground_truth: list[dict], threshold
 
 
 def test_cases_are_split_into_tune_and_report() -> None:
-    assert {c.seed for c in FULL_CASES if c.split == "tune"} == set(TUNE_SEEDS)
+    assert {c.seed for c in FULL_CASES if c.split == "tune" and c.style == "random"} == set(TUNE_SEEDS)
+    assert {c.eye_height_m for c in FULL_CASES if c.split == "report"} == {1.0, 1.5}  # low walks are reported too
     assert len({c.name for c in FULL_CASES}) == len(FULL_CASES) >= 5
     assert all(c.split == "report" for c in QUICK_CASES)
 
@@ -68,7 +69,9 @@ def test_renders_are_reused_only_with_the_same_settings_and_annotation(tmp_path:
         rendered.append(source.annotation)
         scene_dir = root / source.scene_id
         scene_dir.mkdir(parents=True, exist_ok=True)
-        settings = {k: settings[k] for k in ("users", "frames_per_user", "seed", "style", "width", "height")}
+        settings = {k: settings[k] for k in ("users", "frames_per_user", "seed", "style", "width", "height", "eye_height_m")}
+        if settings["style"] == "random":
+            settings["eye_height_m"] = None  # as render_scannet records it: the random style draws each user's
         (scene_dir / "render.json").write_text(json.dumps({**settings, "annotation": source.annotation}))
         return scene_dir
 
@@ -83,6 +86,14 @@ def test_renders_are_reused_only_with_the_same_settings_and_annotation(tmp_path:
     render_case(SimpleNamespace(scene_id="scene0000_00", annotation="v1"), case, tmp_path)
     render_case(source, dataclasses.replace(case, seed=7), tmp_path / "other")
     assert rendered == ["v2", "v1", "v2"]
+    low = dataclasses.replace(case, style="scan", eye_height_m=1.0)
+    assert low.name.endswith("_eye1")
+    render_case(source, low, tmp_path / "low")
+    render_case(source, low, tmp_path / "low")  # reused
+    render_case(source, dataclasses.replace(low, eye_height_m=1.1), tmp_path / "low")  # another eye, another render
+    assert rendered == ["v2", "v1", "v2", "v2", "v2"]
+    with pytest.raises(ValueError, match="random style draws"):
+        dataclasses.replace(case, eye_height_m=1.0)
 
 
 @pytest.mark.shared

@@ -102,3 +102,19 @@ def test_a_box_as_tall_as_its_class_can_be_is_plausible_wherever_the_grid_falls(
         verdicts.add(plausible(obj, PARAMS))
     assert len(heights) > 1  # the float differs with the grid's phase ...
     assert verdicts == {True}  # ... and the verdict does not
+
+
+def test_a_floor_standing_box_as_tall_as_its_class_can_be_above_its_floor_is_plausible_wherever_the_grid_falls():
+    # The same chair with its floor at its lowest voxels' centres: its height is then its top less the floor's
+    # height, 0.30 m between the two in exact arithmetic, and its verdict must not turn on that difference's rounding.
+    params = Params(voxel_size_m=0.05, floor_bin_m=0.05, floor_min_samples=5)
+    i, j, k = np.meshgrid(np.arange(8), np.arange(8), np.arange(7), indexing="ij")
+    block = np.column_stack([i.ravel(), j.ravel(), k.ravel()])
+    verdicts = set()
+    for shift in range(-40, 40, 3):
+        obj = refine(
+            new_object(1, VoxelDetection(CLASS_INDEX["chair"], 0.9, np.sort(pack_keys(block + (0, 0, shift)))), "a", 0.0), params
+        )
+        obj = obj.replace(floor_votes={shift: 100})  # the floor at (shift + 0.5) voxels: the lowest voxels' centres
+        verdicts.add(plausible(obj, params))
+    assert verdicts == {True}

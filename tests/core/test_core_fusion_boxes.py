@@ -188,11 +188,40 @@ def test_a_part_a_gap_away_stays_only_within_the_gap_above_or_below_the_large_pa
     # under the screen and goes.
     screen = block((0, 0, 0), (12, 2, 6))
     params = Params(min_component_fraction=0.9)  # the piece is under 0.9 of the screen however deep
-    for depth in (1, COMPONENT_GAP_VOXELS - 1, COMPONENT_GAP_VOXELS, 5):
+    for depth in (COMPONENT_GAP_VOXELS - 1, COMPONENT_GAP_VOXELS, 5):
         below = block((0, 0, -1 - depth), (12, 2, -1))  # the gap at z -1, the piece at z -1 - depth .. -2
         tv = new_object(1, det("tv", np.union1d(screen, below)), "a", 0.0)
         kept = np.union1d(screen, below) if 1 + depth <= COMPONENT_GAP_VOXELS else screen
         assert set(tv.keys[box_voxel_mask(tv, params)]) == set(kept), depth
+
+
+def test_small_parts_chained_a_gap_apart_stay_but_not_through_a_part_that_goes():
+    # A screen's back seen in two pieces behind it (x), each two empty voxels from the last: both stay. Below
+    # the screen, a shelf too deep to stay, and a piece two empty voxels past the shelf's end: it reaches the
+    # screen only through the shelf, so it goes with it.
+    screen = block((0, 0, 0), (12, 2, 6))
+    near_piece, far_piece = block((0, 4, 0), (12, 5, 6)), block((0, 7, 0), (12, 8, 6))
+    params = Params(min_component_fraction=0.9)
+    tv = new_object(1, det("tv", np.union1d(screen, np.union1d(near_piece, far_piece))), "a", 0.0)
+    assert box_voxel_mask(tv, params).all()
+    shelf, past_shelf = block((0, 0, -5), (16, 2, -1)), block((19, 0, -2), (21, 2, -1))
+    tv = new_object(2, det("tv", np.union1d(screen, np.union1d(shelf, past_shelf))), "a", 0.0)
+    assert set(tv.keys[box_voxel_mask(tv, params)]) == set(screen)
+
+
+def test_floor_clearance_does_not_turn_on_where_the_grid_falls():
+    # Voxels whose bottoms lie exactly floor_clearance_m above the floor are on the line (floor, not object),
+    # however the floor height and the voxels' corners round: the world moved by whole voxels keeps the verdict.
+    params = Params(voxel_size_m=0.05, min_component_fraction=0.0)
+    kept_rows = set()
+    for shift in range(-30, 30, 7):
+        keys = block((0, 0, shift), (4, 4, shift + 8))
+        obj = new_object(1, det("chair", keys), "a", 0.0)
+        # the floor 0.8 voxels (floor_clearance_m) below the lowest row's bottom: that row's bottom on the line
+        floor_m = (shift - params.floor_clearance_m / params.voxel_size_m) * params.voxel_size_m
+        (mask,) = box_voxel_masks([obj], params, [unpack_keys(obj.keys)], [floor_m], [None])
+        kept_rows.add(int(np.count_nonzero(mask)) // 16)
+    assert kept_rows == {7}  # the row on the line out, every other row in, at every shift
 
 
 def test_a_part_a_gap_away_is_not_joined_where_it_would_make_the_box_one_the_class_cannot_have():

@@ -6,15 +6,12 @@ from scipy import ndimage
 from arcloud.core.camera import boxes_in_frustum, frame_frustum, view_frustum
 from arcloud.core.types import Detection, Params
 from arcloud.core.voxels import (
-    KEY_MASK,
-    KEY_OFFSET,
     coarsen_keys,
     erode,
     erode_sampled,
     footprint_share,
     in_sorted,
     key_centers,
-    keys_near,
     mask_extent,
     mask_points,
     near_mask,
@@ -137,24 +134,6 @@ def test_in_sorted_is_isin():
         ordered = sorted_unique(rng.integers(-30, 30, n_ordered))
         assert np.array_equal(in_sorted(values, ordered), np.isin(values, ordered))
     assert in_sorted(np.array([7, 9]), np.array([9])).tolist() == [False, True]  # past the last: not found
-
-
-def test_keys_near_are_the_keys_within_reach_of_the_other_set():
-    rng = np.random.default_rng(3)
-    for _ in range(30):
-        a, b = (np.unique(rng.integers(-6, 6, (int(rng.integers(1, 60)), 3)), axis=0) for _ in range(2))
-        reach = int(rng.integers(0, 4))
-        nearest = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2).min(axis=1)  # Chebyshev distance to b
-        order = np.argsort(pack_keys(a))
-        got = keys_near(pack_keys(a)[order], np.sort(pack_keys(b)), reach)
-        assert np.array_equal(got, nearest[order] <= reach)
-
-
-def test_keys_near_at_the_edges_of_the_packable_range():
-    top, bottom = KEY_MASK - KEY_OFFSET, -KEY_OFFSET
-    for a, b in (([top - 1, 0, 0], [top, 0, 1]), ([bottom + 1, 0, 0], [bottom, 0, 1]), ([0, top, 0], [1, top - 1, 0])):
-        assert keys_near(pack_keys(np.array([a])), pack_keys(np.array([b])), 1).tolist() == [True]
-        assert keys_near(pack_keys(np.array([a])), pack_keys(np.array([b])), 0).tolist() == [False]
 
 
 @pytest.mark.parametrize("radius_px", [1, 3, 8])

@@ -62,7 +62,7 @@ def test_render_read_back_and_evaluate(tmp_path: Path) -> None:
     )
     record = json.loads((scene_dir / "render.json").read_text())
     assert record["frames"] == 12 and record["user_frames"] == [[0, 6], [6, 12]] and record["dropped"] == 0
-    assert record["annotation"] == "v1" and record["label_ids"] == "scannet"
+    assert record["annotation"] == "v1" and record["label_ids"] == "scannet" and record["eye_height_m"] == 1.5
     assert (out / "scannetv2-labels.combined.tsv").is_file() and not (scene_dir / "labels_v2").exists()
 
     rendered = load_scannet_scene(scene_dir)

@@ -15,7 +15,7 @@ from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
 from arcloud.core.types import AABB, CLASSES, OBB, MapObject, Params
-from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, keys_near, points_extent, sorted_unique, unpack_keys
+from arcloud.core.voxels import ijk_bounds, ijk_centers, ijk_extent, points_extent, sorted_unique, unpack_keys
 from arcloud.core.walls import Wall, object_wall, outside_wall
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
@@ -65,7 +65,7 @@ def box_voxel_masks(
     bled onto, not the object; with its wall (``walls``: ``screen_wall``, or None), voxels behind it are the
     wall. The parts of all the objects are found by one labelling (``label_side_by_side``)."""
     keeps: list[np.ndarray] = []
-    grids: list[tuple[list[int], np.ndarray, np.ndarray, np.ndarray] | None] = []  # shape, cells of all, kept, all's indices
+    grids: list[tuple[list[int], np.ndarray, np.ndarray] | None] = []  # (shape, cells of all voxels, kept voxels)
     for obj, ijk_all, floor_m, wall in zip(objects, ijks, floors, walls):
         k = int(0.9 * (obj.weights.size - 1))
         reference = float(np.partition(obj.weights, k)[k])  # the 90th percentile, without interpolation
@@ -89,13 +89,12 @@ def box_voxel_masks(
         # the frames' order decides) still joins the parts it touches; empty space does not.
         local_all = ijk_all - origin
         below = local_all.view(np.uint64) < np.array(shape, np.uint64)  # a negative index reads as a huge one
-        in_extent = np.flatnonzero(below[:, 0] & below[:, 1] & below[:, 2])
-        grids[-1] = (shape, local_all[in_extent], ijk - origin, in_extent)
+        grids[-1] = (shape, local_all[below[:, 0] & below[:, 1] & below[:, 2]], ijk - origin)
     labelled = iter(label_side_by_side([(grid[0], grid[1]) for grid in grids if grid is not None]))
     for obj, ijk_all, keep, grid in zip(objects, ijks, keeps, grids):
         if grid is None:
             continue
-        labels, (_, cells, local, in_extent) = next(labelled), grid
+        labels, local = next(labelled), grid[2]
         part = labels[local[:, 0], local[:, 1], local[:, 2]]
         if part.min() == part.max():  # one part: nothing to drop
             continue
@@ -103,11 +102,11 @@ def box_voxel_masks(
         if not small.any():
             continue
         kept_idx = np.flatnonzero(keep)
-        stays = np.isin(part, parts_near(obj.keys[in_extent], labels[tuple(cells.T)], part[~small]))
         heights = ijk_all[kept_idx] @ params.gravity.up
         lowest, highest = heights[~small].min(), heights[~small].max()
-        off = small & stays & ((heights < lowest - COMPONENT_GAP_VOXELS - 0.5) | (heights > highest + COMPONENT_GAP_VOXELS + 0.5))
-        stays &= ~np.isin(part, part[off])
+        reach = COMPONENT_GAP_VOXELS + 0.5
+        off = small & ((heights < lowest - reach) | (heights > highest + reach))  # the shelf under a TV, say
+        stays = small & parts_near(labels, part[~small], part[off])[part]
         joined = kept_idx[small & ~stays]
         apart = kept_idx[small]
         keep[
@@ -116,19 +115,19 @@ def box_voxel_masks(
     return keeps
 
 
-def parts_near(keys: np.ndarray, labels: np.ndarray, large: np.ndarray) -> np.ndarray:
-    """The labels of the parts (of an object's voxels ``keys``, sorted, labelled ``labels``) within
-    ``COMPONENT_GAP_VOXELS`` empty voxels of a ``large`` part, or of a part so found (a chain of small parts: a
-    TV's back seen in pieces), all the voxels counted, kept or not."""
-    joined = np.unique(large)
-    while True:
-        inside = np.isin(labels, joined)
-        if inside.all():
-            return joined
-        near = keys_near(keys[~inside], keys[inside], COMPONENT_GAP_VOXELS + 1)
-        if not near.any():
-            return joined
-        joined = np.union1d(joined, labels[~inside][near])
+def parts_near(labels: np.ndarray, large: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """By part label (index 0 empty space): whether the part of a grid ``labels`` (an object's voxels, kept or not,
+    labelled by part) lies within ``COMPONENT_GAP_VOXELS`` empty voxels of a ``large`` part, or of a part so found
+    (a chain of small parts: a TV's back seen in pieces). The ``off`` parts neither join nor carry a chain."""
+    present = np.ones(int(labels.max()) + 1, bool)
+    present[0] = False
+    present[off] = False
+    solid = present[labels]
+    # Every voxel grown by half the gap (a filter of gap + 1 cells a side): parts up to the gap apart then touch.
+    bridged, _ = ndimage.label(ndimage.maximum_filter(solid, size=COMPONENT_GAP_VOXELS + 1), _CONNECTIVITY_26)
+    group = np.zeros(present.size, bridged.dtype)
+    group[labels[solid]] = bridged[solid]
+    return present & np.isin(group, group[large])
 
 
 def large_parts(part: np.ndarray, params: Params) -> np.ndarray:

@@ -70,9 +70,9 @@ def plausible(obj: MapObject, params: Params) -> bool:
     if sizes is None or obj.obb is None:
         return obj.obb is not None
     (long_min, long_max), (height_min, height_max), thickness_max = sizes
-    # Rounded to the micrometre (``core.boxes.EXACT_M``): a height worked out from coordinates measured 0.30000000000000004 m or 0.29999999999999993 m
-    # by where the world's grid fell, and a chair was or was not the 0.3 m a chair can be. Python floats: max and min
-    # of numpy scalars cost more.
+    # Rounded to the micrometre (``core.boxes.EXACT_M``): a height worked out from coordinates measured
+    # 0.30000000000000004 m or 0.29999999999999993 m by where the world's grid fell, and a chair was or was not the
+    # 0.3 m a chair can be. Python floats: max and min of numpy scalars cost more.
     width, depth, height = (round(v, 6) for v in obj.obb.size.tolist())
     longest, shortest = max(width, depth), min(width, depth)
     if obj.label == "tv":  # a screen stands upright: its longest side may be its height

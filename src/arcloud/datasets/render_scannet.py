@@ -352,6 +352,7 @@ def render_scannet(
             "scene %s: dropped %d of %d frames that saw too little surface", scene.scene_id, dropped, users * frames_per_user
         )
     record = {"users": users, "frames_per_user": frames_per_user, "seed": seed, "style": style, "width": width, "height": height,
+              "eye_height_m": None if style == "random" else eye_height_m,
               "walk_seeds": [seed * 1000 + u for u in range(users)],
               "walk_styles": [asdict(w) if w else {"eye_height_m": eye_height_m} for w in user_walks],
               "user_frames": user_frames, "frames": index, "dropped": dropped,
