@@ -8,23 +8,64 @@ from arcloud.core.associate import (
     UNMATCHED_COST,
     associate,
     association_cost,
-    common_counts,
     hungarian_match,
     overlap_matrix,
 )
 from arcloud.core.types import Params
+from arcloud.core.voxels import KEY_MASK, KEY_OFFSET, nearness, pack_keys, shared_count
 
 
 def random_sets(rng, n, universe=400, size=(0, 60)):
     return [np.unique(rng.integers(0, universe, rng.integers(*size))).astype(np.int64) for _ in range(n)]
 
 
-def test_common_counts_equal_set_intersections():
+def test_nearness_is_two_on_the_other_set_one_within_reach_else_zero():
     rng = np.random.default_rng(3)
-    a, b = random_sets(rng, 7), random_sets(rng, 5)
-    expected = [[np.intersect1d(x, y).size for y in b] for x in a]
-    assert common_counts(a, b).tolist() == expected
-    assert common_counts([], b).shape == (0, 5)
+    for _ in range(30):
+        a, b = (np.unique(rng.integers(-6, 6, (int(rng.integers(1, 60)), 3)), axis=0) for _ in range(2))
+        reach = int(rng.integers(0, 3))
+        # Chebyshev distance of every voxel of a to its nearest in b.
+        nearest = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2).min(axis=1)
+        order = np.argsort(pack_keys(a))
+        got = nearness(pack_keys(a)[order], np.sort(pack_keys(b)), reach)
+        expected = np.where(nearest == 0, 2, np.where(nearest <= reach, 1, 0))[order]
+        assert np.array_equal(got, expected)
+        assert shared_count(pack_keys(a)[order], np.sort(pack_keys(b)), reach) == expected.sum() / 2
+
+
+def test_nearness_at_the_edges_of_the_packable_range():
+    top, bottom = KEY_MASK - KEY_OFFSET, -KEY_OFFSET
+    for a, b in (([top - 1, 0, 0], [top, 0, 1]), ([bottom + 1, 0, 0], [bottom, 0, 1]), ([0, top, 0], [1, top - 1, 0])):
+        assert nearness(pack_keys(np.array([a])), pack_keys(np.array([b])), 1).tolist() == [1]
+        assert nearness(pack_keys(np.array([b])), pack_keys(np.array([b])), 1).tolist() == [2]
+
+
+def sheet(y: int, size: int = 8) -> np.ndarray:
+    """A wall one voxel thick at y, ``size`` x ``size`` voxels."""
+    i, k = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+    return np.sort(pack_keys(np.column_stack([i.ravel(), np.full(i.size, y), k.ravel()])))
+
+
+def test_sheets_one_voxel_apart_overlap_wherever_the_grid_falls():
+    # Coarsened by 2, sheets at y 30 / 31 shared every coarse voxel and at 31 / 32 none: now half, at every y.
+    for y in (30, 31, -7):
+        assert overlap_matrix([sheet(y)], [sheet(y + 1)], 1)[0, 0] == 0.5
+        assert overlap_matrix([sheet(y)], [sheet(y)], 1)[0, 0] == 1.0
+        assert overlap_matrix([sheet(y)], [sheet(y + 2)], 1)[0, 0] == 0.0
+        assert overlap_matrix([sheet(y)], [sheet(y + 1)], 0)[0, 0] == 0.0
+
+
+def test_the_overlap_does_not_depend_on_where_the_grid_falls():
+    rng = np.random.default_rng(11)
+    a, b = (
+        [np.unique(rng.integers(0, 6, (int(rng.integers(5, 80)), 3)) + rng.integers(-8, 8, 3), axis=0) for _ in range(n)]
+        for n in (6, 4)
+    )
+    reference = overlap_matrix([np.sort(pack_keys(x)) for x in a], [np.sort(pack_keys(x)) for x in b], 1)
+    assert reference.any() and not reference.all()
+    for shift in ([1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [-3, 5, 2]):
+        moved = overlap_matrix([np.sort(pack_keys(x + shift)) for x in a], [np.sort(pack_keys(x + shift)) for x in b], 1)
+        assert np.array_equal(moved, reference)
 
 
 def brute_force(cost):

@@ -8,6 +8,7 @@ from scipy.spatial import ConvexHull
 from arcloud.core.associate import (
     index_bounds,
     index_bounds_of_sets,
+    overlap_coefficient,
     overlap_matrix,
 )
 from arcloud.core.boxes import (
@@ -207,8 +208,8 @@ def test_voxels_obb_is_the_obb_of_their_centres():
 
 
 def test_overlap_of_sets_with_themselves_is_that_of_a_copy_and_pair_by_pair():
-    """The merge pass's call (one list on both sides, each set coarsened once) against the general path
-    and each pair's overlap coefficient on its own; with empty sets, wanted pairs and known bounds."""
+    """The merge pass's call (one list on both sides, each pair once) against the general path and each
+    pair's overlap coefficient on its own; with empty sets, wanted pairs and known bounds."""
     rng = np.random.default_rng(15)
     for _ in range(CASES // 3):
         n = int(rng.integers(1, 8))
@@ -222,12 +223,11 @@ def test_overlap_of_sets_with_themselves_is_that_of_a_copy_and_pair_by_pair():
         same = overlap_matrix(sets, sets, tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
         copy = overlap_matrix(sets, list(sets), tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
         assert same.tobytes() == copy.tobytes()
-        coarse = [coarsen_keys(s, 1 + tolerance) for s in sets]
         for i, j in np.ndindex(n, n):
             if not sets[i].size or not sets[j].size:
                 assert same[i, j] == 0.0
                 continue
-            own = np.intersect1d(coarse[i], coarse[j]).size / min(coarse[i].size, coarse[j].size)
+            own = overlap_coefficient(sets[i], sets[j], tolerance)
             if wanted is None or wanted[i, j]:
                 assert same[i, j] == own
             else:  # computed when its row and column are in some wanted pair, else 0

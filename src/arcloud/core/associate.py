@@ -2,10 +2,15 @@
 
 The cost of pairing detection d with object o is ``1 - overlap(d, o)`` where
 
-    overlap = |coarse(d) ∩ coarse(o)| / min(|coarse(d)|, |coarse(o)|)
+    overlap = (|voxels of the smaller set on the other's| + |those only beside it| / 2) / |the smaller set|
 
-on voxels coarsened by ``1 + association_tolerance_voxels`` (two observations of one surface a few
-centimetres apart still share coarse voxels). Dividing by the smaller set (the overlap coefficient)
+"beside": within ``association_tolerance_voxels`` along every axis (two observations of one surface a few
+centimetres apart still meet; ``core.voxels.shared_count``). Coarsened keys once gave the tolerance, and
+gave it only where two voxels fell in one aligned pair of the grid (sheets one voxel apart shared all or
+nothing), so the map depended on where the world's grid fell; a voxel beside counts a half, what it shared
+on average over the grid's phases. Counted whole, a fragment of a few voxels read 1.0 against any detection
+around it, and a laptop's detections went to a 5-voxel laptop piece rather than the larger object they
+covered (simulated office-01). Dividing by the smaller set (the overlap coefficient)
 rather than the union (IoU) is deliberate: one frame sees only part of an object, so a correct detection
 of a large fused object has a small IoU but nearly all of its voxels inside the object. Pairs with an
 overlap below ``association_min_overlap`` are gated (never matched). A class mismatch adds
@@ -26,39 +31,13 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from arcloud.core.types import CLASS_INDEX, MapObject, Params
-from arcloud.core.voxels import coarsen_keys, keys_extent, unpack_keys
+from arcloud.core.voxels import keys_extent, shared_count, unpack_keys
 
 GATED_COST = 1e3  # finite stand-in for "impossible", so linear_sum_assignment never sees inf or NaN
 #: A detection left without an object costs what a pair sharing nothing would: every pair the gates let through
 #: costs less (overlap >= ``association_min_overlap``), so a pair is made where it shares something, and the
 #: matching maximises the overlap shared, never the number of pairs.
 UNMATCHED_COST = 1.0
-
-
-def common_counts(sets_a: Sequence[np.ndarray], sets_b: Sequence[np.ndarray]) -> np.ndarray:
-    """(A, B) int: |a ∩ b| for every pair of sorted unique int64 key sets, in one vectorised pass."""
-    counts = np.zeros((len(sets_a), len(sets_b)), np.int64)
-    if not sets_a or not sets_b:
-        return counts
-    keys_b = np.concatenate(sets_b)
-    owner_b = np.repeat(np.arange(len(sets_b)), [s.size for s in sets_b])
-    order = np.argsort(keys_b, kind="stable")
-    keys_b, owner_b = keys_b[order], owner_b[order]
-    keys_a = np.concatenate(sets_a)
-    owner_a = np.repeat(np.arange(len(sets_a)), [s.size for s in sets_a])
-    lo = np.searchsorted(keys_b, keys_a, side="left")
-    hi = np.searchsorted(keys_b, keys_a, side="right")
-    n_hits = hi - lo
-    hit = n_hits > 0
-    if not hit.any():
-        return counts
-    # Expand each key of A into the positions of its equal keys in B.
-    rows = np.repeat(owner_a[hit], n_hits[hit])
-    starts = np.repeat(lo[hit], n_hits[hit])
-    offsets = np.arange(rows.size) - np.repeat(np.cumsum(n_hits[hit]) - n_hits[hit], n_hits[hit])
-    cols = owner_b[starts + offsets]
-    np.add.at(counts, (rows, cols), 1)
-    return counts
 
 
 def index_bounds(keys: np.ndarray) -> np.ndarray:
@@ -109,12 +88,11 @@ def overlap_matrix(
     bounds_b: Sequence[np.ndarray | None] | None = None,
     pairs_wanted: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(A, B) overlap coefficient in [0, 1] of coarsened key sets (see the module docstring).
+    """(A, B) overlap coefficient in [0, 1] of key sets within ``tolerance_voxels`` (see the module docstring).
 
-    Pairs whose voxel bounds are apart are 0 without looking at their keys, and only the sets in some
-    touching pair are coarsened: in a frame, most detection/object pairs are far apart. ``bounds_a`` and
-    ``bounds_b`` may give known (2, 3) voxel-index bounds of the sets (None entries are computed); ``pairs_wanted``
-    (A, B) bool limits the pairs computed."""
+    Pairs whose voxel bounds are apart are 0 without looking at their keys: in a frame, most
+    detection/object pairs are far apart. ``bounds_a`` and ``bounds_b`` may give known (2, 3) voxel-index
+    bounds of the sets (None entries are computed); ``pairs_wanted`` (A, B) bool limits the pairs computed."""
     overlap = np.zeros((len(sets_a), len(sets_b)))
     live_a = [i for i, s in enumerate(sets_a) if s.size]
     live_b = [j for j, s in enumerate(sets_b) if s.size]
@@ -122,35 +100,43 @@ def overlap_matrix(
         return overlap
     bounds_a_arr = known_or_computed_bounds(sets_a, live_a, bounds_a)
     bounds_b_arr = known_or_computed_bounds(sets_b, live_b, bounds_b)
-    reach = tolerance_voxels + 1
+    reach = tolerance_voxels
     touching = np.all(
         (bounds_a_arr[:, None, 0] <= bounds_b_arr[None, :, 1] + reach)
         & (bounds_b_arr[None, :, 0] <= bounds_a_arr[:, None, 1] + reach),
         axis=2,
     )
-    all_live = len(live_a) == len(sets_a) and len(live_b) == len(sets_b)  # then live index k is set k
     if pairs_wanted is not None:
-        touching &= pairs_wanted if all_live else pairs_wanted[np.ix_(live_a, live_b)]
-    used_a = np.flatnonzero(touching.any(axis=1))  # the rows and columns of the touching pairs
-    if used_a.size == 0:
-        return overlap
-    used_b = np.flatnonzero(touching.any(axis=0))
-    factor = 1 + tolerance_voxels
-    coarse_a = [coarsen_keys(sets_a[live_a[i]], factor) for i in used_a.tolist()]
-    if sets_b is sets_a:  # one list against itself (the merge pass): coarsen each set once
-        coarse_of = dict(zip(used_a.tolist(), coarse_a))
-        coarse_b = [coarse_of[j] if j in coarse_of else coarsen_keys(sets_b[live_b[j]], factor) for j in used_b.tolist()]
-    else:
-        coarse_b = [coarsen_keys(sets_b[live_b[j]], factor) for j in used_b.tolist()]
-    common = common_counts(coarse_a, coarse_b)
-    sizes_a = np.array([s.size for s in coarse_a], np.float64)
-    sizes_b = np.array([s.size for s in coarse_b], np.float64)
-    block = common / np.minimum(sizes_a[:, None], sizes_b[None, :])
-    if all_live:
-        overlap[np.ix_(used_a, used_b)] = block
-    else:
-        overlap[np.ix_(np.asarray(live_a)[used_a], np.asarray(live_b)[used_b])] = block
+        touching &= pairs_wanted[np.ix_(live_a, live_b)]
+    symmetric = sets_b is sets_a  # one list against itself (the merge pass): each pair once
+    for i, j in zip(*np.nonzero(touching)):
+        a, b = live_a[i], live_b[j]
+        if symmetric and b < a and touching[j, i]:
+            overlap[a, b] = overlap[b, a]
+            continue
+        overlap[a, b] = overlap_coefficient(sets_a[a], sets_b[b], reach, bounds_a_arr[i], bounds_b_arr[j])
     return overlap
+
+
+def overlap_coefficient(
+    keys_a: np.ndarray, keys_b: np.ndarray, reach: int, bounds_a: np.ndarray | None = None, bounds_b: np.ndarray | None = None
+) -> float:
+    """The share of the smaller of two non-empty key sets that the other covers (``shared_count``; of sets of one
+    size, the larger share: the same whichever is given first). ``bounds_a``, ``bounds_b``: their known
+    (2, 3) voxel-index bounds."""
+    lo_a, hi_a = keys_extent(keys_a) if bounds_a is None else bounds_a
+    lo_b, hi_b = keys_extent(keys_b) if bounds_b is None else bounds_b
+    if keys_a.size < keys_b.size:
+        return shared_count(keys_a, keys_b, reach, (lo_a, hi_a, lo_b, hi_b)) / keys_a.size
+    if keys_b.size < keys_a.size:
+        return shared_count(keys_b, keys_a, reach, (lo_b, hi_b, lo_a, hi_a)) / keys_b.size
+    return (
+        max(
+            shared_count(keys_a, keys_b, reach, (lo_a, hi_a, lo_b, hi_b)),
+            shared_count(keys_b, keys_a, reach, (lo_b, hi_b, lo_a, hi_a)),
+        )
+        / keys_a.size
+    )
 
 
 def association_cost(overlap: np.ndarray, labels_a: Sequence[int], labels_b: Sequence[int], params: Params) -> np.ndarray:

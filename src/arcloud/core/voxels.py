@@ -82,6 +82,66 @@ def in_sorted(values: np.ndarray, ordered: np.ndarray) -> np.ndarray:
     return ordered[at] == values
 
 
+def crop_index(keys: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Positions (ascending) of the keys (sorted) whose voxel indices lie within ``lo``..``hi`` (3,) on every axis:
+    packed keys sort by their first index, so its range is one slice found by binary search; the other two are
+    masked. Bounds past the packable range are clipped to it."""
+    lo = np.maximum(lo, -KEY_OFFSET)
+    hi = np.minimum(hi, KEY_MASK - KEY_OFFSET)
+    start = int(np.searchsorted(keys, np.int64(lo[0] + KEY_OFFSET) << (2 * KEY_BITS)))
+    top = hi[0] + 1 + KEY_OFFSET  # the first index past the range (past the last packable one: every key is before it)
+    stop = keys.size if top > KEY_MASK else int(np.searchsorted(keys, np.int64(top) << (2 * KEY_BITS)))
+    part = keys[start:stop]
+    second = (part >> KEY_BITS) & KEY_MASK
+    third = part & KEY_MASK
+    inside = (second >= lo[1] + KEY_OFFSET) & (second <= hi[1] + KEY_OFFSET)
+    inside &= (third >= lo[2] + KEY_OFFSET) & (third <= hi[2] + KEY_OFFSET)
+    return start + np.flatnonzero(inside)
+
+
+def nearness(
+    keys: np.ndarray, others: np.ndarray, reach: int, extents: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
+    """(N,) uint8: 2 where a key of ``keys`` (sorted unique) lies on a voxel of ``others`` (sorted unique), 1 where
+    it lies only beside one (within ``reach`` voxels along every axis), else 0. It does not depend on where the
+    world's grid falls (coarsened keys would: two voxels side by side share a coarse voxel only when they fall in
+    the same aligned pair). ``extents``: the sets' known (lo, hi) voxel indices (or larger), keys' then others'.
+    Keys on the other set are found by a binary search; those beside it in a dense grid of the other set around
+    them."""
+    out = np.zeros(keys.size, np.uint8)
+    if not keys.size or not others.size:
+        return out
+    lo_k, hi_k, lo_o, hi_o = extents if extents is not None else (*keys_extent(keys), *keys_extent(others))
+    lo, hi = np.maximum(lo_k, lo_o - reach), np.minimum(hi_k, hi_o + reach)
+    if np.any(lo > hi):
+        return out
+    at = crop_index(keys, lo, hi)
+    near = keys[at]
+    around = others[crop_index(others, lo - reach, hi + reach)]
+    on = in_sorted(near, around)
+    out[at[on]] = 2
+    if reach == 0 or on.all() or not around.size:
+        return out
+    # The grid spans lo - reach .. hi + reach and holds the other set grown by ``reach``.
+    origin = lo - reach
+    grid = np.zeros(hi - lo + 1 + 2 * reach, bool)
+    grid[tuple((unpack_keys(around) - origin).T)] = True
+    grid = ndimage.maximum_filter(grid, size=2 * reach + 1, mode="constant")
+    beside = at[~on]
+    out[beside] = grid[tuple((unpack_keys(keys[beside]) - origin).T)]
+    return out
+
+
+def shared_count(
+    keys: np.ndarray, others: np.ndarray, reach: int, extents: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+) -> float:
+    """How much of ``keys`` the other set covers: a key on a voxel of ``others`` counts 1, one only beside it
+    (``nearness``) a half, about how often the two would share a coarse voxel of twice the size over the grid's
+    phases (always where they are one voxel, half the time where they are side by side). Sheets one voxel
+    apart share half of themselves wherever the grid falls."""
+    return int(nearness(keys, others, reach, extents).sum(dtype=np.int64)) / 2
+
+
 def coarsen_keys(keys: np.ndarray, factor: int) -> np.ndarray:
     """Sorted unique keys of the ``factor``-times coarser voxels holding ``keys``: ``coarsen_keys_plain``,
     without unpacking when ``factor`` is a power of two (a test holds them equal)."""
