@@ -12,7 +12,7 @@ from arcloud.core.associate import (
     overlap_matrix,
 )
 from arcloud.core.types import Params
-from arcloud.core.voxels import KEY_MASK, KEY_OFFSET, nearness, pack_keys, shared_count
+from arcloud.core.voxels import KEY_MASK, KEY_OFFSET, NEARNESS_GRID_CELLS, nearness, pack_keys, shared_count
 
 
 def random_sets(rng, n, universe=400, size=(0, 60)):
@@ -31,6 +31,19 @@ def test_nearness_is_two_on_the_other_set_one_within_reach_else_zero():
         expected = np.where(nearest == 0, 2, np.where(nearest <= reach, 1, 0))[order]
         assert np.array_equal(got, expected)
         assert shared_count(pack_keys(a)[order], np.sort(pack_keys(b)), reach) == expected.sum() / 2
+
+
+def test_nearness_of_sets_with_stray_voxels_far_off_is_found_without_a_grid_of_their_extent():
+    # Two small sets, each with a voxel 150 voxels off: their extents span a grid past NEARNESS_GRID_CELLS.
+    rng = np.random.default_rng(8)
+    a = np.vstack([np.unique(rng.integers(0, 8, (60, 3)), axis=0), [[150, 150, 150]]])
+    b = np.vstack([np.unique(rng.integers(0, 8, (60, 3)), axis=0) + (0, 1, 0), [[-150, 149, 151]], [[149, 151, 150]]])
+    assert np.prod(np.ptp(np.vstack([a, b]), axis=0) + 1) > NEARNESS_GRID_CELLS
+    nearest = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2).min(axis=1)
+    order = np.argsort(pack_keys(a))
+    expected = np.where(nearest == 0, 2, np.where(nearest <= 1, 1, 0))[order]
+    assert np.array_equal(nearness(pack_keys(a)[order], np.sort(pack_keys(b)), 1), expected)
+    assert expected[-1] == 1  # a's stray voxel (the last key), beside one of b's
 
 
 def test_nearness_at_the_edges_of_the_packable_range():

@@ -208,8 +208,8 @@ def test_voxels_obb_is_the_obb_of_their_centres():
 
 
 def test_overlap_of_sets_with_themselves_is_that_of_a_copy_and_pair_by_pair():
-    """The merge pass's call (one list on both sides, each pair once) against the general path and each
-    pair's overlap coefficient on its own; with empty sets, wanted pairs and known bounds."""
+    """The merge pass's call (one list on both sides, each pair once) against the general path, each pair's
+    overlap coefficient on its own and the overlap's definition; with empty sets, wanted pairs and known bounds."""
     rng = np.random.default_rng(15)
     for _ in range(CASES // 3):
         n = int(rng.integers(1, 8))
@@ -224,14 +224,27 @@ def test_overlap_of_sets_with_themselves_is_that_of_a_copy_and_pair_by_pair():
         copy = overlap_matrix(sets, list(sets), tolerance, bounds_a=bounds, bounds_b=bounds, pairs_wanted=wanted)
         assert same.tobytes() == copy.tobytes()
         for i, j in np.ndindex(n, n):
-            if not sets[i].size or not sets[j].size:
+            if not sets[i].size or not sets[j].size or (wanted is not None and not wanted[i, j]):
                 assert same[i, j] == 0.0
                 continue
-            own = overlap_coefficient(sets[i], sets[j], tolerance)
-            if wanted is None or wanted[i, j]:
-                assert same[i, j] == own
-            else:  # computed when its row and column are in some wanted pair, else 0
-                assert same[i, j] in (0.0, own)
+            assert (
+                same[i, j]
+                == overlap_coefficient(sets[i], sets[j], tolerance)
+                == overlap_by_definition(sets[i], sets[j], tolerance)
+            )
+
+
+def overlap_by_definition(keys_a, keys_b, tolerance):
+    """What the association's docstring says: of the smaller set (of sets of one size, whichever reads more), each
+    voxel on the other counts 1 and each within ``tolerance`` along every axis a half."""
+
+    def covered(x, y):
+        distance = np.abs(unpack_keys(x)[:, None, :] - unpack_keys(y)[None, :, :]).max(axis=2).min(axis=1)
+        return (np.count_nonzero(distance == 0) + np.count_nonzero((distance > 0) & (distance <= tolerance)) / 2) / x.size
+
+    if keys_a.size != keys_b.size:
+        return covered(*sorted((keys_a, keys_b), key=len))
+    return max(covered(keys_a, keys_b), covered(keys_b, keys_a))
 
 
 def box_containment_plain(objects):

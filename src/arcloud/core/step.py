@@ -304,7 +304,7 @@ def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | N
 
 def apart_in_frame(taken: Sequence[tuple[VoxelDetection, int]], params: Params) -> list[tuple[int, int]]:
     """Object id pairs (a, b), a < b, that this frame saw apart: two detections of one class that share few
-    voxels (coarse overlap below ``association_min_overlap``) went to them (``taken``: (observation, object
+    voxels (overlap below ``association_min_overlap``) went to them (``taken``: (observation, object
     id) of every observation fused into an object or made one)."""
     by_label: dict[int, list[tuple[VoxelDetection, int]]] = {}
     for observation, object_id in taken:

@@ -359,7 +359,8 @@ class Params:
     wall_screen_depth_m: float = 0.1
     wall_front_share: float = 0.5
     wall_depth_share: float = 0.3
-    # Association (cost = 1 - overlap; overlap = common voxels / min(sizes), see core.associate)
+    # Association (cost = 1 - overlap; overlap: the smaller set's voxels on the other, those beside it a half,
+    # over its size: core.associate)
     association_min_overlap: float = 0.15
     association_tolerance_voxels: int = 1
     class_aware: bool = True
