@@ -365,7 +365,7 @@ class Params:
     association_tolerance_voxels: int = 1
     class_aware: bool = True
     class_mismatch_penalty: float = 0.3
-    class_mismatch_min_overlap: float = 0.8
+    class_mismatch_min_overlap: float = 0.6
     split_min_frames: int = 3
     split_classes: tuple[str, ...] = ("chair", "laptop", "tv")  # see core.associate.Association
     apart_min_frames: int = 3  # two objects detected apart in this many frames stay two (core.fusion.seen_apart; 0: off)
