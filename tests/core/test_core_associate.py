@@ -128,8 +128,9 @@ def test_gating_keeps_weak_pairs_unmatched_and_class_aware_option():
     found = associate([strong, weak], [0, 0], [obj], [0], params)
     pairs, unmatched = found.pairs, found.unmatched
     assert pairs == [(0, 0)] and unmatched == [1]
-    # Class-aware (default): a label mismatch is gated unless the overlap is nearly complete.
-    partly = np.arange(40, 140, dtype=np.int64)  # 60 of 100 inside
+    # Class-aware (default): a label mismatch is gated unless the overlap reaches class_mismatch_min_overlap.
+    partly = np.arange(50, 150, dtype=np.int64)  # 50 of 100 inside
+    assert params.class_mismatch_min_overlap > 0.5
     found = associate([partly], [1], [obj], [0], params)
     pairs, unmatched = found.pairs, found.unmatched
     assert pairs == [] and unmatched == [0]
