@@ -10,7 +10,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from arcloud.core.confirm import label_purity, plausible, with_evidence
+from arcloud.core.confirm import EXACT_DIGITS, label_purity, plausible, with_evidence
 from arcloud.core.floor import floor_height
 from arcloud.core.fusion import keep_voxels, object_label_index
 from arcloud.core.gravity import Gravity
@@ -20,9 +20,6 @@ from arcloud.core.walls import Wall, object_wall, outside_wall
 
 MAX_COMPONENT_GRID_CELLS = 8_000_000  # larger objects skip the component filter (memory bound)
 _CONNECTIVITY_26 = np.ones((3, 3, 3), bool)
-#: Lengths that differ by less are one: heights worked out from coordinates carry rounding that falls with the
-#: world's grid (0.3 m was 0.30000000000000004 or 0.29999999999999993), so a rule must not turn on it.
-EXACT_M = 1e-6
 #: A small part this few empty voxels from a large one stays with it: what a camera sees of a thing it looks up or
 #: down at thinly (a TV's back above the eye, a couch's arm beside its seat) is often cut from the rest by a
 #: voxel or two no mask covered; stray voxels lie further out.
@@ -73,7 +70,7 @@ def box_voxel_masks(
         if floor_m is not None:
             up = params.voxel_size_m * params.gravity.up  # a voxel's lowest corner: its own corner plus the steps down
             bottoms = ijk_all @ up + np.minimum(up, 0.0).sum()
-            keep &= bottoms > floor_m + params.floor_clearance_m + EXACT_M  # a bottom on the line is below it
+            keep &= bottoms.round(EXACT_DIGITS) > round(floor_m + params.floor_clearance_m, EXACT_DIGITS)  # on the line: below
         if wall is not None:
             keep &= outside_wall(ijk_centers(ijk_all, params.voxel_size_m), wall, params.voxel_size_m)
         keeps.append(keep)

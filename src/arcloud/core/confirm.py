@@ -38,6 +38,11 @@ import numpy as np
 from arcloud.core.floor import floor_height
 from arcloud.core.types import MapObject, Params
 
+#: Lengths are compared to the micrometre (rounded to this many decimals of a metre): heights worked out from
+#: coordinates carry rounding that falls with the world's grid (a chair 0.3 m tall measured 0.30000000000000004
+#: or 0.29999999999999993 m), so a rule must not turn on it.
+EXACT_DIGITS = 6
+
 #: Plausible sizes per class, metres: (longest footprint side min, max), (height min, max), thickness max
 #: (the shorter footprint side; None: any). Generous: noisy voxel boxes of real objects must pass.
 CLASS_SIZES_M: dict[str, tuple[tuple[float, float], tuple[float, float], float | None]] = {
@@ -70,10 +75,8 @@ def plausible(obj: MapObject, params: Params) -> bool:
     if sizes is None or obj.obb is None:
         return obj.obb is not None
     (long_min, long_max), (height_min, height_max), thickness_max = sizes
-    # Rounded to the micrometre (``core.boxes.EXACT_M``): a height worked out from coordinates measured
-    # 0.30000000000000004 m or 0.29999999999999993 m by where the world's grid fell, and a chair was or was not the
-    # 0.3 m a chair can be. Python floats: max and min of numpy scalars cost more.
-    width, depth, height = (round(v, 6) for v in obj.obb.size.tolist())
+    # To the micrometre (``EXACT_DIGITS``); Python floats: max and min of numpy scalars cost more.
+    width, depth, height = (round(v, EXACT_DIGITS) for v in obj.obb.size.tolist())
     longest, shortest = max(width, depth), min(width, depth)
     if obj.label == "tv":  # a screen stands upright: its longest side may be its height
         longest = max(longest, height)
@@ -81,7 +84,7 @@ def plausible(obj: MapObject, params: Params) -> bool:
         floor_m = floor_height(obj.floor_votes, params)
         if floor_m is not None:
             top_m = float(params.gravity.up @ obj.obb.center) + height / 2
-            height = round(top_m - floor_m, 6)
+            height = round(top_m - floor_m, EXACT_DIGITS)
     return (
         long_min <= longest <= long_max
         and height_min <= height <= height_max
