@@ -391,6 +391,80 @@ def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[A
     return aabb, obb
 
 
+#: A chair tucked under a table shows its back above the top while its seat and legs hide beneath: its box is a
+#: thin slab beside the table. A seat is about as deep as it is wide, and a chair at a table faces it, so such a box
+#: reaches under the table (``reach_under``) when its shorter side is under ``TUCKED_THIN_SHARE`` of its longer.
+TUCKED_UNDER: dict[str, str] = {"chair": "table"}
+TUCKED_THIN_SHARE = 0.6
+TUCKED_GAP_VOXELS = 2  # the slab's face at most this many voxels from the table's edge (or over it)
+
+
+def reach_under(objects: Sequence[MapObject], around: Sequence[MapObject], params: Params) -> list[MapObject]:
+    """``objects`` with each tucked one's boxes (``TUCKED_UNDER``) reaching under the confirmed table of ``around``
+    it stands against: along its shorter side, toward the table, to as deep as it is wide but no further than the
+    table's far edge. The table spans at least half its width, its top is no higher than the chair's, and the chair
+    starts outside it. Only where the aligned frame (``world2aligned``) has an axis up."""
+    tables = {
+        label: [t for t in around if t.label == label and t.confirmed and t.aabb is not None] for label in TUCKED_UNDER.values()
+    }
+    to_aligned = np.eye(3) if params.world2aligned is None else np.asarray(params.world2aligned, np.float64)[:3, :3]
+    aligned_up = to_aligned @ params.gravity.up
+    vertical = int(np.argmax(np.abs(aligned_up)))
+    if abs(aligned_up[vertical]) < 0.99:
+        return list(objects)
+    rise = float(np.sign(aligned_up[vertical]))
+    return [
+        _reached_under(obj, tables[TUCKED_UNDER[obj.label]], to_aligned, vertical, rise, params)
+        if obj.label in TUCKED_UNDER and obj.aabb is not None and obj.obb is not None
+        else obj
+        for obj in objects
+    ]
+
+
+def _reached_under(
+    obj: MapObject, tables: Sequence[MapObject], to_aligned: np.ndarray, vertical: int, rise: float, params: Params
+) -> MapObject:
+    assert obj.aabb is not None and obj.obb is not None  # reach_under passes boxed objects
+    lo, hi = obj.aabb.min, obj.aabb.max
+    thin, wide = sorted((axis for axis in range(3) if axis != vertical), key=lambda axis: (hi - lo)[axis])
+    depth, width = float(hi[thin] - lo[thin]), float(hi[wide] - lo[wide])
+    if depth >= TUCKED_THIN_SHARE * width:
+        return obj
+    gap = TUCKED_GAP_VOXELS * params.voxel_size_m
+    top = max(rise * lo[vertical], rise * hi[vertical])
+    best: tuple[float, float, float] | None = None  # (shared width, new face, side)
+    for table in tables:
+        assert table.aabb is not None
+        t_lo, t_hi = table.aabb.min, table.aabb.max
+        shared = min(hi[wide], t_hi[wide]) - max(lo[wide], t_lo[wide])
+        if table.id == obj.id or shared < width / 2 or max(rise * t_lo[vertical], rise * t_hi[vertical]) > top:
+            continue
+        if lo[thin] < t_lo[thin] and hi[thin] >= t_lo[thin] - gap:  # the table on the far side along + thin
+            face, side = min(lo[thin] + width, t_hi[thin]), 1.0
+        elif hi[thin] > t_hi[thin] and lo[thin] <= t_hi[thin] + gap:
+            face, side = max(hi[thin] - width, t_lo[thin]), -1.0
+        else:
+            continue
+        if side * face > side * (hi[thin] if side > 0 else lo[thin]) and (best is None or shared > best[0]):
+            best = (shared, face, side)
+    if best is None:
+        return obj
+    _, face, side = best
+    new_lo, new_hi = lo.copy(), hi.copy()
+    reach = face - hi[thin] if side > 0 else lo[thin] - face
+    (new_hi if side > 0 else new_lo)[thin] = face
+    # The oriented box grows as much along its horizontal axis nearest the direction reached in.
+    toward = to_aligned.T @ (np.eye(3)[thin] * side)
+    axes = obj.obb.rotation
+    horizontal = [k for k in range(3) if k != int(np.argmax(np.abs(axes.T @ params.gravity.up)))]
+    k = max(horizontal, key=lambda k: abs(float(axes[:, k] @ toward)))
+    sign = float(np.sign(axes[:, k] @ toward))
+    size = obj.obb.size.copy()
+    size[k] += reach
+    obb = OBB(center=obj.obb.center + axes[:, k] * sign * reach / 2, size=size, rotation=axes, yaw_rad=obj.obb.yaw_rad)
+    return obj.replace(aabb=AABB(new_lo, new_hi), obb=obb)
+
+
 def refine(obj: MapObject, params: Params) -> MapObject:
     """Prune noisy voxels, then derive label, score, bounds and boxes. An object left without voxels
     comes back empty (the caller deletes it)."""

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
-from arcloud.core.boxes import refine_all
+from arcloud.core.boxes import reach_under, refine_all
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.change import MapChange
 from arcloud.core.checks import check_detections
@@ -622,7 +622,10 @@ def refine_changed(objects: Sequence[MapObject], voxels_changed: set[int], resco
     voxels comes back empty), and those only rescored, as they are."""
     written = [o for o in objects if o.id in voxels_changed or o.id in rescored]
     refined = iter(refine_all([o for o in written if o.id in voxels_changed], params))
-    return [next(refined) if o.id in voxels_changed else o for o in written]
+    to_write = [next(refined) if o.id in voxels_changed else o for o in written]
+    now = {o.id: o for o in objects} | {o.id: o for o in to_write}
+    reached = iter(reach_under([o for o in to_write if o.id in voxels_changed], list(now.values()), params))
+    return [next(reached) if o.id in voxels_changed else o for o in to_write]
 
 
 def diff_with_stored(
