@@ -101,3 +101,25 @@ def test_the_floor_clearance_leaves_out_the_same_layers_whichever_way_the_world_
     z_up = kept_layers(Params(), np.eye(3, dtype=int), np.zeros(3, int))
     assert z_up[0] >= 1  # the layer on the floor is left out
     assert kept_layers(Params(up=up), np.array(to_world), np.array(shift)) == z_up
+
+
+@pytest.mark.parametrize("up", [(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0)])
+def test_the_axis_aligned_box_reaches_the_floor_whichever_way_the_world_points_up(up: tuple[float, float, float]) -> None:
+    from arcloud.core.boxes import reach_floor
+    from arcloud.core.types import AABB, OBB
+
+    params = Params(up=up)
+    up_v = np.asarray(up)
+    axes = np.stack([np.cross(up_v, np.roll(up_v, 1)), np.roll(up_v, 1), up_v], axis=1)  # box axes, the last up
+    seat = 0.69 * up_v  # a chair's seat and back, 0.45-0.93 m above a floor at height 0
+    corners = np.array(
+        [seat - 0.23 * axes[:, 0] - 0.23 * axes[:, 1] - 0.24 * up_v, seat + 0.23 * axes[:, 0] + 0.23 * axes[:, 1] + 0.24 * up_v]
+    )
+    aabb = AABB(corners.min(axis=0), corners.max(axis=0))
+    obb = OBB(seat, np.array([0.46, 0.46, 0.48]), axes, 0.0)
+    aabb, obb = reach_floor(aabb, obb, 0.0, params)
+    axis = int(np.argmax(np.abs(up_v)))
+    bottom = aabb.min[axis] if up_v[axis] > 0 else -aabb.max[axis]
+    top = aabb.max[axis] if up_v[axis] > 0 else -aabb.min[axis]
+    assert bottom == pytest.approx(0.0) and top == pytest.approx(0.93)
+    assert obb.size[2] == pytest.approx(0.93) and float(up_v @ obb.center) == pytest.approx(0.465)

@@ -365,29 +365,46 @@ def min_area_yaw_plain(hull: np.ndarray) -> float:
     return float(angles[np.argmin(np.ptp(u, axis=1) * np.ptp(v, axis=1))])
 
 
+def aligned_vertical(params: Params) -> tuple[int, float] | None:
+    """The axis of the frame boxes are fitted in (``world2aligned``, else the world) that points up or down, and
+    +1 (up) or -1 (down); None when none is within about 8 degrees of up."""
+    to_aligned = np.eye(3) if params.world2aligned is None else np.asarray(params.world2aligned, np.float64)[:3, :3]
+    aligned_up = to_aligned @ params.gravity.up
+    axis = int(np.argmax(np.abs(aligned_up)))
+    return (axis, float(np.sign(aligned_up[axis]))) if abs(aligned_up[axis]) >= 0.99 else None
+
+
+def to_aligned(points: np.ndarray, params: Params) -> np.ndarray:
+    """World points (..., 3) in the frame boxes are fitted in (``world2aligned``, else the world)."""
+    if params.world2aligned is None:
+        return points
+    world2aligned = np.asarray(params.world2aligned, np.float64)
+    return points @ world2aligned[:3, :3].T + world2aligned[:3, 3]
+
+
 def reach_floor(aabb: AABB, obb: OBB, floor_m: float, params: Params) -> tuple[AABB, OBB]:
     """The boxes of a floor-standing object extended down to the floor at height ``floor_m`` (along
     ``params.up``), when the gap is at most ``floor_reach_max_m``: legs are thin and often hidden (under a
     table, behind a seat), but the object stands on the floor. ``aabb`` is in the ``world2aligned``
-    frame (whose z must be up for it to move); ``obb`` is gravity-aligned."""
-    rotation = params.gravity.world2gravity
-    bottom_world = obb.center - rotation[2] * obb.size[2] / 2
-    gap = float(rotation[2] @ bottom_world) - floor_m
+    frame (moved where one of its axes is vertical: ``aligned_vertical``); ``obb`` is gravity-aligned."""
+    up = params.gravity.up
+    bottom_world = obb.center - up * obb.size[2] / 2
+    gap = float(up @ bottom_world) - floor_m
     if not 0 < gap <= params.floor_reach_max_m:
         return aabb, obb
     grown = obb.size.copy()
     grown[2] += gap
-    obb = OBB(center=obb.center - rotation[2] * gap / 2, size=grown, rotation=obb.rotation, yaw_rad=obb.yaw_rad)
-    if params.world2aligned is None:
-        aligned_up, floor_aligned = rotation[2], floor_m
-    else:
-        world2aligned = np.asarray(params.world2aligned, np.float64)
-        aligned_up = world2aligned[:3, :3] @ rotation[2]
-        floor_aligned = float((world2aligned[:3, :3] @ (bottom_world - rotation[2] * gap) + world2aligned[:3, 3])[2])
-    if aligned_up[2] > 0.99 and floor_aligned < aabb.min[2]:  # the aligned frame is z-up
-        lo = aabb.min.copy()
-        lo[2] = floor_aligned
-        aabb = AABB(lo, aabb.max)
+    obb = OBB(center=obb.center - up * gap / 2, size=grown, rotation=obb.rotation, yaw_rad=obb.yaw_rad)
+    vertical = aligned_vertical(params)
+    if vertical is not None:
+        axis, rise = vertical
+        floor_at = float(to_aligned(bottom_world - up * gap, params)[axis])
+        lo, hi = aabb.min.copy(), aabb.max.copy()
+        if rise > 0:
+            lo[axis] = min(lo[axis], floor_at)
+        else:
+            hi[axis] = max(hi[axis], floor_at)
+        aabb = AABB(lo, hi)
     return aabb, obb
 
 
@@ -399,69 +416,69 @@ TUCKED_THIN_SHARE = 0.6
 TUCKED_GAP_VOXELS = 2  # the slab's face at most this many voxels from the table's edge (or over it)
 
 
+def tucked_slab(obj: MapObject, params: Params) -> bool:
+    """Whether ``reach_under`` looks for a table for ``obj``: a boxed object of a ``TUCKED_UNDER`` class whose box
+    is a slab (its shorter horizontal side under ``TUCKED_THIN_SHARE`` of its longer), in a frame with an axis up."""
+    vertical = aligned_vertical(params)
+    if obj.label not in TUCKED_UNDER or obj.aabb is None or obj.obb is None or vertical is None:
+        return False
+    depth, width = sorted(float(v) for axis, v in enumerate(obj.aabb.size) if axis != vertical[0])
+    return depth < TUCKED_THIN_SHARE * width
+
+
 def reach_under(objects: Sequence[MapObject], around: Sequence[MapObject], params: Params) -> list[MapObject]:
-    """``objects`` with each tucked one's boxes (``TUCKED_UNDER``) reaching under the confirmed table of ``around``
-    it stands against: along its shorter side, toward the table, to as deep as it is wide but no further than the
-    table's far edge. The table spans at least half its width, its top is no higher than the chair's, and the chair
-    starts outside it. Only where the aligned frame (``world2aligned``) has an axis up."""
-    tables = {
-        label: [t for t in around if t.label == label and t.confirmed and t.aabb is not None] for label in TUCKED_UNDER.values()
-    }
-    to_aligned = np.eye(3) if params.world2aligned is None else np.asarray(params.world2aligned, np.float64)[:3, :3]
-    aligned_up = to_aligned @ params.gravity.up
-    vertical = int(np.argmax(np.abs(aligned_up)))
-    if abs(aligned_up[vertical]) < 0.99:
-        return list(objects)
-    rise = float(np.sign(aligned_up[vertical]))
-    return [
-        _reached_under(obj, tables[TUCKED_UNDER[obj.label]], to_aligned, vertical, rise, params)
-        if obj.label in TUCKED_UNDER and obj.aabb is not None and obj.obb is not None
-        else obj
-        for obj in objects
-    ]
+    """``objects`` with each ``tucked_slab``'s boxes reaching under the confirmed table of ``around`` it stands
+    against: along its shorter side, toward the table, to as deep as it is wide but no further than the table's far
+    edge. The table spans at least half its width, its top is no higher than the chair's, and the chair starts
+    outside it; of several, the one spanning most of its width."""
+    tables = [t for t in around if t.label in TUCKED_UNDER.values() and t.confirmed and t.aabb is not None]
+    return [_reached_under(obj, tables, params) if tucked_slab(obj, params) else obj for obj in objects]
 
 
-def _reached_under(
-    obj: MapObject, tables: Sequence[MapObject], to_aligned: np.ndarray, vertical: int, rise: float, params: Params
-) -> MapObject:
-    assert obj.aabb is not None and obj.obb is not None  # reach_under passes boxed objects
+def _reached_under(obj: MapObject, tables: Sequence[MapObject], params: Params) -> MapObject:
+    vertical = aligned_vertical(params)
+    assert obj.aabb is not None and obj.obb is not None and vertical is not None  # a tucked_slab
+    axis, rise = vertical
     lo, hi = obj.aabb.min, obj.aabb.max
-    thin, wide = sorted((axis for axis in range(3) if axis != vertical), key=lambda axis: (hi - lo)[axis])
-    depth, width = float(hi[thin] - lo[thin]), float(hi[wide] - lo[wide])
-    if depth >= TUCKED_THIN_SHARE * width:
-        return obj
+    thin, wide = sorted((a for a in range(3) if a != axis), key=lambda a: float(hi[a] - lo[a]))
+    width = float(hi[wide] - lo[wide])
     gap = TUCKED_GAP_VOXELS * params.voxel_size_m
-    top = max(rise * lo[vertical], rise * hi[vertical])
-    best: tuple[float, float, float] | None = None  # (shared width, new face, side)
+    top = max(rise * lo[axis], rise * hi[axis])
+    best: tuple[float, float, float] | None = None  # (width shared, the face reached, +1 or -1 along thin)
     for table in tables:
         assert table.aabb is not None
         t_lo, t_hi = table.aabb.min, table.aabb.max
         shared = min(hi[wide], t_hi[wide]) - max(lo[wide], t_lo[wide])
-        if table.id == obj.id or shared < width / 2 or max(rise * t_lo[vertical], rise * t_hi[vertical]) > top:
+        if table.label != TUCKED_UNDER[obj.label] or shared < width / 2 or max(rise * t_lo[axis], rise * t_hi[axis]) > top:
             continue
-        if lo[thin] < t_lo[thin] and hi[thin] >= t_lo[thin] - gap:  # the table on the far side along + thin
-            face, side = min(lo[thin] + width, t_hi[thin]), 1.0
+        if lo[thin] < t_lo[thin] and hi[thin] >= t_lo[thin] - gap:
+            candidate = (shared, min(lo[thin] + width, t_hi[thin]), 1.0)
         elif hi[thin] > t_hi[thin] and lo[thin] <= t_hi[thin] + gap:
-            face, side = max(hi[thin] - width, t_lo[thin]), -1.0
+            candidate = (shared, max(hi[thin] - width, t_lo[thin]), -1.0)
         else:
             continue
-        if side * face > side * (hi[thin] if side > 0 else lo[thin]) and (best is None or shared > best[0]):
-            best = (shared, face, side)
+        if best is None or candidate[0] > best[0]:
+            best = candidate
     if best is None:
         return obj
     _, face, side = best
     new_lo, new_hi = lo.copy(), hi.copy()
     reach = face - hi[thin] if side > 0 else lo[thin] - face
+    if reach <= 0:  # the table's far edge is nearer than the slab's face
+        return obj
     (new_hi if side > 0 else new_lo)[thin] = face
-    # The oriented box grows as much along its horizontal axis nearest the direction reached in.
-    toward = to_aligned.T @ (np.eye(3)[thin] * side)
-    axes = obj.obb.rotation
-    horizontal = [k for k in range(3) if k != int(np.argmax(np.abs(axes.T @ params.gravity.up)))]
-    k = max(horizontal, key=lambda k: abs(float(axes[:, k] @ toward)))
-    sign = float(np.sign(axes[:, k] @ toward))
+    # The oriented box (axis 2 up) grows along its horizontal axis nearest the direction reached in, as far as
+    # takes its face as far along that direction.
+    toward = np.eye(3)[thin] * side
+    if params.world2aligned is not None:
+        toward = np.asarray(params.world2aligned, np.float64)[:3, :3].T @ toward
+    along = obj.obb.rotation[:, :2].T @ toward  # cosines with the box's two horizontal axes
+    k = int(np.argmax(np.abs(along)))
+    grow = reach / abs(float(along[k]))
     size = obj.obb.size.copy()
-    size[k] += reach
-    obb = OBB(center=obj.obb.center + axes[:, k] * sign * reach / 2, size=size, rotation=axes, yaw_rad=obj.obb.yaw_rad)
+    size[k] += grow
+    center = obj.obb.center + obj.obb.rotation[:, k] * np.sign(along[k]) * grow / 2
+    obb = OBB(center=center, size=size, rotation=obj.obb.rotation, yaw_rad=obj.obb.yaw_rad)
     return obj.replace(aabb=AABB(new_lo, new_hi), obb=obb)
 
 
@@ -505,8 +522,7 @@ def _boxed(obj: MapObject, params: Params, ijk: np.ndarray, floor_m: float | Non
     box_lo, box_hi = (corner.tolist() for corner in ijk_extent(box_ijk))
     size_m, pad_m = params.voxel_size_m, params.box_pad_voxels * params.voxel_size_m
     if params.world2aligned is not None:
-        world2aligned = np.asarray(params.world2aligned, np.float64)
-        aabb = fit_aabb(ijk_centers(box_ijk, size_m) @ world2aligned[:3, :3].T + world2aligned[:3, 3], pad_m, size_m)
+        aabb = fit_aabb(to_aligned(ijk_centers(box_ijk, size_m), params), pad_m, size_m)
     else:
         aabb = fit_voxels_aabb(box_lo, box_hi, size_m, pad_m)
     obb = fit_voxels_obb(box_ijk, size_m, params.gravity, pad_m, (box_lo[2], box_hi[2]))

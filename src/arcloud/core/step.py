@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
-from arcloud.core.boxes import reach_under, refine_all
+from arcloud.core.boxes import reach_under, refine_all, tucked_slab
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.change import MapChange
 from arcloud.core.checks import check_detections
@@ -162,6 +162,7 @@ def integrate_frame(
             objects, trimmed = resolve_shared_voxels(objects, probation)
             voxels_changed |= set(absorbed_into.values()) | trimmed
             to_write = refine_changed(objects, voxels_changed, rescored, params)
+            to_write = reach_under_tables(store, frame.map_id, to_write, objects, voxels_changed, params)
             upserts, removed, events = diff_with_stored(to_write, stored, absorbed_into, frame.map_id, now_s)
             events += [ObjectEvent("retired", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.retired]
             events += [ObjectEvent("deleted", frame.map_id, o.id, was_confirmed=o.confirmed) for o in misses.phantoms]
@@ -622,10 +623,25 @@ def refine_changed(objects: Sequence[MapObject], voxels_changed: set[int], resco
     voxels comes back empty), and those only rescored, as they are."""
     written = [o for o in objects if o.id in voxels_changed or o.id in rescored]
     refined = iter(refine_all([o for o in written if o.id in voxels_changed], params))
-    to_write = [next(refined) if o.id in voxels_changed else o for o in written]
+    return [next(refined) if o.id in voxels_changed else o for o in written]
+
+
+def reach_under_tables(
+    store: MapStore, map_id: str, to_write: Sequence[MapObject], objects: Sequence[MapObject], refined: set[int], params: Params
+) -> list[MapObject]:
+    """``to_write`` with the ``refined`` chairs whose boxes are slabs reaching under their tables
+    (``core.boxes.reach_under``): a table among ``objects`` (the frame's, locked), else one the store holds around
+    the slab, read unlocked (only its box is used): a view that sees the chair but not its table changes nothing."""
     now = {o.id: o for o in objects} | {o.id: o for o in to_write}
-    reached = iter(reach_under([o for o in to_write if o.id in voxels_changed], list(now.values()), params))
-    return [next(reached) if o.id in voxels_changed else o for o in to_write]
+    reached = {o.id: o for o in reach_under([o for o in to_write if o.id in refined], list(now.values()), params)}
+    alone = [o for o in reached.values() if o.aabb is now[o.id].aabb and tucked_slab(o, params)]  # no table in view
+    if alone:
+        margin = max(float(o.aabb.size.max()) for o in alone if o.aabb is not None)
+        lo = np.min([o.bounds.min for o in alone if o.bounds is not None], axis=0) - margin
+        hi = np.max([o.bounds.max for o in alone if o.bounds is not None], axis=0) + margin
+        around = store.get(map_id, [i for i in store.query_region(map_id, lo, hi) if i not in now])
+        reached |= {o.id: o for o in reach_under(alone, around, params)}
+    return [reached.get(o.id, o) for o in to_write]
 
 
 def diff_with_stored(
