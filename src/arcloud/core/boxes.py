@@ -419,8 +419,7 @@ TUCKED_GAP_VOXELS = 2  # the slab's face at most this many voxels from the table
 def tucked_slab(obj: MapObject, params: Params) -> bool:
     """Whether ``reach_under`` looks for a table for ``obj``: a boxed object of a ``TUCKED_UNDER`` class whose box
     is a slab (its shorter horizontal side under ``TUCKED_THIN_SHARE`` of its longer), in a frame with an axis up."""
-    vertical = aligned_vertical(params)
-    if obj.label not in TUCKED_UNDER or obj.aabb is None or obj.obb is None or vertical is None:
+    if obj.label not in TUCKED_UNDER or obj.aabb is None or obj.obb is None or (vertical := aligned_vertical(params)) is None:
         return False
     depth, width = sorted(float(v) for axis, v in enumerate(obj.aabb.size) if axis != vertical[0])
     return depth < TUCKED_THIN_SHARE * width
