@@ -61,6 +61,7 @@ def map_objects(draw: st.DrawFn, object_id: int = 1) -> MapObject:
         floor_votes=draw(st.dictionaries(st.integers(-3, 3), st.integers(1, 4), max_size=3)),
         wall_votes=draw(st.dictionaries(st.integers(0, 359), st.tuples(st.integers(1, 4), st.integers(-5000, 5000)), max_size=3)),
         apart=draw(st.dictionaries(st.integers(1, 6), st.integers(1, 4), max_size=3)),
+        spanned=draw(st.dictionaries(st.integers(1, 6), st.integers(1, 4), max_size=3)),
     )
 
 
@@ -105,7 +106,18 @@ def test_merging_two_objects_does_not_depend_on_their_order(a: MapObject, b: Map
     for name in ("weights", "votes", "seen_counts"):
         assert np.array_equal(getattr(ab, name), getattr(ba, name)), name
     assert (ab.colors is None) == (ba.colors is None) and (ab.colors is None or np.array_equal(ab.colors, ba.colors))
-    for name in ("n_frames", "n_missed", "n_gone", "devices", "score_sum", "created_at_s", "floor_votes", "wall_votes", "apart"):
+    for name in (
+        "n_frames",
+        "n_missed",
+        "n_gone",
+        "devices",
+        "score_sum",
+        "created_at_s",
+        "floor_votes",
+        "wall_votes",
+        "apart",
+        "spanned",
+    ):
         assert getattr(ab, name) == getattr(ba, name), name
     assert float(ab.weights.sum()) == float(a.weights.sum()) + float(b.weights.sum())  # nothing lost (whole numbers)
     assert (ab.id, ba.id) == (a.id, b.id)  # the kept object's identity

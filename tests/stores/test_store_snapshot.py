@@ -106,6 +106,9 @@ def edits(obj: MapObject) -> list[tuple[str, dict[str, object]]]:
         ("floor_votes", {"floor_votes": {3: -1}}),
         ("wall_votes", {"wall_votes": {360: (2, 1000)}}),
         ("wall_votes", {"wall_votes": {90: (0, 1000)}}),
+        ("apart", {"apart": {2: 0}}),
+        ("spanned", {"spanned": {1: 2}}),  # its own id
+        ("spanned", {"spanned": {2**53: 1}}),
     ]
 
 

@@ -193,6 +193,7 @@ def merge_objects(keep: MapObject, absorbed: MapObject) -> MapObject:
         score_sum=keep.score_sum + absorbed.score_sum,
         created_at_s=min(keep.created_at_s, absorbed.created_at_s),
         apart={i: n for i, n in add_votes(keep.apart, absorbed.apart).items() if i not in (keep.id, absorbed.id)},
+        spanned={i: n for i, n in add_votes(keep.spanned, absorbed.spanned).items() if i not in (keep.id, absorbed.id)},
     )
 
 
@@ -238,6 +239,20 @@ def seen_apart(a: MapObject, b: MapObject, params: Params) -> bool:
     return params.apart_min_frames > 0 and frames >= params.apart_min_frames
 
 
+def held_apart(a: MapObject, b: MapObject, params: Params) -> bool:
+    """Whether ``a`` and ``b`` are kept two for now: seen apart (``seen_apart``), or seen apart in fewer frames
+    than that but in more than the frames whose one mask covered both (``MapObject.spanned``). Two desks pushed
+    together, seen apart twice and then under one mask, stay two (the mask is shared out and counts a span) until
+    masks have spanned them as often as frames parted them; a detector's one-off split of one object (apart
+    once) is joined at the second mask over both."""
+    if params.apart_min_frames == 0:
+        return False
+    frames = max(a.apart.get(b.id, 0), b.apart.get(a.id, 0))
+    if frames == 0 or frames >= params.apart_min_frames:
+        return frames > 0
+    return max(a.spanned.get(b.id, 0), b.spanned.get(a.id, 0)) < frames
+
+
 def find_duplicates(
     objects: Sequence[MapObject],
     params: Params,
@@ -248,8 +263,8 @@ def find_duplicates(
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
     overlap >= ``merge_min_overlap``, or pieces of one object that a mask spanned (``joined``: id pairs,
     ``core.step.joined_by_masks``), unless frames saw them apart (``seen_apart``) or the current frame
-    did (``apart_now``: id pairs, smaller first). Chains resolve to one keeper per group (the most
-    observed), and a chain never joins two objects seen apart.
+    did (``apart_now``: id pairs, smaller first), or they are held apart for now (``held_apart``). Chains
+    resolve to one keeper per group (the most observed), and a chain never joins two objects held apart.
     With ``changed``, only pairs with at least one changed object are considered (the others were
     checked when they last changed)."""
     if len(objects) < 2:
@@ -297,7 +312,7 @@ def find_duplicates(
     for i, j in zip(*np.nonzero(np.triu(same))):
         ri, rj = root(int(i)), root(int(j))
         if ri == rj or any(
-            seen_apart(objects[a], objects[b], params) or _pair(objects[a].id, objects[b].id) in now
+            held_apart(objects[a], objects[b], params) or _pair(objects[a].id, objects[b].id) in now
             for a in members_of[ri]
             for b in members_of[rj]
         ):

@@ -44,6 +44,7 @@ from arcloud.core.fusion import (
     current_label_index,
     find_duplicates,
     fuse_detection,
+    held_apart,
     keep_voxels,
     merge_objects,
     new_object,
@@ -262,6 +263,15 @@ def fuse_matches(
     for (o, view), visible_of_o in zip(viewed, visible):
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
+    # A mask over its match and rivals: one more frame that spanned each pair, on both sides (``held_apart``).
+    spans: dict[int, dict[int, int]] = {}
+    for d, o in association.pairs:
+        for r in association.rivals.get(d, ()):
+            spans.setdefault(o, {})[objects[r].id] = 1
+            spans.setdefault(r, {})[objects[o].id] = 1
+    for i, spanned in spans.items():
+        fused[i] = fused[i].replace(spanned=add_votes(fused[i].spanned, spanned))
+        fused_ids.add(fused[i].id)
     taken = [(observations[d], objects[o].id) for d, o in association.pairs]
     joined = joined_by_masks(objects, association.pairs, association.rivals, params)
     return fused, [observations[d] for d in association.unmatched], fused_ids, taken, joined
@@ -290,7 +300,7 @@ def joined_by_masks(
 
 
 def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | None:
-    """(O, O) bool: the pairs of ``objects`` that frames saw apart (``seen_apart``); None when there is none."""
+    """(O, O) bool: the pairs of ``objects`` held apart (``held_apart``); None when there is none."""
     if not any(o.apart for o in objects):
         return None
     index = {o.id: i for i, o in enumerate(objects)}
@@ -298,7 +308,7 @@ def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | N
     for i, obj in enumerate(objects):
         for other in obj.apart:
             j = index.get(other)
-            if j is not None and seen_apart(obj, objects[j], params):
+            if j is not None and held_apart(obj, objects[j], params):
                 out[i, j] = out[j, i] = True
     return out
 

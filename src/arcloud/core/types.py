@@ -246,6 +246,8 @@ class MapObject:
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
     # id -> frames that detected that object of its class apart from it, in the same frame (core.step.mark_apart)
     apart: dict[int, int] = dataclasses.field(default_factory=dict)
+    # id -> frames in which one mask of its class covered it and that object (an association rival: core.step.fuse_matches)
+    spanned: dict[int, int] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for array in (self.keys, self.weights, self.votes, self.seen, self.colors):
@@ -302,6 +304,7 @@ class ObjectMeta:
     wall_votes: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
     label_purity: float = 0.0
     apart: dict[int, int] = dataclasses.field(default_factory=dict)
+    spanned: dict[int, int] = dataclasses.field(default_factory=dict)
 
     @property
     def n_devices(self) -> int:

@@ -403,6 +403,7 @@ def meta_of(obj: MapObject) -> ObjectMeta:
         wall_votes=obj.wall_votes,
         label_purity=obj.label_purity,
         apart=obj.apart,
+        spanned=obj.spanned,
     )
 
 
@@ -439,6 +440,7 @@ def _meta_json(obj: MapObject | ObjectMeta) -> bytes:
 def _meta_fields(obj: MapObject | ObjectMeta) -> dict[str, Any]:
     # left out when empty: the blobs of objects without them are the bytes they were
     apart = {"apart": {str(k): int(v) for k, v in sorted(obj.apart.items())}} if obj.apart else {}
+    spanned = {"spanned": {str(k): int(v) for k, v in sorted(obj.spanned.items())}} if obj.spanned else {}
     walls = {"wall_votes": {str(k): [int(n), int(mm)] for k, (n, mm) in sorted(obj.wall_votes.items())}} if obj.wall_votes else {}
     return {
         "label": obj.label,
@@ -457,6 +459,7 @@ def _meta_fields(obj: MapObject | ObjectMeta) -> dict[str, Any]:
         "floor_votes": {str(k): int(v) for k, v in sorted(obj.floor_votes.items())},
         "label_purity": float(obj.label_purity),
         **apart,
+        **spanned,
         **walls,
     }
 
@@ -531,6 +534,7 @@ def _meta(object_id: int, fields: dict[str, Any]) -> ObjectMeta:
         wall_votes={int(k): (int(n), int(mm)) for k, (n, mm) in fields.get("wall_votes", {}).items()},
         label_purity=float(fields.get("label_purity", 0.0)),
         apart={int(k): int(v) for k, v in fields.get("apart", {}).items()},
+        spanned={int(k): int(v) for k, v in fields.get("spanned", {}).items()},
     )
 
 
@@ -567,6 +571,7 @@ def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_mis
         n_gone=n_gone,
         label_purity=meta.label_purity,
         apart=meta.apart,
+        spanned=meta.spanned,
     )
 
 

@@ -172,6 +172,10 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
         raise InvalidInput(f"{where}.floor_votes", "counts >= 0", describe(obj.floor_votes))
     if any(not 0 <= direction < 360 or frames < 1 for direction, (frames, _) in obj.wall_votes.items()):
         raise InvalidInput(f"{where}.wall_votes", "directions from 0 to 359 with frames >= 1", describe(obj.wall_votes))
+    for name in ("apart", "spanned"):  # other object's id -> frames
+        counts = getattr(obj, name)
+        if any(not 1 <= other <= MAX_OBJECT_ID or other == obj.id or frames < 1 for other, frames in counts.items()):
+            raise InvalidInput(f"{where}.{name}", "other objects' ids with frames >= 1", describe(counts))
     if obj.keys.size == 0:
         raise InvalidInput(f"{where}.voxels", "at least one voxel", "none")
     for name in ("weights", "seen", "votes"):
