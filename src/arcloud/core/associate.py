@@ -171,7 +171,7 @@ class Association:
     spanning two TVs side by side): fusing all of it into its match would weld them together. For
     ``split_classes`` (chairs, TVs and laptops stand side by side in rooms, while a table or a couch
     that a detection spans with another of its kind is more often one object first seen in parts), and
-    for any class when frames saw the two apart (``core.fusion.seen_apart``: two desks pushed together)."""
+    for any class when the two are held apart (``core.fusion.held_apart``: two desks pushed together)."""
 
     pairs: list[tuple[int, int]]
     unmatched: list[int]
@@ -187,12 +187,12 @@ def associate(
     *,
     object_bounds: Sequence[np.ndarray | None] | None = None,
     object_frames: Sequence[int] | None = None,
-    seen_apart: np.ndarray | None = None,
+    held_apart: np.ndarray | None = None,
 ) -> Association:
     """Match detections to objects. ``object_bounds``: known (2, 3) voxel-index bounds (see
     overlap_matrix). ``object_frames``: how many frames each object was seen in; only objects seen in
     at least ``split_min_frames`` are rivals (a younger one is more likely a fragment to merge).
-    ``seen_apart``: (O, O) bool, pairs of objects that frames saw apart: rivals whatever their class."""
+    ``held_apart``: (O, O) bool, pairs of objects held apart: rivals whatever their class."""
     overlap = overlap_matrix(detection_keys, object_keys, params.association_tolerance_voxels, bounds_b=object_bounds)
     pairs = hungarian_match(association_cost(overlap, detection_labels, object_labels, params))
     matched = {d for d, _ in pairs}
@@ -203,7 +203,7 @@ def associate(
     rivals: dict[int, list[int]] = {}
     splittable = {CLASS_INDEX[name] for name in params.split_classes}
     for d, o in pairs:
-        apart = None if seen_apart is None or not seen_apart[o].any() else seen_apart[o]
+        apart = None if held_apart is None or not held_apart[o].any() else held_apart[o]
         if detection_labels[d] not in splittable and apart is None:
             continue
         rival = established if detection_labels[d] in splittable else np.zeros(len(object_keys), bool)

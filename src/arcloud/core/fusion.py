@@ -244,13 +244,14 @@ def held_apart(a: MapObject, b: MapObject, params: Params) -> bool:
     than that but in more than the frames whose one mask covered both (``MapObject.spanned``). Two desks pushed
     together, seen apart twice and then under one mask, stay two (the mask is shared out and counts a span) until
     masks have spanned them as often as frames parted them; a detector's one-off split of one object (apart
-    once) is joined at the second mask over both."""
+    once) is joined at the second mask over both. An object seen in one frame only (the split that made it: a
+    table's leg cut off its mask by the detector) is not held: nothing but that split speaks for it."""
     if params.apart_min_frames == 0:
         return False
     frames = max(a.apart.get(b.id, 0), b.apart.get(a.id, 0))
     if frames == 0 or frames >= params.apart_min_frames:
         return frames > 0
-    return max(a.spanned.get(b.id, 0), b.spanned.get(a.id, 0)) < frames
+    return min(a.n_frames, b.n_frames) > 1 and max(a.spanned.get(b.id, 0), b.spanned.get(a.id, 0)) < frames
 
 
 def find_duplicates(

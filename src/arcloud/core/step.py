@@ -240,7 +240,7 @@ def fuse_matches(
         params,
         object_bounds=stored_index_bounds_of(objects, params.voxel_size_m),
         object_frames=[o.n_frames for o in objects],
-        seen_apart=apart_matrix(objects, params),
+        held_apart=apart_matrix(objects, params),
     )
     matched = {o for _, o in association.pairs}
     views: dict[int, VoxelDetection] = {}
@@ -345,7 +345,7 @@ def apart_in_frame(taken: Sequence[tuple[VoxelDetection, int]], params: Params) 
 
 def mark_apart(objects: list[MapObject], apart: Sequence[tuple[int, int]], params: Params) -> list[MapObject]:
     """The objects of each pair this frame saw apart (``apart_in_frame``) count one more frame apart from each
-    other (``MapObject.apart``; ``core.fusion.seen_apart`` keeps them from being merged, and a later mask
+    other (``MapObject.apart``; ``core.fusion.held_apart`` keeps them from being merged, and a later mask
     spanning both is shared out between them)."""
     if params.apart_min_frames == 0 or not apart:
         return objects
@@ -367,9 +367,10 @@ def carve_apart(
     that the other's detections in this frame cover and its own do not (frame after frame: what one frame
     does not show stays). Seen apart in fewer, the younger of the two (fewer frames) is *on probation*: it
     keeps every voxel (the step leaves it out of ``resolve_shared_voxels``) and the merge pass does not join
-    the pair in this frame; a later frame that does not see them apart merges it back (a detector's one-off
-    split of one object into two masks), one that does counts another frame apart. Returns the objects,
-    the ids of those that gave up voxels, and the ids on probation."""
+    the pair in this frame; a later frame that does not see them apart merges it back when it was seen in that
+    frame only (a detector's one-off split of one object into two masks; objects seen in more frames are
+    ``core.fusion.held_apart`` until masks over both catch up), one that does counts another frame apart.
+    Returns the objects, the ids of those that gave up voxels, and the ids on probation."""
     index = {o.id: i for i, o in enumerate(objects)}
     factor = 1 + params.association_tolerance_voxels
     carved: set[int] = set()

@@ -371,7 +371,7 @@ class Params:
     class_mismatch_min_overlap: float = 0.6
     split_min_frames: int = 3
     split_classes: tuple[str, ...] = ("chair", "laptop", "tv")  # see core.associate.Association
-    apart_min_frames: int = 3  # two objects detected apart in this many frames stay two (core.fusion.seen_apart; 0: off)
+    apart_min_frames: int = 3  # detected apart in this many frames, two objects stay two (core.fusion.seen_apart; 0: off)
     # Label votes weighted by how well each view saw the object (core.voxels.view_weights)
     view_truncated_weight: float = 0.5  # a mask touching the image border (the object is cut off)
     view_full_mask_share: float = 0.01  # a mask covering less of the image weighs in proportion
