@@ -43,6 +43,20 @@ def test_a_mask_spanning_two_tvs_does_not_weld_them(split):
         assert obj.n_frames == 10  # the merged masks counted as a view of each
 
 
+def test_a_wide_tv_split_by_the_detector_in_two_frames_is_joined_by_whole_masks():
+    # A wide TV's left part seen alone, then split into two masks in two frames (a second object, seen in two
+    # frames), then whole: the whole masks go to the left object and the merge pass joins the right. Held
+    # apart, the right one would take a share of each whole mask until seen in split_min_frames, and from then
+    # on the split rule shares every mask out: two TVs for good.
+    store = MemoryStore()
+    for i, masks in enumerate([["left"]] * 3 + [["left", "right"]] * 2 + [["whole"]] * 4):
+        frame, instance = next(frames(1, first=i))
+        chosen = {"left": instance == 0, "right": instance == 1, "whole": instance >= 0}
+        integrate_frame(frame, [Detection("tv", 0.9, chosen[m]) for m in masks], store, PARAMS)
+    (tv,) = store.list_objects("m")
+    assert tv.aabb.size[0] > 1.2
+
+
 def couch_frame(i, halves):
     eye = (0.3 * np.sin(i), 0.0, 1.3)
     return scene_frame(look_down_pose(eye, (0.0, 2.0, 0.4)), halves, floor_z=None, frame_id=f"f{i}")

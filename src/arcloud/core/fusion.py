@@ -243,15 +243,18 @@ def held_apart(a: MapObject, b: MapObject, params: Params) -> bool:
     """Whether ``a`` and ``b`` are kept two for now: seen apart (``seen_apart``), or seen apart in fewer frames
     than that but in more than the frames whose one mask covered both (``MapObject.spanned``). Two desks pushed
     together, seen apart twice and then under one mask, stay two (the mask is shared out and counts a span) until
-    masks have spanned them as often as frames parted them; a detector's one-off split of one object (apart
-    once) is joined at the second mask over both. An object seen in one frame only (the split that made it: a
-    table's leg cut off its mask by the detector) is not held: nothing but that split speaks for it."""
+    masks have spanned them as often as frames parted them. An object seen in one frame only (the split that
+    made it: a table's leg cut off its mask by the detector) is not held: nothing but that split speaks for it.
+    Nor are ``split_classes``: a mask over two of them seen in ``split_min_frames`` is always shared out
+    (``core.associate.Association``), so masks over both could never join a detector's split of one TV."""
     if params.apart_min_frames == 0:
         return False
     frames = max(a.apart.get(b.id, 0), b.apart.get(a.id, 0))
     if frames == 0 or frames >= params.apart_min_frames:
         return frames > 0
-    return min(a.n_frames, b.n_frames) > 1 and max(a.spanned.get(b.id, 0), b.spanned.get(a.id, 0)) < frames
+    if a.label in params.split_classes or min(a.n_frames, b.n_frames) < 2:
+        return False
+    return max(a.spanned.get(b.id, 0), b.spanned.get(a.id, 0)) < frames
 
 
 def find_duplicates(
@@ -263,9 +266,9 @@ def find_duplicates(
 ) -> list[tuple[int, int]]:
     """Pairs (keep, absorb) of indices of objects that are one physical object: same label and an
     overlap >= ``merge_min_overlap``, or pieces of one object that a mask spanned (``joined``: id pairs,
-    ``core.step.joined_by_masks``), unless frames saw them apart (``seen_apart``) or the current frame
-    did (``apart_now``: id pairs, smaller first), or they are held apart for now (``held_apart``). Chains
-    resolve to one keeper per group (the most observed), and a chain never joins two objects held apart.
+    ``core.step.joined_by_masks``), unless they are held apart (``held_apart``: frames saw them apart) or
+    the current frame saw them apart (``apart_now``: id pairs, smaller first). Chains resolve to one keeper
+    per group (the most observed), and a chain never joins two objects held apart.
     With ``changed``, only pairs with at least one changed object are considered (the others were
     checked when they last changed)."""
     if len(objects) < 2:
