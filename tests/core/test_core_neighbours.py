@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from handmade_frames import look_down_pose, scene_frame
 
+from arcloud.core.fusion import held_apart, spanned_frames
 from arcloud.core.step import integrate_frame
-from arcloud.core.types import Detection, Params
+from arcloud.core.types import Detection, Params, empty_object
 from arcloud.stores.memory import MemoryStore
 
 PARAMS = Params(voxel_size_m=0.05)
@@ -159,7 +160,7 @@ def test_desks_seen_apart_stay_two_under_masks_over_both_while_fewer_of_those(fr
         assert objects[0].aabb.size[0] > 1.4 and objects[0].spanned == {} and objects[0].apart == {}
         return
     left, right = objects
-    assert max(left.spanned.get(right.id, 0), right.spanned.get(left.id, 0)) == masks_over_both
+    assert spanned_frames(left, right) == masks_over_both
     for obj, (lo, hi) in zip(objects, HALVES):
         assert obj.aabb.min[0] == pytest.approx(lo[0], abs=0.15) and obj.aabb.max[0] == pytest.approx(hi[0], abs=0.15)
     # One more frame that sees them apart reaches apart_min_frames (3) when added up with what came before:
@@ -182,6 +183,19 @@ def test_a_piece_split_off_an_object_in_one_frame_and_not_seen_again_is_merged_b
             assert len(store.list_objects("m")) == 2
     (desk,) = store.list_objects("m")
     assert desk.aabb.size[0] > 1.4  # the rest, 1.55 m (the end, seen and left out of 3 masks, fades)
+
+
+def test_held_apart_reads_the_two_objects_alike():
+    # Either order of the pair gives one answer: the split classes' exception looks at both labels, and the
+    # spans count each frame once, on whichever object the mask matched.
+    a = empty_object(1).replace(label="table", n_frames=5, apart={2: 2})
+    b = empty_object(2).replace(label="tv", n_frames=5, apart={1: 2})
+    assert not held_apart(a, b, PARAMS) and not held_apart(b, a, PARAMS)
+    b = b.replace(label="table")
+    assert held_apart(a, b, PARAMS) and held_apart(b, a, PARAMS)
+    assert not held_apart(a.replace(n_frames=1), b, PARAMS) and not held_apart(b, a.replace(n_frames=1), PARAMS)
+    a, b = a.replace(spanned={2: 1}), b.replace(spanned={1: 1})  # two frames, one matched to each
+    assert not held_apart(a, b, PARAMS) and not held_apart(b, a, PARAMS)
 
 
 # A chair in two boxes: its seat, and its back standing on the seat's rear edge.

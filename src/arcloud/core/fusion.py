@@ -241,7 +241,7 @@ def seen_apart(a: MapObject, b: MapObject, params: Params) -> bool:
 
 def held_apart(a: MapObject, b: MapObject, params: Params) -> bool:
     """Whether ``a`` and ``b`` are kept two for now: seen apart (``seen_apart``), or seen apart in fewer frames
-    than that but in more than the frames whose one mask covered both (``MapObject.spanned``). Two desks pushed
+    than that but in more than the frames whose one mask covered both (``spanned_frames``). Two desks pushed
     together, seen apart twice and then under one mask, stay two (the mask is shared out and counts a span) until
     masks have spanned them as often as frames parted them. An object seen in one frame only (the split that
     made it: a table's leg cut off its mask by the detector) is not held: nothing but that split speaks for it.
@@ -252,9 +252,14 @@ def held_apart(a: MapObject, b: MapObject, params: Params) -> bool:
     frames = max(a.apart.get(b.id, 0), b.apart.get(a.id, 0))
     if frames == 0 or frames >= params.apart_min_frames:
         return frames > 0
-    if a.label in params.split_classes or min(a.n_frames, b.n_frames) < 2:
+    if a.label in params.split_classes or b.label in params.split_classes or min(a.n_frames, b.n_frames) < 2:
         return False
-    return max(a.spanned.get(b.id, 0), b.spanned.get(a.id, 0)) < frames
+    return spanned_frames(a, b) < frames
+
+
+def spanned_frames(a: MapObject, b: MapObject) -> int:
+    """Frames whose one mask covered ``a`` and ``b``: each is counted once, on the object the mask matched."""
+    return a.spanned.get(b.id, 0) + b.spanned.get(a.id, 0)
 
 
 def find_duplicates(

@@ -263,15 +263,17 @@ def fuse_matches(
     for (o, view), visible_of_o in zip(viewed, visible):
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
-    # A mask over its match and rivals: one more frame that spanned each pair, on both sides (``held_apart``).
-    spans: dict[int, dict[int, int]] = {}
+    # A mask over its match and a rival held apart for now: one more frame that spanned the pair, counted on the
+    # match (``core.fusion.held_apart`` reads both sides). Pairs held for good or never held need no count.
     for d, o in association.pairs:
-        for r in association.rivals.get(d, ()):
-            spans.setdefault(o, {})[objects[r].id] = 1
-            spans.setdefault(r, {})[objects[o].id] = 1
-    for i, spanned in spans.items():
-        fused[i] = fused[i].replace(spanned=add_votes(fused[i].spanned, spanned))
-        fused_ids.add(fused[i].id)
+        counting = [
+            r
+            for r in association.rivals.get(d, ())
+            if held_apart(objects[o], objects[r], params) and not seen_apart(objects[o], objects[r], params)
+        ]
+        if counting:
+            fused[o] = fused[o].replace(spanned=add_votes(fused[o].spanned, {objects[r].id: 1 for r in counting}))
+            fused_ids.add(fused[o].id)
     taken = [(observations[d], objects[o].id) for d, o in association.pairs]
     joined = joined_by_masks(objects, association.pairs, association.rivals, params)
     return fused, [observations[d] for d in association.unmatched], fused_ids, taken, joined

@@ -246,7 +246,7 @@ class MapObject:
     label_purity: float = 0.0  # share of the box voxels' occupancy voting for its label (core.confirm)
     # id -> frames that detected that object of its class apart from it, in the same frame (core.step.mark_apart)
     apart: dict[int, int] = dataclasses.field(default_factory=dict)
-    # id -> frames in which one mask of its class covered it and that object (an association rival: core.step.fuse_matches)
+    # id -> frames whose one mask, matched to this object, also covered that one, held apart (core.fusion.held_apart)
     spanned: dict[int, int] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
