@@ -148,17 +148,6 @@ class EvalResult:
             for r in self.thresholds
         }
 
-    def format_table(self) -> str:
-        """A plain-text table: one row per class, AP per threshold, and the mean."""
-        header = ["class", "n_gt", "n_pred"] + [f"AP@{r.iou_threshold:g}" for r in self.thresholds]
-        rows = [header]
-        for name in self.classes:
-            aps = [_format_ap(r.ap[name]) for r in self.thresholds]
-            rows.append([name, str(self.n_gt[name]), str(self.n_predictions[name]), *aps])
-        rows.append(["mean", "", "", *(_format_ap(r.mean_ap) for r in self.thresholds)])
-        widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
-        return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows)
-
 
 def _threshold_key(iou_threshold: float) -> str:
     return f"{iou_threshold:g}"
@@ -170,10 +159,6 @@ def _map_key(iou_threshold: float) -> str:
 
 def _json_float(value: float) -> float | None:
     return None if math.isnan(value) else value
-
-
-def _format_ap(value: float | None) -> str:
-    return "-" if value is None or math.isnan(value) else f"{value:.4f}"
 
 
 def evaluate(
