@@ -35,7 +35,7 @@ import numpy as np
 from arcloud.access import ApiKey, ViewerGrant
 from arcloud.core.change import ChangesSince
 from arcloud.core.header import MapHeader
-from arcloud.core.ports import Detector, Lease, MapStore, NullPublisher, UpdatePublisher
+from arcloud.core.ports import Detector, Lease, MapStore, UpdatePublisher
 from arcloud.core.types import Frame, MapObject, ObjectMeta, Params
 from arcloud.errors import ArcloudError, InvalidInput, StoreError
 
@@ -61,7 +61,6 @@ __all__ = [
     "MapDeletion",
     "MapReader",
     "MapStore",
-    "NullPublisher",
     "ObjectMeta",
     "ObjectStore",
     "QueueFull",

@@ -107,10 +107,3 @@ class UpdatePublisher(Protocol):
     """Sends object change events to whoever listens."""
 
     def publish(self, events: Sequence[ObjectEvent]) -> None: ...
-
-
-class NullPublisher:
-    """A publisher that drops events (the default when nothing listens)."""
-
-    def publish(self, events: Sequence[ObjectEvent]) -> None:
-        return None
