@@ -9,7 +9,7 @@ import pytest
 from handmade_frames import look_down_pose, scene_frame
 
 from arcloud.core.boxes import refine
-from arcloud.core.confirm import detection_rate, is_confirmed, plausible
+from arcloud.core.confirm import detection_rate, evidence, plausible
 from arcloud.core.fusion import new_object
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import CLASS_INDEX, OBB, Detection, MapObject, Params, VoxelDetection, empty_object
@@ -43,12 +43,12 @@ def test_plausible_boxes_by_class(label, size, expected):
 
 def test_the_rule_needs_frames_rate_geometry_and_score():
     good = boxed("chair", (0.5, 0.5, 0.9), n_frames=10, n_missed=2, score_sum=8.0, label_purity=0.9)
-    assert is_confirmed(good, PARAMS) and detection_rate(good) == pytest.approx(10 / 12)
-    assert not is_confirmed(good.replace(n_frames=2, score_sum=1.6), PARAMS)
-    assert not is_confirmed(good.replace(n_missed=40), PARAMS)  # detected in 10 of 50 frames that saw it
-    assert not is_confirmed(good.replace(score_sum=1.5), PARAMS)  # mean detection score 0.15
-    assert not is_confirmed(good.replace(label_purity=0.2), PARAMS)  # its voxels mostly vote for other labels
-    assert not is_confirmed(boxed("chair", (0.3, 0.25, 0.1), n_frames=10, score_sum=8.0, label_purity=0.9), PARAMS)
+    assert evidence(good, PARAMS)[1] and detection_rate(good) == pytest.approx(10 / 12)
+    assert not evidence(good.replace(n_frames=2, score_sum=1.6), PARAMS)[1]
+    assert not evidence(good.replace(n_missed=40), PARAMS)[1]  # detected in 10 of 50 frames that saw it
+    assert not evidence(good.replace(score_sum=1.5), PARAMS)[1]  # mean detection score 0.15
+    assert not evidence(good.replace(label_purity=0.2), PARAMS)[1]  # its voxels mostly vote for other labels
+    assert not evidence(boxed("chair", (0.3, 0.25, 0.1), n_frames=10, score_sum=8.0, label_purity=0.9), PARAMS)[1]
 
 
 def circle(n, first=0, boxes=(CHAIR,)):

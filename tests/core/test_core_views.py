@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from handmade_frames import HEIGHT, WIDTH, look_down_pose, rect_mask, scene_frame
 
-from arcloud.core.confirm import is_confirmed
+from arcloud.core.confirm import evidence
 from arcloud.core.floor import frame_floor
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import OBB, Detection, Params, empty_object
@@ -124,10 +124,10 @@ def test_detections_in_many_frames_confirm_an_object_whatever_its_score():
     desk = empty_object(1).replace(label="table", obb=obb, label_purity=1.0, n_missed=10)
     few = desk.replace(n_frames=10, score_sum=10 * 0.3)  # mean score 0.3: the score is below confirm_min_score
     many = desk.replace(n_frames=PARAMS.confirm_evidence_frames, score_sum=PARAMS.confirm_evidence_frames * 0.3)
-    assert not is_confirmed(few, PARAMS)
-    assert is_confirmed(many, PARAMS)
-    assert not is_confirmed(many, PARAMS.replace(confirm_evidence_frames=0))
-    assert not is_confirmed(many.replace(n_missed=10 * PARAMS.confirm_evidence_frames), PARAMS)  # a rate too low
+    assert not evidence(few, PARAMS)[1]
+    assert evidence(many, PARAMS)[1]
+    assert not evidence(many, PARAMS.replace(confirm_evidence_frames=0))[1]
+    assert not evidence(many.replace(n_missed=10 * PARAMS.confirm_evidence_frames), PARAMS)[1]  # a rate too low
 
 
 def test_frames_are_the_size_the_tests_assume():

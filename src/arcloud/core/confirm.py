@@ -111,11 +111,6 @@ def evidence(obj: MapObject, params: Params, *, n_missed: int | None = None) -> 
     return score, confirmed
 
 
-def is_confirmed(obj: MapObject, params: Params) -> bool:
-    """Whether an object has the evidence to be served (see the module docstring)."""
-    return evidence(obj, params)[1]
-
-
 def with_evidence(obj: MapObject, params: Params) -> MapObject:
     """The object with its score and confirmation brought up to date with its evidence."""
     score, confirmed = evidence(obj, params)
