@@ -71,9 +71,7 @@ def test_box3d_normalises_and_validates():
     b = LabelledBox("chair", [0, 0, 0], (1, 2, 3), score=np.float32(0.5))
     assert b.min.dtype == np.float64 and not b.min.flags.writeable
     np.testing.assert_array_equal(b.size, (1, 2, 3))
-    assert b.volume_m3 == 6.0 and isinstance(b.score, float)
-    c = LabelledBox.from_center_size("tv", (1, 1, 1), (2, 2, 2))
-    np.testing.assert_array_equal(c.min, (0, 0, 0))
+    assert isinstance(b.score, float)
     with pytest.raises(InvalidInput, match="LabelledBox.max: expected max >= min"):
         LabelledBox("chair", (0, 0, 0), (1, -1, 1))
     with pytest.raises(InvalidInput, match=r"LabelledBox.min: expected shape \(3,\)"):

@@ -218,7 +218,7 @@ def test_draw_boxes_in_image_rejects_bad_input():
 
 
 def test_a_long_title_is_made_smaller_to_fit_the_picture() -> None:
-    box = LabelledBox.from_center_size("chair", (0, 0, 0.4), (0.5, 0.5, 0.8))
+    box = LabelledBox("chair", (-0.25, -0.25, 0.0), (0.25, 0.25, 0.8))
     title = "7scenes-redkitchen: centralized, 50 frames, served objects"
     image = render_top_down(gt=[box], predictions=[box], title=title).image_rgb
     inked = np.flatnonzero((image[:28] != BACKGROUND_RGB).any(axis=(0, 2)))  # the title's band

@@ -162,13 +162,6 @@ class LabelledBox:
         object.__setattr__(self, "score", check_finite_number("LabelledBox.score", self.score))
 
     @classmethod
-    def from_center_size(cls, label: str, center: object, size: object, score: float = 1.0) -> LabelledBox:
-        """A box from its centre (3,) and full size (3,)."""
-        c = _check_corner("center", center)
-        half = _check_corner("size", size) / 2
-        return cls(label, c - half, c + half, score)
-
-    @classmethod
     def from_aabb(cls, label: str, aabb: AABB, score: float = 1.0) -> LabelledBox:
         return cls(label, aabb.min, aabb.max, score)
 
@@ -179,10 +172,6 @@ class LabelledBox:
     @property
     def size(self) -> np.ndarray:
         return self.max - self.min
-
-    @property
-    def volume_m3(self) -> float:
-        return float(np.prod(self.max - self.min))
 
     def __repr__(self) -> str:
         return f"LabelledBox({self.label!r}, min={self.min.tolist()}, max={self.max.tolist()}, score={self.score:.4g})"
