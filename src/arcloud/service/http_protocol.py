@@ -10,13 +10,14 @@ Such a request never reaches the app: the protocol answers 400 and closes the co
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from uvicorn.protocols.http.auto import AutoHTTPProtocol
 
-from arcloud.service.problems import PROBLEM_MEDIA_TYPE, problem_bytes
+from arcloud.service.problems import PROBLEM_MEDIA_TYPE, problem_body
 
-BAD_REQUEST_BODY = problem_bytes(400, "request: not a valid HTTP/1.1 request")
+BAD_REQUEST_BODY = json.dumps(problem_body(400, "request: not a valid HTTP/1.1 request")).encode()
 
 
 class JsonProblemHTTP(AutoHTTPProtocol):  # type: ignore[misc, valid-type]  # a class uvicorn picks at import (httptools, else h11)

@@ -15,7 +15,6 @@ requests it cannot parse (``http_protocol``) all answer through ``problem_body``
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from http import HTTPStatus
@@ -212,11 +211,6 @@ def problem_response(
     )
 
 
-def problem_bytes(status: int, detail: str, field: str | None = None) -> bytes:
-    """``problem_body`` as bytes, for a writer below the app (uvicorn's protocol)."""
-    return json.dumps(problem_body(status, detail, field)).encode()
-
-
 def problem_openapi(spec: dict[str, Any], problem_schema: str = "Problem") -> dict[str, Any]:
     """``spec`` (an OpenAPI document, changed in place) with every 4xx/5xx response as the service sends it:
     ``application/problem+json`` (FastAPI documents a response model under the route's media type), and FastAPI's
@@ -263,7 +257,6 @@ __all__ = [
     "TYPE_PREFIX",
     "ProblemType",
     "problem_body",
-    "problem_bytes",
     "problem_openapi",
     "problem_response",
     "type_for",
