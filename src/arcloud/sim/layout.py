@@ -149,7 +149,7 @@ class Layout:
                     continue
             if not all(self.fits(i) for i in items):
                 continue
-            if all(_apart(a, b) for k, a in enumerate(items) for b in items[k + 1 :]):
+            if all(_boxes_apart((a.lo, a.hi), (b.lo, b.hi)) for k, a in enumerate(items) for b in items[k + 1 :]):
                 return items
         return None
 
@@ -327,10 +327,6 @@ def _boxes_apart(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarr
         or alo[1] >= bhi[1] + gap_m
         or blo[1] >= ahi[1] + gap_m
     )
-
-
-def _apart(a: PlacedItem, b: PlacedItem, gap_m: float = 0.01) -> bool:
-    return _boxes_apart((a.lo, a.hi), (b.lo, b.hi), gap_m)
 
 
 def default_counts(rng: np.random.Generator) -> dict[str, int]:
