@@ -21,11 +21,12 @@ from arcloud.accuracy.sim import (
     run_suite,
     without_unseen,
 )
-from arcloud.core.types import AABB, MapObject, Params
+from arcloud.core.types import AABB, Intrinsics, MapObject, Params
 from arcloud.errors import InvalidInput
-from arcloud.sim.detector import DetectorFaults, SimulatedDetector, visible_instances
+from arcloud.sim.detector import DetectorFaults, SimulatedDetector
 from arcloud.sim.room import RoomObject, generate_room, room_renderer, room_walk
 from arcloud.sim.sequence import DEFAULT_INTRINSICS, simulate_sequence
+from arcloud.virtual_camera.render import MeshRenderer
 from arcloud.virtual_camera.walk import WalkStyle
 
 #: What the quick suite must reach (report split, mean over its rooms unless "worst"), centralized and
@@ -76,6 +77,15 @@ def test_cases_draw_varied_rooms_and_walks_from_their_seeds() -> None:
     assert len(sizes) == len(generated)
     counts = [c.room_spec()[1] for c in generated]
     assert len({tuple(sorted(c.items())) for c in counts}) > 10
+
+
+def visible_instances(
+    renderer: MeshRenderer, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int
+) -> dict[int, int]:
+    """Visible pixels per object instance id from a true pose, with a room's renderer (``room_renderer``)."""
+    result = renderer.render(cam2world, intrinsics, width, height)
+    counts = np.bincount(result.instance.ravel())
+    return {int(k): int(counts[k]) for k in np.flatnonzero(counts) if k != 0}
 
 
 def test_observable_objects_are_those_seen_well_enough_in_enough_frames() -> None:

@@ -593,16 +593,6 @@ class SimulatedDetector:
         return out
 
 
-def visible_instances(
-    renderer: MeshRenderer, cam2world: np.ndarray, intrinsics: Intrinsics, width: int, height: int
-) -> dict[int, int]:
-    """Visible pixels per object instance id from a true pose, with a room's renderer (``room_renderer``;
-    for tests and diagnostics)."""
-    result = renderer.render(cam2world, intrinsics, width, height)
-    counts = np.bincount(result.instance.ravel())
-    return {int(k): int(counts[k]) for k in np.flatnonzero(counts) if k != 0}
-
-
 __all__: Sequence[str] = (
     "CONFUSIONS",
     "CLUTTER_LOOKALIKES",
@@ -618,5 +608,4 @@ __all__: Sequence[str] = (
     "reported_pose",
     "true_pose",
     "truth_key",
-    "visible_instances",
 )
