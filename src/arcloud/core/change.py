@@ -55,11 +55,10 @@ class MapChange:
 @dataclass(frozen=True, slots=True)
 class LoggedChange:
     """One entry of a map's change log: the events of one commit, the map's ``version`` after it (the entry's
-    id), when it was written (Unix s) and the frame it recorded ("" for none). Each event's ``object`` is the
-    object's ``ObjectMeta`` (a log keeps no voxels)."""
+    id) and the frame it recorded ("" for none). Each event's ``object`` is the object's ``ObjectMeta`` (a log
+    keeps no voxels)."""
 
     version: int
-    at_s: float
     frame_key: str
     events: tuple[ObjectEvent, ...]
 

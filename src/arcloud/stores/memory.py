@@ -299,7 +299,7 @@ class MemoryStore:
             self._trim_history(state)
             if change.events:
                 state.version += 1
-                state.log.append(LoggedChange(state.version, self._clock(), frame_key or "", logged_events(change.events)))
+                state.log.append(LoggedChange(state.version, frame_key or "", logged_events(change.events)))
             if upserts or deletes or retired:
                 with self._maps_lock:
                     self._updated[map_id] = time.time()

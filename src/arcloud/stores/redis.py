@@ -553,7 +553,6 @@ class RedisStore:
             entries.append(
                 LoggedChange(
                     int(entry_id.split(b"-")[0]),
-                    float(fields[b"at"]),
                     fields[b"frame"].decode(),
                     codec.decode_events(map_id, fields[b"events"]),
                 )
