@@ -39,6 +39,7 @@ from arcloud.ports import (
     not_retriable,
 )
 
+
 def queued_bytes(frame: Frame) -> int:
     """What the embedded queue holds of a frame: its colour and depth arrays."""
     return int(frame.rgb.nbytes + frame.depth_m.nbytes)
