@@ -43,12 +43,11 @@ def run_demo(
     users: tuple[int, ...] = (10, 50, 100),
     workers: int = 4,
     params: Params | None = None,
-    faults: DetectorFaults | None = None,
     show_progress: bool = True,
 ) -> dict[str, Any]:
     """Run the demo and write its results; returns what ``results.json`` holds."""
     params = params or Params()
-    faults = faults or DetectorFaults()
+    faults = DetectorFaults()  # the demo's detector: the simulator's default faults
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
 
