@@ -209,6 +209,26 @@ def test_small_parts_chained_a_gap_apart_stay_but_not_through_a_part_that_goes()
     assert set(tv.keys[box_voxel_mask(tv, params)]) == set(screen)
 
 
+def test_a_chain_carries_only_through_parts_with_voxels_kept():
+    # In front of a screen (y 0-1), single voxels every third voxel along y: the masks covered them once in five
+    # views, so the occupancy rule leaves them out. At the chain's end, a stray voxel the masks covered in every view.
+    # Each is within the gap of the next, but only kept voxels carry a chain: the stray goes. With the weak voxels
+    # covered as often as the screen, they are a TV's back seen in pieces, and the chain and its end stay.
+    screen = block((0, 0, 0), (12, 2, 6))
+    hops = [block((5, y, 3), (6, y + 1, 4)) for y in (4, 7, 10)]
+    stray = block((5, 13, 3), (6, 14, 4))
+    chain = np.unique(np.concatenate(hops))
+    params = Params(min_component_fraction=0.9)
+    for chain_covered in (False, True):
+        tv = new_object(1, det("tv", np.unique(np.concatenate([screen, chain, stray]))), "a", 0.0)
+        again = np.unique(np.concatenate([screen, stray] + ([chain] if chain_covered else [])))
+        for _ in range(4):
+            tv = fuse_detection(tv, det("tv", again), "a", np.ones(tv.keys.size, bool))
+        mask = box_voxel_mask(tv, params)
+        expected = np.unique(np.concatenate([screen, chain, stray])) if chain_covered else screen
+        assert set(tv.keys[mask]) == set(expected), chain_covered
+
+
 def test_floor_clearance_does_not_turn_on_where_the_grid_falls():
     # Voxels whose bottoms lie exactly floor_clearance_m above the floor are on the line (floor, not object),
     # however the floor height and the voxels' corners round: the world moved by whole voxels keeps the verdict.

@@ -103,7 +103,7 @@ def box_voxel_masks(
         lowest, highest = heights[~small].min(), heights[~small].max()
         reach = COMPONENT_GAP_VOXELS + 0.5
         off = small & ((heights < lowest - reach) | (heights > highest + reach))  # the shelf under a TV, say
-        stays = small & parts_near(labels, part[~small], part[off])[part]
+        stays = small & parts_near(labels, part, part[~small], part[off])[part]
         joined = kept_idx[small & ~stays]
         apart = kept_idx[small]
         keep[
@@ -112,12 +112,15 @@ def box_voxel_masks(
     return keeps
 
 
-def parts_near(labels: np.ndarray, large: np.ndarray, off: np.ndarray) -> np.ndarray:
+def parts_near(labels: np.ndarray, kept: np.ndarray, large: np.ndarray, off: np.ndarray) -> np.ndarray:
     """By part label (index 0 empty space): whether the part of a grid ``labels`` (an object's voxels, kept or not,
     labelled by part) lies within ``COMPONENT_GAP_VOXELS`` empty voxels of a ``large`` part, or of a part so found
-    (a chain of small parts: a TV's back seen in pieces). The ``off`` parts neither join nor carry a chain."""
-    present = np.ones(int(labels.max()) + 1, bool)
-    present[0] = False
+    (a chain of small parts: a TV's back seen in pieces). Only parts with ``kept`` voxels (the labels of the voxels
+    the occupancy rules keep) carry a chain: a part of voxels they all leave out is what a mask bled onto, and
+    hopping through such parts a stray voxel 0.35 m in front of a screen joined it. The ``off`` parts neither join
+    nor carry a chain."""
+    present = np.zeros(int(labels.max()) + 1, bool)
+    present[kept] = True
     present[off] = False
     solid = present[labels]
     # Every voxel grown by half the gap (a filter of gap + 1 cells a side): parts up to the gap apart then touch.
