@@ -50,6 +50,7 @@ from arcloud.core.fusion import (
     new_object,
     resolve_conflicts,
     seen_apart,
+    spanned_frames,
     split_detection,
 )
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Detector, Lease, MapStore
@@ -263,13 +264,15 @@ def fuse_matches(
     for (o, view), visible_of_o in zip(viewed, visible):
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
-    # A mask over its match and a rival held apart for now: one more frame that spanned the pair, counted on the
-    # match (``core.fusion.held_apart`` reads both sides). Pairs held for good or never held need no count.
+    # A mask over its match and a rival held apart for now, or over pieces ``joined_by_masks`` may join: one more
+    # frame that spanned the pair, counted on the match (``core.fusion.spanned_frames`` reads both sides). Pairs
+    # held for good need no count.
     for d, o in association.pairs:
         counting = [
             r
             for r in association.rivals.get(d, ())
-            if held_apart(objects[o], objects[r], params) and not seen_apart(objects[o], objects[r], params)
+            if (held_apart(objects[o], objects[r], params) and not seen_apart(objects[o], objects[r], params))
+            or may_be_pieces(objects[o], objects[r], params)
         ]
         if counting:
             fused[o] = fused[o].replace(spanned=add_votes(fused[o].spanned, {objects[r].id: 1 for r in counting}))
@@ -283,22 +286,49 @@ def joined_by_masks(
     objects: Sequence[MapObject], pairs: Sequence[tuple[int, int]], rivals: Mapping[int, Sequence[int]], params: Params
 ) -> list[tuple[int, int]]:
     """Object id pairs (a, b), a < b, that are pieces of one object: one mask of this frame spanned both
-    (``rivals`` of a matched detection, ``core.associate.Association``), no frame ever saw them apart (not
-    once: ``MapObject.apart``), and they stand on one footprint (``footprint_share`` at least
-    ``merge_spanned_min_footprint``). A chair's back first seen from behind and its seat from the front
-    are two objects until a mask covers the whole chair; two chairs side by side, or two screens, stand on
-    two footprints, and a spanning mask is shared out between them as before. Only classes that stand on
-    the floor (``Params.floor_standing``): a screen over the shelf below it stands on the shelf's footprint,
-    and a tentative twin there must not take the screen. The merge pass joins the pairs (``merge_duplicates``)."""
+    (``rivals`` of a matched detection, ``core.associate.Association``), no frame ever saw them apart
+    (``may_be_pieces``), and they stand on one footprint (``footprint_share`` at least
+    ``merge_spanned_min_footprint``). A chair's back first seen from behind and its seat from the front are two
+    objects until a mask covers the whole chair; two chairs side by side, or two screens, stand on two
+    footprints, and a spanning mask is shared out between them as before. A seat and a back whose footprints
+    only meet along an edge (7-Scenes' chair, in K = 10 orders) are joined once masks have spanned them in
+    ``apart_min_frames`` frames (as many as would part them for good) if one stands much lower than the other
+    (``seat_and_back``): two chairs side by side stand as high. The merge pass joins the pairs
+    (``merge_duplicates``)."""
     joined: list[tuple[int, int]] = []
     for d, o in pairs:
         for r in rivals.get(d, ()):
             a, b = objects[o], objects[r]
-            if a.label not in params.floor_standing or b.id in a.apart or a.id in b.apart:
+            if not may_be_pieces(a, b, params):
                 continue
-            if footprint_share(a.keys, b.keys, params) >= params.merge_spanned_min_footprint:
+            spans = spanned_frames(a, b) + 1  # this frame's mask too
+            spanned = 0 < params.apart_min_frames <= spans and seat_and_back(a, b, params)
+            if spanned or footprint_share(a.keys, b.keys, params) >= params.merge_spanned_min_footprint:
                 joined.append((min(a.id, b.id), max(a.id, b.id)))
     return joined
+
+
+#: Pieces of a chair joined by masks alone: the lower one's top at most this share of the taller one's height
+#: above their common base (a seat at 0.48 m against its back at 0.83 m reads 0.58).
+SEAT_TOP_SHARE = 0.7
+
+
+def seat_and_back(a: MapObject, b: MapObject, params: Params) -> bool:
+    """Whether one of two objects stands much lower than the other (``SEAT_TOP_SHARE``), as a chair's seat
+    does beside its back."""
+    up = params.gravity.up
+    base = min(float(up @ a.aabb.min), float(up @ b.aabb.min))
+    low, tall = sorted(float(up @ o.aabb.max) - base for o in (a, b))
+    return low <= SEAT_TOP_SHARE * tall
+
+
+def may_be_pieces(a: MapObject, b: MapObject, params: Params) -> bool:
+    """Whether masks over both of ``a`` and ``b`` may join them (``joined_by_masks``): no frame ever saw them
+    apart (not once: ``MapObject.apart``), and their class stands on the floor (``Params.floor_standing``): a
+    screen over the shelf below it stands on the shelf's footprint, and a tentative twin there must not take
+    the screen."""
+    floor_standing = a.label in params.floor_standing and b.label in params.floor_standing
+    return floor_standing and b.id not in a.apart and a.id not in b.apart
 
 
 def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | None:
