@@ -12,6 +12,7 @@ from handmade_frames import look_down_pose, scene_frame
 from arcloud.core.fusion import held_apart, spanned_frames
 from arcloud.core.step import integrate_frame
 from arcloud.core.types import Detection, Params, empty_object
+from arcloud.core.voxels import footprint_share
 from arcloud.stores.memory import MemoryStore
 
 PARAMS = Params(voxel_size_m=0.05)
@@ -204,12 +205,13 @@ BACK = ((-0.25, 2.4, 0.5), (0.25, 2.5, 0.9))
 BEHIND, FRONT = ((0.0, 4.0, 1.4), (0.0, 2.45, 0.7)), ((0.0, 0.8, 1.3), (0.0, 2.2, 0.5))
 
 
-def detect_chair(store, first, n, view, part, params=PARAMS, label="chair"):
-    """Frames of the chair from ``view`` (eye, target), detected as ``part``: "back", "seat" or "whole"."""
+def detect_chair(store, first, n, view, part, params=PARAMS, label="chair", pieces=(SEAT, BACK)):
+    """Frames of the chair (``pieces``: its seat and back) from ``view`` (eye, target), detected as ``part``:
+    "back", "seat" or "whole"."""
     (eye_x, eye_y, eye_z), target = view
     for i in range(first, first + n):
         eye = (eye_x + 0.3 * np.sin(i), eye_y, eye_z)
-        frame, instance = scene_frame(look_down_pose(eye, target), [SEAT, BACK], floor_z=None, frame_id=f"f{i}")
+        frame, instance = scene_frame(look_down_pose(eye, target), list(pieces), floor_z=None, frame_id=f"f{i}")
         mask = {"seat": instance == 0, "back": instance == 1, "whole": instance >= 0}[part]
         integrate_frame(frame, [Detection(label, 0.9, mask)], store, params)
 
@@ -220,7 +222,8 @@ def test_a_chair_seen_in_pieces_is_joined_by_a_mask_that_spans_them(label, join)
     # ever detected apart from the other in one frame. Masks of the whole chair then join them: pieces
     # standing on one footprint. (Without the rule, a share of 1 wanted: the masks are shared out. Not for
     # a class that does not stand on the floor: a screen over a shelf stands on the shelf's footprint.)
-    params = PARAMS if join or label != "chair" else PARAMS.replace(merge_spanned_min_footprint=1.0)
+    # (The rule off: no footprint share joins them, nor do the three masks over both, fewer than apart_min_frames.)
+    params = PARAMS if join or label != "chair" else PARAMS.replace(merge_spanned_min_footprint=1.0, apart_min_frames=4)
     store = MemoryStore()
     detect_chair(store, 0, 4, BEHIND, "back", params, label)
     detect_chair(store, 4, 4, FRONT, "seat", params, label)
@@ -235,6 +238,28 @@ def test_a_chair_seen_in_pieces_is_joined_by_a_mask_that_spans_them(label, join)
     assert chair.n_frames >= 11  # (the frame that joined them counts in both)
     assert chair.aabb.min == pytest.approx([-0.25, 2.0, 0.4], abs=0.08) and chair.aabb.max == pytest.approx(
         [0.25, 2.5, 0.9], abs=0.08
+    )
+
+
+# A seat and, behind it, a back whose footprint only meets the seat's along an edge (two rows of empty voxels
+# between them): no footprint share joins them.
+SEAT_AHEAD = ((-0.25, 2.0, 0.4), (0.25, 2.4, 0.5))
+BACK_BEHIND = ((-0.25, 2.5, 0.4), (0.25, 2.6, 0.9))
+
+
+def test_a_seat_and_back_on_footprints_that_meet_along_an_edge_are_joined_by_masks_in_apart_min_frames():
+    store = MemoryStore()
+    pieces = (SEAT_AHEAD, BACK_BEHIND)
+    detect_chair(store, 0, 4, BEHIND, "back", pieces=pieces)
+    detect_chair(store, 4, 4, FRONT, "seat", pieces=pieces)
+    back, seat = sorted(store.list_objects("m"), key=lambda o: -o.aabb.max[2])
+    assert footprint_share(back.keys, seat.keys, PARAMS) == 0 and not back.apart and not seat.apart
+    detect_chair(store, 8, PARAMS.apart_min_frames - 1, FRONT, "whole", pieces=pieces)
+    assert len(store.list_objects("m")) == 2  # masks over both: shared out, and counted
+    detect_chair(store, 20, 1, FRONT, "whole", pieces=pieces)
+    (chair,) = store.list_objects("m")
+    assert chair.aabb.min == pytest.approx([-0.25, 2.0, 0.4], abs=0.08) and chair.aabb.max[1:] == pytest.approx(
+        [2.6, 0.9], abs=0.08
     )
 
 

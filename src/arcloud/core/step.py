@@ -314,11 +314,13 @@ SEAT_TOP_SHARE = 0.7
 
 
 def seat_and_back(a: MapObject, b: MapObject, params: Params) -> bool:
-    """Whether one of two objects stands much lower than the other (``SEAT_TOP_SHARE``), as a chair's seat
-    does beside its back."""
-    up = params.gravity.up
-    base = min(float(up @ a.aabb.min), float(up @ b.aabb.min))
-    low, tall = sorted(float(up @ o.aabb.max) - base for o in (a, b))
+    """Whether one of two boxed objects stands much lower than the other (``SEAT_TOP_SHARE``), as a chair's seat
+    does beside its back (heights along gravity, from their gravity-aligned boxes)."""
+    if a.obb is None or b.obb is None:
+        return False
+    spans = [(float(params.gravity.up @ box.center), float(box.size[2]) / 2) for box in (a.obb, b.obb)]
+    base = min(centre - half for centre, half in spans)
+    low, tall = sorted(centre + half - base for centre, half in spans)
     return low <= SEAT_TOP_SHARE * tall
 
 
