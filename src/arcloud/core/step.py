@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arcloud.core.associate import associate, overlap_matrix, stored_index_bounds_of
-from arcloud.core.boxes import reach_under, refine_all, tucked_slab
+from arcloud.core.boxes import COMPONENT_GAP_VOXELS, reach_under, refine_all, tucked_slab
 from arcloud.core.camera import boxes_in_frustum, frame_frustum
 from arcloud.core.change import MapChange
 from arcloud.core.checks import check_detections
@@ -264,16 +264,21 @@ def fuse_matches(
     for (o, view), visible_of_o in zip(viewed, visible):
         fused[o] = fuse_detection(objects[o], view, frame.device_id, visible_of_o, floor_vote(floor, view, params))
         fused_ids.add(fused[o].id)
-    # A mask over its match and a rival held apart for now, or over pieces ``joined_by_masks`` may join: one more
-    # frame that spanned the pair, counted on the match (``core.fusion.spanned_frames`` reads both sides). Pairs
-    # held for good need no count.
+    # A mask over its match and a rival held apart for now, or over a seat and a back ``joined_by_masks`` may join:
+    # one more frame that spanned the pair, counted once a frame on the match (``core.fusion.spanned_frames`` reads
+    # both sides). Pairs held for good need no count.
+    counted: set[tuple[int, int]] = set()
     for d, o in association.pairs:
-        counting = [
-            r
-            for r in association.rivals.get(d, ())
-            if (held_apart(objects[o], objects[r], params) and not seen_apart(objects[o], objects[r], params))
-            or may_be_pieces(objects[o], objects[r], params)
-        ]
+        counting = []
+        for r in association.rivals.get(d, ()):
+            a, b = objects[o], objects[r]
+            pair = (min(a.id, b.id), max(a.id, b.id))
+            if pair not in counted and (
+                (held_apart(a, b, params) and not seen_apart(a, b, params))
+                or (may_be_pieces(a, b, params) and seat_and_back(a, b, params))
+            ):
+                counted.add(pair)
+                counting.append(r)
         if counting:
             fused[o] = fused[o].replace(spanned=add_votes(fused[o].spanned, {objects[r].id: 1 for r in counting}))
             fused_ids.add(fused[o].id)
@@ -291,10 +296,9 @@ def joined_by_masks(
     ``merge_spanned_min_footprint``). A chair's back first seen from behind and its seat from the front are two
     objects until a mask covers the whole chair; two chairs side by side, or two screens, stand on two
     footprints, and a spanning mask is shared out between them as before. A seat and a back whose footprints
-    only meet along an edge (7-Scenes' chair, in K = 10 orders) are joined once masks have spanned them in
-    ``apart_min_frames`` frames (as many as would part them for good) if one stands much lower than the other
-    (``seat_and_back``): two chairs side by side stand as high. The merge pass joins the pairs
-    (``merge_duplicates``)."""
+    only meet along an edge (``seat_and_back``; 7-Scenes' chair, in K = 10 orders) are joined once masks have
+    spanned them in ``apart_min_frames`` frames, as many as would part them for good. The merge pass joins the
+    pairs (``merge_duplicates``)."""
     joined: list[tuple[int, int]] = []
     for d, o in pairs:
         for r in rivals.get(d, ()):
@@ -308,20 +312,32 @@ def joined_by_masks(
     return joined
 
 
-#: Pieces of a chair joined by masks alone: the lower one's top at most this share of the taller one's height
-#: above their common base (a seat at 0.48 m against its back at 0.83 m reads 0.58).
+#: A chair's back: the shorter side of its footprint at most this (metres)...
+BACK_MAX_DEPTH_M = 0.2
+#: ...and a seat beside it: its top at most this share of the back's height above their common base (a seat at
+#: 0.48 m against its back at 0.83 m reads 0.58).
 SEAT_TOP_SHARE = 0.7
 
 
 def seat_and_back(a: MapObject, b: MapObject, params: Params) -> bool:
-    """Whether one of two boxed objects stands much lower than the other (``SEAT_TOP_SHARE``), as a chair's seat
-    does beside its back (heights along gravity, from their gravity-aligned boxes)."""
+    """Whether two boxed objects are a chair's back and its seat: the taller is thin (``BACK_MAX_DEPTH_M``), the
+    other stands much lower (``SEAT_TOP_SHARE``; heights along gravity, from their gravity-aligned boxes), and
+    their footprints meet, ``COMPONENT_GAP_VOXELS`` empty voxels between them at most (as a box's parts do). A
+    stool beside a chair, or a chair whose back was never seen beside a whole one, are no seat and back: the
+    taller one is no thin slab."""
     if a.obb is None or b.obb is None:
         return False
-    spans = [(float(params.gravity.up @ box.center), float(box.size[2]) / 2) for box in (a.obb, b.obb)]
-    base = min(centre - half for centre, half in spans)
-    low, tall = sorted(centre + half - base for centre, half in spans)
-    return low <= SEAT_TOP_SHARE * tall
+    boxes = (a.obb, b.obb)
+    bottoms = [float(params.gravity.up @ box.center) - float(box.size[2]) / 2 for box in boxes]
+    base = min(bottoms)
+    (low, _), (tall, back) = sorted(
+        ((bottom + float(box.size[2]) - base, box) for bottom, box in zip(bottoms, boxes)), key=lambda top: top[0]
+    )
+    return (
+        min(float(back.size[0]), float(back.size[1])) <= BACK_MAX_DEPTH_M
+        and low <= SEAT_TOP_SHARE * tall
+        and footprint_share(a.keys, b.keys, params, COMPONENT_GAP_VOXELS + 1) > 0
+    )
 
 
 def may_be_pieces(a: MapObject, b: MapObject, params: Params) -> bool:
@@ -329,8 +345,7 @@ def may_be_pieces(a: MapObject, b: MapObject, params: Params) -> bool:
     apart (not once: ``MapObject.apart``), and their class stands on the floor (``Params.floor_standing``): a
     screen over the shelf below it stands on the shelf's footprint, and a tentative twin there must not take
     the screen."""
-    floor_standing = a.label in params.floor_standing and b.label in params.floor_standing
-    return floor_standing and b.id not in a.apart and a.id not in b.apart
+    return a.label in params.floor_standing and b.id not in a.apart and a.id not in b.apart
 
 
 def apart_matrix(objects: Sequence[MapObject], params: Params) -> np.ndarray | None:

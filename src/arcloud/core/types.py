@@ -236,6 +236,7 @@ class MapObject:
     # id -> frames that detected that object of its class apart from it, in the same frame (core.step.mark_apart)
     apart: dict[int, int] = dataclasses.field(default_factory=dict)
     # id -> frames whose one mask, matched to this object, also covered that one, held apart (core.fusion.held_apart)
+    # or a seat and back not yet joined (core.step.seat_and_back)
     spanned: dict[int, int] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:

@@ -200,15 +200,16 @@ def ground_cells(keys: np.ndarray, params: Params) -> np.ndarray:
     return sorted_unique(pack_keys(cells))
 
 
-def footprint_share(keys_a: np.ndarray, keys_b: np.ndarray, params: Params) -> float:
+def footprint_share(keys_a: np.ndarray, keys_b: np.ndarray, params: Params, reach_voxels: int | None = None) -> float:
     """The share of the smaller of two voxel sets' footprints (``ground_cells``) that lies on the other's
-    or within ``association_tolerance_voxels`` of it: pieces of one object seen from different sides (a
-    chair's back, its seat) stand on one footprint; neighbours side by side stand on two that meet, if at
-    all, along an edge."""
+    or within ``reach_voxels`` (default ``association_tolerance_voxels``) of it: pieces of one object seen from
+    different sides (a chair's back, its seat) stand on one footprint; neighbours side by side stand on two that
+    meet, if at all, along an edge."""
     small, large = sorted((ground_cells(keys_a, params), ground_cells(keys_b, params)), key=len)
     if not small.size:
         return 0.0
-    reach = range(-params.association_tolerance_voxels, params.association_tolerance_voxels + 1)
+    tolerance = params.association_tolerance_voxels if reach_voxels is None else reach_voxels
+    reach = range(-tolerance, tolerance + 1)
     cells = unpack_keys(large)
     near = sorted_unique(np.concatenate([pack_keys(cells + (di, dj, 0)) for di in reach for dj in reach]))
     return np.count_nonzero(in_sorted(small, near)) / small.size
