@@ -122,7 +122,7 @@ def latency_on_many_cores(data: Results) -> str:
     )
 
 
-ACCURACY = "bench/results/accuracy-2026-11-28/accuracy.json"  # one `make accuracy` run: every suite, the office split, the untuned and low-eye ScanNet walks too
+ACCURACY = "bench/results/accuracy-2026-11-28b/accuracy.json"  # one `make accuracy` run: every suite, the office split, the untuned and low-eye ScanNet walks too
 SCANNET = ACCURACY  # its ScanNet suite runs every case at K = 10
 SIXTEEN_CORES = "bench/results/device-2026-11-26b/call1-w15.json"
 FIGURES: tuple[Figure, ...] = (
