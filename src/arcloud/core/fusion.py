@@ -321,7 +321,7 @@ def find_duplicates(
     for i, j in zip(*np.nonzero(np.triu(same))):
         ri, rj = root(int(i)), root(int(j))
         if ri == rj or any(
-            held_apart(objects[a], objects[b], params) or _pair(objects[a].id, objects[b].id) in now
+            held_apart(objects[a], objects[b], params) or id_pair(objects[a].id, objects[b].id) in now
             for a in members_of[ri]
             for b in members_of[rj]
         ):
@@ -339,7 +339,8 @@ def find_duplicates(
     return pairs
 
 
-def _pair(a: int, b: int) -> tuple[int, int]:
+def id_pair(a: int, b: int) -> tuple[int, int]:
+    """Two object ids as a pair, the smaller first (how pairs of objects are keyed: apart, spanned, joined)."""
     return (a, b) if a < b else (b, a)
 
 

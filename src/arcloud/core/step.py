@@ -45,6 +45,7 @@ from arcloud.core.fusion import (
     find_duplicates,
     fuse_detection,
     held_apart,
+    id_pair,
     keep_voxels,
     merge_objects,
     new_object,
@@ -272,7 +273,7 @@ def fuse_matches(
         counting = []
         for r in association.rivals.get(d, ()):
             a, b = objects[o], objects[r]
-            pair = (min(a.id, b.id), max(a.id, b.id))
+            pair = id_pair(a.id, b.id)
             if pair not in counted and (
                 (held_apart(a, b, params) and not seen_apart(a, b, params))
                 or (may_be_pieces(a, b, params) and seat_and_back(a, b, params))
@@ -308,7 +309,7 @@ def joined_by_masks(
             spans = spanned_frames(a, b) + 1  # this frame's mask too
             spanned = 0 < params.apart_min_frames <= spans and seat_and_back(a, b, params)
             if spanned or footprint_share(a.keys, b.keys, params) >= params.merge_spanned_min_footprint:
-                joined.append((min(a.id, b.id), max(a.id, b.id)))
+                joined.append(id_pair(a.id, b.id))
     return joined
 
 
@@ -388,7 +389,7 @@ def apart_in_frame(taken: Sequence[tuple[VoxelDetection, int]], params: Params) 
                         overlap = overlap_matrix(keys, keys, params.association_tolerance_voxels)
                     if overlap[a, b] >= params.association_min_overlap:
                         continue
-                pairs[(min(id_a, id_b), max(id_a, id_b))] = None
+                pairs[id_pair(id_a, id_b)] = None
     return list(pairs)
 
 
