@@ -440,6 +440,26 @@ def test_the_default_pixel_limit_bounds_a_queued_frame() -> None:
     assert f"at most {1920 * 1440} pixels" in response.json()["detail"]
 
 
+def test_a_jpeg_of_more_scans_than_an_encoder_writes_is_refused_before_it_is_decoded() -> None:
+    """Each scan of a progressive JPEG is a pass of the decoder over the image: within the pixel and byte limits, a
+    3.6 MB image of 300,000 tiny scans held a decoding thread for 14 s, and a worker's again (a fuzzing review). A
+    progressive JPEG as libjpeg writes it (10 scans) is still taken."""
+    frame = make_test_frame(3)
+    ok, progressive = cv2.imencode(".jpg", frame.rgb[..., ::-1], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    progressive = progressive.tobytes()
+    assert ok and 2 < progressive.count(b"\xff\xda") <= 64 and progressive.endswith(b"\xff\xd9")
+    last_scan = progressive[progressive.rfind(b"\xff\xda") : -2]
+    many = progressive[:-2] + last_scan * 100 + progressive[-2:]
+    parts = multipart_parts(frame)
+    with AppClient(create_app(Settings(detector="sim:0", workers=1), detector=BlobDetector())) as api:
+        accepted = api.post("/v1/maps/m/frames", files={**parts, "rgb": ("rgb.jpg", progressive, "image/jpeg")})
+        refused = api.post("/v1/maps/m/frames", files={**parts, "rgb": ("rgb.jpg", many, "image/jpeg")})
+    assert accepted.status_code == 202, accepted.text
+    assert_problem(refused, 422, "rgb")
+    scans = many.count(b"\xff\xda")
+    assert refused.json()["detail"] == f"rgb: expected a JPEG of at most 64 scans, got {scans} scans"
+
+
 def test_images_with_what_real_cameras_add_are_accepted() -> None:
     """The bound on an image's bytes leaves room for real images: noise at JPEG quality 100 with full-resolution
     chroma (1.37x its pixels' size), and a camera's metadata (60 kB of comments, a 60 kB text chunk)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import zlib
 
 import numpy as np
@@ -237,6 +238,35 @@ def test_object_without_boxes_round_trips() -> None:
     obj = MapObject(id=1, keys=keys, weights=weights, votes=votes)
     got = codec.decode_object(1, codec.encode_meta(obj), codec.encode_voxels(keys, weights, votes))
     assert got.aabb is None and got.obb is None and got.bounds is None and got.devices == frozenset() and got.colors is None
+
+
+def test_decode_refuses_keys_that_are_not_sorted_unique() -> None:
+    """Keys stored as differences were summed as they came: a blob of shuffled or repeated keys (a snapshot's, written
+    by hand) read as an object whose voxels every later step miscounted, or that failed every frame seeing it."""
+    keys = pack_keys(np.array([[0, 0, 0], [0, 500, 0], [0, 0, 900], [7, 0, 0]]))  # far apart: stored as differences
+    keys.sort()
+    weights, votes = np.ones(4, np.float32), np.eye(4, N_CLASSES, dtype=np.float32)
+    blob = codec.encode_voxels(keys, weights, votes)  # small: stored raw, the keys first
+
+    def with_keys(stored: np.ndarray) -> bytes:
+        differences = np.diff(stored, prepend=np.int64(0)).astype("<i8")
+        return blob[:HEADER_BYTES] + codec._byte_planes(differences) + blob[HEADER_BYTES + 8 * 4 :]
+
+    assert with_keys(keys) == blob  # the keys' bytes are where this test writes them
+    for stored in (keys[::-1], keys[[0, 2, 1, 3]], keys[[0, 1, 1, 3]], keys - keys[0] - 1, keys + (1 << 62)):
+        with pytest.raises(StoreError, match="not sorted unique voxel keys"):
+            codec.decode_voxels(with_keys(stored))
+
+
+def test_metadata_of_numbers_past_a_float_or_of_other_json_types_is_corrupt() -> None:
+    """Infinity for an integer raised OverflowError past the codec (a 500 on a snapshot's restore); a string
+    for the devices read as its letters, the string "no" as confirmed."""
+    keys, weights, votes = random_voxels(3, seed=6)
+    good = json.loads(codec._meta_json(MapObject(id=1, keys=keys, weights=weights, votes=votes)))
+    assert codec.decode_meta(1, dictionary_compressed(json.dumps(good).encode())).n_voxels == keys.size
+    for change in ({"version": float("inf")}, {"n_voxels": float("-inf")}, {"devices": "abc"}, {"confirmed": "no"}):
+        with pytest.raises(StoreError, match="corrupt metadata"):
+            codec.decode_meta(1, dictionary_compressed(json.dumps({**good, **change}).encode()))
 
 
 def test_corrupt_metadata_is_a_store_error() -> None:

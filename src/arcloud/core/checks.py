@@ -55,7 +55,10 @@ def check_map_id(field: str, value: object) -> str:
 def check_finite_number(field: str, value: object, *, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise InvalidInput(field, "a number", describe(value))
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # an integer past the largest float (10**400): no finite number either
+        raise InvalidInput(field, "a finite number", describe(value)) from None
     if not math.isfinite(number):
         raise InvalidInput(field, "a finite number", describe(value))
     if positive and number <= 0:

@@ -41,6 +41,11 @@ DEFAULT_MAX_PIXELS = 1920 * 1440  # Settings.max_frame_pixels
 # An encoded image may take at most twice its pixels' raw bytes, plus room for its metadata: more is not an
 # image but a carrier (metadata segments, chunks), and it would travel whole into the queue. JPEG of noise
 # at quality 100 with full-resolution chroma takes 1.37x; a PNG of noise just over 1x.
+#: Scans a JPEG may hold: a baseline JPEG has one, a progressive one about ten (libjpeg's script for colour), an
+#: EXIF thumbnail one more. Each scan is a pass of the decoder over the image, so the pixel and byte limits alone
+#: let a 3.6 MB progressive image of 300,000 tiny scans hold a decoding thread for 14 s.
+MAX_JPEG_SCANS = 64
+SCAN_MARKER = b"\xff\xda"  # start of scan; in entropy-coded data a 0xFF byte is followed by 0x00 or a restart marker
 MAX_ENCODED_OVER_RAW = 2
 ENCODED_SLACK_BYTES = 64 * 1024
 MAX_META_BYTES = 64 * 1024  # the multipart meta JSON: a few hundred bytes in practice
@@ -150,7 +155,8 @@ def max_encoded_bytes(width: int, height: int, bytes_per_pixel: int) -> int:
 
 def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
     """Refuse images whose header declares more than ``max_pixels`` pixels, whose size cannot be read
-    from the header (never decode to find out), or that take more bytes than ``max_encoded_bytes``."""
+    from the header (never decode to find out), that take more bytes than ``max_encoded_bytes``, or JPEGs of
+    more than ``MAX_JPEG_SCANS`` scans."""
     for field, data, encoded, bytes_per_pixel in (
         ("rgb", msg.rgb, msg.rgb_encoding in (pb.RGB_ENCODING_JPEG, pb.RGB_ENCODING_PNG), 3),
         ("depth", msg.depth, msg.depth_encoding == pb.DEPTH_ENCODING_PNG, 2),
@@ -171,6 +177,8 @@ def check_pixels(msg: pb.Frame, max_pixels: int) -> None:
                 f"at most {most} bytes for a {size[0]} x {size[1]} image (twice its pixels' size + 64 KiB)",
                 f"{len(data)} bytes",
             )
+        if encoded and data.startswith(JPEG_MAGIC) and (scans := data.count(SCAN_MARKER)) > MAX_JPEG_SCANS:
+            raise InvalidInput(field, f"a JPEG of at most {MAX_JPEG_SCANS} scans", f"{scans} scans")
 
 
 def validate_message(

@@ -69,6 +69,7 @@ ZLIB_LEVEL = 6
 KIND_F32, KIND_U16, KIND_U32 = 0, 1, 2
 _KIND_DTYPES: dict[int, np.dtype[Any]] = {KIND_F32: np.dtype("<f4"), KIND_U16: np.dtype("<u2"), KIND_U32: np.dtype("<u4")}
 _U16_MAX, _U32_MAX = (1 << 16) - 1, (1 << 32) - 1
+_LAST_KEY = float((1 << 3 * KEY_BITS) - 1)  # the largest packed key: every field at KEY_MASK
 _KIND_MAX = {KIND_U16: _U16_MAX, KIND_U32: _U32_MAX}
 VOTES_SCALE = 1.0 / VOTE_STEP  # votes are stored in steps
 _HEADER = struct.Struct("<4sBBHI")
@@ -353,8 +354,17 @@ def _keys_of_grid(payload: memoryview, n: int, first: np.ndarray, extent: np.nda
 
 
 def _keys_of_differences(payload: memoryview, n: int) -> np.ndarray:
-    """Keys from their differences, int64 byte positions apart."""
-    return np.cumsum(_plane_numbers(payload, np.dtype("<i8"), n, 0), dtype=np.int64)
+    """Keys from their differences, int64 byte positions apart; ``StoreError`` unless they are sorted unique keys
+    (the first >= 0, every other difference > 0, the last a key): a blob of shuffled or repeated keys would read
+    as an object whose voxels every later step miscounts."""
+    differences = _plane_numbers(payload, np.dtype("<i8"), n, 0)
+    if n and (
+        differences[0] < 0
+        or not np.all(differences[1:] > 0)
+        or float(differences[0]) + float(differences[1:].sum(dtype=np.float64)) > _LAST_KEY
+    ):
+        raise StoreError("voxel blob: its keys are not sorted unique voxel keys")
+    return np.cumsum(differences, dtype=np.int64)
 
 
 def _payload(blob: bytes, at: int, flags: int, expected: int, n: int) -> memoryview:
@@ -496,7 +506,7 @@ def decode_metas(object_ids: Sequence[int], blobs: Sequence[bytes]) -> list[Obje
     try:
         parsed = json.loads(b"[" + b",".join(map(_unpacked_meta, blobs)) + b"]")
         return [_meta(int(i), fields) for i, fields in zip(object_ids, parsed, strict=True)]
-    except (ValueError, KeyError, TypeError, IndexError, zlib.error) as exc:
+    except (ValueError, KeyError, TypeError, IndexError, OverflowError, zlib.error) as exc:
         raise StoreError(f"objects {list(object_ids)[:5]}: corrupt metadata ({type(exc).__name__}: {exc})") from exc
 
 
@@ -522,20 +532,34 @@ def _meta(object_id: int, fields: dict[str, Any]) -> ObjectMeta:
         version=int(fields["version"]),
         n_voxels=int(fields["n_voxels"]),
         n_frames=int(fields["n_frames"]),
-        devices=frozenset(fields["devices"]),
+        devices=frozenset(_strings(fields["devices"])),
         score_sum=float(fields["score_sum"]),
         created_at_s=float(fields["created_at_s"]),
         updated_at_s=float(fields["updated_at_s"]),
         aabb=_box(fields["aabb"]),
         obb=_obb(fields["obb"]),
         bounds=_box(fields["bounds"]),
-        confirmed=bool(fields.get("confirmed", False)),
+        confirmed=_boolean(fields.get("confirmed", False)),
         floor_votes={int(k): int(v) for k, v in fields.get("floor_votes", {}).items()},
         wall_votes={int(k): (int(n), int(mm)) for k, (n, mm) in fields.get("wall_votes", {}).items()},
         label_purity=float(fields.get("label_purity", 0.0)),
         apart={int(k): int(v) for k, v in fields.get("apart", {}).items()},
         spanned={int(k): int(v) for k, v in fields.get("spanned", {}).items()},
     )
+
+
+def _strings(values: object) -> list[str]:
+    """A JSON list of strings as it is (a string alone is no list of its letters); ``TypeError`` otherwise."""
+    if not isinstance(values, list) or not all(isinstance(v, str) for v in values):
+        raise TypeError(f"expected a list of strings, got {type(values).__name__}")
+    return values
+
+
+def _boolean(value: object) -> bool:
+    """A JSON true or false as it is (the string "no" is not true); ``TypeError`` otherwise."""
+    if not isinstance(value, bool):
+        raise TypeError(f"expected true or false, got {type(value).__name__}")
+    return value
 
 
 def decode_object(object_id: int, meta_blob: bytes, voxels_blob: bytes, *, n_missed: int = 0, n_gone: int = 0) -> MapObject:

@@ -49,9 +49,14 @@ MAX_UNPACKED_BYTES = 2**30  # a snapshot whose members unpack to more is refused
 MAX_OBJECT_ID = 2**53 - 1
 #: How far ``bounds`` may differ from its voxels' box: float rounding, never a voxel.
 BOUNDS_TOLERANCE_M = 1e-6
+#: How far a box (``aabb``, ``obb``) may reach past its voxels' box: the step completes boxes down to the floor
+#: (``floor_reach_max_m``, 1 m) and under a table (a chair's width), never by metres; a box 1e300 m wide is not one
+#: the step made.
+BOX_REACH_M = 4.0
 _META_MEMBER = re.compile(r"objects/(.*)\.meta")
 # What reading a malformed file raises: zipfile's own errors, a corrupt deflate stream (zlib.error), a member
 # name outside objects/ (IndexError), an encrypted or oddly compressed member (RuntimeError, NotImplementedError),
+# a number past the largest float (OverflowError),
 # JSON nested too deep (RecursionError), a blob the codec refuses (StoreError: here the file's fault, not a store's).
 UNREADABLE = (
     zipfile.BadZipFile,
@@ -61,6 +66,7 @@ UNREADABLE = (
     KeyError,
     IndexError,
     ValueError,
+    OverflowError,
     TypeError,
     RuntimeError,
     StoreError,
@@ -125,7 +131,12 @@ def read_snapshot(data: bytes) -> tuple[dict[str, object], MapHeader, list[MapOb
                     "snapshot", f"a {FORMAT} file", f"format {document.get('format') if isinstance(document, dict) else None!r}"
                 )
             header = MapHeader.from_record(document["header"])
-            ids = sorted(_object_id(name) for name in archive.namelist() if name.endswith(".meta"))
+            names: set[str] = set()
+            for name in archive.namelist():  # zipfile reads the last of a name's members: the others go unchecked
+                if name in names:
+                    raise InvalidInput("snapshot", "each member once", f"member {describe(name)} more than once")
+                names.add(name)
+            ids = sorted(_object_id(name) for name in names if name.endswith(".meta"))
             objects = [
                 codec.decode_object(i, archive.read(f"objects/{i}.meta"), archive.read(f"objects/{i}.voxels")) for i in ids
             ]
@@ -202,9 +213,11 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
         )
         world = corners @ aligned2world[:3, :3].T + aligned2world[:3, 3]
         aabb_lo, aabb_hi = world.min(axis=0), world.max(axis=0)
-    if not _meets(aabb_lo, aabb_hi, bounds):
+    if not (_meets(aabb_lo, aabb_hi, bounds) and _near(aabb_lo, aabb_hi, bounds)):
         raise InvalidInput(
-            f"{where}.aabb", f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}", _corners(aabb.min, aabb.max)
+            f"{where}.aabb",
+            f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}, within {BOX_REACH_M} m of it",
+            _corners(aabb.min, aabb.max),
         )
     obb = obj.obb
     if obb is None:
@@ -215,11 +228,11 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
             f"{where}.obb", "a finite centre, rotation and yaw and sizes >= 0", "a non-finite value or a negative size"
         )
     reach = np.abs(parts[2]) @ parts[1] / 2  # half the extent of the oriented box along each world axis
-    if not _meets(parts[0] - reach, parts[0] + reach, bounds):
+    if not (_meets(parts[0] - reach, parts[0] + reach, bounds) and _near(parts[0] - reach, parts[0] + reach, bounds)):
         raise InvalidInput(
             f"{where}.obb",
-            f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}",
-            f"centre {parts[0].round(3).tolist()}",
+            f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}, within {BOX_REACH_M} m of it",
+            f"centre {parts[0].round(3).tolist()}, size {parts[1].round(3).tolist()}",
         )
 
 
@@ -236,6 +249,11 @@ def _finite_box(field: str, box: AABB | None) -> AABB:
 def _meets(lo: np.ndarray, hi: np.ndarray, box: AABB) -> bool:
     """Whether [lo, hi] and ``box`` share a point (touching counts)."""
     return bool(np.all(lo <= box.max + BOUNDS_TOLERANCE_M) and np.all(box.min <= hi + BOUNDS_TOLERANCE_M))
+
+
+def _near(lo: np.ndarray, hi: np.ndarray, box: AABB) -> bool:
+    """Whether [lo, hi] lies within ``BOX_REACH_M`` of ``box`` on every side."""
+    return bool(np.all(lo >= box.min - BOX_REACH_M) and np.all(hi <= box.max + BOX_REACH_M))
 
 
 def _corners(lo: np.ndarray, hi: np.ndarray) -> str:
