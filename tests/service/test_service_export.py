@@ -175,20 +175,36 @@ def test_export_refusals(served: tuple[str, str, list[dict[str, Any]]]) -> None:
         assert unknown.value.status == 403  # not the reader's map: refused before anything is looked up
 
 
-def test_exports_beyond_those_being_built_are_refused_with_retry_after() -> None:
+def test_exports_snapshots_and_restores_beyond_those_under_way_are_refused_with_retry_after() -> None:
+    """Each holds a map's file in memory. Snapshots and restores took no place (a review: three 1 MB restores that
+    unpack to 1 GB at once took the process to 4.3 GB)."""
     app = create_app(Settings(detector="sim:0", workers=1, max_exports=1), detector=BlobDetector())
     with AppClient(app) as api:
         frame = make_test_frame(0, map_id="room", boxes=(LEFT, RIGHT), level=True)
         assert api.post("/v1/maps/room/frames", content=frame_to_proto(frame).SerializeToString(),
                         headers={"content-type": "application/x-protobuf"}).status_code == 202  # fmt: skip
+        snapshot = api.get("/v1/maps/room/snapshot")
+        assert snapshot.status_code == 200, snapshot.text
         building = app.state.runtime.exports
         assert building.acquire(blocking=False)  # an export being built: the process's one place taken
         try:
-            refused = api.get("/v1/maps/room/export", params={"format": "json"})
+            refused = {
+                "export": api.get("/v1/maps/room/export", params={"format": "json"}),
+                "snapshot": api.get("/v1/maps/room/snapshot"),
+                "restore": api.request(
+                    "PUT", "/v1/maps/copy/snapshot", content=snapshot.content, headers={"content-type": "application/zip"}
+                ),
+            }
         finally:
             building.release()
-        assert refused.status_code == 429 and refused.headers["retry-after"] == "2"
-        assert (
-            "1 exports are being built in this API process, the most it builds at once (max_exports)" in refused.json()["detail"]
-        )
+        for what, answer in refused.items():
+            assert answer.status_code == 429 and answer.headers["retry-after"] == "2", (what, answer.text)
+            assert answer.json()["detail"].startswith(
+                f"{what}: 1 exports, snapshots or restores are under way in this API process, the most it runs at once "
+                "(max_exports)"
+            )
         assert api.get("/v1/maps/room/export", params={"format": "json"}).status_code == 200  # its place back
+        restored = api.request(
+            "PUT", "/v1/maps/copy/snapshot", content=snapshot.content, headers={"content-type": "application/zip"}
+        )
+        assert restored.status_code == 200, restored.text

@@ -67,6 +67,23 @@ def test_a_snapshot_that_unpacks_to_more_than_the_limit_is_refused(monkeypatch: 
         restore_bytes(MemoryStore(), MAP, data, params=Params())
 
 
+def test_a_snapshot_that_unpacks_to_many_times_its_size_is_refused_and_a_real_maps_is_not() -> None:
+    """Below the 1 GiB limit, a 1 MB file unpacking to 1 GB was read whole (a review: three at once, 4.3 GB)."""
+    objects = [make_object(i, (i * 1.0, 0.0, 0.0), seed=i) for i in range(1, 40)]
+    data = a_snapshot(objects)
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        unpacked = sum(info.file_size for info in archive.infolist())
+    assert unpacked < 2 * len(data)  # its blobs are compressed already
+    assert restore_bytes(MemoryStore(), MAP, data, params=Params()) == len(objects)
+    padded = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as source, zipfile.ZipFile(padded, "w", zipfile.ZIP_DEFLATED) as target:
+        for name in source.namelist():
+            target.writestr(name, source.read(name))
+        target.writestr("padding", bytes(8 * len(data) + 2**20))  # zeros: a few kB packed
+    with pytest.raises(InvalidInput, match=r"at most \d+ bytes unpacked \(8 times its \d+ bytes \+ 1 MiB"):
+        restore_bytes(MemoryStore(), MAP, padded.getvalue(), params=Params())
+
+
 # --- what a snapshot may hold (issue 22: any label was stored and served, a NaN box served as null, an id >= 2**63 a 500)
 NAN3 = np.array([np.nan, 0.0, 0.0])
 FAR = np.array([50.0, 50.0, 50.0])

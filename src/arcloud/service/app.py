@@ -41,8 +41,8 @@ import asyncio
 import json
 import logging
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
-from contextlib import asynccontextmanager
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, MutableMapping
+from contextlib import asynccontextmanager, contextmanager
 from functools import partial
 from typing import Annotated, Any, Literal
 
@@ -430,15 +430,7 @@ def export(
     voxels: Annotated[bool, Query(description="json: add each object's voxel centres, weights and colours")] = False,
 ) -> Response:
     known_map(runtime, map_id)
-    if not runtime.exports.acquire(blocking=False):  # each holds its file in memory: a few at a time, whoever asks
-        raise Refused(
-            429,
-            f"export: {runtime.settings.max_exports} exports are being built in this API process, the most it builds at "
-            f"once (max_exports); retry in {EXPORT_RETRY_AFTER_S} s",
-            "format",
-            {"Retry-After": str(EXPORT_RETRY_AFTER_S)},
-        )
-    try:
+    with export_place(runtime, "export", "format"):
         body = export_from_store(  # 422 over max_export_objects / max_export_voxels, before any voxel is read
             runtime.store,
             map_id,
@@ -450,8 +442,6 @@ def export(
             max_voxels=runtime.settings.max_export_voxels,
             max_objects=runtime.settings.max_export_objects,
         )
-    finally:
-        runtime.exports.release()
     media, extension = MEDIA[fmt]
     return Response(body, media_type=media, headers={"Content-Disposition": f'attachment; filename="{map_id}.{extension}"'})
 
@@ -469,8 +459,10 @@ def export(
 def get_snapshot(map_id: MapId, runtime: RuntimeDep) -> Response:
     known_map(runtime, map_id, same_settings=False)
     archive = _archive(runtime)
+    with export_place(runtime, "snapshot", "map_id"):
+        body = archive.snapshot(runtime.store, map_id)
     return Response(
-        archive.snapshot(runtime.store, map_id),
+        body,
         media_type="application/zip",
         headers={"Content-Disposition": f'attachment; filename="{map_id}.snapshot.zip"'},
     )
@@ -498,11 +490,30 @@ async def put_snapshot(
     check_map_id("map_id", map_id)
     archive = _archive(runtime)
     data = await request.body()
-    restored = await run_in_threadpool(
-        lambda: archive.restore(runtime.store, map_id, data, replace=replace, params=runtime.params)
-    )
+    with export_place(runtime, "restore", "map_id"):  # its objects unpacked in memory, as an export's file
+        restored = await run_in_threadpool(
+            lambda: archive.restore(runtime.store, map_id, data, replace=replace, params=runtime.params)
+        )
     log.info("map %s restored from a snapshot: %d objects", map_id, restored)
     return MapRestored(map_id=map_id, restored_objects=restored)
+
+
+@contextmanager
+def export_place(runtime: Runtime, what: str, field: str) -> Iterator[None]:
+    """One of the ``max_exports`` places for a map's file built or read in memory (an export, a snapshot, a
+    restore), whoever asks; 429 with ``Retry-After`` naming ``what`` when every place is taken."""
+    if not runtime.exports.acquire(blocking=False):
+        raise Refused(
+            429,
+            f"{what}: {runtime.settings.max_exports} exports, snapshots or restores are under way in this API process, "
+            f"the most it runs at once (max_exports); retry in {EXPORT_RETRY_AFTER_S} s",
+            field,
+            {"Retry-After": str(EXPORT_RETRY_AFTER_S)},
+        )
+    try:
+        yield
+    finally:
+        runtime.exports.release()
 
 
 def _archive(runtime: Runtime) -> MapArchive:

@@ -208,7 +208,7 @@ class Settings(BaseSettings):
     max_exports: int = Field(
         2,
         ge=1,
-        description="exports one API process builds at once (each holds its file in memory: a JSON export with voxels "
+        description="exports, snapshots and restores one API process runs at once (each holds a file in memory: a JSON export with voxels "
         "takes about 60 bytes a voxel): 429 with Retry-After beyond",
     )
     max_export_voxels: int = Field(

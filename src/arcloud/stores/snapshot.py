@@ -45,6 +45,10 @@ RESTORE_BATCH_CELLS = MAX_OBJECT_CELLS  # index cells per commit, at most: about
 RESTORE_BATCH_VOXELS = 1 << 18  # voxels per commit, at most (an object of more goes alone): a few MB of blobs
 PROGRESS_LOG_S = 5.0  # a long restore says how far it got this often
 MAX_UNPACKED_BYTES = 2**30  # a snapshot whose members unpack to more is refused (zip bombs); a real map is a few MB
+#: Nor may it unpack to more than this many times its own size (plus ``UNPACKED_SLACK_BYTES``): its blobs are
+#: compressed already (a snapshot of a real map unpacks to about 1x), and a 1 MB file of zeros unpacked to 1 GB.
+MAX_UNPACKED_OVER_PACKED = 8
+UNPACKED_SLACK_BYTES = 2**20
 #: The largest object id restored: what a JSON number carries exactly (the viewer reads ids as doubles).
 MAX_OBJECT_ID = 2**53 - 1
 #: How far ``bounds`` may differ from its voxels' box: float rounding, never a voxel.
@@ -123,8 +127,14 @@ def read_snapshot(data: bytes) -> tuple[dict[str, object], MapHeader, list[MapOb
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
             unpacked = sum(info.file_size for info in archive.infolist())  # zipfile reads no member past its size
-            if unpacked > MAX_UNPACKED_BYTES:
-                raise InvalidInput("snapshot", f"at most {MAX_UNPACKED_BYTES} bytes unpacked", f"{unpacked} bytes")
+            most = min(MAX_UNPACKED_BYTES, MAX_UNPACKED_OVER_PACKED * len(data) + UNPACKED_SLACK_BYTES)
+            if unpacked > most:
+                raise InvalidInput(
+                    "snapshot",
+                    f"at most {most} bytes unpacked ({MAX_UNPACKED_OVER_PACKED} times its {len(data)} bytes + 1 MiB, at most "
+                    f"{MAX_UNPACKED_BYTES})",
+                    f"{unpacked} bytes",
+                )
             document = json.loads(archive.read("snapshot.json"))
             if not isinstance(document, dict) or document.get("format") != FORMAT:
                 raise InvalidInput(
