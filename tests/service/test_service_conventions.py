@@ -212,6 +212,26 @@ def test_alignment_routes_store_check_list_and_forget(client: AppClient) -> None
     assert client.delete(route).json()["deleted"] is False
 
 
+def test_a_map_holds_a_bounded_number_of_alignments_and_one_of_alignments_alone_can_be_deleted(
+    client: AppClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A review: one admin key stored alignments of any number of devices, on a map that was never made too, which
+    DELETE of the map then answered 404 and left in the store."""
+    from arcloud.service import alignment_routes
+
+    monkeypatch.setattr(alignment_routes, "MAX_ALIGNED_DEVICES", 3)
+    aligned = {"device_from_map": DEVICE_FROM_MAP.tolist()}
+    for device in ("a", "b", "c"):
+        assert client.request("PUT", f"/v1/maps/x/devices/{device}/alignment", json=aligned).status_code == 200
+    full = client.request("PUT", "/v1/maps/x/devices/d/alignment", json=aligned)
+    assert full.status_code == 409 and "holds 3 devices' alignments, the most it holds (MAX_ALIGNED_DEVICES)" in full.text
+    assert client.request("PUT", "/v1/maps/x/devices/a/alignment", json=aligned).status_code == 200  # set again: no new one
+    assert client.get("/v1/maps/x/stats").status_code == 404  # no frame of map x: no map to read
+    assert client.delete("/v1/maps/x").json() == {"map_id": "x", "deleted_objects": 0}
+    assert client.get("/v1/maps/x/alignments").json()["alignments"] == []
+    assert client.delete("/v1/maps/x").status_code == 404  # nothing of it left
+
+
 @pytest.mark.parametrize(
     ("pose", "field", "says"),
     [

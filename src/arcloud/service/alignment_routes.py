@@ -12,7 +12,8 @@ none of its own (``frames.validate_message``), from the next frame on; frames qu
 were accepted with. An app may also send ``device_from_map`` with every frame (from a shared anchor); an
 operator sets it here. Refused with 422 naming ``device_from_map``: anything but a finite rigid transform, a
 translation beyond ``MAX_TRANSLATION_M``, a rotation that tilts the map's up by more than
-``MAX_ALIGNMENT_TILT_DEG``.
+``MAX_ALIGNMENT_TILT_DEG``. A map holds at most ``MAX_ALIGNED_DEVICES`` alignments (409 beyond: one admin key
+could otherwise grow the store without bound, and ``GET .../alignments`` answers them all at once).
 """
 
 from __future__ import annotations
@@ -41,6 +42,9 @@ from arcloud.service.schemas import (
 
 router = APIRouter(tags=["devices"])
 
+#: Devices of one map with an alignment, at most: a map shared by many users' AR sessions has one a session.
+MAX_ALIGNED_DEVICES = 1000
+
 DeviceId = Annotated[str, Path(description="the device id its frames carry", examples=["phone-2"])]
 ALIGNMENT = "/v1/maps/{map_id}/devices/{device_id}/alignment"
 
@@ -63,6 +67,7 @@ def _out(map_id: str, device_id: str, device_from_map: np.ndarray) -> dict[str, 
     responses={
         **PROBLEM_RESPONSES,
         400: {"model": Problem, "description": "a body that is not JSON"},
+        409: {"model": Problem, "description": "a map of other settings, or one holding MAX_ALIGNED_DEVICES alignments"},
         413: {"model": Problem, "description": "body too large"},
     },
     summary="Set where a device's session world stands in the map (admin)",
@@ -77,6 +82,13 @@ async def put_alignment(map_id: MapId, device_id: DeviceId, body: DeviceAlignmen
     alignments = _alignments(runtime)
     device_from_map = check_device_from_map("device_from_map", body.flat(), runtime.params.up)
     await run_in_threadpool(check_map_header, runtime.store, map_id, runtime.params)  # 409: a map of other settings
+    stored = await run_in_threadpool(alignments.of_map, map_id)
+    if device_id not in stored and len(stored) >= MAX_ALIGNED_DEVICES:
+        raise HTTPException(
+            409,
+            f"map {map_id!r} holds {len(stored)} devices' alignments, the most it holds (MAX_ALIGNED_DEVICES); delete one "
+            "that is no longer used",
+        )
     await run_in_threadpool(alignments.put, map_id, device_id, device_from_map)
     return _out(map_id, device_id, device_from_map)
 

@@ -598,7 +598,14 @@ def delete_map(map_id: MapId, runtime: RuntimeDep) -> MapDeleted:
     going = runtime.store.map_deletion(map_id)
     stopped = going is not None and not going.done and time.time() - going.updated_at_s > DELETION_STALE_S
     if not stopped:  # a stopped deletion goes on whatever is left of the map
-        known_map(runtime, map_id, same_settings=False)  # 409 while another deletion of it goes on
+        try:
+            known_map(runtime, map_id, same_settings=False)  # 409 while another deletion of it goes on
+        except HTTPException as exc:  # a map of alignments alone (set before its first frame): they go, else 404
+            if exc.status_code != 404 or runtime.alignments is None or not runtime.alignments.of_map(map_id):
+                raise
+            runtime.alignments.forget_map(map_id)
+            log.info("map %s deleted (its devices' alignments; no object)", map_id)
+            return MapDeleted(map_id=map_id, deleted_objects=0)
     runtime.ingest.forget_map(map_id)  # first: the map is unknown to reads (409) while its objects go
     removed = runtime.store.delete_map(map_id)
     if runtime.alignments is not None:
