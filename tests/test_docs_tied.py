@@ -109,6 +109,7 @@ ARGUMENTS = {
     "cell": (1, 2, 3),
     "bucket": "<bucket>",
     "digest": "<digest>",
+    "key_id": "<key-id>",
     "lease_key": "<lock or claim key>",
 }
 PLACEHOLDERS = [(":7", ":<id>"), (":1:2:3", ":<i>:<j>:<k>"), (":map:m:", ":map:<m>:")]

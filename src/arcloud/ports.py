@@ -618,11 +618,21 @@ class RateLimiter(Protocol):
     def close(self) -> None: ...
 
 
+#: Live viewer passes (tickets and sessions) one key holds at most: one more ends the key's pass that would end
+#: first (of passes alike, its oldest), never another
+#: key's (one key drawing sessions filled the memory store's passes and ended others' viewers; on Redis, 2.2 million
+#: passes a key in a session's 12 h).
+MAX_VIEWER_PASSES_PER_KEY = 100
+
+
 class ViewerPasses(Protocol):
     """Viewer tickets and sessions by the SHA-256 of their secret (``access.secret_digest``), each kept until its
     ``expires_at_s`` at least (the caller checks expiry). Shared by every API process using the same store."""
 
-    def put(self, digest: str, grant: ViewerGrant) -> None: ...
+    def put(self, digest: str, grant: ViewerGrant) -> None:
+        """Keep the pass; when its key holds ``MAX_VIEWER_PASSES_PER_KEY`` live ones, the one of them that would end
+        first ends now."""
+        ...
 
     def find(self, digest: str) -> ViewerGrant | None:
         """The pass; None when there is none (never issued, taken, or dropped once expired)."""

@@ -14,7 +14,7 @@ import pytest
 from redis_server import empty_redis_url
 
 from arcloud.access import new_key, new_viewer_pass, secret_digest
-from arcloud.errors import StoreError
+from arcloud.errors import StoreError, StoreUnavailable
 from arcloud.ports import KeyStore, RateLimiter, ViewerPasses
 from arcloud.stores.file_api_keys import FileKeyStore
 from arcloud.stores.keys import viewer_pass_key
@@ -160,17 +160,43 @@ def test_redis_drops_a_viewer_pass_when_it_expires(redis_url: str) -> None:
     passes.close()
 
 
-def test_a_key_drawing_memory_passes_past_the_limit_ends_its_own_never_another_keys(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_key_drawing_passes_past_its_bound_ends_its_own_oldest_never_another_keys(
+    viewer_passes: ViewerPasses, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A review: in memory, a key holding no pass of its own ended the oldest pass of anyone once the store was full
+    (another key's viewer logged out); on Redis nothing bounded a key (2.2 million sessions in a session's 12 h)."""
+    import arcloud.stores.memory_viewer_passes as memory_passes
+    import arcloud.stores.redis_viewer_passes as redis_passes
+
+    monkeypatch.setattr(memory_passes, "MAX_VIEWER_PASSES_PER_KEY", 4)
+    monkeypatch.setattr(redis_passes, "MAX_VIEWER_PASSES_PER_KEY", 4)
+    now = time.time()
+    victim, victim_secret = new_viewer_pass("session", "beta", "aaaaaaaaaaaa", now_s=now, ttl_s=3600)
+    viewer_passes.put(secret_digest(victim_secret), victim)  # the oldest pass of all
+    drawn = []
+    for i in range(10):  # a reader key drawing sessions as fast as its rate lets it
+        grant, secret = new_viewer_pass("session", "alpha", "bbbbbbbbbbbb", now_s=now + i, ttl_s=3600)
+        viewer_passes.put(secret_digest(secret), grant)
+        drawn.append(secret_digest(secret))
+    assert viewer_passes.find(secret_digest(victim_secret)) == victim  # still logged in
+    assert [viewer_passes.find(d) is not None for d in drawn] == [False] * 6 + [True] * 4  # its own oldest went
+    assert viewer_passes.take(drawn[-1]) is not None  # a pass taken leaves room for one more of its key
+    grant, secret = new_viewer_pass("ticket", "alpha", "bbbbbbbbbbbb", now_s=now, ttl_s=60)
+    viewer_passes.put(secret_digest(secret), grant)
+    assert [viewer_passes.find(d) is not None for d in drawn[-4:-1]] == [True] * 3
+
+
+def test_a_full_memory_store_refuses_a_pass_rather_than_end_another_keys(monkeypatch: pytest.MonkeyPatch) -> None:
     import arcloud.stores.memory_viewer_passes as memory_passes
 
-    monkeypatch.setattr(memory_passes, "MAX_PASSES", 5)
+    monkeypatch.setattr(memory_passes, "MAX_PASSES", 3)
     passes, now = MemoryViewerPasses(), time.time()
-    victim, victim_secret = new_viewer_pass("session", "beta", "aaaaaaaaaaaa", now_s=now, ttl_s=3600)
-    passes.put(secret_digest(victim_secret), victim)  # the oldest pass of all
-    drawn = []
-    for _ in range(20):  # a reader key drawing sessions as fast as its rate lets it
-        grant, secret = new_viewer_pass("session", "alpha", "bbbbbbbbbbbb", now_s=now, ttl_s=3600)
+    held = []
+    for key_id in ("aaaaaaaaaaaa", "bbbbbbbbbbbb", "cccccccccccc"):
+        grant, secret = new_viewer_pass("session", "m", key_id, now_s=now, ttl_s=3600)
         passes.put(secret_digest(secret), grant)
-        drawn.append(secret_digest(secret))
-    assert passes.find(secret_digest(victim_secret)) == victim  # still logged in
-    assert [passes.find(d) is not None for d in drawn] == [False] * 16 + [True] * 4  # its own oldest went
+        held.append(secret_digest(secret))
+    grant, secret = new_viewer_pass("ticket", "m", "dddddddddddd", now_s=now, ttl_s=60)
+    with pytest.raises(StoreUnavailable, match="viewer passes: 3 live ones are kept"):
+        passes.put(secret_digest(secret), grant)
+    assert all(passes.find(d) is not None for d in held)

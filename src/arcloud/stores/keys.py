@@ -69,6 +69,8 @@ Service-wide keys (no tag: single-key commands only):
     arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
     arcloud:viewer:<digest>         STRING  a viewer ticket or session (``ViewerGrant`` JSON) by its secret's SHA-256
                                             (``redis_viewer_passes``, PX until it expires)
+    arcloud:viewer-key:<key-id>     ZSET    one API key's live viewer passes, digest by expiry (Unix ms): at most
+                                            ``MAX_VIEWER_PASSES_PER_KEY``, the first to end ended beyond
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
 ``RedisStore.delete_map`` removes every key matching ``map_pattern`` but the three it keeps (``ids``,
@@ -294,6 +296,11 @@ MAPS = f"{PREFIX}:maps"
 def viewer_pass_key(digest: str) -> str:
     """A viewer ticket or session, by the SHA-256 (hex) of its secret."""
     return f"{PREFIX}:viewer:{digest}"
+
+
+def viewer_key_passes_key(key_id: str) -> str:
+    """The live viewer passes of one API key: a sorted set of their digests by expiry (Unix ms)."""
+    return f"{PREFIX}:viewer-key:{key_id}"
 
 
 def rate_key(bucket: str) -> str:
