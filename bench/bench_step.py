@@ -23,7 +23,7 @@ from common import environment, pin_to_one_core, summary_ms, time_calls, write_j
 
 from arcloud.core.checks import make_frame
 from arcloud.core.step import integrate_frame
-from arcloud.core.types import CLASSES, Detection, Params
+from arcloud.core.types import CLASSES, Detection, Frame, Params
 from arcloud.stores.memory import MemoryStore
 
 HEIGHT, WIDTH = 480, 640
@@ -48,6 +48,28 @@ def make_scene(rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray], 
     return depth, masks, labels
 
 
+def scene_steps(n: int) -> tuple[MemoryStore, Params, list[Frame], list[list[Detection]]]:
+    """The scene's map built (all 20 objects, in the embedded store) and ``n`` frames to step, each with the 10
+    detections it brings (the camera moved a little, the depth noisy, every random draw seeded)."""
+    rng = np.random.default_rng(0)
+    depth, masks, labels = make_scene(rng)
+    rgb = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    params, store = Params(), MemoryStore()
+
+    def frame_at(i: int) -> Frame:
+        pose = np.eye(4)
+        pose[:3, 3] = rng.normal(0, 0.01, 3)
+        noisy = depth + rng.normal(0, 0.005, depth.shape).astype(np.float32)
+        return make_frame(rgb, noisy, INTRINSICS, pose, timestamp_s=i / 30, map_id="bench", device_id="d", frame_id=f"f{i}")
+
+    for i in range(3):  # build the map: all 20 objects
+        integrate_frame(frame_at(i), [Detection(label, 0.9, m) for label, m in zip(labels, masks)], store, params)
+    assert len(store.list_objects("bench")) == 20, len(store.list_objects("bench"))
+    frames = [frame_at(10 + i) for i in range(n)]
+    subsets = [rng.choice(20, 10, replace=False) for _ in frames]
+    return store, params, frames, [[Detection(labels[j], 0.8, masks[j]) for j in subset] for subset in subsets]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=200)
@@ -58,29 +80,12 @@ def main() -> None:
 
     keep_freed_memory()  # as the CLI's commands and the worker processes do
     core = pin_to_one_core()
-    rng = np.random.default_rng(0)
-    depth, masks, labels = make_scene(rng)
-    rgb = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
-    params = Params()
-    store = MemoryStore()
-
-    def frame_at(i: int):
-        pose = np.eye(4)
-        pose[:3, 3] = rng.normal(0, 0.01, 3)
-        noisy = depth + rng.normal(0, 0.005, depth.shape).astype(np.float32)
-        return make_frame(rgb, noisy, INTRINSICS, pose, timestamp_s=i / 30, map_id="bench", device_id="d", frame_id=f"f{i}")
-
-    for i in range(3):  # build the map: all 20 objects
-        integrate_frame(frame_at(i), [Detection(label, 0.9, m) for label, m in zip(labels, masks)], store, params)
-    assert len(store.list_objects("bench")) == 20, len(store.list_objects("bench"))
-
-    frames = [frame_at(10 + i) for i in range(args.warmup + args.repeats)]
-    subsets = [rng.choice(20, 10, replace=False) for _ in frames]
+    store, params, frames, detections = scene_steps(args.warmup + args.repeats)
     stages: dict[str, list[float]] = {}
     visible: list[int] = []
 
     def step(i: int) -> None:
-        result = integrate_frame(frames[i], [Detection(labels[j], 0.8, masks[j]) for j in subsets[i]], store, params)
+        result = integrate_frame(frames[i], detections[i], store, params)
         visible.append(result.n_visible)
         for name, seconds in result.timings_s.items():
             stages.setdefault(name, []).append(seconds)

@@ -36,30 +36,11 @@ COUNTED_CALL = "_operator_call"
 
 def run_frames(frames: int, warmup: int) -> None:
     """The step of ``bench_step``'s scene: the map built, ``warmup`` frames uncounted, then ``frames`` counted."""
-    import numpy as np
-    from bench_step import HEIGHT, INTRINSICS, WIDTH, make_scene
+    from bench_step import scene_steps
 
-    from arcloud.core.checks import make_frame
     from arcloud.core.step import integrate_frame
-    from arcloud.core.types import Detection, Params
-    from arcloud.stores.memory import MemoryStore
 
-    rng = np.random.default_rng(0)
-    depth, masks, labels = make_scene(rng)
-    rgb = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
-    params, store = Params(), MemoryStore()
-
-    def frame_at(i: int):
-        pose = np.eye(4)
-        pose[:3, 3] = rng.normal(0, 0.01, 3)
-        noisy = depth + rng.normal(0, 0.005, depth.shape).astype(np.float32)
-        return make_frame(rgb, noisy, INTRINSICS, pose, timestamp_s=i / 30, map_id="bench", device_id="d", frame_id=f"f{i}")
-
-    for i in range(3):  # build the map: all 20 objects
-        integrate_frame(frame_at(i), [Detection(label, 0.9, m) for label, m in zip(labels, masks)], store, params)
-    steps = [frame_at(10 + i) for i in range(warmup + frames)]
-    chosen = [rng.choice(20, 10, replace=False) for _ in steps]
-    detections = [[Detection(labels[j], 0.8, masks[j]) for j in subset] for subset in chosen]
+    store, params, steps, detections = scene_steps(warmup + frames)
     for i in range(warmup):
         integrate_frame(steps[i], detections[i], store, params)
     for i in range(warmup, warmup + frames):
