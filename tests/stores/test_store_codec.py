@@ -253,7 +253,8 @@ def test_decode_refuses_keys_that_are_not_sorted_unique() -> None:
         return blob[:HEADER_BYTES] + codec._byte_planes(differences) + blob[HEADER_BYTES + 8 * 4 :]
 
     assert with_keys(keys) == blob  # the keys' bytes are where this test writes them
-    for stored in (keys[::-1], keys[[0, 2, 1, 3]], keys[[0, 1, 1, 3]], keys - keys[0] - 1, keys + (1 << 62)):
+    wraps = np.array([2**63 - 3, 2**63 - 2, 2**63 - 1, -(2**63)])  # differences all > 0, their sum past int64 (review)
+    for stored in (keys[::-1], keys[[0, 2, 1, 3]], keys[[0, 1, 1, 3]], keys - keys[0] - 1, wraps):
         with pytest.raises(StoreError, match="not sorted unique voxel keys"):
             codec.decode_voxels(with_keys(stored))
 

@@ -122,6 +122,8 @@ def edits(obj: MapObject) -> list[tuple[str, dict[str, object]]]:
         ("score_sum", {"score_sum": float("inf")}),
         ("n_frames", {"n_frames": -3}),
         ("n_frames", {"n_frames": 10**400}),  # past the largest float: was an OverflowError, a 500
+        ("floor_votes", {"floor_votes": {0: 10**400}}),  # a float's range is not enough: every frame then failed
+        ("created_at_s", {"created_at_s": 1e308}),  # and every read of the map's objects (a review)
         ("devices", {"devices": frozenset({"phone 1\n<b>"})}),
         ("floor_votes", {"floor_votes": {3: -1}}),
         ("wall_votes", {"wall_votes": {360: (2, 1000)}}),
@@ -194,12 +196,35 @@ def test_a_snapshot_naming_a_member_twice_is_refused_and_the_map_it_would_replac
     restore half-way, after ``replace`` had deleted the map (a 500, the map lost: a fuzzing review)."""
     valid, _ = valid_snapshot()
     assert restore_bytes(store, MAP, valid, params=Params()) == 2
-    twice = io.BytesIO()
+    twice = io.BytesIO()  # object 1's metadata member named objects/2.meta: two objects, as the file says
     with zipfile.ZipFile(io.BytesIO(valid)) as source, zipfile.ZipFile(twice, "w") as target:
-        for name in source.namelist():
-            target.writestr(name, source.read(name))
-        with pytest.warns(UserWarning, match="Duplicate name"):
-            target.writestr("objects/2.meta", source.read("objects/2.meta"))
+        for name in sorted(source.namelist(), key=lambda name: name == "objects/1.meta"):  # the renamed one last
+            if name == "objects/1.meta":
+                with pytest.warns(UserWarning, match="Duplicate name"):
+                    target.writestr("objects/2.meta", source.read(name))
+            else:
+                target.writestr(name, source.read(name))
     with pytest.raises(InvalidInput, match="expected each member once, got member 'objects/2.meta' more than once"):
         restore_bytes(store, MAP, twice.getvalue(), replace=True, params=Params())
     assert sorted(o.id for o in store.list_objects(MAP)) == [1, 2]  # the stored map as it was
+
+
+def test_a_long_box_in_a_turned_aligned_frame_is_within_reach_of_its_voxels() -> None:
+    """The reach of an ``aabb`` is judged in its own frame: a 9 m counter boxed in a frame turned 45 degrees from the
+    world spans 6.6 m by 6.6 m there, which judged in the world reached past its voxels by more than 4 m (a review)."""
+    from arcloud.core.boxes import refine
+    from arcloud.core.types import CLASSES
+    from arcloud.core.voxels import pack_keys
+    from arcloud.stores.snapshot import check_object
+
+    turn = np.sqrt(0.5)
+    world2aligned = ((turn, -turn, 0.0, 0.0), (turn, turn, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    params = Params(world2aligned=world2aligned)
+    i, j, k = np.meshgrid(np.arange(180), np.arange(10), np.arange(15, 25), indexing="ij")  # 9 x 0.5 x 0.5 m
+    keys = np.sort(pack_keys(np.stack([i.ravel(), j.ravel(), k.ravel()], 1)))
+    votes = np.zeros((keys.size, len(CLASSES)), np.float32)
+    votes[:, CLASSES.index("table")] = 1
+    weights = np.full(keys.size, 5.0, np.float32)
+    counter = refine(MapObject(id=1, keys=keys, weights=weights, votes=votes, seen=weights, n_frames=10), params)
+    assert counter.aabb is not None and np.all(counter.aabb.max - counter.aabb.min > [6.0, 6.0, 0.4])
+    check_object(counter, MapHeader.from_params(params, codec_version=MemoryStore().codec_version, created_at_s=1.0))

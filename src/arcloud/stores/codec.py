@@ -69,7 +69,6 @@ ZLIB_LEVEL = 6
 KIND_F32, KIND_U16, KIND_U32 = 0, 1, 2
 _KIND_DTYPES: dict[int, np.dtype[Any]] = {KIND_F32: np.dtype("<f4"), KIND_U16: np.dtype("<u2"), KIND_U32: np.dtype("<u4")}
 _U16_MAX, _U32_MAX = (1 << 16) - 1, (1 << 32) - 1
-_LAST_KEY = float((1 << 3 * KEY_BITS) - 1)  # the largest packed key: every field at KEY_MASK
 _KIND_MAX = {KIND_U16: _U16_MAX, KIND_U32: _U32_MAX}
 VOTES_SCALE = 1.0 / VOTE_STEP  # votes are stored in steps
 _HEADER = struct.Struct("<4sBBHI")
@@ -355,16 +354,13 @@ def _keys_of_grid(payload: memoryview, n: int, first: np.ndarray, extent: np.nda
 
 def _keys_of_differences(payload: memoryview, n: int) -> np.ndarray:
     """Keys from their differences, int64 byte positions apart; ``StoreError`` unless they are sorted unique keys
-    (the first >= 0, every other difference > 0, the last a key): a blob of shuffled or repeated keys would read
-    as an object whose voxels every later step miscounts."""
-    differences = _plane_numbers(payload, np.dtype("<i8"), n, 0)
-    if n and (
-        differences[0] < 0
-        or not np.all(differences[1:] > 0)
-        or float(differences[0]) + float(differences[1:].sum(dtype=np.float64)) > _LAST_KEY
-    ):
+    (rising from a first >= 0): a blob of shuffled or repeated keys would read as an object whose voxels every later
+    step miscounts."""
+    keys = np.cumsum(_plane_numbers(payload, np.dtype("<i8"), n, 0), dtype=np.int64)
+    # Every int64 >= 0 is a key. A sum past the largest one wraps to a negative number, which rising keys never reach.
+    if n and (keys[0] < 0 or not np.all(keys[1:] > keys[:-1])):
         raise StoreError("voxel blob: its keys are not sorted unique voxel keys")
-    return np.cumsum(differences, dtype=np.int64)
+    return keys
 
 
 def _payload(blob: bytes, at: int, flags: int, expected: int, n: int) -> memoryview:

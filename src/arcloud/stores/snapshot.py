@@ -51,6 +51,11 @@ MAX_UNPACKED_OVER_PACKED = 8
 UNPACKED_SLACK_BYTES = 2**20
 #: The largest object id restored: what a JSON number carries exactly (the viewer reads ids as doubles).
 MAX_OBJECT_ID = 2**53 - 1
+#: The largest count (frames, votes) and time (Unix s: the last second of the year 9999) an object may hold: within
+#: a float's range is not enough (a floor vote of 10**400 failed every frame of its map, an update time of 1e308
+#: every read of its objects: a review).
+MAX_COUNT = 2**53
+MAX_TIME_S = 253_402_300_799
 #: How far ``bounds`` may differ from its voxels' box: float rounding, never a voxel.
 BOUNDS_TOLERANCE_M = 1e-6
 #: How far a box (``aabb``, ``obb``) may reach past its voxels' box: the step completes boxes down to the floor
@@ -184,19 +189,31 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
         value = check_finite_number(f"{where}.{name}", getattr(obj, name))
         if not 0.0 <= value <= 1.0:
             raise InvalidInput(f"{where}.{name}", "a number from 0 to 1", describe(value))
-    for name in ("score_sum", "created_at_s", "updated_at_s", "n_frames"):
-        if check_finite_number(f"{where}.{name}", getattr(obj, name)) < 0:
-            raise InvalidInput(f"{where}.{name}", "a number >= 0", describe(getattr(obj, name)))
+    for name, most in (
+        ("score_sum", MAX_COUNT),
+        ("n_frames", MAX_COUNT),
+        ("created_at_s", MAX_TIME_S),
+        ("updated_at_s", MAX_TIME_S),
+    ):
+        if not 0 <= check_finite_number(f"{where}.{name}", getattr(obj, name)) <= most:
+            raise InvalidInput(f"{where}.{name}", f"a number from 0 to {most}", describe(getattr(obj, name)))
     for device in sorted(obj.devices):
         check_id(f"{where}.devices", device)
-    if any(count < 0 for count in obj.floor_votes.values()):
-        raise InvalidInput(f"{where}.floor_votes", "counts >= 0", describe(obj.floor_votes))
-    if any(not 0 <= direction < 360 or frames < 1 for direction, (frames, _) in obj.wall_votes.items()):
-        raise InvalidInput(f"{where}.wall_votes", "directions from 0 to 359 with frames >= 1", describe(obj.wall_votes))
+    if any(not (abs(height) <= MAX_COUNT and 0 <= count <= MAX_COUNT) for height, count in obj.floor_votes.items()):
+        raise InvalidInput(f"{where}.floor_votes", f"height bins and counts from 0 to {MAX_COUNT}", describe(obj.floor_votes))
+    if any(
+        not (0 <= direction < 360 and 1 <= frames <= MAX_COUNT and abs(offset) <= MAX_COUNT)
+        for direction, (frames, offset) in obj.wall_votes.items()
+    ):
+        raise InvalidInput(
+            f"{where}.wall_votes", f"directions from 0 to 359 with frames from 1 to {MAX_COUNT}", describe(obj.wall_votes)
+        )
     for name in ("apart", "spanned"):  # other object's id -> frames
         counts = getattr(obj, name)
-        if any(not 1 <= other <= MAX_OBJECT_ID or other == obj.id or frames < 1 for other, frames in counts.items()):
-            raise InvalidInput(f"{where}.{name}", "other objects' ids with frames >= 1", describe(counts))
+        if any(
+            not 1 <= other <= MAX_OBJECT_ID or other == obj.id or not 1 <= frames <= MAX_COUNT for other, frames in counts.items()
+        ):
+            raise InvalidInput(f"{where}.{name}", f"other objects' ids with frames from 1 to {MAX_COUNT}", describe(counts))
     if obj.keys.size == 0:
         raise InvalidInput(f"{where}.voxels", "at least one voxel", "none")
     for name in ("weights", "seen", "votes"):
@@ -215,15 +232,12 @@ def check_object(obj: MapObject, header: MapHeader) -> None:
         )
     check_object_cells(f"{where}.bounds", bounds.min, bounds.max, header.index_cell_m)  # what one write may index
     aabb = _finite_box(f"{where}.aabb", obj.aabb)
-    aabb_lo, aabb_hi = aabb.min, aabb.max
+    aabb_lo, aabb_hi, near_box = aabb.min, aabb.max, bounds
     if header.world2aligned is not None:  # the aabb is in the aligned frame: its corners back in the world
-        aligned2world = np.linalg.inv(np.asarray(header.world2aligned, np.float64))
-        corners = np.array(
-            [[x, y, z] for x in (aabb_lo[0], aabb_hi[0]) for y in (aabb_lo[1], aabb_hi[1]) for z in (aabb_lo[2], aabb_hi[2])]
-        )
-        world = corners @ aligned2world[:3, :3].T + aligned2world[:3, 3]
-        aabb_lo, aabb_hi = world.min(axis=0), world.max(axis=0)
-    if not (_meets(aabb_lo, aabb_hi, bounds) and _near(aabb_lo, aabb_hi, bounds)):
+        world2aligned = np.asarray(header.world2aligned, np.float64)
+        aabb_lo, aabb_hi = _moved_box(aabb_lo, aabb_hi, np.linalg.inv(world2aligned))
+        near_box = AABB(*_moved_box(bounds.min, bounds.max, world2aligned))  # how far it reaches: in its own frame
+    if not (_meets(aabb_lo, aabb_hi, bounds) and _near(aabb.min, aabb.max, near_box)):
         raise InvalidInput(
             f"{where}.aabb",
             f"a box meeting its voxels' {_corners(bounds.min, bounds.max)}, within {BOX_REACH_M} m of it",
@@ -259,6 +273,13 @@ def _finite_box(field: str, box: AABB | None) -> AABB:
 def _meets(lo: np.ndarray, hi: np.ndarray, box: AABB) -> bool:
     """Whether [lo, hi] and ``box`` share a point (touching counts)."""
     return bool(np.all(lo <= box.max + BOUNDS_TOLERANCE_M) and np.all(box.min <= hi + BOUNDS_TOLERANCE_M))
+
+
+def _moved_box(lo: np.ndarray, hi: np.ndarray, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The axis-aligned box of the corners of [lo, hi] moved by a rigid (4, 4) ``transform``."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    moved = corners @ transform[:3, :3].T + transform[:3, 3]
+    return moved.min(axis=0), moved.max(axis=0)
 
 
 def _near(lo: np.ndarray, hi: np.ndarray, box: AABB) -> bool:
