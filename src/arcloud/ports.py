@@ -619,9 +619,8 @@ class RateLimiter(Protocol):
 
 
 #: Live viewer passes (tickets and sessions) one key holds at most: one more ends the key's pass that would end
-#: first (of passes alike, its oldest), never another
-#: key's (one key drawing sessions filled the memory store's passes and ended others' viewers; on Redis, 2.2 million
-#: passes a key in a session's 12 h).
+#: first (of passes alike, its oldest), never another key's (one key drawing sessions filled the memory store's
+#: passes and ended others' viewers; on Redis, 2.2 million passes a key in a session's 12 h).
 MAX_VIEWER_PASSES_PER_KEY = 100
 
 

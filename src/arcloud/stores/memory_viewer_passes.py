@@ -22,7 +22,7 @@ class MemoryViewerPasses:
         self.clock = clock
         self._lock = threading.Lock()
         self._passes: dict[str, ViewerGrant] = {}
-        self._by_key: dict[str, dict[str, None]] = {}  # key id -> its passes' digests, oldest first
+        self._by_key: dict[str, dict[str, None]] = {}  # key id -> its passes' digests (a set, in the order they came)
 
     def close(self) -> None:
         return None
