@@ -186,7 +186,7 @@ def test_exports_snapshots_and_restores_beyond_those_under_way_are_refused_with_
         snapshot = api.get("/v1/maps/room/snapshot")
         assert snapshot.status_code == 200, snapshot.text
         building = app.state.runtime.exports
-        assert building.acquire(blocking=False)  # an export being built: the process's one place taken
+        assert building.take(None) is None  # an export being built: the process's one place taken
         try:
             refused = {
                 "export": api.get("/v1/maps/room/export", params={"format": "json"}),
@@ -196,7 +196,7 @@ def test_exports_snapshots_and_restores_beyond_those_under_way_are_refused_with_
                 ),
             }
         finally:
-            building.release()
+            building.give_back(None)
         for what, answer in refused.items():
             assert answer.status_code == 429 and answer.headers["retry-after"] == "2", (what, answer.text)
             assert answer.json()["detail"].startswith(
@@ -208,3 +208,36 @@ def test_exports_snapshots_and_restores_beyond_those_under_way_are_refused_with_
             "PUT", "/v1/maps/copy/snapshot", content=snapshot.content, headers={"content-type": "application/zip"}
         )
         assert restored.status_code == 200, restored.text
+
+
+def test_one_key_holds_at_most_all_but_one_export_place(tmp_path: Path) -> None:
+    """A review: one reader key asking again and again held both of a process's places, and every other key's exports
+    and its admin's snapshots were refused. Now that key's next export is refused, naming the key, while another
+    key still gets its export; with the place back, the first key's export goes through."""
+    keys_file = tmp_path / "keys.json"
+    admin, admin_token = new_key("admin", ("room",), now_s=0.0)
+    hoarder, hoarder_token = new_key("reader", ("room",), now_s=0.0)
+    for key in (admin, hoarder):
+        FileKeyStore(keys_file).add(key)
+    settings = Settings(detector="sim:0", workers=1, keys_file=str(keys_file), max_exports=2)
+    app = create_app(settings, detector=BlobDetector())
+    with AppClient(app) as api:
+        frame = make_test_frame(0, map_id="room", boxes=(LEFT, RIGHT), level=True)
+        assert api.post("/v1/maps/room/frames", content=frame_to_proto(frame).SerializeToString(),
+                        headers={"content-type": "application/x-protobuf", "authorization": f"Bearer {admin_token}"}).status_code == 202  # fmt: skip
+        places = app.state.runtime.exports
+        assert places.take(hoarder.id) is None  # the reader's first export, under way
+        try:
+            as_hoarder = {"authorization": f"Bearer {hoarder_token}"}
+            refused = api.get("/v1/maps/room/export", params={"format": "json"}, headers=as_hoarder)
+            other = api.get("/v1/maps/room/snapshot", headers={"authorization": f"Bearer {admin_token}"})
+        finally:
+            places.give_back(hoarder.id)
+        assert refused.status_code == 429 and refused.headers["retry-after"] == "2", refused.text
+        assert refused.json()["detail"].startswith(
+            f"export: key {hoarder.id} has 1 of this API process's 2 exports, snapshots or restores under way, the most "
+            "one key may (all but one: max_exports)"
+        )
+        assert other.status_code == 200, other.text  # the other place, another key's
+        assert api.get("/v1/maps/room/export", params={"format": "json"}, headers=as_hoarder).status_code == 200
+        assert places.taken == 0 and not places.by_key

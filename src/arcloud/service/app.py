@@ -64,7 +64,7 @@ from arcloud.errors import InvalidInput, MapMismatch, StoreUnavailable
 from arcloud.ports import MapArchive, MapBeingDeleted, MapDeletion, ObjectMeta, QueueFull
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Caller, Refused, require
-from arcloud.service.exports import MEDIA, ColorBy, ExportFormat, export_from_store, voxel_colors_out
+from arcloud.service.exports import EXPORT_RETRY_AFTER_S, MEDIA, ColorBy, ExportFormat, export_from_store, voxel_colors_out
 from arcloud.service.logs import bind_log_context
 from arcloud.service.map_header import check_map_header, check_not_being_deleted
 from arcloud.service.pages import object_page, parse_cursor
@@ -102,7 +102,6 @@ Label = Literal[CLASSES]  # type: ignore[valid-type]  # the class names as a Lit
 
 
 READY_RETRY_AFTER_S = 5  # a 503 from /readyz or /healthz/workers: ask again in this many seconds
-EXPORT_RETRY_AFTER_S = 2  # an export refused while others are built: ask again in this many seconds
 
 
 class BodyTooLarge(Exception):
@@ -409,7 +408,6 @@ def get_object(
 
 @router.get(
     "/v1/maps/{map_id}/export",
-    dependencies=[Depends(require("read"))],
     response_class=Response,
     responses={**PROBLEM_RESPONSES, 200: {"content": {m: {} for m, _ in MEDIA.values()}, "description": "the file"}},
     tags=["maps"],
@@ -422,6 +420,7 @@ def get_object(
 def export(
     map_id: MapId,
     runtime: RuntimeDep,
+    caller: Annotated[Caller, Depends(require("read"))],
     fmt: Annotated[ExportFormat, Query(alias="format", description="json, ply, glb or scannet")] = "json",
     include: Annotated[Literal["tentative"] | None, Query(description="tentative: tentative objects too")] = None,
     color: Annotated[
@@ -430,7 +429,7 @@ def export(
     voxels: Annotated[bool, Query(description="json: add each object's voxel centres, weights and colours")] = False,
 ) -> Response:
     known_map(runtime, map_id)
-    with export_place(runtime, "export", "format"):
+    with export_place(runtime, caller, "export", "format"):
         body = export_from_store(  # 422 over max_export_objects / max_export_voxels, before any voxel is read
             runtime.store,
             map_id,
@@ -448,7 +447,6 @@ def export(
 
 @router.get(
     "/v1/maps/{map_id}/snapshot",
-    dependencies=[Depends(require("admin"))],
     response_class=Response,
     responses={**PROBLEM_RESPONSES, 200: {"content": {"application/zip": {}}, "description": "the snapshot file"}},
     tags=["maps"],
@@ -456,10 +454,10 @@ def export(
     description="Header and every object, voxels included (`arcloud.stores.snapshot`); `PUT` it back, here or "
     "into another deployment (embedded or Redis). Objects keep their ids; their versions start again at 1.",
 )
-def get_snapshot(map_id: MapId, runtime: RuntimeDep) -> Response:
+def get_snapshot(map_id: MapId, runtime: RuntimeDep, caller: Annotated[Caller, Depends(require("admin"))]) -> Response:
     known_map(runtime, map_id, same_settings=False)
     archive = _archive(runtime)
-    with export_place(runtime, "snapshot", "map_id"):
+    with export_place(runtime, caller, "snapshot", "map_id"):
         body = archive.snapshot(runtime.store, map_id)
     return Response(
         body,
@@ -470,7 +468,6 @@ def get_snapshot(map_id: MapId, runtime: RuntimeDep) -> Response:
 
 @router.put(
     "/v1/maps/{map_id}/snapshot",
-    dependencies=[Depends(require("admin"))],
     response_model=MapRestored,
     responses=PROBLEM_RESPONSES,
     tags=["maps"],
@@ -485,12 +482,13 @@ async def put_snapshot(
     map_id: MapId,
     request: Request,
     runtime: RuntimeDep,
+    caller: Annotated[Caller, Depends(require("admin"))],
     replace: Annotated[bool, Query(description="delete the map first")] = False,
 ) -> MapRestored:
     check_map_id("map_id", map_id)
     archive = _archive(runtime)
     data = await request.body()
-    with export_place(runtime, "restore", "map_id"):  # its objects unpacked in memory, as an export's file
+    with export_place(runtime, caller, "restore", "map_id"):  # its objects unpacked in memory, as an export's file
         restored = await run_in_threadpool(
             lambda: archive.restore(runtime.store, map_id, data, replace=replace, params=runtime.params)
         )
@@ -499,21 +497,23 @@ async def put_snapshot(
 
 
 @contextmanager
-def export_place(runtime: Runtime, what: str, field: str) -> Iterator[None]:
+def export_place(runtime: Runtime, caller: Caller, what: str, field: str) -> Iterator[None]:
     """One of the ``max_exports`` places for a map's file built or read in memory (an export, a snapshot, a
-    restore), whoever asks; 429 with ``Retry-After`` naming ``what`` when every place is taken."""
-    if not runtime.exports.acquire(blocking=False):
+    restore; ``ExportPlaces``); 429 with ``Retry-After`` naming ``what`` when every place is taken, or the caller's
+    key holds all it may."""
+    key_id = caller.key.id if caller.key is not None else None
+    refusal = runtime.exports.take(key_id)
+    if refusal is not None:
         raise Refused(
             429,
-            f"{what}: {runtime.settings.max_exports} exports, snapshots or restores are under way in this API process, "
-            f"the most it runs at once (max_exports); retry in {EXPORT_RETRY_AFTER_S} s",
+            f"{what}: {refusal}; retry in {EXPORT_RETRY_AFTER_S} s",
             field,
             {"Retry-After": str(EXPORT_RETRY_AFTER_S)},
         )
     try:
         yield
     finally:
-        runtime.exports.release()
+        runtime.exports.give_back(key_id)
 
 
 def _archive(runtime: Runtime) -> MapArchive:

@@ -6,13 +6,18 @@ Exports are bounded (``export_from_store``): before any voxel is read, the objec
 and voxels the export would carry, and one of more than ``max_export_objects`` objects or (PLY, JSON with voxels)
 ``max_export_voxels`` voxels is refused (``InvalidInput``, field ``export``: 422 naming the limit). Within them the
 objects are read and encoded ``READ_BATCH`` at a time, so memory holds the output and one batch (a JSON export with
-voxels of a 1,500-object map took 26.6 s and 240 MB before, and no limit stopped it)."""
+voxels of a 1,500-object map took 26.6 s and 240 MB before, and no limit stopped it).
+
+Each export, snapshot or restore holds a map's file in memory while it is built or read: ``ExportPlaces`` bounds how
+many an API process runs at once (``max_exports``), and how many of them one key holds."""
 
 from __future__ import annotations
 
 import io
 import json
+import threading
 import zipfile
+from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any, Literal
 
@@ -29,6 +34,8 @@ from arcloud.ports import ObjectMeta, ObjectStore
 from arcloud.service.schemas import object_out
 
 ExportFormat = Literal["json", "ply", "glb", "scannet"]
+#: What a refused export, snapshot or restore is told to wait, in seconds.
+EXPORT_RETRY_AFTER_S = 2
 ColorBy = Literal["object", "class", "rgb"]
 
 #: Media type and file extension of each format.
@@ -206,3 +213,42 @@ __all__ = [
     "needs_voxels",
     "read_objects",
 ]
+
+
+class ExportPlaces:
+    """The ``places`` (``max_exports``) of an API process for exports, snapshots and restores under way, whoever asks;
+    a key holds at most all but one of them when there are several, so that one key, asking again and again, cannot
+    keep every other key's exports and its admin's snapshots waiting. Safe to call from many threads."""
+
+    def __init__(self, places: int) -> None:
+        self.places = places
+        self.taken = 0
+        self.by_key: Counter[str] = Counter()
+        self._lock = threading.Lock()
+
+    def take(self, key_id: str | None) -> str | None:
+        """A place for ``key_id`` (None: no key, with auth none): None when taken, else why not."""
+        with self._lock:
+            if self.taken >= self.places:
+                return (
+                    f"{self.places} exports, snapshots or restores are under way in this API process, the most it runs "
+                    "at once (max_exports)"
+                )
+            if key_id is not None and self.places > 1 and self.by_key[key_id] >= self.places - 1:
+                return (
+                    f"key {key_id} has {self.by_key[key_id]} of this API process's {self.places} exports, snapshots "
+                    "or restores under way, the most one key may (all but one: max_exports)"
+                )
+            self.taken += 1
+            if key_id is not None:
+                self.by_key[key_id] += 1
+            return None
+
+    def give_back(self, key_id: str | None) -> None:
+        """The place ``take`` gave ``key_id``."""
+        with self._lock:
+            self.taken -= 1
+            if key_id is not None:
+                self.by_key[key_id] -= 1
+                if self.by_key[key_id] <= 0:
+                    del self.by_key[key_id]

@@ -31,6 +31,7 @@ from arcloud.ports import (
 from arcloud.service import frames as frames_in
 from arcloud.service.access import Access, KeyCache
 from arcloud.service.change_feed import ChangeFeed
+from arcloud.service.exports import ExportPlaces
 from arcloud.service.ingest import Ingest
 from arcloud.service.pool import WorkerPool
 from arcloud.service.settings import Settings
@@ -92,10 +93,10 @@ class Runtime:
     owned: list[Closeable] = field(default_factory=list)  # closed on shutdown, last first
     alignments: DeviceAlignments | None = None
     feed_stop: threading.Event = field(default_factory=threading.Event)  # ends the feed's sweeps (with a publisher)
-    exports: threading.BoundedSemaphore = field(init=False)  # places for exports being built (``max_exports``)
+    exports: ExportPlaces = field(init=False)  # places for exports, snapshots and restores (``max_exports``)
 
     def __post_init__(self) -> None:
-        self.exports = threading.BoundedSemaphore(self.settings.max_exports)
+        self.exports = ExportPlaces(self.settings.max_exports)
 
 
 def start_runtime(settings: Settings, connect: Connect) -> Runtime:
