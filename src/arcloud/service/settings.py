@@ -208,8 +208,8 @@ class Settings(BaseSettings):
     max_exports: int = Field(
         2,
         ge=1,
-        description="exports, snapshots and restores one API process runs at once (each holds a file in memory: a JSON export with voxels "
-        "takes about 60 bytes a voxel): 429 with Retry-After beyond",
+        description="exports, snapshots and restores one API process runs at once, one key at most all but one of them (each holds a "
+        "file in memory: a JSON export with voxels takes about 60 bytes a voxel): 429 with Retry-After beyond",
     )
     max_export_voxels: int = Field(
         1_000_000,
