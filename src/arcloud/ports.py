@@ -600,6 +600,10 @@ class KeyStore(Protocol):
         """Every key, oldest first."""
         ...
 
+    def count_keys(self) -> int:
+        """How many keys there are, without reading them (``/readyz`` asks, unauthenticated)."""
+        ...
+
     def revoke(self, key_id: str) -> bool:
         """Remove the key; False when there was none."""
         ...

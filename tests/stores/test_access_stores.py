@@ -40,14 +40,14 @@ def key_store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[KeySto
 def test_keys_are_added_found_listed_and_revoked(key_store: KeyStore) -> None:
     first, _ = new_key("device", ("a", "b"), now_s=1.0, name="tablet")
     second, _ = new_key("admin", ("*",), now_s=2.0)
-    assert key_store.find(first.id) is None and key_store.list_keys() == []
+    assert key_store.find(first.id) is None and key_store.list_keys() == [] and key_store.count_keys() == 0
     key_store.add(first)
     key_store.add(second)
     assert key_store.find(first.id) == first
-    assert [k.id for k in key_store.list_keys()] == [first.id, second.id]
+    assert [k.id for k in key_store.list_keys()] == [first.id, second.id] and key_store.count_keys() == 2
     assert key_store.revoke(first.id) is True
     assert key_store.revoke(first.id) is False
-    assert key_store.find(first.id) is None and key_store.list_keys() == [second]
+    assert key_store.find(first.id) is None and key_store.list_keys() == [second] and key_store.count_keys() == 1
 
 
 def test_the_keys_file_holds_digests_only_is_private_and_survives_concurrent_writers(tmp_path: Path) -> None:

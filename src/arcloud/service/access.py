@@ -146,7 +146,7 @@ class Access:
         if self.keys is None:
             return "ok"
         try:
-            n_keys = len(self.keys.keys.list_keys())
+            n_keys = self.keys.keys.count_keys()  # not list_keys: 80 ms for 10,000 keys, on an open route
         except ArcloudError as exc:
             return f"unreachable: {exc}"
         with self._lock:

@@ -75,6 +75,9 @@ class FileKeyStore:
     def list_keys(self) -> list[ApiKey]:
         return sorted(self._read().values(), key=lambda k: (k.created_at_s, k.id))
 
+    def count_keys(self) -> int:
+        return len(self._read())
+
     def revoke(self, key_id: str) -> bool:
         with self._writing() as keys:
             return keys.pop(key_id, None) is not None

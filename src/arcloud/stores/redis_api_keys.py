@@ -28,5 +28,9 @@ class RedisKeyStore(RedisSideStore):
         keys = [ApiKey.from_record(json.loads(v)) for v in raw.values()]  # type: ignore[attr-defined]  # HGETALL answers a dict
         return sorted(keys, key=lambda k: (k.created_at_s, k.id))
 
+    def count_keys(self) -> int:
+        count = self._call("count the keys", "hlen", API_KEYS)
+        return count if isinstance(count, int) else 0
+
     def revoke(self, key_id: str) -> bool:
         return bool(self._call("revoke the key", "hdel", API_KEYS, key_id))
