@@ -386,6 +386,32 @@ def test_a_missing_or_unknown_field_is_said_so_in_the_detail(client: AppClient) 
     )
 
 
+@pytest.mark.parametrize(
+    ("field", "value", "got"),
+    [
+        ("depth_scale", True, "True"),
+        ("depth_scale", "5000", "'5000'"),
+        ("timestamp", "1.5", "'1.5'"),
+        ("world_up", [0, 0, "1"], "'1'"),
+    ],
+)
+def test_a_number_must_be_a_json_number(client: AppClient, field: str, value: object, got: str) -> None:
+    """pydantic's lax mode read ``depth_scale: true`` as 1 (depth in metres: every object 1000 times too far) and
+    ``"5000"`` as 5000: a fuzzing review. The meta is read strictly now; arrays still read as tuples (world_up)."""
+    parts = multipart_parts(make_test_frame(2))
+    meta = {**json.loads(parts["meta"][1]), field: value}
+    answer = client.post(
+        "/v1/maps/m/frames", files={**parts, "meta": ("meta.json", json.dumps(meta).encode(), "application/json")}
+    )
+    where = f"meta.{field}.2" if field == "world_up" else f"meta.{field}"
+    assert answer.status_code == 422 and answer.json()["detail"] == f"{where}: expected a valid number, got {got}", answer.text
+    accepted = {**meta, field: [0, 0, 1] if field == "world_up" else 5000 if field == "depth_scale" else 1}
+    answer = client.post(
+        "/v1/maps/m/frames", files={**parts, "meta": ("meta.json", json.dumps(accepted).encode(), "application/json")}
+    )
+    assert answer.status_code == 202, answer.text  # integers for numbers, and an array for world_up, still read
+
+
 # --- against a real redis-server -----------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def redis_app() -> Iterator[tuple[AppClient, RedisServer]]:

@@ -198,6 +198,8 @@ def test_alignment_routes_store_check_list_and_forget(client: AppClient) -> None
     nan = client.request("PUT", route, content=b'{"device_from_map": [NaN, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}')
     assert nan.status_code == 422, nan.text
     assert client.request("PUT", route, json={"device_from_map": np.eye(4).tolist(), "x": 1}).status_code == 422
+    truthy = client.request("PUT", route, json={"device_from_map": [[True, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]})
+    assert truthy.status_code == 422 and "device_from_map" in truthy.json()["field"], truthy.text  # strict: not read as 1
     assert client.request("PUT", "/v1/maps/room/devices/a%2Fb/alignment", json={"device_from_map": np.eye(4).tolist()}).status_code in (404, 422)  # fmt: skip
     assert np.allclose(client.get(route).json()["device_from_map"], DEVICE_FROM_MAP)  # refusals changed nothing
 

@@ -76,7 +76,7 @@ def parse_meta(raw: str | bytes) -> FrameMeta:
     if not isinstance(data, dict):
         raise InvalidInput("meta", "a JSON object", describe(data))
     try:
-        return FrameMeta.model_validate(data)
+        return FrameMeta.model_validate_json(raw, strict=True)  # JSON's strict mode: arrays still read as tuples
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])

@@ -41,7 +41,8 @@ class Intrinsics(BaseModel):
 
 
 class FrameMeta(BaseModel):
-    """The ``meta`` part of a multipart frame upload."""
+    """The ``meta`` part of a multipart frame upload, read strictly (``frames.parse_meta``): numbers are JSON numbers,
+    so ``true`` or ``"1000"`` is refused, not read as 1 or 1000."""
 
     model_config = ConfigDict(
         extra="forbid",
@@ -95,10 +96,11 @@ def _flat(matrix: list[float] | list[list[float]]) -> list[float]:
 
 
 class DeviceAlignmentIn(BaseModel):
-    """A device's alignment, to store (``PUT .../devices/{device_id}/alignment``)."""
+    """A device's alignment, to store (``PUT .../devices/{device_id}/alignment``). Strict: numbers are JSON numbers."""
 
     model_config = ConfigDict(
         extra="forbid",
+        strict=True,
         json_schema_extra={"examples": [{"device_from_map": [[0, -1, 0, 2.5], [1, 0, 0, -0.4], [0, 0, 1, 0], [0, 0, 0, 1]]}]},
     )
 
