@@ -212,9 +212,11 @@ class UploadGate:
 
 
 def _lower_priority() -> None:
-    """Run this thread at ``BUSY_MAP_NICE`` (Linux sets nice per thread; elsewhere nothing changes)."""
+    """Run this thread ``BUSY_MAP_NICE`` lower than it started (Linux sets nice per thread; elsewhere nothing changes):
+    lower than the process, also where it was started niced (an absolute 10 left a process started at nice 10 as it was)."""
     with contextlib.suppress(AttributeError, OSError):  # no per-thread priority here: the threads run as the others
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BUSY_MAP_NICE)
+        thread = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, thread, min(19, os.getpriority(os.PRIO_PROCESS, thread) + BUSY_MAP_NICE))
 
 
 def _busy(detail: str, field: str) -> Refused:
