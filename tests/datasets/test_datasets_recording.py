@@ -101,14 +101,14 @@ def test_eval_recording_on_a_tum_recording_against_the_7scenes_ground_truth(
 SCAN_ALIGNED2GT = np.array([[0.0, -1.0, 0.0, 0.3], [1.0, 0.0, 0.0, -0.2], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
-def write_scene_gt(path: Path) -> Path:
+def write_scene_gt(path: Path, visible: dict[str, list[int]] | None = None) -> Path:
     objects = []
     for label in ("chair", "table"):
         lo, hi = ROOM_PARTS[label]
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         moved = corners @ SCAN_ALIGNED2GT[:3, :3].T + SCAN_ALIGNED2GT[:3, 3]
         box = {"aabb_observed_min": moved.min(0).tolist(), "aabb_observed_max": moved.max(0).tolist()}
-        objects.append({"id": label, "label": label, "visible_frames": [0, 15], **box,
+        objects.append({"id": label, "label": label, "visible_frames": (visible or {}).get(label, [0, 15]), **box,
                         "aabb_min": box["aabb_observed_min"], "aabb_max": box["aabb_observed_max"]})  # fmt: skip
     payload = {"gravity_aligned": {"world_to_aligned": (SCAN_ALIGNED2GT @ ALIGNMENT).tolist(), "objects": objects}}
     path.write_text(json.dumps(payload))
@@ -163,6 +163,31 @@ def test_eval_recording_on_a_scannet_scene_scores_against_its_annotation(
     with pytest.raises(InvalidInput, match="ROOT: expected the folder to evaluate, as ROOT or --root"):
         args = parser().parse_args(["eval", "recording", "--users", "1"])
         args.handler(args)
+
+
+def test_fewer_frames_are_scored_against_the_objects_visible_in_them(
+    rendered_scene: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A new user's review: ``eval recording --max-frames`` on the first 60 of 7-Scenes' frames scored against all 9
+    objects, 3 of which those frames never see (recall at most 6/9). ``visible_frames`` counts by the frame numbers."""
+    gt = write_scene_gt(tmp_path / "gt.json", {"chair": [0, 3], "table": [9, 15]})
+    recording = load_recording(rendered_scene, gt_boxes=gt)
+    assert recording.frame_numbers == tuple(range(16)) == tuple(int(n) for n in recording.frame_names)
+    assert recording.scored_frames(recording.frame_names[:4]) == (0, 3)
+    assert recording.scored_frames(recording.frame_names[::3]) is None  # 0 .. 15: the whole recording
+    out = tmp_path / "few.json"
+    args = parser().parse_args(["eval", "recording", str(rendered_scene), "--gt-boxes", str(gt), "--detector",
+                                f"gt-masks:{rendered_scene}", "--users", "1", "--max-frames", "4", "--out", str(out),
+                                "--no-progress"])  # fmt: skip
+    assert args.handler(args) == 0
+    results = json.loads(out.read_text())
+    assert results["ground_truth"]["objects"] == ["chair"] and results["ground_truth"]["visible_within_frames"] == [0, 3]
+    assert results["accuracy"][0]["n_gt"] == 1
+    # a file that counts frames another way (timestamps, say): every object, said so
+    odd = load_recording(rendered_scene, gt_boxes=write_scene_gt(tmp_path / "odd.json", {"table": [1000, 2000]}))
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
+        assert odd.scored_frames(odd.frame_names[:4]) is None
+    assert "visible_frames of table lie outside this recording's frame numbers 0..15: every object is scored" in caplog.text
 
 
 def test_a_recording_read_with_intrinsics_off_is_told_which_its_depth_agrees_with(

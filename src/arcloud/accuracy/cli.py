@@ -251,6 +251,7 @@ def run_eval_recording(args: argparse.Namespace) -> int:
     ground_truth = recording.ground_truth
     names = recording.frame_names[:: args.stride][: args.max_frames]
     frames = LazyFrames(names, recording.load_frame, cache=len(names) <= CACHE_FRAMES_UP_TO)
+    scored = recording.scored_frames(names)  # the objects visible in the frames used (all, for the whole recording)
     out_path = Path(args.out)
     export_dir = Path(args.export) if args.export else None
     frame = recording.export_frame
@@ -258,10 +259,10 @@ def run_eval_recording(args: argparse.Namespace) -> int:
     rows, centralized, first_runs = agreement(
         frames, _make_detector(args.detector), frame.params(_params(args)), name=recording.name, users=args.users,
         runs=args.runs, seed=args.seed, workers=_workers(args.workers), progress=not args.no_progress,
-        on_run=each_run(export_runs(export_dir, {recording.name: frame}), score_runs(ground_truth, scores)),
+        on_run=each_run(export_runs(export_dir, {recording.name: frame}), score_runs(ground_truth, scores, frames=scored)),
         reference_min_score=args.reference_min_score,
     )  # fmt: skip
-    gt_boxes = ground_truth.boxes("observed") if ground_truth is not None else []
+    gt_boxes = ground_truth.boxes("observed", frames=scored) if ground_truth is not None else []
     pictures = write_pictures(
         out_path.with_suffix(""),
         frames,
@@ -276,7 +277,8 @@ def run_eval_recording(args: argparse.Namespace) -> int:
         out["accuracy"] = accuracy_rows(scores)
         out["ground_truth"] = {
             "file": str(ground_truth.path),
-            "objects": [o.id for o in ground_truth.objects],
+            "objects": [o.id for o in ground_truth.objects_within(scored)],
+            "visible_within_frames": scored,  # null: every object
             "box_kinds": list(ground_truth.box_kinds),
             "primary": "observed",
         }

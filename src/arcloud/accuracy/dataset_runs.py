@@ -249,13 +249,19 @@ _SERVED_FIGURES = (
 )  # fmt: skip
 
 
-def score_runs(ground_truth: GroundTruthBoxes | None, scores: dict[int, list[dict[str, dict[str, Any]]]]) -> OnRun | None:
-    """Appends each run's ``score_against`` to ``scores[K]`` (None without ground truth)."""
+def score_runs(
+    ground_truth: GroundTruthBoxes | None,
+    scores: dict[int, list[dict[str, dict[str, Any]]]],
+    *,
+    frames: tuple[int, int] | None = None,
+) -> OnRun | None:
+    """Appends each run's ``score_against`` (the objects visible within ``frames``; None: all) to ``scores[K]``
+    (None without ground truth)."""
     if ground_truth is None:
         return None
     from arcloud.accuracy.sevenscenes import score_against
 
     def score(scene: str, users: int, run: int, objects: list[MapObject]) -> None:
-        scores.setdefault(users, []).append(score_against(objects, ground_truth, scene=scene))
+        scores.setdefault(users, []).append(score_against(objects, ground_truth, frames=frames, scene=scene))
 
     return score

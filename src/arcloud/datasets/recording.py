@@ -10,6 +10,7 @@ exported in (``ExportFrame``: the ground truth's aligned frame when there is one
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -35,7 +36,9 @@ class Recording:
     """A parsed recording: ``layout`` (one of ``LAYOUTS``), ``name`` (a map id), ``frame_names`` in
     order and ``load_frame(name)``; ``ground_truth`` (None without); ``export_frame``: the frame maps
     are boxed and exported in (``world2export``: ``Params.world2aligned``); ``gravity``: up in the pose
-    frame and its source; ``facts``: what else the layout's reader says, for the results."""
+    frame and its source; ``frame_numbers``: each frame's number, as a ground truth's ``visible_frames`` counts
+    (7-Scenes and ScanNet: the number of its files' names; TUM: its place among depth.txt's images, from 0);
+    ``facts``: what else the layout's reader says, for the results."""
 
     layout: str
     name: str
@@ -45,7 +48,29 @@ class Recording:
     ground_truth: GroundTruthBoxes | None
     export_frame: ExportFrame
     gravity: UpChoice
+    frame_numbers: tuple[int, ...]
     facts: Mapping[str, Any] = field(default_factory=dict)
+
+    def scored_frames(self, names: Sequence[str]) -> tuple[int, int] | None:
+        """The (first, last) frame numbers whose visible ground-truth objects a map of ``names`` (some of the
+        frames: a stride, fewer frames) is scored against; None: every object. Every object when ``names`` span the
+        recording, or when an object's ``visible_frames`` lie outside all its frame numbers (the file counts frames
+        otherwise: logged), so that a file numbered another way is never read as "nothing visible"."""
+        if self.ground_truth is None or not names:
+            return None
+        number = dict(zip(self.frame_names, self.frame_numbers, strict=True))
+        used = (min(number[n] for n in names), max(number[n] for n in names))
+        recorded = (min(self.frame_numbers), max(self.frame_numbers))
+        if used == recorded:
+            return None
+        outside = [o.id for o in self.ground_truth.objects if not o.visible_within(*recorded)]
+        if outside:
+            logger.warning(
+                "%s: visible_frames of %s lie outside this recording's frame numbers %d..%d: every object is scored, "
+                "whichever frames are used", self.ground_truth.path, ", ".join(outside), *recorded,
+            )  # fmt: skip
+            return None
+        return used
 
 
 def detect_layout(root: Path) -> str:
@@ -133,7 +158,7 @@ def _tum(
     }
     return Recording(
         "tum", sequence.name, base, sequence.frame_names, sequence.load_frame, sequence.ground_truth,
-        tum_export_frame(sequence), UpChoice(sequence.up_file, sequence.up_source), facts,
+        tum_export_frame(sequence), UpChoice(sequence.up_file, sequence.up_source), sequence.depth_indices, facts,
     )  # fmt: skip
 
 
@@ -148,7 +173,8 @@ def _seven_scenes(
     facts = {"skipped_frames": len(sequence.skipped_frames), "colour_camera": sequence.colour is not None}
     return Recording(
         "7scenes", sequence.name, base, sequence.frame_names, sequence.load_frame, sequence.ground_truth,
-        seven_scenes_export_frame(sequence), UpChoice(sequence.up_file, sequence.up_source), facts,
+        seven_scenes_export_frame(sequence), UpChoice(sequence.up_file, sequence.up_source),
+        _numbers_in(sequence.frame_stems), facts,
     )  # fmt: skip
 
 
@@ -169,9 +195,15 @@ def _scannet(base: Path, gt_boxes: str | Path | None) -> Recording:
     up_file = np.linalg.inv(scene.scan2aligned)[:3, 2]
     facts = {"skipped_frames": len(scene.skipped_frames), "annotation": scene.annotation}
     return Recording(
-        "scannet", map_id_of(scene.scene_id), base, scene.frame_names, scene.load_frame,
-        ground_truth, export_frame, UpChoice(up_file, "ScanNet axis-aligned frame: z up"), facts,
+        "scannet", map_id_of(scene.scene_id), base, scene.frame_names, scene.load_frame, ground_truth, export_frame,
+        UpChoice(up_file, "ScanNet axis-aligned frame: z up"), _numbers_in(scene.frame_names), facts,
     )  # fmt: skip
+
+
+def _numbers_in(names: Sequence[str]) -> tuple[int, ...]:
+    """The number each name ends in (``000042``: 42), else its place among ``names``."""
+    found = [re.search(r"(\d+)$", name) for name in names]
+    return tuple(int(m.group(1)) if m is not None else i for i, m in enumerate(found))
 
 
 #: Frames ``check_intrinsics`` reads, spread over the recording; the share of disagreement it calls notable.

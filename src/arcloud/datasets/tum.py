@@ -107,7 +107,8 @@ _CAMERA_IN_NAME = re.compile(r"(?:^|[^a-z0-9])(?:rgbd_dataset_)?(?:freiburg|fr)(
 
 @dataclass(frozen=True, eq=False)
 class TumSequence(GravityAlignedSequence):
-    """A parsed recording. ``frame_names``: the depth timestamps as written in ``depth.txt``.
+    """A parsed recording. ``frame_names``: the depth timestamps as written in ``depth.txt``; ``depth_indices``: each
+    frame's place among ``depth.txt``'s images, from 0 (its number in a ground truth's ``visible_frames``).
     ``cam2world``: (N, 4, 4) their poses in the output world (the pose frame, or the gravity-aligned
     one when ``world2file`` is not the identity). ``timestamps_s``: (N,) depth timestamps;
     ``rgb_paths``/``depth_paths``: the images of each frame. ``dropped_frames``: depth images without a
@@ -142,6 +143,7 @@ class TumSequence(GravityAlignedSequence):
     pose_time_offset_source: str = "given"
     depth_factor_source: str = "given"
     distortion: tuple[float, ...] | None = None
+    depth_indices: tuple[int, ...] = ()  # each frame's place among depth.txt's images, from 0: its frame number
 
     def colour_turn_deg(self) -> dict[str, float]:
         """How far the camera turned between a frame's depth and colour images (median and largest, degrees):
@@ -546,6 +548,7 @@ def load_tum(
         depth_paths=tuple(base / depth.fields[i][0] for i, _ in kept),
         cam2world=cam2file[posed],
         dropped_frames=tuple(text for i, text in enumerate(depth.texts) if i not in kept_depth),
+        depth_indices=tuple(i for i, _ in kept),
         up_file=None,
         world2file=np.eye(4),
         depth_factor=DEPTH_FACTOR if depth_factor is None else float(depth_factor),
