@@ -15,6 +15,7 @@ from typing import Any
 import httpx
 import pytest
 from chaos_helpers import frozen, restart_empty
+from prometheus_client.parser import text_string_to_metric_families
 from redis_server import RedisServer
 from svc_helpers import UvicornThread, make_blob_detector, make_test_frame, wait_until
 
@@ -150,11 +151,14 @@ def test_a_hung_redis_gives_503_quickly_and_healthz_answers(serving: Serving) ->
         not_ready = http.get(f"{serving.url}/readyz")
         readyz_s = time.monotonic() - started
         started = time.monotonic()
+        scrape = http.get(f"{serving.url}/metrics")
+        scrape_s = time.monotonic() - started
+        started = time.monotonic()
         worker_healthy = wiring.healthy(Settings(store=serving.redis.url))  # the containers' healthcheck
         healthcheck_s = time.monotonic() - started
     print(
         f"\nRedis hung: objects 503 in {refused_s:.2f} s, /healthz 200 in {healthz_s:.3f} s under 60 waiting requests, "
-        f"/readyz 503 in {readyz_s:.2f} s, worker healthcheck false in {healthcheck_s:.2f} s"
+        f"/readyz 503 in {readyz_s:.2f} s, /metrics 200 in {scrape_s:.2f} s, worker healthcheck false in {healthcheck_s:.2f} s"
     )
     assert refused.status_code == 503 and refused.headers["retry-after"] == "5", refused.text
     assert refused_s <= UNAVAILABLE_BOUND_S
@@ -162,12 +166,21 @@ def test_a_hung_redis_gives_503_quickly_and_healthz_answers(serving: Serving) ->
     assert {r.status_code for r in flooded} == {503}
     assert not_ready.status_code == 503 and not_ready.json()["checks"]["store"].startswith("unreachable")
     assert not worker_healthy and healthcheck_s <= UNAVAILABLE_BOUND_S
+    # /metrics still answers (a new user's review: a 503, and the scrape of the process and HTTP series lost with it)
+    assert scrape.status_code == 200 and scrape_s <= UNAVAILABLE_BOUND_S, scrape.text
+    scraped = {s.name: s.value for family in text_string_to_metric_families(scrape.text) for s in family.samples}
+    assert scraped["arcloud_frame_counters_up"] == 0 and scraped["arcloud_workers_up"] == 0
+    assert "process_resident_memory_bytes" in scraped and "arcloud_frames_processed_total" not in scraped
     # Redis answers again: all is well, without a restart.
     wait_until(lambda: httpx.get(objects, timeout=10).status_code == 200, 10, "objects served again", 0.1)
     wait_until(serving.ready, 30, "/readyz ready again", 0.1)
     with serving.client() as client:
         client.send_frame(make_test_frame(3, map_id="b"))
         client.wait_until_processed("b", 2, 30)
+    scraped = {
+        s.name: s.value for f in text_string_to_metric_families(httpx.get(f"{serving.url}/metrics").text) for s in f.samples
+    }
+    assert scraped["arcloud_frame_counters_up"] == 1 and scraped["arcloud_frames_processed_total"] >= 2
 
 
 def test_replay_survives_a_redis_restart_mid_run(serving: Serving) -> None:

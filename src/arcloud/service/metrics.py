@@ -9,6 +9,7 @@ too; the HTTP and process metrics are this process's.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Awaitable, Callable, Iterator, MutableMapping
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ from prometheus_client.platform_collector import PlatformCollector
 from prometheus_client.process_collector import ProcessCollector
 from prometheus_client.registry import Collector
 
+from arcloud.errors import StoreError
 from arcloud.ports import LATENCY_BUCKETS_S, SETTLED_OUTCOMES, Histogram
 from arcloud.service.ingest import Ingest
 from arcloud.service.worker import LIVE_WORKER_S
@@ -35,6 +37,8 @@ HTTP_BUCKETS_S: tuple[float, ...] = (0.001, 0.0025, *LATENCY_BUCKETS_S)
 HTTP_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"})
 UNMATCHED_ROUTE = "unmatched"  # the route label of a request no route took (a 404): paths are the client's
 
+log = logging.getLogger(__name__)
+
 
 class IngestCollector(Collector):
     """Frames accepted/processed/failed, queue depth (frames and bytes), live workers, and the histograms of
@@ -42,12 +46,23 @@ class IngestCollector(Collector):
 
     def __init__(self, ingest: Callable[[], Ingest | None]) -> None:
         self._ingest = ingest
+        self._unread = False  # the last scrape could not read the counters (logged once an outage)
 
     def collect(self) -> Iterator[Metric]:
         ingest = self._ingest()
         if ingest is None:  # before start-up
             return
-        snap = ingest.stats()
+        try:
+            snap, live, workers_ok = ingest.stats(), ingest.live_workers(), ingest.workers_health().ok
+        except StoreError as exc:  # the queue's store unreachable: its counters are left out, the rest is served
+            if not self._unread:
+                log.warning("metrics: the frame counters are left out while the queue's store is unreachable (%s)", exc)
+            self._unread = True
+            yield counters_up(0.0)
+            yield workers_up(0.0)
+            return
+        self._unread = False
+        yield counters_up(1.0)
         for name, value, text in (
             ("arcloud_frames_accepted", snap.accepted, "Frames validated and queued"),
             ("arcloud_frames_duplicate", snap.duplicates, "Frames posted again after being accepted (not queued)"),
@@ -70,7 +85,7 @@ class IngestCollector(Collector):
             "arcloud_live_workers",
             f"Workers taking frames: worker threads alive (embedded), else workers with a heartbeat in the last "
             f"{LIVE_WORKER_S:.0f} s",
-            value=ingest.live_workers(),
+            value=live,
         )
         cumulative, buckets = 0, []
         for bound, count in zip((*LATENCY_BUCKETS_S, float("inf")), snap.latency_counts):
@@ -83,11 +98,7 @@ class IngestCollector(Collector):
             sum_value=snap.latency_sum_s,
         )
         yield from settled_families(snap.maps, snap.map_depth, snap.workers)
-        yield GaugeMetricFamily(
-            "arcloud_workers_up",
-            "1 when the workers take the frames accepted (GET /healthz/workers answers 200), else 0",
-            value=1.0 if ingest.workers_health().ok else 0.0,
-        )
+        yield workers_up(1.0 if workers_ok else 0.0)
         for name, histogram, text in (
             (
                 "arcloud_queue_wait_seconds",
@@ -97,6 +108,23 @@ class IngestCollector(Collector):
             ("arcloud_lock_wait_seconds", snap.lock_wait, "Time a frame's step spent taking object locks and space claims"),
         ):
             yield HistogramMetricFamily(name, text, buckets=cumulative_buckets(histogram), sum_value=histogram.sum_s)
+
+
+def counters_up(value: float) -> Metric:
+    return GaugeMetricFamily(
+        "arcloud_frame_counters_up",
+        "1 when this scrape read the frame queue's counters, else 0 (its store unreachable: the arcloud_frames_*, "
+        "queue, latency and per-map series are left out, and arcloud_workers_up is 0)",
+        value=value,
+    )
+
+
+def workers_up(value: float) -> Metric:
+    return GaugeMetricFamily(
+        "arcloud_workers_up",
+        "1 when the workers take the frames accepted (GET /healthz/workers answers 200), else 0",
+        value=value,
+    )
 
 
 def cumulative_buckets(histogram: Histogram) -> list[tuple[str, float]]:
