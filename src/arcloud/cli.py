@@ -85,10 +85,22 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     except Exception as exc:  # the CLI's edge: a clear message, not a traceback, for known errors
+        import httpx
+
         from arcloud.errors import ArcloudError
 
         if isinstance(exc, ArcloudError):
             print(f"arcloud: error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, httpx.TransportError):  # the SDK's retries spent: no service there, or it stopped answering
+            try:
+                where = f" at {exc.request.url.copy_with(query=None)}"
+            except RuntimeError:  # no request attached
+                where = ""
+            print(
+                f"arcloud: error: could not reach the service{where}: {exc or type(exc).__name__} (running? --url)",
+                file=sys.stderr,
+            )
             return 2
         raise
 

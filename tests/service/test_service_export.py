@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, UvicornThread, make_test_frame, wait_until
+from svc_helpers import LEFT, RIGHT, AppClient, BlobDetector, UvicornThread, free_port, make_test_frame, wait_until
 
 from arcloud.access import new_key
 from arcloud.cli import main as cli_main
@@ -241,3 +241,26 @@ def test_one_key_holds_at_most_all_but_one_export_place(tmp_path: Path) -> None:
         assert other.status_code == 200, other.text  # the other place, another key's
         assert api.get("/v1/maps/room/export", params={"format": "json"}, headers=as_hoarder).status_code == 200
         assert places.taken == 0 and not places.by_key
+
+
+def test_a_service_that_is_not_there_is_one_line_not_a_traceback(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A new user's review: `arcloud export`, `maps list` and `replay` printed httpx's 75-line traceback."""
+    port = free_port()  # nothing listens there
+    out = tmp_path / "room.json"
+    argv = [
+        "export",
+        "--map",
+        "room",
+        "--format",
+        "json",
+        "--out",
+        str(out),
+        "--url",
+        f"http://127.0.0.1:{port}",
+        "--retries",
+        "0",
+    ]
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"arcloud: error: could not reach the service at http://127.0.0.1:{port}/v1/maps/room/export: ")
+    assert err.count("\n") == 1 and "Traceback" not in err and not out.exists()
