@@ -177,8 +177,13 @@ def test_frame_to_proto_checks_its_arguments() -> None:
         frame_to_proto(frame, rgb_encoding="gif")  # type: ignore[arg-type]  # on purpose: a refused encoding
     with pytest.raises(InvalidInput, match="depth_encoding"):
         frame_to_proto(frame, depth_encoding="jpeg")  # type: ignore[arg-type]  # on purpose: a refused encoding
-    with pytest.raises(InvalidInput, match="frame"):
-        frame_to_proto(rgb=frame.rgb)
+    with pytest.raises(InvalidInput, match=r"^frame: expected a Frame, or rgb, depth, intrinsics and cam2world, got neither$"):
+        frame_to_proto()
+    with pytest.raises(InvalidInput) as missing:  # a new user's review: "got neither" named none of the missing
+        frame_to_proto(rgb=frame.rgb, depth=frame.depth_m, cam2world=frame.cam2world)
+    assert str(missing.value) == "intrinsics: expected a value with the other arrays (or a Frame), got none (intrinsics missing)"
+    with pytest.raises(InvalidInput, match=r"^depth: .* got none \(depth, cam2world missing\)$"):
+        frame_to_proto(rgb=frame.rgb, intrinsics=frame.intrinsics)
     with pytest.raises(InvalidInput, match="not both"):
         frame_to_proto(frame, rgb=frame.rgb)
     with pytest.raises(InvalidInput, match="depth"):

@@ -300,7 +300,11 @@ def frame_to_proto(
         raise InvalidInput("depth_encoding", f"one of {sorted(DEPTH_ENCODINGS)}", depth_encoding)
     if frame is None:
         if rgb is None or depth is None or intrinsics is None or cam2world is None:
-            raise InvalidInput("frame", "a Frame, or rgb, depth, intrinsics and cam2world", "neither")
+            given = {"rgb": rgb, "depth": depth, "intrinsics": intrinsics, "cam2world": cam2world}
+            missing = [name for name, value in given.items() if value is None]
+            if len(missing) == len(given):
+                raise InvalidInput("frame", "a Frame, or rgb, depth, intrinsics and cam2world", "neither")
+            raise InvalidInput(missing[0], "a value with the other arrays (or a Frame)", f"none ({', '.join(missing)} missing)")
         depth_array = np.asarray(depth)
         frame = make_frame(
             rgb,
