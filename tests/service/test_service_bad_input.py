@@ -338,6 +338,23 @@ def bad_requests() -> list[tuple[str, str, str, dict[str, Any], int, str | None]
             422,
             "rgb_encoding",
         ),
+        # a new user's review: millimetres read as metres were accepted, processed, and made no object
+        (
+            "depth in mm with depth_scale 1",
+            "POST",
+            "/v1/maps/m/frames",
+            {"files": multipart_parts(frame, depth_scale=1)},
+            422,
+            "depth",
+        ),
+        (
+            "depth in mm with depth_scale 1e5",
+            "POST",
+            "/v1/maps/m/frames",
+            {"content": proto_body(frame, depth_scale=1e5), "headers": PROTOBUF},
+            422,
+            "depth",
+        ),
         (
             "frame id of 10000 characters",
             "POST",
@@ -384,6 +401,14 @@ def test_a_missing_or_unknown_field_is_said_so_in_the_detail(client: AppClient) 
         answer.status_code == 422
         and answer.json()["detail"] == "limit: expected a valid integer, unable to parse string as an integer, got 'many'"
     )
+
+
+def test_depth_in_the_wrong_units_is_refused_saying_its_median(client: AppClient) -> None:
+    answer = client.post("/v1/maps/m/frames", files=multipart_parts(make_test_frame(3), depth_scale=1))
+    assert answer.status_code == 422 and answer.json()["detail"].startswith(
+        "depth: expected depth in metres whose median is 0.05 to 30 m, as a camera sees a room (its units: depth_scale, "
+        "1000 for millimetres; float depth is metres), got a median of "
+    ), answer.text
 
 
 @pytest.mark.parametrize(
