@@ -13,6 +13,7 @@ import pytest
 from svc_helpers import BlobDetector, UvicornThread, cube, free_port, make_test_frame
 
 from arcloud.client import ArcloudClient, AsyncArcloudClient
+from arcloud.client.http import ServiceError
 from arcloud.client.results import MapEvent, ObjectOut, ResetEvent, SnapshotEvent, UpsertEvent
 from arcloud.core.change import MapChange
 from arcloud.core.header import MapHeader
@@ -68,15 +69,15 @@ class Follower:
     """``client.events`` followed in a thread, each event (or the error that ended it) put in ``received``; stops
     after the event that comes once ``stop`` is set."""
 
-    def __init__(self, client: ArcloudClient, map_id: str) -> None:
+    def __init__(self, client: ArcloudClient, map_id: str, *, wait_for_map: bool = False) -> None:
         self.received: queue.Queue[MapEvent | Exception] = queue.Queue()
         self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, args=(client, map_id), daemon=True)
+        self.thread = threading.Thread(target=self._run, args=(client, map_id, wait_for_map), daemon=True)
         self.thread.start()
 
-    def _run(self, client: ArcloudClient, map_id: str) -> None:
+    def _run(self, client: ArcloudClient, map_id: str, wait_for_map: bool) -> None:
         try:
-            for event in client.events(map_id, include_tentative=True):
+            for event in client.events(map_id, include_tentative=True, wait_for_map=wait_for_map):
                 self.received.put(event)
                 if self.stop.is_set():
                     return
@@ -124,3 +125,21 @@ def test_events_yield_a_frame_processed_after_they_started_and_resume_after_a_re
             assert isinstance(later, UpsertEvent) and later.object.version == 4
             follower.thread.join(10)
             assert not follower.thread.is_alive()
+
+
+def test_events_of_a_map_not_made_yet_raise_404_or_wait_for_it() -> None:
+    """A new user's review: an app that subscribes before its first upload got a 404 at once, while the viewer waits."""
+    with UvicornThread(create_app(SETTINGS, detector=BlobDetector())) as server, ArcloudClient(server.url) as client:
+        refused = Follower(client, "early")
+        with pytest.raises(ServiceError) as caught:
+            refused.next_of(SnapshotEvent, timeout_s=10)
+        assert caught.value.status == 404
+        waiting = Follower(client, "early", wait_for_map=True)
+        assert waiting.received.empty() and waiting.thread.is_alive()  # no map: it waits, raising nothing
+        client.send_frame(make_test_frame(0, map_id="early", level=True))
+        first = waiting.next_of(SnapshotEvent, UpsertEvent)  # the map's first state once it exists
+        assert isinstance(first, (SnapshotEvent, UpsertEvent))
+        waiting.stop.set()
+        client.send_frame(make_test_frame(1, map_id="early", level=True))
+        waiting.thread.join(20)
+        assert not waiting.thread.is_alive()

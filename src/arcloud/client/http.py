@@ -315,9 +315,10 @@ class EventStream:
     connection (``wait_s``). A connection that gave an event resets the count of failures; ``max_retries``
     failures in a row (refusals 429, 502, 503, 504, transport errors, streams ended before an event) raise."""
 
-    def __init__(self, retry: RetryPolicy, path: str) -> None:
+    def __init__(self, retry: RetryPolicy, path: str, *, wait_for_map: bool = False) -> None:
         self.retry = retry
         self.path = path
+        self.wait_for_map = wait_for_map  # a 404 (no such map yet): look again every retry_s, without end
         self.retry_s = STREAM_RETRY_S
         self.failures = 0
         self.started = time.monotonic()
@@ -369,6 +370,10 @@ class EventStream:
         """Seconds to wait before connecting again after a connection ended with ``outcome``: a refusal (its
         response), a transport error, or None (the service ended the stream: it restarts, or dropped us). Raises
         ``ServiceError`` for a refusal not worth trying again, and the error after ``max_retries`` failures."""
+        if isinstance(outcome, httpx.Response) and outcome.status_code == 404 and self.wait_for_map:
+            self.failures = 0
+            log.info("GET %s: no such map yet; looking again in %.2f s", self.path, self.retry_s)
+            return self.retry_s
         attempt = self.failures
         self.failures += 1
         if isinstance(outcome, httpx.Response):
@@ -642,16 +647,18 @@ class ArcloudClient(_Client):
         answer = self._request("GET", f"/v1/maps/{map_id}/objects/{int(object_id)}", params={"voxels": "true"} if voxels else {})
         return from_json(ObjectDetail, answer)
 
-    def events(self, map_id: str, *, include_tentative: bool = False) -> Iterator[MapEvent]:
+    def events(self, map_id: str, *, include_tentative: bool = False, wait_for_map: bool = False) -> Iterator[MapEvent]:
         """The map's events as they come (``GET /v1/maps/{map}/events``): a ``SnapshotEvent``, then ``UpsertEvent``,
         ``RemovedEvent``, ``DeviceEvent``, ``DeviceRemovedEvent``; confirmed objects unless ``include_tentative``.
         Never ends by itself: connects again when the connection drops, the service restarts or a read waits
         longer than the client's timeout (the service sends a keep-alive every 15 s), resuming after the last
         event it had (``Last-Event-ID``; a ``ResetEvent`` and a ``SnapshotEvent`` when it cannot: the module's docstring); ``ServiceError`` when refused (403 when the key loses the map
         during the stream), and after ``max_retries`` failed connections in a row. Leave the loop (or ``close()``
-        the iterator) to close the stream."""
+        the iterator) to close the stream. ``wait_for_map``: a map that does not exist yet (404: no frame of it
+        accepted) is looked for again every 2 s until it does, as the viewer does, rather than raising: an app may
+        subscribe before its first upload."""
         path = f"/v1/maps/{map_id}/events"
-        stream = EventStream(self.retry, path)
+        stream = EventStream(self.retry, path, wait_for_map=wait_for_map)
         while True:
             outcome: httpx.Response | Exception | None = None
             try:
@@ -878,10 +885,12 @@ class AsyncArcloudClient(_Client):
         )
         return from_json(ObjectDetail, answer)
 
-    async def events(self, map_id: str, *, include_tentative: bool = False) -> AsyncIterator[MapEvent]:
+    async def events(
+        self, map_id: str, *, include_tentative: bool = False, wait_for_map: bool = False
+    ) -> AsyncIterator[MapEvent]:
         """As ``ArcloudClient.events``: ``async for event in client.events(map_id)``."""
         path = f"/v1/maps/{map_id}/events"
-        stream = EventStream(self.retry, path)
+        stream = EventStream(self.retry, path, wait_for_map=wait_for_map)
         while True:
             outcome: httpx.Response | Exception | None = None
             try:
