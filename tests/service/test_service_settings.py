@@ -148,3 +148,25 @@ def test_worker_processes_share_the_cores_and_the_detector_gets_its_share(monkey
     assert [threads_per_process(n) for n in (0, 1, 2, 3, 8, 20)] == [8, 8, 4, 2, 1, 1]
     assert build_detector("sim:0", threads=2).threads == 2  # type: ignore[attr-defined]  # a SimulatedDetector behind the Detector port
     assert build_detector("sim:0").threads == 0  # type: ignore[attr-defined]  # Open3D's default: every core
+
+
+def test_a_mistyped_arcloud_variable_stops_the_start_naming_the_setting_it_may_mean(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A new user's review: ``ARCLOUD_WORKER=3 arcloud serve`` started 2 workers, the variable read by nothing."""
+    from arcloud.cli import build_parser
+    from arcloud.errors import ArcloudError
+    from arcloud.tools.service_cli import settings_from_args
+
+    args = build_parser().parse_args(["serve", "--detector", "sim:0"])
+    monkeypatch.setenv("ARCLOUD_WORKER", "3")
+    monkeypatch.setenv("ARCLOUD_NOTHING_LIKE_IT", "1")
+    with pytest.raises(ArcloudError) as refused:
+        settings_from_args(args)
+    assert str(refused.value) == (
+        "invalid settings (options or ARCLOUD_* variables): ARCLOUD_NOTHING_LIKE_IT: no such setting; "
+        "ARCLOUD_WORKER: no such setting (did you mean ARCLOUD_WORKERS?)"
+    )
+    monkeypatch.delenv("ARCLOUD_WORKER")
+    monkeypatch.delenv("ARCLOUD_NOTHING_LIKE_IT")
+    for other in ("ARCLOUD_TOKEN", "ARCLOUD_MODELS", "ARCLOUD_MODEL", "ARCLOUD_SHARED", "ARCLOUD_WORKERS"):
+        monkeypatch.setenv(other, "2" if other == "ARCLOUD_WORKERS" else "x")  # read by the SDK, the model cache, ...
+    assert settings_from_args(args).workers == 2

@@ -13,7 +13,10 @@ Options left out come from ``ARCLOUD_*`` environment variables (``service.settin
 from __future__ import annotations
 
 import argparse
+import difflib
 import logging
+import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -132,7 +135,7 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     from arcloud.errors import ArcloudError, InvalidInput
     from arcloud.tools.wiring import check_detector_spec
 
-    problems: list[str] = []
+    problems: list[str] = unknown_variables(os.environ)
     settings = None
     try:
         settings = Settings(**overrides)
@@ -148,6 +151,24 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     return settings
 
 
+def unknown_variables(environ: Mapping[str, str]) -> list[str]:
+    """The ``ARCLOUD_*`` variables in ``environ`` that name no setting nor another variable arcloud reads, each with
+    the name it may have meant: a mistyped ``ARCLOUD_WORKER=3`` started 2 workers without a word."""
+    from arcloud.client.http import TOKEN_ENV
+    from arcloud.detectors.catalogue import MODELS_ENV_VAR
+    from arcloud.detectors.factory import MODEL_ENV_VAR
+    from arcloud.service.settings import Settings
+
+    known = {f"ARCLOUD_{name.upper()}" for name in Settings.model_fields} | {
+        TOKEN_ENV, MODEL_ENV_VAR, MODELS_ENV_VAR, "ARCLOUD_SHARED",  # the SDK's, the model cache's, the data's (bench, tests)
+    }  # fmt: skip
+    problems = []
+    for name in sorted(n for n in environ if n.upper().startswith("ARCLOUD_") and n.upper() not in known):
+        close = difflib.get_close_matches(name.upper()[8:], sorted(k[8:] for k in known), n=1, cutoff=0.75)
+        problems.append(f"{name}: no such setting" + (f" (did you mean ARCLOUD_{close[0]}?)" if close else ""))
+    return problems
+
+
 def validation_problems(exc: Any) -> list[str]:
     """A pydantic ``ValidationError`` of the settings as one line per wrong setting."""
     problems = []
@@ -160,8 +181,6 @@ def validation_problems(exc: Any) -> list[str]:
 
 def _detector_from_env() -> str:
     """The detector spec the settings would read when none is given on the command line."""
-    import os
-
     from arcloud.service.settings import Settings
 
     return os.environ.get("ARCLOUD_DETECTOR", Settings.model_fields["detector"].default)
