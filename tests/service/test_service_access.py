@@ -142,9 +142,18 @@ def test_roles_and_maps(keyed: AppClient, capsys: pytest.CaptureFixture[str], re
     device_id = device_a.split("_")[1]
     assert device_id in listing and device_a.split("_", 2)[2] not in listing  # ids shown, secrets never
     assert cli_main(["keys", "revoke", *where, device_id]) == 0
+    assert "last key" not in capsys.readouterr().err  # other keys remain
     time.sleep(0.3)
     assert_problem(keyed.get("/v1/maps/a/objects", headers=bearer(device_a)), 401, "authorization")
     assert cli_main(["keys", "revoke", *where, device_id]) == 2  # no such key any more: an error, exit 2
+    for key_id in [line.split()[0] for line in listing.splitlines()[1:] if line.split()[0] != device_id]:
+        assert cli_main(["keys", "revoke", *where, key_id]) == 0
+    assert "warning: that was the last key: every request now answers 401 and /readyz 503" in capsys.readouterr().err
+    assert (
+        keyed.get("/readyz")
+        .json()["checks"]["keys"]
+        .endswith("or every key was revoked? create or restore keys: docs/service.md, Recovery)")
+    )
 
 
 def test_rate_limits_answer_429_with_retry_after_and_one_map_cannot_take_anothers_share(

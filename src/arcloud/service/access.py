@@ -159,7 +159,7 @@ class Access:
             self._loss_logged = True
         detail = (
             f"lost: the key store holds no key where it held {seen}, so every request answers 401 (its Redis restarted "
-            "without its data or was flushed? restore the keys: docs/service.md, Recovery)"
+            "without its data or was flushed, or every key was revoked? create or restore keys: docs/service.md, Recovery)"
         )
         if first:
             log.error("API keys %s", detail)

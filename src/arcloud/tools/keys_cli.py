@@ -98,9 +98,16 @@ def run_revoke(args: argparse.Namespace) -> int:
     store = open_key_store(args)
     try:
         revoked = store.revoke(args.key_id)
+        left = store.count_keys()
     finally:
         store.close()
     if not revoked:
         raise ArcloudError(f"no key {args.key_id!r} (see `arcloud keys list`)")
     print(f"revoked key {args.key_id}")
+    if not left:
+        print(
+            "arcloud: warning: that was the last key: every request now answers 401 and /readyz 503 (keys: lost) until "
+            "`arcloud keys create` makes one",
+            file=sys.stderr,
+        )
     return 0
