@@ -26,7 +26,7 @@ chooses the adapters.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -687,9 +687,17 @@ class MapArchive(Protocol):
         ...
 
     def restore(
-        self, store: ObjectStore, map_id: str, data: bytes, *, replace: bool = False, params: Params | None = None
+        self,
+        store: ObjectStore,
+        map_id: str,
+        data: bytes,
+        *,
+        replace: bool = False,
+        params: Params | None = None,
+        forget: Callable[[], None] | None = None,
     ) -> int:
-        """Write a snapshot into ``map_id`` (empty, or deleted first with ``replace``); how many objects.
+        """Write a snapshot into ``map_id`` (empty, or deleted first with ``replace``, after ``forget()`` once the
+        file is checked: what else the map holds, such as its frame records); how many objects.
         ``InvalidInput`` for a file that is not a snapshot or a map with objects; ``MapMismatch`` for a
         snapshot written under other settings than ``params`` (when given)."""
         ...

@@ -163,3 +163,20 @@ def test_maps_commands_list_snapshot_restore_and_copy(filled: Filled, tmp_path: 
             assert cli_main(["maps", "list", "--url", http.url]) == 0
             assert capsys.readouterr().out.splitlines()[1].split()[:2] == ["b2", str(len(before["b"]))]
     assert cli_main(["maps", "copy", "--map", "b", "--from", "ftp://x", "--to", server.url]) == 2
+
+
+def test_a_map_replaced_from_a_snapshot_forgets_its_frames_as_a_delete_does() -> None:
+    """A review of a lost Redis: ``replace=true`` deleted the objects but kept the frames' records and counts, so the
+    stats read processed 0, pending 3 for ever, and a frame sent again answered ``duplicate``: what the frames since
+    the snapshot added could not be sent back. A refused file forgets nothing."""
+    with RedisServer.start() as server, AppClient(redis_app(server.url)) as api:
+        fill(api, server.url, {"r": 3})
+        snapshot = api.get("/v1/maps/r/snapshot").content
+        frames = lambda: api.get("/v1/maps/r/stats").json()["frames"]  # noqa: E731 - read again after each change
+        refused = api.request("PUT", "/v1/maps/r/snapshot", params={"replace": "true"}, content=b"not a zip")
+        assert refused.status_code == 422 and frames() == {"accepted": 3, "processed": 3, "failed": 0, "pending": 0}
+        put = api.request("PUT", "/v1/maps/r/snapshot", params={"replace": "true"}, content=snapshot)
+        assert put.status_code == 200, put.text
+        assert frames() == {"accepted": 0, "processed": 0, "failed": 0, "pending": 0}
+        body = frame_to_proto(make_test_frame(2, map_id="r", boxes=(LEFT, RIGHT), level=True)).SerializeToString()
+        assert api.post("/v1/maps/r/frames", content=body, headers=PROTOBUF).json()["status"] == "queued"

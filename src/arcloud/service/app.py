@@ -490,7 +490,14 @@ async def put_snapshot(
     data = await request.body()
     with export_place(runtime, caller, "restore", "map_id"):  # its objects unpacked in memory, as an export's file
         restored = await run_in_threadpool(
-            lambda: archive.restore(runtime.store, map_id, data, replace=replace, params=runtime.params)
+            lambda: archive.restore(
+                runtime.store,
+                map_id,
+                data,
+                replace=replace,
+                params=runtime.params,
+                forget=lambda: runtime.ingest.forget_map(map_id),
+            )
         )
     log.info("map %s restored from a snapshot: %d objects", map_id, restored)
     return MapRestored(map_id=map_id, restored_objects=restored)

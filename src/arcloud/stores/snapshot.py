@@ -23,7 +23,7 @@ import re
 import time
 import zipfile
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -291,16 +291,27 @@ def _corners(lo: np.ndarray, hi: np.ndarray) -> str:
     return f"min {np.round(np.asarray(lo, np.float64), 4).tolist()} max {np.round(np.asarray(hi, np.float64), 4).tolist()}"
 
 
-def restore_bytes(store: ObjectStore, map_id: str, data: bytes, *, replace: bool = False, params: Params | None = None) -> int:
+def restore_bytes(
+    store: ObjectStore,
+    map_id: str,
+    data: bytes,
+    *,
+    replace: bool = False,
+    params: Params | None = None,
+    forget: Callable[[], None] | None = None,
+) -> int:
     """Write a snapshot's objects into ``map_id`` of ``store``; returns how many. The map must be empty
-    (``replace``: it is deleted first); ``MapMismatch`` when it holds a header of other settings, or when
-    the snapshot's differs from ``params`` (a service's: its store indexes under them)."""
+    (``replace``: it is deleted first, after ``forget()``, once the file is checked: the service drops the map's
+    frame records and counts there, as a DELETE does); ``MapMismatch`` when it holds a header of other settings, or
+    when the snapshot's differs from ``params`` (a service's: its store indexes under them)."""
     _document, header, objects = read_snapshot(data)
     if header.codec_version != store.codec_version:
         raise MapMismatch(map_id, [("codec_version", header.codec_version, store.codec_version)])
     if params is not None:
         check_header(header, params, map_id=map_id)
     if replace:
+        if forget is not None:
+            forget()
         store.delete_map(map_id)
     elif store.count_objects(map_id):
         raise InvalidInput("map_id", "an empty map to restore into (or replace=true)", f"map {map_id!r} with objects")
@@ -351,6 +362,13 @@ class ZipMapArchive:
         return snapshot_bytes(store, map_id)
 
     def restore(
-        self, store: ObjectStore, map_id: str, data: bytes, *, replace: bool = False, params: Params | None = None
+        self,
+        store: ObjectStore,
+        map_id: str,
+        data: bytes,
+        *,
+        replace: bool = False,
+        params: Params | None = None,
+        forget: Callable[[], None] | None = None,
     ) -> int:
-        return restore_bytes(store, map_id, data, replace=replace, params=params)
+        return restore_bytes(store, map_id, data, replace=replace, params=params, forget=forget)
