@@ -4,6 +4,8 @@ URL answers unhealthy (not a traceback)."""
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 
 from arcloud.cli import main as cli_main
@@ -28,3 +30,51 @@ def test_a_worker_healthcheck_without_a_redis_url_says_unhealthy_in_one_line(
     printed = capsys.readouterr()
     assert printed.out == "unhealthy: ARCLOUD_STORE is no Redis URL (workers take frames from Redis)\n"
     assert printed.err == ""
+
+
+@pytest.mark.redis
+def test_a_redis_that_evicts_keys_is_refused_at_start_and_a_full_one_is_not_ready(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """A review of a lost Redis: with maxmemory-policy allkeys-lru, Redis deleted 154 of 200 queued frames, a map and
+    half of another's object without an error, /readyz 200; with noeviction and full, every request answered 503 for
+    minutes while /readyz said 200 (a PING passes)."""
+    import redis
+    from redis_server import RedisServer
+    from svc_helpers import AppClient
+
+    from arcloud.errors import StoreUnavailable
+    from arcloud.service.settings import Settings
+    from arcloud.stores.redis import RedisStore
+    from arcloud.tools.wiring import check_redis, create_app
+
+    monkeypatch.setenv("ARCLOUD_DETECTOR", "sim:0")
+    with RedisServer.start() as server:
+        config = redis.Redis.from_url(server.url)
+        config.config_set("maxmemory", 64 * 2**20)
+        with caplog.at_level(logging.WARNING, logger="arcloud.tools.wiring"):  # before serve sets its own logging up
+            check_redis(Settings(store=server.url))  # noeviction: the one policy that keeps every key
+            assert "MAX_QUEUED_BYTES 1073741824 is over half of Redis's maxmemory (67108864 bytes)" in caplog.text
+            caplog.clear()
+            check_redis(Settings(store=server.url, max_queued_bytes=2**25, max_queued_bytes_per_map=2**25))  # half of it
+            assert not caplog.text
+        config.config_set("maxmemory-policy", "allkeys-lru")
+        capsys.readouterr()  # what was logged so far (an earlier serve's handler writes to stderr)
+        for command in (["serve", "--redis", server.url, "--port", "1"], ["worker", "--redis", server.url]):
+            assert cli_main(command) == 2
+            err = capsys.readouterr().err.strip()
+            assert err.startswith(
+                f"arcloud: error: Redis at 127.0.0.1:{server.port}/0 evicts keys when full (maxmemory-policy allkeys-lru, "
+                "maxmemory 67108864 bytes): it would delete maps, queued frames and locks without an error; set "
+                "maxmemory-policy noeviction"
+            ), err
+        config.config_set("maxmemory-policy", "noeviction")
+        with AppClient(create_app(Settings(store=server.url, auth="none", detector="sim:0", workers=0))) as api:
+            assert api.get("/readyz").status_code == 200
+            config.config_set("maxmemory", 1)  # less than it holds: full, refusing writes
+            with pytest.raises(StoreUnavailable, match=r"is full: \d+ bytes used of its maxmemory 1: writes are refused"):
+                RedisStore(server.url).ping()
+            not_ready = api.get("/readyz")
+            assert not_ready.status_code == 503 and "is full" in not_ready.json()["checks"]["store"], not_ready.text
+            config.config_set("maxmemory", 0)
+            assert api.get("/readyz").status_code == 200

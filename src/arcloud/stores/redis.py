@@ -103,7 +103,7 @@ from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_a
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
-from arcloud.errors import InvalidInput, LockTimeout, StoreError, TooManyCells
+from arcloud.errors import InvalidInput, LockTimeout, StoreError, StoreUnavailable, TooManyCells
 from arcloud.ports import (
     DEFAULT_CHANGE_LOG_ENTRIES,
     DEFAULT_FRAME_RECORD_RETENTION_S,
@@ -195,6 +195,49 @@ def _connect_cluster(url: str, *, reply_timeout_s: float, retry: Retry) -> Redis
             socket_timeout=reply_timeout_s,
             retry=retry,
         )
+
+
+#: The one ``maxmemory-policy`` that keeps every key when Redis is full: it refuses writes (503s here) and evicts nothing.
+SAFE_MAXMEMORY_POLICY = "noeviction"
+
+
+def memory_reports(client: RedisClient) -> list[dict[str, Any]]:
+    """``INFO memory`` of the server, or of each of a cluster's nodes; none where INFO is refused (an ACL)."""
+    try:
+        info = client.info("memory")
+    except redis.RedisError as exc:
+        log.debug("INFO memory refused (%s): Redis's memory is not checked", exc)
+        return []
+    values = list(info.values())
+    return [v for v in values if isinstance(v, dict)] if values and all(isinstance(v, dict) for v in values) else [info]
+
+
+def check_memory_policy(client: RedisClient) -> None:
+    """``StoreError`` when Redis may evict keys (a ``maxmemory`` and a policy other than ``noeviction``): it would
+    delete maps, queued frames and locks without an error, and two workers could then write one object; a
+    warning when it has the policy and no ``maxmemory`` yet (CONFIG SET maxmemory would start it evicting)."""
+    for report in memory_reports(client):
+        policy, limit = str(report.get("maxmemory_policy", SAFE_MAXMEMORY_POLICY)), int(report.get("maxmemory", 0))
+        if policy == SAFE_MAXMEMORY_POLICY:
+            continue
+        advice = f"set maxmemory-policy {SAFE_MAXMEMORY_POLICY} (docs/service.md, Redis's memory)"
+        if limit:
+            raise StoreError(
+                f"Redis at {where(client)} evicts keys when full (maxmemory-policy {policy}, maxmemory {limit} bytes): it "
+                f"would delete maps, queued frames and locks without an error; {advice}"
+            )
+        log.warning(
+            "Redis at %s has maxmemory-policy %s: it would evict keys once given a maxmemory; %s", where(client), policy, advice
+        )
+
+
+def memory_full(client: RedisClient) -> str:
+    """What is full where Redis holds ``maxmemory`` or more (it refuses writes), else ""."""
+    for report in memory_reports(client):
+        used, limit = int(report.get("used_memory", 0)), int(report.get("maxmemory", 0))
+        if limit and used >= limit:
+            return f"{used} bytes used of its maxmemory {limit}: writes are refused until memory is freed or raised"
+    return ""
 
 
 def where(client: RedisClient) -> str:
@@ -332,9 +375,13 @@ class RedisStore:
         return where(self.client)
 
     def ping(self) -> None:
-        """Raise ``StoreUnavailable`` unless the server answers."""
+        """Raise ``StoreUnavailable`` unless the server answers, and while it is full (``memory_full``: it answers a
+        PING, and refuses the writes every request and frame needs)."""
         with redis_errors("ping", self._where):
             self.client.ping()
+        full = memory_full(self.client)
+        if full:
+            raise StoreUnavailable(f"Redis at {self._where()} is full: {full}")
 
     # --- spatial index -----------------------------------------------------------------------------
     def cells_of(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[int, int, int]]:

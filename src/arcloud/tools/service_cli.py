@@ -240,9 +240,10 @@ def check_exposure(settings: Any, host: str) -> None:
 
 def run_worker_command(args: argparse.Namespace) -> int:
     from arcloud.service.logs import configure_logging
-    from arcloud.tools.wiring import check_model_file, check_zenoh_config, run_worker
+    from arcloud.tools.wiring import check_model_file, check_redis, check_zenoh_config, run_worker
 
     settings = settings_from_args(args)
+    check_redis(settings)
     check_model_file(settings.detector)
     check_zenoh_config(settings)
     configure_logging(settings.log_level, settings.log_format)

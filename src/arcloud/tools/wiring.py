@@ -110,18 +110,26 @@ def check_model_file(spec: str) -> None:
 
 def check_redis(settings: Settings) -> None:
     """``StoreUnavailable`` now, in one line naming where, when the service's Redis does not answer within 3 s (not
-    a traceback from the API's start); nothing for the embedded store."""
-    if settings.embedded:
-        return
-    from arcloud.stores.redis import connect_redis, where
+    a traceback from the API's start), and ``StoreError`` when it may evict keys (``check_memory_policy``); the keys'
+    Redis too, when apart. Nothing for the embedded store."""
+    from arcloud.stores.redis import check_memory_policy, connect_redis, memory_reports, where
     from arcloud.stores.redis_errors import redis_errors
 
-    client = connect_redis(settings.store, reply_timeout_s=3.0)
-    try:
-        with redis_errors("reach the store (start Redis, or give the URL it answers at)", lambda: where(client)):
-            client.ping()
-    finally:
-        client.close()
+    for url in dict.fromkeys(u for u in (None if settings.embedded else settings.store, settings.keys_store) if u):
+        client = connect_redis(url, reply_timeout_s=3.0)
+        try:
+            with redis_errors("reach the store (start Redis, or give the URL it answers at)", partial(where, client)):
+                client.ping()
+                check_memory_policy(client)
+                limits = [int(report.get("maxmemory", 0)) for report in memory_reports(client)]
+            if url == settings.store and limits and all(limits) and settings.max_queued_bytes > sum(limits) // 2:
+                log.warning(
+                    "MAX_QUEUED_BYTES %d is over half of Redis's maxmemory (%d bytes): a backlog could fill it, and a full "
+                    "Redis refuses the writes its workers need to drain the queue (docs/service.md, Redis's memory)",
+                    settings.max_queued_bytes, sum(limits),
+                )  # fmt: skip
+        finally:
+            client.close()
 
 
 def check_zenoh_config(settings: Settings) -> None:
