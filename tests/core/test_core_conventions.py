@@ -94,7 +94,7 @@ def test_a_point_seen_by_an_arkit_camera_lands_where_the_opencv_camera_sees_it()
 
 
 def test_a_tilted_world_declaring_its_up_meets_the_map_in_the_gravity_frame() -> None:
-    up = np.array([-0.0089, -0.9044, -0.4265])  # 7-Scenes redkitchen: gravity-direction.txt, negated
+    up = np.array([0.0089, -0.9044, -0.4265])  # 7-Scenes redkitchen: gravity-direction.txt, negated
     up /= np.linalg.norm(up)
     rotation = gravity_rotation(up, (0, 0, 1))
     assert np.allclose(rotation @ up, (0, 0, 1), atol=1e-12)
