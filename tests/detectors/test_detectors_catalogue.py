@@ -69,6 +69,21 @@ def test_pull_from_a_folder_checks_the_sha256_and_prints_the_licence(
 
 
 @pytest.mark.shared
+def test_verify_checks_each_cached_model_and_says_the_default_is_missing(
+    shared: type, cache: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A new user's review: with YOLOv8n-seg alone pulled, `models verify` said only that YOLO11n-seg was missing (2)."""
+    assert arcloud(capsys, "models", "pull", "yolov8n-seg-fp32-640", "--from", str(shared.path("models")))[0] == 0
+    status, out, err = arcloud(capsys, "models", "verify")
+    assert (
+        status == 0
+        and out
+        == f"{cache / 'yolov8n-seg-fp32-640.onnx'}: sha256 {catalogue_model('yolov8n-seg-fp32-640').sha256}, the catalogue's sha256\n"
+    )
+    assert err.startswith(f"arcloud: the default model is not cached (no file at {cache / (DEFAULT_MODEL + '.onnx')}")
+
+
+@pytest.mark.shared
 def test_pull_refuses_other_bytes_unless_an_export_of_the_model(
     shared: type, cache: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -43,7 +43,7 @@ def add_models_commands(subparsers: argparse._SubParsersAction) -> None:
         help="a file you exported yourself (its bytes differ from build to build): check its signature, not its sha256",
     )
     pull.set_defaults(handler=run_pull)
-    verify = actions.add_parser("verify", help="check that a cached model is what was pulled (its sha256)")
+    verify = actions.add_parser("verify", help="check that a cached model (without NAME: each) is what was pulled (its sha256)")
     verify.add_argument("name", nargs="?", metavar="NAME", help=NAME_HELP)
     verify.set_defaults(handler=run_verify)
     path = actions.add_parser("path", help="print the cache folder, or a model's file in it (exit 1 when not pulled)")
@@ -85,10 +85,17 @@ def run_pull(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from arcloud.detectors.catalogue import catalogue_model, verify
+    """The model named, else every model of the catalogue in the cache (the default's absence said, not an error when
+    another is there: a new user who pulled YOLOv8n-seg alone was told only that YOLO11n-seg was missing)."""
+    from arcloud.detectors.catalogue import CATALOGUE, DEFAULT_MODEL, cached_path, catalogue_model, not_cached, verify
 
-    checked = verify(catalogue_model(args.name).name)
-    print(f"{checked.path}: sha256 {checked.sha256}, {checked.how}")
+    names = [catalogue_model(args.name).name] if args.name else [n for n in CATALOGUE if cached_path(n).is_file()]
+    for name in names or [DEFAULT_MODEL]:  # none cached: verify says the default is missing
+        checked = verify(name)
+        print(f"{checked.path}: sha256 {checked.sha256}, {checked.how}")
+    if not args.name and DEFAULT_MODEL not in names:
+        print(f"arcloud: the default model is not cached ({not_cached(DEFAULT_MODEL)}); `serve` runs it unless --detector "
+              "names another", file=sys.stderr)  # fmt: skip
     return 0
 
 
