@@ -68,7 +68,14 @@ from arcloud.service.exports import EXPORT_RETRY_AFTER_S, MEDIA, ColorBy, Export
 from arcloud.service.logs import bind_log_context
 from arcloud.service.map_header import check_map_header, check_not_being_deleted
 from arcloud.service.pages import object_page, parse_cursor
-from arcloud.service.problems import PROBLEM_TYPES, TYPE_PREFIX, problem_openapi, problem_response, validation_wording
+from arcloud.service.problems import (
+    PROBLEM_TYPES,
+    TYPE_PREFIX,
+    problem_openapi,
+    problem_response,
+    validation_location,
+    validation_wording,
+)
 from arcloud.service.runtime import Connect, Runtime, start_runtime, stop_runtime
 from arcloud.service.schemas import (
     PROBLEM_RESPONSES,
@@ -881,7 +888,7 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError) -> Response:
         first = exc.errors()[0] if exc.errors() else {"loc": (), "msg": "a valid request"}
-        where = ".".join(str(p) for p in first["loc"][1:]) or ".".join(str(p) for p in first["loc"])
+        where = validation_location(first["loc"][1:]) or validation_location(first["loc"])
         got = "none" if first.get("type") == "missing" else None if first.get("input") is None else repr(first["input"])
         detail = f"{where}: expected {validation_wording(first)}" + (f", got {got}" if got is not None else "")
         return problem(request, 422, detail, where or None)

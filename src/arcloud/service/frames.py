@@ -30,7 +30,7 @@ from arcloud.errors import InvalidInput
 from arcloud.ports import DeviceAlignments
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import POSE_CONVENTIONS, frame_from_proto
-from arcloud.service.problems import validation_wording
+from arcloud.service.problems import validation_location, validation_wording
 from arcloud.service.schemas import FrameMeta
 
 PROTOBUF_MEDIA_TYPES = ("application/x-protobuf", "application/protobuf", "application/vnd.google.protobuf")
@@ -79,7 +79,7 @@ def parse_meta(raw: str | bytes) -> FrameMeta:
         return FrameMeta.model_validate_json(raw, strict=True)  # JSON's strict mode: arrays still read as tuples
     except ValidationError as exc:
         first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
+        where = validation_location(first["loc"])
         got = "none" if first.get("type") == "missing" else describe(first.get("input"))
         raise InvalidInput(f"meta.{where}" if where else "meta", validation_wording(first), got) from exc
 

@@ -15,7 +15,7 @@ requests it cannot parse (``http_protocol``) all answer through ``problem_body``
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from http import HTTPStatus
 from typing import Any
@@ -244,6 +244,12 @@ def validation_wording(error: Mapping[str, Any]) -> str:
     return message.removeprefix("Input should be ").removeprefix("Value error, ")
 
 
+def validation_location(loc: Sequence[Any]) -> str:
+    """A pydantic error's location as a field path (``cam2world.3``), without the union branches it names
+    (``list[float]``: a ``cam2world`` of 16 numbers or of 4 rows)."""
+    return ".".join(str(part) for part in loc if not (isinstance(part, str) and part.startswith("list[")))
+
+
 def _phrase(status: int) -> str:
     try:
         return HTTPStatus(status).phrase
@@ -260,5 +266,6 @@ __all__ = [
     "problem_openapi",
     "problem_response",
     "type_for",
+    "validation_location",
     "validation_wording",
 ]
