@@ -68,9 +68,18 @@ def test_pose_accepts_small_rotation_error_and_flat_lists():
     pose[:3, :3] += rng.normal(0, 1e-5, (3, 3))
     assert check_pose("p", pose.ravel().tolist()).shape == (4, 4)
     bottom = np.eye(4)
-    bottom[3, 0] = 1
-    with pytest.raises(InvalidInput, match="last row"):
+    bottom[3, 3] = 2  # no transform, read either way
+    with pytest.raises(InvalidInput, match="last row") as wrong:
         check_pose("p", bottom)
+    assert "column-major" not in str(wrong.value)
+    moved = np.eye(4)
+    moved[:3, 3] = (1.0, 2.0, 0.5)
+    with pytest.raises(InvalidInput) as columns:  # as ARKit's simd_float4x4 lists it: columns first
+        check_pose("p", moved.T)
+    assert str(columns.value) == (
+        "p: expected last row (0, 0, 0, 1), got [1.  2.  0.5 1. ] (its last column is (0, 0, 0, 1): column-major? send it "
+        "row-major, transposed)"
+    )
 
 
 def test_detections_checked_against_frame():

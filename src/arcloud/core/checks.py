@@ -100,7 +100,11 @@ def check_pose(field: str, value: object) -> np.ndarray:
     if not np.all(np.isfinite(pose)):
         raise InvalidInput(field, "finite values", "NaN or infinity")
     if not np.allclose(pose[3], (0, 0, 0, 1), atol=1e-6):
-        raise InvalidInput(field, "last row (0, 0, 0, 1)", np.array2string(pose[3], precision=4))
+        transposed = np.allclose(pose[:, 3], (0, 0, 0, 1), atol=1e-6)  # ARKit's simd and OpenGL store columns first
+        got = np.array2string(pose[3], precision=4) + (
+            " (its last column is (0, 0, 0, 1): column-major? send it row-major, transposed)" if transposed else ""
+        )
+        raise InvalidInput(field, "last row (0, 0, 0, 1)", got)
     rotation = pose[:3, :3]
     error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
     if error > ROTATION_TOLERANCE:
