@@ -47,6 +47,10 @@ def test_the_layout_comes_from_the_files(tmp_path: Path) -> None:
     for name in ("rgb.txt", "depth.txt"):
         (tmp_path / "tum" / name).write_text("")
     assert detect_layout(tmp_path / "tum") == "tum"
+    (tmp_path / "tum" / "depth.txt").unlink()  # a new user's review: "got none of them" named no file
+    with pytest.raises(DatasetError, match=r"tum: expected depth.txt beside rgb.txt \(TUM RGB-D layout\), got no such file"):
+        detect_layout(tmp_path / "tum")
+    (tmp_path / "tum" / "depth.txt").write_text("")
     (tmp_path / "my scan" / "pose").mkdir(parents=True)
     assert detect_layout(tmp_path / "my scan") == "scannet"
     with pytest.raises(

@@ -393,8 +393,17 @@ def test_a_lens_that_bends_both_images_is_undone_when_the_depth_agrees(tmp_path:
         ("depth.txt", "# only comments\n", r"depth.txt: expected lines 'timestamp path', got none"),
         ("depth.txt", "noon depth/0.png\n", r"depth.txt:1: expected a timestamp in seconds first, got 'noon'"),
         ("groundtruth.txt", "100.0 0 0 0 0 0 0\n", r"groundtruth.txt:1: expected 'timestamp tx ty tz qx qy qz qw' \(8 fields\)"),
-        ("groundtruth.txt", "100.0 0 0 0 0 0 0 2\n", r"expected unit quaternions qx qy qz qw, got norm 2.0000 at time 100.0"),
-        ("groundtruth.txt", "100.0 0 0 nan 0 0 0 1\n", r"expected finite poses"),
+        (
+            "groundtruth.txt",
+            "# poses\n100.0 0 0 0 0 0 0 2\n",
+            r"groundtruth.txt:2: expected unit quaternions qx qy qz qw, got norm 2.0000 at time 100.0",
+        ),
+        ("groundtruth.txt", "100.0 0 0 nan 0 0 0 1\n", r"groundtruth.txt:1: expected finite poses"),
+        (
+            "groundtruth.txt",
+            "100.0 0 0 0 0 0 0 1\n101.0 0 x 0 0 0 0 1\n",
+            r"groundtruth.txt:2: expected numbers 'timestamp tx ty tz qx qy qz qw', got '101.0 0 x 0 0 0 0 1'",
+        ),
         ("groundtruth.txt", "100.0 0 0 0 0 0 0 1\n100.0 1 0 0 0 0 0 1\n", "expected one pose per timestamp, got two at 100.0"),
         ("groundtruth.txt", "500.0 0 0 0 0 0 0 1\n", "expected depth images with a colour image and a pose, got none of 3"),
         (

@@ -83,6 +83,10 @@ def detect_layout(root: Path) -> str:
         raise DatasetError(f"{root}: expected a recording folder, got no such folder")
     if is_tum_recording(root):
         return "tum"
+    listed = [name for name in ("rgb.txt", "depth.txt") if (root / name).is_file()]
+    if len(listed) == 1:  # half of a TUM recording: say which file is missing, not "none of them"
+        missing = "depth.txt" if listed == ["rgb.txt"] else "rgb.txt"
+        raise DatasetError(f"{root}: expected {missing} beside {listed[0]} (TUM RGB-D layout), got no such file")
     if any(root.glob("frame-*.pose.txt")) or any(root.glob("seq*/frame-*.pose.txt")):
         return "7scenes"
     if is_scene_dir(root):

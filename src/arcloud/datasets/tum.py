@@ -180,11 +180,13 @@ class TumSequence(GravityAlignedSequence):
 
 @dataclass(frozen=True)
 class _Listing:
-    """A parsed list file: ``texts`` as written, ``times_s`` (N,) and the other ``fields`` of each line."""
+    """A parsed list file: ``texts`` as written, ``times_s`` (N,), the other ``fields`` of each line, and its
+    ``line_numbers`` (from 1, for errors)."""
 
     texts: tuple[str, ...]
     times_s: np.ndarray
     fields: tuple[tuple[str, ...], ...]
+    line_numbers: tuple[int, ...] = ()
 
 
 def _read_listing(path: Path, n_fields: int, form: str) -> _Listing:
@@ -193,7 +195,7 @@ def _read_listing(path: Path, n_fields: int, form: str) -> _Listing:
         lines = path.read_text().splitlines()
     except OSError as exc:
         raise DatasetError(f"{path}: expected a readable {path.name} ({exc})") from exc
-    texts, times, fields = [], [], []
+    texts, times, fields, numbers = [], [], [], []
     for number, line in enumerate(lines, 1):
         words = line.split("#", 1)[0].split()
         if not words:
@@ -209,9 +211,10 @@ def _read_listing(path: Path, n_fields: int, form: str) -> _Listing:
         texts.append(words[0])
         times.append(time_s)
         fields.append(tuple(words[1:]))
+        numbers.append(number)
     if not texts:
         raise DatasetError(f"{path}: expected lines '{form}', got none")
-    return _Listing(tuple(texts), np.asarray(times), tuple(fields))
+    return _Listing(tuple(texts), np.asarray(times), tuple(fields), tuple(numbers))
 
 
 def associate(
@@ -291,16 +294,25 @@ def _read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     listing = _read_listing(path, 8, "timestamp tx ty tz qx qy qz qw")
     try:
         values = np.asarray(listing.fields, dtype=np.float64)
-    except ValueError as exc:
-        raise DatasetError(f"{path}: expected numbers 'timestamp tx ty tz qx qy qz qw', got {exc}") from exc
+    except ValueError:
+        values = np.array([[_number_or_nan(word) for word in row] for row in listing.fields])
+        first = int(np.flatnonzero(np.isnan(values).any(axis=1))[0])
+        raise DatasetError(
+            f"{path}:{listing.line_numbers[first]}: expected numbers 'timestamp tx ty tz qx qy qz qw', got "
+            f"{' '.join((listing.texts[first], *listing.fields[first]))!r}"
+        ) from None
     bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
     if len(bad):
-        raise DatasetError(f"{path}: expected finite poses, got {listing.fields[bad[0]]} at time {listing.texts[bad[0]]}")
+        raise DatasetError(
+            f"{path}:{listing.line_numbers[bad[0]]}: expected finite poses, got {listing.fields[bad[0]]} at time "
+            f"{listing.texts[bad[0]]}"
+        )
     norms = np.linalg.norm(values[:, 3:], axis=1)
     off = np.flatnonzero(np.abs(norms - 1.0) > 0.01)
     if len(off):
         raise DatasetError(
-            f"{path}: expected unit quaternions qx qy qz qw, got norm {norms[off[0]]:.4f} at time {listing.texts[off[0]]}"
+            f"{path}:{listing.line_numbers[off[0]]}: expected unit quaternions qx qy qz qw, got norm {norms[off[0]]:.4f} "
+            f"at time {listing.texts[off[0]]}"
         )
     order = np.argsort(listing.times_s, kind="stable")
     times = listing.times_s[order]
@@ -308,6 +320,13 @@ def _read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if len(repeated):
         raise DatasetError(f"{path}: expected one pose per timestamp, got two at {listing.texts[order[repeated[0]]]}")
     return times, values[order, :3], values[order, 3:] / norms[order, None]
+
+
+def _number_or_nan(word: str) -> float:
+    try:
+        return float(word)
+    except ValueError:
+        return float("nan")
 
 
 def read_intrinsics_file(path: Path) -> Intrinsics:
