@@ -330,7 +330,11 @@ def frame_status(map_id: MapId, device_id: str, frame_id: str, runtime: RuntimeD
     check_id("frame_id", frame_id)
     found = runtime.ingest.frame_status(map_id, device_id, frame_id)
     if found is None:
-        raise HTTPException(404, f"frame {device_id}/{frame_id} not found in map {map_id!r} (it was never accepted)")
+        raise HTTPException(
+            404,
+            f"frame {device_id}/{frame_id} not found in map {map_id!r} (never accepted, its record expired, or its store "
+            "lost it: post it again to queue it)",
+        )
     return FrameState(
         map_id=map_id,
         device_id=device_id,
