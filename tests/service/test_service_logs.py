@@ -11,6 +11,7 @@ import io
 import json
 import logging
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -318,3 +319,27 @@ def test_arcloud_serve_writes_no_token_to_its_logs(tmp_path: Path, log_format: s
     text = serve.stderr_path.read_text() + serve.stdout_path.read_text()
     assert "/viewer?map=m&token=***" in text and "/v1/maps/m/stats?token=***" in text, text[-3000:]
     assert "arc_secret" not in text and "S3cr3t" not in text, text[-3000:]
+
+
+def test_the_text_log_gives_uvicorns_lines_the_time_and_the_frame_ids(tmp_path: Path) -> None:
+    """A new user's review: in text (the default), uvicorn's access lines had neither a time nor the frame's ids."""
+    serve_one_frame_text = ServeProcess(
+        tmp_path, (*SERVE, "--workers", "1"), {"ARCLOUD_LOG_FORMAT": "text", "ARCLOUD_WORKERS": "1"}
+    )
+    try:
+        wait_until(serve_one_frame_text.ready, 90, "arcloud serve to be ready", interval_s=0.2)
+        body = frame_to_proto(room_frame()).SerializeToString()
+        assert (
+            httpx.post(f"{serve_one_frame_text.url}/v1/maps/ops/frames", content=body, headers=PROTOBUF, timeout=10.0).status_code
+            == 202
+        )
+    finally:
+        serve_one_frame_text.stop()
+    text = serve_one_frame_text.stderr_path.read_text()
+    (upload,) = [line for line in text.splitlines() if " uvicorn.access: " in line and '"POST /v1/maps/ops/frames' in line]
+    assert re.match(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} INFO MainProcess uvicorn\.access: ", upload), upload
+    assert (
+        upload.endswith("202 [map_id=ops device_id=phone frame_id=f000002]")
+        or "map_id=ops device_id=phone frame_id=f000002" in upload
+    ), upload
+    assert any(" uvicorn.error: Uvicorn running on " in line for line in text.splitlines())

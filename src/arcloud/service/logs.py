@@ -38,7 +38,7 @@ from typing import Any, Literal, TextIO
 LogFormat = Literal["text", "json"]
 
 TEXT_FORMAT = "%(asctime)s %(levelname)s %(processName)s %(name)s: %(message)s"
-#: uvicorn's loggers, which it gives handlers of its own; with JSON they go through the root's instead.
+#: uvicorn's loggers, which it gives handlers of its own; they go through the root's instead.
 UVICORN_LOGGERS = ("uvicorn", "uvicorn.error", "uvicorn.access")
 
 _NO_FIELDS: Mapping[str, object] = MappingProxyType({})
@@ -193,8 +193,8 @@ class StderrHandler(logging.StreamHandler):
 def configure_logging(level: str, log_format: LogFormat = "text") -> None:
     """This process's logging: one handler on the root logger, writing ``log_format`` to stderr with the
     log context; ``arcloud``'s loggers at ``level`` (the root's level, for other libraries, is left as it
-    is). With JSON, uvicorn's loggers that have handlers of their own write through the root's instead, so
-    that every line of the process is JSON. Every line is scrubbed of secrets (``SecretFilter`` on the handler
+    is). uvicorn's loggers that have handlers of their own write through the root's instead, so that every line
+    of the process has one format, with its time and context (uvicorn's own text lines had neither). Every line is scrubbed of secrets (``SecretFilter`` on the handler
     and on uvicorn's loggers). Calling it again replaces what it did."""
     handler = StderrHandler()
     handler.setFormatter(make_formatter(log_format))
@@ -207,12 +207,11 @@ def configure_logging(level: str, log_format: LogFormat = "text") -> None:
     logging.getLogger("arcloud").setLevel(level)
     for name in UVICORN_LOGGERS:  # their records, before any handler (uvicorn's own write text lines)
         logging.getLogger(name).addFilter(SECRET_FILTER)
-    if log_format == "json":
-        for name in UVICORN_LOGGERS:
-            logger = logging.getLogger(name)
-            if logger.handlers:  # uvicorn's own (none when its access log is off: that stays off)
-                logger.handlers.clear()
-                logger.propagate = True
+    for name in UVICORN_LOGGERS:  # through the root's handler, in either format: time, level and context on every line
+        logger = logging.getLogger(name)
+        if logger.handlers:  # uvicorn's own (none when its access log is off: that stays off)
+            logger.handlers.clear()
+            logger.propagate = True
 
 
 __all__ = [

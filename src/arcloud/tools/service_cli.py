@@ -187,7 +187,6 @@ def _detector_from_env() -> str:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    from uvicorn.config import LOGGING_CONFIG
 
     from arcloud.errors import ArcloudError
     from arcloud.service.logs import configure_logging
@@ -207,7 +206,7 @@ def run_serve(args: argparse.Namespace) -> int:
         "host": args.host,
         "port": args.port,
         "log_level": settings.log_level.lower(),
-        "log_config": LOGGING_CONFIG if settings.log_format == "text" else None,  # None: its lines go through ours (JSON)
+        "log_config": None,  # uvicorn's lines go through ours: one format, with the time and the request's context
     }
     if args.api_processes > 1:
         run_servers(settings, args.api_processes, **server)
