@@ -343,3 +343,19 @@ def test_the_text_log_gives_uvicorns_lines_the_time_and_the_frame_ids(tmp_path: 
         or "map_id=ops device_id=phone frame_id=f000002" in upload
     ), upload
     assert any(" uvicorn.error: Uvicorn running on " in line for line in text.splitlines())
+
+
+def test_a_refused_upload_s_log_line_says_whose_frame_and_why(tmp_path: Path) -> None:
+    """A new user's review: the access line of a 422-refused upload had no device or frame id and no reason."""
+    serve = ServeProcess(tmp_path, (*SERVE, "--workers", "1"), {"ARCLOUD_WORKERS": "1"})
+    try:
+        wait_until(serve.ready, 90, "arcloud serve to be ready", interval_s=0.2)
+        msg = frame_to_proto(room_frame())
+        msg.depth_scale = 1.0  # millimetres read as metres: refused
+        answer = httpx.post(f"{serve.url}/v1/maps/ops/frames", content=msg.SerializeToString(), headers=PROTOBUF, timeout=10.0)
+        assert answer.status_code == 422, answer.text
+    finally:
+        serve.stop()
+    (refused,) = [line for line in serve.lines() if line["logger"] == "uvicorn.access" and line.get("method") == "POST"]
+    assert (refused["status"], refused["device_id"], refused["frame_id"]) == (422, "phone", "f000002"), refused
+    assert refused["refused"] == answer.json()["detail"] and refused["refused"].startswith("depth: expected depth in metres")

@@ -294,6 +294,7 @@ async def post_frame(
         msg = frames_in.message_from_parts(frames_in.parse_meta(parts["meta"]), parts["rgb"], parts["depth"], map_id)
     else:
         raise HTTPException(415, f"content-type: expected application/x-protobuf or multipart/form-data, got {media or 'none'}")
+    bind_log_context(**frames_in.valid_ids(msg))  # a refusal's log line says whose frame it was
     frame = await upload.decode(  # holding a decoding slot, maps taking turns (service.uploads)
         partial(
             frames_in.validate_message,
@@ -824,6 +825,7 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     ) -> Response:
         if request.method == "POST" and request.url.path.endswith("/frames"):
             metrics.rejected.labels(status=str(status)).inc()
+            bind_log_context(refused=detail[:300])  # on the upload's access line: why (an operator sees a device's fault)
         return problem_response(status, detail, field_name, kind=kind, headers=headers)
 
     @app.exception_handler(InvalidInput)

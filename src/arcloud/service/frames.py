@@ -17,6 +17,7 @@ one, carries the message rather than encoding the frame again: its images as upl
 
 from __future__ import annotations
 
+import contextlib
 import json
 import struct
 from collections.abc import Mapping, Sequence
@@ -61,6 +62,16 @@ def parse_message(body: bytes) -> pb.Frame:
         return pb.Frame.FromString(body)
     except DecodeError as exc:
         raise InvalidInput("body", "a protobuf arcloud.v1.Frame", f"{len(body)} bytes that do not parse as one") from exc
+
+
+def valid_ids(msg: pb.Frame) -> dict[str, str]:
+    """The message's device and frame ids that are valid ids (``check_id``: safe in a log line), before the rest of
+    it is checked."""
+    ids = {}
+    for name in ("device_id", "frame_id"):
+        with contextlib.suppress(InvalidInput):
+            ids[name] = check_id(name, getattr(msg, name))
+    return ids
 
 
 def parse_meta(raw: str | bytes) -> FrameMeta:

@@ -14,7 +14,8 @@ A JSON line::
      "map_id": "office", "device_id": "phone1", "frame_id": "f000012", "deliveries": 1}
 
 plus the fields a call passed as ``extra=``, ``exception`` (the traceback, as one string) when there is
-one, and ``client``, ``method``, ``path``, ``status`` on uvicorn's access lines.
+one, and ``client``, ``method``, ``path``, ``status`` on uvicorn's access lines (an upload's: its ids, and ``refused``, the
+problem's detail, when it was refused).
 
 No line carries a secret: ``SecretFilter``, on uvicorn's loggers and on the handler, rewrites each record
 (message, arguments, fields, traceback) with ``scrub``: a ``token=`` value in a URL (the viewer's
