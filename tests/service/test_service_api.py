@@ -413,6 +413,14 @@ def test_a_map_at_its_queue_limit_gets_503_while_another_map_still_gets_202(stor
 
 
 def test_health_readiness_metrics_and_docs(client: AppClient) -> None:
+    from arcloud import __version__
+
+    index = client.get("/")  # a new user's first request: it answered 404
+    assert index.status_code == 200 and index.json() == {
+        "service": "arcloud", "version": __version__, "docs": "/docs", "openapi": "/openapi.json", "viewer": "/viewer",
+        "health": "/healthz", "ready": "/readyz",
+    }  # fmt: skip
+    assert all(client.get(page).status_code == 200 for page in ("/docs", "/openapi.json", "/viewer"))
     assert client.get("/healthz").json() == {"status": "ok"}
     assert client.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok"}}
     workers = client.get("/healthz/workers").json()

@@ -26,7 +26,7 @@ from arcloud.tools.wiring import create_app
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "service.md"
 PROTOBUF = {"content-type": "application/x-protobuf"}
-OPEN = {"/healthz", "/readyz", "/healthz/workers", "/metrics", "/problems/{name}"}  # no token asked
+OPEN = {"/", "/healthz", "/readyz", "/healthz/workers", "/metrics", "/problems/{name}"}  # no token asked
 TICKETED = {"/v1/maps/{map_id}/viewer-session"}  # a viewer ticket in the body, not a token
 #: A value refused for each path parameter, and the status it gets (map ids are checked before anything else).
 BAD_PATH_VALUES = {"map_id": ("bad id", 422), "name": ("no-such-type", 404)}

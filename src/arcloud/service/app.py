@@ -18,6 +18,7 @@ starts the ingest, and stops everything in reverse on shutdown (``runtime``). Ro
     GET    /v1/maps/{map_id}/frames/{device}/{frame}   where an accepted frame is
     PUT    /v1/maps/{map_id}/devices/{device}/alignment   a device's device_from_map (admin; GET, DELETE: alignment_routes)
     GET    /viewer                            the web viewer (static files, open: they hold no data)
+    GET    /                                  open: the service's name and version, and where its pages are
     GET    /healthz  /readyz  /metrics                 open to all (no token): probes and scraping
     GET    /healthz/workers                   whether the workers process what is accepted (apart from /readyz)
     GET    /problems/{name}                   what a problem type means (the ``type`` of every error answer)
@@ -95,6 +96,7 @@ from arcloud.service.schemas import (
     ProblemTypeOut,
     Ready,
     RetiredList,
+    ServiceIndex,
     WorkersHealth,
     WorkersUnavailable,
     iso_time,
@@ -692,6 +694,14 @@ def map_stats(map_id: MapId, runtime: RuntimeDep) -> dict[str, Any]:
             "truncated": total > len(counted),
         },
     }
+
+
+@router.get("/", response_model=ServiceIndex, tags=["operations"], summary="What this service is, and where its pages are")
+async def index(request: Request) -> dict[str, str]:
+    """Open, on the event loop, touching nothing (a new user's first request answered 404)."""
+    root = request.scope.get("root_path", "")
+    pages = {"docs": "/docs", "openapi": "/openapi.json", "viewer": "/viewer", "health": "/healthz", "ready": "/readyz"}
+    return {"service": "arcloud", "version": __version__} | {name: root + path for name, path in pages.items()}
 
 
 @router.get("/healthz", response_model=Health, tags=["operations"], summary="The process answers")

@@ -353,6 +353,18 @@ class Health(BaseModel):
     status: Literal["ok"]
 
 
+class ServiceIndex(BaseModel):
+    """``GET /``: what this service is, and where its pages are (paths on this service)."""
+
+    service: Literal["arcloud"]
+    version: str
+    docs: str = Field(description="the API's interactive reference (Swagger UI); `/redoc` the same as ReDoc")
+    openapi: str
+    viewer: str = Field(description="the web viewer: `?map=MAP`")
+    health: str
+    ready: str
+
+
 class Ready(BaseModel):
     """``/readyz`` 200: this process takes and answers requests (each check ``ok``)."""
 
