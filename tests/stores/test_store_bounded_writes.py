@@ -126,7 +126,13 @@ def test_a_large_restore_and_deleting_its_map_never_hold_redis(
                 started = time.monotonic()
                 assert store.delete_map(MAP) == n_objects
                 delete_s = time.monotonic() - started
-            kept = {keys.deletion_key(MAP), keys.ids_key(MAP), keys.version_key(MAP), keys.published_key(MAP)}
+            kept = {
+                keys.deletion_key(MAP),
+                keys.ids_key(MAP),
+                keys.version_key(MAP),
+                keys.began_key(MAP),
+                keys.published_key(MAP),
+            }
             assert {k.decode() for k in store.client.scan_iter(count=1000)} == {"unrelated", *kept}
             print(
                 f"restore {restore_s:.2f} s, PING max {1000 * restoring.max_s:.1f} ms of {len(restoring.times_s)}, longest "

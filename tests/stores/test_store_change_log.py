@@ -4,6 +4,8 @@ no gap, trimmed to the store's bound, and read back with the objects' metadata."
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from store_cases import MAP, make_object, moved
@@ -19,9 +21,14 @@ def kinds(got: ChangesSince) -> list[list[tuple[str, int]]]:
     return [[(e.kind, e.object_id) for e in entry.events] for entry in got.entries]
 
 
+def read(got: ChangesSince) -> tuple[tuple[object, ...], int, bool]:
+    """What a read says but when its log began (``began``: the store's clock)."""
+    return got.entries, got.version, got.complete
+
+
 def test_each_commit_with_events_appends_one_entry_numbered_by_the_map_version(store) -> None:
     a, b = make_object(1, (0.0, 0, 0)), make_object(2, (2.0, 0, 0))
-    assert store.changes_since(MAP, 0, 10) == ChangesSince((), 0, True)
+    assert store.changes_since(MAP, 0, 10) == ChangesSince((), 0, True)  # no entry yet: no began
     assert store.commit(MAP, [], MapChange.writing(MAP, [a, b]), frame_key="dev/f1")
     with store.lock(MAP, [1, 2], ttl_s=10, timeout_s=0) as lease:
         merged = ObjectEvent("merged", MAP, 2, merged_into=1, was_confirmed=True)
@@ -40,7 +47,7 @@ def test_each_commit_with_events_appends_one_entry_numbered_by_the_map_version(s
     np.testing.assert_allclose(updated.object.bounds.min, moved(a, (0.5, 0, 0)).bounds.min)
     assert gone.object is None and gone.merged_into == 1 and gone.was_confirmed
     assert [e.version for e in store.changes_since(MAP, 1, 10).entries] == [2]
-    assert store.changes_since(MAP, 2, 10) == ChangesSince((), 2, True)
+    assert read(store.changes_since(MAP, 2, 10)) == ((), 2, True)
     assert [e.version for e in store.changes_since(MAP, 0, 1).entries] == [1]  # at most limit
 
 
@@ -68,7 +75,7 @@ def test_the_log_keeps_its_latest_entries_and_a_reader_behind_them_is_told(make_
     assert 5 <= len(kept) <= 5 + 200
     assert store.changes_since(MAP, kept[0] - 1, 1000).complete  # the reader saw up to the first kept
     assert not store.changes_since(MAP, kept[0] - 2, 1000).complete
-    assert store.changes_since(MAP, 301, 10) == ChangesSince((), 300, False)  # ahead: not a version of this log
+    assert read(store.changes_since(MAP, 301, 10)) == ((), 300, False)  # ahead: not a version of this log
 
 
 def test_deleting_a_map_empties_its_log_and_a_map_made_again_goes_on_from_its_version(store) -> None:
@@ -78,9 +85,9 @@ def test_deleting_a_map_empties_its_log_and_a_map_made_again_goes_on_from_its_ve
         assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0))]))
     store.mark_published(MAP, 1)
     store.delete_map(MAP)
-    assert store.changes_since(MAP, 2, 10) == ChangesSince((), 3, False)  # the deletion: one more version, no entry
+    assert read(store.changes_since(MAP, 2, 10)) == ((), 3, False)  # the deletion: one more version, no entry
     assert store.published_version(MAP) == 3  # nothing of the old map left to publish
-    assert store.changes_since(MAP, 3, 10) == ChangesSince((), 3, True)
+    assert read(store.changes_since(MAP, 3, 10)) == ((), 3, True)
     for i in (1, 2):
         assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(i, (i * 1.0, 0, 0))]))
     behind = store.changes_since(MAP, 2, 10)  # one that read up to 2 before the deletion: it re-reads the map
@@ -89,6 +96,23 @@ def test_deleting_a_map_empties_its_log_and_a_map_made_again_goes_on_from_its_ve
     assert store.changes_since(MAP, 3, 10).complete
     store.delete_map("never-made")  # a map no commit wrote has no version to move on
     assert store.changes_since("never-made", 0, 10) == ChangesSince((), 0, True)
+
+
+def test_a_log_says_when_it_began_kept_through_a_deletion_and_another_store_s_log_another_time(make_store) -> None:
+    """A review of a lost Redis: a reader that saw version 29 read a new map's 30 to 36 as following it. The time the
+    log began (set with its first entry, kept with the version through a deletion) tells the two logs apart."""
+    store = make_store()
+    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))]))
+    began = store.changes_since(MAP, 0, 10).began
+    seconds, micro = began.split(".")
+    assert seconds.isdigit() and len(micro) == 6 and abs(int(seconds) - time.time()) < 600
+    assert store.commit(MAP, [], MapChange.writing(MAP, [make_object(2, (2.0, 0, 0))]))
+    store.delete_map(MAP)
+    assert store.changes_since(MAP, 1, 10).began == began  # the same log, emptied: its versions go on
+    time.sleep(0.002)
+    other = make_store()  # the store that lost the map: a new log, from 1 again
+    assert other.commit(MAP, [], MapChange.writing(MAP, [make_object(5, (0.0, 0, 0))]))
+    assert other.changes_since(MAP, 0, 10).began not in ("", began)
 
 
 def test_how_far_the_log_was_published_is_only_raised(store) -> None:

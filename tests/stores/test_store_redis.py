@@ -73,7 +73,13 @@ def test_delete_map_removes_every_key_of_the_map_and_no_other(redis_store: Redis
     assert len(all_keys(store)) > len(kept) + 5
     assert store.delete_map(MAP) == 3
     # the deletion's record stays, for a while; the id counter and the versions for good (a map made again goes on)
-    assert all_keys(store) == kept | {keys.deletion_key(MAP), keys.ids_key(MAP), keys.version_key(MAP), keys.published_key(MAP)}
+    assert all_keys(store) == kept | {
+        keys.deletion_key(MAP),
+        keys.ids_key(MAP),
+        keys.version_key(MAP),
+        keys.began_key(MAP),
+        keys.published_key(MAP),
+    }
     assert store.client.ttl(keys.deletion_key(MAP)) > 0
     assert [o.id for o in store.list_objects(other)] == [1]
 

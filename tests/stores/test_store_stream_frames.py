@@ -16,9 +16,13 @@ HEIGHT, WIDTH = 48, 64
 
 
 def upload(rng: np.random.Generator, *, depth_scale: float, rgb_png: bool) -> pb.Frame:
-    """A message as a device sends it: every 16-bit value (0 = no depth, up to 65535) in the depth."""
+    """A message as a device sends it: depth a camera could see (0.5 to 4 m, as far as ``depth_scale`` units go: the
+    service refuses a frame whose depth's median is not one of a room), and on a quarter of the pixels any 16-bit
+    value (0 = no depth, 1, up to 65535)."""
     rgb = rng.integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
-    units = rng.integers(0, 65536, (HEIGHT, WIDTH), dtype=np.uint16)
+    units = np.clip(np.rint(rng.uniform(0.5, 4.0, (HEIGHT, WIDTH)) * depth_scale), 1, 65535).astype(np.uint16)
+    anything = rng.random((HEIGHT, WIDTH)) < 0.25
+    units[anything] = rng.integers(0, 65536, int(anything.sum()), dtype=np.uint16)
     units.flat[:3] = (0, 1, 65535)
     ok, depth_png = cv2.imencode(".png", units)
     assert ok

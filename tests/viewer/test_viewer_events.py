@@ -14,7 +14,7 @@ from typing import Any
 import httpx
 import pytest
 from svc_helpers import LEFT, RIGHT, BlobDetector, UvicornThread, cube, free_port, make_test_frame, wait_until
-from viewer_helpers import EventStream, bearer, make_keys
+from viewer_helpers import EventStream, bearer, make_keys, version_of
 
 from arcloud.core.change import ChangesSince, MapChange
 from arcloud.core.header import MapHeader
@@ -133,7 +133,7 @@ def test_a_stream_sends_the_map_then_each_change_as_frames_are_processed(service
         assert versions == sorted(set(versions))  # coalesced per poll, never an older state after a newer one
         assert served.devices["d"]["cam2world"][3] == pytest.approx(0.04)  # the device's last pose
 
-        before = max(int(served.last_id or 0), int(every.last_id or 0))
+        before = max(version_of(served.last_id) or 0, version_of(every.last_id) or 0)
         deleted = service.http.delete("/v1/maps/ev-b", headers=bearer(service.tokens["admin"]))
         assert deleted.status_code == 200, deleted.text
         for stream in (served, every):  # the deletion empties the log and moves the version on: the streams start over
@@ -285,11 +285,11 @@ def test_a_watched_map_is_read_whole_only_for_a_snapshot_then_its_change_log_is_
         EventStream(server.url, "quiet", tentative=True) as stream,
     ):
         assert [o["id"] for o in stream.next_event("snapshot")[1]["objects"]] == [1]
-        assert stream.last_id == "1"
+        assert version_of(stream.last_id) == 1
         wait_until(lambda: store.log_reads >= 10, 10, "ten reads of the log")
         assert store.whole_map_reads == 1  # the snapshot's read; the log had nothing new
         store.commit("quiet", [], MapChange.writing("quiet", [cube(2)]))
-        assert stream.next_event("upsert")[1]["id"] == 2 and stream.last_id == "2"
+        assert stream.next_event("upsert")[1]["id"] == 2 and version_of(stream.last_id) == 2
         assert store.whole_map_reads == 1
 
 
@@ -303,13 +303,13 @@ def test_a_client_back_with_last_event_id_gets_what_it_missed_and_one_too_far_be
         with EventStream(server.url, "quiet", tentative=True) as first:
             first.next_event("snapshot")
             left_at = first.last_id
-        assert left_at == "1"
+        assert version_of(left_at) == 1
         store.commit("quiet", [], MapChange.writing("quiet", [cube(2)]))  # versions 2 and 3, while it was away
         with store.lock("quiet", [1], ttl_s=5, timeout_s=1) as lease:
             store.commit("quiet", [lease], MapChange.writing("quiet", [], [cube(1)]))
         with EventStream(server.url, "quiet", tentative=True, last_event_id=left_at) as back:
             back.objects = {1: {"id": 1}}  # what it held
-            back.read_until(lambda s: s.last_id == "3", "the changes after version 1")
+            back.read_until(lambda s: version_of(s.last_id) == 3, "the changes after version 1")
             assert [(name, data["id"]) for name, data in back.log] == [("removed", 1), ("upsert", 2)]  # by id, no snapshot
             assert set(back.objects) == {2}
         for i in range(3, 8):  # versions 4 to 8: the log keeps 6 to 8
@@ -318,7 +318,7 @@ def test_a_client_back_with_last_event_id_gets_what_it_missed_and_one_too_far_be
             with EventStream(server.url, "quiet", tentative=True, last_event_id=stale) as behind:
                 _, reset = behind.next_event("reset")
                 _, snapshot = behind.next_event("snapshot")
-                assert reset["version"] == snapshot["version"] == 8 and behind.last_id == "8"
+                assert reset["version"] == snapshot["version"] == 8 and version_of(behind.last_id) == 8
                 assert sorted(o["id"] for o in snapshot["objects"]) == [2, 3, 4, 5, 6, 7]
 
 
@@ -356,7 +356,7 @@ def test_a_client_back_with_an_id_from_before_the_map_was_deleted_is_reset_howev
         with EventStream(server.url, "again", tentative=True) as first:
             first.next_event("snapshot")
             left_at, held = first.last_id, dict(first.objects)
-        assert left_at == "2" and sorted(held) == [1, 2]
+        assert version_of(left_at) == 2 and sorted(held) == [1, 2]
         assert httpx.delete(f"{server.url}/v1/maps/again", timeout=10).status_code == 200
         made(7, 8, 9)  # the new map, while the client is away: as many commits as the old one had, and one more
         with EventStream(server.url, "again", tentative=True, last_event_id=left_at) as back:
@@ -367,3 +367,33 @@ def test_a_client_back_with_an_id_from_before_the_map_was_deleted_is_reset_howev
         assert reset["version"] == snapshot["version"] == 6  # 2 commits, the deletion, 3 commits
         assert {i: o["aabb"]["min"] for i, o in back.objects.items()} == {o.id: o.aabb.min.tolist() for o in listed}
         assert sorted(back.objects) == [3, 4, 5]  # ids the deleted map never gave
+
+
+def test_a_client_back_after_the_store_lost_the_map_is_reset_though_the_new_map_got_past_its_version() -> None:
+    """A review of a lost Redis: a client at version 29 came back after Redis restarted empty and the new map reached
+    version 36: it was sent 30 to 36 as if they followed its 29, and kept objects that no longer existed. The log
+    that began again begins at another time, which the id carries (``V@B``): the stream says ``reset``. Here the
+    embedded service restarts (its store is the process's): the same."""
+    port = free_port()
+    lost = MemoryStore()
+    quiet_map(lost, 1, 2)
+    settings = Settings(detector="sim:0", workers=1, event_poll_s=0.02)
+    with (
+        UvicornThread(create_app(settings, store=lost, detector=BlobDetector()), port=port) as server,
+        EventStream(server.url, "quiet", tentative=True) as first,
+    ):
+        first.next_event("snapshot")
+        left_at, held = first.last_id, dict(first.objects)
+    assert version_of(left_at) == 1 and "@" in (left_at or "") and sorted(held) == [1, 2]
+    again = MemoryStore()  # what the map became after the loss: other objects, past the client's version
+    quiet_map(again, 5)
+    again.commit("quiet", [], MapChange.writing("quiet", [cube(6)]))
+    with (
+        UvicornThread(create_app(settings, store=again, detector=BlobDetector()), port=port) as server,
+        EventStream(server.url, "quiet", tentative=True, last_event_id=left_at) as back,
+    ):
+        back.objects = held
+        _, reset = back.next_event("reset")
+        _, snapshot = back.next_event("snapshot")
+    assert reset["reason"].startswith("the map's change log began again") and reset["version"] == snapshot["version"] == 2
+    assert sorted(back.objects) == [5, 6] and version_of(back.last_id) == 2 and back.last_id != left_at

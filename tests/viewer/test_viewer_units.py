@@ -41,16 +41,27 @@ def test_a_resumed_stream_that_does_not_know_what_its_client_shows_removes_each_
 
 
 def test_last_event_id_names_a_version_or_nothing() -> None:
-    assert [last_event_id(h) for h in ("42", " 7 ", None, "", "abc", "-1", "1-0")] == [42, 7, None, None, None, None, None]
+    assert [last_event_id(h) for h in ("42", " 7 ", None, "", "abc", "-1", "1-0")] == [
+        (42, None), (7, None), None, None, None, None, None
+    ]  # fmt: skip
+    # with the time its log began: V@seconds.microseconds (anything else there: no id of ours)
+    assert [last_event_id(h) for h in ("5@1795850986.935675", "5@", "5@x", "5@1.2.3", "5@" + "1" * 40 + ".0")] == [
+        (5, "1795850986.935675"), (5, None), None, None, None
+    ]  # fmt: skip
     # digits Python reads but a version is not: a superscript (int() raised: 500), 5,000 digits (over Python's limit),
     # past what a Redis stream id holds (every read of the map's log failed, for all its streams)
-    assert [last_event_id(h) for h in ("\u00b2", "9" * 5000, str(2**64 - 1), str(2**63 - 2))] == [None, None, None, 2**63 - 2]
+    assert [last_event_id(h) for h in ("\u00b2", "9" * 5000, str(2**64 - 1), str(2**63 - 2))] == [
+        None,
+        None,
+        None,
+        (2**63 - 2, None),
+    ]
 
 
 def test_an_event_is_one_data_line_of_json_with_its_id_when_given() -> None:
     text = sse("upsert", {"label": "two\nlines", "score": 0.5})
     assert text == 'event: upsert\ndata: {"label":"two\\nlines","score":0.5}\n\n'
-    assert sse("removed", {"id": 3}, 12) == 'id: 12\nevent: removed\ndata: {"id":3}\n\n'
+    assert sse("removed", {"id": 3}, "12@1.5") == 'id: 12@1.5\nevent: removed\ndata: {"id":3}\n\n'
 
 
 def test_the_devices_record_keeps_each_devices_last_pose_bounded() -> None:

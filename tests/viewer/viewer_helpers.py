@@ -49,6 +49,11 @@ def bearer(token: str) -> dict[str, str]:
     return {"authorization": f"Bearer {token}"}
 
 
+def version_of(event_id: str | None) -> int | None:
+    """The map's version an event id names (``V`` or ``V@B``: ``event_stream.event_id``)."""
+    return None if event_id is None else int(event_id.split("@")[0])
+
+
 class EventStream:
     """``GET /v1/maps/{map}/events`` over real HTTP, read event by event; every wait bounded."""
 

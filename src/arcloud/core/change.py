@@ -74,16 +74,18 @@ class ChangesSince:
     entries: tuple[LoggedChange, ...]
     version: int
     complete: bool
+    began: str = ""  # when the log began, by the store's clock ("" before its first entry): a reader that saw another
+    #: ``began`` saw another log (the store lost the map and a new one began: its versions count again from 1)
 
 
-def changes_after(entries: Sequence[LoggedChange], version: int, after: int, limit: int) -> ChangesSince:
+def changes_after(entries: Sequence[LoggedChange], version: int, after: int, limit: int, began: str = "") -> ChangesSince:
     """``ChangesSince`` of a log holding ``entries`` (consecutive versions, oldest first) whose map is at
-    ``version``, for a reader that saw up to ``after``: at most ``limit`` entries."""
+    ``version``, for a reader that saw up to ``after``: at most ``limit`` entries; ``began``: the log's."""
     if after > version:  # not a version of this log (another store's, or one that lost its data)
-        return ChangesSince((), version, False)
+        return ChangesSince((), version, False, began)
     first = entries[0].version if entries else version + 1
     kept = [e for e in entries if e.version > after][: max(0, limit)]
-    return ChangesSince(tuple(kept), version, after + 1 >= first or after == version)
+    return ChangesSince(tuple(kept), version, after + 1 >= first or after == version, began)
 
 
 __all__ = ["ChangesSince", "LoggedChange", "MapChange", "changes_after"]

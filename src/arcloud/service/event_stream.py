@@ -5,12 +5,13 @@ events there in the same atomic write, numbered by the map's version, wherever t
 this process, worker processes elsewhere), so the stream needs nothing but the store. While a map has streams
 open, one task of this process (``MapWatch``, shared by all of them) reads the log after the version its streams
 have every ``event_poll_s`` (0.5 s): on Redis one GET and one XRANGE a tick, however many viewers, and nothing for
-maps no one watches. A stream's events carry the map's version as their SSE ``id`` (the last event of each
-read; a bare ``id:`` when a read moved the version but showed this stream nothing), so a client that connects
-again with ``Last-Event-ID`` resumes where it was: the entries after that version, no snapshot, no gap. When the
-log no longer holds them (trimmed: the store keeps its latest ``change_log_entries``; emptied: the map was deleted,
-which moves its version on, ``ObjectStore.delete_map``; or the id is ahead of the log, not of this map's) the
-stream says ``reset`` and sends the map as it is. Changes within one tick are coalesced per object (its latest
+maps no one watches. A stream's events carry the map's version, and when its log began, as their SSE ``id``
+(``V@B``, ``event_id``; the last event of each read; a bare ``id:`` when a read moved the version but showed this
+stream nothing), so a client that connects again with ``Last-Event-ID`` resumes where it was: the entries after
+that version, no snapshot, no gap. When the log no longer holds them (trimmed: the store keeps its latest
+``change_log_entries``; emptied: the map was deleted, which moves its version on, ``ObjectStore.delete_map``; or
+the id is ahead of the log, not of this map's), or the log began at another time than the id's (the store lost the
+map: a new log counts from 1 again), the stream says ``reset`` and sends the map as it is. Changes within one tick are coalesced per object (its latest
 state), and a state never older than one the stream sent goes out.
 
 Events, each ``event: NAME`` and one line of JSON ``data:``:
@@ -129,10 +130,15 @@ def object_event(object_id: int, meta: ObjectMeta | None, shown: Shown, include_
     return None
 
 
-def sse(name: str, data: Mapping[str, Any], event_id: int | None = None) -> str:
+def sse(name: str, data: Mapping[str, Any], event_id: str | None = None) -> str:
     """One server-sent event (the JSON holds no newline, so one ``data:`` line), with its ``id`` when given."""
     head = f"id: {event_id}\n" if event_id is not None else ""
     return f"{head}event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+
+
+def event_id(version: int, began: str | None) -> str:
+    """A stream's ``id``: the map's version, and the log it counts in (``ChangesSince.began``) when known: ``V@B``."""
+    return f"{version}@{began}" if began else str(version)
 
 
 #: The largest version a ``Last-Event-ID`` may name: versions are the first part of Redis stream ids, and the log is
@@ -140,23 +146,30 @@ def sse(name: str, data: Mapping[str, Any], event_id: int | None = None) -> str:
 MAX_EVENT_ID = 2**63 - 2
 
 
-def last_event_id(header: str | None) -> int | None:
-    """The version a client's ``Last-Event-ID`` names; None when it names none (absent, or not one of ours: not ASCII
-    digits, or past ``MAX_EVENT_ID``). One past the map's version is answered by ``reset`` and a snapshot."""
-    text = "" if header is None else header.strip()
+def last_event_id(header: str | None) -> tuple[int, str | None] | None:
+    """The version a client's ``Last-Event-ID`` names, and the log it counts in (None: an id without one); None when
+    it names none (absent, or not one of ours: not ASCII digits, past ``MAX_EVENT_ID``, or a log's time that is not
+    ``seconds.microseconds``). One past the map's version is answered by ``reset`` and a snapshot, and so is one of
+    another log (the store lost the map since: a new log counts its versions from 1 again)."""
+    text, _, began = ("" if header is None else header.strip()).partition("@")
     if not (text.isascii() and text.isdigit()) or len(text) > len(str(MAX_EVENT_ID)):
         return None
+    seconds, dot, micro = began.partition(".")
+    if began and not (len(began) <= 32 and seconds.isascii() and seconds.isdigit() and dot and micro.isdigit()):
+        return None
     version = int(text)
-    return version if version <= MAX_EVENT_ID else None
+    return (version, began or None) if version <= MAX_EVENT_ID else None
 
 
 # --- one stream, one watched map, every stream of the process ----------------------------------------
 @dataclass(frozen=True, slots=True)
 class Snapshot:
-    """The map as one read found it: its version, then its objects (read after: they may hold later changes)."""
+    """The map as one read found it: its version (of the log that ``began`` then), then its objects (read after: they
+    may hold later changes)."""
 
     version: int
     objects: dict[int, ObjectMeta]
+    began: str = ""
 
 
 @dataclass(eq=False)
@@ -167,19 +180,26 @@ class Subscriber:
     include_tentative: bool
     key: str = ""  # whose stream it is (``Caller.bucket``): the per-key limit counts it
     position: int | None = None  # the map's version its client has; None: it needs a snapshot
+    began: str | None = None  # when the log its position counts in began (None or "": not known yet)
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     shown: Shown = field(default_factory=Shown)
     reset: dict[str, Any] | None = None  # the ``reset`` to send before its next snapshot
     snapshot: Snapshot | None = None  # the snapshot to send (taken by ``take``)
-    sent_id: int | None = None  # the last id sent
+    sent_id: int | None = None  # the last version sent as an id
     pending: dict[int, ObjectMeta | None] = field(default_factory=dict)  # object id -> latest state (None: gone)
     pending_devices: dict[str, DevicePose | None] = field(default_factory=dict)
     closed: bool = False
 
-    def resume(self, version: int) -> None:
-        """Its client has the map up to ``version`` (``Last-Event-ID``), from an earlier connection."""
+    def resume(self, version: int, began: str | None = None) -> None:
+        """Its client has the map up to ``version`` of the log that ``began`` then (``Last-Event-ID``), from an
+        earlier connection."""
         self.position = self.sent_id = version
+        self.began = began
         self.shown = Shown(known=False)
+
+    def other_log(self, got: ChangesSince) -> bool:
+        """Whether ``got`` is of another log than the one its position counts in (both known)."""
+        return bool(self.began) and bool(got.began) and got.began != self.began
 
     def start_over(self, snapshot: Snapshot, reason: str | None) -> None:
         """Send ``snapshot`` next (after a ``reset`` saying ``reason``, when one is given)."""
@@ -187,13 +207,15 @@ class Subscriber:
             self.reset = {"reason": reason, "version": snapshot.version}
         self.snapshot = snapshot
         self.position = snapshot.version
+        self.began = snapshot.began
         self.shown = Shown()
         self.pending.clear()
         self.pending_devices.clear()
         self.wake.set()
 
     def offer(self, got: ChangesSince, devices: Sequence[DevicePose], gone: Sequence[str]) -> None:
-        """Take what the log holds after its position, and what changed of the devices."""
+        """Take what the log holds after its position (its own log's), and what changed of the devices."""
+        self.began = got.began or self.began
         for entry in got.entries:
             for event in entry.events:
                 self.pending[event.object_id] = event.object if isinstance(event.object, ObjectMeta) else None
@@ -221,7 +243,7 @@ class Subscriber:
                 "world2gravity": list(watch.world2gravity),
                 "version": snapshot.version,
             }
-            out.append(sse("snapshot", data, snapshot.version))
+            out.append(sse("snapshot", data, event_id(snapshot.version, self.began)))
             self.sent_id = snapshot.version
         events = [
             e for i, meta in sorted(self.pending.items()) if (e := object_event(i, meta, self.shown, self.include_tentative))
@@ -230,9 +252,9 @@ class Subscriber:
         if self.position is not None and self.position != self.sent_id:
             if events:
                 out += [sse(name, data) for name, data in events[:-1]]
-                out.append(sse(*events[-1], self.position))
+                out.append(sse(*events[-1], event_id(self.position, self.began)))
             else:
-                out.append(f"id: {self.position}\n\n")  # the client's place moves: nothing of it shows here
+                out.append(f"id: {event_id(self.position, self.began)}\n\n")  # the client's place moves: nothing shows
             self.sent_id = self.position
         else:
             out += [sse(name, data) for name, data in events]
@@ -270,8 +292,9 @@ class MapWatch:
         try:
             while self.subscribers:
                 positions = {sub.position for sub in self.subscribers}
+                logs_known = {sub.began for sub in self.subscribers if sub.began}
                 try:
-                    read = await run_in_threadpool(self.read, positions)
+                    read = await run_in_threadpool(self.read, positions, logs_known)
                 except ArcloudError as exc:  # the store is down: streams stay open, quiet, until it answers
                     if not failing:
                         log.warning("event stream of map %s: reading its change log failed: %s", self.map_id, exc)
@@ -291,14 +314,16 @@ class MapWatch:
         finally:
             on_idle(self)
 
-    def read(self, positions: set[int | None]) -> LogRead:
+    def read(self, positions: set[int | None], logs_known: set[str] | frozenset[str] = frozenset()) -> LogRead:
         """The log after each of ``positions`` (None: a stream that needs a snapshot), and the map when a stream
-        needs it (blocking)."""
+        needs it (blocking): one the log cannot take further, or whose position counts in another log than one of
+        ``logs_known`` (the ``began`` of the streams' logs)."""
         logs = {p: self.store.changes_since(self.map_id, p, ENTRIES_PER_READ) for p in positions if p is not None}
+        other_log = any(got.began and got.began not in logs_known for got in logs.values()) and bool(logs_known)
         snapshot = None
-        if None in positions or not all(got.complete for got in logs.values()):
-            version = self.store.changes_since(self.map_id, 0, 0).version  # first: the objects read after hold it
-            snapshot = Snapshot(version, {o.id: o for o in self.store.list_meta(self.map_id)})
+        if None in positions or other_log or not all(got.complete for got in logs.values()):
+            now = self.store.changes_since(self.map_id, 0, 0)  # first: the objects read after hold its version
+            snapshot = Snapshot(now.version, {o.id: o for o in self.store.list_meta(self.map_id)}, now.began)
         return LogRead(logs, snapshot)
 
     def apply(self, read: LogRead, devices: Sequence[DevicePose]) -> None:
@@ -307,12 +332,21 @@ class MapWatch:
         self.devices = {d.device_id: d for d in devices}
         for sub in self.subscribers:
             got = read.logs.get(sub.position) if sub.position is not None else None
-            if got is not None and got.complete:
+            if got is not None and got.complete and not sub.other_log(got):
                 sub.offer(got, moved, gone)
             elif read.snapshot is not None and (sub.position is None or got is not None):  # not one that came since
                 behind = "the change log no longer holds the changes after the stream's version"
                 unknown = "the version is not of this map's change log (ahead of it)"
-                reason = None if sub.position is None else unknown if sub.position > read.snapshot.version else behind
+                again = "the map's change log began again (its store lost the map): the version is of the old one"
+                reason = (
+                    None
+                    if sub.position is None
+                    else again
+                    if got is not None and sub.other_log(got)
+                    else unknown
+                    if sub.position > read.snapshot.version
+                    else behind
+                )
                 sub.start_over(read.snapshot, reason)
 
 
@@ -348,7 +382,7 @@ class EventStreams:
         *,
         include_tentative: bool,
         key: str = "",
-        after: int | None = None,
+        after: tuple[int, str | None] | None = None,
     ) -> tuple[MapWatch, Subscriber]:
         """A new stream of ``map_id`` for ``key`` (``after``: the map's version its client has, from
         ``Last-Event-ID``; None: it starts from a snapshot); ``HTTPException`` 503 when the process has its maximum open or
@@ -381,7 +415,7 @@ class EventStreams:
             watch = self.watches[map_id] = MapWatch(map_id, store, devices, self.poll_s, world2gravity)
         sub = Subscriber(include_tentative, key)
         if after is not None:
-            sub.resume(after)
+            sub.resume(*after)
         watch.subscribers.add(sub)
         self.by_key[key] += 1
         if watch.task is None:

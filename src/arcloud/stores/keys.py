@@ -27,6 +27,9 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
                                             ``delete_map``, one more (the deletion)
     arcloud:{m}:changes:published   STRING  the version up to which the log was published over Zenoh (only raised); kept
                                             by ``delete_map``, raised to the version
+    arcloud:{m}:changes:began       STRING  when the log began (Redis's TIME, "seconds.microseconds", set with its first
+                                            entry): a log made again after a loss begins at another time; kept by
+                                            ``delete_map``
     arcloud:{m}:cell:<i>:<j>:<k>    SET     ids of the objects whose bounds touch this index cell
     arcloud:{m}:lock:<id>           STRING  lock token on an object (PX ttl)
     arcloud:{m}:claim:<i>:<j>:<k>   STRING  space-claim token on an index cell (PX ttl)
@@ -73,8 +76,8 @@ Service-wide keys (no tag: single-key commands only):
                                             ``MAX_VIEWER_PASSES_PER_KEY``, the first to end ended beyond
     arcloud:rate:<bucket>           STRING  a rate limit's theoretical arrival time (``redis_rate``, PX ttl)
 
-``RedisStore.delete_map`` removes every key matching ``map_pattern`` but the three it keeps (``ids``,
-``changes:version``, ``changes:published``: a map made again goes on from them); the queue's ``forget_map`` removes the
+``RedisStore.delete_map`` removes every key matching ``map_pattern`` but the four it keeps (``ids``,
+``changes:version``, ``changes:began``, ``changes:published``: a map made again goes on from them); the queue's ``forget_map`` removes the
 map's frame records and counts from its shard (not its part of the shard's backlog: frames still queued
 leave it when they settle).
 """
@@ -161,6 +164,12 @@ def changes_key(map_id: str) -> str:
 def version_key(map_id: str) -> str:
     """The map's version: the id of its change log's last entry."""
     return f"{map_prefix(map_id)}:{CHANGES}:version"
+
+
+def began_key(map_id: str) -> str:
+    """When the map's change log began (Redis's clock, "seconds.microseconds"): a log made again after Redis lost the
+    map begins at another time, which tells a reader holding an old version (``ChangesSince.began``)."""
+    return f"{map_prefix(map_id)}:{CHANGES}:began"
 
 
 def published_key(map_id: str) -> str:

@@ -65,6 +65,7 @@ class _MapState:
     retired: dict[int, RetiredObject] = field(default_factory=dict)  # the history, oldest first
     next_id: int = 1
     version: int = 0  # the map's version: the last entry of its change log
+    began: str = ""  # when its change log began (``ChangesSince.began``): this process's, so another after a restart
     log: deque[LoggedChange] = field(default_factory=deque)  # the change log's latest entries, oldest first
     published: int = 0  # the version its log was published up to
     changed: threading.Condition = field(default_factory=threading.Condition)
@@ -298,6 +299,7 @@ class MemoryStore:
                 del state.frames[expired]
             self._trim_history(state)
             if change.events:
+                state.began = state.began or f"{time.time():.6f}"
                 state.version += 1
                 state.log.append(LoggedChange(state.version, frame_key or "", logged_events(change.events)))
             if upserts or deletes or retired:
@@ -316,7 +318,7 @@ class MemoryStore:
             kept = max(0, min(len(state.log), state.version - int(after)))
             start = len(state.log) - kept
             entries = [state.log[i] for i in range(start, min(len(state.log), start + max(0, limit)))]
-            return changes_after(entries, state.version, int(after), limit)
+            return changes_after(entries, state.version, int(after), limit, state.began)
 
     def published_version(self, map_id: str) -> int:
         state = self._map(map_id)
@@ -383,6 +385,7 @@ class MemoryStore:
                     log=deque(maxlen=self.change_log_entries),
                     next_id=state.next_id,
                     version=state.version + 1 if state.version else 0,
+                    began=state.began,
                     published=state.version + 1 if state.version else 0,
                 )
             self._headers.pop(map_id, None)

@@ -204,8 +204,11 @@ SAFE_MAXMEMORY_POLICY = "noeviction"
 def memory_reports(client: RedisClient) -> list[dict[str, Any]]:
     """``INFO memory`` of the server, or of each of a cluster's nodes; none where INFO is refused (an ACL)."""
     try:
-        info = client.info("memory")
-    except redis.RedisError as exc:
+        with redis_errors("read INFO memory", lambda: where(client)):
+            info = client.info("memory")
+    except StoreUnavailable:
+        raise
+    except StoreError as exc:  # refused (an ACL, a managed Redis): nothing to check
         log.debug("INFO memory refused (%s): Redis's memory is not checked", exc)
         return []
     values = list(info.values())
@@ -379,9 +382,9 @@ class RedisStore:
         PING, and refuses the writes every request and frame needs)."""
         with redis_errors("ping", self._where):
             self.client.ping()
-        full = memory_full(self.client)
-        if full:
-            raise StoreUnavailable(f"Redis at {self._where()} is full: {full}")
+            full = memory_full(self.client)
+            if full:  # as Redis answers a write then: the one boundary makes it StoreUnavailable
+                raise redis.exceptions.OutOfMemoryError(f"Redis is full: {full}")
 
     # --- spatial index -----------------------------------------------------------------------------
     def cells_of(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[int, int, int]]:
@@ -572,6 +575,7 @@ class RedisStore:
                     keys.retired_at_key(map_id),
                     keys.changes_key(map_id),
                     keys.version_key(map_id),
+                    keys.began_key(map_id),
                 ],
                 args=[keys.map_prefix(map_id), json.dumps(header), *payload],
             )
@@ -590,9 +594,10 @@ class RedisStore:
         with redis_errors(f"changes_since on map {map_id}", self._where):
             pipe = self.client.pipeline(transaction=True)  # the version and the entries of one moment
             pipe.get(keys.version_key(map_id))
+            pipe.get(keys.began_key(map_id))
             if limit > 0:
                 pipe.xrange(keys.changes_key(map_id), f"{after + 1}-0", "+", count=int(limit))
-            version, *read = pipe.execute()
+            version, began, *read = pipe.execute()
         entries = []
         for entry_id, raw in read[0] if read else []:
             # a cluster's pipeline leaves the fields a flat list: name, value, ...
@@ -604,7 +609,7 @@ class RedisStore:
                     codec.decode_events(map_id, fields[b"events"]),
                 )
             )
-        return changes_after(entries, int(version or 0), after, limit)
+        return changes_after(entries, int(version or 0), after, limit, began.decode() if began else "")
 
     def published_version(self, map_id: str) -> int:
         with redis_errors(f"published_version of map {map_id}", self._where):
@@ -654,7 +659,10 @@ class RedisStore:
                 going = self._delete_objects(going, ids)
             # What is left: the registries, then by SCAN frame marks, leases and what writers added meanwhile. The
             # map's version and id counter stay: a map made again goes on from them (``ObjectStore.delete_map``).
-            kept = {k.encode() for k in (keys.ids_key(map_id), keys.version_key(map_id), keys.published_key(map_id))}
+            kept = {
+                k.encode()
+                for k in (keys.ids_key(map_id), keys.version_key(map_id), keys.began_key(map_id), keys.published_key(map_id))
+            }
             registries = [
                 keys.bounds_key(map_id),
                 keys.meta_key(map_id),

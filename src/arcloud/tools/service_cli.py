@@ -242,9 +242,9 @@ def run_worker_command(args: argparse.Namespace) -> int:
     from arcloud.tools.wiring import check_model_file, check_redis, check_zenoh_config, run_worker
 
     settings = settings_from_args(args)
-    check_redis(settings)
     check_model_file(settings.detector)
     check_zenoh_config(settings)
+    check_redis(settings)  # after the files here: then the Redis there
     configure_logging(settings.log_level, settings.log_format)
     run_worker(settings)
     return 0

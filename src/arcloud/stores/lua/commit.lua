@@ -3,7 +3,8 @@
 -- KEYS[1]: the map's processed-frames HASH, KEYS[2]: bounds HASH, KEYS[3]: metadata HASH,
 -- KEYS[4]: the processed-frames counter, KEYS[5]: the processed-frames sweep cursor,
 -- KEYS[6]: the retired objects' metadata HASH, KEYS[7]: when they were retired (ZSET),
--- KEYS[8]: the map's change log (STREAM), KEYS[9]: the map's version (STRING: the log's last entry).
+-- KEYS[8]: the map's change log (STREAM), KEYS[9]: the map's version (STRING: the log's last entry),
+-- KEYS[10]: when the log began (STRING, set with its first entry: Redis's TIME, "seconds.microseconds").
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
 -- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
@@ -27,7 +28,7 @@
 -- index cells: nothing written), or an error "STALE ..." (a fence failed: nothing written). But for 1, the
 -- leases stay held.
 local frames_key, bounds_key, meta_key, count_key, sweep_key = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
-local history_key, history_at_key, log_key, version_key = KEYS[6], KEYS[7], KEYS[8], KEYS[9]
+local history_key, history_at_key, log_key, version_key, began_key = KEYS[6], KEYS[7], KEYS[8], KEYS[9], KEYS[10]
 local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
 local cutoff = tonumber(req.now) - tonumber(req.retention_s)
@@ -103,6 +104,10 @@ if touched > tonumber(req.max_cells) then
 end
 
 if ARGV[3] ~= '' then
+  if redis.call('EXISTS', began_key) == 0 then
+    local now = redis.call('TIME')
+    redis.call('SET', began_key, now[1] .. '.' .. string.format('%06d', tonumber(now[2])))
+  end
   local version = tonumber(redis.call('GET', version_key) or '0') + 1
   redis.call('XADD', log_key, 'MAXLEN', '~', req.log_max, version .. '-0', 'at', req.now, 'frame', req.frame, 'events', ARGV[3])
   redis.call('SET', version_key, version)
