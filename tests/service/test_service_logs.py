@@ -338,10 +338,8 @@ def test_the_text_log_gives_uvicorns_lines_the_time_and_the_frame_ids(tmp_path: 
     text = serve_one_frame_text.stderr_path.read_text()
     (upload,) = [line for line in text.splitlines() if " uvicorn.access: " in line and '"POST /v1/maps/ops/frames' in line]
     assert re.match(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} INFO MainProcess uvicorn\.access: ", upload), upload
-    assert (
-        upload.endswith("202 [map_id=ops device_id=phone frame_id=f000002]")
-        or "map_id=ops device_id=phone frame_id=f000002" in upload
-    ), upload
+    fields = dict(pair.split("=", 1) for pair in upload.rsplit(" [", 1)[1].rstrip("]").split())
+    assert upload.split(" [")[0].endswith(" 202") and fields == {"map_id": "ops", "device_id": "phone", "frame_id": "f000002"}
     assert any(" uvicorn.error: Uvicorn running on " in line for line in text.splitlines())
 
 

@@ -189,7 +189,11 @@ def test_a_deletion_whose_process_died_refuses_the_map_until_a_delete_goes_on_wi
             done = api.get("/v1/maps/died/deletion").json()
             assert done["state"] == "deleted" and done["objects"] == done["objects_removed"] == 20 - STEP_OBJECTS
             left = {k.decode() for k in store.client.scan_iter(match="arcloud:{died}:*")}
-            assert store.count_objects("died") == 0 and left <= {keys.version_key("died"), keys.published_key("died")}
+            assert store.count_objects("died") == 0 and left <= {
+                keys.version_key("died"),
+                keys.began_key("died"),
+                keys.published_key("died"),
+            }
             assert api.post("/v1/maps/died/frames", content=frame_body("died", 2), headers=PROTOBUF).status_code == 202
     finally:
         store.close()
