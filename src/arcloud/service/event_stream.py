@@ -291,10 +291,9 @@ class MapWatch:
         failing = False
         try:
             while self.subscribers:
-                positions = {sub.position for sub in self.subscribers}
-                logs_known = {sub.began for sub in self.subscribers if sub.began}
+                places = {(sub.position, sub.began or None) for sub in self.subscribers}
                 try:
-                    read = await run_in_threadpool(self.read, positions, logs_known)
+                    read = await run_in_threadpool(self.read, places)
                 except ArcloudError as exc:  # the store is down: streams stay open, quiet, until it answers
                     if not failing:
                         log.warning("event stream of map %s: reading its change log failed: %s", self.map_id, exc)
@@ -314,12 +313,13 @@ class MapWatch:
         finally:
             on_idle(self)
 
-    def read(self, positions: set[int | None], logs_known: set[str] | frozenset[str] = frozenset()) -> LogRead:
-        """The log after each of ``positions`` (None: a stream that needs a snapshot), and the map when a stream
-        needs it (blocking): one the log cannot take further, or whose position counts in another log than one of
-        ``logs_known`` (the ``began`` of the streams' logs)."""
+    def read(self, places: set[tuple[int | None, str | None]]) -> LogRead:
+        """The log after each of the streams' ``places`` (position, and when the log it counts in began: None when not
+        known; a position None: a stream that needs a snapshot), and the map when a stream needs it (blocking): one
+        the log cannot take further, or whose position counts in another log than the store's now."""
+        positions = {position for position, _ in places}
         logs = {p: self.store.changes_since(self.map_id, p, ENTRIES_PER_READ) for p in positions if p is not None}
-        other_log = any(got.began and got.began not in logs_known for got in logs.values()) and bool(logs_known)
+        other_log = any(p is not None and b and logs[p].began and logs[p].began != b for p, b in places)
         snapshot = None
         if None in positions or other_log or not all(got.complete for got in logs.values()):
             now = self.store.changes_since(self.map_id, 0, 0)  # first: the objects read after hold its version
