@@ -16,11 +16,14 @@ import argparse
 import difflib
 import logging
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from arcloud.argtypes import PARAMS_HELP, non_negative_int, params_overrides, positive_int
+
+log = logging.getLogger(__name__)
 
 
 def _store_options(parser: argparse.ArgumentParser, *, embedded: bool = True) -> None:
@@ -135,7 +138,9 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     from arcloud.errors import ArcloudError, InvalidInput
     from arcloud.tools.wiring import check_detector_spec
 
-    problems: list[str] = unknown_variables(os.environ)
+    for unknown in unknown_variables(os.environ):  # a warning, not a refusal: the environment is not all ours
+        log.warning("%s, ignored", unknown)
+    problems: list[str] = []
     settings = None
     try:
         settings = Settings(**overrides)
@@ -151,9 +156,15 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     return settings
 
 
+#: The variables Kubernetes gives a pod for each Service of its namespace (service links): for a Service
+#: ``arcloud-api``, ``ARCLOUD_API_SERVICE_HOST``, ``ARCLOUD_API_PORT_8000_TCP_ADDR`` and so on.
+SERVICE_LINK = re.compile(r"_(SERVICE_HOST|SERVICE_PORT(_[A-Z0-9_]+)?|PORT(_\d+_(TCP|UDP|SCTP)(_(ADDR|PORT|PROTO))?)?)$")
+
+
 def unknown_variables(environ: Mapping[str, str]) -> list[str]:
-    """The ``ARCLOUD_*`` variables in ``environ`` that name no setting nor another variable arcloud reads, each with
-    the name it may have meant: a mistyped ``ARCLOUD_WORKER=3`` started 2 workers without a word."""
+    """The ``ARCLOUD_*`` variables in ``environ`` that name no setting nor another variable arcloud reads (nor a
+    Kubernetes service link), each with the name it may have meant: a mistyped ``ARCLOUD_WORKER=3`` started 2
+    workers without a word."""
     from arcloud.client.http import TOKEN_ENV
     from arcloud.detectors.catalogue import MODELS_ENV_VAR
     from arcloud.detectors.factory import MODEL_ENV_VAR
@@ -163,7 +174,8 @@ def unknown_variables(environ: Mapping[str, str]) -> list[str]:
         TOKEN_ENV, MODEL_ENV_VAR, MODELS_ENV_VAR, "ARCLOUD_SHARED",  # the SDK's, the model cache's, the data's (bench, tests)
     }  # fmt: skip
     problems = []
-    for name in sorted(n for n in environ if n.upper().startswith("ARCLOUD_") and n.upper() not in known):
+    mine = (n for n in environ if n.upper().startswith("ARCLOUD_") and n.upper() not in known)
+    for name in sorted(n for n in mine if not SERVICE_LINK.search(n.upper())):
         close = difflib.get_close_matches(name.upper()[8:], sorted(k[8:] for k in known), n=1, cutoff=0.75)
         problems.append(f"{name}: no such setting" + (f" (did you mean ARCLOUD_{close[0]}?)" if close else ""))
     return problems
