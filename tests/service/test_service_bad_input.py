@@ -5,6 +5,7 @@ naming the field at fault, never a 5xx, and queues nothing (issue 10, "plausible
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Iterator
@@ -406,9 +407,22 @@ def test_a_missing_or_unknown_field_is_said_so_in_the_detail(client: AppClient) 
 def test_depth_in_the_wrong_units_is_refused_saying_its_median(client: AppClient) -> None:
     answer = client.post("/v1/maps/m/frames", files=multipart_parts(make_test_frame(3), depth_scale=1))
     assert answer.status_code == 422 and answer.json()["detail"].startswith(
-        "depth: expected depth in metres whose median is 0.05 to 30 m, as a camera sees a room (its units: depth_scale, "
-        "1000 for millimetres; float depth is metres), got a median of "
+        "depth: expected depth in metres whose lower quartile is 0.05 to 100 m, as a camera sees (its units: "
+        "depth_scale, 1000 for millimetres; float depth is metres), got a lower quartile of "
     ), answer.text
+
+
+def test_depth_a_camera_sees_passes_however_far_and_however_much_of_it_is_invalid(client: AppClient) -> None:
+    """A review: the first bound (a median of 0.05 to 30 m) refused a street seen at 40 m, and a Kinect frame more than
+    half of whose pixels hold 65535 (nothing measured): a median of 65.5 m."""
+    far = make_test_frame(5)
+    street = dataclasses.replace(far, depth_m=np.full_like(far.depth_m, 40.0))
+    kinect = make_test_frame(6)
+    saturated = kinect.depth_m.copy()
+    saturated[: int(saturated.shape[0] * 0.6)] = 65.535  # 60 % of the rows: 65535 at depth_scale 1000
+    for frame in (street, dataclasses.replace(kinect, depth_m=saturated)):
+        answer = client.post("/v1/maps/m/frames", files=multipart_parts(frame))
+        assert answer.status_code == 202, answer.text
 
 
 @pytest.mark.parametrize(

@@ -23,9 +23,10 @@ MAX_FOV_DEG = 160.0  # fx >= width / (2 tan(80°)), about 0.088 width
 MAX_TRANSLATION_M = 10_000.0  # each coordinate of a camera's position, metres from the map's origin
 MAX_COORDINATE_M = 100_000.0  # each coordinate of a query box: beyond every camera and what it sees
 MIN_DEPTH_SCALE, MAX_DEPTH_SCALE = 1.0, 100_000.0  # units per metre of 16-bit depth: 1 m to 10 µm a unit
-# The median of a frame's valid depth as a real RGB-D camera sees a room (metres): beyond, its units are wrong
-# (millimetres sent as metres, or with depth_scale 1: a median of about 2000 m).
-MIN_MEDIAN_DEPTH_M, MAX_MEDIAN_DEPTH_M = 0.05, 30.0
+# The lower quartile of a frame's valid depth as a real camera sees a room, a street or a table close up (metres):
+# beyond, its units are wrong (millimetres sent as metres, or with depth_scale 1: about 1000 m). A quartile, not the
+# median: a Kinect writes 65535 where it measured nothing, and half a frame of it is a median of 65.5 m.
+MIN_DEPTH_QUARTILE_M, MAX_DEPTH_QUARTILE_M = 0.05, 100.0  # no camera measures a quarter of a frame under 5 cm
 
 
 def describe(value: object) -> str:
@@ -166,19 +167,19 @@ def check_plausible_frame(frame: Frame) -> Frame:
 
 
 def check_plausible_depth(depth_m: np.ndarray) -> np.ndarray:
-    """Depth in metres whose valid pixels' median (every 8th row and column) is ``MIN_MEDIAN_DEPTH_M`` to
-    ``MAX_MEDIAN_DEPTH_M``; a frame of almost no valid depth (the sky, a lens covered) passes: it adds nothing."""
+    """Depth in metres whose valid pixels' lower quartile (every 8th row and column) is ``MIN_DEPTH_QUARTILE_M`` to
+    ``MAX_DEPTH_QUARTILE_M``; a frame of almost no valid depth (the sky, a lens covered) passes: it adds nothing."""
     sample = depth_m[::8, ::8]
     valid = sample[sample > 0]
     if valid.size < 16:
         return depth_m
-    median = float(np.median(valid))
-    if not MIN_MEDIAN_DEPTH_M <= median <= MAX_MEDIAN_DEPTH_M:
+    quartile = float(np.quantile(valid, 0.25))
+    if not MIN_DEPTH_QUARTILE_M <= quartile <= MAX_DEPTH_QUARTILE_M:
         raise InvalidInput(
             "depth",
-            f"depth in metres whose median is {MIN_MEDIAN_DEPTH_M:g} to {MAX_MEDIAN_DEPTH_M:g} m, as a camera sees a room "
-            "(its units: depth_scale, 1000 for millimetres; float depth is metres)",
-            f"a median of {median:.4g} m",
+            f"depth in metres whose lower quartile is {MIN_DEPTH_QUARTILE_M:g} to {MAX_DEPTH_QUARTILE_M:g} m, as a camera "
+            "sees (its units: depth_scale, 1000 for millimetres; float depth is metres)",
+            f"a lower quartile of {quartile:.4g} m",
         )
     return depth_m
 
