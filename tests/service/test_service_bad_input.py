@@ -606,3 +606,32 @@ def test_glob_characters_in_map_patterns_are_escaped() -> None:
     assert keys.map_pattern("vic\\tim") == "arcloud:{vic\\\\tim}:*"
     assert keys.map_pattern("a*b?[c]") == "arcloud:{a\\*b\\?\\[c\\]}:*"
     assert np.all([keys.map_pattern(m).startswith(keys.map_prefix(m)) for m in ("office", "a.b_c-d")])
+
+
+def test_a_wrong_number_in_the_pose_is_named_by_its_place(client: AppClient) -> None:
+    """A new user's review: a null in cam2world was named ``meta.cam2world.list[float].3`` (the union's branch); in
+    4 rows, a wrong number was named by the flat list's branch, the whole first row (a review)."""
+    parts = multipart_parts(make_test_frame(4))
+    meta = json.loads(parts["meta"][1])
+
+    def post(changed: dict) -> dict:
+        files = {**parts, "meta": ("meta.json", json.dumps(changed).encode(), "application/json")}
+        answer = client.post("/v1/maps/m/frames", files=files)
+        assert answer.status_code == 422, answer.text
+        return answer.json()
+
+    flat = {**meta, "cam2world": [*meta["cam2world"][:3], None, *meta["cam2world"][4:]]}
+    assert post(flat)["field"] == "meta.cam2world.3"
+    assert post(flat)["detail"] == "meta.cam2world.3: expected a valid number, got None"
+    rows = [meta["cam2world"][i : i + 4] for i in range(0, 16, 4)]
+    rows[2][3] = "2"
+    assert post({**meta, "cam2world": rows})["detail"] == "meta.cam2world.2.3: expected a valid number, got '2'"
+
+
+def test_a_meta_with_a_byte_order_mark_is_read_as_before(client: AppClient) -> None:
+    """A review: the strict reading refused a meta starting with a UTF-8 BOM (``json.loads`` reads it), with a garbled
+    detail."""
+    parts = multipart_parts(make_test_frame(7))
+    meta = ("meta.json", b"\xef\xbb\xbf" + parts["meta"][1], "application/json")
+    answer = client.post("/v1/maps/m/frames", files={**parts, "meta": meta})
+    assert answer.status_code == 202, answer.text

@@ -72,6 +72,7 @@ from arcloud.service.pages import object_page, parse_cursor
 from arcloud.service.problems import (
     PROBLEM_TYPES,
     TYPE_PREFIX,
+    first_error,
     problem_openapi,
     problem_response,
     validation_location,
@@ -903,7 +904,7 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError) -> Response:
-        first = exc.errors()[0] if exc.errors() else {"loc": (), "msg": "a valid request"}
+        first = first_error(exc.errors()) if exc.errors() else {"loc": (), "msg": "a valid request"}
         where = validation_location(first["loc"][1:]) or validation_location(first["loc"])
         got = "none" if first.get("type") == "missing" else None if first.get("input") is None else repr(first["input"])
         detail = f"{where}: expected {validation_wording(first)}" + (f", got {got}" if got is not None else "")

@@ -31,7 +31,7 @@ from arcloud.errors import InvalidInput
 from arcloud.ports import DeviceAlignments
 from arcloud.proto.arcloud.v1 import arcloud_pb2 as pb
 from arcloud.proto.convert import POSE_CONVENTIONS, frame_from_proto
-from arcloud.service.problems import validation_location, validation_wording
+from arcloud.service.problems import first_error, validation_location, validation_wording
 from arcloud.service.schemas import FrameMeta
 
 PROTOBUF_MEDIA_TYPES = ("application/x-protobuf", "application/protobuf", "application/vnd.google.protobuf")
@@ -87,9 +87,11 @@ def parse_meta(raw: str | bytes) -> FrameMeta:
     if not isinstance(data, dict):
         raise InvalidInput("meta", "a JSON object", describe(data))
     try:
-        return FrameMeta.model_validate_json(raw, strict=True)  # JSON's strict mode: arrays still read as tuples
+        # JSON's strict mode (arrays still read as tuples), on the JSON as parsed above: a UTF-8 BOM or UTF-16, which
+        # json reads, stays accepted
+        return FrameMeta.model_validate_json(json.dumps(data), strict=True)
     except ValidationError as exc:
-        first = exc.errors()[0]
+        first = first_error(exc.errors())
         where = validation_location(first["loc"])
         got = "none" if first.get("type") == "missing" else describe(first.get("input"))
         raise InvalidInput(f"meta.{where}" if where else "meta", validation_wording(first), got) from exc

@@ -244,6 +244,14 @@ def validation_wording(error: Mapping[str, Any]) -> str:
     return message.removeprefix("Input should be ").removeprefix("Value error, ")
 
 
+def first_error(errors: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
+    """The pydantic error to report: the first, or, among the errors of the same field, the one that reached deepest
+    into its value (a ``cam2world`` of 4 rows with one wrong number: the rows' branch names the number, where the flat
+    list's names the whole first row)."""
+    field = errors[0]["loc"][:1]
+    return max((e for e in errors if e["loc"][:1] == field), key=lambda e: len(e["loc"]))
+
+
 def validation_location(loc: Sequence[Any]) -> str:
     """A pydantic error's location as a field path (``cam2world.3``), without the union branches it names
     (``list[float]``: a ``cam2world`` of 16 numbers or of 4 rows)."""
@@ -266,6 +274,7 @@ __all__ = [
     "problem_openapi",
     "problem_response",
     "type_for",
+    "first_error",
     "validation_location",
     "validation_wording",
 ]
