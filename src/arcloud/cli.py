@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         if isinstance(exc, httpx.TransportError):  # the SDK's retries spent: no service there, or it stopped answering
             try:
-                where = f" at {exc.request.url.copy_with(query=None)}"
+                where = f" at {exc.request.url.copy_with(query=None, username=None, password=None)}"  # no credentials
             except RuntimeError:  # no request attached
                 where = ""
             print(

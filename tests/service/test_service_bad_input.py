@@ -404,7 +404,7 @@ def test_a_missing_or_unknown_field_is_said_so_in_the_detail(client: AppClient) 
     )
 
 
-def test_depth_in_the_wrong_units_is_refused_saying_its_median(client: AppClient) -> None:
+def test_depth_in_the_wrong_units_is_refused_saying_its_lower_quartile(client: AppClient) -> None:
     answer = client.post("/v1/maps/m/frames", files=multipart_parts(make_test_frame(3), depth_scale=1))
     assert answer.status_code == 422 and answer.json()["detail"].startswith(
         "depth: expected depth in metres whose lower quartile is 0.05 to 100 m, as a camera sees (its units: "

@@ -333,9 +333,15 @@ def test_the_text_log_gives_uvicorns_lines_the_time_and_the_frame_ids(tmp_path: 
             httpx.post(f"{serve_one_frame_text.url}/v1/maps/ops/frames", content=body, headers=PROTOBUF, timeout=10.0).status_code
             == 202
         )
+        # a path that quotes control characters into the refusal: escaped on the line (a review: raw, a terminal
+        # escape or a Unicode line break reached the text log)
+        odd = httpx.post(f"{serve_one_frame_text.url}/x%1B[2J%0BA%E2%80%A8B/frames", content=b"", timeout=10.0)
+        assert odd.status_code == 404
     finally:
         serve_one_frame_text.stop()
     text = serve_one_frame_text.stderr_path.read_text()
+    (refused,) = [line for line in text.splitlines() if "[refused=" in line]
+    assert all(c.isprintable() for c in refused) and "\\x1b[2J\\x0bA\\u2028B" in refused, refused
     (upload,) = [line for line in text.splitlines() if " uvicorn.access: " in line and '"POST /v1/maps/ops/frames' in line]
     assert re.match(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} INFO MainProcess uvicorn\.access: ", upload), upload
     fields = dict(pair.split("=", 1) for pair in upload.rsplit(" [", 1)[1].rstrip("]").split())

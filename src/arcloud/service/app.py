@@ -836,7 +836,8 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     ) -> Response:
         if request.method == "POST" and request.url.path.endswith("/frames"):
             metrics.rejected.labels(status=str(status)).inc()
-            bind_log_context(refused=detail[:300])  # on the upload's access line: why (an operator sees a device's fault)
+            # on the upload's access line: why (an operator sees a device's fault); escaped, as it may quote the client
+            bind_log_context(refused=detail[:300].encode("unicode_escape").decode("ascii"))
         return problem_response(status, detail, field_name, kind=kind, headers=headers)
 
     @app.exception_handler(InvalidInput)

@@ -203,10 +203,12 @@ def read_objects(store: ObjectStore, map_id: str, ids: Sequence[int]) -> Iterato
 
 
 __all__ = [
+    "EXPORT_RETRY_AFTER_S",
     "MEDIA",
     "READ_BATCH",
     "ColorBy",
     "ExportFormat",
+    "ExportPlaces",
     "check_export_size",
     "export_from_store",
     "export_map",
