@@ -179,3 +179,26 @@ def _check_scripts(commands: list[tuple[str, list[bytes]]], client: redis.Redis)
             assert keys.cluster_slot(key) == script[1], f"script {script[0][:12]!r} touched {key!r} of another slot"
         checked.add(script[0])
     return len(checked)
+
+
+def test_the_memory_checks_read_every_primary(redis_cluster: LocalCluster) -> None:
+    """A review: INFO went to one node of a cluster, so an evicting or full primary among the others passed."""
+    from arcloud.errors import StoreError
+    from arcloud.stores.redis import check_memory_policy, connect_redis, memory_full, memory_reports
+
+    client = connect_redis(redis_cluster.url)
+    other = redis.Redis(port=redis_cluster.nodes[-1].port)
+    try:
+        assert len(memory_reports(client)) == len(redis_cluster.nodes)
+        other.config_set("maxmemory", 100 * 2**20)
+        other.config_set("maxmemory-policy", "allkeys-lru")
+        with pytest.raises(StoreError, match="evicts keys when full"):
+            check_memory_policy(client)
+        other.config_set("maxmemory-policy", "noeviction")
+        check_memory_policy(client)
+        assert not memory_full(client)
+        other.config_set("maxmemory", 1)
+        assert memory_full(client).endswith("bytes used of its maxmemory 1: writes are refused until memory is freed or raised")
+    finally:
+        other.config_set("maxmemory", 0)
+        client.close()

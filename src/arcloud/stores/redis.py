@@ -205,7 +205,10 @@ def memory_reports(client: RedisClient) -> list[dict[str, Any]]:
     """``INFO memory`` of the server, or of each of a cluster's nodes; none where INFO is refused (an ACL)."""
     try:
         with redis_errors("read INFO memory", lambda: where(client)):
-            info = client.info("memory")
+            if isinstance(client, RedisCluster):  # each primary's (redis-py asks one node unless told)
+                info = client.info("memory", target_nodes=RedisCluster.PRIMARIES)
+            else:
+                info = client.info("memory")
     except StoreUnavailable:
         raise
     except StoreError as exc:  # refused (an ACL, a managed Redis): nothing to check
