@@ -134,6 +134,11 @@ def test_events_of_a_map_not_made_yet_raise_404_or_wait_for_it() -> None:
         with pytest.raises(ServiceError) as caught:
             refused.next_of(SnapshotEvent, timeout_s=10)
         assert caught.value.status == 404
+        with ArcloudClient(server.url + "/nowhere") as lost:  # a wrong base URL: no route, raised at once, not waited on
+            wrong = Follower(lost, "early", wait_for_map=True)
+            with pytest.raises(ServiceError) as no_route:
+                wrong.next_of(SnapshotEvent, timeout_s=10)
+            assert no_route.value.status == 404 and "no such route" in no_route.value.detail
         waiting = Follower(client, "early", wait_for_map=True)
         assert waiting.received.empty() and waiting.thread.is_alive()  # no map: it waits, raising nothing
         client.send_frame(make_test_frame(0, map_id="early", level=True))

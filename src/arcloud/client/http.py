@@ -370,7 +370,7 @@ class EventStream:
         """Seconds to wait before connecting again after a connection ended with ``outcome``: a refusal (its
         response), a transport error, or None (the service ended the stream: it restarts, or dropped us). Raises
         ``ServiceError`` for a refusal not worth trying again, and the error after ``max_retries`` failures."""
-        if isinstance(outcome, httpx.Response) and outcome.status_code == 404 and self.wait_for_map:
+        if isinstance(outcome, httpx.Response) and outcome.status_code == 404 and self.wait_for_map and _no_map_yet(outcome):
             self.failures = 0
             log.info("GET %s: no such map yet; looking again in %.2f s", self.path, self.retry_s)
             return self.retry_s
@@ -390,6 +390,16 @@ class EventStream:
         what = f"HTTP {outcome.status_code}" if isinstance(outcome, httpx.Response) else type(outcome).__name__
         log.info("GET %s: the stream ended (%s); connecting again in %.2f s", self.path, what, wait_s)
         return wait_s
+
+
+def _no_map_yet(response: httpx.Response) -> bool:
+    """Whether a 404 says the map has no frame yet (``map 'M' not found``), not that no route is there (a wrong base
+    URL: a review saw ``wait_for_map`` wait for ever on one)."""
+    try:
+        detail = str(response.json().get("detail", ""))
+    except ValueError:
+        return False
+    return detail.startswith("map ") and " not found" in detail
 
 
 def unknown_map_stats(map_id: str) -> MapStats:
