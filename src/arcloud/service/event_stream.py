@@ -11,8 +11,8 @@ stream nothing), so a client that connects again with ``Last-Event-ID`` resumes 
 that version, no snapshot, no gap. When the log no longer holds them (trimmed: the store keeps its latest
 ``change_log_entries``; emptied: the map was deleted, which moves its version on, ``ObjectStore.delete_map``; or
 the id is ahead of the log, not of this map's), or the log began at another time than the id's (the store lost the
-map: a new log counts from 1 again), the stream says ``reset`` and sends the map as it is. Changes within one tick are coalesced per object (its latest
-state), and a state never older than one the stream sent goes out.
+map: a new log counts from 1 again), the stream says ``reset`` and sends the map as it is. Changes within one tick
+are coalesced per object (its latest state), and a state never older than one the stream sent goes out.
 
 Events, each ``event: NAME`` and one line of JSON ``data:``:
 

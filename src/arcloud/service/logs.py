@@ -195,8 +195,9 @@ def configure_logging(level: str, log_format: LogFormat = "text") -> None:
     """This process's logging: one handler on the root logger, writing ``log_format`` to stderr with the
     log context; ``arcloud``'s loggers at ``level`` (the root's level, for other libraries, is left as it
     is). uvicorn's loggers that have handlers of their own write through the root's instead, so that every line
-    of the process has one format, with its time and context (uvicorn's own text lines had neither). Every line is scrubbed of secrets (``SecretFilter`` on the handler
-    and on uvicorn's loggers). Calling it again replaces what it did."""
+    of the process has one format, with its time and context (uvicorn's own text lines had neither). Every line is
+    scrubbed of secrets (``SecretFilter`` on the handler and on uvicorn's loggers). Calling it again replaces what it
+    did."""
     handler = StderrHandler()
     handler.setFormatter(make_formatter(log_format))
     handler.addFilter(LogContextFilter())
