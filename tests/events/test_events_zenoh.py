@@ -175,6 +175,8 @@ def test_router_sends_each_event_to_one_key_space() -> None:
         (ObjectEvent("created", "m", 4, state(4, 1, True)), "served"),
         (ObjectEvent("retired", "m", 4, was_confirmed=True), "served"),  # seen gone: whoever had it is told
         (ObjectEvent("updated", "m", 4, state(4, 2, True)), None),  # nothing of a removed object is newer
+        (ObjectEvent("created", "m", 4, state(4, 1, True)), "served"),  # but a map restored keeps ids, versions from 1
+        (ObjectEvent("updated", "m", 4, state(4, 2, True)), "served"),
         (ObjectEvent("retired", "m", 5), "tentative"),
         (ObjectEvent("created", "other", 1, state(1, 1, True)), "served"),  # maps are apart
     ]

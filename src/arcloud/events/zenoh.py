@@ -168,8 +168,10 @@ class ServedRouter:
     """Decides where each event goes (see the module docstring), and drops a state that is not newer
     than one already published of its object (two worker threads' events of one object can come out
     of order: the older is dropped, so that a viewer never goes back). Remembers the versions of the
-    ``max_objects`` objects published most recently. Not thread-safe: the publisher routes and puts
-    under one lock, so that events leave in the order they were routed.
+    ``max_objects`` objects published most recently. A ``created`` object is new whatever was published under its id
+    before: a map restored from a snapshot keeps its ids and starts their versions at 1 again, and so does one made
+    again after its store lost it (their states were dropped until they passed the old versions). Not thread-safe:
+    the publisher routes and puts under one lock, so that events leave in the order they were routed.
 
     ``route(event)``: ``"served"``, ``"tentative"``, or None for a state to drop."""
 
@@ -184,7 +186,7 @@ class ServedRouter:
             return "served" if event.was_confirmed else "tentative"
         version = int(event.object.version)
         last = self._last.get(key)
-        if last is not None and version <= last:
+        if last is not None and version <= last and event.kind != "created":
             return None
         self._remember(key, version)
         return "served" if event.object.confirmed or event.was_confirmed else "tentative"
