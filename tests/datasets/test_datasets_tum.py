@@ -372,6 +372,23 @@ def test_a_path_that_steps_without_turning_still_tells_the_depths_scale(tmp_path
     assert read.depth_factor == pytest.approx(5000 * 1.04, rel=0.011) and "by the depth" in read.depth_factor_source
 
 
+def test_depth_in_millimetres_read_at_tums_factor_is_told_the_factor_it_agrees_with(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A new user's review: a recording of millimetres (factor 1000) was read at 5000 with no word of the factor, and a
+    warning proposed other intrinsics instead (its mAP 0.000)."""
+    made = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    millimetres = write_room_tum(tmp_path / "mm", made, 12, depth_scale=0.2)  # what 5000 reads of millimetres: 5x short
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
+        load_tum(millimetres, intrinsics=made, estimate_up=False, pose_time_offset_s=0.0)
+    assert "the depth and poses agree far better at a depth factor of 1000 (millimetres)" in caplog.text
+    assert "give --depth-factor 1000 if its depth is in millimetres" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.tum"):
+        load_tum(write_room_tum(tmp_path / "tum", made, 12), intrinsics=made, estimate_up=False, pose_time_offset_s=0.0)
+    assert "millimetres" not in caplog.text  # TUM's own units: no such word
+
+
 def test_a_lens_that_bends_both_images_is_undone_when_the_depth_agrees(tmp_path: Path) -> None:
     calibrated, lens = PUBLISHED_INTRINSICS["freiburg1"], PUBLISHED_DISTORTION["freiburg1"]
     bent = load_tum(write_room_tum(tmp_path / "rgbd_dataset_freiburg1_room", calibrated, 12, distortion=lens), estimate_up=False)

@@ -99,6 +99,10 @@ POSE_TIME_OFFSETS_S = tuple(round(0.005 * k, 3) for k in range(-10, 11))
 #: about 4 % long at its factor of 5000: ORB-SLAM2's TUM2 settings take 5208). No wider: with intrinsics that are
 #: all wrong (another camera's) the depth's scale makes up for them, and a least at the ends is not taken.
 DEPTH_SCALES = tuple(round(0.95 + 0.01 * k, 2) for k in range(11))
+#: The depth factor of millimetres, which many tools write in TUM's layout; a warning names it where the depth and poses
+#: disagree less than ``MILLIMETRE_MARGIN`` as much with it as with the factor chosen (read at 5000, millimetres are 5
+#: times short: every surface two frames see lands apart).
+MILLIMETRES, MILLIMETRE_MARGIN = 1000.0, 0.5
 GENERIC_SOURCE = "generic 525, 525, 319.5, 239.5"
 #: A TUM camera in a folder's name (``rgbd_dataset_freiburg1_desk``, ``Freiburg2_xyz``, ``fr3_office``) or in the
 #: ``# file: 'rgbd_dataset_freiburg1_desk.bag'`` line TUM's list files begin with.
@@ -475,6 +479,16 @@ def camera_by_depth(sequence: TumSequence, *, camera: str | None, scales: Sequen
     figures = f"the depth and poses disagree by {gaps[chosen] * 1000:.1f} mm with it, {gaps[start] * 1000:.1f} mm with {own[1]} at {nominal:g}"
     if chosen != start:
         logger.warning("%s: %s; using %s and a depth factor of %.6g", sequence.root, figures, cameras[k][1], nominal / scale)
+    if len(list(scales)) > 1 and nominal != MILLIMETRES:  # the factor not given: depth in millimetres, as many tools write?
+        intrinsics, _, distortion = cameras[k]
+        as_mm = [(undistort(d, intrinsics, distortion) if distortion else d).astype(np.float32) / MILLIMETRES for d in images]
+        gap_mm = depth_disagreement(as_mm, cam2world, intrinsics, pairs)
+        if gap_mm < MILLIMETRE_MARGIN * gaps[chosen]:
+            logger.warning(
+                "%s: the depth and poses agree far better at a depth factor of %g (millimetres): they disagree by %.1f mm "
+                "there, %.1f mm at %.6g; give --depth-factor %g if its depth is in millimetres",
+                sequence.root, MILLIMETRES, gap_mm * 1000, gaps[chosen] * 1000, nominal / scale, MILLIMETRES,
+            )  # fmt: skip
     intrinsics_source = own[1] if k == 0 else f"{cameras[k][1]}, not {own[1]}"
     return replace(
         sequence,
