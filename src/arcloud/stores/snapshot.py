@@ -356,19 +356,7 @@ def restore_batches(objects: Sequence[MapObject], cell_m: float) -> Iterator[lis
 
 
 class ZipMapArchive:
-    """``MapArchive``: the zip format of this module."""
+    """``MapArchive``: the zip format of this module (its two functions)."""
 
-    def snapshot(self, store: ObjectStore, map_id: str) -> bytes:
-        return snapshot_bytes(store, map_id)
-
-    def restore(
-        self,
-        store: ObjectStore,
-        map_id: str,
-        data: bytes,
-        *,
-        replace: bool = False,
-        params: Params | None = None,
-        forget: Callable[[], None] | None = None,
-    ) -> int:
-        return restore_bytes(store, map_id, data, replace=replace, params=params, forget=forget)
+    snapshot = staticmethod(snapshot_bytes)
+    restore = staticmethod(restore_bytes)
