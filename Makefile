@@ -54,7 +54,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_scaling.py
 	$(BIN)/python bench/scaling_model.py
 
-# Accuracy suites (simulated rooms, ScanNet renders, 7-Scenes) -> bench/results/accuracy.json; about 20 min.
+# Accuracy suites (simulated rooms, ScanNet renders, 7-Scenes, the HoloLens office) -> bench/results/accuracy.json; about 30 min.
 # ACCURACY_ARGS=--quick for the short versions, --suites sim for one suite.
 accuracy: $(STAMP)
 	$(BIN)/python bench/bench_accuracy.py $(ACCURACY_ARGS)

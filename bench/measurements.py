@@ -74,6 +74,15 @@ def redkitchen(data: Results) -> str:
     return f"7-Scenes redkitchen, {sum(frames):,} real frames, {suite['model'].removesuffix('.onnx')}, {suite['primary_boxes']} boxes"
 
 
+def hololens_office(data: Results) -> str:
+    suite = data["suites"]["hololens"]
+    frames = [case["frames"] for case in suite["cases"] if case["split"] == "report"]
+    return (
+        f"a second real room, tuned on by nobody: HoloLens 2 office, {sum(frames):,} frames, "
+        f"{suite['model'].removesuffix('.onnx')}, {suite['primary_boxes']} boxes"
+    )
+
+
 def simulated_rooms(data: Results) -> str:
     return f"{report(data, 'sim')['cases']} simulated rooms, simulated detector faults"
 
@@ -124,9 +133,11 @@ def latency_on_many_cores(data: Results) -> str:
 
 ACCURACY = "bench/results/accuracy-2026-11-28b/accuracy.json"  # one `make accuracy` run: every suite, the office split, the untuned and low-eye ScanNet walks too
 SCANNET = ACCURACY  # its ScanNet suite runs every case at K = 10
+HOLOLENS = "bench/results/accuracy-2026-11-28c/accuracy.json"  # the hololens suites alone, the day the sequence came
 SIXTEEN_CORES = "bench/results/device-2026-11-26b/call1-w15.json"
 FIGURES: tuple[Figure, ...] = (
     Figure(redkitchen, lambda data: accuracy_figures(data, "7scenes"), ACCURACY, readme=True),
+    Figure(hololens_office, lambda data: accuracy_figures(data, "hololens"), HOLOLENS, readme=True),
     Figure(simulated_rooms, lambda data: accuracy_figures(data, "sim"), ACCURACY, readme=True),
     Figure(scannet_walks, lambda data: accuracy_figures(data, "scannet"), SCANNET, readme=True),
     Figure(simulated_office, lambda data: accuracy_figures(data, "sim", "office"), ACCURACY, readme=False),

@@ -8,8 +8,10 @@ boxes (what the sensor saw, ScanNet's convention: the primary figures of the rec
 *amodal* ones (chairs completed under the table, the table down to the floor: ``amodal`` beside them).
 
 Cases: the whole sequence (``report``) and its two halves, frames 0-499 and 500-999 (``tune``), each
-scored against the objects visible in it (the ground truth's ``visible_frames``). Each case is mapped
-centralized and by ``USERS`` users (``runs`` runs, run r with seed r: ``arcloud.eval.protocol.run_map``).
+scored against the objects visible in it (the ground truth's ``visible_frames``). Any other sequence in the
+7-Scenes layout with a ``gt-boxes.json`` (``root``) is one ``report`` case, all its frames: the parameters are
+tuned on redkitchen's cases only, so such a sequence tells how they carry to a room nobody tuned on. Each case is
+mapped centralized and by ``USERS`` users (``runs`` runs, run r with seed r: ``arcloud.eval.protocol.run_map``).
 The model runs once per frame (``CachedDetector``; the halves reuse the whole sequence's detections);
 frames are read from disk for every run rather than kept (1000 VGA frames are 2 GB).
 
@@ -60,10 +62,11 @@ class SequenceCase:
     first_frame: int
     last_frame: int
     split: str
+    sequence: str = "redkitchen"
 
     @property
     def name(self) -> str:
-        return f"redkitchen_{self.first_frame:03d}-{self.last_frame:03d}"
+        return f"{self.sequence}_{self.first_frame:03d}-{self.last_frame:03d}"
 
     @property
     def frame_range(self) -> tuple[int, int]:
@@ -91,7 +94,8 @@ def run_suite(
     quick: bool,
     out_dir: Path,
     shared: Path | None = None,
-    cases: Sequence[SequenceCase] = CASES,
+    root: Path | None = None,
+    cases: Sequence[SequenceCase] | None = None,
     params: Params | None = None,
     runs: int | None = None,
     stride: int | None = None,
@@ -103,8 +107,9 @@ def run_suite(
     ``QUICK_RUNS`` when ``quick``, else ``RUNS``) on every ``stride``-th frame (default ``QUICK_STRIDE``
     when ``quick``, else 1). Returns ``{"suite": "7scenes", "cases": [...], "summary": summarise(cases),
     "summary_amodal": ..., ...}`` (see ``arcloud.accuracy.common``). ``shared``: the folder holding
-    ``data/7scenes-redkitchen`` and ``models/`` (default ``default_shared_dir()``); raises
-    ``DatasetError`` when the sequence, its ground truth or the model is not there."""
+    ``data/7scenes-redkitchen`` and ``models/`` (default ``default_shared_dir()``); ``root``: another sequence
+    in the 7-Scenes layout with its ``gt-boxes.json`` (``cases`` default: all its frames, one ``report`` case);
+    raises ``DatasetError`` when the sequence, its ground truth or the model is not there."""
     from arcloud.datasets.export import seven_scenes_export_frame
     from arcloud.datasets.sevenscenes import load_seven_scenes
     from arcloud.detectors import make_detector
@@ -115,14 +120,21 @@ def run_suite(
     if model not in MODELS_REL:
         raise DatasetError(f"model: expected one of {list(MODELS_REL)}, got {model!r}")
     model_name, model_path = model, shared_dir / MODELS_REL[model]
-    root = shared_dir / SEQUENCE_REL
+    root = Path(root) if root is not None else shared_dir / SEQUENCE_REL
     if not (root / "gt-boxes.json").is_file():
-        raise DatasetError(f"{root}: expected the 7-Scenes redkitchen sequence with gt-boxes.json, got no gt-boxes.json there")
+        raise DatasetError(
+            f"{root}: expected a sequence in the 7-Scenes layout with its gt-boxes.json, got no gt-boxes.json there"
+        )
     if not model_path.is_file():
         raise DatasetError(f"{model_path}: expected the {model_name} ONNX model, got no such file")
     n_runs = runs if runs is not None else (QUICK_RUNS if quick else RUNS)
     step = stride if stride is not None else (QUICK_STRIDE if quick else 1)
     sequence = load_seven_scenes(root, align_gravity=True)
+    if cases is None:
+        numbers = [sequence.frame_number(n) for n in sequence.frame_names]
+        cases = (
+            CASES if root == shared_dir / SEQUENCE_REL else (SequenceCase(min(numbers), max(numbers), "report", sequence.name),)
+        )
     frame = seven_scenes_export_frame(sequence)
     params = frame.params(params if params is not None else Params())
     detector = CachedDetector(make_detector(f"onnx:{model_path}"))
