@@ -78,3 +78,34 @@ def test_a_redis_that_evicts_keys_is_refused_at_start_and_a_full_one_is_not_read
             assert not_ready.status_code == 503 and "is full" in not_ready.json()["checks"]["store"], not_ready.text
             config.config_set("maxmemory", 0)
             assert api.get("/readyz").status_code == 200
+
+
+@pytest.mark.redis
+def test_the_containers_entry_points_refuse_a_redis_that_evicts_keys(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A review of workers failing: `python -m arcloud.tools.worker` (docker-compose, the k8s worker) took frames from
+    a Redis with maxmemory-policy allkeys-lru, and the image's API (`uvicorn --factory ...:create_app`) started on it,
+    where `arcloud serve` and `arcloud worker` refuse."""
+    import redis
+    from redis_server import RedisServer
+
+    from arcloud.tools.wiring import create_app
+    from arcloud.tools.worker import main as container_worker_main
+
+    monkeypatch.setenv("ARCLOUD_DETECTOR", "sim:0")
+    with RedisServer.start() as server:
+        config = redis.Redis.from_url(server.url)
+        config.config_set("maxmemory", 64 * 2**20)
+        config.config_set("maxmemory-policy", "allkeys-lru")
+        monkeypatch.setenv("ARCLOUD_STORE", server.url)
+        capsys.readouterr()
+        assert container_worker_main([]) == 2
+        with pytest.raises(SystemExit) as exited:
+            create_app()  # each entry point sets the process's logging up: its lines go to stderr
+        assert exited.value.code == 2
+        err = capsys.readouterr().err
+        refusals = [line for line in err.splitlines() if "evicts keys when full (maxmemory-policy allkeys-lru" in line]
+        assert len(refusals) == 2 and "Traceback" not in err, err
+        config.config_set("maxmemory-policy", "noeviction")
+        create_app()  # the same Redis, keeping its keys: the API is made

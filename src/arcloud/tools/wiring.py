@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from fastapi import FastAPI
 
-from arcloud.errors import InvalidInput, StoreUnavailable
+from arcloud.errors import ArcloudError, InvalidInput, StoreUnavailable
 from arcloud.ports import (
     DEFAULT_RETIRED_HISTORY_S,
     Detector,
@@ -389,12 +389,17 @@ def create_app(
 ) -> FastAPI:
     """The service on the adapters the settings name. Not given, they are read from ``ARCLOUD_*`` and, as
     this is then the process's entry point (``uvicorn --factory``), configure its logging too
-    (``log_level``, ``log_format``). ``store``, ``queue``, ``detector``, ``publisher``: adapters to use
-    instead (tests, embedding); the caller keeps ownership of what it passes. Checks the detector spec
-    now; builds nothing until the app starts."""
+    (``log_level``, ``log_format``) and check its Redis as ``serve`` does (``check_redis``: exit 2 with one line).
+    ``store``, ``queue``, ``detector``, ``publisher``: adapters to use instead (tests, embedding); the caller keeps
+    ownership of what it passes. Checks the detector spec now; builds nothing until the app starts."""
     if settings is None:
         settings = Settings()
         configure_logging(settings.log_level, settings.log_format)
+        try:
+            check_redis(settings)  # as `serve` does before it calls this: the image's API (uvicorn --factory) starts here
+        except ArcloudError as exc:
+            log.error("%s", exc)  # one line in the container's log, and no API on a Redis that would lose its data
+            raise SystemExit(2) from exc
     check_detector_spec(settings.detector)
     return service_app.create_app(settings, partial(connect, store=store, queue=queue, detector=detector, publisher=publisher))
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import argparse
 import logging
 
-from arcloud.errors import InvalidInput
+from arcloud.errors import ArcloudError
 from arcloud.service.logs import configure_logging
 from arcloud.service.settings import Settings
-from arcloud.tools.wiring import check_detector_spec, check_model_file, check_zenoh_config, healthy, run_worker
+from arcloud.tools.wiring import check_detector_spec, check_model_file, check_redis, check_zenoh_config, healthy, run_worker
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +30,8 @@ def main(argv: list[str] | None = None) -> int:
         check_detector_spec(settings.detector)
         check_model_file(settings.detector)
         check_zenoh_config(settings)
-    except InvalidInput as exc:  # a clear line in the container's log, not a traceback
+        check_redis(settings)  # as `arcloud worker`: refused on a Redis that evicts keys, one line when it does not answer
+    except ArcloudError as exc:  # a clear line in the container's log, not a traceback
         log.error("%s", exc)
         return 2
     run_worker(settings)
