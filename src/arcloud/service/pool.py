@@ -1,7 +1,9 @@
 """Worker processes beside the API: ``size`` processes (spawned: no state inherited) each running
 ``target(*args)``, restarted when they die; those that die right after starting are restarted with a
 growing delay, so a broken setup does not spawn a process a second. SIGTERM stops a worker after its
-current frame.
+current frame. A process whose parent dies (``serve`` killed with SIGKILL, which it cannot catch) stops as if
+sent SIGTERM (``run_while_parent_lives``), so a ``serve`` started again does not find the old ones still taking
+frames or holding its port.
 
 The target builds its own adapters (a process cannot share the API's connections); the composition root
 (``arcloud.tools.wiring``) gives it.
@@ -12,6 +14,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -24,6 +27,27 @@ log = logging.getLogger(__name__)
 QUICK_EXIT_S = 10.0
 RESTART_MAX_DELAY_S = 60.0
 _SPAWNING = threading.Lock()  # one spawn at a time changes the environment it passes on
+#: How often a process looks whether its parent is alive, and how long it may take to stop once it is not
+#: (SIGTERM's graceful stop) before it exits anyway.
+PARENT_CHECK_S = 1.0
+ORPHAN_EXIT_S = 30.0
+
+
+def run_while_parent_lives(parent_pid: int, target: Callable[..., None], *args: Any) -> None:
+    """``target(*args)`` in this process, with a thread that sends this process SIGTERM when its parent is no
+    longer ``parent_pid`` (it died: the process was handed to another), and ends it ``ORPHAN_EXIT_S`` later if that
+    did not."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_S)
+        log.error("%s: parent process %d is gone; stopping", multiprocessing.current_process().name, parent_pid)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(ORPHAN_EXIT_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="arcloud-parent-watch", daemon=True).start()
+    target(*args)
 
 
 class WorkerPool:
@@ -60,7 +84,12 @@ class WorkerPool:
         self._restart_at: dict[int, float] = {}
 
     def _spawn(self, index: int) -> multiprocessing.process.BaseProcess:
-        process = self._context.Process(target=self.target, args=self.args, name=f"arcloud-{self.kind}-{index}", daemon=False)
+        process = self._context.Process(
+            target=run_while_parent_lives,
+            args=(os.getpid(), self.target, *self.args),
+            name=f"arcloud-{self.kind}-{index}",
+            daemon=False,
+        )
         with _SPAWNING:  # a spawned process starts with this one's environment, ``env`` added
             saved = {name: os.environ.get(name) for name in self.env}
             os.environ.update(self.env)
@@ -133,4 +162,4 @@ class WorkerPool:
         self.processes = []
 
 
-__all__ = ["QUICK_EXIT_S", "RESTART_MAX_DELAY_S", "WorkerPool"]
+__all__ = ["ORPHAN_EXIT_S", "PARENT_CHECK_S", "QUICK_EXIT_S", "RESTART_MAX_DELAY_S", "WorkerPool", "run_while_parent_lives"]
