@@ -192,6 +192,10 @@ def test_fewer_frames_are_scored_against_the_objects_visible_in_them(
     with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):
         assert odd.scored_frames(odd.frame_names[:4]) is None
     assert "visible_frames of table lie outside this recording's frame numbers 0..15: every object is scored" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="arcloud.datasets.recording"):  # all its frames: said all the same
+        assert odd.scored_frames(odd.frame_names) is None
+    assert "visible_frames of table lie outside" in caplog.text and "give --gt-boxes a file of the objects in it" in caplog.text
 
 
 def test_a_recording_read_with_intrinsics_off_is_told_which_its_depth_agrees_with(

@@ -55,20 +55,22 @@ class Recording:
         """The (first, last) frame numbers whose visible ground-truth objects a map of ``names`` (some of the
         frames: a stride, fewer frames) is scored against; None: every object. Every object when ``names`` span the
         recording, or when an object's ``visible_frames`` lie outside all its frame numbers (the file counts frames
-        otherwise: logged), so that a file numbered another way is never read as "nothing visible"."""
+        otherwise, or is of a longer sequence than this folder holds: logged whichever frames are used), so that a
+        file numbered another way is never read as "nothing visible"."""
         if self.ground_truth is None or not names:
             return None
         number = dict(zip(self.frame_names, self.frame_numbers, strict=True))
         used = (min(number[n] for n in names), max(number[n] for n in names))
         recorded = (min(self.frame_numbers), max(self.frame_numbers))
-        if used == recorded:
-            return None
         outside = [o.id for o in self.ground_truth.objects if not o.visible_within(*recorded)]
-        if outside:
+        if outside:  # said whichever frames are used: a folder of part of a sequence with the whole one's file reads so too
             logger.warning(
                 "%s: visible_frames of %s lie outside this recording's frame numbers %d..%d: every object is scored, "
-                "whichever frames are used", self.ground_truth.path, ", ".join(outside), *recorded,
+                "whichever frames are used (the file counts frames another way, or is of more than this recording: "
+                "then give --gt-boxes a file of the objects in it)", self.ground_truth.path, ", ".join(outside), *recorded,
             )  # fmt: skip
+            return None
+        if used == recorded:
             return None
         return used
 
