@@ -26,7 +26,7 @@ chooses the adapters.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -553,8 +553,9 @@ class FrameConsumer(Protocol):
         """Give the frame up (kept with ``reason`` where the queue keeps dead letters); counted failed."""
         ...
 
-    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
-        """``consumer`` is alive, and the frames ``in_hand`` are still being worked on (not abandoned)."""
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame], settings: Mapping[str, object] | None = None) -> None:
+        """``consumer`` is alive, and the frames ``in_hand`` are still being worked on (not abandoned); ``settings``:
+        what it maps with (JSON-ready), for ``live_settings``."""
         ...
 
     def leave(self, consumer: str) -> None:
@@ -573,6 +574,10 @@ class QueueMonitor(Protocol):
 
     def live_consumers(self, max_age_s: float) -> list[str]:
         """Consumers whose heartbeat is at most ``max_age_s`` old, sorted."""
+        ...
+
+    def live_settings(self, max_age_s: float) -> dict[str, dict[str, object]]:
+        """The settings each consumer of ``live_consumers`` last gave its heartbeat (those that gave some)."""
         ...
 
 

@@ -218,7 +218,12 @@ def test_health_checks_see_the_workers_heartbeats(deployment: Deployment, monkey
     assert worker_main(["--healthcheck"]) == 0
     assert deployment.api.get("/readyz").json() == {"status": "ready", "checks": {"store": "ok"}}
     workers = deployment.api.get("/healthz/workers").json()
-    assert workers["status"] == "ok" and workers["checks"] == {"redis": "ok", "consumer_group": "ok", "workers": "ok"}
+    assert workers["status"] == "ok" and workers["checks"] == {
+        "redis": "ok",
+        "consumer_group": "ok",
+        "workers": "ok",
+        "settings": "ok",
+    }
     assert workers["expected"] is None and workers["live"], workers  # the pool is not the API's: any live worker
 
 

@@ -16,6 +16,7 @@ queue's (``QueueStats``: shared by every worker for a shared queue).
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -146,7 +147,8 @@ class Ingest:
         """Whether the frames accepted get processed (``/healthz/workers``; not part of this process's readiness):
         the queue's own checks (Redis: it answers, the consumer group exists), the detector of the worker threads,
         and the workers: threads alive; worker processes alive, each with a fresh heartbeat (a worker beats only
-        while its reads succeed); workers elsewhere: some fresh heartbeat."""
+        while its reads succeed); workers elsewhere: some fresh heartbeat; worker processes and workers elsewhere:
+        all with one set of settings (``settings``)."""
         checks = self.queue.health()
         if self.workers:
             alive = [w.consumer for w, t in zip(self.workers, self._threads) if t.is_alive()]
@@ -168,6 +170,7 @@ class Ingest:
                     if len(reading) == total
                     else f"{len(reading)} of {total} worker processes reading (heartbeat in {LIVE_WORKER_S:.0f} s)"
                 )
+                checks["settings"] = self._settings_check()
             else:
                 checks["workers"] = "unknown: the queue is not ready"
             return WorkersReport(checks, reading, total)
@@ -175,9 +178,22 @@ class Ingest:
         if all(v == "ok" for v in checks.values()):
             live = self.queue.live_consumers(LIVE_WORKER_S)
             checks["workers"] = "ok" if live else f"no worker heartbeat in {LIVE_WORKER_S:.0f} s (frames wait in the stream)"
+            checks["settings"] = self._settings_check()
         else:
             checks["workers"] = "unknown: the queue is not ready"
         return WorkersReport(checks, live, None)
+
+    def _settings_check(self) -> str:
+        """``ok`` when the live workers map with one set of settings (``worker_settings``), else how many sets and
+        whose: a map they share would mix them, or its frames fail on the workers of other map settings."""
+        given = self.queue.live_settings(LIVE_WORKER_S)
+        kinds: dict[str, list[str]] = {}
+        for name, settings in sorted(given.items()):
+            kinds.setdefault(json.dumps(settings, sort_keys=True), []).append(name)
+        if len(kinds) <= 1:
+            return "ok"
+        groups = "; ".join(f"{', '.join(names)}: params {json.loads(kind).get('params')}" for kind, names in kinds.items())
+        return f"the live workers map with {len(kinds)} different settings ({groups}): run them all with the same --params"
 
 
 @dataclass(frozen=True, slots=True)

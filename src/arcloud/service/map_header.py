@@ -6,7 +6,11 @@ write or read one map two ways; the API refuses a map whose deletion goes on wit
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import time
+from collections.abc import Mapping
 
 from arcloud.core.header import MapHeader, check_header
 from arcloud.core.types import Params
@@ -44,4 +48,23 @@ def check_store_header(store: MapCatalog, header: MapHeader, params: Params, map
     check_header(header, params, codec_version=store.codec_version, map_id=map_id)
 
 
-__all__ = ["check_map_header", "check_not_being_deleted", "open_map_checked"]
+def worker_settings(params: Params, codec_version: int) -> dict[str, object]:
+    """What a worker maps with, as its heartbeat gives it: the settings a map's header holds (``map``: a worker with
+    others fails every frame of the maps the others made) and a digest of all its ``Params`` (``params``: workers with
+    others write two ways of mapping into the maps they share)."""
+    record = MapHeader.from_params(params, codec_version, 0.0).to_record()
+    del record["created_at_s"]
+    everything = json.dumps(dataclasses.asdict(params), sort_keys=True, default=str)
+    return {"map": record, "params": hashlib.sha256(everything.encode()).hexdigest()[:16]}
+
+
+def settings_differences(theirs: Mapping[str, object], ours: Mapping[str, object]) -> list[str]:
+    """``name: theirs X, ours Y`` for each map setting in which two ``worker_settings`` differ."""
+    their_map, our_map = theirs.get("map"), ours.get("map")
+    if not isinstance(their_map, Mapping) or not isinstance(our_map, Mapping):
+        return []
+    names = sorted(set(their_map) | set(our_map))
+    return [f"{n}: theirs {their_map.get(n)}, ours {our_map.get(n)}" for n in names if their_map.get(n) != our_map.get(n)]
+
+
+__all__ = ["check_map_header", "check_not_being_deleted", "open_map_checked", "settings_differences", "worker_settings"]

@@ -56,11 +56,21 @@ from typing import TYPE_CHECKING, Literal
 
 from arcloud.core.change import MapChange
 from arcloud.core.types import Detection, Frame, MapObject, Params
-from arcloud.errors import InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
-from arcloud.ports import Detector, FrameConsumer, FrameTimings, Lease, MapBeingDeleted, MapStore, ObjectStore, QueuedFrame
+from arcloud.errors import ArcloudError, InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
+from arcloud.ports import (
+    Detector,
+    FrameConsumer,
+    FrameTimings,
+    Lease,
+    MapBeingDeleted,
+    MapStore,
+    ObjectStore,
+    QueuedFrame,
+    QueueMonitor,
+)
 from arcloud.service.change_feed import ChangeFeed
 from arcloud.service.logs import log_context
-from arcloud.service.map_header import check_map_header
+from arcloud.service.map_header import check_map_header, settings_differences, worker_settings
 
 if TYPE_CHECKING:
     import numpy as np
@@ -224,8 +234,10 @@ class FrameWorker:
         heartbeat_s: float | None = HEARTBEAT_S,
         warm_up: bool = False,
         prefetch: bool = False,
+        monitor: QueueMonitor | None = None,
     ) -> None:
         self.queue = queue
+        self.monitor = monitor  # the queue's live workers: none of other map settings may be running (``check_peers``)
         self.store = store
         self.detector = detector
         self.params = params
@@ -237,6 +249,7 @@ class FrameWorker:
         self.read_block_s = read_block_s
         self.attempts = attempts
         self.heartbeat_s = heartbeat_s
+        self.settings = worker_settings(params, store.codec_version)  # given with every heartbeat
         self._warm_up = warm_up
         self._next_claim = 0.0
         # prefetch: one thread detects the frame taken last while this one integrates the frame before
@@ -256,6 +269,8 @@ class FrameWorker:
             self.queue.prepare()
         except StoreUnavailable as exc:  # the loop waits for the queue; its readers create what is missing
             log.warning("worker %s: cannot prepare the queue yet: %s", self.consumer, exc)
+        else:
+            self.check_peers()
         if self._warm_up:
             log.info("worker %s warmed up in %.2f s", self.consumer, warm_up(self.detector))
         log.info("worker %s taking frames", self.consumer)
@@ -294,6 +309,28 @@ class FrameWorker:
                     log.debug("worker %s: heartbeat not removed", self.consumer, exc_info=True)
         log.info("worker %s stopped", self.consumer)
 
+    def check_peers(self) -> None:
+        """``ArcloudError`` when a live worker maps with other map settings (``worker_settings``): this one would fail
+        every frame of the maps that one made, each delivered again until it was given up (a review of workers
+        failing: good frames dead-lettered); a warning when only their other ``Params`` differ."""
+        if self.monitor is None:
+            return
+        peers = {name: theirs for name, theirs in self.monitor.live_settings(LIVE_WORKER_S).items() if name != self.consumer}
+        for name, theirs in sorted(peers.items()):
+            differences = settings_differences(theirs, self.settings)
+            if differences:
+                raise ArcloudError(
+                    f"worker {self.consumer}: worker {name} maps with other map settings ({'; '.join(differences)}): "
+                    "this one would fail every frame of the maps it made; start it with the same --params, or stop "
+                    "the others first"
+                )
+        others = sorted(name for name, theirs in peers.items() if theirs.get("params") != self.settings["params"])
+        if others:
+            log.warning(
+                "worker %s: %s map with other --params (digest %s, ours %s): the maps they share mix both",
+                self.consumer, ", ".join(others), peers[others[0]].get("params"), self.settings["params"],
+            )  # fmt: skip
+
     def _beat(self, done: threading.Event) -> None:
         """Write the heartbeat often enough that a long step is never taken for an abandoned one."""
         assert self.heartbeat_s is not None
@@ -302,7 +339,7 @@ class FrameWorker:
             try:
                 in_hand = self._in_hand
                 if self._reading or in_hand:
-                    self.queue.heartbeat(self.consumer, in_hand)
+                    self.queue.heartbeat(self.consumer, in_hand, self.settings)
             except Exception:  # the queue away: the loop logs it; try again next beat
                 log.debug("worker %s: heartbeat failed", self.consumer, exc_info=True)
             if done.wait(interval_s):

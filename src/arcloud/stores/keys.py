@@ -68,6 +68,8 @@ Service-wide keys (no tag: single-key commands only):
     arcloud:ingest:shards           STRING  how many ingest shards this Redis's queue has (set by the first
                                             process to prepare the queue; others with another count refuse to start)
     arcloud:ingest:workers          HASH    consumer name -> last heartbeat (Unix seconds)
+    arcloud:ingest:worker-settings  HASH    consumer name -> what it maps with (JSON: the map settings, a digest of
+                                            its Params), written with its heartbeat
     arcloud:maps                    HASH    map id -> when its objects last changed (Unix s); written by open_map, commit
     arcloud:keys                    HASH    API key id -> its record (JSON, the secret's SHA-256; ``redis_api_keys``)
     arcloud:viewer:<digest>         STRING  a viewer ticket or session (``ViewerGrant`` JSON) by its secret's SHA-256
@@ -298,6 +300,7 @@ def ingest_counts_key(tag: str, map_id: str) -> str:
 # Service-wide keys (no tag).
 INGEST_SHARDS = f"{PREFIX}:ingest:shards"
 INGEST_WORKERS = f"{PREFIX}:ingest:workers"
+INGEST_WORKER_SETTINGS = f"{PREFIX}:ingest:worker-settings"
 API_KEYS = f"{PREFIX}:keys"
 MAPS = f"{PREFIX}:maps"
 

@@ -22,7 +22,7 @@ import itertools
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -324,7 +324,7 @@ class MemoryFrameQueue:
         if records is not None and frame_key in records.status:
             records.status[frame_key] = status
 
-    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame], settings: Mapping[str, object] | None = None) -> None:
         return None
 
     def leave(self, consumer: str) -> None:
@@ -332,3 +332,6 @@ class MemoryFrameQueue:
 
     def live_consumers(self, max_age_s: float) -> list[str]:
         return []
+
+    def live_settings(self, max_age_s: float) -> dict[str, dict[str, object]]:
+        return {}  # one process's worker threads: one set of settings

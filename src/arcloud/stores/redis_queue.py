@@ -538,6 +538,7 @@ class RedisFrameQueue:
             old_beats = [name for name in beats if name not in fresh and name not in kept]
             if old_beats:
                 self.client.hdel(keys.INGEST_WORKERS, *old_beats)
+                self.client.hdel(keys.INGEST_WORKER_SETTINGS, *old_beats)
             for tag in self._tags:
                 fields = [_text(f) for f in self.client.hkeys(keys.ingest_stats(tag))]
                 gone = [f for f in fields if f.startswith("worker:") and f[7:].rpartition(":")[0] not in kept | fresh]
@@ -714,7 +715,7 @@ class RedisFrameQueue:
             ],
         )
 
-    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame]) -> None:
+    def heartbeat(self, consumer: str, in_hand: Sequence[QueuedFrame], settings: Mapping[str, object] | None = None) -> None:
         """Write the heartbeat, and reset the idle time of the entries in hand (XCLAIM JUSTID to its own
         consumer: no new delivery; one call a shard) so that a long step is never taken for an abandoned one."""
         by_shard: dict[int, list[bytes | str]] = {}
@@ -723,6 +724,8 @@ class RedisFrameQueue:
             by_shard.setdefault(shard, []).append(entry_id)
         with redis_errors("write the heartbeat", self._where):
             self.client.hset(keys.INGEST_WORKERS, consumer, repr(time.time()))
+            if settings is not None:
+                self.client.hset(keys.INGEST_WORKER_SETTINGS, consumer, json.dumps(settings, sort_keys=True))
             for shard, entry_ids in by_shard.items():
                 try:
                     self.client.xclaim(keys.ingest_stream(self._tags[shard]), self.group, consumer, 0, [*entry_ids], justid=True)
@@ -734,9 +737,18 @@ class RedisFrameQueue:
     def leave(self, consumer: str) -> None:
         with redis_errors("remove the heartbeat", self._where):
             self.client.hdel(keys.INGEST_WORKERS, consumer)
+            self.client.hdel(keys.INGEST_WORKER_SETTINGS, consumer)
 
     def live_consumers(self, max_age_s: float) -> list[str]:
         now = time.time()
         with redis_errors("read the heartbeats", self._where):
             beats = self.client.hgetall(keys.INGEST_WORKERS)
         return sorted(_text(name) for name, seen in beats.items() if now - float(seen) <= max_age_s)
+
+    def live_settings(self, max_age_s: float) -> dict[str, dict[str, object]]:
+        live = self.live_consumers(max_age_s)
+        if not live:
+            return {}
+        with redis_errors("read the workers' settings", self._where):
+            given = self.client.hmget(keys.INGEST_WORKER_SETTINGS, live)
+        return {name: json.loads(value) for name, value in zip(live, given, strict=True) if value is not None}

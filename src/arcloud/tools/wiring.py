@@ -457,15 +457,21 @@ def run_worker(
             read_block_s=settings.read_block_s,
             warm_up=True,
             prefetch=settings.worker_prefetch,
+            monitor=queue,
         ).run(stop)
     finally:
         close_all(owned)
 
 
 def worker_process(settings: Settings, detector_factory: DetectorFactory | None, processes: int) -> None:
-    """The body of a worker process of a ``WorkerPool`` (spawned: it configures its own logging)."""
+    """The body of a worker process of a ``WorkerPool`` (spawned: it configures its own logging); a refusal
+    (``ArcloudError``: another live worker maps with other settings) is one line logged, and exit status 2."""
     configure_logging(settings.log_level, settings.log_format)
-    run_worker(settings, detector_factory=detector_factory, processes=processes)
+    try:
+        run_worker(settings, detector_factory=detector_factory, processes=processes)
+    except ArcloudError as exc:
+        log.error("%s", exc)
+        raise SystemExit(2) from exc
 
 
 def worker_pool(

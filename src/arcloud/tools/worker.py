@@ -31,10 +31,10 @@ def main(argv: list[str] | None = None) -> int:
         check_model_file(settings.detector)
         check_zenoh_config(settings)
         check_redis(settings)  # as `arcloud worker`: refused on a Redis that evicts keys, one line when it does not answer
+        run_worker(settings)  # refused when a live worker maps with other map settings
     except ArcloudError as exc:  # a clear line in the container's log, not a traceback
         log.error("%s", exc)
         return 2
-    run_worker(settings)
     return 0
 
 
