@@ -44,6 +44,8 @@ def test_two_api_processes_share_the_port_and_one_that_dies_is_started_again(tmp
             wait_until(lambda: frame_status(serve.url, "ops", "phone", "f000002") == "processed", 60, "the frame processed", 0.1)
             for _ in range(30):  # a connection each: the kernel hands them to both processes
                 assert httpx.get(f"{serve.url}/v1/maps", timeout=5.0).status_code == 200
+                health = httpx.get(f"{serve.url}/healthz/workers", timeout=5.0).json()  # the pool beside them, by count
+                assert health["status"] == "ok" and health["expected"] == 1, health
             first = access_pids(serve)
             assert len(first) == 2, first
             workers = [line["pid"] for line in serve.lines() if "taking frames" in line["message"]]

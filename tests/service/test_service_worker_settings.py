@@ -69,3 +69,37 @@ def test_a_worker_beside_live_workers_of_other_settings(caplog: pytest.LogCaptur
         finally:
             queue.close()
             store.close()
+
+
+@pytest.mark.redis
+def test_an_api_process_of_serve_api_processes_expects_its_hosts_worker_processes() -> None:
+    """A review of workers failing: with `serve --api-processes 2 --workers 2`, one of the two workers hung (SIGSTOP)
+    and /healthz/workers still answered 200 (any heartbeat would do): the API processes did not know the pool."""
+    from svc_helpers import AppClient
+
+    from arcloud.service.settings import Settings
+    from arcloud.service.worker import host_prefix
+    from arcloud.tools.wiring import create_app
+
+    with RedisServer.start() as server:
+        queue = RedisFrameQueue(server.url)
+        try:
+            queue.prepare()
+            settings = Settings(store=server.url, auth="none", detector="sim:0", workers=0)
+            with AppClient(create_app(settings, host_workers=2)) as api:
+                queue.heartbeat(f"{host_prefix()}101", ())
+                queue.heartbeat("elsewhere-7", ())  # another host's worker is not one of ours
+                hung = api.get("/healthz/workers")
+                assert hung.status_code == 503, hung.text
+                body = hung.json()
+                assert (
+                    body["checks"]["workers"].startswith("1 of 2 worker processes of this host reading") and body["expected"] == 2
+                )
+                queue.heartbeat(f"{host_prefix()}102", ())
+                assert api.get("/healthz/workers").status_code == 200
+            with AppClient(create_app(settings)) as api:  # workers elsewhere: any live one will do
+                queue.leave(f"{host_prefix()}102")
+                assert api.get("/healthz/workers").json()["expected"] is None
+                assert api.get("/healthz/workers").status_code == 200
+        finally:
+            queue.close()

@@ -28,7 +28,7 @@ from arcloud.core.types import Frame
 from arcloud.ports import FrameQueue, FrameStatus, ObjectStore, QueueFull, QueueStats
 from arcloud.service.devices import RecentDevices
 from arcloud.service.pool import WorkerPool
-from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name
+from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name, host_prefix
 
 log = logging.getLogger(__name__)
 
@@ -64,12 +64,19 @@ class Ingest:
     thread-safe; the app calls them from a thread pool."""
 
     def __init__(
-        self, queue: FrameQueue, store: ObjectStore, *, threads: Sequence[FrameWorker] = (), pool: WorkerPool | None = None
+        self,
+        queue: FrameQueue,
+        store: ObjectStore,
+        *,
+        threads: Sequence[FrameWorker] = (),
+        pool: WorkerPool | None = None,
+        host_workers: int = 0,
     ) -> None:
         self.queue = queue
         self.store = store
         self.workers = list(threads)
         self.pool = pool
+        self.host_workers = host_workers  # worker processes another process of this host runs (serve --api-processes)
         self._threads: list[threading.Thread] = []
         self._stop_threads = threading.Event()
         self._stopping = False
@@ -175,13 +182,20 @@ class Ingest:
                 checks["workers"] = "unknown: the queue is not ready"
             return WorkersReport(checks, reading, total)
         live: list[str] = []
+        expected = self.host_workers or None
         if all(v == "ok" for v in checks.values()):
             live = self.queue.live_consumers(LIVE_WORKER_S)
-            checks["workers"] = "ok" if live else f"no worker heartbeat in {LIVE_WORKER_S:.0f} s (frames wait in the stream)"
+            ours = [name for name in live if name.startswith(host_prefix())]
+            if expected is not None and len(ours) < expected:
+                checks["workers"] = (
+                    f"{len(ours)} of {expected} worker processes of this host reading (heartbeat in {LIVE_WORKER_S:.0f} s)"
+                )
+            else:
+                checks["workers"] = "ok" if live else f"no worker heartbeat in {LIVE_WORKER_S:.0f} s (frames wait in the stream)"
             checks["settings"] = self._settings_check()
         else:
             checks["workers"] = "unknown: the queue is not ready"
-        return WorkersReport(checks, live, None)
+        return WorkersReport(checks, live, expected)
 
     def _settings_check(self) -> str:
         """``ok`` when the live workers map with one set of settings (``worker_settings``), else how many sets and

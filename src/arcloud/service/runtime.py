@@ -60,7 +60,9 @@ class Adapters:
     with the app; ``keys``: the API keys (None: auth none); ``limiter``: the rate limits (None: none);
     ``archive``: map snapshots (None: no snapshot routes); ``owned``: closed on shutdown, last first;
     ``alignments``: the devices' stored alignments (None: no alignment routes, frames bring their own);
-    ``viewer_passes``: the viewer's tickets and sessions (None: no viewer passes, as with auth none)."""
+    ``viewer_passes``: the viewer's tickets and sessions (None: no viewer passes, as with auth none);
+    ``host_workers``: worker processes that another process of this host runs for this service (``serve
+    --api-processes``: its pool), which ``/healthz/workers`` expects to beat (0: none expected by count)."""
 
     store: ObjectStore
     queue: FrameQueue
@@ -73,6 +75,7 @@ class Adapters:
     owned: list[Closeable] = field(default_factory=list)
     alignments: DeviceAlignments | None = None
     viewer_passes: ViewerPasses | None = None
+    host_workers: int = 0
 
 
 Connect = Callable[[Settings, FrameHandler], Adapters]
@@ -144,7 +147,9 @@ def start_runtime(settings: Settings, connect: Connect) -> Runtime:
             )
             for i in range(settings.workers)
         ]
-    ingest = holder["ingest"] = Ingest(adapters.queue, adapters.store, threads=threads, pool=adapters.pool)
+    ingest = holder["ingest"] = Ingest(
+        adapters.queue, adapters.store, threads=threads, pool=adapters.pool, host_workers=adapters.host_workers
+    )
     try:
         ingest.start()
     except BaseException:

@@ -201,7 +201,12 @@ class Started:
 
 def consumer_name(pid: int | None = None) -> str:
     """``<host>-<pid>`` (this process's, or ``pid``'s on this host): unique among the queue's live consumers."""
-    return f"{socket.gethostname()}-{os.getpid() if pid is None else pid}"
+    return f"{host_prefix()}{os.getpid() if pid is None else pid}"
+
+
+def host_prefix(host: str | None = None) -> str:
+    """What the consumer names of ``host``'s workers (default: this one's) begin with."""
+    return f"{host or socket.gethostname()}-"
 
 
 def frame_log_fields(item: QueuedFrame) -> dict[str, object]:
@@ -500,6 +505,7 @@ __all__ = [
     "Started",
     "consumer_name",
     "frame_log_fields",
+    "host_prefix",
     "run_step",
     "timed_detect",
     "warm_up",

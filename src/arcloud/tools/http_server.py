@@ -60,15 +60,21 @@ def run_server(app: FastAPI, *, host: str, port: int, log_level: str, log_config
 
 
 def api_process(
-    settings: Settings, listening: socket.socket, host: str, port: int, log_level: str, log_config: dict[str, Any] | None
+    settings: Settings,
+    listening: socket.socket,
+    host: str,
+    port: int,
+    log_level: str,
+    log_config: dict[str, Any] | None,
+    host_workers: int = 0,
 ) -> None:
     """The body of one of ``run_servers``' API processes (spawned): its own logging and app, serving on the
-    socket the parent bound."""
+    socket the parent bound; ``host_workers``: the worker processes the parent runs (``/healthz/workers``)."""
     from arcloud.service.logs import configure_logging
     from arcloud.tools.wiring import create_app
 
     configure_logging(settings.log_level, settings.log_format)
-    app = create_app(settings)
+    app = create_app(settings, host_workers=host_workers)
     config = server_config(app, host=host, port=port, log_level=log_level, log_config=log_config)
     StreamClosingServer(config, app).run(sockets=[listening])
 
@@ -98,7 +104,9 @@ def run_servers(
             signal.signal(signum, lambda *_: stop.set())
     listening = server_config(None, host=host, port=port, log_level=log_level, log_config=None).bind_socket()
     api_settings = settings.model_copy(update={"workers": 0})  # this process runs the workers, once
-    apis = WorkerPool(processes, api_process, (api_settings, listening, host, port, log_level, log_config), kind="api")
+    apis = WorkerPool(
+        processes, api_process, (api_settings, listening, host, port, log_level, log_config, settings.workers), kind="api"
+    )
     workers = worker_pool(settings, settings.workers) if settings.workers > 0 else None
     try:
         apis.start()

@@ -323,10 +323,12 @@ def connect(
     queue: FrameQueue | None = None,
     detector: Detector | None = None,
     publisher: UpdatePublisher | None = None,
+    host_workers: int = 0,
 ) -> Adapters:
     """The adapters of one app: those given, and the ones the settings name for the rest (owned by the
     app: closed on shutdown). Embedded: the detector, run by ``settings.workers`` threads. Redis:
-    ``settings.workers`` worker processes (none: they run elsewhere); a detector cannot be given."""
+    ``settings.workers`` worker processes (none: they run elsewhere, ``host_workers`` of them in another process
+    of this host); a detector cannot be given."""
     owned: list[Closeable] = []
     try:
         if not settings.embedded and detector is not None:
@@ -370,7 +372,9 @@ def connect(
         raise
     from arcloud.stores.snapshot import ZipMapArchive
 
-    return Adapters(store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned, alignments, viewer_passes)
+    return Adapters(
+        store, queue, detector, publisher, pool, keys, limiter, ZipMapArchive(), owned, alignments, viewer_passes, host_workers
+    )
 
 
 def _own(owned: list[Closeable], thing: Any) -> None:
@@ -386,12 +390,15 @@ def create_app(
     queue: FrameQueue | None = None,
     detector: Detector | None = None,
     publisher: UpdatePublisher | None = None,
+    host_workers: int = 0,
 ) -> FastAPI:
     """The service on the adapters the settings name. Not given, they are read from ``ARCLOUD_*`` and, as
     this is then the process's entry point (``uvicorn --factory``), configure its logging too
     (``log_level``, ``log_format``) and check its Redis as ``serve`` does (``check_redis``: exit 2 with one line).
     ``store``, ``queue``, ``detector``, ``publisher``: adapters to use instead (tests, embedding); the caller keeps
-    ownership of what it passes. Checks the detector spec now; builds nothing until the app starts."""
+    ownership of what it passes. ``host_workers``: worker processes another process of this host runs for it
+    (``serve --api-processes``), expected by ``/healthz/workers``. Checks the detector spec now; builds nothing until
+    the app starts."""
     if settings is None:
         settings = Settings()
         configure_logging(settings.log_level, settings.log_format)
@@ -401,7 +408,9 @@ def create_app(
             log.error("%s", exc)  # one line in the container's log, and no API on a Redis that would lose its data
             raise SystemExit(2) from exc
     check_detector_spec(settings.detector)
-    return service_app.create_app(settings, partial(connect, store=store, queue=queue, detector=detector, publisher=publisher))
+    return service_app.create_app(
+        settings, partial(connect, store=store, queue=queue, detector=detector, publisher=publisher, host_workers=host_workers)
+    )
 
 
 # --- workers -----------------------------------------------------------------------------------------
@@ -493,12 +502,11 @@ def worker_pool(
 def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0) -> bool:
     """Whether a worker on ``host`` (default: this one) wrote a heartbeat in the last ``max_age_s`` (False
     when Redis does not answer within 3 s)."""
-    import socket
-
+    from arcloud.service.worker import host_prefix
     from arcloud.stores.redis import connect_redis
     from arcloud.stores.redis_queue import RedisFrameQueue
 
-    prefix = f"{host or socket.gethostname()}-"
+    prefix = host_prefix(host)
     try:
         client = connect_redis(settings.store, reply_timeout_s=3.0)  # a hung Redis: unhealthy in 3 s
     except StoreUnavailable:  # a cluster's client reads its slot map at once
