@@ -15,9 +15,10 @@ from arcloud.accuracy.sevenscenes import CASES, run_suite
 from arcloud.errors import DatasetError
 
 
-def test_cases_are_the_sequence_and_its_halves() -> None:
+def test_cases_are_the_sequence_its_halves_and_the_sequence_backwards() -> None:
     assert [(c.name, c.split) for c in CASES] == [
         ("redkitchen_000-999", "report"), ("redkitchen_000-499", "tune"), ("redkitchen_500-999", "tune"),
+        ("redkitchen_000-999_backwards", "paths"),
     ]  # fmt: skip
 
 
@@ -40,16 +41,17 @@ def test_quick_suite_on_the_real_sequence(shared: type, tmp_path: Path) -> None:
 def _check_record(result: dict[str, Any], out_dir: Path) -> None:
     assert result["suite"] == "7scenes" and result["quick"] and result["stride"] == 10 and result["runs"] == 1
     assert "aligned frame" in result["frame"] and result["primary_boxes"] == "observed"
-    assert set(result["summary"]) == set(result["summary_amodal"]) == {"tune", "report"}
-    whole, first, second = result["cases"]
-    assert [c["frames"] for c in result["cases"]] == [100, 50, 50]
+    assert set(result["summary"]) == set(result["summary_amodal"]) == {"tune", "report", "paths"}
+    whole, first, second, backwards = result["cases"]
+    assert [c["frames"] for c in result["cases"]] == [100, 50, 50, 100]
+    assert backwards["backwards"] and not whole["backwards"] and backwards["gt_objects"] == whole["gt_objects"]
     assert all(c["distributed"]["users"] == 10 and len(c["distributed"]["runs"]) == 1 for c in result["cases"])
     # ground truth by visible frames: chairs E (frames 0-51) and F (369-409) are not in the second half
     assert len(whole["gt_objects"]) == whole["centralized"]["n_gt"] == 9 and first["centralized"]["n_gt"] == 9
     assert set(whole["gt_objects"]) - set(second["gt_objects"]) == {"chair_E", "chair_F"} and second["centralized"]["n_gt"] == 7
     assert whole["amodal"]["centralized"]["n_gt"] == 9 and "mean" in whole["amodal"]["distributed"]
     assert all(Path(p).is_file() for c in result["cases"] for p in c["pictures"])
-    assert len(list((out_dir / "exports").glob("*.json"))) == 6
+    assert len(list((out_dir / "exports").glob("*.json"))) == 8
 
 
 def _check_figures(result: dict[str, Any]) -> None:

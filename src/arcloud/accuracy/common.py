@@ -29,7 +29,9 @@ from arcloud.eval.protocol import object_boxes, run_map
 if TYPE_CHECKING:
     from arcloud.ports import Detector
 
-SPLITS = ("tune", "report", "office")  # office: the simulated suite's held-out office (arcloud.accuracy.sim)
+#: office: the simulated suite's held-out office (arcloud.accuracy.sim); paths: a real sequence's frames along another
+#: camera path (arcloud.accuracy.sevenscenes), both reported apart and tuned on by nobody.
+SPLITS = ("tune", "report", "office", "paths")
 #: The users of a distributed run (K), in every suite.
 USERS = 10
 #: Figures of a run that ``summarise`` reports (mean and worst); higher is better for all of them.
