@@ -109,3 +109,19 @@ def test_the_containers_entry_points_refuse_a_redis_that_evicts_keys(
         assert len(refusals) == 2 and "Traceback" not in err, err
         config.config_set("maxmemory-policy", "noeviction")
         create_app()  # the same Redis, keeping its keys: the API is made
+
+
+def test_the_containers_entry_points_wait_for_a_redis_that_does_not_answer_yet(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A review of the check above: its first version made the image's API and worker exit 2 while Redis was still
+    starting (a fresh `kubectl apply`, a failover), where they used to wait for it: pods crash-looped."""
+    from arcloud.service.settings import Settings
+    from arcloud.tools.wiring import check_redis_policy, create_app
+
+    monkeypatch.setenv("ARCLOUD_DETECTOR", "sim:0")
+    monkeypatch.setenv("ARCLOUD_STORE", "redis://127.0.0.1:1/0")
+    check_redis_policy(Settings())  # no answer: a warning, not a refusal
+    assert create_app() is not None  # the API is made; its /readyz says 503 until Redis answers
+    err = capsys.readouterr().err
+    assert "reach the store" in err and "starting anyway, and waiting for it" in err, err

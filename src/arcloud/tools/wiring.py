@@ -108,6 +108,15 @@ def check_model_file(spec: str) -> None:
     check(spec)
 
 
+def check_redis_policy(settings: Settings) -> None:
+    """``check_redis`` for a process that waits for its Redis (the containers' entry points: a pod may start before
+    Redis does): a Redis that does not answer yet is a warning, one that may evict keys is refused (``StoreError``)."""
+    try:
+        check_redis(settings)
+    except StoreUnavailable as exc:
+        log.warning("%s; starting anyway, and waiting for it", exc)
+
+
 def check_redis(settings: Settings) -> None:
     """``StoreUnavailable`` now, in one line naming where, when the service's Redis does not answer within 3 s (not
     a traceback from the API's start), and ``StoreError`` when it may evict keys (``check_memory_policy``); the keys'
@@ -394,7 +403,7 @@ def create_app(
 ) -> FastAPI:
     """The service on the adapters the settings name. Not given, they are read from ``ARCLOUD_*`` and, as
     this is then the process's entry point (``uvicorn --factory``), configure its logging too
-    (``log_level``, ``log_format``) and check its Redis as ``serve`` does (``check_redis``: exit 2 with one line).
+    (``log_level``, ``log_format``) and check its Redis (``check_redis_policy``: exit 2 with one line when it evicts).
     ``store``, ``queue``, ``detector``, ``publisher``: adapters to use instead (tests, embedding); the caller keeps
     ownership of what it passes. ``host_workers``: worker processes another process of this host runs for it
     (``serve --api-processes``), expected by ``/healthz/workers``. Checks the detector spec now; builds nothing until
@@ -403,7 +412,7 @@ def create_app(
         settings = Settings()
         configure_logging(settings.log_level, settings.log_format)
         try:
-            check_redis(settings)  # as `serve` does before it calls this: the image's API (uvicorn --factory) starts here
+            check_redis_policy(settings)  # the image's API (uvicorn --factory) starts here: refused on an evicting Redis
         except ArcloudError as exc:
             log.error("%s", exc)  # one line in the container's log, and no API on a Redis that would lose its data
             raise SystemExit(2) from exc
@@ -531,6 +540,7 @@ __all__ = [
     "check_detector_spec",
     "check_model_file",
     "check_redis",
+    "check_redis_policy",
     "check_zenoh_config",
     "connect",
     "create_app",

@@ -9,7 +9,14 @@ import logging
 from arcloud.errors import ArcloudError
 from arcloud.service.logs import configure_logging
 from arcloud.service.settings import Settings
-from arcloud.tools.wiring import check_detector_spec, check_model_file, check_redis, check_zenoh_config, healthy, run_worker
+from arcloud.tools.wiring import (
+    check_detector_spec,
+    check_model_file,
+    check_redis_policy,
+    check_zenoh_config,
+    healthy,
+    run_worker,
+)
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         check_detector_spec(settings.detector)
         check_model_file(settings.detector)
         check_zenoh_config(settings)
-        check_redis(settings)  # as `arcloud worker`: refused on a Redis that evicts keys, one line when it does not answer
+        check_redis_policy(settings)  # refused on a Redis that evicts keys; one not answering yet is waited for
         run_worker(settings)  # refused when a live worker maps with other map settings
     except ArcloudError as exc:  # a clear line in the container's log, not a traceback
         log.error("%s", exc)
