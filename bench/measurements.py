@@ -159,8 +159,10 @@ def load(figures: tuple[Figure, ...] = FIGURES) -> dict[str, Results]:
 def conditions(data: Results) -> str:
     """The machine and the day, and the commit where the file records it."""
     machine = f"{data['machine']['cpu']}, {data['machine']['cores']} cores"
-    commit = data.get("source", {}).get("commit")
-    return f"{machine}, {data['date'][:10]}" + (f", at {commit[:7]}" if commit else "")
+    source = data.get("source", {})
+    commit = source.get("commit")
+    changed = " with changes to src/ not yet committed" if source.get("src_changed") else ""
+    return f"{machine}, {data['date'][:10]}" + (f", at {commit[:7]}{changed}" if commit else "")
 
 
 def table(figures: tuple[Figure, ...], results: Mapping[str, Results], link_prefix: str) -> str:

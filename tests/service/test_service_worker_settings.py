@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import socket
 import threading
 
 import pytest
@@ -51,18 +52,31 @@ def test_a_worker_beside_live_workers_of_other_settings(caplog: pytest.LogCaptur
                 wider = worker(Params(voxel_size_m=0.04), "host-2")
                 with pytest.raises(ArcloudError, match=r"worker host-1 maps with other map settings \(voxel_size_m: "):
                     wider.check_peers()
+                stopped = threading.Event()
+                stopped.set()  # were it not refused, it would stop at once rather than hang the test
                 with pytest.raises(ArcloudError, match="start it with the same --params"):
-                    wider.run(threading.Event())  # refused before it takes a frame or beats
+                    wider.run(stopped)  # refused before it takes a frame or beats
                 assert sorted(queue.live_settings(10.0)) == ["host-1"]
                 other = worker(dataclasses.replace(Params(), min_voxels_per_detection=1000), "host-3")
                 with caplog.at_level(logging.WARNING, logger="arcloud.service.worker"):
                     other.check_peers()  # the same map settings: it may run, warned
                 assert "host-1 map with other --params" in caplog.text
                 queue.heartbeat("host-3", (), other.settings)
+                assert ingest.workers_health().checks["settings"] == "ok"  # other Params alone: logged, not failed
+                queue.heartbeat("host-2", (), wider.settings)  # started together, say: both passed the check
                 health = ingest.workers_health()
-                assert not health.ok and "the live workers map with 2 different settings" in health.checks["settings"], health
-                queue.leave("host-3")
+                assert not health.ok and health.checks["settings"].startswith(
+                    "the live workers map with 2 different map settings (host-1, host-3; host-2)"
+                ), health
+                queue.leave("host-2")
                 assert ingest.workers_health().checks["settings"] == "ok"
+                # a worker of this host killed a moment ago (its heartbeat fresh, its process gone) is no peer
+                from arcloud.service.worker import consumer_name
+
+                dead = consumer_name(2**22 + 12345)  # above the kernel's pid_max default: no such process
+                queue.heartbeat(dead, (), worker(Params(), "x").settings | {"map": wider.settings["map"]})
+                again = worker(Params(), consumer_name())
+                again.check_peers()  # host-1's settings are ours; the dead one's are not counted
             finally:
                 stop.set()
                 running.join(10)
@@ -78,7 +92,7 @@ def test_an_api_process_of_serve_api_processes_expects_its_hosts_worker_processe
     from svc_helpers import AppClient
 
     from arcloud.service.settings import Settings
-    from arcloud.service.worker import host_prefix
+    from arcloud.service.worker import consumer_name
     from arcloud.tools.wiring import create_app
 
     with RedisServer.start() as server:
@@ -87,18 +101,19 @@ def test_an_api_process_of_serve_api_processes_expects_its_hosts_worker_processe
             queue.prepare()
             settings = Settings(store=server.url, auth="none", detector="sim:0", workers=0)
             with AppClient(create_app(settings, host_workers=2)) as api:
-                queue.heartbeat(f"{host_prefix()}101", ())
-                queue.heartbeat("elsewhere-7", ())  # another host's worker is not one of ours
+                queue.heartbeat(consumer_name(101), ())
+                queue.heartbeat("elsewhere-7", ())  # another host's worker is not one of ours...
+                queue.heartbeat(f"{socket.gethostname()}-2-555", ())  # ...nor one of a host named as ours with "-2"
                 hung = api.get("/healthz/workers")
                 assert hung.status_code == 503, hung.text
                 body = hung.json()
                 assert (
                     body["checks"]["workers"].startswith("1 of 2 worker processes of this host reading") and body["expected"] == 2
                 )
-                queue.heartbeat(f"{host_prefix()}102", ())
+                queue.heartbeat(consumer_name(102), ())
                 assert api.get("/healthz/workers").status_code == 200
             with AppClient(create_app(settings)) as api:  # workers elsewhere: any live one will do
-                queue.leave(f"{host_prefix()}102")
+                queue.leave(consumer_name(102))
                 assert api.get("/healthz/workers").json()["expected"] is None
                 assert api.get("/healthz/workers").status_code == 200
         finally:

@@ -84,6 +84,12 @@ CASES = (
 )
 
 
+def whole_sequence_case(sequence: SevenScenesSequence) -> SequenceCase:
+    """The one case of a sequence nobody tuned on: all its frames, in the ``report`` split."""
+    numbers = [sequence.frame_number(n) for n in sequence.frame_names]
+    return SequenceCase(min(numbers), max(numbers), "report", sequence.name)
+
+
 def score_against(
     objects: Sequence[MapObject],
     ground_truth: GroundTruthBoxes,
@@ -128,6 +134,7 @@ def run_suite(
     if model not in MODELS_REL:
         raise DatasetError(f"model: expected one of {list(MODELS_REL)}, got {model!r}")
     model_name, model_path = model, shared_dir / MODELS_REL[model]
+    given = root is not None
     root = Path(root) if root is not None else shared_dir / SEQUENCE_REL
     if not (root / "gt-boxes.json").is_file():
         raise DatasetError(
@@ -139,10 +146,7 @@ def run_suite(
     step = stride if stride is not None else (QUICK_STRIDE if quick else 1)
     sequence = load_seven_scenes(root, align_gravity=True)
     if cases is None:
-        numbers = [sequence.frame_number(n) for n in sequence.frame_names]
-        cases = (
-            CASES if root == shared_dir / SEQUENCE_REL else (SequenceCase(min(numbers), max(numbers), "report", sequence.name),)
-        )
+        cases = (whole_sequence_case(sequence),) if given else CASES
     frame = seven_scenes_export_frame(sequence)
     params = frame.params(params if params is not None else Params())
     detector = CachedDetector(make_detector(f"onnx:{model_path}"))
@@ -231,4 +235,4 @@ def evaluate_case(
     return record
 
 
-__all__ = ["CASES", "QUICK_STRIDE", "SequenceCase", "evaluate_case", "run_suite", "score_against"]
+__all__ = ["CASES", "QUICK_STRIDE", "SequenceCase", "evaluate_case", "run_suite", "score_against", "whole_sequence_case"]

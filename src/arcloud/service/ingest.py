@@ -28,7 +28,7 @@ from arcloud.core.types import Frame
 from arcloud.ports import FrameQueue, FrameStatus, ObjectStore, QueueFull, QueueStats
 from arcloud.service.devices import RecentDevices
 from arcloud.service.pool import WorkerPool
-from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name, host_prefix
+from arcloud.service.worker import LIVE_WORKER_S, FrameWorker, consumer_name, of_host
 
 log = logging.getLogger(__name__)
 
@@ -185,7 +185,7 @@ class Ingest:
         expected = self.host_workers or None
         if all(v == "ok" for v in checks.values()):
             live = self.queue.live_consumers(LIVE_WORKER_S)
-            ours = [name for name in live if name.startswith(host_prefix())]
+            ours = [name for name in live if of_host(name)]
             if expected is not None and len(ours) < expected:
                 checks["workers"] = (
                     f"{len(ours)} of {expected} worker processes of this host reading (heartbeat in {LIVE_WORKER_S:.0f} s)"
@@ -198,16 +198,20 @@ class Ingest:
         return WorkersReport(checks, live, expected)
 
     def _settings_check(self) -> str:
-        """``ok`` when the live workers map with one set of settings (``worker_settings``), else how many sets and
-        whose: a map they share would mix them, or its frames fail on the workers of other map settings."""
+        """``ok`` when the live workers map with one set of map settings (``worker_settings``), else how many sets and
+        whose: each fails the frames of the maps the others made (other ``Params`` alone are only logged: a release
+        that adds one would fail this check through every rollout)."""
         given = self.queue.live_settings(LIVE_WORKER_S)
         kinds: dict[str, list[str]] = {}
         for name, settings in sorted(given.items()):
-            kinds.setdefault(json.dumps(settings, sort_keys=True), []).append(name)
+            kinds.setdefault(json.dumps(settings.get("map"), sort_keys=True), []).append(name)
         if len(kinds) <= 1:
             return "ok"
-        groups = "; ".join(f"{', '.join(names)}: params {json.loads(kind).get('params')}" for kind, names in kinds.items())
-        return f"the live workers map with {len(kinds)} different settings ({groups}): run them all with the same --params"
+        groups = "; ".join(", ".join(names) for names in kinds.values())
+        return (
+            f"the live workers map with {len(kinds)} different map settings ({groups}): each fails the frames of the "
+            "maps the others made; run them all with the same --params"
+        )
 
 
 @dataclass(frozen=True, slots=True)

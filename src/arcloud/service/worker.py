@@ -201,12 +201,28 @@ class Started:
 
 def consumer_name(pid: int | None = None) -> str:
     """``<host>-<pid>`` (this process's, or ``pid``'s on this host): unique among the queue's live consumers."""
-    return f"{host_prefix()}{os.getpid() if pid is None else pid}"
+    return f"{socket.gethostname()}-{os.getpid() if pid is None else pid}"
 
 
-def host_prefix(host: str | None = None) -> str:
-    """What the consumer names of ``host``'s workers (default: this one's) begin with."""
-    return f"{host or socket.gethostname()}-"
+def of_host(name: str, host: str | None = None) -> bool:
+    """Whether the consumer ``name`` is a worker of ``host`` (default: this one): its name less ``-<pid>`` is the host
+    (``web-2-555`` is no worker of ``web``)."""
+    rest, _, pid = name.rpartition("-")
+    return pid.isdigit() and rest == (host or socket.gethostname())
+
+
+def gone_here(name: str) -> bool:
+    """Whether the consumer ``name`` is a worker of this host whose process is no more (its heartbeat is not stale
+    yet: a worker killed and started again at once)."""
+    if not of_host(name):
+        return False
+    try:
+        os.kill(int(name.rpartition("-")[2]), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # another user's process: alive
+        return False
+    return False
 
 
 def frame_log_fields(item: QueuedFrame) -> dict[str, object]:
@@ -274,8 +290,7 @@ class FrameWorker:
             self.queue.prepare()
         except StoreUnavailable as exc:  # the loop waits for the queue; its readers create what is missing
             log.warning("worker %s: cannot prepare the queue yet: %s", self.consumer, exc)
-        else:
-            self.check_peers()
+        peers_checked = self._peers_checked(stop)
         if self._warm_up:
             log.info("worker %s warmed up in %.2f s", self.consumer, warm_up(self.detector))
         log.info("worker %s taking frames", self.consumer)
@@ -286,6 +301,9 @@ class FrameWorker:
             heart.start()
         try:
             while not stop.is_set():
+                if not peers_checked:  # the queue was away at the start: checked before the first frame
+                    peers_checked = self._peers_checked(stop)
+                    continue
                 try:
                     self.poll_once()
                     if not self._reading:
@@ -314,13 +332,27 @@ class FrameWorker:
                     log.debug("worker %s: heartbeat not removed", self.consumer, exc_info=True)
         log.info("worker %s stopped", self.consumer)
 
+    def _peers_checked(self, stop: threading.Event) -> bool:
+        """``check_peers``; False (after a second's wait) while the queue does not answer."""
+        try:
+            self.check_peers()
+        except StoreUnavailable as exc:
+            log.warning("worker %s: cannot read the other workers' settings yet: %s", self.consumer, exc)
+            stop.wait(1.0)
+            return False
+        return True
+
     def check_peers(self) -> None:
         """``ArcloudError`` when a live worker maps with other map settings (``worker_settings``): this one would fail
         every frame of the maps that one made, each delivered again until it was given up (a review of workers
         failing: good frames dead-lettered); a warning when only their other ``Params`` differ."""
         if self.monitor is None:
             return
-        peers = {name: theirs for name, theirs in self.monitor.live_settings(LIVE_WORKER_S).items() if name != self.consumer}
+        peers = {
+            name: theirs
+            for name, theirs in self.monitor.live_settings(LIVE_WORKER_S).items()
+            if name != self.consumer and not gone_here(name)
+        }
         for name, theirs in sorted(peers.items()):
             differences = settings_differences(theirs, self.settings)
             if differences:
@@ -505,7 +537,8 @@ __all__ = [
     "Started",
     "consumer_name",
     "frame_log_fields",
-    "host_prefix",
+    "gone_here",
+    "of_host",
     "run_step",
     "timed_detect",
     "warm_up",

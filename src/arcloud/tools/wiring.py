@@ -511,18 +511,17 @@ def worker_pool(
 def healthy(settings: Settings, host: str | None = None, max_age_s: float = 10.0) -> bool:
     """Whether a worker on ``host`` (default: this one) wrote a heartbeat in the last ``max_age_s`` (False
     when Redis does not answer within 3 s)."""
-    from arcloud.service.worker import host_prefix
+    from arcloud.service.worker import of_host
     from arcloud.stores.redis import connect_redis
     from arcloud.stores.redis_queue import RedisFrameQueue
 
-    prefix = host_prefix(host)
     try:
         client = connect_redis(settings.store, reply_timeout_s=3.0)  # a hung Redis: unhealthy in 3 s
     except StoreUnavailable:  # a cluster's client reads its slot map at once
         return False
     try:
         queue = RedisFrameQueue(client=client, group=settings.consumer_group)
-        return any(name.startswith(prefix) for name in queue.live_consumers(max_age_s))
+        return any(of_host(name, host) for name in queue.live_consumers(max_age_s))
     except StoreUnavailable:
         return False
     finally:
