@@ -5,10 +5,22 @@ URL answers unhealthy (not a traceback)."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 
 import pytest
 
 from arcloud.cli import main as cli_main
+
+
+@pytest.fixture
+def own_logging() -> Iterator[None]:
+    """For a test whose entry point sets the process's logging up (``configure_logging``): pytest's handlers and the
+    level put back after it, so later tests' lines are captured as before."""
+    root, ours = logging.getLogger(), logging.getLogger("arcloud")
+    handlers, level = root.handlers[:], ours.level
+    yield
+    root.handlers[:] = handlers
+    ours.setLevel(level)
 
 
 def test_serve_with_redis_down_stops_with_one_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
@@ -82,7 +94,7 @@ def test_a_redis_that_evicts_keys_is_refused_at_start_and_a_full_one_is_not_read
 
 @pytest.mark.redis
 def test_the_containers_entry_points_refuse_a_redis_that_evicts_keys(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], own_logging: None
 ) -> None:
     """A review of workers failing: `python -m arcloud.tools.worker` (docker-compose, the k8s worker) took frames from
     a Redis with maxmemory-policy allkeys-lru, and the image's API (`uvicorn --factory ...:create_app`) started on it,
@@ -112,7 +124,7 @@ def test_the_containers_entry_points_refuse_a_redis_that_evicts_keys(
 
 
 def test_the_containers_entry_points_wait_for_a_redis_that_does_not_answer_yet(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], own_logging: None
 ) -> None:
     """A review of the check above: its first version made the image's API and worker exit 2 while Redis was still
     starting (a fresh `kubectl apply`, a failover), where they used to wait for it: pods crash-looped."""
