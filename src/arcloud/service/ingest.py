@@ -154,8 +154,8 @@ class Ingest:
         """Whether the frames accepted get processed (``/healthz/workers``; not part of this process's readiness):
         the queue's own checks (Redis: it answers, the consumer group exists), the detector of the worker threads,
         and the workers: threads alive; worker processes alive, each with a fresh heartbeat (a worker beats only
-        while its reads succeed); workers elsewhere: some fresh heartbeat; worker processes and workers elsewhere:
-        all with one set of settings (``settings``)."""
+        while its reads succeed); workers elsewhere: some fresh heartbeat (``host_workers`` of this host, when another
+        process runs them); and the live workers all of one set of map settings (``settings``)."""
         checks = self.queue.health()
         if self.workers:
             alive = [w.consumer for w, t in zip(self.workers, self._threads) if t.is_alive()]
