@@ -464,15 +464,17 @@ class QueuedFrame:
     """One delivery of a queued frame to one consumer, until it is acknowledged, failed or dead-lettered.
 
     ``frame`` is None when the queued bytes do not decode (``undecodable`` says why). ``deliveries``
-    counts this one (1 the first time). ``accepted_at_s``: when the queue accepted the frame (Unix
-    seconds, the accepting process's clock; None when not known). ``receipt`` is the adapter's own handle;
-    nothing else reads it."""
+    counts this one (1 the first time). ``entry_id``: the queue's id of the entry delivered, the same in
+    every delivery of it (a frame queued again is another entry). ``accepted_at_s``: when the queue accepted
+    the frame (Unix seconds, the accepting process's clock; None when not known). ``receipt`` is the
+    adapter's own handle; nothing else reads it."""
 
     map_id: str
     frame_key: str
     consumer: str
     deliveries: int
     frame: Frame | None
+    entry_id: str
     undecodable: str = ""
     accepted_at_s: float | None = None
     receipt: Any = field(default=None, repr=False)

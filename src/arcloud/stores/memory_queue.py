@@ -203,7 +203,9 @@ class MemoryFrameQueue:
             receipt = next(self._receipts)
             self._in_hand[receipt] = (frame.map_id, n_bytes)
             self._set_status(frame.map_id, frame.key, FrameStatus("processing"))
-        return QueuedFrame(frame.map_id, frame.key, consumer, 1, frame, accepted_at_s=accepted_at_s, receipt=receipt)
+        return QueuedFrame(
+            frame.map_id, frame.key, consumer, 1, frame, str(receipt), accepted_at_s=accepted_at_s, receipt=receipt
+        )
 
     def claim_abandoned(self, consumer: str, *, min_idle_s: float) -> QueuedFrame | None:
         return None  # every consumer is a thread of this process: none is abandoned

@@ -635,7 +635,7 @@ class RedisFrameQueue:
         return None
 
     def _delivery(self, consumer: str, receipt: Receipt, *, deliveries: int) -> QueuedFrame:
-        _shard, _entry_id, fields = receipt
+        _shard, entry_id, fields = receipt
         frame: Frame | None = None
         undecodable = ""
         try:
@@ -648,6 +648,7 @@ class RedisFrameQueue:
             consumer,
             deliveries,
             frame,
+            _text(entry_id),
             undecodable,
             accepted_at_s=_seconds(fields.get(b"accepted_at_s")),
             receipt=receipt,
