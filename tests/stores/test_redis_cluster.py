@@ -111,7 +111,7 @@ class Monitor:
 
 def test_every_script_touches_keys_of_one_slot_only(redis_server: RedisServer) -> None:
     """The store's, the queue's and the rate limiter's scripts, through a working day: steps on a map,
-    queries, deletions, frames queued, taken, acknowledged, dead-lettered, retried, a map deleted."""
+    queries, deletions, a frame given up, frames queued, taken, acknowledged, dead-lettered, retried, a map deleted."""
     with redis_server.client() as client:
         client.flushdb()
     monitor = Monitor(redis_server)
@@ -125,7 +125,8 @@ def test_every_script_touches_keys_of_one_slot_only(redis_server: RedisServer) -
         store.query_region(MAP, np.full(3, -1.0), np.full(3, 4.0))
         (first, *_) = store.list_objects(MAP)
         with store.lock(MAP, [first.id], ttl_s=5, timeout_s=1) as lease:
-            store.commit(MAP, [lease], MapChange.writing(MAP, [], [first]), frame_key="d/x")
+            store.commit(MAP, [lease], MapChange.writing(MAP, [], [first]), frame_key="d/x", entry_id="1-0")
+        store.give_up_frame(MAP, "d/y", "2-0")
         with store.claim(MAP, [(0, 0, 0), (0, 1, 0)], ttl_s=5, timeout_s=1):
             pass
         for index, map_id in enumerate(("a", "walk", "b", "b")):
@@ -150,8 +151,8 @@ def test_every_script_touches_keys_of_one_slot_only(redis_server: RedisServer) -
     commands = monitor.stop()
     with redis_server.client() as client:
         assert (
-            _check_scripts(commands, client) == 9
-        )  # acquire release query commit accept settle dead_letters_kept rate_limit mark_published (delete_map's only one)
+            _check_scripts(commands, client) == 10
+        )  # acquire release query commit give_up_frame accept settle dead_letters_kept rate_limit mark_published (delete_map's only one)
         stray = [("c", [b"EVALSHA", b"sha", b"1", b"a{m}"]), ("lua", [b"GET", b"a{m}"]), ("lua", [b"GET", b"b{n}"])]
         with pytest.raises(AssertionError, match="touched 'b{n}' of another slot"):
             _check_scripts(stray, client)  # the check sees what it is for

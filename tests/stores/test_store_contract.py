@@ -258,6 +258,25 @@ def test_frame_is_recorded_once(store) -> None:
     assert store.count_frames("map-b") == 0
 
 
+def test_a_frame_given_up_is_not_written_from_its_entry_and_a_processed_one_is_not_given_up(make_store) -> None:
+    """A worker paused past its claim resumes after its frame's queue entry was given up (dead-lettered): its
+    commit writes nothing. The frame queued again (another entry) is written once, and then is not given up."""
+    clock = Clock()
+    store = make_store(frame_record_retention_s=10.0, clock=clock)
+    change = MapChange.writing(MAP, [make_object(1, (0.0, 0, 0))])
+    assert store.give_up_frame(MAP, "dev/f1", "1-0")
+    with pytest.raises(StaleLease, match="dev/f1 of queue entry 1-0 was given up"):
+        store.commit(MAP, [], change, frame_key="dev/f1", entry_id="1-0")
+    assert store.list_objects(MAP) == [] and store.count_frames(MAP) == 0 and not store.is_frame_done(MAP, "dev/f1")
+    assert store.changes_since(MAP, 0, 10).version == 0
+    assert store.commit(MAP, [], change, frame_key="dev/f1", entry_id="2-0")  # queued again: another entry
+    assert not store.give_up_frame(MAP, "dev/f1", "2-0")  # processed: it stays so
+    assert store.commit(MAP, [], MapChange(), frame_key="dev/f2", entry_id="2-0")  # the mark is the entry's alone
+    assert store.count_frames(MAP) == 2
+    clock.now_s += 10.5  # past the retention, as a processed frame's mark
+    assert store.commit(MAP, [], MapChange(), frame_key="dev/f3", entry_id="1-0")
+
+
 # --- a commit that writes releases its leases ---------------------------------------------------------
 def test_a_commit_that_writes_frees_its_locks_and_claims_at_once(store) -> None:
     a = make_object(1, (0.0, 0.0, 0.0))

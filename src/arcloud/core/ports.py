@@ -80,13 +80,22 @@ class MapStore(Protocol):
         a ``range``, so that moving the counter past restored ids costs the same for any ``n``)."""
         ...
 
-    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        change: MapChange,
+        *,
+        frame_key: str | None = None,
+        entry_id: str | None = None,
+    ) -> bool:
         """Write ``change`` atomically, append its events to the map's change log (``core.change``: one entry,
         the map's version + 1, when it has events) and record ``frame_key`` as processed, in the same step.
 
         Every existing object written, deleted or counted must be held by one of ``leases`` (new objects need
-        none) and be at version ``obj.version - 1`` in the store (deletes and retired: at ``obj.version``);
-        otherwise nothing is written, nor logged, and ``StaleLease`` is raised (fencing). Returns False,
+        none) and be at version ``obj.version - 1`` in the store (deletes and retired: at ``obj.version``),
+        and ``entry_id`` (the queue entry the frame was delivered from) must not have been given up
+        (``give_up_frame``); otherwise nothing is written, nor logged, and ``StaleLease`` is raised (fencing). Returns False,
         writing nothing, when ``frame_key`` was already recorded (the frame was processed before). A store may
         forget a record after a retention far longer than any redelivery (a day by default); the frame
         then counts as not processed. Retired objects are kept in the map's history, with the commit's
@@ -100,6 +109,13 @@ class MapStore(Protocol):
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         """Whether a commit recorded this frame as processed (and the record is kept)."""
+        ...
+
+    def give_up_frame(self, map_id: str, frame_key: str, entry_id: str) -> bool:
+        """Give up the frame's queue entry ``entry_id`` before the queue counts it failed: from now on a commit from it
+        raises ``StaleLease`` (a worker that held it and was paused past its claim writes nothing), for as long as
+        a processed frame is recorded. False, recording nothing, when a commit recorded the frame already: it was
+        processed, and counts as that. In one step, so that the frame is never both."""
         ...
 
 

@@ -123,10 +123,12 @@ def warm_up(detector: Detector) -> float:
 class LockTimer:
     """``store`` for one frame's step, adding up the seconds its ``lock`` and ``claim`` calls took
     (``lock_wait_s``): what the step waited for objects and index cells, other workers' holds and the
-    round trips included. Every other call goes straight to ``store``."""
+    round trips included. Its commits name the queue entry delivered, ``entry_id`` (refused once that entry
+    was given up: ``MapStore.give_up_frame``). Every other call goes straight to ``store``."""
 
-    def __init__(self, store: MapStore) -> None:
+    def __init__(self, store: MapStore, entry_id: str | None = None) -> None:
         self.store = store
+        self.entry_id = entry_id
         self.lock_wait_s = 0.0
 
     def lock(self, map_id: str, ids: Sequence[int], *, ttl_s: float, timeout_s: float) -> Lease:
@@ -152,11 +154,22 @@ class LockTimer:
     def new_ids(self, map_id: str, n: int) -> Sequence[int]:
         return self.store.new_ids(map_id, n)
 
-    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
-        return self.store.commit(map_id, leases, change, frame_key=frame_key)
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        change: MapChange,
+        *,
+        frame_key: str | None = None,
+        entry_id: str | None = None,
+    ) -> bool:
+        return self.store.commit(map_id, leases, change, frame_key=frame_key, entry_id=entry_id or self.entry_id)
 
     def is_frame_done(self, map_id: str, frame_key: str) -> bool:
         return self.store.is_frame_done(map_id, frame_key)
+
+    def give_up_frame(self, map_id: str, frame_key: str, entry_id: str) -> bool:
+        return self.store.give_up_frame(map_id, frame_key, entry_id)
 
 
 def run_step(

@@ -12,6 +12,9 @@ characters anyway, so a map's keys match the pattern ``map_pattern(map_id)`` and
                                             written (Unix s); kept ``frame_record_retention_s`` (``RedisStore``)
     arcloud:{m}:processed:count     STRING  frames of the map processed (INCR in the commit; never lowered)
     arcloud:{m}:processed:sweep     STRING  where the commits' sweep of expired marks goes on (HSCAN cursor)
+    arcloud:{m}:given-up:<entry>    STRING  a queue entry of the map's frames given up (``give_up_frame``, before its
+                                            dead letter): the commit refuses a frame delivered from it; EX
+                                            ``frame_record_retention_s``
     arcloud:{m}:bounds              HASH    object id -> 6 float64 little-endian (min xyz, max xyz); the registry of objects
     arcloud:{m}:meta                HASH    object id -> metadata (``codec.encode_meta``): listing needs one read
     arcloud:{m}:obj:<id>            HASH    one object: ``version`` (the fence), ``cells`` (where it is indexed,
@@ -97,6 +100,7 @@ CLUSTER_SLOTS = 16384
 # Suffixes after the map prefix; the Lua scripts build per-object and per-cell keys from these.
 IDS = "ids"
 PROCESSED = "processed"
+GIVEN_UP = "given-up"
 BOUNDS = "bounds"
 META = "meta"
 HEADER = "header"
@@ -138,6 +142,10 @@ def processed_count_key(map_id: str) -> str:
 
 def processed_sweep_key(map_id: str) -> str:
     return f"{map_prefix(map_id)}:{PROCESSED}:sweep"
+
+
+def given_up_key(map_id: str, entry_id: str) -> str:
+    return f"{map_prefix(map_id)}:{GIVEN_UP}:{entry_id}"
 
 
 def bounds_key(map_id: str) -> str:

@@ -3,7 +3,7 @@
 It keeps the semantics of the Redis store so that one contract suite tests both: locks and claims
 carry a token and a TTL (an expired lease's write is refused), writes are compare-and-set on the
 object version (fencing), frames are recorded once (a processed frame's mark kept
-``frame_record_retention_s``, as on Redis), retired objects stay in the map's history for
+``frame_record_retention_s``, as on Redis, and so is a queue entry given up, whose commits are refused), retired objects stay in the map's history for
 ``retired_history_s``, each map's change log (``core.change``) keeps its latest ``change_log_entries`` in a
 ring buffer, appended under the same lock as the commit's writes. Locks are taken all-or-nothing under one condition variable
 per map, so a thread never holds some locks while waiting for others; a successful commit releases the leases it
@@ -62,6 +62,7 @@ class _MapState:
     held: dict[_Name, _Holder] = field(default_factory=dict)
     frames: dict[str, float] = field(default_factory=dict)  # processed frame key -> when (Unix s), oldest first
     n_frames: int = 0  # frames processed (marks expiring do not lower it)
+    given_up: dict[str, float] = field(default_factory=dict)  # queue entry given up -> when (Unix s), oldest first
     retired: dict[int, RetiredObject] = field(default_factory=dict)  # the history, oldest first
     next_id: int = 1
     version: int = 0  # the map's version: the last entry of its change log
@@ -217,11 +218,22 @@ class MemoryStore:
             first, state.next_id = state.next_id, state.next_id + n
         return range(first, first + n)
 
-    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        change: MapChange,
+        *,
+        frame_key: str | None = None,
+        entry_id: str | None = None,
+    ) -> bool:
         own = cast("Sequence[MemoryLease]", leases)  # the port's Lease: here always one this store handed out
         upserts, deletes, retired, misses, gone = change.upserts, change.deletes, change.retired, change.misses, change.gone
         state = self._map(map_id)
         with state.changed:
+            given_up_at_s = state.given_up.get(entry_id) if entry_id is not None else None
+            if given_up_at_s is not None and given_up_at_s >= self._clock() - self.frame_record_retention_s:
+                raise StaleLease(f"map {map_id}: frame {frame_key} of queue entry {entry_id} was given up; nothing written")
             if frame_key is not None and self._recorded(state, frame_key):
                 return False
             now = time.monotonic()
@@ -405,6 +417,19 @@ class MemoryStore:
         state = self._map(map_id)
         with state.changed:
             return self._recorded(state, frame_key)
+
+    def give_up_frame(self, map_id: str, frame_key: str, entry_id: str) -> bool:
+        state = self._map(map_id)
+        with state.changed:
+            if self._recorded(state, frame_key):
+                return False
+            now_s = self._clock()
+            state.given_up.pop(entry_id, None)
+            state.given_up[entry_id] = now_s
+            cutoff = now_s - self.frame_record_retention_s
+            for expired in list(itertools.takewhile(lambda k: state.given_up[k] < cutoff, state.given_up)):
+                del state.given_up[expired]
+            return True
 
     def count_frames(self, map_id: str) -> int:
         state = self._map(map_id)

@@ -43,7 +43,9 @@ map), the object encoding in ``arcloud.stores.codec``, the atomic steps in ``sto
   settles after its commit, so a frame posted again after its queue record went finds no mark either):
   long enough for any redelivery; after it the frame counts as not processed. Each commit sweeps about
   ``RECORDS_SWEPT_PER_CALL`` marks on from where the last one stopped (HSCAN, ``lua/records.lua``) and
-  drops the expired ones, so the HASH holds about a retention's frames.
+  drops the expired ones, so the HASH holds about a retention's frames. A queue entry given up
+  (``give_up_frame``, before the queue dead-letters it) is a STRING of the same retention that the commit
+  script looks for: a worker that held the entry and resumes after it was given up writes nothing.
 - ``new_ids``: INCRBY on the map's counter, unique across processes.
 - ``delete_map``: records the deletion (``arcloud:deletion:{map}``, ``map_deletion`` reads it), takes the map off
   the list and unlinks its header (the map is unknown from then on, and the API refuses its frames), then
@@ -355,7 +357,9 @@ class RedisStore:
         if not 1 <= max_query_cells <= MAX_CELLS_PER_CALL:
             raise InvalidInput("max_query_cells", f"1 to {MAX_CELLS_PER_CALL} (MAX_CELLS_PER_CALL)", max_query_cells)
         self.max_query_cells = int(max_query_cells)
-        self._scripts = {name: client.register_script(lua_source(name)) for name in ("acquire", "query", "mark_published")}
+        self._scripts = {
+            name: client.register_script(lua_source(name)) for name in ("acquire", "query", "mark_published", "give_up_frame")
+        }
         self._scripts["release"] = client.register_script(lua_source("leases") + lua_source("release"))
         self._scripts["commit"] = client.register_script(lua_source("records") + lua_source("leases") + lua_source("commit"))
 
@@ -518,7 +522,15 @@ class RedisStore:
             last = int(self.client.incrby(keys.ids_key(map_id), n))
         return range(last - n + 1, last + 1)
 
-    def commit(self, map_id: str, leases: Sequence[Lease], change: MapChange, *, frame_key: str | None = None) -> bool:
+    def commit(
+        self,
+        map_id: str,
+        leases: Sequence[Lease],
+        change: MapChange,
+        *,
+        frame_key: str | None = None,
+        entry_id: str | None = None,
+    ) -> bool:
         own = cast("Sequence[RedisLease]", leases)  # the port's Lease: here always one this store handed out
         for lease in own:
             if lease.map_id != map_id:
@@ -532,6 +544,7 @@ class RedisStore:
         check_script_cells(new_cells)  # the script adds these and checks them with those it removes
         header: dict[str, Any] = {
             "frame": frame_key or "",
+            "entry_id": entry_id or "",
             "now": self._clock(),
             "retention_s": self.frame_record_retention_s,
             "sweep": RECORDS_SWEPT_PER_CALL,
@@ -740,6 +753,15 @@ class RedisStore:
         with redis_errors(f"is_frame_done on map {map_id}", self._where):
             recorded_at_s = self.client.hget(keys.processed_key(map_id), frame_key)
         return recorded_at_s is not None and float(recorded_at_s) >= self._clock() - self.frame_record_retention_s
+
+    def give_up_frame(self, map_id: str, frame_key: str, entry_id: str) -> bool:
+        kept_ms = max(1, math.ceil(self.frame_record_retention_s * 1000))
+        with redis_errors(f"give_up_frame on map {map_id}", self._where):
+            given_up = self._scripts["give_up_frame"](
+                keys=[keys.processed_key(map_id), keys.given_up_key(map_id, entry_id)],
+                args=[frame_key, self._clock(), self.frame_record_retention_s, kept_ms],
+            )
+        return int(given_up) == 1
 
     def count_frames(self, map_id: str) -> int:
         with redis_errors(f"count_frames on map {map_id}", self._where):

@@ -6,13 +6,15 @@
 -- KEYS[8]: the map's change log (STREAM), KEYS[9]: the map's version (STRING: the log's last entry),
 -- KEYS[10]: when the log began (STRING, set with its first entry: Redis's TIME, "seconds.microseconds").
 -- ARGV[1]: the map prefix "arcloud:{map}" (object and cell keys are built from it: one hash tag, one slot).
--- ARGV[2]: JSON {frame, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
+-- ARGV[2]: JSON {frame, entry_id, now, retention_s, sweep, leases: [[key, token]...], held: [id...],
 --          upserts: [{id, version, cells}...], deletes: [{id, version}...], misses: [{id, count}...],
 --          gone: [{id, count}...], retired: [{id, version}...], history_s, history_max, new_cells, max_cells,
 --          log_max}
 --          (leases: lock and claim keys, of the map's hash tag; ids, versions and counts as decimal strings;
---          frame "" for none; cells: "i:j:k i:j:k ..." the index cells of the object's bounds; upserts also
---          carry missed and gone, the object's counters, kept in its hash beside the voxels; now: Unix s; a
+--          frame "" for none; entry_id: the queue entry the frame was delivered from, "" for none: refused
+--          within retention_s of its being given up (give_up_frame.lua, "<prefix>:given-up:<entry_id>");
+--          cells: "i:j:k i:j:k ..." the index cells of the object's bounds; upserts also carry missed and gone,
+--          the object's counters, kept in its hash beside the voxels; now: Unix s; a
 --          frame recorded more than retention_s ago counts as not recorded, and each commit sweeps about `sweep`
 --          records for such ones; retired objects are deleted like deletes and their metadata kept in the
 --          history, which keeps those retired within history_s, at most history_max; new_cells: how many index
@@ -33,19 +35,24 @@ local prefix = ARGV[1]
 local req = cjson.decode(ARGV[2])
 local cutoff = tonumber(req.now) - tonumber(req.retention_s)
 
-if req.frame ~= '' then
-  local recorded_at = redis.call('HGET', frames_key, req.frame)
-  if recorded_at and tonumber(recorded_at) >= cutoff then
-    return 0
-  end
-end
-
 local function object_key(id)
   return prefix .. ':obj:' .. id
 end
 
 local function stale(message)
   return redis.error_reply('STALE ' .. prefix .. ': ' .. message .. '; nothing written')
+end
+
+-- A delivery of an entry given up (its frame counted failed) writes nothing, whatever else holds.
+local given_up_at = req.entry_id ~= '' and redis.call('GET', prefix .. ':given-up:' .. req.entry_id)
+if given_up_at and tonumber(given_up_at) >= cutoff then
+  return stale('frame ' .. req.frame .. ' of queue entry ' .. req.entry_id .. ' was given up (dead-lettered)')
+end
+if req.frame ~= '' then
+  local recorded_at = redis.call('HGET', frames_key, req.frame)
+  if recorded_at and tonumber(recorded_at) >= cutoff then
+    return 0
+  end
 end
 
 for _, lease in ipairs(req.leases) do
