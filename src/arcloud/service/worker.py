@@ -11,6 +11,9 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
 1. Every ``claim_interval_s``: claim one frame another consumer took ``claim_min_idle_s`` ago without
    settling it (it died or hangs). Beyond ``max_deliveries`` it is a poison frame: dead-lettered (or,
    when a slow delivery did commit it meanwhile, acknowledged as redelivered). Otherwise processed here.
+   A frame is given up in the store before it is dead-lettered (``MapStore.give_up_frame``, atomic with the
+   commits): the worker that held it, paused past its claim, then has its commit refused (``StaleLease``)
+   and settles nothing, so the frame is never both in the map and failed.
 2. Take one new frame (blocking ``read_block_s`` while no other frame is in hand), process it.
 3. Processing: an undecodable frame is dead-lettered at once; the frame is detected (holding nothing of
    the store); one processed before is acknowledged as redelivered; the map is opened (its header stored by
@@ -448,15 +451,9 @@ class FrameWorker:
         and frame ids and its delivery count."""
         with log_context(**frame_log_fields(item)):
             if item.deliveries > self.max_deliveries:
-                if item.map_id and item.frame_key and self.store.is_frame_done(item.map_id, item.frame_key):
-                    # A slow delivery finished after the frame was claimed again: it counts once, as processed.
-                    self.queue.ack(item, redelivered=True)
-                    return "redelivered"
-                self._dead_letter(item, f"delivered {item.deliveries} times (max {self.max_deliveries})")
-                return "dead"
+                return self._dead_letter(item, f"delivered {item.deliveries} times (max {self.max_deliveries})")
             if item.frame is None:
-                self._dead_letter(item, f"undecodable: {item.undecodable}")
-                return "dead"
+                return self._dead_letter(item, f"undecodable: {item.undecodable}")
             queue_wait_s = None
             if item.deliveries == 1 and item.accepted_at_s is not None:  # a later delivery's wait holds the earlier ones
                 queue_wait_s = max(0.0, time.time() - item.accepted_at_s)
@@ -484,7 +481,7 @@ class FrameWorker:
     def _finish(self, started: Started) -> Outcome:
         item, frame = started.item, started.frame
         began = time.perf_counter()
-        locks = LockTimer(self.store)
+        locks = LockTimer(self.store, item.entry_id)
         try:
             detections, detect_s = started.detections.result()
             # A delivery before this one may have committed it; a first delivery is left to the commit, which
@@ -501,8 +498,7 @@ class FrameWorker:
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
         except (InvalidInput, MapBeingDeleted) as exc:  # every delivery would fail the same way
-            self._dead_letter(item, f"{type(exc).__name__}: {exc}")
-            return "dead"
+            return self._dead_letter(item, f"{type(exc).__name__}: {exc}")
         except Exception as exc:  # the queue decides: delivered again later, or failed
             log.exception(
                 "worker %s: map %s frame %s (device %s) failed (delivery %d of %d)",
@@ -535,11 +531,18 @@ class FrameWorker:
                 "worker %s: map %s: publishing its change log failed; the next sweep does", self.consumer, map_id, exc_info=True
             )
 
-    def _dead_letter(self, item: QueuedFrame, reason: str) -> None:
+    def _dead_letter(self, item: QueuedFrame, reason: str) -> Outcome:
+        """Give the frame up: first in the store, so that no delivery of its entry commits it after it counts as
+        failed (a worker paused past its claim; ``MapStore.give_up_frame``), then to the queue's dead letters. A
+        frame some delivery committed already is acknowledged instead: it counts once, as processed."""
+        if item.map_id and item.frame_key and not self.store.give_up_frame(item.map_id, item.frame_key, item.entry_id):
+            self.queue.ack(item, redelivered=True)
+            return "redelivered"
         log.error(
             "worker %s: map %s frame %s dead-lettered: %s", self.consumer, item.map_id or "?", item.frame_key or "?", reason
         )
         self.queue.dead_letter(item, reason)
+        return "dead"
 
 
 __all__ = [
