@@ -111,6 +111,7 @@ ARGUMENTS = {
     "digest": "<digest>",
     "key_id": "<key-id>",
     "lease_key": "<lock or claim key>",
+    "entry_id": "<entry>",
 }
 PLACEHOLDERS = [(":7", ":<id>"), (":1:2:3", ":<i>:<j>:<k>"), (":map:m:", ":map:<m>:")]
 
