@@ -63,7 +63,14 @@ def main() -> int:
     parser.add_argument("--sequence", choices=sorted(SEQUENCES), default="hololens")
     parser.add_argument("--shared", type=Path, default=None, help="folder with data/ and models/ (default ../shared)")
     parser.add_argument("--out", type=Path, default=None, help="JSON (default bench/results/sweep_<sequence>.json)")
+    parser.add_argument("--only", default=None, help="comma-separated names: sweep these alone (default: all tuned)")
+    parser.add_argument("--stride", type=int, default=1, help="map every N-th frame (a device sending fewer; default 1)")
     args = parser.parse_args()
+    only = None if args.only is None else set(args.only.split(","))
+    if only is not None and not only <= set(TUNED_PARAMS) | set(TUNED_CONSTANTS):
+        raise SystemExit(f"--only: not tuned here: {sorted(only - set(TUNED_PARAMS) - set(TUNED_CONSTANTS))}")
+    if args.stride < 1:
+        raise SystemExit("--stride: expected an integer >= 1")
     from arcloud.accuracy.scannet import default_shared_dir
     from arcloud.accuracy.sevenscenes import MODELS_REL, SEQUENCE_REL, score_against
     from arcloud.core import boxes
@@ -85,7 +92,7 @@ def main() -> int:
     defaults = frame.params(Params())
     model = shared / MODELS_REL["yolo11n"]
     detector = CachedDetector(make_detector(f"onnx:{model}"))
-    frames = LazyFrames(list(sequence.frame_names), sequence.load_frame, cache=False)
+    frames = LazyFrames(list(sequence.frame_names)[:: args.stride], sequence.load_frame, cache=False)
 
     def figures(params: Params) -> dict[str, float]:
         objects = run_map(frames, detector, params, new_store=MemoryStore, map_id=sequence.name)
@@ -101,6 +108,7 @@ def main() -> int:
         for value in moved(getattr(defaults, name))
     ]
     runs += [(name, value, None) for name in TUNED_CONSTANTS for value in moved(getattr(boxes, name))]
+    runs = [run for run in runs if only is None or run[0] in only]
     for name, value, params_of in runs:
         if params_of is not None:
             result = figures(params_of(value))
@@ -116,7 +124,7 @@ def main() -> int:
     out = args.out or Path("bench/results") / f"sweep_{args.sequence}.json"
     payload = {
         "benchmark": "tuned parameters at 0.75x and 1.25x, one ordered user, observed boxes",
-        "sequence": sequence.name, "root": str(root), "frames": len(frames), "model": model.name,
+        "sequence": sequence.name, "root": str(root), "frames": len(frames), "stride": args.stride, "model": model.name,
         "defaults": base, "rows": rows, "max_change": MAX_CHANGE,
         "over": [r["parameter"] + f" = {r['value']}" for r in rows if r["largest_change"] > MAX_CHANGE],
         "wall_s": round(time.perf_counter() - started, 1),
