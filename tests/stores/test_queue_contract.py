@@ -165,6 +165,17 @@ def test_dead_letters_are_counted_failed_and_may_be_posted_again(queue: FrameQue
     assert not queue.known_map(MAP) and queue.map_counts(MAP) == (0, 0)
 
 
+def test_a_frame_dead_lettered_twice_counts_one_failed_frame(queue: FrameQueue) -> None:
+    # Two workers that gave one entry up (one paused between giving it up in the store and dead-lettering it while
+    # the other claimed it and did both): one failed frame, in the map's counts and in the queue's stats.
+    queue.put(frame(5))
+    item = queue.take("c1", block_s=0.5)
+    assert item is not None
+    queue.dead_letter(item, "delivered too often")
+    queue.dead_letter(item, "delivered too often")
+    assert queue.map_counts(MAP) == (1, 1) and queue.stats().failed == 1 and queue.stats().queue_depth == 0
+
+
 def test_a_failed_frame_is_counted_failed_in_process_and_delivered_again_on_redis(queue: FrameQueue) -> None:
     queue.put(frame(4))
     item = queue.take("c1", block_s=0.5)

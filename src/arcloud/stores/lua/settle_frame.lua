@@ -14,20 +14,13 @@
 -- the reason, ARGV[12] deliveries, ARGV[13] the consumer, ARGV[14] max_dead_letters,
 -- ARGV[15] max_dead_letter_bytes (the shard's shares).
 -- A frame's record is written only where it is still kept (not when its map was forgotten meanwhile).
--- Returns 1 when this call settled the entry, 0 when it was settled before.
+-- Returns 1 when this call settled the entry, 0 when it was settled before (a failure is then not counted
+-- again: two workers that gave one entry up count one failed frame).
 local stream, stats, backlog = KEYS[1], KEYS[2], KEYS[3]
 local status_key, sweep_key, counts_key = KEYS[4], KEYS[5], KEYS[6]
 local dead_stream, dead_bytes = KEYS[7], KEYS[8]
 local entry_id, map_id, frame_key, now = ARGV[2], ARGV[3], ARGV[4], ARGV[6]
 local outcome = ARGV[10]
-
-local counters = cjson.decode(ARGV[9])
-for name, n in pairs(counters.add) do
-  redis.call('HINCRBY', stats, name, n)
-end
-for name, seconds in pairs(counters.sums or {}) do
-  redis.call('HINCRBYFLOAT', stats, name, seconds)
-end
 
 local dead = {}
 if outcome == 'failed' then
@@ -37,7 +30,18 @@ if outcome == 'failed' then
   end
 end
 redis.call('XACK', stream, ARGV[1], entry_id)
-if redis.call('XDEL', stream, entry_id) == 0 then
+local settled_now = redis.call('XDEL', stream, entry_id) == 1
+
+if settled_now or outcome ~= 'failed' then
+  local counters = cjson.decode(ARGV[9])
+  for name, n in pairs(counters.add) do
+    redis.call('HINCRBY', stats, name, n)
+  end
+  for name, seconds in pairs(counters.sums or {}) do
+    redis.call('HINCRBYFLOAT', stats, name, seconds)
+  end
+end
+if not settled_now then
   return 0
 end
 
