@@ -42,6 +42,7 @@ PUBLIC = {
     "arcloud.errors": [
         "ArcloudError",
         "DatasetError",
+        "FrameGivenUp",
         "InvalidInput",
         "LockTimeout",
         "MapMismatch",

@@ -3,6 +3,7 @@
 from arcloud.core.errors import (
     ArcloudError,
     DatasetError,
+    FrameGivenUp,
     InvalidInput,
     LockTimeout,
     MapMismatch,
@@ -16,6 +17,7 @@ from arcloud.core.errors import (
 __all__ = [
     "ArcloudError",
     "DatasetError",
+    "FrameGivenUp",
     "InvalidInput",
     "LockTimeout",
     "MapMismatch",

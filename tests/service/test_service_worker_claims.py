@@ -70,7 +70,7 @@ def test_a_frame_given_up_while_its_worker_was_paused_is_not_committed_by_it(wor
     first, second = workers
     started, claimed = taken_over(first, second)
     assert second.handle(claimed) == "dead"
-    assert first.finish(started) == "failed"  # its commit refused: nothing written, nothing settled, nothing counted
+    assert first.finish(started) == "dead"  # its commit refused at once: nothing written, settled, counted or retried
     assert counts(first) == (1, 0, 1) and first.store.list_objects(MAP) == [] and "first" not in first.queue.stats().workers
     [failed] = first.queue.failed_frames(MAP, 10)
     assert failed.retriable and failed.reason == "delivered 2 times (max 1)"

@@ -11,7 +11,9 @@
     └── StoreError               the object store failed
         ├── LockTimeout          per-object locks or space claims not acquired in time
         ├── StaleLease           a write whose lock expired or whose object changed since it was read
-        │                        (fencing): nothing was written
+        │   │                    (fencing): nothing was written
+        │   └── FrameGivenUp     a commit from a queue entry given up (dead-lettered): nothing was written, and
+        │                        the frame is no longer this delivery's to settle
         ├── StoreUnavailable     the store's server cannot be reached
         ├── MapMismatch          a map was built with other settings (voxel size, up, ...) than ours
         └── MapBeingDeleted      the map's deletion is under way (``arcloud.ports``; HTTP 409)
@@ -64,6 +66,11 @@ class LockTimeout(StoreError):
 
 class StaleLease(StoreError):
     """A write was refused: its lease expired, or an object changed since it was read. Nothing was written."""
+
+
+class FrameGivenUp(StaleLease):
+    """A commit was refused because the queue entry its frame was delivered from was given up (another worker
+    dead-lettered it: ``MapStore.give_up_frame``). Nothing was written; trying again cannot help."""
 
 
 class StoreUnavailable(StoreError):

@@ -59,7 +59,7 @@ from typing import TYPE_CHECKING, Literal
 
 from arcloud.core.change import MapChange
 from arcloud.core.types import Detection, Frame, MapObject, Params
-from arcloud.errors import ArcloudError, InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
+from arcloud.errors import ArcloudError, FrameGivenUp, InvalidInput, LockTimeout, MapMismatch, StaleLease, StoreUnavailable
 from arcloud.ports import (
     Detector,
     FrameConsumer,
@@ -191,6 +191,8 @@ def run_step(
     for attempt in range(1, attempts + 1):
         try:
             return integrate_frame(frame, detections, store, params), attempt - 1
+        except FrameGivenUp:  # another worker gave the frame up: no later attempt may write it either
+            raise
         except RETRYABLE as exc:
             if attempt == attempts:
                 raise
@@ -493,12 +495,17 @@ class FrameWorker:
             # deletion under way, so a frame queued before its DELETE does not bring the map back.
             check_map_header(self.store, frame.map_id, self.params, open_new=True)
             result, retries = run_step(frame, detections, locks, self.params, attempts=self.attempts)
+        except FrameGivenUp as exc:  # paused past its claim: another worker gave the frame up and settled it
+            log.warning("worker %s: map %s frame %s not written: %s", self.consumer, item.map_id, item.frame_key, exc)
+            return "dead"
         except MapMismatch as exc:  # this worker's settings are wrong for the map: leave the frame to others
             log.error("worker %s: map %s frame %s refused: %s", self.consumer, item.map_id, item.frame_key, exc)
             self.queue.fail(item, f"{type(exc).__name__}: {exc}")
             return "failed"
-        except (InvalidInput, MapBeingDeleted) as exc:  # every delivery would fail the same way
+        except InvalidInput as exc:  # every delivery would fail the same way
             return self._dead_letter(item, f"{type(exc).__name__}: {exc}")
+        except MapBeingDeleted as exc:  # as would every delivery; the map's keys are going: nothing to give up there
+            return self._dead_letter(item, f"{type(exc).__name__}: {exc}", give_up=False)
         except Exception as exc:  # the queue decides: delivered again later, or failed
             log.exception(
                 "worker %s: map %s frame %s (device %s) failed (delivery %d of %d)",
@@ -531,11 +538,17 @@ class FrameWorker:
                 "worker %s: map %s: publishing its change log failed; the next sweep does", self.consumer, map_id, exc_info=True
             )
 
-    def _dead_letter(self, item: QueuedFrame, reason: str) -> Outcome:
+    def _dead_letter(self, item: QueuedFrame, reason: str, *, give_up: bool = True) -> Outcome:
         """Give the frame up: first in the store, so that no delivery of its entry commits it after it counts as
         failed (a worker paused past its claim; ``MapStore.give_up_frame``), then to the queue's dead letters. A
-        frame some delivery committed already is acknowledged instead: it counts once, as processed."""
-        if item.map_id and item.frame_key and not self.store.give_up_frame(item.map_id, item.frame_key, item.entry_id):
+        frame some delivery committed already is acknowledged instead: it counts once, as processed. Not in the
+        store (``give_up`` False) while the map is being deleted: its mark would outlive the map's keys."""
+        if (
+            give_up
+            and item.map_id
+            and item.frame_key
+            and not self.store.give_up_frame(item.map_id, item.frame_key, item.entry_id)
+        ):
             self.queue.ack(item, redelivered=True)
             return "redelivered"
         log.error(

@@ -27,7 +27,7 @@ from arcloud.core.change import ChangesSince, LoggedChange, MapChange, changes_a
 from arcloud.core.header import MapHeader
 from arcloud.core.ports import MAX_CELLS_PER_CALL, Lease
 from arcloud.core.types import MapObject
-from arcloud.errors import InvalidInput, LockTimeout, StaleLease, TooManyCells
+from arcloud.errors import FrameGivenUp, InvalidInput, LockTimeout, StaleLease, TooManyCells
 from arcloud.ports import (
     DEFAULT_CHANGE_LOG_ENTRIES,
     DEFAULT_FRAME_RECORD_RETENTION_S,
@@ -233,7 +233,7 @@ class MemoryStore:
         with state.changed:
             given_up_at_s = state.given_up.get(entry_id) if entry_id is not None else None
             if given_up_at_s is not None and given_up_at_s >= self._clock() - self.frame_record_retention_s:
-                raise StaleLease(f"map {map_id}: frame {frame_key} of queue entry {entry_id} was given up; nothing written")
+                raise FrameGivenUp(f"map {map_id}: frame {frame_key} of queue entry {entry_id} was given up; nothing written")
             if frame_key is not None and self._recorded(state, frame_key):
                 return False
             now = time.monotonic()

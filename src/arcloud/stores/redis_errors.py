@@ -29,7 +29,7 @@ from contextlib import contextmanager
 
 from redis import exceptions as rx
 
-from arcloud.errors import StaleLease, StoreError, StoreUnavailable
+from arcloud.errors import FrameGivenUp, StaleLease, StoreError, StoreUnavailable
 
 #: Each exception class of ``redis.exceptions`` -> what it becomes (a class's most specific listed base decides).
 REDIS_ERRORS: dict[type[Exception], type[StoreError]] = {
@@ -79,6 +79,7 @@ REDIS_ERRORS: dict[type[Exception], type[StoreError]] = {
 UNAVAILABLE_REPLIES = frozenset({"BUSY", "NOREPLICAS", "MISCONF"})
 #: The error code of a store script whose fence failed (``lua/commit.lua``).
 STALE_REPLY = "STALE"
+GIVEN_UP_REPLY = "GIVENUP"  # commit.lua: the frame's queue entry was given up (``FrameGivenUp``)
 #: What redis-py puts before a reply's error in a pipeline ("Command # 2 (HGET ...) of pipeline caused error: BUSY ...").
 _PIPELINE_ERROR = "caused error: "
 _CAUGHT = tuple(REDIS_ERRORS)
@@ -97,6 +98,8 @@ def mapped(exc: Exception, doing: str, at: str) -> StoreError:
     code = reply_code(exc) if isinstance(exc, rx.ResponseError) else ""
     if code == STALE_REPLY:
         return StaleLease(str(exc).split(f"{STALE_REPLY} ", 1)[1])
+    if code == GIVEN_UP_REPLY:
+        return FrameGivenUp(str(exc).split(f"{GIVEN_UP_REPLY} ", 1)[1])
     kind = next((REDIS_ERRORS[c] for c in type(exc).__mro__ if c in REDIS_ERRORS), StoreError)
     if code in UNAVAILABLE_REPLIES:
         kind = StoreUnavailable
@@ -116,4 +119,4 @@ def redis_errors(doing: str, at: str | Callable[[], str]) -> Iterator[None]:
         raise mapped(exc, doing, at() if callable(at) else at) from exc
 
 
-__all__ = ["REDIS_ERRORS", "STALE_REPLY", "UNAVAILABLE_REPLIES", "mapped", "redis_errors", "reply_code"]
+__all__ = ["GIVEN_UP_REPLY", "REDIS_ERRORS", "STALE_REPLY", "UNAVAILABLE_REPLIES", "mapped", "redis_errors", "reply_code"]

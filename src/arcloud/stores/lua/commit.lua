@@ -46,7 +46,8 @@ end
 -- A delivery of an entry given up (its frame counted failed) writes nothing, whatever else holds.
 local given_up_at = req.entry_id ~= '' and redis.call('GET', prefix .. ':given-up:' .. req.entry_id)
 if given_up_at and tonumber(given_up_at) >= cutoff then
-  return stale('frame ' .. req.frame .. ' of queue entry ' .. req.entry_id .. ' was given up (dead-lettered)')
+  return redis.error_reply('GIVENUP ' .. prefix .. ': frame ' .. req.frame .. ' of queue entry ' .. req.entry_id
+    .. ' was given up (dead-lettered); nothing written')
 end
 if req.frame ~= '' then
   local recorded_at = redis.call('HGET', frames_key, req.frame)
