@@ -48,9 +48,10 @@ PROBLEM_TYPES: dict[str, ProblemType] = {
         ProblemType(
             "bad-request",
             "Malformed request",
-            (400,),
+            (400, 431),
             "The request could not be read: a malformed HTTP request, multipart body or Content-Length, or a body the "
-            "client stopped sending. Fix the request; sending it again as it is fails the same way.",
+            "client stopped sending (400); a request line and headers over 64 kB (431). Fix the request; sending it "
+            "again as it is fails the same way.",
         ),
         ProblemType(
             "unauthorized",
@@ -78,7 +79,7 @@ PROBLEM_TYPES: dict[str, ProblemType] = {
             "Body too slow",
             (408,),
             "The body did not arrive whole within ARCLOUD_BODY_TIMEOUT_S of its first byte; `field` is `body`. Send it "
-            "again at a steadier rate.",
+            "again at a steadier rate. Or the request line and headers did not within 10 s; `field` is null.",
         ),
         ProblemType(
             "map-mismatch",
