@@ -628,6 +628,20 @@ def test_a_wrong_number_in_the_pose_is_named_by_its_place(client: AppClient) -> 
     assert post({**meta, "cam2world": rows})["detail"] == "meta.cam2world.2.3: expected a valid number, got '2'"
 
 
+@pytest.mark.parametrize(
+    "rows", [[[1, 0, 0, 0, 0], [1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], [[], list(range(16))]], ids=["5, 3, 4, 4", "0, 16"]
+)
+def test_a_pose_in_rows_of_other_lengths_is_refused_not_flattened(client: AppClient, rows: list) -> None:
+    """A hostile client's review: ragged rows of 16 numbers in all were flattened into some other matrix (202)."""
+    parts = multipart_parts(make_test_frame(5))
+    meta = json.loads(parts["meta"][1])
+    for field in ("cam2world", "device_from_map"):
+        files = {**parts, "meta": ("meta.json", json.dumps({**meta, field: rows}).encode(), "application/json")}
+        answer = client.post("/v1/maps/m/frames", files=files)
+        assert answer.status_code == 422 and answer.json()["field"] == f"meta.{field}", answer.text
+        assert "4 rows of 4" in answer.json()["detail"] and "rows of [" in answer.json()["detail"]
+
+
 def test_a_meta_with_a_byte_order_mark_is_read_as_before(client: AppClient) -> None:
     """A review: the strict reading refused a meta starting with a UTF-8 BOM (``json.loads`` reads it), with a garbled
     detail."""

@@ -13,6 +13,8 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from arcloud.errors import InvalidInput
+
 Vec3 = tuple[float, float, float]
 ObjectStatus = Literal["confirmed", "tentative"]
 PoseConventionName = Literal["opencv", "arkit", "arcore"]  # core.conventions.POSE_CONVENTIONS
@@ -82,16 +84,21 @@ class FrameMeta(BaseModel):
     )
 
     def flat_pose(self) -> list[float]:
-        return _flat(self.cam2world)
+        return _flat(self.cam2world, "meta.cam2world")
 
     def flat_device_from_map(self) -> list[float]:
-        return [] if self.device_from_map is None else _flat(self.device_from_map)
+        return [] if self.device_from_map is None else _flat(self.device_from_map, "meta.device_from_map")
 
 
-def _flat(matrix: list[float] | list[list[float]]) -> list[float]:
-    """The numbers of a matrix given flat or as rows, row by row."""
+def _flat(matrix: list[float] | list[list[float]], field: str) -> list[float]:
+    """The numbers of a 4x4 matrix given flat or as rows, row by row; rows of other lengths are ``InvalidInput``
+    naming ``field`` (flattened, ragged rows made some other matrix of 16 numbers)."""
     if matrix and isinstance(matrix[0], list):
-        return [float(v) for row in matrix for v in row]
+        rows = [row for row in matrix if isinstance(row, list)]
+        if len(rows) != len(matrix) or len(rows) != 4 or any(len(row) != 4 for row in rows):
+            lengths = [len(row) if isinstance(row, list) else 1 for row in matrix]
+            raise InvalidInput(field, "16 numbers (row-major 4x4) or 4 rows of 4", f"rows of {lengths} numbers")
+        return [float(v) for row in rows for v in row]
     return [float(v) for v in matrix]  # type: ignore[arg-type]  # not nested: a flat list of numbers
 
 
@@ -111,7 +118,7 @@ class DeviceAlignmentIn(BaseModel):
     )
 
     def flat(self) -> list[float]:
-        return _flat(self.device_from_map)
+        return _flat(self.device_from_map, "device_from_map")
 
 
 class DeviceAlignment(BaseModel):
