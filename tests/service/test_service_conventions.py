@@ -188,7 +188,7 @@ def test_alignment_routes_store_check_list_and_forget(client: AppClient) -> None
     for bad, says in [
         (tilted.tolist(), "tilts up by 11.46 degrees"),
         (scaled.tolist(), "orthonormal rotation"),
-        ([[1.0, 0.0], [0.0, 1.0]], "shape (4, 4)"),
+        ([[1.0, 0.0], [0.0, 1.0]], "4 rows of 4, got rows of [2, 2] numbers"),
         (np.eye(4).reshape(16)[:12].tolist(), "shape (4, 4)"),
         ([[1, 0, 0, 1e9], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "a translation of at most 10000 m"),
     ]:
