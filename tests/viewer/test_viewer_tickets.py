@@ -103,6 +103,11 @@ def test_a_ticket_of_another_map_a_wrong_or_an_expired_one_is_refused(service: S
         wrong = "A" * 43
         assert_problem(browser.post("/v1/maps/room/viewer-session", json={"ticket": wrong}), 401, "viewer-tickets")
         assert_problem(browser.post("/v1/maps/room/viewer-session", json={"ticket": "short"}), 401, "unknown")
+        not_json = browser.post(
+            "/v1/maps/room/viewer-session", content=b"ticket=abc", headers={"content-type": "application/json"}
+        )
+        assert_problem(not_json, 400, "body: expected a JSON document")
+        assert not_json.json()["field"] == "body"
         expired = service.ticket("room", service.tokens["reader"])["ticket"]
         time.sleep(TICKET_S + 0.1)
         assert_problem(browser.post("/v1/maps/room/viewer-session", json={"ticket": expired}), 401, "expired")

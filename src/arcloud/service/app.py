@@ -906,6 +906,10 @@ def create_app(settings: Settings, connect: Connect) -> FastAPI:
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, exc: RequestValidationError) -> Response:
         first = first_error(exc.errors()) if exc.errors() else {"loc": (), "msg": "a valid request"}
+        if first.get("type") == "json_invalid":  # not JSON at all: a malformed body, not a wrong value (was 422, field "0")
+            ctx = first.get("ctx")
+            reason = str(ctx.get("error", "invalid")) if isinstance(ctx, dict) else "invalid"
+            return problem(request, 400, f"body: expected a JSON document, got one that is not ({reason})", "body")
         where = validation_location(first["loc"][1:]) or validation_location(first["loc"])
         got = "none" if first.get("type") == "missing" else None if first.get("input") is None else repr(first["input"])
         detail = f"{where}: expected {validation_wording(first)}" + (f", got {got}" if got is not None else "")

@@ -49,9 +49,9 @@ PROBLEM_TYPES: dict[str, ProblemType] = {
             "bad-request",
             "Malformed request",
             (400, 431),
-            "The request could not be read: a malformed HTTP request, multipart body or Content-Length, or a body the "
-            "client stopped sending (400); a request line and headers over 64 kB (431). Fix the request; sending it "
-            "again as it is fails the same way.",
+            "The request could not be read: a malformed HTTP request, multipart body or Content-Length, a JSON body "
+            "that is not JSON, or a body the client stopped sending (400); a request line and headers over 64 kB "
+            "(431). Fix the request; sending it again as it is fails the same way.",
         ),
         ProblemType(
             "unauthorized",
