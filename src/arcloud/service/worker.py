@@ -12,7 +12,7 @@ The same loop runs as a thread beside the API (embedded queue) and in worker pro
    settling it (it died or hangs). Beyond ``max_deliveries`` it is a poison frame: dead-lettered (or,
    when a slow delivery did commit it meanwhile, acknowledged as redelivered). Otherwise processed here.
    A frame is given up in the store before it is dead-lettered (``MapStore.give_up_frame``, atomic with the
-   commits): the worker that held it, paused past its claim, then has its commit refused (``StaleLease``)
+   commits): the worker that held it, paused past its claim, then has its commit refused (``FrameGivenUp``)
    and settles nothing, so the frame is never both in the map and failed.
 2. Take one new frame (blocking ``read_block_s`` while no other frame is in hand), process it.
 3. Processing: an undecodable frame is dead-lettered at once; the frame is detected (holding nothing of
